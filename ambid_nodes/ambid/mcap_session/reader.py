@@ -1,0 +1,448 @@
+"""Read an ambid session MCAP file: messages, metadata, and recovery of killed writers.
+
+Two ways in:
+
+- normal (``recover=False``): the summary at the end of the file is used to
+  visit only the chunks needed, in log-time order; a file without footer
+  raises :class:`IncompleteSessionError`.
+- recovery (``recover=True``): the file is read front to back record by
+  record, as a killed writer left it; reading stops cleanly at the first
+  truncated or corrupt record, so every complete chunk is returned.
+  :func:`scan_session` tells how many messages that is and whether the file
+  was complete.
+
+Both stream: memory holds the chunks whose time ranges overlap (one or two
+for a recorder), never the whole file. Pure Python (mcap, mcap_ros2).
+"""
+
+from __future__ import annotations
+
+import heapq
+import io
+import os
+import struct
+from dataclasses import dataclass, field
+from typing import Any, Iterable, Iterator
+
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import McapError
+from mcap.opcode import Opcode
+from mcap.reader import make_reader
+from mcap.records import (
+    Attachment,
+    Channel,
+    Chunk,
+    Footer,
+    Header,
+    Message,
+    Metadata,
+    Schema,
+)
+from mcap.stream_reader import breakup_chunk
+
+__all__ = [
+    "MCAP_MAGIC",
+    "IncompleteSessionError",
+    "SessionMessage",
+    "SessionScan",
+    "iter_messages",
+    "iter_decoded",
+    "read_metadata",
+    "scan_session",
+]
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+class IncompleteSessionError(ValueError):
+    """The file has no valid footer (writer killed or disk full); use ``recover=True``."""
+
+
+@dataclass(frozen=True)
+class SessionMessage:
+    """One recorded message.
+
+    Attributes:
+        topic: topic name.
+        type_name: ``pkg/msg/Type`` (schema name; ``""`` without schema).
+        log_time_ns: receive time [ns].
+        publish_time_ns: send time [ns].
+        sequence: publisher sequence number (0 if unknown).
+        data: serialized CDR bytes exactly as written.
+    """
+
+    topic: str
+    type_name: str
+    log_time_ns: int
+    publish_time_ns: int
+    sequence: int
+    data: bytes
+
+
+@dataclass(frozen=True)
+class SessionScan:
+    """What a front-to-back scan of a session file found.
+
+    Attributes:
+        path: file scanned.
+        complete: True if the file ends with a footer and the closing magic
+            (the writer called ``close()``).
+        message_count: messages in complete records (all recoverable ones).
+        topic_message_counts: ``{topic: count}``.
+        topic_types: ``{topic: "pkg/msg/Type"}``.
+        channel_metadata: ``{topic: {"offered_qos_profiles": ..., ...}}``.
+        schemas: ``{"pkg/msg/Type": schema text}``.
+        metadata: ``{record name: {key: value}}``; a later record of the same
+            name updates the earlier one's keys.
+        attachments: attachment names in file order.
+        chunk_count: complete chunks read.
+        compressions: chunk compressions seen (``""`` is none).
+        start_time_ns, end_time_ns: log-time range of the messages, or None.
+        topic_time_ranges: ``{topic: (first log time, last log time)}`` [ns].
+        profile, library: from the header.
+        valid_bytes: length of the readable prefix [bytes].
+        file_bytes: file size [bytes].
+        problem: why the scan stopped before a footer, or None.
+    """
+
+    path: str
+    complete: bool
+    message_count: int
+    topic_message_counts: dict[str, int]
+    topic_types: dict[str, str]
+    channel_metadata: dict[str, dict[str, str]]
+    schemas: dict[str, str]
+    metadata: dict[str, dict[str, str]]
+    attachments: tuple[str, ...]
+    chunk_count: int
+    compressions: tuple[str, ...]
+    start_time_ns: int | None
+    end_time_ns: int | None
+    topic_time_ranges: dict[str, tuple[int, int]]
+    profile: str
+    library: str
+    valid_bytes: int
+    file_bytes: int
+    problem: str | None
+
+
+@dataclass
+class _LinearState:
+    """Progress of one linear scan (mutable, private to a scan)."""
+
+    header: Header | None = None
+    schemas: dict[int, Schema] = field(default_factory=dict)
+    channels: dict[int, Channel] = field(default_factory=dict)
+    valid_bytes: int = 0
+    file_bytes: int = 0
+    complete: bool = False
+    problem: str | None = None
+
+
+def _linear_records(f: io.BufferedReader, state: _LinearState) -> Iterator[tuple[int, Any]]:
+    """Yield ``(offset, record)`` of the data section; chunks as ``(offset, (Chunk, [records]))``.
+
+    Stops, setting ``state.problem``, at the first truncated or unparsable
+    record; sets ``state.complete`` when the footer and closing magic are found.
+    Summary-section records are skipped (they repeat the data section).
+    """
+    state.file_bytes = os.fstat(f.fileno()).st_size
+    magic = f.read(len(MCAP_MAGIC))
+    if magic != MCAP_MAGIC:
+        if len(magic) < len(MCAP_MAGIC) and MCAP_MAGIC.startswith(magic):
+            state.problem = "file ends inside the leading magic"
+            return
+        raise ValueError(f"{f.name} is not an MCAP file (bad leading magic {magic!r})")
+    state.valid_bytes = len(MCAP_MAGIC)
+    in_summary = False
+    while True:
+        offset = f.tell()
+        head = f.read(9)
+        if not head:
+            state.problem = "file ends without footer (writer did not close)"
+            return
+        if len(head) < 9:
+            state.problem = f"truncated record header at byte {offset}"
+            return
+        opcode, length = struct.unpack("<BQ", head)
+        if length > state.file_bytes - offset - 9:
+            state.problem = f"truncated record (opcode {opcode:#04x}, {length} bytes) at byte {offset}"
+            return
+        body = f.read(length)
+        stream = ReadDataStream(io.BytesIO(body))
+        try:
+            if opcode == Opcode.HEADER:
+                record: Any = Header.read(stream)
+                state.header = record
+            elif opcode == Opcode.DATA_END:
+                in_summary = True
+                record = None
+            elif opcode == Opcode.FOOTER:
+                record = Footer.read(stream)
+            elif in_summary:
+                record = None
+            elif opcode == Opcode.SCHEMA:
+                record = Schema.read(stream)
+                state.schemas[record.id] = record
+            elif opcode == Opcode.CHANNEL:
+                record = Channel.read(stream)
+                state.channels[record.id] = record
+            elif opcode == Opcode.MESSAGE:
+                record = Message.read(stream, length)
+            elif opcode == Opcode.CHUNK:
+                chunk = Chunk.read(stream)
+                inner = breakup_chunk(chunk, validate_crc=True)
+                for rec in inner:
+                    if isinstance(rec, Schema):
+                        state.schemas[rec.id] = rec
+                    elif isinstance(rec, Channel):
+                        state.channels[rec.id] = rec
+                record = (chunk, inner)
+            elif opcode == Opcode.METADATA:
+                record = Metadata.read(stream)
+            elif opcode == Opcode.ATTACHMENT:
+                record = Attachment.read(stream)
+            else:
+                record = None  # indexes: rebuilt by readers from the data itself
+        except (McapError, ValueError, struct.error, UnicodeDecodeError, EOFError) as exc:
+            # zstandard.ZstdError and CRC mismatches derive from ValueError/Exception.
+            state.problem = f"corrupt record (opcode {opcode:#04x}) at byte {offset}: {exc}"
+            return
+        except Exception as exc:  # decompressor errors of optional codecs
+            state.problem = f"corrupt record (opcode {opcode:#04x}) at byte {offset}: {exc!r}"
+            return
+        state.valid_bytes = offset + 9 + length
+        if isinstance(record, Footer):
+            tail = f.read(len(MCAP_MAGIC))
+            if tail == MCAP_MAGIC:
+                state.complete = True
+                state.valid_bytes += len(MCAP_MAGIC)
+            else:
+                state.problem = "footer not followed by the closing magic"
+            return
+        if record is not None:
+            yield offset, record
+
+
+def _schema_for(state: _LinearState, channel: Channel) -> Schema | None:
+    return state.schemas.get(channel.schema_id) if channel.schema_id else None
+
+
+def _recover_raw(
+    path: str | os.PathLike, topics: set[str] | None, state: _LinearState
+) -> Iterator[tuple[Schema | None, Channel, Message]]:
+    """Messages of a linear scan in log-time order (ties in file order)."""
+    heap: list[tuple[int, int, int, Message]] = []
+
+    def release(before_or_at: int | None) -> Iterator[tuple[Schema | None, Channel, Message]]:
+        while heap and (before_or_at is None or heap[0][0] <= before_or_at):
+            _, _, _, msg = heapq.heappop(heap)
+            channel = state.channels[msg.channel_id]
+            yield _schema_for(state, channel), channel, msg
+
+    with open(path, "rb") as f:
+        for offset, record in _linear_records(f, state):
+            if isinstance(record, tuple):
+                chunk, inner = record
+                messages = [(i, r) for i, r in enumerate(inner) if isinstance(r, Message)]
+                if not messages:
+                    continue
+                # Nothing later in the file can precede the chunk's start time
+                # unless chunks overlap; those messages stay in the heap.
+                yield from release(chunk.message_start_time)
+            elif isinstance(record, Message):
+                messages = [(0, record)]
+                yield from release(record.log_time)
+            else:
+                continue
+            for index, msg in messages:
+                channel = state.channels.get(msg.channel_id)
+                if channel is None:
+                    state.problem = f"message at byte {offset} refers to unknown channel {msg.channel_id}"
+                    continue
+                if topics is None or channel.topic in topics:
+                    heapq.heappush(heap, (msg.log_time, offset, index, msg))
+    yield from release(None)
+
+
+def _normal_raw(
+    path: str | os.PathLike, topics: set[str] | None
+) -> Iterator[tuple[Schema | None, Channel, Message]]:
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        try:
+            reader.get_summary()
+        except (McapError, struct.error, OSError, ValueError) as exc:
+            raise IncompleteSessionError(
+                f"{os.fspath(path)} has no valid MCAP footer/summary ({exc}); the writer was "
+                "killed or the disk filled up: read it with recover=True"
+            ) from exc
+        yield from reader.iter_messages(topics=None if topics is None else sorted(topics), log_time_order=True)
+
+
+def _iter_raw(
+    path: str | os.PathLike, topics: Iterable[str] | str | None, recover: bool
+) -> Iterator[tuple[Schema | None, Channel, Message]]:
+    if isinstance(topics, str):
+        topics = [topics]
+    wanted = None if topics is None else set(topics)
+    if recover:
+        yield from _recover_raw(path, wanted, _LinearState())
+    else:
+        yield from _normal_raw(path, wanted)
+
+
+def _to_session_message(schema: Schema | None, channel: Channel, msg: Message) -> SessionMessage:
+    return SessionMessage(
+        topic=channel.topic,
+        type_name=schema.name if schema is not None else "",
+        log_time_ns=msg.log_time,
+        publish_time_ns=msg.publish_time,
+        sequence=msg.sequence,
+        data=bytes(msg.data),
+    )
+
+
+def iter_messages(
+    path: str | os.PathLike, topics: Iterable[str] | str | None = None, *, recover: bool = False
+) -> Iterator[SessionMessage]:
+    """Messages of a session in log-time order (equal times in file order).
+
+    Args:
+        path: session ``.mcap`` file.
+        topics: only these topics; ``None`` for all.
+        recover: read a file without summary/footer (killed writer) front to
+            back, stopping cleanly at its truncated tail.
+
+    Yields:
+        :class:`SessionMessage` with the raw CDR bytes.
+
+    Raises:
+        IncompleteSessionError: without ``recover`` on a file lacking a footer.
+    """
+    for schema, channel, msg in _iter_raw(path, topics, recover):
+        yield _to_session_message(schema, channel, msg)
+
+
+def iter_decoded(
+    path: str | os.PathLike, topics: Iterable[str] | str | None = None, *, recover: bool = False
+) -> Iterator[tuple[SessionMessage, Any]]:
+    """Like :func:`iter_messages`, also decoding each message with mcap_ros2.
+
+    Yields:
+        ``(message, decoded)`` where ``decoded`` is mcap_ros2's dynamic
+        object (attributes named like the .msg fields; arrays as lists or
+        ``array.array``).
+    """
+    from mcap_ros2.decoder import DecoderFactory
+
+    factory = DecoderFactory()
+    decoders: dict[int, Any] = {}
+    for schema, channel, msg in _iter_raw(path, topics, recover):
+        decoder = decoders.get(channel.id)
+        if decoder is None:
+            decoder = factory.decoder_for(channel.message_encoding, schema)
+            if decoder is None:
+                raise ValueError(
+                    f"topic {channel.topic} has encoding {channel.message_encoding!r} and schema "
+                    f"{schema.encoding if schema else None!r}; only cdr/ros2msg can be decoded"
+                )
+            decoders[channel.id] = decoder
+        yield _to_session_message(schema, channel, msg), decoder(msg.data)
+
+
+def read_metadata(path: str | os.PathLike, *, recover: bool = False) -> dict[str, dict[str, str]]:
+    """MCAP metadata records of a session: ``{name: {key: value}}``.
+
+    Session facts are under ``"ambid.session"``, rosbag2's bag metadata under
+    ``"rosbag2"`` (only in closed files). Later records of one name update
+    earlier ones.
+    """
+    if recover:
+        return scan_session(path).metadata
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        try:
+            records = list(reader.iter_metadata())
+        except (McapError, struct.error, ValueError) as exc:
+            raise IncompleteSessionError(
+                f"{os.fspath(path)} has no valid MCAP footer/summary ({exc}): read it with recover=True"
+            ) from exc
+    out: dict[str, dict[str, str]] = {}
+    for rec in records:
+        out.setdefault(rec.name, {}).update(rec.metadata)
+    return out
+
+
+def scan_session(path: str | os.PathLike) -> SessionScan:
+    """Read a session front to back and report what is recoverable.
+
+    Works on complete files and on files a killed writer left (no summary,
+    truncated last chunk). Memory holds one chunk at a time.
+
+    Returns:
+        :class:`SessionScan` (message counts per topic, times, schemas,
+        metadata, whether the file was complete, where and why reading stopped).
+
+    Raises:
+        ValueError: if the file is not an MCAP file at all.
+    """
+    state = _LinearState()
+    counts: dict[str, int] = {}
+    ranges: dict[str, tuple[int, int]] = {}
+    metadata: dict[str, dict[str, str]] = {}
+    attachments: list[str] = []
+    compressions: set[str] = set()
+    chunk_count = 0
+    total = 0
+
+    def count(msg: Message) -> None:
+        nonlocal total
+        channel = state.channels.get(msg.channel_id)
+        if channel is None:
+            return
+        counts[channel.topic] = counts.get(channel.topic, 0) + 1
+        lo, hi = ranges.get(channel.topic, (msg.log_time, msg.log_time))
+        ranges[channel.topic] = (min(lo, msg.log_time), max(hi, msg.log_time))
+        total += 1
+
+    with open(path, "rb") as f:
+        for _, record in _linear_records(f, state):
+            if isinstance(record, tuple):
+                chunk, inner = record
+                chunk_count += 1
+                compressions.add(chunk.compression)
+                for rec in inner:
+                    if isinstance(rec, Message):
+                        count(rec)
+            elif isinstance(record, Message):
+                count(record)
+            elif isinstance(record, Metadata):
+                metadata.setdefault(record.name, {}).update(record.metadata)
+            elif isinstance(record, Attachment):
+                attachments.append(record.name)
+
+    channels = list(state.channels.values())
+    starts = [r[0] for r in ranges.values()]
+    ends = [r[1] for r in ranges.values()]
+    return SessionScan(
+        path=os.fspath(path),
+        complete=state.complete,
+        message_count=total,
+        topic_message_counts={c.topic: counts.get(c.topic, 0) for c in channels},
+        topic_types={c.topic: (_schema_for(state, c).name if _schema_for(state, c) else "") for c in channels},
+        channel_metadata={c.topic: dict(c.metadata) for c in channels},
+        schemas={s.name: s.data.decode("utf-8", errors="replace") for s in state.schemas.values()},
+        metadata=metadata,
+        attachments=tuple(attachments),
+        chunk_count=chunk_count,
+        compressions=tuple(sorted(compressions)),
+        start_time_ns=min(starts) if starts else None,
+        end_time_ns=max(ends) if ends else None,
+        topic_time_ranges=ranges,
+        profile=state.header.profile if state.header else "",
+        library=state.header.library if state.header else "",
+        valid_bytes=state.valid_bytes,
+        file_bytes=state.file_bytes,
+        problem=state.problem,
+    )

@@ -1,0 +1,1 @@
+"""Thin rclpy nodes of the ambid graph; the numerical work lives in ``ambid``."""
