@@ -1,0 +1,221 @@
+"""Noise and nonlinear-distortion analysis of periodic experiments.
+
+The "robust method" of Pintelon & Schoukens (System Identification: A
+Frequency Domain Approach, 2nd ed., 2012, ch. 3-4) for M realisations of a
+random-phase multisine, each measured over P steady-state periods:
+
+* per realisation m: ``G_m = Ybar_m Ubar_m^+`` (EIV ratio of the period
+  means; the indirect ``(Ybar R^H)(Ubar R^H)^-1`` when r is given) and the
+  noise variance of G_m from the period-to-period scatter of the per-period
+  solutions G_mp (:func:`ambid.frf.estimators.per_period_frf`)::
+
+      var_n(G_m) = sum_p |G_mp - mean_p G_mp|^2 / (P (P - 1))
+
+  (sample variance over P divided by P; the per-period solutions propagate
+  the input and output noise, and their correlation, to G to first order);
+* best linear approximation ``G_bla = mean_m G_m`` with::
+
+      var_noise = mean_m var_n(G_m) / M               (noise only)
+      var_total = sum_m |G_m - G_bla|^2 / (M (M - 1))  (noise + stochastic NL)
+      var_bla_nl = max(var_total - var_noise, 0)       (NL part of var(G_bla))
+      var_stochastic_nl = M * var_bla_nl               (var of G_s, one realisation)
+
+  The stochastic nonlinear contribution G_s of one realisation is what
+  changes with the random phases; ``var_stochastic_nl`` is its variance,
+  ``var G_s = M (var_BLA - var_BLA,n)`` as in the robust method.
+
+All variances are of complex quantities, ``E|X - E X|^2``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ambid.frf.estimators import _matched, _records, _right_divide, per_period_frf
+
+__all__ = [
+    "period_mean_variance", "frf_noise_variance", "BlaEstimate", "bla_robust",
+    "DistortionLevels", "distortion_levels", "output_noise_std",
+]
+
+
+def period_mean_variance(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean over the periods and the variance of that mean.
+
+    Args:
+        x: period spectra (M, Ne, P, L, n_ch), P >= 2.
+
+    Returns:
+        (mean, var_of_mean), each (M, Ne, L, n_ch); ``var_of_mean`` is the
+        sample variance over P (ddof 1) divided by P, in unit of x squared.
+    """
+    x = _matched(x=x)["x"]
+    p = x.shape[2]
+    if p < 2:
+        raise ValueError(f"period-to-period scatter needs P >= 2 periods, got P = {p}")
+    return x.mean(axis=2), x.var(axis=2, ddof=1) / p
+
+
+def frf_noise_variance(y: np.ndarray, u: np.ndarray,
+                       r: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """FRF of each realisation and its noise variance from period scatter.
+
+    Args:
+        y: output spectra (M, Ne, P, L, Ny), P >= 2.
+        u: input spectra (M, Ne, P, L, Nu).
+        r: excitation spectra (M, Ne, P or 1, L, Nu), optional; if given
+            ``G_m = (Ybar R^H)(Ubar R^H)^-1`` else ``G_m = Ybar Ubar^+``.
+
+    Returns:
+        (G_m, var_n): each (M, L, Ny, Nu); var_n is the noise variance of G_m.
+    """
+    s = _matched(y=y, u=u) if r is None else _matched(y=y, u=u, r=r)
+    p = s["y"].shape[2]
+    if p < 2:
+        raise ValueError(f"period-to-period scatter needs P >= 2 periods, got P = {p}")
+    gk = per_period_frf(y, u, r)                       # (M, P, L, Ny, Nu)
+    var_n = gk.var(axis=1, ddof=1) / p
+    ybar = _records(s["y"].mean(axis=2, keepdims=True))[:, 0]
+    ubar = _records(s["u"].mean(axis=2, keepdims=True))[:, 0]
+    ref = _records(s["r"].mean(axis=2, keepdims=True))[:, 0] if r is not None else ubar
+    ref_h = np.conj(np.swapaxes(ref, -1, -2))
+    g_m = _right_divide(ybar @ ref_h, ubar @ ref_h, "Ubar R^H")
+    return g_m, var_n
+
+
+@dataclass(frozen=True)
+class BlaEstimate:
+    """Best linear approximation with noise and nonlinear variances.
+
+    Attributes (arrays (L, Ny, Nu), unit of G, variances in unit of G squared):
+        frf: G_bla, mean over realisations.
+        frf_realisations: G_m per realisation (M, L, Ny, Nu).
+        var_noise: noise variance of G_bla (period scatter).
+        var_total: total variance of G_bla (realisation scatter).
+        var_bla_nl: max(var_total - var_noise, 0), NL part of var(G_bla).
+        var_stochastic_nl: M * var_bla_nl, variance of the stochastic
+            nonlinear contribution of one realisation.
+        n_realisations: M.
+        n_periods: P.
+    """
+
+    frf: np.ndarray
+    frf_realisations: np.ndarray
+    var_noise: np.ndarray
+    var_total: np.ndarray
+    var_bla_nl: np.ndarray
+    var_stochastic_nl: np.ndarray
+    n_realisations: int
+    n_periods: int
+
+
+def bla_robust(y: np.ndarray, u: np.ndarray, r: np.ndarray | None = None) -> BlaEstimate:
+    """Robust-method BLA from M >= 2 realisations of P >= 2 periods (see module doc).
+
+    Args:
+        y: output spectra at the excited lines (M, Ne, P, L, Ny).
+        u: input spectra (M, Ne, P, L, Nu).
+        r: excitation spectra (M, Ne, P or 1, L, Nu), optional (use it in
+            closed loop).
+
+    Returns:
+        :class:`BlaEstimate`.
+    """
+    g_m, var_n = frf_noise_variance(y, u, r)
+    m = g_m.shape[0]
+    if m < 2:
+        raise ValueError(f"the total (realisation-to-realisation) variance needs M >= 2 realisations, "
+                         f"got M = {m}; use frf_noise_variance for a single realisation")
+    g = g_m.mean(axis=0)
+    var_noise = var_n.mean(axis=0) / m
+    var_total = g_m.var(axis=0, ddof=1) / m
+    var_bla_nl = np.clip(var_total - var_noise, 0.0, None)
+    return BlaEstimate(frf=g, frf_realisations=g_m, var_noise=var_noise, var_total=var_total,
+                       var_bla_nl=var_bla_nl, var_stochastic_nl=m * var_bla_nl,
+                       n_realisations=m, n_periods=int(np.shape(y)[2]))
+
+
+@dataclass(frozen=True)
+class DistortionLevels:
+    """Output levels at non-excited (detection) lines against the noise floor.
+
+    At each detection line the period mean Ybar is coherent over the
+    periods (nonlinear distortion of a periodic signal is periodic) while the
+    noise averages down, so ``E|Ybar|^2 = |Y_nl|^2 + var(Ybar)``; var(Ybar) is
+    estimated from the period scatter at that same line. Without distortion
+    the ratio is ~1 (0 dB).
+
+    Attributes:
+        odd_power: mean over realisations and experiments of |Ybar|^2 at the
+            odd detection lines (L_odd, Ny) [unit of y squared].
+        odd_noise_power: var(Ybar) there, same shape.
+        even_power, even_noise_power: the same at even lines (L_even, Ny).
+        odd_db, even_db: per output (Ny,), ``10 log10(sum power / sum
+            noise_power)`` over the lines of that kind [dB above the noise
+            floor]; NaN when there are no such lines.
+    """
+
+    odd_power: np.ndarray
+    odd_noise_power: np.ndarray
+    even_power: np.ndarray
+    even_noise_power: np.ndarray
+    odd_db: np.ndarray
+    even_db: np.ndarray
+
+
+def _levels(y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    mean, var = period_mean_variance(y)
+    power = (np.abs(mean) ** 2).mean(axis=(0, 1))
+    noise = var.real.mean(axis=(0, 1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        db = 10 * np.log10(power.sum(axis=0) / noise.sum(axis=0))
+    if power.shape[0] == 0:
+        db = np.full(power.shape[1], np.nan)
+    return power, noise, db
+
+
+def distortion_levels(y_odd: np.ndarray, y_even: np.ndarray) -> DistortionLevels:
+    """Even and odd nonlinear-distortion levels from detection lines.
+
+    Odd (e.g. cubic) nonlinearities of an odd multisine show at the odd
+    detection lines, even ones (e.g. quadratic) at the even lines.
+
+    Args:
+        y_odd: output spectra at the odd non-excited lines (M, Ne, P, L_odd, Ny), P >= 2.
+        y_even: output spectra at the even non-excited lines (M, Ne, P, L_even, Ny).
+
+    Returns:
+        :class:`DistortionLevels`.
+    """
+    odd = _levels(y_odd)
+    even = _levels(y_even)
+    if odd[0].shape[1] != even[0].shape[1]:
+        raise ValueError(f"y_odd has {odd[0].shape[1]} outputs but y_even has {even[0].shape[1]}")
+    return DistortionLevels(odd_power=odd[0], odd_noise_power=odd[1], odd_db=odd[2],
+                            even_power=even[0], even_noise_power=even[1], even_db=even[2])
+
+
+def output_noise_std(periods: np.ndarray) -> np.ndarray:
+    """Time-domain noise standard deviation from period-to-period scatter.
+
+    ``sigma^2 = mean over (m, e, n) of the sample variance over p (ddof 1)``
+    of the steady-state samples: the periodic part (response to the
+    excitation and its nonlinear distortion) cancels, the noise stays.
+
+    Args:
+        periods: time samples (M, Ne, P, N, n_ch) from
+            :func:`ambid.frf.periods.split_periods`, P >= 2.
+
+    Returns:
+        Noise standard deviation per channel (n_ch,), unit of the samples.
+    """
+    periods = np.asarray(periods, dtype=float)
+    if periods.ndim != 5:
+        raise ValueError(f"periods must have shape (M, Ne, P, N, n_ch), got shape {periods.shape}")
+    if periods.shape[2] < 2:
+        raise ValueError(f"period-to-period scatter needs P >= 2 periods, got P = {periods.shape[2]}")
+    if not np.all(np.isfinite(periods)):
+        raise ValueError("periods contain NaN or inf; clean the time data first")
+    return np.sqrt(periods.var(axis=2, ddof=1).mean(axis=(0, 1, 2)))
