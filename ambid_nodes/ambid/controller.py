@@ -1,0 +1,115 @@
+"""Position controllers as discrete state-space models, and stepping them.
+
+A controller maps the measured displacements y [m] to the control currents
+ic [A], minus sign included (ic = K(z) y), and carries one sample of
+computational delay: ic[k] depends on y[k-1] and older, as in a digital
+controller that samples, computes and applies at the next sample instant.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from scipy import signal
+
+from ambid.rig import CURRENT_NAMES, DISPLACEMENT_NAMES
+from ambid.statespace import StateSpace, block_diag, delay, series
+
+
+@dataclass(frozen=True)
+class PidParameters:
+    """Decentralised PID with a filtered derivative and a low-pass, per axis.
+
+    C(s) = kp (1 + 1/(ti s) + td s / (1 + td s / n)) / (1 + s / (2 pi f_lp))
+
+    Attributes:
+        kp_a_per_m: proportional gain [A/m].
+        ti_s: integral time [s].
+        td_s: derivative time [s].
+        derivative_filter_n: derivative filter ratio N [-] (lead up to N).
+        lowpass_hz: first-order low-pass corner [Hz].
+        delay_samples: computational delay [samples].
+        current_limit_a: saturation of ic [A].
+    """
+
+    kp_a_per_m: float = 9_000.0
+    ti_s: float = 0.05
+    td_s: float = 2.2e-3
+    derivative_filter_n: float = 8.0
+    lowpass_hz: float = 2_500.0
+    delay_samples: int = 1
+    current_limit_a: float = 3.0
+
+    def __post_init__(self) -> None:
+        checks = {
+            "kp_a_per_m": (0.0, 1e9), "ti_s": (1e-5, 1e4), "td_s": (0.0, 1.0),
+            "derivative_filter_n": (1.0, 1000.0), "lowpass_hz": (1.0, 1e6),
+            "delay_samples": (0, 100), "current_limit_a": (1e-3, 1e3),
+        }
+        for name, (lo, hi) in checks.items():
+            v = getattr(self, name)
+            if not (np.isfinite(v) and lo <= v <= hi):
+                raise ValueError(f"PID parameter {name} = {v!r} is outside [{lo:g}, {hi:g}]")
+        if self.kp_a_per_m <= 0:
+            raise ValueError("PID parameter kp_a_per_m must be > 0")
+
+
+def pid_axis(p: PidParameters, dt: float) -> StateSpace:
+    """One axis of the PID, continuous design discretised by Tustin, y [m] -> ic [A], minus sign included."""
+    s = np.poly1d([1.0, 0.0])
+    wd = p.derivative_filter_n / p.td_s if p.td_s > 0 else None
+    num = p.kp_a_per_m * (s * p.ti_s + 1) * (s / wd + 1) if wd else p.kp_a_per_m * (s * p.ti_s + 1)
+    den = p.ti_s * s * ((s / wd + 1) if wd else 1)
+    if wd:
+        num = num + p.kp_a_per_m * p.td_s * p.ti_s * s * s
+    den = den * (s / (2 * np.pi * p.lowpass_hz) + 1)
+    a, b, c, d = signal.tf2ss(-num.coeffs, den.coeffs)
+    ad, bd, cd, dd, _ = signal.cont2discrete((a, b, c, d), dt, method="bilinear")
+    return StateSpace(ad, bd, cd, dd, dt)
+
+
+def pid_controller(p: PidParameters, dt: float) -> StateSpace:
+    """Decentralised 4-axis PID with computational delay, y (4) [m] -> ic (4) [A]."""
+    axes = block_diag(*(pid_axis(p, dt) for _ in range(4)))
+    k = series(axes, delay(4, p.delay_samples, dt))
+    return k._replace(input_names=DISPLACEMENT_NAMES, output_names=tuple(n.replace("u_", "ic_") for n in CURRENT_NAMES),
+                      input_units=("m",) * 4, output_units=("A",) * 4)
+
+
+def pid_parameters_dict(p: PidParameters) -> dict:
+    return asdict(p)
+
+
+class ControllerStepper:
+    """Runs a discrete controller sample by sample with output saturation.
+
+    ``step(y)`` returns ic[k] for the measurement y[k]; with the model's
+    built-in delay, ic[k] depends only on y[k-1] and older.
+    """
+
+    def __init__(self, model: StateSpace, current_limit_a: float) -> None:
+        if model.dt <= 0:
+            raise ValueError("ControllerStepper needs a discrete model (dt > 0)")
+        self.model = model
+        n = model.n_states
+        # one mat-vec per sample: [ic; x[k+1]] = [[C D], [A B]] [x; y]
+        self._m = np.block([[model.c, model.d], [model.a, model.b]])
+        self._v = np.zeros(n + model.n_inputs)
+        self._n = n
+        self._n_out = model.n_outputs
+        self._limit = current_limit_a
+
+    @property
+    def x(self) -> np.ndarray:
+        """Controller state (n,)."""
+        return self._v[: self._n]
+
+    def step(self, y) -> list[float]:
+        """ic [A] (m floats) for the measured y [m] (p floats), saturated at the current limit."""
+        v = self._v
+        v[self._n:] = y
+        out = self._m @ v
+        v[: self._n] = out[self._n_out:]
+        lim = self._limit
+        return [lim if i > lim else -lim if i < -lim else i for i in out[: self._n_out].tolist()]

@@ -1,0 +1,188 @@
+"""Linear state-space models: one small dataclass and the operations on it.
+
+Every model that travels between parts of ambid (rig models, controllers,
+fitted models) is a :class:`StateSpace`; its ``dt`` tells continuous (0) from
+discrete (sample period in s).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import linalg, signal
+
+
+@dataclass(frozen=True)
+class StateSpace:
+    """x' = A x + B u, y = C x + D u (dt = 0) or x[k+1] = A x[k] + B u[k] (dt > 0).
+
+    Attributes:
+        a: (n, n) state matrix.
+        b: (n, m) input matrix.
+        c: (p, n) output matrix.
+        d: (p, m) feed-through matrix.
+        dt: sample period [s]; 0 for continuous time.
+        input_names, output_names: channel names (len m and p).
+        input_units, output_units: SI units of the channels (e.g. "A", "m").
+    """
+
+    a: np.ndarray
+    b: np.ndarray
+    c: np.ndarray
+    d: np.ndarray
+    dt: float = 0.0
+    input_names: tuple[str, ...] = field(default=())
+    output_names: tuple[str, ...] = field(default=())
+    input_units: tuple[str, ...] = field(default=())
+    output_units: tuple[str, ...] = field(default=())
+
+    def __post_init__(self) -> None:
+        a, b, c, d = (np.atleast_2d(np.asarray(m, dtype=float)) for m in (self.a, self.b, self.c, self.d))
+        n = a.shape[0]
+        if a.shape != (n, n):
+            raise ValueError(f"StateSpace: A must be square, got shape {a.shape}")
+        if n == 0:
+            b = b.reshape(0, d.shape[1])
+            c = c.reshape(d.shape[0], 0)
+        if b.shape[0] != n or c.shape[1] != n or d.shape != (c.shape[0], b.shape[1]):
+            raise ValueError(
+                f"StateSpace: inconsistent shapes A{a.shape} B{b.shape} C{c.shape} D{d.shape}; "
+                "need A (n,n), B (n,m), C (p,n), D (p,m)")
+        for name, m in zip("abcd", (a, b, c, d)):
+            if not np.all(np.isfinite(m)):
+                raise ValueError(f"StateSpace: matrix {name.upper()} contains NaN or Inf")
+        if not np.isfinite(self.dt) or self.dt < 0:
+            raise ValueError(f"StateSpace: dt must be >= 0 (0 = continuous), got {self.dt}")
+        object.__setattr__(self, "a", a)
+        object.__setattr__(self, "b", b)
+        object.__setattr__(self, "c", c)
+        object.__setattr__(self, "d", d)
+        for attr, size in (("input_names", b.shape[1]), ("output_names", c.shape[0]),
+                           ("input_units", b.shape[1]), ("output_units", c.shape[0])):
+            names = tuple(getattr(self, attr))
+            if names and len(names) != size:
+                raise ValueError(f"StateSpace: {attr} has {len(names)} entries for {size} channels")
+            object.__setattr__(self, attr, names)
+
+    @property
+    def n_states(self) -> int:
+        return self.a.shape[0]
+
+    @property
+    def n_inputs(self) -> int:
+        return self.b.shape[1]
+
+    @property
+    def n_outputs(self) -> int:
+        return self.c.shape[0]
+
+    def poles(self) -> np.ndarray:
+        """Eigenvalues of A (s-plane for dt = 0, z-plane for dt > 0), shape (n,)."""
+        return np.linalg.eigvals(self.a)
+
+    def is_stable(self, margin: float = 0.0) -> bool:
+        """All poles strictly inside the stability region (by ``margin``)."""
+        p = self.poles()
+        if self.dt > 0:
+            return bool(np.all(np.abs(p) < 1.0 - margin))
+        return bool(np.all(p.real < -margin))
+
+    def unstable_poles(self) -> np.ndarray:
+        """The poles outside the stability region, shape (k,)."""
+        p = self.poles()
+        return p[np.abs(p) >= 1.0] if self.dt > 0 else p[p.real >= 0]
+
+    def freqresp(self, freq_hz: np.ndarray) -> np.ndarray:
+        """Frequency response at ``freq_hz`` (L,), shape (L, p, m).
+
+        Continuous: G(j 2 pi f). Discrete: G(exp(j 2 pi f dt)).
+        Evaluated through a Hessenberg form, so each line costs O(n^2).
+        """
+        f = np.atleast_1d(np.asarray(freq_hz, dtype=float))
+        s = np.exp(2j * np.pi * f * self.dt) if self.dt > 0 else 2j * np.pi * f
+        if self.n_states == 0:
+            return np.broadcast_to(self.d, (f.size,) + self.d.shape).astype(complex)
+        h, q = linalg.hessenberg(self.a, calc_q=True)
+        bq = q.T @ self.b
+        cq = self.c @ q
+        eye = np.eye(self.n_states)
+        out = np.empty((f.size, self.n_outputs, self.n_inputs), dtype=complex)
+        for k, sk in enumerate(s):
+            out[k] = cq @ linalg.solve(sk * eye - h, bq) + self.d
+        return out
+
+    def to_discrete(self, dt: float, method: str = "zoh") -> "StateSpace":
+        """Discretise a continuous model with sample period ``dt`` [s] (zoh or bilinear)."""
+        if self.dt > 0:
+            raise ValueError("to_discrete: the model is already discrete")
+        ad, bd, cd, dd, _ = signal.cont2discrete((self.a, self.b, self.c, self.d), dt, method=method)
+        return self._replace(a=ad, b=bd, c=cd, d=dd, dt=dt)
+
+    def _replace(self, **changes) -> "StateSpace":
+        fields = dict(a=self.a, b=self.b, c=self.c, d=self.d, dt=self.dt,
+                      input_names=self.input_names, output_names=self.output_names,
+                      input_units=self.input_units, output_units=self.output_units)
+        fields.update(changes)
+        return StateSpace(**fields)
+
+    def to_dict(self) -> dict:
+        """JSON-safe dict (lists), inverse of :func:`statespace_from_dict`."""
+        return dict(a=self.a.tolist(), b=self.b.tolist(), c=self.c.tolist(), d=self.d.tolist(),
+                    dt=self.dt, input_names=list(self.input_names), output_names=list(self.output_names),
+                    input_units=list(self.input_units), output_units=list(self.output_units))
+
+
+def statespace_from_dict(d: dict) -> StateSpace:
+    """Inverse of :meth:`StateSpace.to_dict`."""
+    n = len(d["a"])
+    m = len(d["d"][0]) if d["d"] else 0
+    p = len(d["d"])
+    return StateSpace(np.reshape(d["a"], (n, n)), np.reshape(d["b"], (n, m)), np.reshape(d["c"], (p, n)),
+                      np.reshape(d["d"], (p, m)), float(d.get("dt", 0.0)),
+                      tuple(d.get("input_names", ())), tuple(d.get("output_names", ())),
+                      tuple(d.get("input_units", ())), tuple(d.get("output_units", ())))
+
+
+def block_diag(*systems: StateSpace) -> StateSpace:
+    """Parallel, unconnected stack of systems with one common dt."""
+    dts = {s.dt for s in systems}
+    if len(dts) != 1:
+        raise ValueError(f"block_diag: systems have different sample periods {sorted(dts)}")
+    return StateSpace(linalg.block_diag(*(s.a for s in systems)), linalg.block_diag(*(s.b for s in systems)),
+                      linalg.block_diag(*(s.c for s in systems)), linalg.block_diag(*(s.d for s in systems)),
+                      dts.pop(),
+                      sum((s.input_names for s in systems), ()), sum((s.output_names for s in systems), ()),
+                      sum((s.input_units for s in systems), ()), sum((s.output_units for s in systems), ()))
+
+
+def series(first: StateSpace, second: StateSpace) -> StateSpace:
+    """second(first(u)): output of ``first`` feeds ``second``."""
+    if first.dt != second.dt:
+        raise ValueError(f"series: sample periods differ ({first.dt} vs {second.dt})")
+    if first.n_outputs != second.n_inputs:
+        raise ValueError(f"series: {first.n_outputs} outputs feed {second.n_inputs} inputs")
+    n1 = first.n_states
+    a = np.block([[first.a, np.zeros((n1, second.n_states))], [second.b @ first.c, second.a]])
+    b = np.vstack([first.b, second.b @ first.d])
+    c = np.hstack([second.d @ first.c, second.c])
+    d = second.d @ first.d
+    return StateSpace(a, b, c, d, first.dt, first.input_names, second.output_names,
+                      first.input_units, second.output_units)
+
+
+def delay(n_channels: int, n_samples: int, dt: float) -> StateSpace:
+    """Pure delay of ``n_samples`` samples on each of ``n_channels`` channels (discrete)."""
+    if dt <= 0:
+        raise ValueError("delay: needs a discrete sample period dt > 0")
+    if n_samples == 0:
+        return StateSpace(np.zeros((0, 0)), np.zeros((0, n_channels)), np.zeros((n_channels, 0)),
+                          np.eye(n_channels), dt)
+    n = n_channels * n_samples
+    a = np.zeros((n, n))
+    a[n_channels:, :-n_channels] = np.eye(n - n_channels)
+    b = np.zeros((n, n_channels))
+    b[:n_channels] = np.eye(n_channels)
+    c = np.zeros((n_channels, n))
+    c[:, -n_channels:] = np.eye(n_channels)
+    return StateSpace(a, b, c, np.zeros((n_channels, n_channels)), dt)
