@@ -1,0 +1,114 @@
+"""Running the plant and controller graph: composed in one process or as separate processes."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from dataclasses import dataclass, field
+
+from ambid_nodes.node_main import SUMMARY_PREFIX, spin_until_done
+
+DEFAULT_NAMESPACE = "/amb"
+
+
+@dataclass
+class GraphConfig:
+    """What to run: parameters per node (name -> value), namespace, layout."""
+
+    sim_seconds: float = 2.0
+    namespace: str = DEFAULT_NAMESPACE
+    plant: dict = field(default_factory=dict)
+    controller: dict = field(default_factory=dict)
+
+
+def session_domain_id() -> int:
+    """ROS_DOMAIN_ID if set, else one derived from this process, so sessions don't cross-talk."""
+    env = os.environ.get("ROS_DOMAIN_ID")
+    if env:
+        return int(env)
+    return 100 + os.getpid() % 100
+
+
+def run_composed(cfg: GraphConfig) -> dict:
+    """Plant and controller as two nodes of one process, one EventsExecutor. Returns the plant's summary."""
+    import rclpy
+    from rclpy.experimental import EventsExecutor
+    from rclpy.parameter import Parameter
+
+    from ambid_nodes.plant_sim import PlantSim
+    from ambid_nodes.position_controller import PositionController
+
+    def overrides(d: dict) -> list:
+        return [Parameter(k, value=v) for k, v in d.items()]
+
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=session_domain_id())
+    executor = EventsExecutor(context=context)
+    nodes = []
+    try:
+        plant = PlantSim(namespace=cfg.namespace, context=context,
+                         parameter_overrides=overrides({"sim_seconds": cfg.sim_seconds, **cfg.plant}))
+        nodes.append(plant)
+        nodes.append(PositionController(namespace=cfg.namespace, context=context,
+                                        parameter_overrides=overrides(cfg.controller)))
+        for n in nodes:
+            executor.add_node(n)
+        spin_until_done(executor, plant.finished)
+        return {**plant.finished.result(), "layout": "composed"}
+    finally:
+        executor.shutdown()
+        for n in nodes:
+            n.destroy_node()
+        rclpy.shutdown(context=context)
+
+
+def ros_args(namespace: str, params: dict) -> list[str]:
+    args = ["--ros-args", "-r", f"__ns:={namespace}"]
+    for k, v in params.items():
+        args += ["-p", f"{k}:={json.dumps(v) if isinstance(v, str) else str(v).lower() if isinstance(v, bool) else v}"]
+    return args
+
+
+def stop_processes(procs: list[subprocess.Popen], grace_s: float = 5.0) -> None:
+    """SIGINT every process (rclpy shuts down cleanly), SIGKILL what is left after grace_s."""
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGINT)
+    for p in procs:
+        try:
+            p.wait(timeout=grace_s)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
+def run_processes(cfg: GraphConfig) -> dict:
+    """Plant and controller as separate processes on one DDS domain. Returns the plant's summary."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(session_domain_id()))
+    py = sys.executable
+    procs = []
+    try:
+        ctrl = subprocess.Popen([py, "-m", "ambid_nodes.position_controller", *ros_args(cfg.namespace, cfg.controller)],
+                                env=env, start_new_session=True)
+        procs.append(ctrl)
+        plant = subprocess.Popen([py, "-m", "ambid_nodes.plant_sim",
+                                  *ros_args(cfg.namespace, {"sim_seconds": cfg.sim_seconds, **cfg.plant})],
+                                 env=env, stdout=subprocess.PIPE, text=True, start_new_session=True)
+        procs.append(plant)
+        summary = None
+        for line in plant.stdout:
+            if line.startswith(SUMMARY_PREFIX):
+                summary = json.loads(line[len(SUMMARY_PREFIX):])
+            else:
+                sys.stdout.write(line)
+        code = plant.wait()
+        if ctrl.poll() is not None and summary is None:
+            raise RuntimeError(f"position_controller exited with code {ctrl.returncode} before the run ended")
+        if summary is None:
+            raise RuntimeError(f"plant_sim exited with code {code} without a summary")
+        return {**summary, "layout": "processes"}
+    finally:
+        stop_processes(procs)

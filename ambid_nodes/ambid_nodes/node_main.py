@@ -1,0 +1,62 @@
+"""The main() of every ambid node: init, spin with an EventsExecutor, shut down cleanly."""
+
+from __future__ import annotations
+
+import json
+import sys
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.experimental import EventsExecutor
+
+from ambid_nodes.parameters import ParameterError
+
+SUMMARY_PREFIX = "AMBID_SUMMARY "
+
+
+def spin_until_done(executor, future) -> None:
+    """Spin until ``future`` completes. The EventsExecutor of rclpy 7.1 misses a future completed
+    inside a callback when spun without a timeout, so wake up once a second to look."""
+    while not future.done():
+        executor.spin_until_future_complete(future, timeout_sec=1.0)
+
+
+def run_single(node_class, args=None) -> int:
+    """Run one node until it finishes (its ``finished`` future completes) or is interrupted.
+
+    Exit codes: 0 done, 1 the node reported failure, 2 bad parameters, 130 interrupted.
+    A node with a ``finished`` future prints one line ``AMBID_SUMMARY {json}`` of its
+    result for a supervising script.
+    """
+    try:
+        rclpy.init(args=args)
+    except Exception as exc:  # noqa: BLE001 - rcl reports malformed --ros-args and YAML files this way
+        print(f"{node_class.__name__}: cannot start: {exc}. Check the --ros-args and the parameter YAML file.",
+              file=sys.stderr)
+        return 2
+    executor = EventsExecutor()
+    code = 0
+    node = None
+    try:
+        node = node_class()
+        executor.add_node(node)
+        finished = getattr(node, "finished", None)
+        if finished is None:
+            executor.spin()
+        else:
+            spin_until_done(executor, finished)
+            summary = finished.result()
+            if summary is not None:
+                print(SUMMARY_PREFIX + json.dumps(summary), flush=True)
+                code = 0 if summary.get("state") == "done" else 1
+    except ParameterError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        code = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        code = 130
+    finally:
+        executor.shutdown()
+        if node is not None:
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return code

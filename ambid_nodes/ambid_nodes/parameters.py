@@ -1,0 +1,40 @@
+"""Declaring node parameters with type, description and range, and refusing unknown ones."""
+
+from __future__ import annotations
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.node import Node
+
+
+class ParameterError(ValueError):
+    """A parameter given to a node is unknown or invalid."""
+
+
+def declare(node: Node, name: str, default, description: str, low=None, high=None, unit: str = ""):
+    """Declare one parameter with its description, SI unit and allowed range; return its value.
+
+    An override outside [low, high] raises ParameterError naming the parameter and the range.
+    """
+    desc = ParameterDescriptor(name=name, description=f"{description}" + (f" [{unit}]" if unit else ""))
+    if low is not None and isinstance(default, bool):
+        raise TypeError("a bool parameter has no range")
+    if low is not None and isinstance(default, int):
+        desc.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=0)]
+        desc.additional_constraints = f"{low} <= {name} <= {high}"
+    elif low is not None:
+        desc.floating_point_range = [FloatingPointRange(from_value=float(low), to_value=float(high), step=0.0)]
+        desc.additional_constraints = f"{low} <= {name} <= {high}"
+    try:
+        return node.declare_parameter(name, default, desc).value
+    except Exception as exc:  # rclpy raises several exception types for a bad override
+        rng = f" (allowed range [{low}, {high}]{' ' + unit if unit else ''})" if low is not None else ""
+        raise ParameterError(f"{node.get_name()}: parameter '{name}' is invalid{rng}: {exc}") from None
+
+
+def refuse_unknown(node: Node) -> None:
+    """Raise ParameterError if a parameter override names no declared parameter."""
+    overrides = getattr(node, "_parameter_overrides", {}) or {}
+    unknown = sorted(n for n in overrides if not node.has_parameter(n))
+    if unknown:
+        known = ", ".join(sorted(node._parameters))  # noqa: SLF001 - names only, for the message
+        raise ParameterError(f"{node.get_name()}: unknown parameter(s) {unknown}; this node takes: {known}")

@@ -1,0 +1,90 @@
+"""StateSpace: frequency response, discretisation, interconnections, and the levitation monitor."""
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from ambid.closed_loop import check_stability, close_loop
+from ambid.levitation import LevitationMonitor
+from ambid.statespace import StateSpace, block_diag, delay, series, statespace_from_dict
+
+
+def mass_spring(m=2.0, k=800.0, c=4.0) -> StateSpace:
+    return StateSpace([[0, 1], [-k / m, -c / m]], [[0], [1 / m]], [[1, 0]], [[0]])
+
+
+def test_freqresp_matches_closed_form():
+    f = np.array([0.5, 3.0, 20.0])
+    s = 2j * np.pi * f
+    expected = 1 / (2.0 * s**2 + 4.0 * s + 800.0)
+    assert np.allclose(mass_spring().freqresp(f)[:, 0, 0], expected, rtol=1e-12)
+
+
+def test_discrete_freqresp_matches_scipy_dfreqresp():
+    d = mass_spring().to_discrete(1e-3)
+    w = np.linspace(0.01, 3.0, 7)
+    _, h = signal.dfreqresp((d.a, d.b, d.c, d.d, d.dt), w=w)
+    assert np.allclose(d.freqresp(w / (2 * np.pi * d.dt))[:, 0, 0], np.squeeze(h), rtol=1e-10)
+
+
+def test_delay_is_z_to_the_minus_n():
+    dt = 1e-4
+    f = np.array([10.0, 1000.0])
+    h = delay(2, 3, dt).freqresp(f)
+    assert np.allclose(h[:, 0, 0], np.exp(-3j * 2 * np.pi * f * dt))
+    assert np.allclose(h[:, 0, 1], 0)
+
+
+def test_series_and_block_diag():
+    a, b = mass_spring(), mass_spring(1.0, 100.0, 1.0)
+    f = np.array([1.0, 7.0])
+    g = series(a, b).freqresp(f)[:, 0, 0]
+    assert np.allclose(g, a.freqresp(f)[:, 0, 0] * b.freqresp(f)[:, 0, 0])
+    bd = block_diag(a, b).freqresp(f)
+    assert np.allclose(bd[:, 1, 1], b.freqresp(f)[:, 0, 0]) and np.allclose(bd[:, 0, 1], 0)
+
+
+def test_dict_round_trip():
+    a = mass_spring()._replace(input_names=("u",), output_names=("y",), input_units=("N",), output_units=("m",))
+    b = statespace_from_dict(a.to_dict())
+    assert np.array_equal(a.a, b.a) and b.output_units == ("m",)
+
+
+def test_bad_shapes_and_nan_named():
+    with pytest.raises(ValueError, match="inconsistent shapes"):
+        StateSpace(np.eye(2), np.ones((3, 1)), np.ones((1, 2)), np.zeros((1, 1)))
+    with pytest.raises(ValueError, match="NaN"):
+        StateSpace([[np.nan]], [[1]], [[1]], [[0]])
+
+
+def test_close_loop_input_sensitivity_matches_formula():
+    dt = 1e-3
+    plant = mass_spring().to_discrete(dt)
+    k = StateSpace(np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), [[-300.0]], dt)  # ic = -300 y
+    loop = close_loop(plant, k)
+    f = np.array([1.0, 5.0, 40.0])
+    p = plant.freqresp(f)[:, 0, 0]
+    s_expected = 1 / (1 - (-300.0) * p)
+    assert np.allclose(loop.freqresp(f)[:, 1, 0], s_expected, rtol=1e-9)
+    assert np.allclose(loop.freqresp(f)[:, 0, 0], p * s_expected, rtol=1e-9)
+
+
+def test_check_stability_names_unstable_poles():
+    dt = 1e-3
+    unstable = StateSpace([[0, 1], [400.0, 0]], [[0], [1]], [[1, 0]], [[0]])  # negative stiffness
+    weak = StateSpace(np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), [[-100.0]], dt)
+    with pytest.raises(ValueError, match="unstable poles: z="):
+        check_stability(unstable, weak, "test loop")
+
+
+def test_levitation_monitor_blocks():
+    mon = LevitationMonitor(clearance_m=1e-4, settle_samples=100)
+    y = np.full((200, 4), 1e-6)
+    contact = np.zeros(200, bool)
+    contact[:10] = True
+    mon.add_block(0, y, contact)
+    f = mon.figures()
+    assert mon.levitated() and f["lift_off_index"] == 10 and f["samples_evaluated"] == 100
+    assert f["displacement_rms_m"] == pytest.approx(1e-6)
+    mon.add_block(200, y, np.ones(200, bool))
+    assert not mon.levitated() and mon.figures()["contact_samples_after_settling"] == 200

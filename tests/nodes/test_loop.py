@@ -1,0 +1,183 @@
+"""The lock-step loop of plant_sim and position_controller over real DDS."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+import rclpy
+from ambid_msgs.msg import ControllerDescription, PlantDescription, Sample, SampleBlock, SessionEvent
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from ambid_nodes import qos
+from ambid_nodes.conversions import block_data
+from ambid_nodes.parameters import ParameterError
+from ambid_nodes.plant_sim import MEASUREMENT_NAMES, PlantSim
+from ambid_nodes.position_controller import PositionController
+
+NS = "/amb"
+
+
+class Spy(Node):
+    """Records what crosses the loop topics."""
+
+    def __init__(self, context):
+        super().__init__("spy", namespace=NS, context=context)
+        self.y_idx, self.ic_idx, self.blocks, self.events = [], [], [], []
+        self.plant_desc = self.ctrl_desc = None
+        self.create_subscription(Sample, "displacement", lambda m: self.y_idx.append(m.index), qos.LOOP)
+        self.create_subscription(Sample, "control_current", lambda m: self.ic_idx.append(m.index), qos.LOOP)
+        self.create_subscription(SampleBlock, "measurement", self.blocks.append, qos.BLOCKS)
+        self.create_subscription(SessionEvent, "events", self.events.append, qos.EVENTS)
+        self.create_subscription(PlantDescription, "plant/description", lambda m: setattr(self, "plant_desc", m),
+                                 qos.LATCHED)
+        self.create_subscription(ControllerDescription, "controller/description",
+                                 lambda m: setattr(self, "ctrl_desc", m), qos.LATCHED)
+
+
+def make_loop(ros, sim_seconds: float, **plant_params):
+    spy = ros.add(Spy(ros.context))
+    plant = ros.add(PlantSim(namespace=NS, context=ros.context, parameter_overrides=[
+        Parameter("sim_seconds", value=sim_seconds), *(Parameter(k, value=v) for k, v in plant_params.items())]))
+    ctrl = ros.add(PositionController(namespace=NS, context=ros.context))
+    return plant, ctrl, spy
+
+
+def test_lockstep_10000_steps_levitates_from_rest(ros):
+    plant, ctrl, spy = make_loop(ros, 1.0, block_size=2000)
+    assert ros.spin_until(plant.finished.done, timeout_s=120)
+    s = plant.finished.result()
+    # every sample index exactly once, in order, on both loop topics
+    assert spy.y_idx == list(range(10_000))
+    assert spy.ic_idx == list(range(10_000))
+    assert s["state"] == "done" and s["levitated"], s
+    assert s["contact_samples"] > 0  # it started on the retainer ...
+    assert s["lift_off_index"] is not None and s["lift_off_index"] < 2000  # ... and lifted off
+    assert s["max_abs_displacement_m"] < 0.5 * plant.rig.backup_clearance_m
+    assert s["messages_rejected"] == 0
+    # measurement blocks: contiguous, all channels, finite
+    assert ros.spin_until(lambda: sum(b.n_samples for b in spy.blocks) == 10_000, timeout_s=10)
+    starts = [b.first_index for b in spy.blocks]
+    assert starts == list(range(0, 10_000, 2000))
+    data = block_data(spy.blocks[-1], MEASUREMENT_NAMES)
+    assert data.shape == (2000, 16)
+    # u = ic + r column-wise, r = 0 without excitation
+    assert (data[:, 4:8] == data[:, 8:12] + data[:, 12:16]).all()
+    # latched descriptions reach a subscriber
+    assert ros.spin_until(lambda: spy.plant_desc is not None and spy.ctrl_desc is not None, timeout_s=5)
+    assert list(spy.plant_desc.displacement_names) == ["y_a_x", "y_b_x", "y_a_y", "y_b_y"]
+    assert spy.ctrl_desc.model.sample_period == pytest.approx(1e-4)
+    assert spy.ctrl_desc.delay_samples == 1
+
+
+def test_declared_parameters_have_descriptions_and_ranges(ros):
+    plant = ros.add(PlantSim(namespace=NS, context=ros.context))
+    ctrl = ros.add(PositionController(namespace=NS, context=ros.context))
+    for node in (plant, ctrl):
+        names = [n for n in node._parameters if n != "use_sim_time"]
+        assert names
+        for name in names:
+            d = node.describe_parameter(name)
+            assert d.description, f"{node.get_name()}.{name} has no description"
+            if d.type in (2, 3):  # integer, double
+                assert d.integer_range or d.floating_point_range, f"{node.get_name()}.{name} has no range"
+
+
+@pytest.mark.parametrize("params, fragment", [
+    ({"sim_second": 1.0}, "unknown parameter(s) ['sim_second']"),
+    ({"block_size": 0}, "'block_size' is invalid (allowed range [1, 100000])"),
+    ({"rig_file": "/nonexistent/rig.yaml"}, "does not exist"),
+])
+def test_bad_plant_parameters_named(ros, params, fragment):
+    with pytest.raises((ParameterError, ValueError)) as err:
+        PlantSim(namespace=NS, context=ros.context, parameter_overrides=[Parameter(k, value=v)
+                                                                         for k, v in params.items()])
+    assert fragment in str(err.value)
+
+
+def test_unstable_controller_refused_naming_poles(ros):
+    with pytest.raises(ParameterError) as err:
+        PositionController(namespace=NS, context=ros.context, parameter_overrides=[Parameter("kp", value=100.0)])
+    assert "unstable poles" in str(err.value) and "Hz" in str(err.value)
+
+
+class BadController(Node):
+    """Answers like a controller but corrupts some answers."""
+
+    def __init__(self, context):
+        super().__init__("bad_controller", namespace=NS, context=context)
+        from ambid.controller import ControllerStepper, PidParameters, pid_controller
+        self.ctl = ControllerStepper(pid_controller(PidParameters(), 1e-4), 3.0)
+        self.pub = self.create_publisher(Sample, "control_current", qos.LOOP)
+        self.create_subscription(Sample, "displacement", self.on_y, qos.LOOP)
+
+    def on_y(self, m):
+        ic = self.ctl.step(list(m.values))
+        if m.index == 3000:
+            self.pub.publish(Sample(index=m.index, values=[float("nan")] * 4))
+        elif m.index == 3001:
+            self.pub.publish(Sample(index=m.index, values=[0.0] * 3))
+        else:
+            if m.index == 3002:  # a stale duplicate first
+                self.pub.publish(Sample(index=m.index - 1, values=ic))
+            self.pub.publish(Sample(index=m.index, values=ic))
+
+
+def test_bad_control_messages_rejected_counted_loop_survives(ros):
+    spy = ros.add(Spy(ros.context))
+    plant = ros.add(PlantSim(namespace=NS, context=ros.context,
+                             parameter_overrides=[Parameter("sim_seconds", value=0.5)]))
+    ros.add(BadController(ros.context))
+    assert ros.spin_until(plant.finished.done, timeout_s=120)
+    s = plant.finished.result()
+    assert s["messages_rejected"] == 3
+    assert s["state"] == "done" and s["levitated"]
+    assert ros.spin_until(lambda: len([e for e in spy.events if e.code == "rejected_message"]) == 3, timeout_s=5)
+    texts = " | ".join(e.text for e in spy.events if e.code == "rejected_message")
+    assert "non-finite" in texts and "3 values, expected 4" in texts and "stale or duplicated" in texts
+
+
+def _children_of(pid: int) -> list[int]:
+    out = subprocess.run(["ps", "-o", "pid=", "--ppid", str(pid)], capture_output=True, text=True).stdout
+    return [int(p) for p in out.split()]
+
+
+def test_processes_layout_runs_and_ctrl_c_leaves_nothing(ros_env):
+    env = dict(ros_env)
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    cmd = [sys.executable, "-m", "ambid_nodes.cli", "graph", "--processes", "--sim-seconds", "0.3"]
+    done = subprocess.run(cmd, env=env, cwd=root, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "simulated samples per wall second" in done.stdout and "rotor levitated" in done.stdout
+
+    # Ctrl-C in the middle of a long run stops every process it started
+    runner = subprocess.Popen([*cmd[:-1], "1000"], env=env, cwd=root, stdout=subprocess.PIPE,
+                              stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    deadline = time.monotonic() + 60
+    children: list[int] = []
+    while time.monotonic() < deadline and len(children) < 2:
+        time.sleep(0.5)
+        children = _children_of(runner.pid)
+    assert len(children) == 2, "runner did not start plant and controller"
+    time.sleep(2.0)
+    os.killpg(runner.pid, signal.SIGINT)  # what a terminal's Ctrl-C does
+    runner.wait(timeout=30)
+    time.sleep(0.5)
+    alive = [c for c in children if subprocess.run(["kill", "-0", str(c)], capture_output=True).returncode == 0]
+    assert alive == [], f"processes left behind: {alive}"
+    assert runner.returncode in (1, 130)
+
+
+def test_single_node_main_reports_bad_yaml(tmp_path, ros_env):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("/**:\n  ros__parameters:\n    seed: [unclosed\n")
+    out = subprocess.run([sys.executable, "-m", "ambid_nodes.plant_sim", "--ros-args", "--params-file", str(bad)],
+                         env=ros_env, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2
+    assert "parameter YAML" in out.stderr or "params-file" in out.stderr.lower()
