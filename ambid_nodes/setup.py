@@ -5,7 +5,7 @@ from setuptools import find_packages, setup
 package_name = "ambid_nodes"
 
 # one console entry point per node: <executable> = ambid_nodes.<module>:main
-NODES = ["plant_sim", "position_controller"]
+NODES = ["plant_sim", "position_controller", "excitation_generator", "recorder", "hardware_bridge", "frf_consumer"]
 
 setup(
     name=package_name,

@@ -15,6 +15,7 @@ import sys
 COMMANDS = {
     "graph": "graph",
     "design": "design",
+    "inspect": "inspect",
 }
 PLANNED = {
     "identify": "the end-to-end identification session",

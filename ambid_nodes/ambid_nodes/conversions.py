@@ -13,7 +13,12 @@ from ambid.statespace import StateSpace
 
 
 class BadMessage(ValueError):
-    """A received message is malformed; the text says what is wrong."""
+    """A received message is malformed; ``args[0]`` says what is wrong, ``index`` is its
+    sample index when that could still be read (else None)."""
+
+    def __init__(self, text: str, index: int | None = None) -> None:
+        super().__init__(text)
+        self.index = index
 
 
 def time_msg(seconds: float) -> Time:

@@ -7,17 +7,22 @@ import sys
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
+from rclpy.task import Future
 
 from ambid_nodes.parameters import ParameterError
 
 SUMMARY_PREFIX = "AMBID_SUMMARY "
 
 
-def spin_until_done(executor, future) -> None:
-    """Spin until ``future`` completes. The EventsExecutor of rclpy 7.1 misses a future completed
-    inside a callback when spun without a timeout, so wake up once a second to look."""
-    while not future.done():
-        executor.spin_until_future_complete(future, timeout_sec=1.0)
+def spin_until_done(executor, future, context=None) -> None:
+    """Spin until ``future`` completes or the context shuts down (SIGINT, SIGTERM).
+
+    The EventsExecutor of rclpy 7.1 misses a future completed inside a
+    callback, and a shutdown of its context, when it spins without a timeout
+    (``spin()`` ignores SIGINT and busy-waits), so it wakes up to look.
+    """
+    while not future.done() and rclpy.ok(context=context):
+        executor.spin_until_future_complete(future, timeout_sec=0.5)
 
 
 def run_single(node_class, args=None) -> int:
@@ -40,10 +45,8 @@ def run_single(node_class, args=None) -> int:
         node = node_class()
         executor.add_node(node)
         finished = getattr(node, "finished", None)
-        if finished is None:
-            executor.spin()
-        else:
-            spin_until_done(executor, finished)
+        spin_until_done(executor, finished if finished is not None else Future())
+        if finished is not None and finished.done():
             summary = finished.result()
             if summary is not None:
                 print(SUMMARY_PREFIX + json.dumps(summary), flush=True)

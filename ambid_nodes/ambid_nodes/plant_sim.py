@@ -28,8 +28,9 @@ from rosgraph_msgs.msg import Clock
 from ambid.rig import AXES, CURRENT_NAMES, DISPLACEMENT_NAMES, analytical_model, load_rig, make_rig
 from ambid.simulator import PlantSimulator
 from ambid_nodes import qos
-from ambid_nodes.conversions import BadMessage, block_data, block_msg, check_values, statespace_to_msg, time_msg
+from ambid_nodes.conversions import BadMessage, block_data, block_msg, statespace_to_msg, time_msg
 from ambid_nodes.parameters import declare, refuse_unknown
+from ambid_nodes.sample_codec import decode_sample, encode_sample
 from ambid.levitation import LevitationMonitor
 
 MEASUREMENT_NAMES = (DISPLACEMENT_NAMES + CURRENT_NAMES + tuple(f"ic_{a}" for a in AXES)
@@ -63,7 +64,7 @@ class PlantSim(Node):
         self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
         self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
         self.pub_clock = self.create_publisher(Clock, "/clock", qos.CLOCK)
-        self.create_subscription(Sample, "control_current", self.on_control, qos.LOOP)
+        self.sub_ic = self.create_subscription(Sample, "control_current", self.on_control, qos.LOOP, raw=True)
         self.create_subscription(SampleBlock, "excitation", self.on_excitation, qos.BLOCKS)
         self.create_subscription(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
 
@@ -102,17 +103,14 @@ class PlantSim(Node):
             seed=self.seed, controller_timeout_samples=0, rig_json=json.dumps(r.to_dict())))
 
     def try_start(self) -> None:
-        # start once a controller listens and answers: the first y[0] must not be lost
-        if self.pub_y.get_subscription_count() < 1 or self.count_publishers(self.resolve("control_current")) < 1:
+        # start once both directions are matched: neither y[0] nor the answer ic[0] may be lost
+        if self.pub_y.get_subscription_count() < 1 or self.sub_ic.get_publisher_count() < 1:
             return
         self.start_timer.cancel()
         self.state = SessionStatus.STATE_RUNNING
         self.started_wall = self.last_answer_wall = time.perf_counter()
         self.event(SessionEvent.INFO, "started", f"lock-step loop started, {self.describe_run()}")
         self.publish_y()
-
-    def resolve(self, topic: str) -> str:
-        return self.resolve_topic_name(topic)
 
     def describe_run(self) -> str:
         t = f"{self.sim_seconds:g} s" if self.n_total else "until stopped"
@@ -121,20 +119,23 @@ class PlantSim(Node):
     # --- the loop ---------------------------------------------------------
     def publish_y(self) -> None:
         self.y = self.sim.output()
-        self.pub_y.publish(Sample(index=self.k, values=self.y.tolist()))
+        self.pub_y.publish(encode_sample(self.k, self.y.tolist()))
 
-    def on_control(self, msg: Sample) -> None:
+    def on_control(self, data: bytes) -> None:
         self.received += 1
         if self.state != SessionStatus.STATE_RUNNING:
             return
-        if msg.index != self.k:
-            self.reject(f"control_current index {msg.index}, expected {self.k} (stale or duplicated)")
-            return
         try:
-            ic = check_values(msg.values, 4, "control_current")
+            index, ic = decode_sample(data, 4, "control_current")
         except BadMessage as exc:
+            if exc.index != self.k:
+                self.reject(f"{exc} (sample {exc.index}, now {self.k})")
+                return
             self.reject(f"{exc}; holding the previous current for sample {self.k}")
-            ic = self.ic_last
+            index, ic = self.k, self.ic_last
+        if index != self.k:
+            self.reject(f"control_current index {index}, expected {self.k} (stale or duplicated)")
+            return
         self.last_answer_wall = time.perf_counter()
         self.ic_last = ic
         if self.excited_ranges and not self.has_excitation(self.k):
@@ -194,11 +195,17 @@ class PlantSim(Node):
         except BadMessage as exc:
             self.reject(f"excitation: {exc}")
             return
-        if msg.first_index < self.k:
-            self.reject(f"excitation block at sample {msg.first_index} arrived after that sample was applied "
-                        f"(now {self.k}); publish excitation further ahead")
-            return
-        self.excitation[msg.first_index] = data
+        first = msg.first_index
+        if first < self.k:
+            late = min(self.k - first, len(data))
+            self.event(SessionEvent.ERROR, "excitation_late",
+                       f"excitation samples {first}..{first + late - 1} arrived after they were due (now {self.k}) "
+                       "and were not applied; publish excitation further ahead")
+            if late == len(data):
+                self.rejected += 1
+                return
+            first, data = first + late, data[late:]
+        self.excitation[first] = data
         self.resume()
 
     def on_design(self, msg: ExcitationDesign) -> None:

@@ -25,8 +25,9 @@ from ambid.closed_loop import check_stability
 from ambid.controller import ControllerStepper, PidParameters, pid_controller, pid_parameters_dict
 from ambid.rig import analytical_model, load_rig, make_rig
 from ambid_nodes import qos
-from ambid_nodes.conversions import BadMessage, check_values, statespace_to_msg, time_msg
+from ambid_nodes.conversions import BadMessage, statespace_to_msg, time_msg
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
+from ambid_nodes.sample_codec import decode_sample, encode_sample
 
 STATUS_EVERY = 10_000  # samples between status messages
 
@@ -62,7 +63,7 @@ class PositionController(Node):
         self.pub_desc = self.create_publisher(ControllerDescription, "controller/description", qos.LATCHED)
         self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
         self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
-        self.create_subscription(Sample, "displacement", self.on_displacement, qos.LOOP)
+        self.create_subscription(Sample, "displacement", self.on_displacement, qos.LOOP, raw=True)
         self.expected: int | None = None
         self.ic_last = [0.0] * 4
         self.received = 0
@@ -72,24 +73,29 @@ class PositionController(Node):
             delay_samples=pid.delay_samples, model=statespace_to_msg(self.model),
             current_limit=[pid.current_limit_a] * 4, parameters_json=json.dumps(pid_parameters_dict(pid))))
 
-    def on_displacement(self, msg: Sample) -> None:
+    def on_displacement(self, data: bytes) -> None:
         self.received += 1
-        k = msg.index
+        try:
+            k, y = decode_sample(data, 4, "displacement")
+        except BadMessage as exc:
+            if exc.index is None:
+                self.reject(-1, str(exc))
+                return
+            k, y = exc.index, None
+            bad = str(exc)
         if self.expected is not None and k != self.expected:
             if k < self.expected:
                 self.reject(k, f"displacement index {k} repeated or out of order (expected {self.expected})")
                 return
             self.reject(k, f"displacement jumped from {self.expected} to {k}: {k - self.expected} samples missing")
-        try:
-            y = check_values(msg.values, 4, "displacement")
-        except BadMessage as exc:
-            self.reject(k, f"{exc}; answering with the previous current")
+        if y is None:
+            self.reject(k, f"{bad}; answering with the previous current")
             ic = self.ic_last
         else:
             ic = self.stepper.step(y)
         self.expected = k + 1
         self.ic_last = ic
-        self.pub_ic.publish(Sample(index=k, values=ic))
+        self.pub_ic.publish(encode_sample(k, ic))
         if k % STATUS_EVERY == 0:
             self.publish_status(k)
 

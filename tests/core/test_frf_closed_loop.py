@@ -16,78 +16,18 @@ from ambid.frf import (bla_robust, distortion_levels, errors_in_variables, h1, i
                        input_sensitivity, input_sensitivity_from_models, iso14839_zone,
                        output_noise_std, period_spectra, sensitivity_peak, split_periods,
                        stepped_sine_frf, welch_frf)
+from frf_testbench import FS
+from frf_testbench import controller_frf as _controller
+from frf_testbench import loop_model as _loop
+from frf_testbench import plant_frf as _plant
+from frf_testbench import simulate as _simulate
 
-FS = 10_000.0
 N = 512          # samples per period
 PT = 2           # transient periods (slowest closed-loop pole decays in ~92 samples)
 
 
 # --------------------------------------------------------------------------- test rig
-
-def _loop(kd: float = 30.0) -> dict:
-    m, ks, ki = 5.0, 2e5, 50.0                       # kg, N/m, N/A
-    wf, zf, mf, phi = 2 * np.pi * 350, 0.01, 3.0, np.array([1.0, -0.8])
-    a = np.zeros((6, 6))
-    a[:3, 3:] = np.eye(3)
-    a[3, 0] = a[4, 1] = ks / m
-    a[5, 2], a[5, 5] = -wf**2, -2 * zf * wf
-    b = np.zeros((6, 2))
-    b[3, 0] = b[4, 1] = ki / m
-    b[5] = phi * ki / mf
-    c = np.zeros((2, 6))
-    c[0, 0] = c[1, 1] = 1.0
-    c[:, 2] = phi
-    ap, bp, cp, _, _ = signal.cont2discrete((a, b, c, np.zeros((2, 2))), 1 / FS, method="zoh")
-    kp, wl = 2.9e4, 2 * np.pi * 2000                 # A/m, rad/s
-    # C(s) = kp + kd s / (1 + s/wl) per axis, one state each
-    c1 = signal.cont2discrete(tuple(np.array([[v]]) for v in (-wl, 1.0, -kd * wl**2, kp + kd * wl)),
-                              1 / FS, method="bilinear")[:4]
-    ac, bc, cc, dc = (np.kron(np.eye(2), x) for x in c1)
-    return dict(ap=ap, bp=bp, cp=cp, ac=ac, bc=bc, cc=cc, dc=dc)
-
-
-def _frf(a, b, c, d, freq_hz):
-    z = np.exp(2j * np.pi * np.asarray(freq_hz) / FS)
-    zi_a = z[:, None, None] * np.eye(a.shape[0]) - a
-    return c @ np.linalg.solve(zi_a, np.broadcast_to(b, (z.size,) + b.shape)) + d
-
-
-def _plant(loop, freq_hz):
-    return _frf(loop["ap"], loop["bp"], loop["cp"], 0.0, freq_hz)
-
-
-def _controller(loop, freq_hz):
-    return _frf(loop["ac"], loop["bc"], loop["cc"], loop["dc"], freq_hz)
-
-
-def _simulate(loop, r, noise_std, seed, cubic=0.0):
-    """r (n_seg, n, 2) -> y, u (n_seg, n, 2); each segment from rest.
-
-    The applied current is u + cubic u^3 (static amplifier nonlinearity); u
-    (the commanded current) is what is measured."""
-    ap, bp, cp, ac, bc, cc, dc = (loop[k] for k in ("ap", "bp", "cp", "ac", "bc", "cc", "dc"))
-    nx_p, nx_c = ap.shape[0], ac.shape[0]
-    v = noise_std * np.random.default_rng(seed).standard_normal(r.shape)
-    k_u = np.hstack([-dc @ cp, -cc])                 # u = k_u x + (r - dc v)
-    a0 = np.block([[ap, np.zeros((nx_p, nx_c))], [bc @ cp, ac]])
-    b_u = np.vstack([bp, np.zeros((nx_c, 2))])
-    u_ext = r - v @ dc.T
-    w_v = v @ np.vstack([np.zeros((nx_p, 2)), bc]).T
-    a_cl_t, a0_t, k_u_t, b_u_t = (a0 + b_u @ k_u).T, a0.T, k_u.T, b_u.T
-    w_lin = np.swapaxes(u_ext @ b_u_t + w_v, 0, 1)
-    w_v, u_t = np.swapaxes(w_v, 0, 1), np.swapaxes(u_ext, 0, 1)
-    xs = np.empty((r.shape[1], r.shape[0], nx_p + nx_c))
-    x = np.zeros(xs.shape[1:])
-    for k in range(r.shape[1]):
-        xs[k] = x
-        if cubic == 0.0:
-            x = x @ a_cl_t + w_lin[k]
-        else:
-            u = x @ k_u_t + u_t[k]
-            x = x @ a0_t + (u + cubic * u**3) @ b_u_t + w_v[k]
-    xs = np.swapaxes(xs, 0, 1)
-    return xs[..., :nx_p] @ cp.T + v, xs @ k_u.T + u_ext
-
+# (the loop and its simulator: frf_testbench.py, shared with the streaming tests)
 
 def _multisine(lines, n_real, amp, seed, orthogonal=True):
     """One period (M, Ne, N, Nu) of random-phase multisines, amp [A] per line.

@@ -156,6 +156,7 @@ def add_arguments(g: argparse.ArgumentParser) -> None:
     g.add_argument("--working-current", type=float, default=1.0,
                    help="controller's peak working current [A] for the headroom check (default 1.0)")
     g.add_argument("--no-plan", action="store_true", help="skip the stepped/swept/multisine time table")
+    g.add_argument("--no-figure", action="store_true", help="skip design.png (quicker)")
     g.add_argument("--out", default="design", help="directory for design.png and design.json (default design/)")
     g.add_argument("--json", action="store_true", help="print one JSON object instead of text")
 
@@ -195,7 +196,7 @@ def run(args: argparse.Namespace) -> int:
         headroom = {"ok": False, "text": f"headroom: REFUSED, {exc}", "margin_a": None}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    png = plot_design(design, out / "design.png")
+    png = None if args.no_figure else plot_design(design, out / "design.png")
     (out / "design.json").write_text(json.dumps(design.to_dict()))
     if args.json:
         print(json.dumps({
@@ -208,13 +209,15 @@ def run(args: argparse.Namespace) -> int:
             "plan": None if plan is None else [
                 {"method": r.name, "n_lines": r.n_lines, "n_experiments": r.n_experiments,
                  "total_samples": r.total_samples, "measurement_time_s": r.measurement_time_s} for r in plan],
-            "figure": str(png), "design_json": str(out / "design.json")}))
+            "figure": png and str(png), "design_json": str(out / "design.json")}))
     else:
         print(describe(design))
         print(headroom["text"])
         if plan is not None:
             print(f"\nmeasurement time of the full {len(inputs)} x {len(inputs)} FRF matrix on the same lines:")
             print(format_plan(plan))
-        print(f"\nfigure: {png}\ndesign: {out / 'design.json'} (start it with the excitation generator's "
+        if png is not None:
+            print(f"\nfigure: {png}")
+        print(f"design: {out / 'design.json'} (start it with the excitation generator's "
               "start_experiment service, design_json = this file's text)")
     return 0 if headroom["ok"] else 1

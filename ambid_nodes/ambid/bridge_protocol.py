@@ -1,0 +1,586 @@
+"""The UDP protocol between the hardware bridge and the real-time target.
+
+Pure packing and unpacking of datagrams (no sockets, no rclpy) and the
+bridge's reassembly of the measurement stream. The wire format is
+documented in ``docs/bridge_protocol.md``; this module is its reference
+implementation.
+
+Every datagram: a 16-byte header, a payload whose layout depends on the
+kind, a CRC-32 (zlib/IEEE 802.3) trailer over header + payload.
+Little-endian, no padding, at most :data:`MAX_DATAGRAM_BYTES` bytes (one
+Ethernet frame without fragmentation)::
+
+    header  <4sBBHIHH   magic b"AMBP", version, kind, flags (0), sequence, payload length, reserved (0)
+    payload             kind specific, see the ``*_LAYOUT`` structs
+    trailer <I          crc32(header + payload)
+
+Sequence numbers are uint32, counted per sender and per kind, wrapping.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import struct
+import zlib
+from dataclasses import dataclass
+from enum import IntEnum
+
+import numpy as np
+
+MAGIC = b"AMBP"
+PROTOCOL_VERSION = 1
+SUPPORTED_VERSIONS = (1,)
+# 1500-byte Ethernet MTU minus the IPv4 (20) and UDP (8) headers: no IP fragmentation
+MAX_DATAGRAM_BYTES = 1472
+SEQUENCE_MODULO = 2**32
+NO_INDEX = 2**64 - 1  # "none" in uint64 sample-index fields
+
+HEADER = struct.Struct("<4sBBHIHH")
+TRAILER = struct.Struct("<I")
+OVERHEAD_BYTES = HEADER.size + TRAILER.size
+# block payloads (MEASUREMENT, EXCITATION): first_index, n_samples, n_channels, channel_set, value_bytes, reserved
+BLOCK_LAYOUT = struct.Struct("<QHHHBB")
+# state, safe_reason, clock_running, reserved, sample_rate_hz, sample_index, sent_end, excitation_next,
+# next_measurement_sequence, rx_datagrams, rx_rejected, late_excitation_samples, overruns, reserved
+HEARTBEAT_LAYOUT = struct.Struct("<BBBBIQQQIIIIII")
+# command_id, code, reserved, reserved, arg0, arg1, arg2, reserved
+COMMAND_LAYOUT = struct.Struct("<IBBHQQII")
+# command_id, code, result, state, reserved, sample_index
+ACK_LAYOUT = struct.Struct("<IBBBBQ")
+
+
+class Kind(IntEnum):
+    """Datagram kinds (header byte 5)."""
+
+    MEASUREMENT = 1  # target -> bridge: y, u, ic, r of consecutive samples, with sample flags
+    EXCITATION = 2   # bridge -> target: r of consecutive samples
+    HEARTBEAT = 3    # both ways
+    COMMAND = 4      # bridge -> target
+    ACK = 5          # target -> bridge: answer to a COMMAND
+
+
+class TargetState(IntEnum):
+    IDLE = 0     # powered, waiting for START, clock stopped at 0
+    RUNNING = 1  # control loop running, rotor levitated
+    SAFE = 2     # safe state: zero current reference, the rotor lands; the clock stops after landing
+    DONE = 3     # session over (sample budget reached or STOP), clock stopped
+
+
+class SafeReason(IntEnum):
+    NONE = 0
+    COMMANDED = 1      # SAFE_STATE command
+    BRIDGE_SILENT = 2  # no datagram from the bridge within the target's timeout
+
+
+class CommandCode(IntEnum):
+    START = 1       # IDLE -> RUNNING
+    STOP = 2        # any -> DONE (clock stops)
+    SAFE_STATE = 3  # RUNNING or IDLE -> SAFE
+    EXPERIMENT = 4  # announce samples [arg0, arg0 + arg1) as excited (arg1 = 0 cancels); arg2 = slot
+
+
+class AckResult(IntEnum):
+    OK = 0
+    REFUSED = 1       # not possible in the target's state
+    BAD_ARGUMENT = 2
+
+
+# sample flags of MEASUREMENT datagrams (bits 0, 1, 3 equal SampleBlock's FLAG_CLIPPED, _LANDED, _CONTROLLER_LOST)
+FLAG_CLIPPED = 1          # |ic + r| hit the amplifier current limit
+FLAG_LANDED = 2           # the rotor touched the backup bearings
+FLAG_SAFE_STATE = 8       # the target was in its safe state: zero current reference
+FLAG_EXCITATION_LATE = 16  # an announced sample had no excitation: r = 0 applied
+
+CHANNEL_SET_MEASUREMENT = 1  # y(4) [m], u(4), ic(4), r(4) [A]
+CHANNEL_SET_EXCITATION = 2   # r(4) [A]
+_AXES = ("a_x", "b_x", "a_y", "b_y")
+CHANNEL_SETS: dict[int, tuple[str, ...]] = {
+    CHANNEL_SET_MEASUREMENT: tuple(f"{q}_{a}" for q in ("y", "u", "ic", "r") for a in _AXES),
+    CHANNEL_SET_EXCITATION: tuple(f"r_{a}" for a in _AXES),
+}
+_BLOCK_KINDS = {Kind.MEASUREMENT: CHANNEL_SET_MEASUREMENT, Kind.EXCITATION: CHANNEL_SET_EXCITATION}
+_VALUE_DTYPES = {8: np.dtype("<f8"), 4: np.dtype("<f4")}
+
+
+class ProtocolError(ValueError):
+    """A datagram is malformed or not of this protocol version.
+
+    Attributes:
+        reason: one of ``length`` (truncated, or payload length disagrees),
+            ``oversized``, ``magic``, ``version``, ``crc``, ``kind``, ``content``
+            (NaN, wrong channel set, zero samples).
+    """
+
+    def __init__(self, reason: str, text: str) -> None:
+        super().__init__(text)
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """MEASUREMENT: samples [first_index, first_index + n) measured by the target.
+
+    Attributes:
+        sequence: uint32, per kind.
+        first_index: sample index of the first row.
+        data: (n, 16) float64, rows (y [m], u [A], ic [A], r [A]) in CHANNEL_SETS[1] order.
+        sample_flags: (n,) uint8, FLAG_* bits.
+    """
+
+    sequence: int
+    first_index: int
+    data: np.ndarray
+    sample_flags: np.ndarray
+
+    @property
+    def end_index(self) -> int:
+        return self.first_index + len(self.data)
+
+
+@dataclass(frozen=True)
+class Excitation:
+    """EXCITATION: r [A] (n, 4) for samples [first_index, first_index + n)."""
+
+    sequence: int
+    first_index: int
+    data: np.ndarray
+
+    @property
+    def end_index(self) -> int:
+        return self.first_index + len(self.data)
+
+
+@dataclass(frozen=True)
+class Heartbeat:
+    """HEARTBEAT, both ways. The bridge fills only state and the counters it has; the rest 0.
+
+    Attributes:
+        sequence: uint32, per kind.
+        state: TargetState of the target (the bridge sends its own view, RUNNING once connected).
+        safe_reason: SafeReason.
+        clock_running: the target's sample clock advances.
+        sample_rate_hz: the target's control rate [Hz].
+        sample_index: target: samples done (the next sample index); bridge: next contiguous index received.
+        sent_end: target: end of the measurement samples sent so far.
+        excitation_next: target: first announced sample >= sample_index without excitation, NO_INDEX if none.
+        next_measurement_sequence: target: the sequence number of its next MEASUREMENT datagram.
+        rx_datagrams, rx_rejected: datagrams the sender received / refused (malformed, foreign).
+        late_excitation_samples: target: announced samples applied with r = 0.
+        overruns: target: times the real-time schedule fell behind.
+    """
+
+    sequence: int
+    state: int
+    safe_reason: int = 0
+    clock_running: bool = False
+    sample_rate_hz: int = 0
+    sample_index: int = 0
+    sent_end: int = 0
+    excitation_next: int = NO_INDEX
+    next_measurement_sequence: int = 0
+    rx_datagrams: int = 0
+    rx_rejected: int = 0
+    late_excitation_samples: int = 0
+    overruns: int = 0
+
+
+@dataclass(frozen=True)
+class Command:
+    """COMMAND: ``code`` (CommandCode) with its arguments; answered by an ACK of the same command_id."""
+
+    sequence: int
+    command_id: int
+    code: int
+    arg0: int = 0
+    arg1: int = 0
+    arg2: int = 0
+
+
+@dataclass(frozen=True)
+class Ack:
+    """ACK: the target's answer (AckResult) to command ``command_id``, its state and sample index after it."""
+
+    sequence: int
+    command_id: int
+    code: int
+    result: int
+    state: int
+    sample_index: int
+
+
+Message = Measurement | Excitation | Heartbeat | Command | Ack
+
+
+def max_block_samples(kind: Kind, value_bytes: int = 8) -> int:
+    """Most samples one MEASUREMENT or EXCITATION datagram can carry within MAX_DATAGRAM_BYTES."""
+    n_ch = len(CHANNEL_SETS[_BLOCK_KINDS[Kind(kind)]])
+    per_sample = n_ch * value_bytes + (1 if kind == Kind.MEASUREMENT else 0)
+    return (MAX_DATAGRAM_BYTES - OVERHEAD_BYTES - BLOCK_LAYOUT.size) // per_sample
+
+
+def seq_diff(a: int, b: int) -> int:
+    """a - b for wrapping uint32 sequence numbers, in [-2**31, 2**31)."""
+    return (a - b + 2**31) % SEQUENCE_MODULO - 2**31
+
+
+def _check_uint(name: str, value: int, bits: int) -> int:
+    if not (isinstance(value, (int, np.integer)) and 0 <= int(value) < 2**bits):
+        raise ValueError(f"{name} = {value!r} must be an integer in [0, 2**{bits})")
+    return int(value)
+
+
+def _frame(kind: Kind, sequence: int, payload: bytes, version: int) -> bytes:
+    _check_uint("sequence", sequence, 32)
+    _check_uint("version", version, 8)
+    size = OVERHEAD_BYTES + len(payload)
+    if size > MAX_DATAGRAM_BYTES:
+        raise ValueError(f"{kind.name} datagram of {size} bytes exceeds {MAX_DATAGRAM_BYTES} bytes; "
+                         f"send fewer samples per datagram (at most {max_block_samples(kind)} at float64)")
+    head = HEADER.pack(MAGIC, version, kind, 0, sequence, len(payload), 0)
+    body = head + payload
+    return body + TRAILER.pack(zlib.crc32(body))
+
+
+def _pack_block(kind: Kind, sequence: int, first_index: int, data, sample_flags, version: int,
+                value_bytes: int) -> bytes:
+    channel_set = _BLOCK_KINDS[kind]
+    n_ch = len(CHANNEL_SETS[channel_set])
+    if value_bytes not in _VALUE_DTYPES:
+        raise ValueError(f"value_bytes = {value_bytes!r}: use 8 (float64) or 4 (float32)")
+    data = np.asarray(data, dtype=float)
+    if data.ndim != 2 or data.shape[1] != n_ch or data.shape[0] < 1:
+        raise ValueError(f"{kind.name} data must have shape (n >= 1, {n_ch}), got {data.shape}")
+    if not np.all(np.isfinite(data)):
+        raise ValueError(f"{kind.name} data contains NaN or Inf")
+    _check_uint("first_index", first_index, 64)
+    head = BLOCK_LAYOUT.pack(first_index, data.shape[0], n_ch, channel_set, value_bytes, 0)
+    payload = head + data.astype(_VALUE_DTYPES[value_bytes]).tobytes()
+    if kind == Kind.MEASUREMENT:
+        flags = np.asarray(sample_flags)
+        if flags.shape != (data.shape[0],) or np.any((flags < 0) | (flags > 255)):
+            raise ValueError(f"sample_flags must be (n,) = ({data.shape[0]},) values in [0, 255], got {flags.shape}")
+        payload += flags.astype(np.uint8).tobytes()
+    return _frame(kind, sequence, payload, version)
+
+
+def pack_datagram(msg: Message, version: int = PROTOCOL_VERSION, value_bytes: int = 8) -> bytes:
+    """The datagram (bytes, at most MAX_DATAGRAM_BYTES) of one message.
+
+    Args:
+        msg: a Measurement, Excitation, Heartbeat, Command or Ack.
+        version: protocol version written into the header.
+        value_bytes: 8 (float64) or 4 (float32) for the sample values of block kinds.
+
+    Raises:
+        ValueError: a field out of range, data of the wrong shape or non-finite, or too many samples.
+    """
+    if isinstance(msg, Measurement):
+        return _pack_block(Kind.MEASUREMENT, msg.sequence, msg.first_index, msg.data, msg.sample_flags, version,
+                           value_bytes)
+    if isinstance(msg, Excitation):
+        return _pack_block(Kind.EXCITATION, msg.sequence, msg.first_index, msg.data, None, version, value_bytes)
+    if isinstance(msg, Heartbeat):
+        payload = HEARTBEAT_LAYOUT.pack(
+            _check_uint("state", msg.state, 8), _check_uint("safe_reason", msg.safe_reason, 8),
+            1 if msg.clock_running else 0, 0, _check_uint("sample_rate_hz", msg.sample_rate_hz, 32),
+            _check_uint("sample_index", msg.sample_index, 64), _check_uint("sent_end", msg.sent_end, 64),
+            _check_uint("excitation_next", msg.excitation_next, 64),
+            _check_uint("next_measurement_sequence", msg.next_measurement_sequence, 32),
+            _check_uint("rx_datagrams", msg.rx_datagrams % SEQUENCE_MODULO, 32),
+            _check_uint("rx_rejected", msg.rx_rejected % SEQUENCE_MODULO, 32),
+            _check_uint("late_excitation_samples", msg.late_excitation_samples % SEQUENCE_MODULO, 32),
+            _check_uint("overruns", msg.overruns % SEQUENCE_MODULO, 32), 0)
+        return _frame(Kind.HEARTBEAT, msg.sequence, payload, version)
+    if isinstance(msg, Command):
+        payload = COMMAND_LAYOUT.pack(_check_uint("command_id", msg.command_id, 32), _check_uint("code", msg.code, 8),
+                                      0, 0, _check_uint("arg0", msg.arg0, 64), _check_uint("arg1", msg.arg1, 64),
+                                      _check_uint("arg2", msg.arg2, 32), 0)
+        return _frame(Kind.COMMAND, msg.sequence, payload, version)
+    if isinstance(msg, Ack):
+        payload = ACK_LAYOUT.pack(_check_uint("command_id", msg.command_id, 32), _check_uint("code", msg.code, 8),
+                                  _check_uint("result", msg.result, 8), _check_uint("state", msg.state, 8), 0,
+                                  _check_uint("sample_index", msg.sample_index, 64))
+        return _frame(Kind.ACK, msg.sequence, payload, version)
+    raise ValueError(f"cannot pack a {type(msg).__name__}; expected Measurement, Excitation, Heartbeat, Command or Ack")
+
+
+def _unpack_block(kind: Kind, sequence: int, payload: memoryview):
+    if len(payload) < BLOCK_LAYOUT.size:
+        raise ProtocolError("length", f"{kind.name} payload of {len(payload)} bytes is shorter than its "
+                                      f"{BLOCK_LAYOUT.size}-byte block header")
+    first, n, n_ch, channel_set, value_bytes, _ = BLOCK_LAYOUT.unpack_from(payload)
+    want_set = _BLOCK_KINDS[kind]
+    if channel_set != want_set or n_ch != len(CHANNEL_SETS[want_set]):
+        raise ProtocolError("content", f"{kind.name} with channel set {channel_set} of {n_ch} channels; expected "
+                                       f"set {want_set} of {len(CHANNEL_SETS[want_set])} channels")
+    if value_bytes not in _VALUE_DTYPES:
+        raise ProtocolError("content", f"{kind.name} with {value_bytes}-byte values; expected 8 or 4")
+    if n < 1:
+        raise ProtocolError("content", f"{kind.name} with no samples")
+    n_flags = n if kind == Kind.MEASUREMENT else 0
+    want = BLOCK_LAYOUT.size + n * n_ch * value_bytes + n_flags
+    if len(payload) != want:
+        raise ProtocolError("length", f"{kind.name} payload of {len(payload)} bytes; {n} samples x {n_ch} channels "
+                                      f"x {value_bytes} bytes need {want}")
+    data = np.frombuffer(payload, _VALUE_DTYPES[value_bytes], n * n_ch, BLOCK_LAYOUT.size).reshape(n, n_ch)
+    data = data.astype(float)  # a writable float64 copy, independent of the receive buffer
+    if not np.isfinite(data).all():
+        raise ProtocolError("content", f"{kind.name} data at samples {first}.. contains NaN or Inf")
+    if kind == Kind.EXCITATION:
+        return Excitation(sequence, first, data)
+    flags = np.frombuffer(payload, np.uint8, n, want - n).copy()
+    return Measurement(sequence, first, data, flags)
+
+
+def unpack_datagram(datagram: bytes, version: int = PROTOCOL_VERSION) -> Message:
+    """The message in one received datagram.
+
+    Args:
+        datagram: the bytes received.
+        version: the only protocol version accepted.
+
+    Raises:
+        ProtocolError: the datagram is truncated, oversized, not of this protocol or version, corrupted
+            (CRC), of an unknown kind, or its content is invalid; ``reason`` says which.
+    """
+    view = memoryview(datagram)
+    size = len(view)
+    if size > MAX_DATAGRAM_BYTES:
+        raise ProtocolError("oversized", f"datagram of {size} bytes exceeds the protocol's {MAX_DATAGRAM_BYTES}")
+    if size < OVERHEAD_BYTES:
+        raise ProtocolError("length", f"datagram of {size} bytes is shorter than header + CRC ({OVERHEAD_BYTES})")
+    magic, ver, kind, _, sequence, payload_len, _ = HEADER.unpack_from(view)
+    if magic != MAGIC:
+        raise ProtocolError("magic", f"magic {bytes(magic)!r}, expected {MAGIC!r}: not an ambid bridge datagram")
+    if ver != version:
+        raise ProtocolError("version", f"protocol version {ver}, this end speaks version {version}: run matching "
+                                       "bridge and target versions (parameter protocol_version)")
+    (crc,) = TRAILER.unpack_from(view, size - TRAILER.size)
+    if zlib.crc32(view[:size - TRAILER.size]) != crc:
+        raise ProtocolError("crc", f"CRC mismatch in a datagram of {size} bytes: corrupted in transit")
+    if payload_len != size - OVERHEAD_BYTES:
+        raise ProtocolError("length", f"header says {payload_len} payload bytes, the datagram has "
+                                      f"{size - OVERHEAD_BYTES}")
+    try:
+        kind = Kind(kind)
+    except ValueError:
+        raise ProtocolError("kind", f"unknown datagram kind {kind}") from None
+    payload = view[HEADER.size:size - TRAILER.size]
+    if kind in _BLOCK_KINDS:
+        return _unpack_block(kind, sequence, payload)
+    layout = {Kind.HEARTBEAT: HEARTBEAT_LAYOUT, Kind.COMMAND: COMMAND_LAYOUT, Kind.ACK: ACK_LAYOUT}[kind]
+    if len(payload) != layout.size:
+        raise ProtocolError("length", f"{kind.name} payload of {len(payload)} bytes, expected {layout.size}")
+    f = layout.unpack(payload)
+    if kind == Kind.HEARTBEAT:
+        return Heartbeat(sequence, f[0], f[1], bool(f[2]), f[4], f[5], f[6], f[7], f[8], f[9], f[10], f[11], f[12])
+    if kind == Kind.COMMAND:
+        return Command(sequence, f[0], f[1], f[4], f[5], f[6])
+    return Ack(sequence, f[0], f[1], f[2], f[3], f[5])
+
+
+# --- the bridge's side: reassembling the measurement stream -------------------
+
+@dataclass(frozen=True)
+class Block:
+    """Contiguous measured samples [first_index, first_index + n): data (n, 16), sample_flags (n,) uint8.
+
+    ``final``: the last block of the stream (see :meth:`MeasurementAssembler.finish`).
+    """
+
+    first_index: int
+    data: np.ndarray
+    sample_flags: np.ndarray
+    final: bool = False
+
+    @property
+    def end_index(self) -> int:
+        return self.first_index + len(self.data)
+
+
+@dataclass(frozen=True)
+class Gap:
+    """Samples [start, end) declared lost; ``datagrams``: MEASUREMENT datagrams lost (-1 if unknown)."""
+
+    start: int
+    end: int
+    datagrams: int
+
+
+@dataclass
+class AssemblerCounts:
+    """What the assembler has seen (datagrams unless named samples)."""
+
+    accepted: int = 0
+    duplicates: int = 0      # a sequence number received before
+    reordered: int = 0       # arrived after a datagram with a higher sequence number, still in time
+    late: int = 0            # arrived after its samples were declared lost (or before the stream start)
+    gaps: int = 0
+    missing_samples: int = 0
+    lost_datagrams: int = 0
+    blocks: int = 0
+
+
+class MeasurementAssembler:
+    """Turns MEASUREMENT datagrams, in any order, into contiguous blocks and declared gaps.
+
+    Datagrams are ordered by their first sample index. A missing datagram is
+    waited for until ``reorder_window`` later datagrams have arrived or for
+    ``reorder_timeout_s`` (whichever first); then its samples are declared
+    lost: the block being filled ends at the gap and a :class:`Gap` names
+    the range. Blocks never span a gap; otherwise they end where the sample
+    index reaches a multiple of ``block_size`` (as the simulated plant's).
+
+    A finished block is handed out once a later sample arrived, so the last
+    one can still be marked final when the sender halts (:meth:`finish`);
+    this delays a block by one datagram, not by one block.
+
+    Args:
+        block_size: samples per output block.
+        reorder_window: later datagrams that make a missing one lost.
+        reorder_timeout_s: longest wait for a missing datagram [s].
+    """
+
+    def __init__(self, block_size: int = 1000, reorder_window: int = 16, reorder_timeout_s: float = 0.2) -> None:
+        if block_size < 1 or reorder_window < 1 or not (reorder_timeout_s >= 0 and math.isfinite(reorder_timeout_s)):
+            raise ValueError(f"MeasurementAssembler needs block_size >= 1 ({block_size}), reorder_window >= 1 "
+                             f"({reorder_window}) and a finite reorder_timeout_s >= 0 ({reorder_timeout_s})")
+        self.block_size = int(block_size)
+        self.reorder_window = int(reorder_window)
+        self.reorder_timeout_s = float(reorder_timeout_s)
+        self.counts = AssemblerCounts()
+        self.next_index: int | None = None  # first sample not yet delivered or declared lost
+        self._last_seq: int | None = None   # sequence of the last datagram delivered
+        self._highest_seq: int | None = None
+        self._pending: dict[int, Measurement] = {}
+        self._seen: set[int] = set()
+        self._seen_order: collections.deque[int] = collections.deque()
+        self._buf: list[tuple[np.ndarray, np.ndarray]] = []
+        self._buf_start = 0
+        self._stall_since: float | None = None
+        self._held: list = []  # blocks and gaps not yet followed by a delivered sample
+
+    @property
+    def started(self) -> bool:
+        return self.next_index is not None
+
+    @property
+    def pending(self) -> int:
+        """Datagrams held waiting for an earlier one."""
+        return len(self._pending)
+
+    def start(self, first_index: int, next_sequence: int) -> None:
+        """Begin the stream at sample ``first_index``, whose datagram carries ``next_sequence``.
+
+        Datagrams already pushed for earlier samples are dropped (counted late).
+        """
+        self.next_index = self._buf_start = int(first_index)
+        self._last_seq = (int(next_sequence) - 1) % SEQUENCE_MODULO
+        for first in [f for f in self._pending if f < first_index]:
+            del self._pending[first]
+            self.counts.late += 1
+
+    def push(self, m: Measurement) -> str:
+        """Take one datagram; returns ``accepted``, ``reordered``, ``duplicate`` or ``late``."""
+        seq = m.sequence
+        if seq in self._seen:
+            self.counts.duplicates += 1
+            return "duplicate"
+        self._seen.add(seq)
+        self._seen_order.append(seq)
+        if len(self._seen_order) > 8 * self.reorder_window + 64:
+            self._seen.discard(self._seen_order.popleft())
+        if self.next_index is not None and m.first_index < self.next_index:
+            self.counts.late += 1
+            return "late"
+        verdict = "accepted"
+        if self._highest_seq is not None and seq_diff(seq, self._highest_seq) < 0:
+            self.counts.reordered += 1
+            verdict = "reordered"
+        else:
+            self._highest_seq = seq
+        self.counts.accepted += 1
+        self._pending[m.first_index] = m
+        if self.next_index is None and len(self._pending) > 64 * self.reorder_window:
+            self._pending.pop(min(self._pending))  # not started: keep memory bounded
+            self.counts.late += 1
+        return verdict
+
+    def poll(self, now_s: float, sent_end: int | None = None, next_sequence: int | None = None) -> list:
+        """Blocks that are complete and gaps now declared, in sample order.
+
+        Args:
+            now_s: current time [s] (any monotonic clock).
+            sent_end: the sender says samples up to here were sent (from its heartbeat), or None.
+            next_sequence: the sequence its next MEASUREMENT datagram will carry (same heartbeat), or None.
+
+        Returns:
+            list of :class:`Block` and :class:`Gap`.
+        """
+        out: list = []
+        if self.next_index is None:
+            return out
+        while True:
+            m = self._pending.pop(self.next_index, None)
+            if m is not None:
+                out += self._held  # a sample follows them: none of them is the last
+                self._held = []
+                self._deliver(m)
+                self._stall_since = None
+                continue
+            if not self._pending and (sent_end is None or sent_end <= self.next_index):
+                break
+            if self._stall_since is None:
+                self._stall_since = now_s
+            if len(self._pending) < self.reorder_window and now_s - self._stall_since < self.reorder_timeout_s:
+                break
+            if self._pending:
+                end = min(self._pending)
+                seq_after = self._pending[end].sequence
+            else:
+                end, seq_after = int(sent_end), next_sequence
+            lost = seq_diff(seq_after, self._last_seq) - 1 if seq_after is not None else -1
+            self._emit()
+            self._held.append(Gap(self.next_index, end, lost))
+            self.counts.gaps += 1
+            self.counts.missing_samples += end - self.next_index
+            self.counts.lost_datagrams += max(lost, 0)
+            self.next_index = self._buf_start = end
+            if seq_after is not None:
+                self._last_seq = (seq_after - 1) % SEQUENCE_MODULO
+            self._stall_since = None
+        return out
+
+    def finish(self) -> list:
+        """Everything still held, and the partial block, when the sender halted; the last block marked final."""
+        self._emit()
+        out, self._held = self._held, []
+        last = max((i for i, x in enumerate(out) if isinstance(x, Block)), default=None)
+        if last is not None:
+            b = out[last]
+            out[last] = Block(b.first_index, b.data, b.sample_flags, True)
+        return out
+
+    def _deliver(self, m: Measurement) -> None:
+        self._last_seq = m.sequence
+        n = len(m.data)
+        pos = 0
+        while pos < n:
+            boundary = (self.next_index // self.block_size + 1) * self.block_size
+            take = min(n - pos, boundary - self.next_index)
+            self._buf.append((m.data[pos:pos + take], m.sample_flags[pos:pos + take]))
+            self.next_index += take
+            pos += take
+            if self.next_index == boundary:
+                self._emit()
+
+    def _emit(self) -> None:
+        if not self._buf:
+            return
+        data = np.concatenate([d for d, _ in self._buf]) if len(self._buf) > 1 else self._buf[0][0]
+        flags = np.concatenate([f for _, f in self._buf]) if len(self._buf) > 1 else self._buf[0][1]
+        self._held.append(Block(self._buf_start, data, flags))
+        self.counts.blocks += 1
+        self._buf = []
+        self._buf_start = self.next_index

@@ -1,0 +1,362 @@
+"""excitation_generator: designs an excitation experiment and streams it ahead of the plant.
+
+Services (namespace-relative):
+  ``start_experiment`` (ambid_msgs/StartExperiment): design_json empty = the design of the
+    parameters, else ``ExcitationDesign.from_dict(json)``; start_index 0 = the next safe one
+    (the plant's progress + ``start_margin``, not before the previous experiment's end).
+    Refused, with the reason in ``message``: while another experiment runs, before the
+    ``plant/description`` arrived, when the design's sample rate differs from the plant's,
+    names an input the plant has not, or lacks headroom (peak + ``working_current`` above
+    the amplifier limit; the message is ``check_headroom``'s).
+  ``stop_experiment`` (ambid_msgs/StopExperiment): no more blocks; the design is republished
+    with total_samples cut at the next block boundary not yet published.
+
+Topics: publishes the latched ``excitation/design`` (ExcitationDesign, design_json =
+``to_dict()``), ``excitation`` (SampleBlock, channels r_a_x, r_b_x, r_a_y, r_b_y [A], first_index
+= start_index + offset, contiguous, the last one flagged FLAG_FINAL), ``status`` and ``events``;
+subscribes the latched ``plant/description`` (sample period, current names and limits) and
+``measurement``.
+
+Flow control: the plant's progress is the end (first_index + n_samples) of its latest
+``measurement`` block, which is reliable and namespaced (``/clock`` is best effort, so a lost
+last message could stall the plant forever, and global, so two rigs would mix). A block is
+published only when its end is at most ``lookahead`` samples past that progress, so memory
+stays flat however long the experiment; each block is computed on demand by
+``design.samples``. Since the plant waits at an excited sample until its block arrives and
+publishes measurement every ``m`` samples, ``lookahead`` must exceed ``block_size + m``
+(checked at run time; an event warns otherwise).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import dataclass
+
+import numpy as np
+from ambid_msgs.msg import ExcitationDesign as DesignMsg
+from ambid_msgs.msg import PlantDescription, SampleBlock, SessionEvent, SessionStatus
+from ambid_msgs.srv import StartExperiment, StopExperiment
+from rclpy.node import Node
+
+from ambid.excitation import ExcitationDesign, check_headroom
+from ambid.rig import AXES, CURRENT_NAMES, load_rig, make_rig
+from ambid_nodes import qos
+from ambid_nodes.commands.design import DEFAULT_INPUTS, KINDS, build_design
+from ambid_nodes.conversions import block_msg, time_msg
+from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
+
+EXCITATION_NAMES = tuple(f"r_{a}" for a in AXES)
+EXCITATION_UNITS = ("A",) * len(EXCITATION_NAMES)
+STATUS_PERIOD_S = 0.5
+
+
+@dataclass
+class Experiment:
+    """The running experiment: its design and how far it has been published."""
+
+    experiment_id: str
+    design: ExcitationDesign
+    msg: DesignMsg
+    start: int                 # plant sample index of offset 0
+    total: int                 # samples, cut by a stop
+    columns: np.ndarray        # (Nu,) excitation channel of each design input
+    next_offset: int = 0       # first offset not yet published
+    blocks: int = 0
+
+    @property
+    def end(self) -> int:
+        return self.start + self.total
+
+
+class ExcitationGenerator(Node):
+    def __init__(self, **kwargs) -> None:
+        super().__init__("excitation_generator", **kwargs)
+        rig_file = declare(self, "rig_file", "", "YAML rig parameter file for the defaults until plant/description "
+                                                 "arrives; empty = the default rig")
+        self.kind = declare(self, "kind", "multisine", "excitation kind: " + " | ".join(KINDS))
+        band = (declare(self, "band_low", 10.0, "lower edge of the band of interest", 0.0, 1e6, "Hz"),
+                declare(self, "band_high", 1000.0, "upper edge of the band of interest, below fs/2", 0.0, 1e6, "Hz"))
+        resolution = declare(self, "resolution", 5.0, "frequency resolution fs/N; fs/resolution must be an integer",
+                             1e-6, 1e6, "Hz")
+        inputs = declare(self, "inputs", list(DEFAULT_INPUTS),
+                         "excited inputs (plant current names); u_<axis> is excited through channel r_<axis>")
+        peak = declare(self, "peak_current", 0.5, "excitation peak per input", 1e-6, 1e3, "A")
+        periods = declare(self, "periods", 4, "steady-state periods P per experiment", 1, 1_000_000)
+        realisations = declare(self, "realisations", 1, "realisations M (random phases, noise records)", 1, 100_000)
+        transient = declare(self, "transient_periods", 1, "periods discarded ahead of each experiment", 0, 100_000)
+        grid = declare(self, "grid", "", "line grid: random_odd | odd | full; empty = the kind's default")
+        spacing = declare(self, "spacing", "", "line spacing (swept sine: sweep law): linear | log; "
+                                               "empty = the kind's default")
+        phases = declare(self, "phases", "", "multisine phases: random | schroeder | crest_optimised; "
+                                             "empty = random")
+        mimo = declare(self, "mimo", "", "orthogonal | one_at_a_time | simultaneous; empty = the kind's default")
+        seed = declare(self, "seed", 0, "seed of the random choices (phases, grid, noise)", 0, 2**31 - 1)
+        settle = declare(self, "settle_time", 0.5, "stepped sine: settling wait per line", 0.0, 3600.0, "s")
+        cycles = declare(self, "cycles", 10, "stepped sine: measured cycles per line", 1, 1_000_000)
+        self.block_size = declare(self, "block_size", 1000, "samples per excitation block", 1, 1_000_000)
+        self.lookahead = declare(self, "lookahead", 20_000, "most samples published ahead of the plant's progress",
+                                 2, 100_000_000)
+        self.start_margin = declare(self, "start_margin", 5000, "samples between the plant's progress and an "
+                                                                "automatically chosen start", 0, 100_000_000)
+        self.current_limit = declare(self, "current_limit", 0.0, "amplifier current limit for the headroom check; "
+                                                                 "0 = the plant's (plant/description)", 0.0, 1e3, "A")
+        self.working_current = declare(self, "working_current", 1.0, "controller's peak working current (gravity "
+                                                                     "and regulation) for the headroom check",
+                                       0.0, 1e3, "A")
+        refuse_unknown(self)
+        if self.lookahead < 2 * self.block_size:
+            raise ParameterError(f"excitation_generator: lookahead {self.lookahead} must be at least twice "
+                                 f"block_size {self.block_size} (the plant waits for each block)")
+        unknown = sorted(set(inputs) - set(CURRENT_NAMES))
+        if unknown:
+            raise ParameterError(f"excitation_generator: inputs {unknown} are not plant currents; use some of "
+                                 f"{list(CURRENT_NAMES)}")
+        self.design_args = dict(kind=self.kind, band_hz=band, resolution_hz=resolution, input_names=tuple(inputs),
+                                peak_current_a=peak, n_periods=periods, n_realisations=realisations,
+                                n_transient_periods=transient, grid=grid, spacing=spacing, phases=phases,
+                                mimo=mimo, seed=seed, settle_s=settle, n_cycles=cycles)
+        try:
+            rig = load_rig(rig_file) if rig_file else make_rig()
+        except (ValueError, OSError) as exc:
+            raise ParameterError(f"excitation_generator: rig_file: {exc}") from None
+        # defaults until the plant describes itself; the design is checked now, so a bad band fails at start-up
+        self.dt = rig.dt
+        self.current_names = list(CURRENT_NAMES)
+        self.plant_limit = np.full(len(CURRENT_NAMES), float(rig.current_limit_a))
+        self.plant_known = False
+        try:
+            self.default_design: ExcitationDesign | None = build_design(fs_hz=1.0 / self.dt, **self.design_args)
+        except ValueError as exc:
+            raise ParameterError(f"excitation_generator: the design parameters are invalid at "
+                                 f"{1.0 / self.dt:g} Hz: {exc}") from None
+        self.default_error = ""
+
+        self.pub_design = self.create_publisher(DesignMsg, "excitation/design", qos.LATCHED)
+        self.pub_block = self.create_publisher(SampleBlock, "excitation", qos.BLOCKS)
+        self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
+        self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
+        self.create_subscription(PlantDescription, "plant/description", self.on_plant, qos.LATCHED)
+        self.create_subscription(SampleBlock, "measurement", self.on_measurement, qos.BLOCKS)
+        self.create_service(StartExperiment, "start_experiment", self.on_start)
+        self.create_service(StopExperiment, "stop_experiment", self.on_stop)
+
+        self.progress = 0          # next sample the plant will apply (known from measurement)
+        self.measurement_block = 0  # largest measurement block seen [samples]
+        self.last_end = 0          # end of the previous experiment: the next may not overlap it
+        self.exp: Experiment | None = None
+        self.last: Experiment | None = None
+        self.count = 0
+        self.state = SessionStatus.STATE_IDLE
+        self.received = self.rejected = 0
+        self.blocks_published = self.samples_published = 0
+        self.publish_status()
+        self.create_timer(STATUS_PERIOD_S, self.publish_status)
+
+    # --- inputs from the plant ---------------------------------------------
+    def on_plant(self, msg: PlantDescription) -> None:
+        self.received += 1
+        if not (np.isfinite(msg.sample_period) and msg.sample_period > 0):
+            self.reject(f"plant/description: sample_period {msg.sample_period!r} must be > 0")
+            return
+        if len(msg.current_limit) != len(msg.current_names) or not np.all(np.asarray(msg.current_limit) > 0):
+            self.reject(f"plant/description: {len(msg.current_limit)} current limits for "
+                        f"{len(msg.current_names)} currents, all must be > 0")
+            return
+        changed = abs(msg.sample_period - self.dt) > 1e-12 * self.dt
+        self.dt = float(msg.sample_period)
+        self.current_names = list(msg.current_names)
+        self.plant_limit = np.asarray(msg.current_limit, dtype=float)
+        self.plant_known = True
+        if changed:
+            try:
+                self.default_design, self.default_error = build_design(fs_hz=1.0 / self.dt, **self.design_args), ""
+            except ValueError as exc:
+                self.default_design = None
+                self.default_error = f"the design parameters are invalid at the plant's {1.0 / self.dt:g} Hz: {exc}"
+                self.event(SessionEvent.ERROR, "bad_design", self.default_error)
+
+    def on_measurement(self, msg: SampleBlock) -> None:
+        self.received += 1
+        if msg.n_samples == 0 or len(msg.data) != msg.n_samples * len(msg.channel_names):
+            self.reject(f"measurement: {len(msg.data)} values for {msg.n_samples} samples x "
+                        f"{len(msg.channel_names)} channels")
+            return
+        if msg.n_samples > self.measurement_block:
+            self.measurement_block = msg.n_samples
+            if self.lookahead < self.block_size + msg.n_samples:
+                self.event(SessionEvent.WARN, "lookahead_too_short",
+                           f"lookahead {self.lookahead} < block_size {self.block_size} + measurement block "
+                           f"{msg.n_samples}: the plant may wait for excitation forever; raise lookahead")
+        self.progress = max(self.progress, msg.first_index + msg.n_samples)
+        self.pump()
+
+    # --- services ----------------------------------------------------------
+    def on_start(self, req: StartExperiment.Request, resp: StartExperiment.Response) -> StartExperiment.Response:
+        try:
+            exp = self.prepare(req)
+        except ValueError as exc:
+            resp.accepted, resp.message = False, str(exc)
+            self.event(SessionEvent.WARN, "start_refused", str(exc))
+            return resp
+        self.exp, self.state = exp, SessionStatus.STATE_RUNNING
+        self.pub_design.publish(exp.msg)
+        self.event(SessionEvent.INFO, "started",
+                   f"{exp.experiment_id}: {exp.design.kind}, samples [{exp.start}, {exp.end}), "
+                   f"{exp.design.measurement_time_s:.6g} s")
+        self.pump()
+        self.publish_status()
+        resp.accepted, resp.experiment_id = True, exp.experiment_id
+        resp.start_index, resp.total_samples = exp.start, exp.total
+        resp.message = f"{exp.experiment_id} starts at sample {exp.start}, {exp.total} samples"
+        return resp
+
+    def prepare(self, req: StartExperiment.Request) -> Experiment:
+        """The experiment a request asks for, or ValueError saying why it is refused."""
+        if self.exp is not None:
+            raise ValueError(f"experiment {self.exp.experiment_id} is running (samples [{self.exp.start}, "
+                             f"{self.exp.end})); stop it with stop_experiment or wait for its end")
+        if not self.plant_known:
+            raise ValueError("no plant/description received yet: start the plant (plant_sim or the hardware "
+                             "bridge) in this namespace first")
+        if req.design_json:
+            try:
+                design = ExcitationDesign.from_dict(json.loads(req.design_json))
+            except (ValueError, KeyError, TypeError, AttributeError) as exc:  # JSONDecodeError is a ValueError
+                raise ValueError(f"design_json is not a valid ExcitationDesign: {exc!r}") from None
+        elif self.default_design is None:
+            raise ValueError(self.default_error)
+        else:
+            design = self.default_design
+        fs_plant = 1.0 / self.dt
+        if abs(design.fs_hz - fs_plant) > 1e-9 * fs_plant:
+            raise ValueError(f"the design's sample rate {design.fs_hz:g} Hz differs from the plant's "
+                             f"{fs_plant:g} Hz; design it at {fs_plant:g} Hz")
+        missing = [n for n in design.input_names if n not in self.current_names]
+        if missing:
+            raise ValueError(f"the design excites {missing}, which the plant does not have; its currents are "
+                             f"{self.current_names}")
+        rows = [self.current_names.index(n) for n in design.input_names]
+        limit = self.plant_limit[rows] if self.current_limit == 0 else self.current_limit
+        check_headroom(design, limit, self.working_current)  # its ValueError is the refusal message
+        columns = np.array([EXCITATION_NAMES.index("r_" + n[2:]) if n.startswith("u_") and
+                            "r_" + n[2:] in EXCITATION_NAMES else -1 for n in design.input_names])
+        if np.any(columns < 0):
+            raise ValueError(f"inputs {list(design.input_names)} have no excitation channel among "
+                             f"{list(EXCITATION_NAMES)} (u_<axis> is excited by r_<axis>)")
+        earliest = max(self.progress + self.start_margin, self.last_end)
+        start = int(req.start_index) or earliest
+        if start < earliest:
+            raise ValueError(f"start_index {start} is too early: the plant is at sample {self.progress} (needs "
+                             f"start_margin {self.start_margin} ahead) and the previous experiment ends at "
+                             f"{self.last_end}; use {earliest} or later, or 0 for the next safe one")
+        self.count += 1
+        exp_id = f"exp-{self.count:04d}"
+        return Experiment(exp_id, design, self.design_msg(exp_id, design, start, design.total_samples), start,
+                          design.total_samples, columns)
+
+    def design_msg(self, exp_id: str, d: ExcitationDesign, start: int, total: int) -> DesignMsg:
+        return DesignMsg(
+            stamp=time_msg(start * self.dt), experiment_id=exp_id, kind=d.kind,
+            multi_input=str(d.options.get("mimo", "one_at_a_time")), start_index=start, total_samples=total,
+            sample_rate=d.fs_hz, samples_per_period=d.n_per_period, n_periods=d.n_periods,
+            n_transient_periods=d.n_transient_periods, n_realisations=d.n_realisations,
+            n_experiments=d.n_experiments, input_names=list(d.input_names),
+            excited_lines=d.excited_lines.tolist(), detection_lines_odd=d.detection_lines_odd.tolist(),
+            detection_lines_even=d.detection_lines_even.tolist(), rms=d.rms_a.tolist(), peak=d.peak_a.tolist(),
+            crest_factor=d.crest_factor.tolist(), measurement_time=total / d.fs_hz,
+            seed=int(d.seed or 0), design_json=json.dumps(d.to_dict()))
+
+    def on_stop(self, req: StopExperiment.Request, resp: StopExperiment.Response) -> StopExperiment.Response:
+        exp = self.exp
+        if exp is None or (req.experiment_id and req.experiment_id != exp.experiment_id):
+            resp.accepted = False
+            resp.message = (f"experiment {req.experiment_id!r} is not running" if req.experiment_id
+                            else "no experiment is running")
+            running = f"; running: {exp.experiment_id}" if exp is not None else ""
+            resp.message += running
+            return resp
+        exp.total = exp.next_offset  # every published block is applied, nothing after it
+        exp.msg.total_samples = exp.total
+        exp.msg.measurement_time = exp.total / exp.design.fs_hz
+        self.pub_design.publish(exp.msg)
+        self.event(SessionEvent.INFO, "stopped", f"{exp.experiment_id} stopped at sample {exp.end} "
+                                                 f"({exp.total} of {exp.design.total_samples} samples)")
+        self.finish(exp)
+        resp.accepted, resp.stop_index = True, exp.end
+        resp.message = f"{exp.experiment_id} stops at sample {exp.end}"
+        return resp
+
+    # --- streaming -----------------------------------------------------------
+    def pump(self) -> None:
+        """Publish the blocks whose end lies within lookahead of the plant's progress."""
+        exp = self.exp
+        if exp is None:
+            return
+        limit = self.progress + self.lookahead
+        while exp.next_offset < exp.total:
+            off = exp.next_offset
+            n = min(self.block_size, exp.total - off)
+            if exp.start + off + n > limit:
+                break
+            data = np.zeros((n, len(EXCITATION_NAMES)))
+            data[:, exp.columns] = exp.design.samples(off, n)
+            final = SampleBlock.FLAG_FINAL if off + n == exp.total else 0
+            self.pub_block.publish(block_msg(exp.start + off, self.dt, EXCITATION_NAMES, EXCITATION_UNITS, data,
+                                             flags=final, experiment_id=exp.experiment_id))
+            exp.next_offset += n
+            exp.blocks += 1
+            self.blocks_published += 1
+            self.samples_published += n
+        if self.progress >= exp.end:
+            self.event(SessionEvent.INFO, "finished", f"{exp.experiment_id} done: samples [{exp.start}, {exp.end}) "
+                                                      "applied by the plant")
+            self.finish(exp)
+
+    def finish(self, exp: Experiment) -> None:
+        self.last_end = max(self.last_end, exp.end)
+        self.exp, self.last, self.state = None, exp, SessionStatus.STATE_DONE
+        self.publish_status()
+
+    # --- reporting -------------------------------------------------------------
+    def reject(self, why: str) -> None:
+        self.rejected += 1
+        self.get_logger().warn(f"rejected message ({self.rejected} so far): {why}", throttle_duration_sec=1.0)
+        self.event(SessionEvent.WARN, "rejected_message", why)
+
+    def event(self, severity: int, code: str, text: str) -> None:
+        if severity >= SessionEvent.WARN and code != "rejected_message":
+            self.get_logger().warn(text)
+        self.pub_event.publish(SessionEvent(stamp=time_msg(self.progress * self.dt), sample_index=self.progress,
+                                            severity=severity, node=self.get_fully_qualified_name(), code=code,
+                                            text=text))
+
+    def publish_status(self) -> None:
+        exp = self.exp or self.last
+        if exp is None:
+            progress, text = -1.0, "idle: call start_experiment"
+        else:
+            done = min(max(self.progress - exp.start, 0), exp.total)
+            progress = done / exp.total if exp.total else 1.0
+            verb = "running" if self.exp is not None else "done"
+            text = (f"{exp.experiment_id} {verb}: {progress:.0%} of {exp.total} samples applied, "
+                    f"{exp.next_offset} published")
+        figures = {"experiment_id": exp.experiment_id if exp else "",
+                   "start_index": exp.start if exp else 0, "total_samples": exp.total if exp else 0,
+                   "experiment_samples_published": exp.next_offset if exp else 0,
+                   "samples_published": self.samples_published, "blocks_published": self.blocks_published,
+                   "plant_index": self.progress, "lookahead": self.lookahead}
+        self.pub_status.publish(SessionStatus(
+            stamp=time_msg(self.progress * self.dt), node=self.get_fully_qualified_name(), state=self.state,
+            sample_index=self.progress, progress=progress, messages_received=self.received,
+            messages_rejected=self.rejected, text=text, keys=list(figures),
+            values=[json.dumps(v) for v in figures.values()]))
+
+
+def main(args=None) -> int:
+    from ambid_nodes.node_main import run_single
+    return run_single(ExcitationGenerator, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,321 @@
+"""frf_consumer: the FRF of the running excitation experiment, estimated while it runs.
+
+Subscribes ``measurement`` (SampleBlock: y_* [m], u_*, ic_*, r_* [A]), the
+latched ``excitation/design`` (ExcitationDesign; the design from its
+``design_json``, placed at ``start_index``, cut at ``total_samples``) and the
+latched ``controller/description`` (C(z), to check the loop). The numerical
+work is :class:`ambid.frf.streaming.FrfStream`: blocks are aligned to the
+design's periods by sample index, transient periods dropped, each period
+reduced to its line spectra.
+
+Publishes ``frf`` (FrfEstimate) each time a realisation -- all Ne
+experiments of it -- is complete (the first one as soon as the MIMO estimate
+is defined) and at the end of the experiment; ``status`` after every block
+that completed a period (a line a person can follow, and figures in
+keys/values; at the end the noise and distortion levels and the input
+sensitivity peak with its ISO 14839-3 zone); ``events`` for sample gaps and
+rejected messages. :func:`ambid.frf.offline.frf_from_session` gives the same
+result from a recording.
+
+When a design excites only some inputs, G is the response to those inputs
+with the other loops closed (they are not excited, so not separable).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+
+import numpy as np
+from ambid_msgs.msg import (ControllerDescription, ExcitationDesign, FrfEstimate, SampleBlock, SessionEvent,
+                            SessionStatus)
+from rclpy.node import Node
+
+from ambid.excitation import ExcitationDesign as Design
+from ambid.frf.offline import DEFAULT_INPUTS, DEFAULT_OUTPUTS, DEFAULT_REFERENCES
+from ambid.frf.streaming import ESTIMATORS, FrfResult, FrfStream, loop_consistency, match_inputs
+from ambid.statespace import StateSpace
+from ambid_nodes import qos
+from ambid_nodes.conversions import BadMessage, block_data, statespace_from_msg, time_msg
+from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
+
+
+class FrfConsumer(Node):
+    def __init__(self, **kwargs) -> None:
+        super().__init__("frf_consumer", **kwargs)
+        self.estimator = declare(self, "estimator", "indirect", "FRF estimator: " + " | ".join(ESTIMATORS))
+        self.outputs = list(declare(self, "outputs", list(DEFAULT_OUTPUTS), "output channels y of G [m]"))
+        self.inputs = list(declare(self, "inputs", list(DEFAULT_INPUTS),
+                                   "applied-current channels u; those of the design's inputs are used [A]"))
+        self.references = list(declare(self, "references", list(DEFAULT_REFERENCES),
+                                       "excitation channels r, one per entry of inputs, same order [A]"))
+        refuse_unknown(self)
+        if self.estimator not in ESTIMATORS:
+            raise ParameterError(f"frf_consumer: estimator '{self.estimator}' is not one of {list(ESTIMATORS)}")
+        for name, names in (("outputs", self.outputs), ("inputs", self.inputs), ("references", self.references)):
+            if not names or len(set(names)) != len(names) or not all(names):
+                raise ParameterError(f"frf_consumer: {name} must be distinct, non-empty channel names, got {names}")
+        if len(self.inputs) != len(self.references):
+            raise ParameterError(f"frf_consumer: inputs {self.inputs} and references {self.references} must pair "
+                                 "up one to one (u_i is the current r_i is added to)")
+
+        self.pub_frf = self.create_publisher(FrfEstimate, "frf", qos.LATCHED)
+        self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
+        self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
+        self.create_subscription(SampleBlock, "measurement", self.on_measurement, qos.BLOCKS)
+        self.create_subscription(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
+        self.create_subscription(ControllerDescription, "controller/description", self.on_controller, qos.LATCHED)
+
+        self.stream: FrfStream | None = None
+        self.experiment_id = ""
+        self.controller: StateSpace | None = None
+        self.columns: dict[tuple[str, ...], np.ndarray] = {}
+        self.result: FrfResult | None = None           # latest estimate of the current experiment
+        self.results: dict[str, FrfResult] = {}        # final estimate per experiment
+        self.dt = 0.0
+        self.index = 0
+        self.received = 0
+        self.rejected = 0
+        self.state = SessionStatus.STATE_IDLE
+        self.publish_status()
+
+    # --- inputs ---------------------------------------------------------------
+    def on_controller(self, msg: ControllerDescription) -> None:
+        self.received += 1
+        try:
+            model = statespace_from_msg(msg.model)
+        except BadMessage as exc:
+            self.reject(f"controller/description: {exc}")
+            return
+        if model.dt <= 0:
+            self.reject("controller/description: the model must be discrete (sample_period > 0)")
+            return
+        self.controller = model
+
+    def on_design(self, msg: ExcitationDesign) -> None:
+        self.received += 1
+        if self.stream is not None and msg.experiment_id == self.experiment_id:
+            self.on_design_update(msg)
+            return
+        try:
+            design = Design.from_dict(json.loads(msg.design_json))
+            if abs(msg.sample_rate - design.fs_hz) > 1e-9 * design.fs_hz:
+                raise ValueError(f"sample_rate {msg.sample_rate} differs from the design's {design.fs_hz}")
+            u_names, r_names = match_inputs(design.input_names, self.inputs, self.references)
+            stream = FrfStream(design, self.outputs, u_names, r_names, start_index=msg.start_index,
+                               total_samples=min(msg.total_samples, design.total_samples))
+            if self.estimator == "h2" and len(self.outputs) != len(u_names):
+                raise ValueError(f"the h2 estimator needs as many outputs as inputs ({len(self.outputs)} outputs, "
+                                 f"{len(u_names)} inputs excited); use indirect")
+            if not design.is_periodic and self.estimator not in ("indirect", "h1"):
+                raise ValueError(f"a {design.kind} excitation is not periodic: the {self.estimator} estimator "
+                                 "does not apply; use indirect or h1")
+        except (ValueError, KeyError, TypeError, AttributeError) as exc:  # JSONDecodeError is a ValueError
+            self.reject(f"excitation/design {msg.experiment_id!r}: {exc}")
+            return
+        if self.stream is not None and not self.stream.finished:
+            self.event(SessionEvent.WARN, "experiment_superseded",
+                       f"{self.experiment_id} replaced by {msg.experiment_id} before its end; its estimate so far "
+                       "is final")
+            self.finish()
+        self.stream, self.experiment_id, self.result = stream, msg.experiment_id, None
+        self.columns = {}  # column picks depend on the design's inputs
+        self.dt = 1.0 / design.fs_hz
+        self.state = SessionStatus.STATE_RUNNING
+        self.event(SessionEvent.INFO, "experiment", f"{msg.experiment_id}: {design.kind}, samples "
+                   f"[{stream.start_index}, {stream.end_index}), inputs {list(u_names)}, estimator {self.estimator}")
+        if stream.finished:  # a zero-length experiment
+            self.finish()
+        else:
+            self.publish_status()
+
+    def on_design_update(self, msg: ExcitationDesign) -> None:
+        """The running experiment's design again: a stop cuts total_samples."""
+        stream = self.stream
+        total = min(msg.total_samples, stream.design.total_samples)
+        if stream.end_index - stream.start_index == total:
+            return
+        if stream.finished:
+            self.reject(f"excitation/design {msg.experiment_id!r}: cut to {total} samples after its end")
+            return
+        try:
+            stream.truncate(total)
+        except ValueError as exc:
+            self.reject(f"excitation/design {msg.experiment_id!r}: {exc}")
+            return
+        self.event(SessionEvent.INFO, "experiment_stopped", f"{self.experiment_id} stops at sample {stream.end_index}")
+        if stream.finished:
+            self.finish()
+
+    def on_measurement(self, msg: SampleBlock) -> None:
+        self.received += 1
+        try:
+            data = block_data(msg)
+        except BadMessage as exc:
+            self.reject(f"measurement: {exc}")
+            return
+        self.index = max(self.index, msg.first_index + msg.n_samples)
+        stream = self.stream
+        if stream is None or stream.finished:
+            return
+        if msg.first_index + msg.n_samples <= stream.start_index or msg.first_index >= stream.end_index:
+            return  # outside the experiment
+        key = tuple(msg.channel_names)
+        try:
+            stream.check_sample_period(msg.sample_period)
+            if key not in self.columns:
+                self.columns[key] = stream.columns(key)
+            report = stream.add(msg.first_index, data[:, self.columns[key]])
+        except ValueError as exc:
+            self.reject(f"measurement at sample {msg.first_index}: {exc}")
+            return
+        for gap in report.gaps:
+            self.event(SessionEvent.WARN, "sample_gap",
+                       f"{self.experiment_id}: samples [{gap.start_index}, {gap.start_index + gap.n_samples}) missing; "
+                       f"{len(gap.periods)} steady-state period(s) dropped {list(gap.periods)[:8]}")
+        if report.finished:
+            self.finish()
+        elif report.realisations_completed:
+            self.publish_estimate()
+            self.publish_status()
+        elif report.periods_completed:
+            self.publish_status()
+
+    # --- outputs --------------------------------------------------------------
+    def publish_estimate(self) -> FrfResult | None:
+        try:
+            result = self.stream.estimate(self.estimator)
+        except ValueError as exc:
+            self.event(SessionEvent.ERROR, "estimate_failed", f"{self.experiment_id}: {exc}")
+            return None
+        if result is None:
+            return None
+        self.result = result
+        g = result.frf
+
+        def variance(v: np.ndarray) -> np.ndarray:
+            return np.empty(0) if np.all(np.isnan(v)) else v.ravel()
+
+        msg = FrfEstimate(stamp=time_msg(self.index * self.dt), experiment_id=self.experiment_id,
+                          estimator=result.estimator, output_names=list(result.output_names),
+                          input_names=list(result.input_names), periods_used=result.n_periods,
+                          realisations_used=result.n_realisations, experiments_used=result.n_experiments)
+        msg.frequency = np.ascontiguousarray(result.freq_hz, dtype=float)
+        msg.real = np.ascontiguousarray(g.real).ravel()
+        msg.imag = np.ascontiguousarray(g.imag).ravel()
+        msg.variance_noise = variance(result.var_noise)
+        msg.variance_total = variance(result.var_total)
+        msg.coherence = np.ascontiguousarray(result.coherence, dtype=float).ravel()
+        self.pub_frf.publish(msg)
+        return result
+
+    def finish(self) -> None:
+        """The experiment ended (or was replaced): final estimate, final status, event."""
+        result = self.publish_estimate()
+        if result is not None:
+            self.results[self.experiment_id] = result
+        self.state = SessionStatus.STATE_DONE if result is not None else SessionStatus.STATE_FAILED
+        figures = self.figures(final=True)
+        self.publish_status(figures)
+        if result is None:
+            self.event(SessionEvent.ERROR, "no_estimate", f"{self.experiment_id} ended without a complete "
+                       "realisation: no FRF")
+        else:
+            self.event(SessionEvent.INFO, "frf_done", json.dumps(figures))
+
+    def consistency(self, result: FrfResult) -> float:
+        """Largest deviation of the measured S from (I + C G)^-1 with the described controller, or NaN."""
+        c = self.controller
+        if c is None or not set(c.input_names) <= set(result.output_names):
+            return math.nan  # G must cover every measurement the controller uses
+        ic_names = ["ic_" + (n[2:] if n.startswith("u_") else n) for n in result.input_names]
+        if not set(ic_names) <= set(c.output_names):
+            return math.nan
+        model = c.freqresp(result.freq_hz)            # (L, n_ic, n_y): ic = model y
+        rows = [c.output_names.index(n) for n in ic_names]
+        c_jw = np.zeros((result.freq_hz.size, len(rows), len(result.output_names)), complex)
+        for j, name in enumerate(result.output_names):
+            if name in c.input_names:
+                c_jw[:, :, j] = -model[:, rows, c.input_names.index(name)]  # u = r - C y
+        return float(loop_consistency(result.frf, result.sensitivity, c_jw).max())
+
+    def figures(self, final: bool = False) -> dict:
+        if self.stream is None:
+            return {}
+        p = self.stream.progress()
+        gaps = self.stream.gaps
+        f = {"experiment_id": self.experiment_id, "estimator": self.estimator,
+             "realisations_done": p.realisations_done, "realisations": p.n_realisations,
+             "periods_done": p.periods_done, "periods": p.periods_total, "samples_done": p.samples_done,
+             "samples": p.total_samples, "time_left_s": p.time_left_s, "gaps": len(gaps),
+             "missing_samples": sum(g.n_samples for g in gaps)}
+        r = self.result
+        if r is not None:
+            f["relative_noise_std"] = _json_float(r.relative_noise_std)
+        if final and r is not None:
+            d = r.distortion
+            f.update({
+                "lines": int(r.freq_hz.size), "band_hz": [float(r.freq_hz[0]), float(r.freq_hz[-1])],
+                "periods_used": r.n_periods, "realisations_used": r.n_realisations,
+                "total_over_noise_variance": _json_float(r.nonlinear_ratio),
+                "noise_std_m": [_json_float(v) for v in r.noise_std],
+                "odd_distortion_db": [_json_float(v) for v in d.odd_db] if d is not None else [],
+                "even_distortion_db": [_json_float(v) for v in d.even_db] if d is not None else [],
+                "sensitivity_peak": [float(v) for v in r.sensitivity_peak],
+                "sensitivity_peak_hz": [float(v) for v in r.sensitivity_peak_hz],
+                "iso_zone": r.iso_zone,
+                "controller_consistency": _json_float(self.consistency(r))})
+        return f
+
+    def publish_status(self, figures: dict | None = None) -> None:
+        f = self.figures() if figures is None else figures
+        if self.stream is None:
+            text, progress = "idle: waiting for an excitation design", -1.0
+        else:
+            p = self.stream.progress()
+            progress = p.samples_done / p.total_samples if p.total_samples else 1.0
+            rel = f.get("relative_noise_std")
+            noise = f"{100 * rel:.2g} %" if rel is not None else "n/a"
+            if self.state == SessionStatus.STATE_RUNNING:
+                text = (f"{self.experiment_id}: realisation {min(p.realisations_done + 1, p.n_realisations)}/"
+                        f"{p.n_realisations}, periods {p.periods_done}/{p.periods_total}, median rel. noise std "
+                        f"of G {noise}, time left {p.time_left_s:.3g} s simulated")
+            elif "iso_zone" in f:
+                lv = f["odd_distortion_db"]
+                odd = f"{max(lv):.1f} dB" if lv and all(v is not None for v in lv) else "n/a"
+                text = (f"{self.experiment_id} done: {f['lines']} lines, {f['realisations_used']} realisation(s), "
+                        f"{f['periods_used']} periods, median rel. noise std of G {noise}, odd distortion "
+                        f"{odd} above noise, input sensitivity peak {max(f['sensitivity_peak']):.2f} "
+                        f"(ISO 14839-3 zone {f['iso_zone']}), gaps {f['gaps']}")
+            else:
+                text = f"{self.experiment_id} ended without an estimate"
+        self.pub_status.publish(SessionStatus(
+            stamp=time_msg(self.index * self.dt), node=self.get_fully_qualified_name(), state=self.state,
+            sample_index=self.index, progress=progress, messages_received=self.received,
+            messages_rejected=self.rejected, text=text, keys=list(f), values=[json.dumps(v) for v in f.values()]))
+
+    def reject(self, why: str) -> None:
+        self.rejected += 1
+        self.get_logger().warn(f"rejected message ({self.rejected} so far): {why}", throttle_duration_sec=1.0)
+        self.event(SessionEvent.WARN, "rejected_message", why)
+
+    def event(self, severity: int, code: str, text: str) -> None:
+        self.pub_event.publish(SessionEvent(stamp=time_msg(self.index * self.dt), sample_index=self.index,
+                                            severity=severity, node=self.get_fully_qualified_name(), code=code,
+                                            text=text))
+
+
+def _json_float(x: float) -> float | None:
+    """A float for JSON, None for NaN/inf (JSON has no NaN)."""
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def main(args=None) -> int:
+    from ambid_nodes.node_main import run_single
+    return run_single(FrfConsumer, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

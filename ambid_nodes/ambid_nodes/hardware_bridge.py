@@ -1,0 +1,528 @@
+"""hardware_bridge: the rig's real-time target seen from ROS, over the UDP protocol of docs/bridge_protocol.md.
+
+Takes the place of ``plant_sim`` in the graph when the fast loop (position
+control at the sample rate) runs on a real-time target. Publishes
+``measurement`` (SampleBlock y, u, ic, r, blocks of ``block_size`` samples,
+split where samples were lost: a block never spans a gap), a latched
+``plant/description`` (source "hardware"), ``/clock`` from the target's
+sample index, ``status`` and ``events``; forwards ``excitation`` blocks and
+``excitation/design`` (as an EXPERIMENT command) to the target, holding
+them until the target is heard and re-sending blocks its heartbeat says are
+missing.
+
+Datagrams from any address but ``target_host:target_port`` are dropped and
+counted; malformed ones (magic, version, CRC, length) are refused and
+counted by reason; lost (sequence gaps), duplicated, reordered and late
+datagrams are counted and lost sample ranges reported as ``sample_gap``
+events. A target silent for ``target_timeout`` s is reported
+(``target_silent``); when it is heard again it is commanded to its safe
+state. ``finished`` completes once the target's clock stopped and every
+sample up to its end was published or declared lost: state done if the
+target finished its run (DONE), failed if it went to its safe state.
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import socket
+import sys
+import threading
+import time
+
+import numpy as np
+from ambid_msgs.msg import ExcitationDesign, PlantDescription, SampleBlock, SessionEvent, SessionStatus
+from rclpy.node import Node
+from rclpy.task import Future
+from rosgraph_msgs.msg import Clock
+
+from ambid import bridge_protocol as bp
+from ambid.rig import analytical_model, load_rig, make_rig
+from ambid.rt_target import parse_address
+from ambid_nodes import qos
+from ambid_nodes.conversions import BadMessage, block_data, block_msg, statespace_to_msg, time_msg
+from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
+
+MEASUREMENT_NAMES = bp.CHANNEL_SETS[bp.CHANNEL_SET_MEASUREMENT]
+MEASUREMENT_UNITS = ("m",) * 4 + ("A",) * 12
+EXCITATION_NAMES = bp.CHANNEL_SETS[bp.CHANNEL_SET_EXCITATION]
+TICK_S = 0.005  # period of the timer that processes received datagrams and supervises the target
+EVENT_THROTTLE_S = 1.0
+
+
+class HardwareBridge(Node):
+    def __init__(self, **kwargs) -> None:
+        super().__init__("hardware_bridge", **kwargs)
+        target_host = declare(self, "target_host", "127.0.0.1", "address of the real-time target")
+        target_port = declare(self, "target_port", 50001, "UDP port of the real-time target", 1, 65535)
+        local_host = declare(self, "local_host", "127.0.0.1", "local address to bind; 0.0.0.0 = all interfaces")
+        local_port = declare(self, "local_port", 50002, "local UDP port; 0 = any free port", 0, 65535)
+        self.version = declare(self, "protocol_version", bp.PROTOCOL_VERSION,
+                               "bridge protocol version; datagrams of any other are refused", 1, 255)
+        rig_file = declare(self, "rig_file", "", "YAML rig parameter file describing the rig; empty = the default")
+        self.timeout = declare(self, "target_timeout", 0.5, "silence after which the target is declared lost",
+                               0.005, 3600.0, "s")
+        self.hb_period = declare(self, "heartbeat_period", 0.05, "period of the bridge's heartbeats", 0.001, 10.0,
+                                 "s")
+        window = declare(self, "reorder_window", 16, "later datagrams after which a missing one is lost", 1, 4096)
+        reorder_timeout = declare(self, "reorder_timeout", 0.2, "longest wait for a missing datagram",
+                                  0.0, 60.0, "s")
+        self.block_size = declare(self, "block_size", 1000, "samples per measurement block", 1, 100_000)
+        self.chunk = declare(self, "excitation_chunk", 40, "samples per EXCITATION datagram", 1,
+                             bp.max_block_samples(bp.Kind.EXCITATION))
+        self.clock_every = declare(self, "clock_every", 100, "samples between /clock messages", 1, 100_000)
+        self.retry_s = declare(self, "command_retry", 0.1, "wait for an ACK before a command is sent again",
+                               0.001, 60.0, "s")
+        self.retries = declare(self, "command_retries", 20, "sends of a command before it is given up", 1, 1000)
+        self.autostart = declare(self, "autostart", True, "send START when an idle target is first heard")
+        rcvbuf = declare(self, "receive_buffer", 4 * 1024 * 1024, "UDP receive buffer (capped by "
+                         "net.core.rmem_max)", 65536, 1 << 30, "bytes")
+        refuse_unknown(self)
+        if self.version not in bp.SUPPORTED_VERSIONS:
+            raise ParameterError(f"hardware_bridge: protocol_version {self.version} is not implemented; "
+                                 f"this build speaks {list(bp.SUPPORTED_VERSIONS)}")
+        try:
+            self.target_addr = parse_address(f"{target_host}:{target_port}")
+            local = parse_address(f"{local_host}:{local_port}")
+        except ValueError as exc:
+            raise ParameterError(f"hardware_bridge: {exc}") from None
+        self.rig = load_rig(rig_file) if rig_file else make_rig()
+        self.dt = self.rig.dt
+
+        self.pub_block = self.create_publisher(SampleBlock, "measurement", qos.BLOCKS)
+        self.pub_desc = self.create_publisher(PlantDescription, "plant/description", qos.LATCHED)
+        self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
+        self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
+        self.pub_clock = self.create_publisher(Clock, "/clock", qos.CLOCK)
+        self.create_subscription(SampleBlock, "excitation", self.on_excitation, qos.BLOCKS)
+        self.create_subscription(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
+
+        self.assembler = bp.MeasurementAssembler(self.block_size, window, reorder_timeout)
+        self.seq = {k: 0 for k in bp.Kind}
+        self.c = collections.Counter()  # counters for status and summary
+        self.malformed = collections.Counter()  # by ProtocolError.reason
+        self.hb: bp.Heartbeat | None = None  # newest heartbeat of the target
+        self.hb_seq: int | None = None
+        self.connected = self.silent = False
+        self.last_rx: float | None = None
+        self.silence_latency: list[float] = []
+        self.exc_chunks: dict[int, list] = {}  # first index -> [r (n, 4), last sent (monotonic) or None]
+        self.slots: dict[str, int] = {}
+        self.commands: dict[int, dict] = {}  # command_id -> {code, args, sent, tries}
+        self.next_command_id = 1
+        self.runs: dict[int, int] = {}  # FLAG -> first index of the run of flagged samples being reported
+        self.last_clock = 0
+        self.state = SessionStatus.STATE_IDLE
+        self.throttle: dict[str, list] = {}
+        self.started_wall = time.perf_counter()
+        self.next_hb = self.next_status = 0.0
+        self.summary: dict | None = None
+        self.finished = Future()
+
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
+        try:
+            self.sock.bind(local)
+        except OSError as exc:
+            self.sock.close()
+            raise ParameterError(f"hardware_bridge: cannot bind {local[0]}:{local[1]}: {exc}") from None
+        self.local_address = self.sock.getsockname()
+        self.sock.settimeout(0.1)
+        # a thread only moves datagrams from the kernel into a queue (with their arrival time), so a busy
+        # executor never lets the socket buffer overflow; all protocol logic runs in the timer
+        self.inbox: collections.deque = collections.deque()
+        self.closing = threading.Event()
+        self.reader = threading.Thread(target=self.read_socket, name="hardware_bridge_rx", daemon=True)
+        self.reader.start()
+        self.publish_description()
+        self.timer = self.create_timer(TICK_S, self.tick)
+        self.get_logger().info(f"bridge {self.local_address[0]}:{self.local_address[1]} <-> target "
+                               f"{self.target_addr[0]}:{self.target_addr[1]}, protocol v{self.version}")
+
+    # --- set-up and tear-down ---------------------------------------------
+    def publish_description(self) -> None:
+        r = self.rig
+        self.pub_desc.publish(PlantDescription(
+            stamp=time_msg(0.0), name=self.get_fully_qualified_name(), source="hardware", rig_name=r.name,
+            sample_period=self.dt, displacement_names=list(MEASUREMENT_NAMES[:4]),
+            current_names=list(MEASUREMENT_NAMES[4:8]), bias_current=[r.bias_current_a] * 4,
+            current_limit=[r.current_limit_a] * 4, backup_clearance=[r.backup_clearance_m] * 2,
+            analytical_model=statespace_to_msg(analytical_model(r)), seed=0, controller_timeout_samples=0,
+            rig_json=json.dumps(r.to_dict())))
+
+    def destroy_node(self) -> None:
+        self.closing.set()
+        self.reader.join(timeout=1.0)
+        self.sock.close()
+        super().destroy_node()
+
+    def read_socket(self) -> None:
+        while not self.closing.is_set():
+            try:
+                data, addr = self.sock.recvfrom(65535)  # larger than the protocol allows: oversize is seen
+            except TimeoutError:
+                continue
+            except OSError:
+                if self.closing.is_set():
+                    return
+                time.sleep(0.01)  # e.g. an ICMP error reported on the socket
+                continue
+            self.inbox.append((data, addr, time.monotonic()))
+
+    def send(self, msg) -> None:
+        try:
+            self.sock.sendto(bp.pack_datagram(msg, self.version), self.target_addr)
+        except OSError as exc:
+            self.c["send_errors"] += 1
+            self.event_throttled(SessionEvent.WARN, "send_failed", f"sending to the target failed: {exc}")
+
+    def next_seq(self, kind: bp.Kind) -> int:
+        s = self.seq[kind]
+        self.seq[kind] = (s + 1) % bp.SEQUENCE_MODULO
+        return s
+
+    # --- the periodic work ------------------------------------------------
+    def tick(self) -> None:
+        inbox = self.inbox
+        while inbox:
+            self.on_datagram(*inbox.popleft())
+        now = time.monotonic()
+        hb = self.hb
+        self.publish_items(self.assembler.poll(now, hb.sent_end if hb else None,
+                                               hb.next_measurement_sequence if hb else None))
+        self.publish_clock()
+        self.check_halted()
+        self.check_silence(now)
+        self.send_commands(now)
+        if now >= self.next_hb:
+            self.next_hb = now + self.hb_period
+            self.send(bp.Heartbeat(self.next_seq(bp.Kind.HEARTBEAT), bp.TargetState.RUNNING if self.connected
+                                   else bp.TargetState.IDLE, sample_index=self.assembler.next_index or 0,
+                                   rx_datagrams=self.c["datagrams"],
+                                   rx_rejected=self.c["foreign"] + sum(self.malformed.values())))
+        if now >= self.next_status:
+            self.next_status = now + 0.5
+            self.publish_status()
+
+    def on_datagram(self, data: bytes, addr, t_rx: float) -> None:
+        if addr != self.target_addr:
+            self.c["foreign"] += 1
+            self.event_throttled(SessionEvent.WARN, "foreign_datagram",
+                                 f"dropped a datagram from {addr[0]}:{addr[1]}; only the target at "
+                                 f"{self.target_addr[0]}:{self.target_addr[1]} is accepted")
+            return
+        try:
+            msg = bp.unpack_datagram(data, self.version)
+        except bp.ProtocolError as exc:
+            self.malformed[exc.reason] += 1
+            self.event_throttled(SessionEvent.WARN if exc.reason != "version" else SessionEvent.ERROR,
+                                 "malformed_datagram", f"refused a datagram from the target ({exc.reason}): {exc}")
+            return
+        self.c["datagrams"] += 1
+        self.last_rx = t_rx
+        if self.silent:
+            self.silent = False
+            self.event(SessionEvent.ERROR, "target_back",
+                       "the target answers again after its silence; its data meanwhile is lost, so it is "
+                       "commanded to its safe state")
+            self.queue_command(bp.CommandCode.SAFE_STATE)
+        if isinstance(msg, bp.Measurement):
+            self.c["measurement_datagrams"] += 1
+            verdict = self.assembler.push(msg)
+            if verdict == "duplicate":
+                self.event_throttled(SessionEvent.WARN, "duplicate_datagram",
+                                     f"duplicated MEASUREMENT datagram (sequence {msg.sequence}) dropped")
+            elif verdict == "late":
+                self.event_throttled(SessionEvent.WARN, "late_datagram",
+                                     f"MEASUREMENT samples [{msg.first_index}, {msg.end_index}) arrived after "
+                                     "they were declared lost; dropped")
+        elif isinstance(msg, bp.Heartbeat):
+            self.on_heartbeat(msg, t_rx)
+        elif isinstance(msg, bp.Ack):
+            self.on_ack(msg)
+        else:
+            self.malformed["direction"] += 1
+            self.event_throttled(SessionEvent.WARN, "malformed_datagram",
+                                 f"refused a {type(msg).__name__.upper()} datagram: only the bridge sends those")
+
+    def on_heartbeat(self, hb: bp.Heartbeat, t_rx: float) -> None:
+        if self.hb_seq is not None:
+            d = bp.seq_diff(hb.sequence, self.hb_seq)
+            if d <= 0:
+                self.c["heartbeats_stale"] += 1
+                return  # duplicated or overtaken by a newer one
+            self.c["heartbeats_lost"] += d - 1
+        self.hb_seq = hb.sequence
+        old = self.hb
+        self.hb = hb
+        if not self.connected:
+            self.connected = True
+            self.state = SessionStatus.STATE_RUNNING
+            if not self.assembler.started:
+                self.assembler.start(hb.sent_end, hb.next_measurement_sequence)
+            self.event(SessionEvent.INFO, "target_connected",
+                       f"target at {self.target_addr[0]}:{self.target_addr[1]} is "
+                       f"{bp.TargetState(hb.state).name} at sample {hb.sample_index}, {hb.sample_rate_hz} Hz")
+            if abs(hb.sample_rate_hz * self.dt - 1.0) > 1e-6:
+                self.event(SessionEvent.ERROR, "sample_rate_mismatch",
+                           f"the target runs at {hb.sample_rate_hz} Hz, the rig description says {1 / self.dt:g} Hz; "
+                           "set rig_file to the rig the target runs")
+            for first in sorted(self.exc_chunks):
+                self.send_chunk(first, t_rx)
+            if self.autostart and hb.state == bp.TargetState.IDLE:
+                self.queue_command(bp.CommandCode.START)
+        if old is not None and old.state != hb.state:
+            sev = SessionEvent.ERROR if hb.state == bp.TargetState.SAFE else SessionEvent.INFO
+            reason = f" ({bp.SafeReason(hb.safe_reason).name.lower()})" if hb.state == bp.TargetState.SAFE else ""
+            self.event(sev, "target_state", f"target is {bp.TargetState(hb.state).name}{reason} at sample "
+                                            f"{hb.sample_index}")
+        for first in [f for f, ch in self.exc_chunks.items() if f + len(ch[0]) <= hb.sample_index]:
+            del self.exc_chunks[first]  # applied: no longer needed for a resend
+        if hb.excitation_next != bp.NO_INDEX:
+            self.resend_from(hb.excitation_next, t_rx)
+
+    def on_ack(self, ack: bp.Ack) -> None:
+        cmd = self.commands.pop(ack.command_id, None)
+        if cmd is None:
+            self.c["acks_unexpected"] += 1
+            return
+        if ack.result != bp.AckResult.OK:
+            self.event(SessionEvent.ERROR, "command_refused",
+                       f"the target refused {bp.CommandCode(cmd['code']).name} ({bp.AckResult(ack.result).name}) "
+                       f"in state {bp.TargetState(ack.state).name}")
+
+    # --- measurement out --------------------------------------------------
+    def publish_items(self, items: list) -> None:
+        for item in items:
+            if isinstance(item, bp.Gap):
+                self.on_gap(item)
+            else:
+                self.publish_block(item)
+
+    def publish_block(self, b: bp.Block) -> None:
+        raw = b.sample_flags
+        flags = ((raw & (bp.FLAG_CLIPPED | bp.FLAG_LANDED))
+                 | np.where(raw & bp.FLAG_SAFE_STATE, SampleBlock.FLAG_CONTROLLER_LOST, 0)).astype(np.uint8)
+        self.pub_block.publish(block_msg(b.first_index, self.dt, MEASUREMENT_NAMES, MEASUREMENT_UNITS, b.data, flags,
+                                         SampleBlock.FLAG_FINAL if b.final else 0))
+        self.c["blocks"] += 1
+        self.c["samples_published"] += len(b.data)
+        for bit, code, what in ((bp.FLAG_EXCITATION_LATE, "excitation_late",
+                                 "the target had no excitation for these announced samples and applied r = 0; "
+                                 "publish the excitation further ahead"),
+                                (bp.FLAG_SAFE_STATE, "safe_state", "the target was in its safe state (zero current "
+                                                                   "reference, rotor landing)")):
+            self.report_runs(b.first_index, raw & bit != 0, bit, code, what)
+
+    def report_runs(self, first: int, mask: np.ndarray, bit: int, code: str, what: str) -> None:
+        """One event per run of flagged samples, when the run ends (a gap or the session end may end it too)."""
+        was_open = bit in self.runs
+        # a change of the flag between consecutive samples (the first compared with the open run, if any)
+        for e in np.flatnonzero(np.diff(np.concatenate([[was_open], mask]).astype(np.int8))):
+            if bit not in self.runs:
+                self.runs[bit] = first + int(e)
+            else:
+                self.end_run(bit, first + int(e), code, what)
+
+    def end_run(self, bit: int, end: int, code: str, what: str) -> None:
+        start = self.runs.pop(bit)
+        sev = SessionEvent.ERROR if bit == bp.FLAG_SAFE_STATE else SessionEvent.WARN
+        self.event(sev, code, f"samples [{start}, {end}) ({end - start} samples): {what}")
+
+    def close_runs(self, end: int) -> None:
+        for bit, code in ((bp.FLAG_EXCITATION_LATE, "excitation_late"), (bp.FLAG_SAFE_STATE, "safe_state")):
+            if bit in self.runs:
+                self.end_run(bit, end, code, "flagged by the target")
+
+    def on_gap(self, g: bp.Gap) -> None:
+        self.close_runs(g.start)
+        lost = f"{g.datagrams} datagram(s)" if g.datagrams >= 0 else "an unknown number of datagrams"
+        self.event(SessionEvent.WARN, "sample_gap",
+                   f"samples [{g.start}, {g.end}) lost ({g.end - g.start} samples, {lost}); the measurement is "
+                   "split there, no block spans the gap", index=g.start)
+
+    def publish_clock(self) -> None:
+        k = self.assembler.next_index or 0
+        tick = k // self.clock_every * self.clock_every
+        if tick > self.last_clock:
+            self.last_clock = tick
+            self.pub_clock.publish(Clock(clock=time_msg(tick * self.dt)))
+
+    def check_halted(self) -> None:
+        hb = self.hb
+        if (self.finished.done() or hb is None or hb.clock_running
+                or hb.state not in (bp.TargetState.DONE, bp.TargetState.SAFE)
+                or self.assembler.next_index is None or self.assembler.next_index < hb.sent_end
+                or self.assembler.pending):
+            return
+        self.publish_items(self.assembler.finish())
+        self.close_runs(self.assembler.next_index)
+        ok = hb.state == bp.TargetState.DONE and self.c["silent_episodes"] == 0
+        self.finish(SessionStatus.STATE_DONE if ok else SessionStatus.STATE_FAILED)
+
+    # --- supervision ------------------------------------------------------
+    def check_silence(self, now: float) -> None:
+        if not self.connected or self.silent or self.last_rx is None or self.finished.done():
+            return
+        hb = self.hb
+        if not hb.clock_running and hb.state in (bp.TargetState.DONE, bp.TargetState.SAFE):
+            return  # a target whose session ended may go away
+        quiet = now - self.last_rx
+        if quiet > self.timeout:
+            self.silent = True
+            self.c["silent_episodes"] += 1
+            self.silence_latency.append(quiet)
+            self.state = SessionStatus.STATE_FAILED
+            self.event(SessionEvent.ERROR, "target_silent",
+                       f"no datagram from the target for {quiet:.3f} s (timeout {self.timeout:g} s) after sample "
+                       f"{self.assembler.next_index}; it will be commanded to its safe state when it answers")
+            self.publish_status()
+
+    # --- excitation and commands in ---------------------------------------
+    def on_excitation(self, msg: SampleBlock) -> None:
+        self.c["messages_received"] += 1
+        try:
+            data = block_data(msg, EXCITATION_NAMES)
+        except BadMessage as exc:
+            self.reject(f"excitation: {exc}")
+            return
+        if abs(msg.sample_period - self.dt) > 1e-9 * self.dt:
+            self.reject(f"excitation sample period {msg.sample_period} s, the target's is {self.dt} s")
+            return
+        done = self.hb.sample_index if self.hb else 0
+        if msg.first_index + msg.n_samples <= done:
+            self.reject(f"excitation block at sample {msg.first_index} arrived after the target passed it "
+                        f"(now {done}); publish excitation further ahead")
+            return
+        now = time.monotonic()
+        for off in range(0, msg.n_samples, self.chunk):
+            first = msg.first_index + off
+            self.exc_chunks[first] = [data[off:off + self.chunk], None]
+            if self.connected:
+                self.send_chunk(first, now)
+
+    def send_chunk(self, first: int, now: float) -> None:
+        ch = self.exc_chunks[first]
+        if ch[1] is not None:
+            self.c["excitation_resent"] += 1
+        ch[1] = now
+        self.c["excitation_datagrams"] += 1
+        self.send(bp.Excitation(self.next_seq(bp.Kind.EXCITATION), first, ch[0]))
+
+    def resend_from(self, index: int, now: float, max_chunks: int = 8) -> None:
+        """The target lacks excitation at ``index``: send again what we hold from there, if not just sent."""
+        for first in sorted(self.exc_chunks):
+            if max_chunks == 0:
+                return
+            data, sent = self.exc_chunks[first]
+            if first + len(data) <= index:
+                continue
+            if first > index:
+                return  # not held here (the generator has not published it yet)
+            if sent is None or now - sent > max(2 * self.hb_period, self.retry_s):
+                self.send_chunk(first, now)
+            index = first + len(data)
+            max_chunks -= 1
+
+    def on_design(self, msg: ExcitationDesign) -> None:
+        self.c["messages_received"] += 1
+        slot = self.slots.setdefault(msg.experiment_id, len(self.slots) + 1)
+        self.queue_command(bp.CommandCode.EXPERIMENT, msg.start_index, msg.total_samples, slot)
+
+    def queue_command(self, code: int, arg0: int = 0, arg1: int = 0, arg2: int = 0) -> None:
+        self.commands[self.next_command_id] = {"code": code, "args": (arg0, arg1, arg2), "sent": None, "tries": 0}
+        self.next_command_id += 1
+        self.send_commands(time.monotonic())
+
+    def send_commands(self, now: float) -> None:
+        if not self.connected:
+            return
+        # START waits until every experiment announcement is acknowledged: the target must know them first
+        announcing = any(c["code"] == bp.CommandCode.EXPERIMENT for c in self.commands.values())
+        for cid, cmd in list(self.commands.items()):
+            if cmd["code"] == bp.CommandCode.START and announcing:
+                continue
+            if cmd["sent"] is not None and now - cmd["sent"] < self.retry_s:
+                continue
+            if cmd["tries"] >= self.retries:
+                del self.commands[cid]
+                self.event(SessionEvent.ERROR, "command_failed",
+                           f"{bp.CommandCode(cmd['code']).name} not acknowledged after {self.retries} sends")
+                continue
+            cmd["sent"], cmd["tries"] = now, cmd["tries"] + 1
+            self.c["commands_sent"] += 1
+            self.send(bp.Command(self.next_seq(bp.Kind.COMMAND), cid, cmd["code"], *cmd["args"]))
+
+    # --- reporting --------------------------------------------------------
+    def reject(self, why: str) -> None:
+        self.c["messages_rejected"] += 1
+        self.get_logger().warn(f"rejected message ({self.c['messages_rejected']} so far): {why}",
+                               throttle_duration_sec=1.0)
+        self.event(SessionEvent.WARN, "rejected_message", why)
+
+    def event(self, severity: int, code: str, text: str, index: int | None = None) -> None:
+        k = (self.assembler.next_index or 0) if index is None else index
+        self.pub_event.publish(SessionEvent(stamp=time_msg(k * self.dt), sample_index=k, severity=severity,
+                                            node=self.get_fully_qualified_name(), code=code, text=text))
+
+    def event_throttled(self, severity: int, code: str, text: str) -> None:
+        """At most one event per code and second; the next one says how many were folded into it."""
+        now = time.monotonic()
+        last, folded = self.throttle.get(code, (-1e9, 0))
+        if now - last < EVENT_THROTTLE_S:
+            self.throttle[code] = (last, folded + 1)
+            return
+        self.throttle[code] = (now, 0)
+        more = f" ({folded} more like it in the last {EVENT_THROTTLE_S:g} s)" if folded else ""
+        self.get_logger().warn(text + more)
+        self.event(severity, code, text + more)
+
+    def figures(self) -> dict:
+        a = self.assembler.counts
+        hb = self.hb
+        wall = time.perf_counter() - self.started_wall
+        return {
+            "target_state": bp.TargetState(hb.state).name.lower() if hb else "unknown",
+            "target_sample_index": hb.sample_index if hb else 0, "connected": self.connected, "silent": self.silent,
+            "samples": self.assembler.next_index or 0, "samples_published": self.c["samples_published"],
+            "blocks": self.c["blocks"], "wall_s": wall,
+            "datagrams_received": self.c["datagrams"], "datagrams_foreign": self.c["foreign"],
+            "datagrams_malformed": sum(self.malformed.values()), "malformed_by_reason": dict(self.malformed),
+            "measurement_datagrams": self.c["measurement_datagrams"], "duplicates": a.duplicates,
+            "reordered": a.reordered, "late": a.late, "gaps": a.gaps, "missing_samples": a.missing_samples,
+            "lost_measurement_datagrams": a.lost_datagrams, "heartbeats_lost": self.c["heartbeats_lost"],
+            "silent_episodes": self.c["silent_episodes"], "silence_detected_after_s": self.silence_latency,
+            "excitation_datagrams": self.c["excitation_datagrams"], "excitation_resent": self.c["excitation_resent"],
+            "commands_sent": self.c["commands_sent"], "messages_received": self.c["messages_received"],
+            "messages_rejected": self.c["messages_rejected"],
+            "target_late_excitation_samples": hb.late_excitation_samples if hb else 0,
+            "target_rx_rejected": hb.rx_rejected if hb else 0, "target_overruns": hb.overruns if hb else 0,
+        }
+
+    def publish_status(self) -> None:
+        f = self.figures()
+        text = (f"target {f['target_state']}{' SILENT' if self.silent else ''} at sample {f['target_sample_index']}, "
+                f"published {f['samples_published']}, lost {f['missing_samples']} samples in {f['gaps']} gaps, "
+                f"malformed {f['datagrams_malformed']}, foreign {f['datagrams_foreign']}")
+        self.pub_status.publish(SessionStatus(
+            stamp=time_msg(f["samples"] * self.dt), node=self.get_fully_qualified_name(), state=self.state,
+            sample_index=f["samples"], progress=-1.0,
+            messages_received=self.c["messages_received"] + self.c["datagrams"],
+            messages_rejected=self.c["messages_rejected"] + f["datagrams_malformed"] + f["datagrams_foreign"],
+            text=text, keys=list(f), values=[json.dumps(v) for v in f.values()]))
+
+    def finish(self, state: int) -> None:
+        self.state = state
+        self.summary = {**self.figures(), "state": "done" if state == SessionStatus.STATE_DONE else "failed"}
+        self.publish_status()
+        self.event(SessionEvent.INFO, "finished", json.dumps(self.summary))
+        self.finished.set_result(self.summary)
+
+
+def main(args=None) -> int:
+    from ambid_nodes.node_main import run_single
+    return run_single(HardwareBridge, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

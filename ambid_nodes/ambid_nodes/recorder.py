@@ -1,0 +1,480 @@
+"""recorder: records the session's topics into one MCAP file laid out as rosbag2 writes it.
+
+Each wanted topic's type is discovered from the graph (polled every
+``discovery_period`` seconds, so late topics are picked up) and the topic is
+subscribed with ``raw=True``: the CDR bytes go to the file unchanged, nothing
+is deserialised except the few latched description messages. The
+subscription QoS follows the publishers' offers as rosbag2's does: reliable
+if every publisher is, transient-local if every publisher is (so
+``plant/description``, ``controller/description``, ``excitation/design``,
+``status`` and ``events`` published before the recorder joined still arrive).
+An ambid topic the graph knows only from its subscribers so far (the plant
+listens to ``excitation`` before the generator exists) is subscribed at once
+with the QoS the ambid nodes publish with, so its first messages are not lost
+to the discovery delay; other topics wait for a publisher. The publishers'
+offered QoS and type hash go into the channel metadata (taken at the first
+message if no publisher was known at subscription).
+
+Messages published on a volatile topic before the recorder's subscription
+matched (about ``discovery_period`` plus DDS discovery) are not recorded:
+start the recorder first and let it subscribe (``topic_recorded`` events,
+the subscription count) before the loop starts.
+
+Log time. Each message is stamped with its receive time on the node's ROS
+clock: system time by default (as ``ros2 bag record``), simulated time with
+``use_sim_time:=true``. Log times are kept non-decreasing: a clock stepping
+back holds the last time (reported once as an event), so readers iterating in
+log-time order see the receive order. Publish time equals log time (rclpy's
+EventsExecutor cannot deliver message info to a raw callback).
+
+Session facts (rig, plant and controller descriptions, excitation designs,
+the recorder's parameters, ambid version, log-time convention) are written as
+MCAP metadata ``ambid.session`` when they become known, readable without
+decoding any message.
+
+Crash safety: a wall-clock timer closes the open chunk every
+``flush_period`` seconds, so a SIGKILL loses at most that much; ``ambid
+inspect --recover`` reads the rest. SIGINT and SIGTERM close the file
+completely (summary and footer). A write failure (disk full) is logged,
+reported as an ``events`` ERROR and a failed ``status``, recording stops and
+the node finishes with exit code 1; what was written stays readable with
+``--recover``.
+
+Capacity: one Python callback and one writer call per message, about 3,000
+messages/s on a loaded 2-core box. The measurement blocks (10 per second at
+10 kHz) cost nothing; ``include_loop_topics`` (one message per sample on each
+of two topics) keeps up only while the lock-step loop runs slower than about
+1,500 samples/s, beyond that the loop publishers' KEEP_LAST queues drop
+samples for the recorder (the loop itself never waits for it).
+
+Publishes ``status`` (messages per topic, bytes, last flush) and ``events``.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib
+import json
+import os
+import signal
+import sys
+import time
+
+from ambid_msgs.msg import SessionEvent, SessionStatus
+from builtin_interfaces.msg import Time
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
+from rclpy.task import Future
+
+import ambid
+from ambid.mcap_session import SessionWriteError, SessionWriter
+from ambid.mcap_session.writer import available_compressions
+from ambid.session_blocks import SAMPLE_BLOCK_TYPE, sample_block_span
+from ambid.session_facts import FACT_TYPES, controller_facts, design_facts, plant_facts
+from ambid_nodes import qos
+from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
+
+#: every topic of the ambid graph, relative to the rig's namespace (plus /clock)
+DEFAULT_TOPICS = ["displacement", "control_current", "measurement", "excitation", "excitation/design",
+                  "plant/description", "controller/description", "frf", "status", "events", "/clock"]
+#: the per-sample lock-step topics (10,000 msgs/s each), recorded only with include_loop_topics
+LOOP_TOPICS = ("displacement", "control_current")
+#: the QoS the ambid nodes publish with, used to subscribe to a topic before its publisher exists
+CONVENTIONAL_QOS = {"displacement": qos.LOOP, "control_current": qos.LOOP, "measurement": qos.BLOCKS,
+                    "excitation": qos.BLOCKS, "excitation/design": qos.LATCHED, "plant/description": qos.LATCHED,
+                    "controller/description": qos.LATCHED, "status": qos.STATUS, "events": qos.EVENTS,
+                    "/clock": qos.CLOCK}
+LOG_TIME_CONVENTION = ("receive time on the recorder's ROS clock (system time, or /clock with use_sim_time), "
+                       "held non-decreasing; publish time = log time")
+
+
+def time_msg(ns: int) -> Time:
+    # not ambid_nodes.conversions.time_msg: that module loads scipy, seconds of start-up for nothing here
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def subscription_qos(offered: list, depth: int) -> QoSProfile:
+    """A QoS that matches every offered profile: reliable / transient-local only if all publishers are."""
+    reliable = all(p.reliability == ReliabilityPolicy.RELIABLE for p in offered)
+    latched = all(p.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in offered)
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                      reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+
+
+def message_class(type_name: str):
+    """The Python class of ``pkg/msg/Type``; ImportError/AttributeError if not installed."""
+    pkg, _, name = type_name.split("/")
+    return getattr(importlib.import_module(f"{pkg}.msg"), name)
+
+
+class Recorder(Node):
+    def __init__(self, **kwargs) -> None:
+        super().__init__("recorder", **kwargs)
+        output = declare(self, "output", "session.mcap", "MCAP file to write (relative: to the working directory)")
+        overwrite = declare(self, "overwrite", False, "replace an existing output file")
+        topics = declare(self, "topics", list(DEFAULT_TOPICS),
+                         "topics to record; relative names resolve in the node's namespace")
+        self.include_loop = declare(self, "include_loop_topics", False,
+                                    "also record the lock-step topics displacement and control_current "
+                                    "(2 x 10,000 msgs/s; the measurement blocks carry the same samples)")
+        chunk_size = declare(self, "chunk_size", 1 << 20, "uncompressed size at which a chunk is closed",
+                             1024, 1 << 30, "bytes")
+        compression = declare(self, "compression", "zstd", "chunk compression: zstd, lz4 or none")
+        fsync = declare(self, "fsync", False, "fsync the file after every chunk (survives a power loss)")
+        flush_period = declare(self, "flush_period", 1.0,
+                               "wall time between chunk flushes: at most this much is lost to a SIGKILL",
+                               0.02, 60.0, "s")
+        discovery_period = declare(self, "discovery_period", 0.25, "wall time between graph polls for new topics",
+                                   0.02, 60.0, "s")
+        status_period = declare(self, "status_period", 1.0, "wall time between status messages", 0.02, 3600.0, "s")
+        self.depth = declare(self, "queue_depth", 1000, "subscription queue depth per topic", 1, 100_000)
+        facts_text = declare(self, "session_facts", "{}",
+                             "extra session facts as a JSON object, e.g. {\"operator\": \"...\", \"notes\": \"...\"}")
+        refuse_unknown(self)
+        if compression not in available_compressions():
+            raise ParameterError(f"recorder: compression '{compression}' is not usable here; "
+                                 f"choose one of {list(available_compressions())}")
+        try:
+            extra_facts = json.loads(facts_text)
+        except json.JSONDecodeError as exc:
+            raise ParameterError(f"recorder: session_facts is not valid JSON ({exc}); "
+                                 "pass a JSON object such as '{\"operator\": \"me\"}'") from None
+        if not isinstance(extra_facts, dict):
+            raise ParameterError("recorder: session_facts must be a JSON object ({...}), "
+                                 f"got {type(extra_facts).__name__}")
+        if not output:
+            raise ParameterError("recorder: parameter 'output' is empty; give the MCAP file to write")
+
+        self.wanted, skipped = self.resolve_topics(topics)
+        self.path = os.path.abspath(output)
+        try:
+            os.makedirs(os.path.dirname(self.path), exist_ok=True)
+            self.writer = SessionWriter(self.path, chunk_size_bytes=chunk_size,
+                                        chunk_max_duration_ns=int(flush_period * 1e9), compression=compression,
+                                        fsync=fsync, overwrite=overwrite)
+        except FileExistsError:
+            raise ParameterError(f"recorder: {self.path} exists; pass overwrite:=true or choose another "
+                                 "output") from None
+        except OSError as exc:
+            raise ParameterError(f"recorder: cannot create {self.path}: {exc.strerror or exc}") from None
+
+        self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
+        self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
+        self.subs: dict[str, object] = {}  # topic -> subscription
+        self.types: dict[str, str] = {}  # topic -> pkg/msg/Type
+        self.registered: set[str] = set()  # topics with a channel in the file
+        self.conventional_qos = {self.resolve_topic_name(t): q for t, q in CONVENTIONAL_QOS.items()}
+        self.ignored: set[str] = set()  # topics that cannot be recorded (reported once)
+        self.counts: dict[str, int] = {}
+        self.block_end: dict[str, int] = {}  # SampleBlock topic -> end index of its latest block
+        self.fact_decoders: dict[str, tuple[str, type]] = {}  # topic -> (fact key, message class)
+        self.facts: dict[str, object] = {}
+        self.received = 0
+        self.rejected = 0
+        self.bytes = 0
+        self.last_log_ns = 0
+        self.clock_back_reported = False
+        self.failed: str | None = None
+        self.closed = False
+        self.summary: dict | None = None
+        self.started_wall = time.monotonic()
+        self.last_flush_wall = self.started_wall
+        self.finished = Future()  # completes only if recording fails; SIGINT/SIGTERM close via destroy_node
+
+        params = {name: p.value for name, p in sorted(self.get_parameters_by_prefix("").items())}
+        try:
+            self.write_facts({"recorder": {"node": self.get_fully_qualified_name(), "path": self.path,
+                                           "topics": self.wanted, "parameters": params},
+                              "log_time": LOG_TIME_CONVENTION, "ambid_version": ambid.__version__,
+                              "started_unix_ns": time.time_ns(), **extra_facts})
+        except SessionWriteError as exc:
+            self.writer.close()
+            raise ParameterError(f"recorder: cannot write {self.path}: {exc}") from None
+        steady = Clock(clock_type=ClockType.STEADY_TIME)  # keeps flushing while /clock stands still
+        self.flush_timer = self.create_timer(flush_period, self.flush, clock=steady)
+        self.discovery_timer = self.create_timer(discovery_period, self.discover, clock=steady)
+        self.status_timer = self.create_timer(status_period, self.publish_status, clock=steady)
+        if skipped:
+            self.get_logger().info(f"not recording the loop topics {skipped} (include_loop_topics:=true does)")
+        self.event(SessionEvent.INFO, "recording_started",
+                   f"recording {len(self.wanted)} topics to {self.path} ({compression}, flush every "
+                   f"{flush_period:g} s)")
+        self.discover()
+
+    # --- set-up -----------------------------------------------------------
+    def resolve_topics(self, topics: list[str]) -> tuple[list[str], list[str]]:
+        loop = {self.resolve_topic_name(t) for t in LOOP_TOPICS}
+        wanted, skipped = [], []
+        for t in topics:
+            try:
+                name = self.resolve_topic_name(t)
+            except Exception as exc:  # noqa: BLE001 - rclpy raises several types for a bad name
+                raise ParameterError(f"recorder: topic '{t}' is not a valid topic name: {exc}") from None
+            if name in loop and not self.include_loop:
+                skipped.append(name)
+            elif name not in wanted:
+                wanted.append(name)
+        if not wanted:
+            raise ParameterError("recorder: no topic left to record; check 'topics' and 'include_loop_topics'")
+        return wanted, skipped
+
+    def discover(self) -> None:
+        """Subscribe to every wanted topic the graph knows and that is not recorded yet.
+
+        A topic with publishers is subscribed with a QoS matching their offers. A
+        topic that so far only has subscribers (the plant listens to ``excitation``
+        long before the generator publishes) is subscribed at once if it is an ambid
+        topic, with the graph's conventional QoS, so its first messages are not lost
+        to the discovery delay; other topics wait for a publisher.
+        """
+        if self.closed or self.failed:
+            return
+        graph = None
+        for topic in self.wanted:
+            if topic in self.subs or topic in self.ignored:
+                continue
+            if graph is None:
+                graph = dict(self.get_topic_names_and_types())
+            types = graph.get(topic)
+            if not types:
+                continue
+            if len(types) > 1:
+                self.ignore(topic, "topic_type_conflict", f"{topic} has several types {types}; not recorded "
+                            "(rosbag2 refuses it too): fix the publishers")
+                continue
+            offered = self.get_publishers_info_by_topic(topic)
+            if offered or topic in self.conventional_qos:
+                self.start_topic(topic, types[0], offered)
+
+    def start_topic(self, topic: str, type_name: str, offered: list) -> None:
+        try:
+            cls = message_class(type_name)
+        except (ImportError, AttributeError, ValueError) as exc:
+            self.ignore(topic, "topic_skipped", f"{topic}: type {type_name} is not installed here ({exc}); "
+                        "not recorded: source the workspace that defines it")
+            return
+        self.types[topic] = type_name
+        if offered and not self.register(topic, offered):
+            return
+        profiles = [p.qos_profile for p in offered] or [self.conventional_qos[topic]]
+        sub_qos = subscription_qos(profiles, self.depth)
+        self.counts[topic] = 0
+        if type_name in FACT_TYPES:
+            self.fact_decoders[topic] = (FACT_TYPES[type_name], cls)
+        if type_name == SAMPLE_BLOCK_TYPE:
+            self.block_end[topic] = 0
+        self.subs[topic] = self.create_subscription(cls, topic, functools.partial(self.on_message, topic),
+                                                    sub_qos, raw=True)
+        self.event(SessionEvent.INFO, "topic_recorded",
+                   f"{topic} ({type_name}, {len(offered)} publisher(s), {sub_qos.reliability.name.lower()}, "
+                   f"{sub_qos.durability.name.lower()})")
+
+    def register(self, topic: str, offered: list) -> bool:
+        """Add the topic's channel to the file with the publishers' offered QoS and type hash."""
+        hashes = {str(p.topic_type_hash) for p in offered}
+        type_hash = hashes.pop() if len(hashes) == 1 and next(iter(hashes)).startswith("RIHS01_") else None
+        try:
+            self.writer.add_topic(topic, self.types[topic], [p.qos_profile for p in offered], type_hash=type_hash)
+        except SessionWriteError as exc:
+            self.fail(exc)
+            return False
+        except (FileNotFoundError, ValueError) as exc:
+            self.ignore(topic, "topic_skipped", f"{topic}: cannot store the definition of {self.types[topic]} "
+                        f"({exc})")
+            return False
+        self.registered.add(topic)
+        return True
+
+    def ignore(self, topic: str, code: str, why: str) -> None:
+        self.ignored.add(topic)
+        self.get_logger().warn(why)
+        self.event(SessionEvent.WARN, code, why)
+
+    # --- recording --------------------------------------------------------
+    def on_message(self, topic: str, data: bytes) -> None:
+        self.received += 1
+        if self.closed or self.failed:
+            self.rejected += 1
+            return
+        now = self.get_clock().now().nanoseconds
+        if now < self.last_log_ns:
+            if not self.clock_back_reported:
+                self.clock_back_reported = True
+                self.event(SessionEvent.WARN, "clock_backwards",
+                           f"the ROS clock stepped back by {(self.last_log_ns - now) * 1e-9:.6f} s; log times "
+                           "are held at the last time so they stay non-decreasing")
+            now = self.last_log_ns
+        self.last_log_ns = now
+        if topic not in self.registered and (
+                topic in self.ignored or not self.register(topic, self.get_publishers_info_by_topic(topic))):
+            self.rejected += 1
+            return
+        try:
+            self.writer.write(topic, data, now)
+        except SessionWriteError as exc:
+            self.rejected += 1
+            self.fail(exc)
+            return
+        self.counts[topic] += 1
+        self.bytes += len(data)
+        if topic in self.block_end:
+            try:
+                first, n = sample_block_span(data)
+                self.block_end[topic] = max(self.block_end[topic], first + n)
+            except ValueError:
+                pass  # recorded as received; the consumers judge the content
+        if topic in self.fact_decoders:
+            self.update_facts(topic, data)
+
+    def update_facts(self, topic: str, data: bytes) -> None:
+        key, cls = self.fact_decoders[topic]
+        try:
+            msg = deserialize_message(data, cls)
+            if key == "plant":
+                self.write_facts({"plant": plant_facts(msg), "rig": msg.rig_json})
+            elif key == "controller":
+                self.write_facts({"controller": controller_facts(msg)})
+            else:
+                designs = dict(self.facts.get("excitation", {}))
+                designs[msg.experiment_id] = design_facts(msg)
+                self.write_facts({"excitation": designs})
+        except SessionWriteError as exc:
+            self.fail(exc)
+        except Exception as exc:  # noqa: BLE001 - a malformed description must not stop the recording
+            why = f"{topic}: recorded, but no session facts could be read from it: {exc}"
+            self.get_logger().warn(why, throttle_duration_sec=5.0)
+            self.event(SessionEvent.WARN, "unreadable_description", why)
+
+    def write_facts(self, facts: dict) -> None:
+        self.facts.update(facts)
+        self.writer.write_session_facts(facts)
+
+    def flush(self) -> None:
+        if self.closed or self.failed:
+            return
+        if self.writer.message_count > self.writer.flushed_message_count:
+            try:
+                self.writer.flush()
+            except SessionWriteError as exc:
+                self.fail(exc)
+                return
+        self.last_flush_wall = time.monotonic()
+
+    def fail(self, exc: Exception) -> None:
+        """Stop recording after a write error; keep what is on disk readable."""
+        if self.failed:
+            return
+        self.failed = str(exc)
+        text = (f"writing {self.path} failed: {exc}. Recording stopped; the file keeps "
+                f"{self.writer.flushed_message_count} messages, read them with 'ambid inspect --recover'")
+        self.get_logger().error(text)
+        self.event(SessionEvent.ERROR, "write_failed", text)
+        self.discovery_timer.cancel()  # the subscriptions stay (destroying one inside its callback is unsafe)
+        self.flush_timer.cancel()
+        self.writer.close()  # after a failure this only releases the file
+        self.summary = self.figures("failed")
+        self.publish_status()
+        if not self.finished.done():
+            self.finished.set_result(self.summary)
+
+    # --- reporting --------------------------------------------------------
+    def figures(self, state: str) -> dict:
+        wall = time.monotonic() - self.started_wall
+        written = self.writer.message_count
+        file_bytes = os.path.getsize(self.path) if os.path.exists(self.path) else 0
+        return {"state": state, "path": self.path, "messages": written, "topics": dict(self.counts),
+                "bytes_received": self.bytes, "file_bytes": file_bytes, "chunks": self.writer.chunk_count,
+                "flushed_messages": self.writer.flushed_message_count, "messages_received": self.received,
+                "messages_rejected": self.rejected, "wall_s": wall,
+                "messages_per_wall_s": written / wall if wall > 0 else 0.0, "error": self.failed}
+
+    def publish_status(self) -> None:
+        state = "failed" if self.failed else ("done" if self.closed else "running")
+        f = self.figures(state)
+        keys = ["path", "messages", "bytes_received", "file_bytes", "chunks", "flushed_messages",
+                "last_flush_age_s"]
+        values = [self.path, f["messages"], f["bytes_received"], f["file_bytes"], f["chunks"],
+                  f["flushed_messages"], round(time.monotonic() - self.last_flush_wall, 3)]
+        for topic, n in sorted(self.counts.items()):
+            keys.append(f"messages:{topic}")
+            values.append(n)
+        for topic, end in sorted(self.block_end.items()):
+            keys.append(f"end_index:{topic}")
+            values.append(end)
+        measurement = self.resolve_topic_name("measurement")
+        text = (f"{state}: {f['messages']} messages ({f['messages_per_wall_s']:.0f}/s), "
+                f"{f['file_bytes'] / 1e6:.2f} MB in {self.path}" + (f"; {self.failed}" if self.failed else ""))
+        states = {"running": SessionStatus.STATE_RUNNING, "done": SessionStatus.STATE_DONE,
+                  "failed": SessionStatus.STATE_FAILED}
+        try:
+            self.pub_status.publish(SessionStatus(
+                stamp=time_msg(self.get_clock().now().nanoseconds), node=self.get_fully_qualified_name(),
+                state=states[state], sample_index=self.block_end.get(measurement, 0), progress=-1.0,
+                messages_received=self.received, messages_rejected=self.rejected, text=text,
+                keys=keys, values=[json.dumps(v) for v in values]))
+        except Exception:  # noqa: BLE001 - the context may already be shut down (SIGINT)
+            pass
+
+    def event(self, severity: int, code: str, text: str) -> None:
+        try:
+            self.pub_event.publish(SessionEvent(
+                stamp=time_msg(self.get_clock().now().nanoseconds),
+                sample_index=max(self.block_end.values(), default=0), severity=severity,
+                node=self.get_fully_qualified_name(), code=code, text=text))
+        except Exception:  # noqa: BLE001 - the context may already be shut down (SIGINT)
+            pass
+
+    # --- shutdown ---------------------------------------------------------
+    def close(self) -> dict:
+        """Write the last chunk, summary and footer; stop recording. Idempotent; returns the summary."""
+        if self.closed:
+            return self.summary
+        self.closed = True
+        for timer in (self.flush_timer, self.discovery_timer, self.status_timer):
+            timer.cancel()
+        if not self.failed:
+            try:
+                self.writer.close()
+            except SessionWriteError as exc:
+                self.failed = str(exc)
+                self.get_logger().error(f"closing {self.path} failed: {exc}")
+                self.event(SessionEvent.ERROR, "write_failed", f"closing {self.path} failed: {exc}")
+            self.summary = self.figures("failed" if self.failed else "done")
+        line = (f"closed {self.path}: {self.summary['messages']} messages, {self.summary['file_bytes']} bytes, "
+                f"{self.summary['state']}")
+        if self.context.ok():
+            self.get_logger().info(line)
+        else:  # after SIGINT/SIGTERM the logger's rosout publisher is gone
+            print(f"[recorder] {line}", file=sys.stderr, flush=True)
+        self.publish_status()
+        self.event(SessionEvent.INFO, "recording_closed", json.dumps(self.summary))
+        return self.summary
+
+    def destroy_node(self) -> None:
+        self.close()
+        super().destroy_node()
+
+
+def _stop_on_signal(signum, frame) -> None:
+    """SIGINT/SIGTERM: shut the ROS context down so run_single leaves its spin and closes the file.
+
+    rclpy's own handlers (installed by rclpy.init, chaining to this one) usually did it already.
+    This handler never raises: a KeyboardInterrupt in the middle of a chunk write would corrupt the file.
+    """
+    from rclpy.utilities import get_default_context
+
+    get_default_context().try_shutdown()
+
+
+def main(args=None) -> int:
+    from ambid_nodes.node_main import run_single
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _stop_on_signal)
+    return run_single(Recorder, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,84 @@
+"""ambid design: the preview command and build_design (the user's terms -> ExcitationDesign)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ambid.excitation import ExcitationDesign, check_headroom
+from ambid_nodes.commands import design as cmd
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def parse(argv: list[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser()
+    cmd.add_arguments(p)
+    return p.parse_args(argv)
+
+
+def test_preview_runs_without_rclpy_and_writes_what_it_reports(tmp_path):
+    argv = ["design", "--band", "20", "800", "--resolution", "10", "--periods", "3", "--out", str(tmp_path), "--json"]
+    code = ("import json, sys\nfrom ambid_nodes.cli import main\n"
+            f"rc = main({argv!r})\nprint(json.dumps({{'rc': rc, 'rclpy': 'rclpy' in sys.modules}}))")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                         cwd=tmp_path, env=dict(os.environ, PYTHONPATH=str(ROOT / "ambid_nodes")))
+    assert run.returncode == 0, run.stderr
+    summary, status = (json.loads(line) for line in run.stdout.strip().splitlines()[-2:])
+    assert status == {"rc": 0, "rclpy": False}
+
+    # design.json is the design build_design makes from the same terms, at the default rig's 10 kHz
+    design = ExcitationDesign.from_dict(json.loads((tmp_path / "design.json").read_text()))
+    assert design == cmd.build_design("multisine", (20.0, 800.0), 10.0, 10_000.0, cmd.DEFAULT_INPUTS, 0.5,
+                                      n_periods=3)
+    # orthogonal multisine, 4 inputs: Ne (Pt + P) N / fs = 4 x (1 + 3) x 1000 / 10 kHz
+    assert summary["measurement_time_s"] == pytest.approx(4 * 4 * 1000 / 10_000.0)
+    assert summary["n_lines"] == design.excited_lines.size and summary["peak_a"] == pytest.approx([0.5] * 4)
+    # 3 A limit - 1 A working current - 0.5 A peak
+    assert summary["headroom"]["ok"] and summary["headroom"]["margin_a"] == pytest.approx([1.5] * 4)
+    plan = {row["method"]: row["measurement_time_s"] for row in summary["plan"]}
+    assert plan["orthogonal multisine"] == pytest.approx(summary["measurement_time_s"])
+    assert plan["stepped sine"] > 10 * plan["orthogonal multisine"]
+    assert (tmp_path / "design.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_headroom_refusal_is_reported_with_exit_code_1(tmp_path, capsys):
+    args = parse(["--peak-current", "2.5", "--resolution", "20", "--no-plan", "--no-figure", "--out", str(tmp_path)])
+    assert cmd.run(args) == 1
+    out = capsys.readouterr().out
+    design = ExcitationDesign.from_dict(json.loads((tmp_path / "design.json").read_text()))
+    with pytest.raises(ValueError) as refusal:
+        check_headroom(design, 3.0, 1.0)
+    assert f"headroom: REFUSED, {refusal.value}" in out
+    assert "measurement time 1 s (10000 samples)" in out  # 4 experiments x (1 + 4) periods x N = 500
+    assert not (tmp_path / "design.png").exists()
+
+
+def test_bad_terms_give_a_clear_error(tmp_path, capsys):
+    assert cmd.run(parse(["--band", "10", "6000", "--out", str(tmp_path)])) == 2
+    assert "Nyquist" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="phases 'schroeder' does not apply to a noise design"):
+        cmd.build_design("noise", (10.0, 1000.0), 5.0, 10_000.0, phases="schroeder")
+    with pytest.raises(ValueError, match="mimo of a multisine design must be one of"):
+        cmd.build_design("multisine", (10.0, 1000.0), 5.0, 10_000.0, mimo="simultaneous")
+
+
+def test_kind_defaults_and_prbs_clock():
+    swept = cmd.build_design("swept_sine", (10.0, 1000.0), 5.0, 10_000.0, spacing="log")
+    assert swept.options == {"law": "log", "mimo": "one_at_a_time"}
+    assert cmd.build_design("dibs", (10.0, 1000.0), 5.0, 10_000.0).options["grid"] == "odd"
+    # divider: largest d with 1000 Hz <= 10 kHz / (3 d) -> 3; order: smallest with 3 (2^o - 1) >= 10 kHz / 5 Hz
+    order, divider = cmd.prbs_clock((10.0, 1000.0), 5.0, 10_000.0)
+    assert divider == math.floor(10_000 / 3000)
+    assert 3 * (2**order - 1) >= 2000 > 3 * (2 ** (order - 1) - 1)
+    prbs = cmd.build_design("prbs", (10.0, 1000.0), 5.0, 10_000.0)
+    assert prbs.n_per_period == divider * (2**order - 1) and prbs.fs_hz / prbs.n_per_period <= 5.0
+    assert np.all(prbs.peak_a == pytest.approx(0.5))
