@@ -85,3 +85,21 @@ class MagnetPair:
                 "the backup-bearing clearance, which must be smaller than the air gap")
         return self.k_magnet * np.cos(self.pole_angle_rad) * (
             (ib + ic) ** 2 / (s0 - x) ** 2 - (ib - ic) ** 2 / (s0 + x) ** 2)
+
+
+    def slopes(self, control_current_a: np.ndarray, displacement_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Partial derivatives of :meth:`force` (eq. 2.14) at (ic, x).
+
+        Returns:
+            (dF/dic [N/A], dF/dx [N/m]), broadcast shape. At x = 0 they are
+            ki (for any ic) and ks (1 + ic^2 / ib^2); at (0, 0) exactly ki, ks.
+        """
+        ic = np.asarray(control_current_a, dtype=float)
+        x = np.asarray(displacement_m, dtype=float)
+        s0, ib = self.air_gap_m, self.bias_current_a
+        if np.any(np.abs(x) >= s0):
+            raise ValueError(f"displacement reaches the magnet (|x| >= s0 = {s0} m)")
+        kc = 2.0 * self.k_magnet * np.cos(self.pole_angle_rad)
+        dfdi = kc * ((ib + ic) / (s0 - x) ** 2 + (ib - ic) / (s0 + x) ** 2)
+        dfdx = kc * ((ib + ic) ** 2 / (s0 - x) ** 3 + (ib - ic) ** 2 / (s0 + x) ** 3)
+        return dfdi, dfdx

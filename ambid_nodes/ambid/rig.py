@@ -1,24 +1,42 @@
-"""The AMB rig: its parameters, loading them from a file, and its linear model.
+"""The AMB rig: its parameters, loading them from a file, and its analytical model.
 
 One table, :data:`RIG_FIELDS`, is the single home of every rig parameter:
-its default, unit, allowed range and where the value comes from. The default
-rig is documented in ``docs/default_rig.md`` from that table.
+its default, unit, allowed range and where the value comes from. Everything
+else (rotor mass and modes, ki, ks, coil inductance, amplifier bandwidth) is
+derived from it by the properties of :class:`Rig`. The default rig is
+documented in ``docs/default_rig.md``, whose tables :func:`rig_markdown`
+generates.
+
+Two models of the same rig exist on purpose:
+
+* :func:`analytical_model` -- what an engineer writes down from chapter 2 of
+  Hynynen (2011): the finite-element rotor, magnets linearised with the
+  nominal ki, ks (eqs. 2.16-2.17) at the centre, first-order amplifiers
+  (eq. 2.21 with the power bandwidth of eq. 2.24), ideal sensors at their
+  (non-collocated) planes.
+* the "true" rig (:mod:`ambid.true_rig`), which the simulator runs: the
+  same plus what reality adds (magnet tolerances, the nonlinear force, a
+  housing mode, sensor dynamics, an extra delay).
 
 Channel order everywhere: bearing A x, bearing B x, bearing A y, bearing B y
-(the axes are turned 45 deg from the vertical).
+(the axes are turned 45 deg from the vertical). Axial positions are measured
+from the middle of the shaft, A on the negative side.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
 
-from ambid.magnet import MagnetPair
+from ambid.amplifier import Amplifier
+from ambid.fem_rotor import LaminationStack, Material, RotorGeometry, ShaftSection
+from ambid.magnet import MU0, MagnetPair
 from ambid.rigid_rotor import RigidRotor
+from ambid.rotor_model import RotorModel, fem_rotor_model, rigid_inverse_mass
 from ambid.statespace import StateSpace
 
 AXES = ("a_x", "b_x", "a_y", "b_y")
@@ -28,50 +46,95 @@ CURRENT_NAMES = tuple(f"u_{a}" for a in AXES)
 
 @dataclass(frozen=True)
 class RigField:
-    """One rig parameter: default, SI unit, allowed closed range, source."""
+    """One rig parameter: default, SI unit, allowed closed range, source; ``integer`` for counts."""
 
     default: float
     unit: str
     low: float
     high: float
     source: str
+    integer: bool = False
 
 
-# name -> field. Values of a horizontal steel rotor of ~29 kg, 0.8 m long.
+_STEEL = Material()
+
+# name -> field. A horizontal steel rotor of ~34 kg, 0.8 m long, on two eight-pole radial AMBs.
 RIG_FIELDS: dict[str, RigField] = {
+    # control
     "sample_rate_hz": RigField(10_000.0, "Hz", 1_000.0, 100_000.0, "control rate of the design brief"),
-    "rotor_mass_kg": RigField(29.0, "kg", 0.1, 10_000.0,
-                              "steel shaft 0.8 m x 60 mm: 7810 kg/m^3 x pi 0.03^2 x 0.8 = 17.6 kg; motor "
-                              "stack 5.4 kg at the centre; bearing stacks 2 x 3.0 kg at +-0.30 m"),
-    "rotor_transverse_inertia_kgm2": RigField(1.52, "kg m^2", 1e-5, 1e4,
-                                              "shaft 17.6 x 0.8^2/12 = 0.94; stacks 2 x 3.0 x 0.30^2 = 0.54; "
-                                              "own inertia of the stacks 0.04"),
-    "bearing_a_z_m": RigField(-0.30, "m", -10.0, 0.0, "bearing A 0.30 m left of the centre of mass"),
-    "bearing_b_z_m": RigField(0.30, "m", 0.0, 10.0, "bearing B 0.30 m right of the centre of mass"),
-    "sensor_a_z_m": RigField(-0.34, "m", -10.0, 0.0, "sensor A 40 mm outboard of bearing A (non-collocated)"),
-    "sensor_b_z_m": RigField(0.34, "m", 0.0, 10.0, "sensor B 40 mm outboard of bearing B"),
+    # rotor geometry (finite-element model)
+    "shaft_length_m": RigField(0.8, "m", 0.05, 20.0, "solid steel shaft, length"),
+    "shaft_diameter_m": RigField(0.060, "m", 0.002, 2.0, "solid steel shaft, diameter"),
+    "stack_length_m": RigField(0.20, "m", 0.0, 10.0, "central motor lamination stack, length (0: none)"),
+    "stack_diameter_m": RigField(0.120, "m", 0.002, 4.0, "motor lamination stack, outer diameter; adds mass "
+                                 "and inertia, no bending stiffness"),
+    "sleeve_length_m": RigField(0.040, "m", 0.0, 1.0, "laminated bearing sleeve (AMB rotor stack) at each "
+                                "bearing, length; chosen so the rotor weighs ~34 kg"),
+    "sleeve_diameter_m": RigField(0.100, "m", 0.002, 4.0, "bearing sleeve, outer diameter"),
+    "density_kg_m3": RigField(_STEEL.density_kg_m3, "kg/m^3", 1_000.0, 25_000.0, "structural steel"),
+    "youngs_modulus_pa": RigField(_STEEL.youngs_modulus_pa, "Pa", 1e9, 1e12, "structural steel"),
+    "bending_modes": RigField(3.0, "-", 0.0, 8.0, "bending modes kept per plane in the modal reduction",
+                              integer=True),
+    "modal_damping_ratio": RigField(0.005, "-", 0.0, 0.2, "structural damping of the bending modes, 0.5 %"),
+    "rotor_speed_rpm": RigField(0.0, "rpm", 0.0, 100_000.0, "spin speed (gyroscopic coupling); 0 = standstill"),
+    "bearing_a_z_m": RigField(-0.30, "m", -10.0, 0.0, "bearing A, 0.10 m from the left shaft end"),
+    "bearing_b_z_m": RigField(0.30, "m", 0.0, 10.0, "bearing B, 0.10 m from the right shaft end"),
+    "sensor_a_z_m": RigField(-0.34, "m", -10.0, 10.0, "sensor A 40 mm outboard of bearing A (non-collocated)"),
+    "sensor_b_z_m": RigField(0.34, "m", -10.0, 10.0, "sensor B 40 mm outboard of bearing B"),
+    # magnets (nominal, eqs. 2.12-2.17)
     "coil_turns": RigField(200.0, "-", 1.0, 10_000.0, "Nc per magnet"),
     "pole_area_m2": RigField(4.5e-4, "m^2", 1e-6, 1.0, "Aa, pole face 15 mm x 30 mm"),
     "air_gap_m": RigField(0.6e-3, "m", 1e-5, 0.01, "nominal air gap s0"),
-    "bias_current_a": RigField(3.0, "A", 0.01, 100.0, "ib"),
+    "bias_current_a": RigField(3.0, "A", 0.01, 100.0, "ib, half the coil current range"),
     "pole_angle_deg": RigField(22.5, "deg", 0.0, 45.0, "alpha of an eight-pole bearing"),
+    "true_ki_factor": RigField(1.03, "-", 0.5, 2.0, "true ki / nominal ki: manufacturing tolerance (+3 %)"),
+    "true_ks_factor": RigField(0.95, "-", 0.5, 2.0, "true ks / nominal ks: manufacturing tolerance (-5 %)"),
+    # amplifiers
     "current_limit_a": RigField(3.0, "A", 0.01, 100.0,
-                                "|ic + r| <= ib keeps both coil currents ib +- i non-negative"),
-    "current_loop_bandwidth_hz": RigField(1_500.0, "Hz", 10.0, 50_000.0,
-                                          "closed current loop 1/(tau_cl s + 1), eq. 2.20"),
+                                "|ic + r| <= ib keeps both coil currents ib +- ic non-negative"),
+    "dc_link_voltage_v": RigField(560.0, "V", 1.0, 10_000.0, "udc, rectified 400 V three-phase mains"),
+    # sensors (true rig; the analytical model assumes ideal ones)
+    "sensor_bandwidth_hz": RigField(5_000.0, "Hz", 10.0, 1e6, "eddy-current probe and anti-alias filter, "
+                                    "first order"),
+    "sensor_gain": RigField(1.0, "m/m", 0.1, 10.0, "calibrated sensitivity (true / nominal)"),
+    "sensor_noise_m": RigField(0.2e-6, "m", 0.0, 1e-3, "RMS white noise of an eddy-current sensor at 10 kHz"),
+    "sensor_cubic_per_m2": RigField(0.0, "1/m^2", -1e8, 1e8, "static probe-curve error c3 d^3 "
+                                    "(optional nonlinearity; 0 = linear)"),
+    # housing (true rig only)
+    "housing_mass_kg": RigField(20.0, "kg", 0.1, 1e5, "modal mass of each bearing pedestal with its stator"),
+    "housing_freq_hz": RigField(180.0, "Hz", 1.0, 1e5, "pedestal (foundation) mode, unmodelled in the "
+                                "analytical model"),
+    "housing_damping_ratio": RigField(0.02, "-", 0.0, 1.0, "pedestal damping, 2 %"),
+    # delay (true rig only)
+    "extra_delay_s": RigField(50e-6, "s", 0.0, 0.01, "ADC conversion and PWM update, half a sample; at most "
+                              "one sample"),
+    # backup bearings
     "backup_clearance_m": RigField(0.25e-3, "m", 1e-6, 0.01, "radial retainer clearance, < s0"),
     "contact_stiffness_n_per_m": RigField(5e7, "N/m", 1e3, 1e10, "backup bearing and retainer stiffness"),
     "contact_damping_ns_per_m": RigField(3e3, "N s/m", 0.0, 1e7, "retainer contact damping, little rebound"),
-    "sensor_noise_m": RigField(0.2e-6, "m", 0.0, 1e-3, "RMS white noise of an eddy-current sensor at 10 kHz"),
 }
+
+_ROTOR_KEYS = ("shaft_length_m", "shaft_diameter_m", "stack_length_m", "stack_diameter_m", "sleeve_length_m",
+               "sleeve_diameter_m", "density_kg_m3", "youngs_modulus_pa", "bending_modes",
+               "modal_damping_ratio", "rotor_speed_rpm", "bearing_a_z_m", "bearing_b_z_m", "sensor_a_z_m",
+               "sensor_b_z_m")
+_ROTOR_CACHE: dict[tuple, RotorModel] = {}
 
 
 @dataclass(frozen=True)
 class Rig:
-    """A validated set of rig parameters (names and units as in :data:`RIG_FIELDS`)."""
+    """A validated set of rig parameters (names and units as in :data:`RIG_FIELDS`).
+
+    Attributes:
+        name: rig name.
+        values: parameter name -> value (every key of RIG_FIELDS).
+        rotor_import: a user's rotor model replacing the finite-element rotor
+            (:mod:`ambid.rotor_import`), or None.
+    """
 
     name: str
     values: dict[str, float]
+    rotor_import: RotorModel | None = field(default=None, compare=False)
 
     def __getattr__(self, item: str) -> float:
         values = object.__getattribute__(self, "values")
@@ -84,49 +147,237 @@ class Rig:
         """Control period [s]."""
         return 1.0 / self.values["sample_rate_hz"]
 
-    @property
-    def rotor(self) -> RigidRotor:
-        v = self.values
-        return RigidRotor(v["rotor_mass_kg"], v["rotor_transverse_inertia_kgm2"],
-                          (v["bearing_a_z_m"], v["bearing_b_z_m"]), (v["sensor_a_z_m"], v["sensor_b_z_m"]))
-
+    # -- magnets ---------------------------------------------------------
     @property
     def magnet(self) -> MagnetPair:
+        """Nominal magnet pair of one axis (the analytical model's)."""
         v = self.values
         return MagnetPair(v["coil_turns"], v["pole_area_m2"], v["air_gap_m"], v["bias_current_a"],
                           np.deg2rad(v["pole_angle_deg"]))
 
+    @property
+    def true_magnet(self) -> MagnetPair:
+        """The true magnet pair: ki and ks scaled by ``true_ki_factor``, ``true_ks_factor``.
+
+        Since ks / ki = ib / s0 (eqs. 2.16-2.17), the two factors are one
+        effective air gap s0' = s0 fi / fs (iron reluctance, eq. 2.7) and one
+        effective pole area Aa' = Aa fi (s0' / s0)^2 (fringing).
+        """
+        v = self.values
+        gap_ratio = v["true_ki_factor"] / v["true_ks_factor"]
+        return MagnetPair(v["coil_turns"], v["pole_area_m2"] * v["true_ki_factor"] * gap_ratio**2,
+                          v["air_gap_m"] * gap_ratio, v["bias_current_a"], np.deg2rad(v["pole_angle_deg"]))
+
+    # -- amplifiers ------------------------------------------------------
+    @property
+    def coil_inductance_h(self) -> float:
+        """L = mu0 Nc^2 Aa / (2 s0) of one magnet at the centre (flux of eq. 2.8 through two gaps) [H]."""
+        v = self.values
+        return MU0 * v["coil_turns"] ** 2 * v["pole_area_m2"] / (2.0 * v["air_gap_m"])
+
+    @property
+    def max_coil_current_a(self) -> float:
+        """imax = ib + current limit, the largest coil current [A]."""
+        return self.values["bias_current_a"] + self.values["current_limit_a"]
+
+    @property
+    def amplifier(self) -> Amplifier:
+        """One coil's amplifier: L, udc, imax, and a current-loop gain Gp = L omega_BW so that the
+        small-signal bandwidth equals the power bandwidth of eq. 2.24 (Lantto's model, eq. 2.21)."""
+        w_bw = np.log(9.0) * self.values["dc_link_voltage_v"] / (self.coil_inductance_h * self.max_coil_current_a)
+        return Amplifier(self.coil_inductance_h, 0.0, self.values["dc_link_voltage_v"], self.max_coil_current_a,
+                         self.coil_inductance_h * w_bw, min_current_a=0.0)
+
+    @property
+    def current_loop_bandwidth_hz(self) -> float:
+        """Closed current-loop bandwidth omega_BW / 2 pi, omega_BW = ln(9) udc / (L imax) (eq. 2.24) [Hz]."""
+        return self.amplifier.bandwidth_hz
+
+    # -- rotor -----------------------------------------------------------
+    @property
+    def rotor_geometry(self) -> RotorGeometry:
+        """Finite-element geometry of the built-in rotor (z from the left shaft end)."""
+        v = self.values
+        half = v["shaft_length_m"] / 2
+        stacks = []
+        if v["stack_length_m"] > 0:
+            stacks.append(LaminationStack(half - v["stack_length_m"] / 2, v["stack_length_m"],
+                                          v["stack_diameter_m"], density_kg_m3=v["density_kg_m3"]))
+        if v["sleeve_length_m"] > 0:
+            for zb in (v["bearing_a_z_m"], v["bearing_b_z_m"]):
+                stacks.append(LaminationStack(half + zb - v["sleeve_length_m"] / 2, v["sleeve_length_m"],
+                                              v["sleeve_diameter_m"], density_kg_m3=v["density_kg_m3"]))
+        material = Material(v["youngs_modulus_pa"], v["density_kg_m3"], _STEEL.poisson_ratio)
+        stations = tuple(half + v[k] for k in ("bearing_a_z_m", "bearing_b_z_m", "sensor_a_z_m", "sensor_b_z_m"))
+        return RotorGeometry(sections=(ShaftSection(v["shaft_length_m"], v["shaft_diameter_m"]),),
+                             stacks=tuple(stacks), stations_m=stations, material=material,
+                             max_element_length_m=min(0.025, v["shaft_length_m"] / 16))
+
+    def rotor_model(self, n_bending: int | None = None) -> RotorModel:
+        """The rotor as a state-space block (:class:`ambid.rotor_model.RotorModel`).
+
+        Args:
+            n_bending: bending modes per plane; None takes ``bending_modes``.
+                Ignored for an imported rotor (it is used as given).
+        """
+        if self.rotor_import is not None:
+            return self.rotor_import
+        v = self.values
+        nb = int(v["bending_modes"] if n_bending is None else n_bending)
+        key = tuple(v[k] for k in _ROTOR_KEYS) + (nb,)
+        model = _ROTOR_CACHE.get(key)
+        if model is None:
+            half = v["shaft_length_m"] / 2
+            model = fem_rotor_model(self.rotor_geometry, (half + v["bearing_a_z_m"], half + v["bearing_b_z_m"]),
+                                    (half + v["sensor_a_z_m"], half + v["sensor_b_z_m"]), nb,
+                                    v["modal_damping_ratio"], v["rotor_speed_rpm"] * np.pi / 30.0)
+            if len(_ROTOR_CACHE) > 16:
+                _ROTOR_CACHE.clear()
+            _ROTOR_CACHE[key] = model
+        return model
+
+    @property
+    def rotor(self) -> RigidRotor:
+        """Rigid-body view of the rotor (mass, transverse inertia, plane positions from the centre of mass),
+        from the low-frequency limit of the rotor model."""
+        w = rigid_inverse_mass(self.rotor_model())[:2, :2]
+        v = self.values
+        d = v["bearing_b_z_m"] - v["bearing_a_z_m"]
+        jt = d * d / (w[0, 0] + w[1, 1] - 2 * w[0, 1])
+        za = -(w[0, 0] - w[0, 1]) * jt / d
+        zc = v["bearing_a_z_m"] - za  # centre of mass from the shaft middle
+        mass = 1.0 / (w[0, 1] - za * (za + d) / jt)
+        return RigidRotor(mass, jt, (v["bearing_a_z_m"] - zc, v["bearing_b_z_m"] - zc),
+                          (v["sensor_a_z_m"] - zc, v["sensor_b_z_m"] - zc))
+
+    @property
+    def rotor_mass_kg(self) -> float:
+        """Total rotor mass [kg]."""
+        return self.rotor_model().mass_kg
+
+    @property
+    def rotor_transverse_inertia_kgm2(self) -> float:
+        """Transverse moment of inertia about the centre of mass [kg m^2]."""
+        return self.rotor.transverse_inertia_kgm2
+
+    def derived(self) -> dict[str, float]:
+        """The derived quantities the doc lists: name -> value (SI units in the name)."""
+        m, mt = self.magnet, self.true_magnet
+        rotor = self.rotor
+        model = self.rotor_model()
+        out = {
+            "rotor_mass_kg": rotor.mass_kg,
+            "rotor_transverse_inertia_kgm2": rotor.transverse_inertia_kgm2,
+            "magnet_constant_n_m2_per_a2": m.k_magnet,
+            "ki_n_per_a": m.ki,
+            "ks_n_per_m": m.ks,
+            "true_ki_n_per_a": mt.ki,
+            "true_ks_n_per_m": mt.ks,
+            "true_effective_air_gap_m": mt.air_gap_m,
+            "true_effective_pole_area_m2": mt.pole_area_m2,
+            "coil_inductance_h": self.coil_inductance_h,
+            "max_coil_current_a": self.max_coil_current_a,
+            "current_loop_bandwidth_hz": self.current_loop_bandwidth_hz,
+            "unstable_pole_hz": float(np.sqrt(2 * m.ks / rotor.mass_kg) / (2 * np.pi)),
+            "gravity_current_a": float(rotor.mass_kg * 9.81 / (2 * np.sqrt(2.0)) / m.ki),
+            "housing_stiffness_n_per_m": float(self.values["housing_mass_kg"]
+                                               * (2 * np.pi * self.values["housing_freq_hz"]) ** 2),
+        }
+        for j, f in enumerate(model.flexible_freq_hz):
+            out[f"free_free_bending_{j + 1}_hz"] = float(f)
+        return out
+
     def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, **self.values}
+        """name and every parameter value; ``make_rig(rig.to_dict())`` rebuilds the rig
+        (with ``rotor_file`` when the rotor was imported from a file)."""
+        out: dict[str, Any] = {"name": self.name, **self.values}
+        if self.rotor_import is not None and self.rotor_import.source.startswith("file:"):
+            out["rotor_file"] = self.rotor_import.source[len("file:"):]
+        return out
 
 
-def make_rig(overrides: dict[str, Any] | None = None, name: str = "ambid-default") -> Rig:
-    """Default rig with ``overrides`` applied, every value checked against its range."""
+def _check_value(key: str, f: RigField, raw: Any) -> float:
+    try:
+        value = float(raw)
+    except (TypeError, ValueError):
+        raise ValueError(f"rig: {key} must be a number in [{f.low:g}, {f.high:g}] {f.unit}, got {raw!r}") from None
+    if isinstance(raw, bool) or not (np.isfinite(value) and f.low <= value <= f.high):
+        raise ValueError(f"rig: {key} = {raw!r} is outside its allowed range [{f.low:g}, {f.high:g}] {f.unit}")
+    if f.integer and value != int(value):
+        raise ValueError(f"rig: {key} = {raw!r} must be a whole number in [{f.low:g}, {f.high:g}]")
+    return value
+
+
+def _check_layout(v: dict[str, float]) -> None:
+    half = v["shaft_length_m"] / 2
+    if not v["bearing_a_z_m"] < v["bearing_b_z_m"]:
+        raise ValueError("rig: bearing_a_z_m must be smaller than bearing_b_z_m")
+    if not v["sensor_a_z_m"] < v["sensor_b_z_m"]:
+        raise ValueError("rig: sensor_a_z_m must be smaller than sensor_b_z_m")
+    for key in ("bearing_a_z_m", "bearing_b_z_m", "sensor_a_z_m", "sensor_b_z_m"):
+        if abs(v[key]) > half:
+            raise ValueError(f"rig: {key} = {v[key]} m lies outside the shaft (+-shaft_length_m / 2 = "
+                             f"+-{half} m from its middle)")
+    sl = v["sleeve_length_m"]
+    for key in ("bearing_a_z_m", "bearing_b_z_m"):
+        if abs(v[key]) + sl / 2 > half:
+            raise ValueError(f"rig: the bearing sleeve at {key} = {v[key]} m sticks out of the shaft; shorten "
+                             "sleeve_length_m or move the bearing inwards")
+        if sl > 0 and abs(v[key]) - sl / 2 < v["stack_length_m"] / 2:
+            raise ValueError(f"rig: the bearing sleeve at {key} overlaps the central stack; shorten "
+                             "stack_length_m or sleeve_length_m")
+    if v["stack_length_m"] > v["shaft_length_m"]:
+        raise ValueError("rig: stack_length_m must not exceed shaft_length_m")
+    for key in ("stack_diameter_m", "sleeve_diameter_m"):
+        if v[key] <= v["shaft_diameter_m"]:
+            raise ValueError(f"rig: {key} must exceed shaft_diameter_m (the stack sits on the shaft)")
+
+
+def make_rig(overrides: dict[str, Any] | None = None, name: str = "ambid-default",
+             rotor_import: RotorModel | None = None) -> Rig:
+    """Default rig with ``overrides`` applied, every value checked against its range.
+
+    Args:
+        overrides: parameter name -> value (any subset of RIG_FIELDS); may
+            also hold ``name`` and ``rotor_file`` (a user rotor model, see
+            :mod:`ambid.rotor_import`).
+        name: rig name unless ``overrides`` gives one.
+        rotor_import: a user rotor model replacing the finite-element rotor.
+
+    Raises:
+        ValueError naming the field and its allowed range.
+    """
     overrides = dict(overrides or {})
     name = str(overrides.pop("name", name))
+    rotor_file = overrides.pop("rotor_file", None)
     unknown = sorted(set(overrides) - set(RIG_FIELDS))
     if unknown:
-        raise ValueError(f"rig: unknown parameter(s) {unknown}; known are: {', '.join(RIG_FIELDS)}")
-    values = {}
-    for key, f in RIG_FIELDS.items():
-        raw = overrides.get(key, f.default)
-        try:
-            value = float(raw)
-        except (TypeError, ValueError):
-            raise ValueError(f"rig: {key} must be a number in [{f.low:g}, {f.high:g}] {f.unit}, got {raw!r}") from None
-        if not (np.isfinite(value) and f.low <= value <= f.high):
-            raise ValueError(f"rig: {key} = {value!r} is outside its allowed range [{f.low:g}, {f.high:g}] {f.unit}")
-        values[key] = value
+        raise ValueError(f"rig: unknown parameter(s) {unknown}; known are: {', '.join(RIG_FIELDS)}, "
+                         "name, rotor_file")
+    values = {key: _check_value(key, f, overrides.get(key, f.default)) for key, f in RIG_FIELDS.items()}
     if values["backup_clearance_m"] >= values["air_gap_m"]:
         raise ValueError("rig: backup_clearance_m must be smaller than air_gap_m, so the rotor lands on the "
                          "backup bearings before it touches a magnet")
-    if values["sensor_a_z_m"] >= values["sensor_b_z_m"]:
-        raise ValueError("rig: sensor_a_z_m must be smaller than sensor_b_z_m")
-    return Rig(name, values)
+    if values["extra_delay_s"] > 1.0 / values["sample_rate_hz"] + 1e-12:
+        raise ValueError(f"rig: extra_delay_s = {values['extra_delay_s']} s must not exceed one sample "
+                         f"(1 / sample_rate_hz = {1.0 / values['sample_rate_hz']} s)")
+    _check_layout(values)
+    if rotor_file is not None:
+        if rotor_import is not None:
+            raise ValueError("rig: give either rotor_file or rotor_import, not both")
+        from ambid.rotor_import import load_rotor  # rotor_import imports this module's names lazily
+
+        rotor_import = load_rotor(rotor_file, speed_rpm=values["rotor_speed_rpm"],
+                                  damping_ratio=values["modal_damping_ratio"])
+    return Rig(name, values, rotor_import)
 
 
 def load_rig(path: str | Path) -> Rig:
-    """Rig from a YAML file of ``name: value`` pairs (any subset of :data:`RIG_FIELDS`)."""
+    """Rig from a YAML file of ``name: value`` pairs (any subset of :data:`RIG_FIELDS`).
+
+    A ``rotor_file`` entry (a relative path is taken from the YAML file's
+    folder) replaces the finite-element rotor by a user model.
+    """
     path = Path(path)
     try:
         data = yaml.safe_load(path.read_text())
@@ -138,26 +389,73 @@ def load_rig(path: str | Path) -> Rig:
         data = {}
     if not isinstance(data, dict):
         raise ValueError(f"rig file {path} must hold a mapping of parameter: value, got {type(data).__name__}")
+    if "rotor_file" in data:
+        rotor_path = Path(str(data["rotor_file"]))
+        data["rotor_file"] = str(rotor_path if rotor_path.is_absolute() else path.parent / rotor_path)
     try:
         return make_rig(data, name=path.stem)
     except ValueError as exc:
         raise ValueError(f"rig file {path}: {exc}") from None
 
 
-def analytical_model(rig: Rig) -> StateSpace:
+def analytical_model(rig: Rig, n_bending: int | None = None) -> StateSpace:
     """Chapter 2's linearised model, continuous time: current reference u [A] -> sensor y [m].
 
-    States: bearing displacements q (4) [m], velocities (4) [m/s], coil control
-    currents (4) [A]. Force per axis F = ki i + ks q (eq. 2.18); amplifiers are
-    first order with the current-loop bandwidth (eq. 2.20). Gravity is a
-    constant offset and not part of the small-signal model.
+    The rotor model (finite-element, modes as in the rig, or the imported
+    one), per axis F = ki ic + ks q at the bearing plane (eq. 2.18, nominal
+    ki, ks of eqs. 2.16-2.17 at the centre), first-order amplifiers with the
+    bandwidth of eq. 2.24, ideal sensors (unit gain, no lag) at the sensor
+    planes. No housing, no extra delay; gravity is a constant offset and not
+    part of the small-signal model.
+
+    Args:
+        rig: rig parameters.
+        n_bending: bending modes per plane; None takes ``rig.bending_modes``
+            (0 gives the rigid 4-DOF rotor of sec. 2.3.1).
+
+    Returns:
+        StateSpace, dt = 0, 4 inputs (CURRENT_NAMES) and 4 outputs
+        (DISPLACEMENT_NAMES); states: rotor states, then coil control
+        currents [A].
     """
-    w = rig.rotor.inverse_mass()
+    rotor = rig.rotor_model(n_bending)
     ki, ks = rig.magnet.ki, rig.magnet.ks
     tau = 1.0 / (2 * np.pi * rig.current_loop_bandwidth_hz)
-    z, i4 = np.zeros((4, 4)), np.eye(4)
-    a = np.block([[z, i4, z], [ks * w, z, ki * w], [z, z, -i4 / tau]])
-    b = np.vstack([z, z, i4 / tau])
-    c = np.hstack([rig.rotor.sensor_map(), z, z])
+    n = rotor.n_states
+    i4 = np.eye(4)
+    a = np.block([[rotor.a + ks * rotor.b @ rotor.c_bearing, ki * rotor.b], [np.zeros((4, n)), -i4 / tau]])
+    b = np.vstack([np.zeros((n, 4)), i4 / tau])
+    c = np.hstack([rotor.c_sensor, np.zeros((4, 4))])
     return StateSpace(a, b, c, np.zeros((4, 4)), 0.0, CURRENT_NAMES, DISPLACEMENT_NAMES,
                       ("A",) * 4, ("m",) * 4)
+
+
+def _fmt(x: float) -> str:
+    return f"{x:.6g}"
+
+
+def rig_markdown(rig: Rig | None = None) -> str:
+    """Markdown tables of a rig: every parameter (value, unit, range, source), the derived values, and
+    the true rig's levitated operating point.
+
+    ``docs/default_rig.md`` holds this text for the default rig between the
+    markers ``<!-- rig-tables:begin -->`` and ``<!-- rig-tables:end -->``.
+    """
+    from ambid.true_rig import operating_point  # true_rig builds on this module
+
+    rig = make_rig() if rig is None else rig
+    lines = ["| parameter | value | unit | allowed range | source |", "| --- | --- | --- | --- | --- |"]
+    for key, f in RIG_FIELDS.items():
+        source = f.source.replace("|", "\\|")
+        lines.append(f"| `{key}` | {_fmt(rig.values[key])} | {f.unit} | [{_fmt(f.low)}, {_fmt(f.high)}] "
+                     f"| {source} |")
+    lines += ["", "| derived quantity | value |", "| --- | --- |"]
+    lines += [f"| `{k}` | {_fmt(v)} |" for k, v in rig.derived().items()]
+    op = operating_point(rig)
+    lines += ["", "| true rig, levitated (sensors read 0), bearing A x | value |", "| --- | --- |",
+              f"| control current ic0 [A] | {_fmt(op.current_a[0])} |",
+              f"| rotor-stator displacement at the bearing [m] | {_fmt(op.gap_m[0])} |",
+              f"| magnet force [N] | {_fmt(op.force_n[0])} |",
+              f"| ki there [N/A] | {_fmt(op.ki_n_per_a[0])} |",
+              f"| ks there [N/m] | {_fmt(op.ks_n_per_m[0])} |"]
+    return "\n".join(lines) + "\n"

@@ -14,8 +14,12 @@ import sys
 # subcommand -> module in ambid_nodes.commands, or a note for what is still to come
 COMMANDS = {
     "graph": "graph",
+    "identify": "identify",
+    "node": "node",
     "design": "design",
     "inspect": "inspect",
+    "compare": "compare",
+    "bench": "bench",
 }
 PLANNED = {
     "identify": "the end-to-end identification session",

@@ -22,7 +22,10 @@ Flow control: the plant's progress is the end (first_index + n_samples) of its l
 last message could stall the plant forever, and global, so two rigs would mix). A block is
 published only when its end is at most ``lookahead`` samples past that progress, so memory
 stays flat however long the experiment; each block is computed on demand by
-``design.samples``. Since the plant waits at an excited sample until its block arrives and
+``design.samples``. Every received message is accepted or rejected with its reason (a
+plant/description with inconsistent array sizes; a measurement block that is malformed, out of
+range or not after the previous one), counted per topic in ``status`` (``ambid_nodes.intake``).
+Since the plant waits at an excited sample until its block arrives and
 publishes measurement every ``m`` samples, ``lookahead`` must exceed ``block_size + m``
 (checked at run time; an event warns otherwise).
 """
@@ -43,7 +46,8 @@ from ambid.excitation import ExcitationDesign, check_headroom
 from ambid.rig import AXES, CURRENT_NAMES, load_rig, make_rig
 from ambid_nodes import qos
 from ambid_nodes.commands.design import DEFAULT_INPUTS, KINDS, build_design
-from ambid_nodes.conversions import block_msg, time_msg
+from ambid_nodes.conversions import BadMessage, block_data, block_msg, check_plant_description, time_msg
+from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 
 EXCITATION_NAMES = tuple(f"r_{a}" for a in AXES)
@@ -136,8 +140,9 @@ class ExcitationGenerator(Node):
         self.pub_block = self.create_publisher(SampleBlock, "excitation", qos.BLOCKS)
         self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
         self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
-        self.create_subscription(PlantDescription, "plant/description", self.on_plant, qos.LATCHED)
-        self.create_subscription(SampleBlock, "measurement", self.on_measurement, qos.BLOCKS)
+        self.intake = Intake(self, self.on_reject, self.on_handler_error)
+        self.intake.subscribe(PlantDescription, "plant/description", self.on_plant, qos.LATCHED)
+        self.intake.subscribe(SampleBlock, "measurement", self.on_measurement, qos.BLOCKS)
         self.create_service(StartExperiment, "start_experiment", self.on_start)
         self.create_service(StopExperiment, "stop_experiment", self.on_stop)
 
@@ -148,21 +153,21 @@ class ExcitationGenerator(Node):
         self.last: Experiment | None = None
         self.count = 0
         self.state = SessionStatus.STATE_IDLE
-        self.received = self.rejected = 0
         self.blocks_published = self.samples_published = 0
         self.publish_status()
         self.create_timer(STATUS_PERIOD_S, self.publish_status)
 
     # --- inputs from the plant ---------------------------------------------
+    @property
+    def received(self) -> int:
+        return self.intake.total_received
+
+    @property
+    def rejected(self) -> int:
+        return self.intake.total_rejected
+
     def on_plant(self, msg: PlantDescription) -> None:
-        self.received += 1
-        if not (np.isfinite(msg.sample_period) and msg.sample_period > 0):
-            self.reject(f"plant/description: sample_period {msg.sample_period!r} must be > 0")
-            return
-        if len(msg.current_limit) != len(msg.current_names) or not np.all(np.asarray(msg.current_limit) > 0):
-            self.reject(f"plant/description: {len(msg.current_limit)} current limits for "
-                        f"{len(msg.current_names)} currents, all must be > 0")
-            return
+        check_plant_description(msg)
         changed = abs(msg.sample_period - self.dt) > 1e-12 * self.dt
         self.dt = float(msg.sample_period)
         self.current_names = list(msg.current_names)
@@ -177,11 +182,13 @@ class ExcitationGenerator(Node):
                 self.event(SessionEvent.ERROR, "bad_design", self.default_error)
 
     def on_measurement(self, msg: SampleBlock) -> None:
-        self.received += 1
-        if msg.n_samples == 0 or len(msg.data) != msg.n_samples * len(msg.channel_names):
-            self.reject(f"measurement: {len(msg.data)} values for {msg.n_samples} samples x "
-                        f"{len(msg.channel_names)} channels")
-            return
+        try:
+            block_data(msg)
+        except BadMessage as exc:
+            raise BadMessage(f"measurement: {exc}") from None
+        if msg.first_index < self.progress:
+            raise BadMessage(f"measurement: block [{msg.first_index}, {msg.first_index + msg.n_samples}) repeated "
+                             f"or out of order: the plant was already at sample {self.progress}")
         if msg.n_samples > self.measurement_block:
             self.measurement_block = msg.n_samples
             if self.lookahead < self.block_size + msg.n_samples:
@@ -319,10 +326,13 @@ class ExcitationGenerator(Node):
         self.publish_status()
 
     # --- reporting -------------------------------------------------------------
-    def reject(self, why: str) -> None:
-        self.rejected += 1
+    def on_reject(self, topic: str, why: str) -> None:
         self.get_logger().warn(f"rejected message ({self.rejected} so far): {why}", throttle_duration_sec=1.0)
         self.event(SessionEvent.WARN, "rejected_message", why)
+
+    def on_handler_error(self, topic: str, why: str) -> None:
+        self.get_logger().error(why, throttle_duration_sec=1.0)
+        self.event(SessionEvent.ERROR, "handler_error", why)
 
     def event(self, severity: int, code: str, text: str) -> None:
         if severity >= SessionEvent.WARN and code != "rejected_message":
@@ -345,7 +355,7 @@ class ExcitationGenerator(Node):
                    "start_index": exp.start if exp else 0, "total_samples": exp.total if exp else 0,
                    "experiment_samples_published": exp.next_offset if exp else 0,
                    "samples_published": self.samples_published, "blocks_published": self.blocks_published,
-                   "plant_index": self.progress, "lookahead": self.lookahead}
+                   "plant_index": self.progress, "lookahead": self.lookahead, **self.intake.figures()}
         self.pub_status.publish(SessionStatus(
             stamp=time_msg(self.progress * self.dt), node=self.get_fully_qualified_name(), state=self.state,
             sample_index=self.progress, progress=progress, messages_received=self.received,

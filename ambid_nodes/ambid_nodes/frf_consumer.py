@@ -14,7 +14,11 @@ is defined) and at the end of the experiment; ``status`` after every block
 that completed a period (a line a person can follow, and figures in
 keys/values; at the end the noise and distortion levels and the input
 sensitivity peak with its ISO 14839-3 zone); ``events`` for sample gaps and
-rejected messages. :func:`ambid.frf.offline.frf_from_session` gives the same
+rejected messages. Every received message is accepted or rejected with its reason
+(malformed, non-finite, out of range, out of order or repeated blocks; designs
+and controller descriptions with inconsistent array sizes), counted per topic in
+``status`` (``ambid_nodes.intake``); no FRF is computed across a sample gap: the
+periods it touches are dropped. :func:`ambid.frf.offline.frf_from_session` gives the same
 result from a recording.
 
 When a design excites only some inputs, G is the response to those inputs
@@ -37,7 +41,9 @@ from ambid.frf.offline import DEFAULT_INPUTS, DEFAULT_OUTPUTS, DEFAULT_REFERENCE
 from ambid.frf.streaming import ESTIMATORS, FrfResult, FrfStream, loop_consistency, match_inputs
 from ambid.statespace import StateSpace
 from ambid_nodes import qos
-from ambid_nodes.conversions import BadMessage, block_data, statespace_from_msg, time_msg
+from ambid_nodes.conversions import (BadMessage, block_data, check_controller_description, check_design,
+                                     statespace_from_msg, time_msg)
+from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 
 
@@ -63,9 +69,10 @@ class FrfConsumer(Node):
         self.pub_frf = self.create_publisher(FrfEstimate, "frf", qos.LATCHED)
         self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
         self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
-        self.create_subscription(SampleBlock, "measurement", self.on_measurement, qos.BLOCKS)
-        self.create_subscription(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
-        self.create_subscription(ControllerDescription, "controller/description", self.on_controller, qos.LATCHED)
+        self.intake = Intake(self, self.on_reject, self.on_handler_error)
+        self.intake.subscribe(SampleBlock, "measurement", self.on_measurement, qos.BLOCKS)
+        self.intake.subscribe(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
+        self.intake.subscribe(ControllerDescription, "controller/description", self.on_controller, qos.LATCHED)
 
         self.stream: FrfStream | None = None
         self.experiment_id = ""
@@ -75,26 +82,24 @@ class FrfConsumer(Node):
         self.results: dict[str, FrfResult] = {}        # final estimate per experiment
         self.dt = 0.0
         self.index = 0
-        self.received = 0
-        self.rejected = 0
         self.state = SessionStatus.STATE_IDLE
         self.publish_status()
 
     # --- inputs ---------------------------------------------------------------
+    @property
+    def received(self) -> int:
+        return self.intake.total_received
+
+    @property
+    def rejected(self) -> int:
+        return self.intake.total_rejected
+
     def on_controller(self, msg: ControllerDescription) -> None:
-        self.received += 1
-        try:
-            model = statespace_from_msg(msg.model)
-        except BadMessage as exc:
-            self.reject(f"controller/description: {exc}")
-            return
-        if model.dt <= 0:
-            self.reject("controller/description: the model must be discrete (sample_period > 0)")
-            return
-        self.controller = model
+        check_controller_description(msg)
+        self.controller = statespace_from_msg(msg.model)
 
     def on_design(self, msg: ExcitationDesign) -> None:
-        self.received += 1
+        check_design(msg)
         if self.stream is not None and msg.experiment_id == self.experiment_id:
             self.on_design_update(msg)
             return
@@ -111,9 +116,9 @@ class FrfConsumer(Node):
             if not design.is_periodic and self.estimator not in ("indirect", "h1"):
                 raise ValueError(f"a {design.kind} excitation is not periodic: the {self.estimator} estimator "
                                  "does not apply; use indirect or h1")
-        except (ValueError, KeyError, TypeError, AttributeError) as exc:  # JSONDecodeError is a ValueError
-            self.reject(f"excitation/design {msg.experiment_id!r}: {exc}")
-            return
+        except (ValueError, KeyError, TypeError, AttributeError, IndexError, OverflowError, RecursionError) as exc:
+            # JSONDecodeError is a ValueError
+            raise BadMessage(f"excitation/design {msg.experiment_id!r}: {type(exc).__name__}: {exc}") from None
         if self.stream is not None and not self.stream.finished:
             self.event(SessionEvent.WARN, "experiment_superseded",
                        f"{self.experiment_id} replaced by {msg.experiment_id} before its end; its estimate so far "
@@ -137,24 +142,20 @@ class FrfConsumer(Node):
         if stream.end_index - stream.start_index == total:
             return
         if stream.finished:
-            self.reject(f"excitation/design {msg.experiment_id!r}: cut to {total} samples after its end")
-            return
+            raise BadMessage(f"excitation/design {msg.experiment_id!r}: cut to {total} samples after its end")
         try:
             stream.truncate(total)
         except ValueError as exc:
-            self.reject(f"excitation/design {msg.experiment_id!r}: {exc}")
-            return
+            raise BadMessage(f"excitation/design {msg.experiment_id!r}: {exc}") from None
         self.event(SessionEvent.INFO, "experiment_stopped", f"{self.experiment_id} stops at sample {stream.end_index}")
         if stream.finished:
             self.finish()
 
     def on_measurement(self, msg: SampleBlock) -> None:
-        self.received += 1
         try:
             data = block_data(msg)
         except BadMessage as exc:
-            self.reject(f"measurement: {exc}")
-            return
+            raise BadMessage(f"measurement: {exc}") from None
         self.index = max(self.index, msg.first_index + msg.n_samples)
         stream = self.stream
         if stream is None or stream.finished:
@@ -168,8 +169,7 @@ class FrfConsumer(Node):
                 self.columns[key] = stream.columns(key)
             report = stream.add(msg.first_index, data[:, self.columns[key]])
         except ValueError as exc:
-            self.reject(f"measurement at sample {msg.first_index}: {exc}")
-            return
+            raise BadMessage(f"measurement at sample {msg.first_index}: {exc}") from None
         for gap in report.gaps:
             self.event(SessionEvent.WARN, "sample_gap",
                        f"{self.experiment_id}: samples [{gap.start_index}, {gap.start_index + gap.n_samples}) missing; "
@@ -270,6 +270,7 @@ class FrfConsumer(Node):
 
     def publish_status(self, figures: dict | None = None) -> None:
         f = self.figures() if figures is None else figures
+        counts = self.intake.figures()
         if self.stream is None:
             text, progress = "idle: waiting for an excitation design", -1.0
         else:
@@ -293,12 +294,16 @@ class FrfConsumer(Node):
         self.pub_status.publish(SessionStatus(
             stamp=time_msg(self.index * self.dt), node=self.get_fully_qualified_name(), state=self.state,
             sample_index=self.index, progress=progress, messages_received=self.received,
-            messages_rejected=self.rejected, text=text, keys=list(f), values=[json.dumps(v) for v in f.values()]))
+            messages_rejected=self.rejected, text=text, keys=list(f) + list(counts),
+            values=[json.dumps(v) for v in (*f.values(), *counts.values())]))
 
-    def reject(self, why: str) -> None:
-        self.rejected += 1
+    def on_reject(self, topic: str, why: str) -> None:
         self.get_logger().warn(f"rejected message ({self.rejected} so far): {why}", throttle_duration_sec=1.0)
         self.event(SessionEvent.WARN, "rejected_message", why)
+
+    def on_handler_error(self, topic: str, why: str) -> None:
+        self.get_logger().error(why, throttle_duration_sec=1.0)
+        self.event(SessionEvent.ERROR, "handler_error", why)
 
     def event(self, severity: int, code: str, text: str) -> None:
         self.pub_event.publish(SessionEvent(stamp=time_msg(self.index * self.dt), sample_index=self.index,

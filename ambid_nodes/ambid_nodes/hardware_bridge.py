@@ -11,8 +11,14 @@ them until the target is heard and re-sending blocks its heartbeat says are
 missing.
 
 Datagrams from any address but ``target_host:target_port`` are dropped and
-counted; malformed ones (magic, version, CRC, length) are refused and
-counted by reason; lost (sequence gaps), duplicated, reordered and late
+counted; malformed ones (magic, version, CRC, length, and ``content``: enum
+fields out of range, indices beyond 2**40, a zero sample rate) are refused and
+counted by reason; so are datagrams of kinds only the bridge sends
+(``direction``). Received ROS messages are accepted or rejected with their
+reason and counted per topic (``ambid_nodes.intake``): an excitation block
+that is malformed, at another sample period, passed, repeated or overlapping
+a held one, or beyond ``excitation_horizon`` samples ahead of the target; a
+design that is inconsistent or at another sample rate; lost (sequence gaps), duplicated, reordered and late
 datagrams are counted and lost sample ranges reported as ``sample_gap``
 events. A target silent for ``target_timeout`` s is reported
 (``target_silent``); when it is heard again it is commanded to its safe
@@ -23,6 +29,7 @@ target finished its run (DONE), failed if it went to its safe state.
 
 from __future__ import annotations
 
+import bisect
 import collections
 import json
 import socket
@@ -40,7 +47,9 @@ from ambid import bridge_protocol as bp
 from ambid.rig import analytical_model, load_rig, make_rig
 from ambid.rt_target import parse_address
 from ambid_nodes import qos
-from ambid_nodes.conversions import BadMessage, block_data, block_msg, statespace_to_msg, time_msg
+from ambid_nodes.conversions import (MAX_SAMPLE_INDEX, BadMessage, block_data, block_msg, check_design,
+                                     statespace_to_msg, time_msg)
+from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 
 MEASUREMENT_NAMES = bp.CHANNEL_SETS[bp.CHANNEL_SET_MEASUREMENT]
@@ -75,6 +84,9 @@ class HardwareBridge(Node):
                                0.001, 60.0, "s")
         self.retries = declare(self, "command_retries", 20, "sends of a command before it is given up", 1, 1000)
         self.autostart = declare(self, "autostart", True, "send START when an idle target is first heard")
+        self.horizon = declare(self, "excitation_horizon", 1_000_000,
+                               "most samples an excitation block may lie ahead of the target (memory bound)",
+                               1, 1_000_000_000)
         rcvbuf = declare(self, "receive_buffer", 4 * 1024 * 1024, "UDP receive buffer (capped by "
                          "net.core.rmem_max)", 65536, 1 << 30, "bytes")
         refuse_unknown(self)
@@ -86,7 +98,10 @@ class HardwareBridge(Node):
             local = parse_address(f"{local_host}:{local_port}")
         except ValueError as exc:
             raise ParameterError(f"hardware_bridge: {exc}") from None
-        self.rig = load_rig(rig_file) if rig_file else make_rig()
+        try:
+            self.rig = load_rig(rig_file) if rig_file else make_rig()
+        except (ValueError, OSError) as exc:
+            raise ParameterError(f"hardware_bridge: parameter 'rig_file': {exc}") from None
         self.dt = self.rig.dt
 
         self.pub_block = self.create_publisher(SampleBlock, "measurement", qos.BLOCKS)
@@ -94,8 +109,9 @@ class HardwareBridge(Node):
         self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
         self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
         self.pub_clock = self.create_publisher(Clock, "/clock", qos.CLOCK)
-        self.create_subscription(SampleBlock, "excitation", self.on_excitation, qos.BLOCKS)
-        self.create_subscription(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
+        self.intake = Intake(self, self.on_reject, self.on_handler_error)
+        self.intake.subscribe(SampleBlock, "excitation", self.on_excitation, qos.BLOCKS)
+        self.intake.subscribe(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
 
         self.assembler = bp.MeasurementAssembler(self.block_size, window, reorder_timeout)
         self.seq = {k: 0 for k in bp.Kind}
@@ -107,6 +123,7 @@ class HardwareBridge(Node):
         self.last_rx: float | None = None
         self.silence_latency: list[float] = []
         self.exc_chunks: dict[int, list] = {}  # first index -> [r (n, 4), last sent (monotonic) or None]
+        self.exc_firsts: list[int] = []  # sorted keys of exc_chunks
         self.slots: dict[str, int] = {}
         self.commands: dict[int, dict] = {}  # command_id -> {code, args, sent, tries}
         self.next_command_id = 1
@@ -185,7 +202,15 @@ class HardwareBridge(Node):
     def tick(self) -> None:
         inbox = self.inbox
         while inbox:
-            self.on_datagram(*inbox.popleft())
+            data, addr, t_rx = inbox.popleft()
+            try:
+                self.on_datagram(data, addr, t_rx)
+            except Exception as exc:  # noqa: BLE001 - a bug must not stop the bridge; counted and reported
+                self.malformed["handler_error"] += 1
+                self.get_logger().error(f"handling a datagram failed: {type(exc).__name__}: {exc}",
+                                        throttle_duration_sec=1.0)
+                self.event_throttled(SessionEvent.ERROR, "handler_error",
+                                     f"handling a datagram failed ({type(exc).__name__}: {exc}); it was dropped")
         now = time.monotonic()
         hb = self.hb
         self.publish_items(self.assembler.poll(now, hb.sent_end if hb else None,
@@ -217,6 +242,12 @@ class HardwareBridge(Node):
             self.malformed[exc.reason] += 1
             self.event_throttled(SessionEvent.WARN if exc.reason != "version" else SessionEvent.ERROR,
                                  "malformed_datagram", f"refused a datagram from the target ({exc.reason}): {exc}")
+            return
+        why = content_error(msg)
+        if why:
+            self.malformed["content"] += 1
+            self.event_throttled(SessionEvent.WARN, "malformed_datagram", f"refused a datagram from the target "
+                                                                          f"(content): {why}")
             return
         self.c["datagrams"] += 1
         self.last_rx = t_rx
@@ -278,6 +309,7 @@ class HardwareBridge(Node):
                                             f"{hb.sample_index}")
         for first in [f for f, ch in self.exc_chunks.items() if f + len(ch[0]) <= hb.sample_index]:
             del self.exc_chunks[first]  # applied: no longer needed for a resend
+            self.exc_firsts.remove(first)
         if hb.excitation_next != bp.NO_INDEX:
             self.resend_from(hb.excitation_next, t_rx)
 
@@ -380,24 +412,31 @@ class HardwareBridge(Node):
 
     # --- excitation and commands in ---------------------------------------
     def on_excitation(self, msg: SampleBlock) -> None:
-        self.c["messages_received"] += 1
         try:
             data = block_data(msg, EXCITATION_NAMES)
         except BadMessage as exc:
-            self.reject(f"excitation: {exc}")
-            return
+            raise BadMessage(f"excitation: {exc}") from None
         if abs(msg.sample_period - self.dt) > 1e-9 * self.dt:
-            self.reject(f"excitation sample period {msg.sample_period} s, the target's is {self.dt} s")
-            return
+            raise BadMessage(f"excitation sample period {msg.sample_period} s, the target's is {self.dt} s")
         done = self.hb.sample_index if self.hb else 0
-        if msg.first_index + msg.n_samples <= done:
-            self.reject(f"excitation block at sample {msg.first_index} arrived after the target passed it "
-                        f"(now {done}); publish excitation further ahead")
-            return
+        first, end = msg.first_index, msg.first_index + msg.n_samples
+        if end <= done:
+            raise BadMessage(f"excitation block at sample {first} arrived after the target passed it "
+                             f"(now {done}); publish excitation further ahead")
+        if end > done + self.horizon:
+            raise BadMessage(f"excitation: samples [{first}, {end}) lie beyond the bridge's horizon of "
+                             f"{self.horizon} samples ahead of the target's sample {done} (parameter "
+                             "excitation_horizon)")
+        i = bisect.bisect_left(self.exc_firsts, end)  # held chunks are disjoint: only the one before may overlap
+        if i > 0:
+            f = self.exc_firsts[i - 1]
+            if first < f + len(self.exc_chunks[f][0]):
+                raise BadMessage(f"excitation: samples [{first}, {end}) repeat or overlap samples held from {f}")
         now = time.monotonic()
         for off in range(0, msg.n_samples, self.chunk):
             first = msg.first_index + off
             self.exc_chunks[first] = [data[off:off + self.chunk], None]
+            bisect.insort(self.exc_firsts, first)
             if self.connected:
                 self.send_chunk(first, now)
 
@@ -425,7 +464,7 @@ class HardwareBridge(Node):
             max_chunks -= 1
 
     def on_design(self, msg: ExcitationDesign) -> None:
-        self.c["messages_received"] += 1
+        check_design(msg, self.dt)
         slot = self.slots.setdefault(msg.experiment_id, len(self.slots) + 1)
         self.queue_command(bp.CommandCode.EXPERIMENT, msg.start_index, msg.total_samples, slot)
 
@@ -454,11 +493,14 @@ class HardwareBridge(Node):
             self.send(bp.Command(self.next_seq(bp.Kind.COMMAND), cid, cmd["code"], *cmd["args"]))
 
     # --- reporting --------------------------------------------------------
-    def reject(self, why: str) -> None:
-        self.c["messages_rejected"] += 1
-        self.get_logger().warn(f"rejected message ({self.c['messages_rejected']} so far): {why}",
+    def on_reject(self, topic: str, why: str) -> None:
+        self.get_logger().warn(f"rejected message ({self.intake.total_rejected} so far): {why}",
                                throttle_duration_sec=1.0)
         self.event(SessionEvent.WARN, "rejected_message", why)
+
+    def on_handler_error(self, topic: str, why: str) -> None:
+        self.get_logger().error(why, throttle_duration_sec=1.0)
+        self.event(SessionEvent.ERROR, "handler_error", why)
 
     def event(self, severity: int, code: str, text: str, index: int | None = None) -> None:
         k = (self.assembler.next_index or 0) if index is None else index
@@ -493,8 +535,8 @@ class HardwareBridge(Node):
             "lost_measurement_datagrams": a.lost_datagrams, "heartbeats_lost": self.c["heartbeats_lost"],
             "silent_episodes": self.c["silent_episodes"], "silence_detected_after_s": self.silence_latency,
             "excitation_datagrams": self.c["excitation_datagrams"], "excitation_resent": self.c["excitation_resent"],
-            "commands_sent": self.c["commands_sent"], "messages_received": self.c["messages_received"],
-            "messages_rejected": self.c["messages_rejected"],
+            "commands_sent": self.c["commands_sent"], "messages_received": self.intake.total_received,
+            "messages_rejected": self.intake.total_rejected, **self.intake.figures(),
             "target_late_excitation_samples": hb.late_excitation_samples if hb else 0,
             "target_rx_rejected": hb.rx_rejected if hb else 0, "target_overruns": hb.overruns if hb else 0,
         }
@@ -507,8 +549,9 @@ class HardwareBridge(Node):
         self.pub_status.publish(SessionStatus(
             stamp=time_msg(f["samples"] * self.dt), node=self.get_fully_qualified_name(), state=self.state,
             sample_index=f["samples"], progress=-1.0,
-            messages_received=self.c["messages_received"] + self.c["datagrams"],
-            messages_rejected=self.c["messages_rejected"] + f["datagrams_malformed"] + f["datagrams_foreign"],
+            messages_received=(self.intake.total_received + self.c["datagrams"] + f["datagrams_malformed"]
+                               + f["datagrams_foreign"]),
+            messages_rejected=self.intake.total_rejected + f["datagrams_malformed"] + f["datagrams_foreign"],
             text=text, keys=list(f), values=[json.dumps(v) for v in f.values()]))
 
     def finish(self, state: int) -> None:
@@ -517,6 +560,29 @@ class HardwareBridge(Node):
         self.publish_status()
         self.event(SessionEvent.INFO, "finished", json.dumps(self.summary))
         self.finished.set_result(self.summary)
+
+
+def content_error(msg) -> str:
+    """Why a well-formed datagram's content is impossible (an enum out of range, an index beyond
+    MAX_SAMPLE_INDEX, no sample rate), or "" if it is usable."""
+    if isinstance(msg, bp.Heartbeat):
+        if msg.state not in bp.TargetState._value2member_map_:
+            return f"HEARTBEAT with state {msg.state}, not a TargetState"
+        if msg.safe_reason not in bp.SafeReason._value2member_map_:
+            return f"HEARTBEAT with safe_reason {msg.safe_reason}, not a SafeReason"
+        if msg.sample_rate_hz == 0:
+            return "HEARTBEAT with sample_rate_hz 0"
+        for name in ("sample_index", "sent_end"):
+            if getattr(msg, name) > MAX_SAMPLE_INDEX:
+                return f"HEARTBEAT with {name} {getattr(msg, name)} beyond {MAX_SAMPLE_INDEX}"
+        if msg.excitation_next != bp.NO_INDEX and msg.excitation_next > MAX_SAMPLE_INDEX:
+            return f"HEARTBEAT with excitation_next {msg.excitation_next} beyond {MAX_SAMPLE_INDEX}"
+    elif isinstance(msg, bp.Ack):
+        if msg.result not in bp.AckResult._value2member_map_ or msg.state not in bp.TargetState._value2member_map_:
+            return f"ACK with result {msg.result} / state {msg.state} out of range"
+    elif isinstance(msg, bp.Measurement) and msg.first_index + len(msg.data) > MAX_SAMPLE_INDEX:
+        return f"MEASUREMENT at sample {msg.first_index} beyond {MAX_SAMPLE_INDEX}"
+    return ""
 
 
 def main(args=None) -> int:

@@ -5,15 +5,34 @@ the controller's ic[k] on ``control_current``, applies u = ic + r over the
 next sample period and steps. Publishes measurement blocks (y, u, ic, r),
 ``/clock``, a latched ``plant/description``, ``status`` and ``events``.
 
-A control message with the wrong index, channel count or a NaN is rejected
-(counted, logged, reported as an event) and the previous valid current is held
-for that sample. A controller silent for ``controller_timeout`` seconds of wall
-time makes the plant go to its safe state: in simulation the rotor is dropped
-onto the backup bearings (zero control current) and the session is marked failed.
+Every received message is accepted or rejected with its reason (counted per
+topic in ``status``, logged, reported as a ``rejected_message`` event; see
+``ambid_nodes.intake``). A control message with a NaN or the wrong channel
+count for the awaited sample is rejected and the previous valid current is held
+for that sample; one for any other index (stale, repeated, out of range) is
+rejected and changes nothing. An excitation block is rejected if it is late,
+overlaps a block already held, lies beyond ``excitation_horizon`` samples
+ahead, or has the wrong channels, sample period or non-finite values; a design
+if it is inconsistent, at another sample rate, starts in the past or overlaps
+another experiment.
+
+Controller supervision. In lock-step the plant cannot advance past a sample
+whose answer has not arrived, so a dead or stalled controller is detected at
+that very sample: the detection latency is 0 samples of simulated time, and
+``controller_timeout`` (+ one watchdog period, at most 0.1 s) of wall time.
+Then the plant goes to its safe state: zero control current, the rotor drops
+onto the backup bearings (0.2 s simulated, recorded with FLAG_CONTROLLER_LOST
+and FLAG_LANDED), a FATAL ``controller_lost`` event, the session failed.
+
+Amplifier limits. A sample whose current reference u = ic + r exceeds the
+amplifier limit is applied saturated, as a real amplifier does, but recorded
+as commanded (u is never altered in the measurement) and flagged
+FLAG_CLIPPED; each block with clipped samples gives one ``clipped`` event.
 """
 
 from __future__ import annotations
 
+import bisect
 import json
 import sys
 import time
@@ -28,8 +47,9 @@ from rosgraph_msgs.msg import Clock
 from ambid.rig import AXES, CURRENT_NAMES, DISPLACEMENT_NAMES, analytical_model, load_rig, make_rig
 from ambid.simulator import PlantSimulator
 from ambid_nodes import qos
-from ambid_nodes.conversions import BadMessage, block_data, block_msg, statespace_to_msg, time_msg
-from ambid_nodes.parameters import declare, refuse_unknown
+from ambid_nodes.conversions import BadMessage, block_data, block_msg, check_design, statespace_to_msg, time_msg
+from ambid_nodes.intake import Intake
+from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 from ambid_nodes.sample_codec import decode_sample, encode_sample
 from ambid.levitation import LevitationMonitor
 
@@ -52,8 +72,14 @@ class PlantSim(Node):
         self.timeout = declare(self, "controller_timeout", 2.0,
                                "wall time without an answer before the controller is declared lost",
                                0.01, 3600.0, "s")
+        self.horizon = declare(self, "excitation_horizon", 1_000_000,
+                               "most samples an excitation block may lie ahead of the plant (memory bound)",
+                               1, 1_000_000_000)
         refuse_unknown(self)
-        self.rig = load_rig(rig_file) if rig_file else make_rig()
+        try:
+            self.rig = load_rig(rig_file) if rig_file else make_rig()
+        except (ValueError, OSError) as exc:
+            raise ParameterError(f"plant_sim: parameter 'rig_file': {exc}") from None
         self.sim = PlantSimulator(self.rig, seed=self.seed, nonlinear_magnets=nonlinear)
         self.dt = self.rig.dt
         self.n_total = int(round(self.sim_seconds / self.dt)) if self.sim_seconds > 0 else None
@@ -64,13 +90,15 @@ class PlantSim(Node):
         self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
         self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
         self.pub_clock = self.create_publisher(Clock, "/clock", qos.CLOCK)
+        self.intake = Intake(self, self.on_reject, self.on_handler_error)
         self.sub_ic = self.create_subscription(Sample, "control_current", self.on_control, qos.LOOP, raw=True)
-        self.create_subscription(SampleBlock, "excitation", self.on_excitation, qos.BLOCKS)
-        self.create_subscription(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
+        self.intake.subscribe(SampleBlock, "excitation", self.on_excitation, qos.BLOCKS)
+        self.intake.subscribe(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
 
         self.k = 0
         self.ic_last = [0.0] * 4
         self.excitation: dict[int, np.ndarray] = {}  # first_index -> (n, 4) block, consumed in order
+        self.exc_starts: list[int] = []  # sorted keys of self.excitation
         # sample ranges [start, end) a design says are excited: the plant waits for their blocks,
         # so where the excitation lands never depends on message timing
         self.excited_ranges: dict[str, tuple[int, int]] = {}
@@ -78,8 +106,7 @@ class PlantSim(Node):
         self.buf = np.zeros((self.block_size, len(MEASUREMENT_NAMES)))
         self.buf_flags = np.zeros(self.block_size, dtype=np.uint8)
         self.buf_start = 0
-        self.received = 0
-        self.rejected = 0
+        self.clipped_samples = 0
         self.monitor = LevitationMonitor(self.rig.backup_clearance_m,
                                          self.n_total // 2 if self.n_total else int(0.5 / self.dt))
         self.state = SessionStatus.STATE_IDLE
@@ -121,21 +148,37 @@ class PlantSim(Node):
         self.y = self.sim.output()
         self.pub_y.publish(encode_sample(self.k, self.y.tolist()))
 
+    @property
+    def received(self) -> int:
+        return self.intake.total_received
+
+    @property
+    def rejected(self) -> int:
+        return self.intake.total_rejected
+
     def on_control(self, data: bytes) -> None:
-        self.received += 1
-        if self.state != SessionStatus.STATE_RUNNING:
+        intake = self.intake
+        intake.count("control_current")
+        if self.state != SessionStatus.STATE_RUNNING or self.pending_ic is not None:
+            why = ("the plant has not started" if self.state == SessionStatus.STATE_IDLE else
+                   "the sample is already answered" if self.state == SessionStatus.STATE_RUNNING else
+                   "the session has ended")
+            intake.reject("control_current", f"control_current received while {why} (sample {self.k})")
             return
         try:
             index, ic = decode_sample(data, 4, "control_current")
         except BadMessage as exc:
             if exc.index != self.k:
-                self.reject(f"{exc} (sample {exc.index}, now {self.k})")
+                intake.reject("control_current", f"{exc} (sample {exc.index}, now {self.k})")
                 return
-            self.reject(f"{exc}; holding the previous current for sample {self.k}")
+            intake.reject("control_current", f"{exc}; holding the previous current for sample {self.k}")
             index, ic = self.k, self.ic_last
-        if index != self.k:
-            self.reject(f"control_current index {index}, expected {self.k} (stale or duplicated)")
-            return
+        else:
+            if index != self.k:
+                intake.reject("control_current", f"control_current index {index}, expected {self.k} "
+                              f"({'stale or duplicated' if index < self.k else 'ahead of the plant or out of range'})")
+                return
+            intake.accept("control_current")
         self.last_answer_wall = time.perf_counter()
         self.ic_last = ic
         if self.excited_ranges and not self.has_excitation(self.k):
@@ -146,42 +189,57 @@ class PlantSim(Node):
     def needs_excitation(self, k: int) -> bool:
         return any(a <= k < b for a, b in self.excited_ranges.values())
 
+    def held_block(self, k: int) -> int | None:
+        """First index of the held excitation block covering sample k, or None."""
+        i = bisect.bisect_right(self.exc_starts, k) - 1
+        if i >= 0:
+            first = self.exc_starts[i]
+            if k < first + len(self.excitation[first]):
+                return first
+        return None
+
     def has_excitation(self, k: int) -> bool:
-        if not self.needs_excitation(k):
-            return True
-        return any(first <= k < first + len(b) for first, b in self.excitation.items())
+        return not self.needs_excitation(k) or self.held_block(k) is not None
 
     def excitation_at(self, k: int) -> list[float]:
-        for first, block in self.excitation.items():
-            if first <= k < first + len(block):
-                if k == first + len(block) - 1:
-                    del self.excitation[first]
-                return block[k - first].tolist()
-        return [0.0, 0.0, 0.0, 0.0]
+        first = self.held_block(k)
+        if first is None:
+            return [0.0, 0.0, 0.0, 0.0]
+        block = self.excitation[first]
+        if k == first + len(block) - 1:  # consumed
+            del self.excitation[first]
+            self.exc_starts.remove(first)
+        return block[k - first].tolist()
 
     def advance(self, ic: list[float]) -> None:
-        k = self.k
-        r = self.excitation_at(k) if self.excitation else [0.0, 0.0, 0.0, 0.0]
-        u = [ic[0] + r[0], ic[1] + r[1], ic[2] + r[2], ic[3] + r[3]]
-        clipped, contact = self.sim.step(u)
-        row = k - self.buf_start
-        self.buf[row] = (*self.y.tolist(), *u, *ic, *r)
-        self.buf_flags[row] = (SampleBlock.FLAG_CLIPPED if clipped else 0) | (SampleBlock.FLAG_LANDED if contact else 0)
-        self.k = k + 1
-        if self.k % self.clock_every == 0:
-            self.pub_clock.publish(Clock(clock=time_msg(self.k * self.dt)))
-        done = self.n_total is not None and self.k >= self.n_total
-        if row + 1 == self.block_size or done:
-            self.flush_block(final=done)
+        r = self.excitation_at(self.k) if self.excitation else [0.0, 0.0, 0.0, 0.0]
+        done = self.n_total is not None and self.k + 1 >= self.n_total
+        self.step_and_record(ic, r, 0, final=done)
         if done:
             self.finish(SessionStatus.STATE_DONE)
         else:
             self.publish_y()
 
+    def step_and_record(self, ic: list[float], r: list[float], flags: int, final: bool = False) -> None:
+        """Apply u = ic + r over sample k (the amplifier saturates it), record y, u, ic, r as commanded."""
+        k = self.k
+        u = [ic[0] + r[0], ic[1] + r[1], ic[2] + r[2], ic[3] + r[3]]
+        clipped, contact = self.sim.step(u)
+        row = k - self.buf_start
+        self.buf[row] = (*self.y.tolist(), *u, *ic, *r)
+        self.buf_flags[row] = (flags | (SampleBlock.FLAG_CLIPPED if clipped else 0)
+                               | (SampleBlock.FLAG_LANDED if contact else 0))
+        self.k = k + 1
+        if self.k % self.clock_every == 0:
+            self.pub_clock.publish(Clock(clock=time_msg(self.k * self.dt)))
+        if row + 1 == self.block_size or final:
+            self.flush_block(final=final)
+
     def flush_block(self, final: bool = False) -> None:
         n = self.k - self.buf_start
         if n <= 0:
             return
+        self.report_clipping(n)
         self.monitor.add_block(self.buf_start, self.buf[:n, :4], self.buf_flags[:n] & SampleBlock.FLAG_LANDED)
         self.pub_block.publish(block_msg(self.buf_start, self.dt, MEASUREMENT_NAMES, MEASUREMENT_UNITS, self.buf[:n],
                                          self.buf_flags[:n], SampleBlock.FLAG_FINAL if final else 0))
@@ -189,32 +247,55 @@ class PlantSim(Node):
         self.publish_status()
 
     def on_excitation(self, msg: SampleBlock) -> None:
-        self.received += 1
         try:
             data = block_data(msg, EXCITATION_NAMES)
         except BadMessage as exc:
-            self.reject(f"excitation: {exc}")
-            return
-        first = msg.first_index
+            raise BadMessage(f"excitation: {exc}") from None
+        if abs(msg.sample_period - self.dt) > 1e-9 * self.dt:
+            raise BadMessage(f"excitation: sample period {msg.sample_period!r} s, the plant's is {self.dt} s")
+        first, end = msg.first_index, msg.first_index + len(data)
+        if end > self.k + self.horizon:
+            raise BadMessage(f"excitation: samples [{first}, {end}) lie beyond the plant's horizon of "
+                             f"{self.horizon} samples ahead of sample {self.k} (parameter excitation_horizon)")
+        i = bisect.bisect_left(self.exc_starts, end)  # held blocks starting before end: the last may overlap
+        if i > 0:
+            f = self.exc_starts[i - 1]
+            if first < f + len(self.excitation[f]):
+                raise BadMessage(f"excitation: samples [{first}, {end}) repeat or overlap the block "
+                                 f"[{f}, {f + len(self.excitation[f])}) already held")
         if first < self.k:
             late = min(self.k - first, len(data))
             self.event(SessionEvent.ERROR, "excitation_late",
                        f"excitation samples {first}..{first + late - 1} arrived after they were due (now {self.k}) "
                        "and were not applied; publish excitation further ahead")
             if late == len(data):
-                self.rejected += 1
-                return
+                raise BadMessage(f"excitation: samples [{first}, {end}) arrived after they were due (now {self.k})")
             first, data = first + late, data[late:]
         self.excitation[first] = data
+        bisect.insort(self.exc_starts, first)
         self.resume()
 
     def on_design(self, msg: ExcitationDesign) -> None:
-        self.received += 1
-        end = msg.start_index + msg.total_samples
+        check_design(msg, self.dt)
+        exp_id = msg.experiment_id
+        start, end = msg.start_index, msg.start_index + msg.total_samples
+        for other, (a, b) in list(self.excited_ranges.items()):
+            if b <= self.k:
+                del self.excited_ranges[other]  # passed: no longer needed
+        known = self.excited_ranges.get(exp_id)
+        if known is not None and known[0] != start:
+            raise BadMessage(f"excitation/design {exp_id!r}: start_index changed from {known[0]} to {start}")
+        if known is None and msg.total_samples and start < self.k:
+            raise BadMessage(f"excitation/design {exp_id!r}: starts at sample {start}, which the plant has passed "
+                             f"(now {self.k})")
+        for other, (a, b) in self.excited_ranges.items():
+            if other != exp_id and a < end and start < b:
+                raise BadMessage(f"excitation/design {exp_id!r}: samples [{start}, {end}) overlap experiment "
+                                 f"{other!r} [{a}, {b})")
         if msg.total_samples == 0 or end <= self.k:
-            self.excited_ranges.pop(msg.experiment_id, None)
+            self.excited_ranges.pop(exp_id, None)
         else:
-            self.excited_ranges[msg.experiment_id] = (msg.start_index, end)
+            self.excited_ranges[exp_id] = (start, end)
         self.resume()
 
     def resume(self) -> None:
@@ -233,29 +314,49 @@ class PlantSim(Node):
                        f"no control current for sample {self.k} within {self.timeout:g} s: "
                        "safe state, control current zero, the rotor lands on the backup bearings")
             self.land()
-            self.flush_block(final=True)
             self.finish(SessionStatus.STATE_FAILED)
 
     def land(self) -> None:
-        # simulate the drop on the retainer: zero control current for 0.2 s
-        for _ in range(int(0.2 / self.dt)):
-            self.sim.step([0.0, 0.0, 0.0, 0.0])
+        """The safe state: zero control current for 0.2 s simulated, the rotor drops onto the retainer; recorded."""
+        n = max(1, int(round(0.2 / self.dt)))
+        zero = [0.0, 0.0, 0.0, 0.0]
+        for i in range(n):
+            self.y = self.sim.output()
+            self.step_and_record(zero, zero, SampleBlock.FLAG_CONTROLLER_LOST, final=i == n - 1)
 
-    def reject(self, why: str) -> None:
-        self.rejected += 1
-        self.get_logger().warn(f"rejected message ({self.rejected} so far): {why}",
-                               throttle_duration_sec=1.0)
+    def report_clipping(self, n: int) -> None:
+        """One event per block with clipped samples: where, how many, the largest commanded |u|."""
+        clipped = np.flatnonzero(self.buf_flags[:n] & SampleBlock.FLAG_CLIPPED)
+        if clipped.size == 0:
+            return
+        self.clipped_samples += int(clipped.size)
+        peak = float(np.abs(self.buf[clipped, 4:8]).max())
+        first = self.buf_start + int(clipped[0])
+        self.event(SessionEvent.WARN, "clipped",
+                   f"{clipped.size} of {n} samples in [{self.buf_start}, {self.buf_start + n}) exceeded the amplifier "
+                   f"limit {self.rig.current_limit_a:g} A (first at sample {first}, commanded |u| up to {peak:.3g} A): "
+                   "applied saturated, recorded as commanded and flagged FLAG_CLIPPED; reduce the excitation",
+                   index=first)
+
+    def on_reject(self, topic: str, why: str) -> None:
+        self.get_logger().warn(f"rejected message ({self.rejected} so far): {why}", throttle_duration_sec=1.0)
         self.event(SessionEvent.WARN, "rejected_message", why)
 
-    def event(self, severity: int, code: str, text: str) -> None:
-        self.pub_event.publish(SessionEvent(stamp=time_msg(self.k * self.dt), sample_index=self.k, severity=severity,
+    def on_handler_error(self, topic: str, why: str) -> None:
+        self.get_logger().error(why, throttle_duration_sec=1.0)
+        self.event(SessionEvent.ERROR, "handler_error", why)
+
+    def event(self, severity: int, code: str, text: str, index: int | None = None) -> None:
+        k = self.k if index is None else index
+        self.pub_event.publish(SessionEvent(stamp=time_msg(k * self.dt), sample_index=k, severity=severity,
                                             node=self.get_fully_qualified_name(), code=code, text=text))
 
     def figures(self) -> dict:
         wall = (self.finished_wall or time.perf_counter()) - (self.started_wall or time.perf_counter())
         return {**self.monitor.figures(), "samples": self.k, "simulated_s": self.k * self.dt, "wall_s": wall,
                 "samples_per_wall_s": self.k / wall if wall > 0 else 0.0,
-                "messages_received": self.received, "messages_rejected": self.rejected}
+                "messages_received": self.received, "messages_rejected": self.rejected,
+                "clipped_samples": self.clipped_samples, **self.intake.figures()}
 
     def publish_status(self) -> None:
         f = self.figures()

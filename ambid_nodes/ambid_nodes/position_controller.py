@@ -9,23 +9,41 @@ analytical model and refuses to run an unstable combination.
 
 A displacement message with the wrong channel count or a NaN is rejected
 (counted, logged); the controller then answers with its previous current and
-leaves its state untouched, so one bad sample cannot destabilise the loop.
+leaves its state untouched, so one bad sample cannot destabilise the loop. A
+displacement for any index but the awaited one (stale, repeated, ahead, out of
+range) is rejected and changes nothing; a session starts at index 0. Every
+received message is counted per topic in ``status`` (``ambid_nodes.intake``).
+
+Plant supervision. Once the loop runs, a plant silent for ``plant_timeout``
+seconds of wall time is declared lost -- unless its last ``status`` said
+its run ended (done or failed). In lock-step the plant's next sample is the
+one that did not come, so the detection latency is 0 samples and
+``plant_timeout`` (+ one watchdog period, at most 0.1 s) of wall time. Then
+the controller reports a FAILED status and an ERROR ``plant_lost`` event,
+resets its state to zero current and idles safely: it answers nothing until
+a plant starts a new session at sample 0 (a stalled plant that resumes is
+not answered, so it goes to its own safe state).
 """
 
 from __future__ import annotations
 
 import json
 import sys
+import time
+from dataclasses import asdict
 
 import rclpy
 from ambid_msgs.msg import ControllerDescription, Sample, SessionEvent, SessionStatus
 from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile
 
-from ambid.closed_loop import check_stability
+from ambid.closed_loop import check_controller_on_rig
 from ambid.controller import ControllerStepper, PidParameters, pid_controller, pid_parameters_dict
-from ambid.rig import analytical_model, load_rig, make_rig
+from ambid.lqg import LqgParameters, lqg_controller
+from ambid.rig import load_rig, make_rig
 from ambid_nodes import qos
 from ambid_nodes.conversions import BadMessage, statespace_to_msg, time_msg
+from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 from ambid_nodes.sample_codec import decode_sample, encode_sample
 
@@ -36,7 +54,8 @@ class PositionController(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("position_controller", **kwargs)
         rig_file = declare(self, "rig_file", "", "YAML rig parameter file used for the stability check")
-        self.kind = declare(self, "controller", "pid", "controller kind: pid")
+        self.kind = declare(self, "controller", "pid",
+                            "controller kind: pid (decentralised PID) | lqg (centralised LQG from the analytical model)")
         d = PidParameters()
         pid = PidParameters(
             kp_a_per_m=declare(self, "kp", d.kp_a_per_m, "proportional gain", 1.0, 1e9, "A/m"),
@@ -48,13 +67,26 @@ class PositionController(Node):
             delay_samples=declare(self, "delay_samples", d.delay_samples, "computational delay", 0, 100),
             current_limit_a=declare(self, "current_limit", d.current_limit_a, "saturation of ic", 1e-3, 1e3, "A"),
         )
+        self.timeout = declare(self, "plant_timeout", 2.0,
+                               "wall time without a displacement before the running plant is declared lost",
+                               0.01, 3600.0, "s")
         refuse_unknown(self)
-        if self.kind != "pid":
-            raise ParameterError(f"position_controller: controller '{self.kind}' is not available; use 'pid'")
-        self.rig = load_rig(rig_file) if rig_file else make_rig()
-        self.model = pid_controller(pid, self.rig.dt)
+        if self.kind not in ("pid", "lqg"):
+            raise ParameterError(f"position_controller: controller '{self.kind}' is unknown; use 'pid' or 'lqg'")
         try:
-            check_stability(analytical_model(self.rig), self.model, "analytical model with this controller")
+            self.rig = load_rig(rig_file) if rig_file else make_rig()
+        except (ValueError, OSError) as exc:
+            raise ParameterError(f"position_controller: parameter 'rig_file': {exc}") from None
+        if self.kind == "pid":
+            self.model = pid_controller(pid, self.rig.dt)
+            delay_samples, params_json = pid.delay_samples, pid_parameters_dict(pid)
+        else:
+            lqg = LqgParameters()
+            self.model = lqg_controller(self.rig, lqg)
+            delay_samples, params_json = lqg.delay_samples, asdict(lqg)
+        try:
+            # refuse to run a loop that is unstable on the analytical or on the true linearised rig
+            check_controller_on_rig(self.rig, self.model)
         except ValueError as exc:
             raise ParameterError(str(exc)) from None
         self.params = pid
@@ -63,53 +95,135 @@ class PositionController(Node):
         self.pub_desc = self.create_publisher(ControllerDescription, "controller/description", qos.LATCHED)
         self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
         self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
+        self.intake = Intake(self, self.on_reject, self.on_handler_error)
         self.create_subscription(Sample, "displacement", self.on_displacement, qos.LOOP, raw=True)
-        self.expected: int | None = None
+        # the plant's status says whether its silence is the end of its run; a deep queue so no
+        # other node's status can push the plant's last one out before it is read
+        self.intake.subscribe(SessionStatus, "status", self.on_status, QoSProfile(
+            history=HistoryPolicy.KEEP_LAST, depth=100, reliability=qos.STATUS.reliability,
+            durability=qos.STATUS.durability))
+        self.expected: int | None = None  # next displacement index awaited; None: no session
         self.ic_last = [0.0] * 4
-        self.received = 0
-        self.rejected = 0
+        self.state = SessionStatus.STATE_IDLE
+        self.last_y_wall: float | None = None
+        self.plant_nodes: set[str] = set()  # who publishes displacement
+        self.plant_ended: dict[str, bool] = {}  # node -> its last status was done/failed
+        self.lost_at: int | None = None
+        self.watchdog = self.create_timer(min(0.1, self.timeout / 2), self.check_plant)
         self.pub_desc.publish(ControllerDescription(
             stamp=time_msg(0.0), name=self.get_fully_qualified_name(), kind=self.kind,
-            delay_samples=pid.delay_samples, model=statespace_to_msg(self.model),
-            current_limit=[pid.current_limit_a] * 4, parameters_json=json.dumps(pid_parameters_dict(pid))))
+            delay_samples=delay_samples, model=statespace_to_msg(self.model),
+            current_limit=[pid.current_limit_a] * 4, parameters_json=json.dumps(params_json)))
+
+    @property
+    def received(self) -> int:
+        return self.intake.total_received
+
+    @property
+    def rejected(self) -> int:
+        return self.intake.total_rejected
 
     def on_displacement(self, data: bytes) -> None:
-        self.received += 1
+        intake = self.intake
+        intake.count("displacement")
         try:
             k, y = decode_sample(data, 4, "displacement")
+            bad = ""
         except BadMessage as exc:
             if exc.index is None:
-                self.reject(-1, str(exc))
+                intake.reject("displacement", str(exc))
                 return
-            k, y = exc.index, None
-            bad = str(exc)
-        if self.expected is not None and k != self.expected:
-            if k < self.expected:
-                self.reject(k, f"displacement index {k} repeated or out of order (expected {self.expected})")
-                return
-            self.reject(k, f"displacement jumped from {self.expected} to {k}: {k - self.expected} samples missing")
+            k, y, bad = exc.index, None, str(exc)
+        running = self.state == SessionStatus.STATE_RUNNING
+        if k == 0 and not running:
+            self.start_session()
+        elif not running:
+            why = (f"the plant was declared lost at sample {self.lost_at}" if self.lost_at is not None
+                   else "no session runs")
+            intake.reject("displacement", f"displacement index {k} while {why}: waiting for a session to "
+                                          "start at sample 0")
+            return
+        elif k != self.expected:
+            kind = "repeated or out of order" if k < self.expected else "ahead of the loop or out of range"
+            intake.reject("displacement", f"displacement index {k} {kind} (expected {self.expected})")
+            return
         if y is None:
-            self.reject(k, f"{bad}; answering with the previous current")
+            intake.reject("displacement", f"{bad}; answering with the previous current")
             ic = self.ic_last
         else:
+            intake.accept("displacement")
             ic = self.stepper.step(y)
         self.expected = k + 1
         self.ic_last = ic
+        self.last_y_wall = time.perf_counter()
         self.pub_ic.publish(encode_sample(k, ic))
         if k % STATUS_EVERY == 0:
-            self.publish_status(k)
+            self.publish_status()
 
-    def reject(self, k: int, why: str) -> None:
-        self.rejected += 1
+    def start_session(self) -> None:
+        """Sample 0 of a plant: a new session from the controller's zero state."""
+        if self.expected is not None:
+            self.stepper = ControllerStepper(self.model, self.params.current_limit_a)
+        self.ic_last = [0.0] * 4
+        self.state, self.lost_at = SessionStatus.STATE_RUNNING, None
+        self.plant_ended.clear()
+        self.update_plant_nodes()
+
+    def update_plant_nodes(self) -> None:
+        topic = self.resolve_topic_name("displacement")
+        self.plant_nodes = {f"{i.node_namespace.rstrip('/')}/{i.node_name}"
+                            for i in self.get_publishers_info_by_topic(topic)}
+
+    def on_status(self, msg: SessionStatus) -> None:
+        if msg.node in self.plant_nodes or not self.plant_nodes:
+            self.plant_ended[msg.node] = msg.state in (SessionStatus.STATE_DONE, SessionStatus.STATE_FAILED)
+
+    def check_plant(self) -> None:
+        if self.state != SessionStatus.STATE_RUNNING or self.last_y_wall is None:
+            return
+        if not self.plant_nodes:
+            self.update_plant_nodes()  # discovery may have been late at sample 0
+        quiet = time.perf_counter() - self.last_y_wall
+        if quiet <= self.timeout:
+            return
+        k = self.expected
+        if any(self.plant_ended.get(n, False) for n in self.plant_nodes):
+            self.state = SessionStatus.STATE_DONE
+            self.event(SessionEvent.INFO, "plant_finished", f"the plant ended its run after sample {k - 1}; idle",
+                       k)
+        else:
+            self.state, self.lost_at = SessionStatus.STATE_FAILED, k
+            self.event(SessionEvent.ERROR, "plant_lost",
+                       f"no displacement for sample {k} within {self.timeout:g} s ({quiet:.3f} s quiet) and the "
+                       "plant did not report the end of its run: plant lost; control current reset to zero, "
+                       "idle until a plant starts a new session at sample 0", k)
+        self.ic_last = [0.0] * 4
+        self.publish_status()
+
+    def on_reject(self, topic: str, why: str) -> None:
         self.get_logger().warn(f"rejected message ({self.rejected} so far): {why}", throttle_duration_sec=1.0)
-        self.pub_event.publish(SessionEvent(sample_index=k, severity=SessionEvent.WARN,
-                                            node=self.get_fully_qualified_name(), code="rejected_message", text=why))
+        self.event(SessionEvent.WARN, "rejected_message", why, self.expected or 0)
 
-    def publish_status(self, k: int) -> None:
+    def on_handler_error(self, topic: str, why: str) -> None:
+        self.get_logger().error(why, throttle_duration_sec=1.0)
+        self.event(SessionEvent.ERROR, "handler_error", why, self.expected or 0)
+
+    def event(self, severity: int, code: str, text: str, k: int) -> None:
+        if severity >= SessionEvent.ERROR:
+            self.get_logger().error(text)
+        self.pub_event.publish(SessionEvent(stamp=time_msg(k * self.rig.dt), sample_index=k, severity=severity,
+                                            node=self.get_fully_qualified_name(), code=code, text=text))
+
+    def publish_status(self) -> None:
+        k = max((self.expected or 1) - 1, 0)
+        f = {"plant_timeout_s": self.timeout, "lost_at": self.lost_at, **self.intake.figures()}
+        states = {SessionStatus.STATE_IDLE: "idle", SessionStatus.STATE_RUNNING: "running",
+                  SessionStatus.STATE_DONE: "done", SessionStatus.STATE_FAILED: "failed: plant lost"}
         self.pub_status.publish(SessionStatus(
-            node=self.get_fully_qualified_name(), state=SessionStatus.STATE_RUNNING, sample_index=k,
-            progress=-1.0, messages_received=self.received, messages_rejected=self.rejected,
-            text=f"sample {k}, {self.kind}, rejected {self.rejected}"))
+            stamp=time_msg(k * self.rig.dt), node=self.get_fully_qualified_name(), state=self.state,
+            sample_index=k, progress=-1.0, messages_received=self.received, messages_rejected=self.rejected,
+            text=f"{states[self.state]}, sample {k}, {self.kind}, rejected {self.rejected}",
+            keys=list(f), values=[json.dumps(v) for v in f.values()]))
 
 
 def main(args=None) -> int:

@@ -74,6 +74,7 @@ from ambid.mcap_session.writer import available_compressions
 from ambid.session_blocks import SAMPLE_BLOCK_TYPE, sample_block_span
 from ambid.session_facts import FACT_TYPES, controller_facts, design_facts, plant_facts
 from ambid_nodes import qos
+from ambid_nodes.conversions import check_controller_description, check_design, check_plant_description
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 
 #: every topic of the ambid graph, relative to the rig's namespace (plus /clock)
@@ -86,6 +87,8 @@ CONVENTIONAL_QOS = {"displacement": qos.LOOP, "control_current": qos.LOOP, "meas
                     "excitation": qos.BLOCKS, "excitation/design": qos.LATCHED, "plant/description": qos.LATCHED,
                     "controller/description": qos.LATCHED, "status": qos.STATUS, "events": qos.EVENTS,
                     "/clock": qos.CLOCK}
+#: experiments whose design is kept in the session facts (each fact update rewrites them all)
+MAX_DESIGN_FACTS = 1000
 LOG_TIME_CONVENTION = ("receive time on the recorder's ROS clock (system time, or /clock with use_sim_time), "
                        "held non-decreasing; publish time = log time")
 
@@ -330,17 +333,26 @@ class Recorder(Node):
             self.update_facts(topic, data)
 
     def update_facts(self, topic: str, data: bytes) -> None:
+        """Session facts from a description message; one that is malformed is recorded but adds no fact."""
         key, cls = self.fact_decoders[topic]
         try:
             msg = deserialize_message(data, cls)
             if key == "plant":
-                self.write_facts({"plant": plant_facts(msg), "rig": msg.rig_json})
+                check_plant_description(msg)
+                facts = {"plant": plant_facts(msg), "rig": msg.rig_json}
             elif key == "controller":
-                self.write_facts({"controller": controller_facts(msg)})
+                check_controller_description(msg)
+                facts = {"controller": controller_facts(msg)}
             else:
+                check_design(msg)
                 designs = dict(self.facts.get("excitation", {}))
+                if msg.experiment_id not in designs and len(designs) >= MAX_DESIGN_FACTS:
+                    raise ValueError(f"more than {MAX_DESIGN_FACTS} experiments in one session; the facts keep "
+                                     "the first ones")
                 designs[msg.experiment_id] = design_facts(msg)
-                self.write_facts({"excitation": designs})
+                facts = {"excitation": designs}
+            if any(self.facts.get(k) != v for k, v in facts.items()):  # a latched message comes again
+                self.write_facts(facts)
         except SessionWriteError as exc:
             self.fail(exc)
         except Exception as exc:  # noqa: BLE001 - a malformed description must not stop the recording

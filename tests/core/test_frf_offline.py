@@ -5,27 +5,21 @@ one the frf_consumer node runs -- gives on the same samples.
 """
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 from frf_testbench import FS, loop_model, simulate
-from mcap_ros2._dynamic import serialize_dynamic
 from scipy.io import savemat
+from session_testbench import design_message, write_session
 
 from ambid.excitation import design_multisine
 from ambid.frf.offline import _read_sample_block, frf_from_arrays, frf_from_files, frf_from_session
 from ambid.frf.streaming import FrfStream
-from ambid.mcap_session import SessionWriter, iter_decoded
-from ambid.mcap_session.ros2_schema import load_message_schema
+from ambid.mcap_session import iter_decoded
 
 OUT, IN, REF = ("y_1", "y_2"), ("u_1", "u_2"), ("r_1", "r_2")
 CHANNELS = OUT + IN + ("ic_1", "ic_2") + REF         # as a plant would record them (ic unused)
 PRE = 300
-MSG_DIR = Path(__file__).resolve().parents[2] / "ambid_msgs" / "msg"
-DEFS = {"builtin_interfaces/msg/Time": "int32 sec\nuint32 nanosec\n",
-        **{f"ambid_msgs/msg/{n}": (MSG_DIR / f"{n}.msg").read_text()
-           for n in ("SampleBlock", "ExcitationDesign")}}
 KW = dict(outputs=OUT, inputs=IN, references=REF)
 
 
@@ -94,32 +88,8 @@ def test_files_and_design_json(rec, tmp_path):
 
 def _write_session(path, rec, blocks, designs):
     """designs: [(log_time_ns, total_samples)] of ExcitationDesign messages for one experiment."""
-    d = rec["design"]
-    enc = {t: serialize_dynamic(t, load_message_schema(t, definitions=DEFS, type_hash="").definition)[t]
-           for t in ("ambid_msgs/msg/SampleBlock", "ambid_msgs/msg/ExcitationDesign")}
-    messages = []
-    for t_ns, total in designs:
-        messages.append((t_ns, "/amb/excitation/design", enc["ambid_msgs/msg/ExcitationDesign"]({
-            "stamp": {"sec": 0, "nanosec": 0}, "experiment_id": "exp1", "kind": d.kind,
-            "multi_input": "orthogonal", "start_index": PRE, "total_samples": total,
-            "sample_rate": FS, "samples_per_period": d.n_per_period, "n_periods": d.n_periods,
-            "n_transient_periods": d.n_transient_periods, "n_realisations": d.n_realisations,
-            "n_experiments": d.n_experiments, "input_names": list(d.input_names),
-            "excited_lines": d.excited_lines.tolist(), "detection_lines_odd": [],
-            "detection_lines_even": [], "rms": [], "peak": [], "crest_factor": [],
-            "measurement_time": total / FS, "seed": 9, "design_json": json.dumps(d.to_dict())})))
-    for first, data in blocks:
-        messages.append((int(first / FS * 1e9) + 1, "/amb/measurement", enc["ambid_msgs/msg/SampleBlock"]({
-            "stamp": {"sec": 0, "nanosec": 0}, "experiment_id": "exp1", "first_index": first,
-            "sample_period": 1 / FS, "n_samples": len(data), "channel_names": list(CHANNELS),
-            "channel_units": ["m"] * 2 + ["A"] * 6, "data": data.ravel().tolist(),
-            "sample_flags": b"", "flags": 0})))
-    with SessionWriter(path, compression="none", chunk_size_bytes=200_000) as w:
-        w.add_topic("/amb/excitation/design", "ambid_msgs/msg/ExcitationDesign", definition=DEFS,
-                    type_hash="")
-        w.add_topic("/amb/measurement", "ambid_msgs/msg/SampleBlock", definition=DEFS, type_hash="")
-        for t_ns, topic, payload in sorted(messages, key=lambda m: m[0]):
-            w.write(topic, payload, log_time_ns=t_ns)
+    write_session(path, blocks, CHANNELS, [(t_ns, design_message(rec["design"], PRE, total))
+                                           for t_ns, total in designs], 1 / FS)
 
 
 def test_session_gives_the_streaming_result_with_its_gap(rec, tmp_path):

@@ -1,0 +1,508 @@
+"""The whole offline identification of a recorded session, in one call.
+
+:func:`identify_session` runs, on one experiment of a session MCAP file:
+
+1. the FRF matrix u -> y with its noise (and, with M >= 2 realisations,
+   total) variance (:func:`ambid.frf.offline.frf_from_session`);
+2. order selection on a stabilisation diagram (:func:`select_order`) and the
+   common-denominator fit at that order, with a known delay of half a sample
+   (the zero-order hold of a sampled measurement);
+3. modes (frequency, damping) and real poles, the state-space export
+   (``model.npz``, ``model.json``) and the FRF (``frf.npz``) in ``out_dir``;
+4. physical-model updating (:mod:`ambid.model_update`) started from the
+   analytical (nominal) rig, with an extra support mode when the fit shows a
+   mode the analytical model lacks;
+5. when the session is simulated (rig facts recorded, plant source 'sim'):
+   the comparison against the true rig's sampled linear model
+   (:func:`ambid.true_rig.true_linear_model`) and its parameters;
+6. the report (``out_dir/report/index.html``) and ``identification.json``.
+
+Order-selection rule (:func:`select_order`): among the orders fitted, take
+those whose chi^2 per degree of freedom is within ``(1 + chi2_tol)`` of the
+smallest; of these, the lowest order whose physical-looking poles (complex
+pairs in the band with damping ratio in (0, ``max_damping``)) are all
+stable in frequency in the diagram (found again, within its tol_freq, at the
+next lower order fitted). If none qualifies, the lowest order within the chi^2
+tolerance.
+
+FRF error figures: per line the relative matrix error
+``||G - G_true||_F / ||G_true||_F`` (Frobenius norm over the Ny x Nu matrix,
+so structurally zero cross-plane entries do not divide by zero), its median
+and worst value over the excited lines.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ambid.excitation.design import ExcitationDesign
+from ambid.fit import (FitResult, StabilisationDiagram, fit_common_denominator, modal_summary, save_model_json,
+                       save_model_npz, stabilisation_diagram)
+from ambid.frf.offline import frf_from_session, session_designs
+from ambid.frf.periods import period_spectra
+from ambid.frf.streaming import FrfResult
+from ambid.model_update import (PhysicalUpdate, nominal_parameters, physical_frf, true_parameters, unmodelled_mode,
+                                update_physical_model)
+from ambid.rig import Rig, load_rig, make_rig
+
+__all__ = ["LineLevels", "select_order", "frf_relative_error", "line_levels", "session_rig", "true_modes",
+           "identify_session"]
+
+_PLANT_TOPIC = "plant/description"
+_DESIGN_TOPIC = "excitation/design"
+_MEASUREMENT_TOPIC = "measurement"
+
+
+@dataclass(frozen=True)
+class LineLevels:
+    """Output levels of a periodic experiment at its lines, for the noise / distortion figure.
+
+    Each ``*_amp`` is sqrt of the mean over realisations and experiments of
+    |Ybar|^2 (Ybar the period mean of the output line spectrum, amplitude
+    scaling of :func:`ambid.frf.periods.period_spectra`), each ``*_noise``
+    the standard deviation of Ybar from the period scatter [unit of y].
+
+    Attributes:
+        excited_hz, odd_hz, even_hz: (L,), (Lo,), (Le,) line frequencies [Hz].
+        excited_amp, odd_amp, even_amp: (L, Ny), (Lo, Ny), (Le, Ny) [m].
+        excited_noise, odd_noise, even_noise: same shapes [m].
+    """
+
+    excited_hz: np.ndarray
+    odd_hz: np.ndarray
+    even_hz: np.ndarray
+    excited_amp: np.ndarray
+    odd_amp: np.ndarray
+    even_amp: np.ndarray
+    excited_noise: np.ndarray
+    odd_noise: np.ndarray
+    even_noise: np.ndarray
+
+
+def select_order(diagram: StabilisationDiagram, band_hz: tuple[float, float], chi2_tol: float = 0.25,
+                 max_damping: float = 0.3) -> int:
+    """The model order by the rule of the module docstring.
+
+    Args:
+        diagram: from :func:`ambid.fit.stabilisation_diagram`.
+        band_hz: (low, high) band whose poles count [Hz].
+        chi2_tol: relative chi^2 / dof tolerance above the smallest [-].
+        max_damping: complex poles more damped than this are not checked [-].
+
+    Returns:
+        The chosen order.
+    """
+    if not chi2_tol >= 0:
+        raise ValueError(f"chi2_tol must be >= 0, got {chi2_tol}")
+    chi = np.asarray(diagram.chi2_per_dof, dtype=float)
+    if not np.any(np.isfinite(chi)):
+        raise ValueError("the stabilisation diagram has no finite chi^2 values")
+    ok = diagram.orders[chi <= np.nanmin(chi) * (1 + chi2_tol)]
+    lo, hi = band_hz
+    for n in ok:
+        sel = diagram.order == n
+        p, status, f, z = diagram.pole_rad_s[sel], diagram.status[sel], diagram.freq_hz[sel], diagram.damping[sel]
+        physical = (p.imag > 0) & (f >= lo) & (f <= hi) & (z > 0) & (z < max_damping)
+        if np.all(np.isin(status[physical], (1, 3))) and n != diagram.orders[0]:
+            return int(n)
+    return int(ok[0])
+
+
+def frf_relative_error(G: np.ndarray, G_ref: np.ndarray) -> np.ndarray:
+    """Per line ||G - G_ref||_F / ||G_ref||_F over the (Ny, Nu) matrix, (L,) [-]."""
+    g, r = np.asarray(G), np.asarray(G_ref)
+    if g.shape != r.shape or g.ndim != 3:
+        raise ValueError(f"G and G_ref must both be (L, Ny, Nu), got {g.shape} and {r.shape}")
+    return np.linalg.norm(g - r, axis=(1, 2)) / np.linalg.norm(r, axis=(1, 2))
+
+
+def line_levels(y: np.ndarray, design: ExcitationDesign) -> LineLevels | None:
+    """Output levels at the excited and detection lines of a periodic experiment (P >= 2).
+
+    Args:
+        y: (total_samples, Ny) outputs over the experiment [m]; NaN where
+            samples are missing (those periods are left out).
+        design: the experiment's design.
+
+    Returns:
+        :class:`LineLevels`, or None when the design is not periodic with
+        one period length, or has fewer than two steady-state periods.
+    """
+    d = design
+    if not d.is_periodic or d.kind == "stepped_sine" or d.n_periods < 2:
+        return None
+    y = np.asarray(y, dtype=float)
+    if y.ndim != 2:
+        raise ValueError(f"y must be (n_samples, Ny), got shape {y.shape}")
+    n, pt, p, ne = d.n_per_period, d.n_transient_periods, d.n_periods, d.n_experiments
+    seg = (pt + p) * n
+    m = min(y.shape[0] // (seg * ne), d.n_realisations)
+    if m < 1:
+        return None
+    x = y[:m * ne * seg].reshape(m, ne, pt + p, n, y.shape[1])[:, :, pt:]
+    valid = np.all(np.isfinite(x), axis=(3, 4))                   # (M, Ne, P)
+
+    def levels(lines: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if lines.size == 0:
+            return np.zeros((0, y.shape[1])), np.zeros((0, y.shape[1]))
+        spec = period_spectra(np.where(np.isfinite(x), x, 0.0), lines)   # (M, Ne, P, L, Ny)
+        spec = np.where(valid[..., None, None], spec, np.nan)
+        mean = np.nanmean(spec, axis=2)
+        count = valid.sum(axis=2)[..., None, None]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            var = np.nansum(np.abs(spec - mean[:, :, None]) ** 2, axis=2) / (count * (count - 1))
+        var = np.where(count >= 2, var, np.nan)
+        return np.sqrt(np.nanmean(np.abs(mean) ** 2, axis=(0, 1))), np.sqrt(np.nanmean(var, axis=(0, 1)))
+
+    res = d.fs_hz / n
+    ex, odd, even = (levels(lines) for lines in (d.excited_lines, d.detection_lines_odd, d.detection_lines_even))
+    return LineLevels(d.excited_lines * res, d.detection_lines_odd * res, d.detection_lines_even * res,
+                      ex[0], odd[0], even[0], ex[1], odd[1], even[1])
+
+
+def session_rig(path: str | os.PathLike, plant_topic: str = "/amb/plant/description",
+                recover: bool = False) -> tuple[dict | None, str | None]:
+    """The rig parameters and plant source ('sim' | 'hardware') recorded in a session.
+
+    From the ``ambid.session`` metadata the recorder writes, else from the
+    first PlantDescription message on ``plant_topic``.
+
+    Returns:
+        (rig dict for :func:`ambid.rig.make_rig` or None, source or None).
+    """
+    from ambid.mcap_session import iter_decoded, read_metadata
+    from ambid.session_facts import plant_facts
+
+    def parsed(value: Any) -> Any:
+        if isinstance(value, str):
+            try:
+                return json.loads(value)
+            except json.JSONDecodeError:
+                return None
+        return value
+
+    facts = read_metadata(path, recover=recover).get("ambid.session", {})
+    plant = parsed(facts.get("plant"))
+    plant = plant if isinstance(plant, dict) else {}
+    rig = parsed(facts.get("rig")) or parsed(plant.get("rig"))
+    source = plant.get("source")
+    if not isinstance(rig, dict) or not rig:
+        rig = None
+        for _, msg in iter_decoded(path, [plant_topic], recover=recover):
+            pf = plant_facts(msg)
+            rig = pf["rig"] if isinstance(pf["rig"], dict) and pf["rig"] else None
+            source = pf["source"]
+            break
+    return rig, (str(source) if source else None)
+
+
+def true_modes(poles_rad_s: np.ndarray, band_hz: tuple[float, float], rel_tol: float = 1e-4) -> list[tuple[float, float]]:
+    """Distinct lightly damped pole pairs in a band: [(frequency [Hz], damping ratio [-])], ascending.
+
+    Pairs within ``rel_tol`` of each other in frequency and damping (the x
+    and y planes of a symmetric rotor) count once.
+    """
+    p = np.asarray(poles_rad_s, dtype=complex)
+    p = p[(p.imag > 0)]
+    f, z = np.abs(p) / (2 * np.pi), -p.real / np.abs(p)
+    keep = (f >= band_hz[0]) & (f <= band_hz[1]) & (z > 0) & (z < 0.3)
+    out: list[tuple[float, float]] = []
+    for fi, zi in sorted(zip(f[keep], z[keep])):
+        if out and abs(fi - out[-1][0]) <= rel_tol * fi and abs(zi - out[-1][1]) <= rel_tol * max(zi, 1e-12) + 1e-9:
+            continue
+        out.append((float(fi), float(zi)))
+    return out
+
+
+def _fit_variance(frf: FrfResult) -> tuple[np.ndarray | None, str]:
+    """The variance to weight the fits with: total (BLA) where known, else noise; floored."""
+    for name in ("var_total", "var_noise"):
+        v = np.asarray(getattr(frf, name), dtype=float)
+        if np.all(np.isfinite(v)) and np.any(v > 0):
+            return np.maximum(v, 1e-6 * np.median(v[v > 0])), name
+    return None, "none (equal weights)"
+
+
+def _json(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {str(k): _json(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_json(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _json(x.tolist())
+    if isinstance(x, (np.floating, float)):
+        return float(x) if math.isfinite(x) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    return x
+
+
+def _load_rig(rig: Rig | str | os.PathLike | Mapping | None, facts: dict | None) -> Rig | None:
+    if isinstance(rig, Rig):
+        return rig
+    if isinstance(rig, Mapping):
+        return make_rig(dict(rig))
+    if rig is not None:
+        return load_rig(rig)
+    return make_rig(facts) if facts else None
+
+
+def _update(rig: Rig, frf: FrfResult, var, band, modes, dt_s, start_overrides, free) -> tuple[PhysicalUpdate | None,
+                                                                                             str | None]:
+    """Model updating from the nominal rig; the support mode started at the fitted mode the rig lacks."""
+    from ambid.rig import analytical_model
+
+    start = nominal_parameters(rig)
+    # resonance peak height of R / (s - p) is |R| / (zeta omega)
+    strength = [m.residue_singular_values[0] / (max(m.damping, 1e-6) * 2 * np.pi * m.freq_hz) for m in modes]
+    extra = unmodelled_mode([m.freq_hz for m in modes], [m.damping for m in modes], strength,
+                            analytical_model(rig), band)
+    if extra is not None:
+        start.update(support_freq_hz=extra[0], support_damping_ratio=extra[1],
+                     support_gain_per_kg=2.0 / rig.rotor_mass_kg)
+    start.update({k: float(v) for k, v in (start_overrides or {}).items()})
+    if free is None:
+        free = [k for k in ("ki_n_per_a", "ks_n_per_m", "amplifier_bandwidth_hz", "bending_freq_hz",
+                            "bending_damping_ratio", "support_freq_hz", "support_damping_ratio",
+                            "support_gain_per_kg", "delay_s") if k in start]
+        # a bending mode outside the measured band cannot be identified from it
+        if "bending_freq_hz" in start and not band[0] <= start["bending_freq_hz"] <= band[1]:
+            free = [k for k in free if not k.startswith("bending_")]
+    try:
+        return update_physical_model(rig.rotor_model(), frf.freq_hz, frf.frf, var, start, free, dt_s), None
+    except ValueError as exc:
+        return None, str(exc)
+
+
+def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, estimator: str = "indirect",
+                     order: int | None = None, *, experiment_id: str | None = None,
+                     rig: Rig | str | os.PathLike | Mapping | None = None, max_order: int = 32,
+                     chi2_tol: float = 0.1, update: bool = True, update_start: Mapping[str, float] | None = None,
+                     update_free: Sequence[str] | None = None, report: bool = True,
+                     recover: bool = False) -> dict:
+    """Identify the rig from one experiment of a recorded session (module docstring).
+
+    Args:
+        mcap_path: session .mcap file.
+        out_dir: folder for model.npz, model.json, frf.npz, identification.json
+            and report/ (created).
+        estimator: FRF estimator (:data:`ambid.frf.streaming.ESTIMATORS`).
+        order: model order; None selects it (:func:`select_order`).
+        experiment_id: which experiment; default the last recorded.
+        rig: the rig for the nominal model and the updating (a Rig, a YAML
+            file or a parameter dict); default the rig recorded in the
+            session. Without one, no updating and no nominal model.
+        max_order: highest order in the stabilisation diagram.
+        chi2_tol: chi^2 tolerance of the order rule.
+        update: run the physical-model updating.
+        update_start: start values replacing the nominal ones (parameter
+            name -> value, :data:`ambid.model_update.PARAMETERS`).
+        update_free: parameters to update; default ki, ks, amplifier
+            bandwidth, bending mode (when in the band), support mode (when the
+            fit shows one), delay.
+        report: write the HTML report.
+        recover: read a session file a killed recorder left.
+
+    Returns:
+        JSON-safe summary dict (also written to ``identification.json``):
+        ``estimator, experiment_id, excitation, band_hz, inputs, outputs,
+        frf_error, noise, fit, modes_vs_true, update, sensitivity, files,
+        wall_s`` and ``notes`` (what could not be done and why).
+    """
+    t0 = time.perf_counter()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    path = os.fspath(mcap_path)
+    notes: list[str] = []
+    frf = frf_from_session(path, estimator=estimator, experiment_id=experiment_id, recover=recover)
+    designs = session_designs(path, recover=recover)
+    chosen = [d for d in designs if experiment_id is None or d["experiment_id"] == experiment_id][-1]
+    design: ExcitationDesign = chosen["design"]
+    dt_s = 1.0 / design.fs_hz
+    f = frf.freq_hz
+    band = (float(f.min()), float(f.max()))
+    var, var_kind = _fit_variance(frf)
+    if frf.gaps:
+        notes.append(f"{len(frf.gaps)} gap(s) in the measurement; the periods they touch were left out")
+
+    # --- parametric fit ---------------------------------------------------------------
+    fit_delay = dt_s / 2
+    labels = dict(input_names=frf.input_names, output_names=frf.output_names,
+                  input_units=("A",) * len(frf.input_names), output_units=("m",) * len(frf.output_names))
+    top = min(max_order, f.size - 1)
+    orders = list(range(2, top + 1, 2))
+    if not orders:
+        raise ValueError(f"{f.size} lines are too few for a parametric fit; excite more lines")
+    diagram = stabilisation_diagram(f, frf.frf, var, orders=orders, delay_s=fit_delay)
+    rule = f"lowest order with chi2/dof <= (1 + {chi2_tol:g}) min and its in-band modes stable in frequency"
+    if order is None:
+        order = select_order(diagram, band, chi2_tol)
+    else:
+        rule = "given"
+    fit: FitResult = fit_common_denominator(f, frf.frf, var, order=int(order), delay_s=fit_delay, **labels)
+    summary_modes = modal_summary(fit.model)
+    prev = diagram.orders[diagram.orders < order]
+    prev_poles = diagram.poles_of(int(prev[-1])) if prev.size else np.zeros(0, complex)
+    modes = [m for m in summary_modes.modes if band[0] <= m.freq_hz <= band[1]]
+    mode_rows = [dict(freq_hz=m.freq_hz, damping=m.damping,
+                      stable=bool(prev_poles.size and np.min(np.abs(np.abs(prev_poles) / (2 * np.pi) - m.freq_hz))
+                                  <= 0.01 * m.freq_hz))
+                 for m in modes]
+    real_rows = [dict(pole_hz=r.pole_rad_s / (2 * np.pi), unstable=r.unstable) for r in summary_modes.real_poles]
+    save_model_npz(out / "model.npz", fit.model)
+    save_model_json(out / "model.json", fit.model)
+    np.savez(out / "frf.npz", freq_hz=f, frf=frf.frf, var_noise=frf.var_noise, var_total=frf.var_total,
+             coherence=frf.coherence, sensitivity=frf.sensitivity, input_names=np.array(frf.input_names),
+             output_names=np.array(frf.output_names))
+
+    # --- rig: nominal, truth, updating --------------------------------------------------
+    namespace = chosen["topic"].rstrip("/")[:-len(_DESIGN_TOPIC)]
+    facts, source = session_rig(path, namespace + _PLANT_TOPIC, recover=recover)
+    the_rig = _load_rig(rig, facts)
+    simulated = facts is not None and source == "sim"
+    true_g = true_params = None
+    modes_vs_true: list[dict] = []
+    if the_rig is None:
+        notes.append("no rig in the session and none given: no nominal model, no updating")
+    if simulated and the_rig is not None:
+        from ambid.true_rig import true_linear_model
+
+        true_rig = make_rig(facts)
+        true_g = true_linear_model(true_rig, discrete=True).freqresp(f)
+        true_params = true_parameters(true_rig)
+        for ft, zt in true_modes(true_linear_model(true_rig).poles(), band):
+            if not modes:
+                break
+            best = min(modes, key=lambda m: abs(m.freq_hz - ft))
+            modes_vs_true.append(dict(true_freq_hz=ft, true_damping=zt, freq_hz=best.freq_hz, damping=best.damping,
+                                      freq_error=best.freq_hz / ft - 1, damping_error=best.damping / zt - 1))
+    elif the_rig is not None and not simulated:
+        notes.append("not a simulated session: no true model to compare with")
+    upd: PhysicalUpdate | None = None
+    update_error = None
+    if update and the_rig is not None:
+        stable = [m for m, row in zip(modes, mode_rows) if row["stable"]]
+        upd, update_error = _update(the_rig, frf, var, band, stable, dt_s, update_start, update_free)
+        if update_error:
+            notes.append(f"model updating failed: {update_error}")
+
+    # --- figures of merit -----------------------------------------------------------------
+    frf_error = None
+    if true_g is not None:
+        e_meas = frf_relative_error(frf.frf, true_g)
+        e_fit = frf_relative_error(fit.model.freqresp(f), true_g)
+        frf_error = dict(reference="true rig, small-signal model sampled with zero-order hold",
+                         median=float(np.median(e_meas)), worst=float(np.max(e_meas)),
+                         worst_at_hz=float(f[np.argmax(e_meas)]), fitted_median=float(np.median(e_fit)),
+                         fitted_worst=float(np.max(e_fit)))
+        if upd is not None:
+            e_upd = frf_relative_error(physical_frf(the_rig.rotor_model(), upd.parameters, f, dt_s), true_g)
+            frf_error.update(updated_median=float(np.median(e_upd)), updated_worst=float(np.max(e_upd)))
+    dist = frf.distortion
+    noise = dict(output_noise_std_m=frf.noise_std, relative_frf_noise_std=frf.relative_noise_std,
+                 nonlinear_variance_ratio=frf.nonlinear_ratio,
+                 distortion_odd_db=None if dist is None else dist.odd_db,
+                 distortion_even_db=None if dist is None else dist.even_db, fit_weights=var_kind)
+    update_dict = None
+    if upd is not None:
+        update_dict = upd.to_dict()
+        nominal = nominal_parameters(the_rig)
+        for name, row in update_dict["parameters"].items():
+            row["nominal"] = nominal.get(name)
+            row["true"] = None if true_params is None else true_params.get(name)
+            row["error"] = None if row["true"] in (None, 0) else row["value"] / row["true"] - 1
+        if true_params is not None:
+            update_dict["true_centre"] = dict(ki_n_per_a=true_params["ki_centre_n_per_a"],
+                                              ks_n_per_m=true_params["ks_centre_n_per_m"])
+    elif update_error:
+        update_dict = dict(error=update_error)
+    worst = int(np.argmax(frf.sensitivity_peak))
+    summary: dict[str, Any] = dict(
+        session=path, experiment_id=chosen["experiment_id"], estimator=frf.estimator,
+        excitation=dict(kind=design.kind, mimo=design.options.get("mimo"), grid=design.options.get("grid"),
+                        sample_rate_hz=design.fs_hz, samples_per_period=design.n_per_period,
+                        n_periods=design.n_periods, n_transient_periods=design.n_transient_periods,
+                        n_realisations=design.n_realisations, n_experiments=design.n_experiments,
+                        n_excited_lines=int(design.excited_lines.size), design_band_hz=list(design.band_hz),
+                        rms_a=design.rms_a, peak_a=design.peak_a, crest_factor=design.crest_factor,
+                        measurement_time_s=design.measurement_time_s),
+        band_hz=list(band), inputs=list(frf.input_names), outputs=list(frf.output_names),
+        simulated=simulated, frf_error=frf_error, noise=noise,
+        fit=dict(order=int(order), order_rule=rule, chi2_per_dof=fit.chi2_per_dof, delay_s=fit_delay,
+                 weights=var_kind, orders_tried=diagram.orders, chi2_per_dof_by_order=diagram.chi2_per_dof,
+                 modes=mode_rows, real_poles=real_rows, refine_message=fit.message),
+        modes_vs_true=modes_vs_true,
+        max_mode_freq_error=max((abs(r["freq_error"]) for r in modes_vs_true), default=None),
+        max_mode_damping_error=max((abs(r["damping_error"]) for r in modes_vs_true), default=None),
+        update=update_dict,
+        sensitivity=dict(peak=frf.sensitivity_peak, peak_hz=frf.sensitivity_peak_hz,
+                         worst_input=frf.input_names[worst], worst_peak=float(frf.sensitivity_peak[worst]),
+                         iso_zone=frf.iso_zone),
+        files=dict(model_npz=str(out / "model.npz"), model_json=str(out / "model.json"),
+                   frf_npz=str(out / "frf.npz"), summary_json=str(out / "identification.json")),
+        notes=notes)
+    if report:
+        from ambid.report.html import write_report
+
+        levels, window = _samples_for_report(path, chosen, design, frf, recover)
+        dense = np.geomspace(max(band[0] / 1.5, 1e-3), min(band[1] * 1.5, 0.499 * design.fs_hz), 600)
+        curves = {"fitted model": (dense, fit.model.freqresp(dense))}
+        if the_rig is not None:
+            curves["analytical (nominal) model"] = (dense, physical_frf(the_rig.rotor_model(),
+                                                                        nominal_parameters(the_rig), dense, dt_s))
+        if upd is not None:
+            curves["updated physical model"] = (dense, physical_frf(the_rig.rotor_model(), upd.parameters,
+                                                                     dense, dt_s))
+        if simulated and the_rig is not None:
+            from ambid.true_rig import true_linear_model
+
+            curves["true rig (simulated)"] = (dense, true_linear_model(make_rig(facts), discrete=True).freqresp(dense))
+        line_models = {"fitted model": fit.model.freqresp(f)}
+        if upd is not None:
+            line_models["updated physical model"] = physical_frf(the_rig.rotor_model(), upd.parameters, f, dt_s)
+        summary["files"]["report"] = str(out / "report" / "index.html")
+        summary["wall_s"] = time.perf_counter() - t0
+        write_report(out / "report", _json(summary), frf=frf, design=design, diagram=diagram, order=int(order),
+                     curves=curves, levels=levels, window=window, true_frf=true_g, line_models=line_models)
+    summary["wall_s"] = time.perf_counter() - t0
+    summary = _json(summary)
+    (out / "identification.json").write_text(json.dumps(summary, indent=1))
+    return summary
+
+
+def _samples_for_report(path: str, chosen: dict, design: ExcitationDesign, frf: FrfResult,
+                        recover: bool) -> tuple[LineLevels | None, dict | None]:
+    """Line levels of the whole experiment and a short time window of y, u, r."""
+    from ambid.session_blocks import read_samples
+
+    topic = chosen["topic"].rstrip("/")[:-len(_DESIGN_TOPIC)] + _MEASUREMENT_TOPIC
+    refs = [("r_" + n[2:]) if n.startswith("u_") else "r_" + n for n in frf.input_names]
+    names = list(frf.output_names) + list(frf.input_names) + refs
+    start = chosen["start_index"]
+    total = min(chosen["total_samples"], design.total_samples)
+    try:
+        data = read_samples(path, topic, start, start + total, names, recover=recover)
+    except ValueError:
+        return None, None
+    ny, nu = len(frf.output_names), len(frf.input_names)
+    levels = line_levels(data.data[:, :ny], design)
+    w0 = design.n_transient_periods * design.n_per_period if design.kind != "stepped_sine" else 0
+    n_win = int(min(design.n_per_period, round(0.05 * design.fs_hz), total - w0))
+    window = None
+    if n_win > 1:
+        x = data.data[w0:w0 + n_win]
+        window = dict(t_s=(start + w0 + np.arange(n_win)) / design.fs_hz, y=x[:, :ny], u=x[:, ny:ny + nu],
+                      r=x[:, ny + nu:], output_names=frf.output_names, input_names=frf.input_names)
+    return levels, window
+

@@ -1,0 +1,407 @@
+"""Updating the physical (chapter-2) model of the rig against a measured FRF matrix.
+
+The updating model is the analytical model of :func:`ambid.rig.analytical_model`
+with its physical parameters exposed, plus the two things a real rig adds
+most often, each switched on by giving its parameters:
+
+* magnets: ``ki_n_per_a`` [N/A], ``ks_n_per_m`` [N/m], one value for all four
+  axes (F = ki i + ks g, eq. 2.18);
+* amplifiers: first-order current loops of ``amplifier_bandwidth_hz`` [Hz]
+  (eq. 2.21);
+* sensors: gains ``sensor_gain_<axis>`` [m/m], and optionally a first-order
+  low-pass ``sensor_bandwidth_hz`` [Hz];
+* the first bending mode of the rotor: its free-free frequency
+  ``bending_freq_hz`` [Hz] (the modal stiffness omega^2 of the mass-normalised
+  mode) and damping ratio ``bending_damping_ratio`` [-], both planes;
+* an extra, unmodelled mode, taken as a support (housing or foundation)
+  mode: each bearing stator with its sensor sits on a mass-spring-damper of
+  uncoupled frequency ``support_freq_hz`` [Hz], damping ratio
+  ``support_damping_ratio`` [-] and gain ``support_gain_per_kg`` = 1 / modal
+  mass [1/kg]; the magnet force reacts on it and the sensor measures rotor
+  minus stator (Schweitzer & Maslen, Magnetic Bearings, ch. 12);
+* ``delay_s`` [s]: extra input delay (conversion, PWM update).
+
+The FRF is taken the way the rig is measured: with ``dt_s > 0`` the exact
+zero-order-hold sampled model, u[k] held over a sample and delayed by
+``delay_s`` (:func:`ambid.true_rig.delayed_zoh`), at z = exp(j 2 pi f dt);
+with ``dt_s = 0`` the continuous model times exp(-j 2 pi f delay_s).
+
+States of :func:`physical_statespace`: rotor (n_r), then (with a support
+mode) the stator displacements h (4) [m] and velocities (4) [m/s], the coil
+control currents i (4) [A] and (with a sensor bandwidth) the sensor filter
+states (4) [m].
+
+Ki and the sensor gains enter the FRF only as their product (the force per
+ampere is seen through the sensors); free either ki or the gains, not both
+(:func:`ambid.fit.update_parameters` names the combination otherwise).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ambid.fit.updating import UpdateResult, update_parameters
+from ambid.rig import AXES, CURRENT_NAMES, DISPLACEMENT_NAMES, Rig
+from ambid.rotor_model import RotorModel
+from ambid.statespace import StateSpace
+from ambid.true_rig import delayed_zoh, levitated_plant
+
+__all__ = ["ParameterInfo", "PARAMETERS", "DEFAULT_FREE", "PhysicalUpdate", "bending_coordinates",
+           "nominal_parameters", "true_parameters", "physical_statespace", "physical_frf",
+           "update_physical_model", "unmodelled_mode"]
+
+
+@dataclass(frozen=True)
+class ParameterInfo:
+    """One updating parameter: SI unit, allowed [low, high] range, typical size, meaning."""
+
+    unit: str
+    low: float
+    high: float
+    typical: float
+    description: str
+
+
+PARAMETERS: dict[str, ParameterInfo] = {
+    "ki_n_per_a": ParameterInfo("N/A", 1e-6, 1e6, 100.0, "current gain of each magnet pair"),
+    "ks_n_per_m": ParameterInfo("N/m", 0.0, 1e10, 1e5, "negative stiffness of each magnet pair"),
+    "amplifier_bandwidth_hz": ParameterInfo("Hz", 1.0, 1e6, 1e3, "closed current-loop bandwidth"),
+    **{f"sensor_gain_{a}": ParameterInfo("m/m", 0.01, 100.0, 1.0, f"gain of sensor {a}") for a in AXES},
+    "sensor_bandwidth_hz": ParameterInfo("Hz", 1.0, 1e7, 1e4, "first-order sensor low-pass (optional)"),
+    "bending_freq_hz": ParameterInfo("Hz", 1e-3, 1e6, 100.0, "free-free frequency of the first bending mode"),
+    "bending_damping_ratio": ParameterInfo("-", 0.0, 1.0, 0.01, "damping ratio of the first bending mode"),
+    "support_freq_hz": ParameterInfo("Hz", 0.1, 1e6, 100.0, "uncoupled frequency of the support mode"),
+    "support_damping_ratio": ParameterInfo("-", 0.0, 1.0, 0.02, "damping ratio of the support mode"),
+    "support_gain_per_kg": ParameterInfo("1/kg", 0.0, 1e3, 0.05, "1 / modal mass of the support mode"),
+    "delay_s": ParameterInfo("s", -0.01, 0.01, 1e-4, "extra input delay"),
+}
+
+#: Parameters freed by default (the support ones too when the start holds them).
+DEFAULT_FREE: tuple[str, ...] = ("ki_n_per_a", "ks_n_per_m", "amplifier_bandwidth_hz", "bending_freq_hz",
+                                 "bending_damping_ratio", "delay_s")
+_SUPPORT = ("support_freq_hz", "support_damping_ratio", "support_gain_per_kg")
+_REQUIRED = ("ki_n_per_a", "ks_n_per_m", "amplifier_bandwidth_hz")
+
+
+def bending_coordinates(rotor: RotorModel) -> np.ndarray:
+    """Modal coordinates (both planes) of the rotor's first bending mode, (k,) int; empty if none.
+
+    Needs the modal layout of :func:`ambid.modal.modal_state_space`
+    (x = [eta, eta'], A = [[0, I], [-K, -C]] with K diagonal); an imported
+    rotor of another layout has no adjustable bending mode here.
+    """
+    a = rotor.a
+    n = a.shape[0]
+    if rotor.flexible_freq_hz.size == 0 or n % 2:
+        return np.zeros(0, dtype=int)
+    r = n // 2
+    k = -a[r:, :r]
+    if not (np.allclose(a[:r, :r], 0.0) and np.allclose(a[:r, r:], np.eye(r))
+            and np.allclose(k - np.diag(np.diag(k)), 0.0, atol=1e-9 * max(np.abs(k).max(), 1.0))):
+        return np.zeros(0, dtype=int)
+    w1 = 2 * np.pi * rotor.flexible_freq_hz[0]
+    w = np.sqrt(np.maximum(np.diag(k), 0.0))
+    return np.flatnonzero(np.abs(w - w1) <= 1e-6 * w1)
+
+
+def nominal_parameters(rig: Rig) -> dict[str, float]:
+    """The analytical model's parameter values (nominal ki, ks, ideal sensors, no support mode, no delay).
+
+    With these, :func:`physical_statespace` equals :func:`ambid.rig.analytical_model`.
+    """
+    p = {"ki_n_per_a": float(rig.magnet.ki), "ks_n_per_m": float(rig.magnet.ks),
+         "amplifier_bandwidth_hz": float(rig.current_loop_bandwidth_hz),
+         **{f"sensor_gain_{a}": 1.0 for a in AXES}, "delay_s": 0.0}
+    rotor = rig.rotor_model()
+    if bending_coordinates(rotor).size:
+        p["bending_freq_hz"] = float(rotor.flexible_freq_hz[0])
+        p["bending_damping_ratio"] = float(rig.modal_damping_ratio)
+    return p
+
+
+def true_parameters(rig: Rig) -> dict[str, float]:
+    """The true (simulated) rig's values of the same parameters.
+
+    ki, ks are the small-signal slopes of the true magnets at the levitated
+    operating point (averaged over the axes, which carry the same gravity
+    share): what a measured FRF determines. The centre values of the true
+    magnet are under ``ki_centre_n_per_a``, ``ks_centre_n_per_m``.
+    """
+    _, op = levitated_plant(rig)
+    v = rig.values
+    p = nominal_parameters(rig)
+    p.update({"ki_n_per_a": float(np.mean(op.ki_n_per_a)), "ks_n_per_m": float(np.mean(op.ks_n_per_m)),
+              **{f"sensor_gain_{a}": float(v["sensor_gain"]) for a in AXES},
+              "sensor_bandwidth_hz": float(v["sensor_bandwidth_hz"]),
+              "support_freq_hz": float(v["housing_freq_hz"]),
+              "support_damping_ratio": float(v["housing_damping_ratio"]),
+              "support_gain_per_kg": 1.0 / float(v["housing_mass_kg"]), "delay_s": float(v["extra_delay_s"]),
+              "ki_centre_n_per_a": float(rig.true_magnet.ki), "ks_centre_n_per_m": float(rig.true_magnet.ks)})
+    return p
+
+
+def _check_params(params: Mapping[str, float]) -> dict[str, float]:
+    p = {k: float(v) for k, v in params.items() if k in PARAMETERS}
+    missing = [k for k in _REQUIRED if k not in p]
+    if missing:
+        raise ValueError(f"physical model: parameters {missing} are missing; start from nominal_parameters(rig)")
+    for k, v in p.items():
+        if not math.isfinite(v):
+            raise ValueError(f"physical model: {k} = {v} must be finite")
+    if p["amplifier_bandwidth_hz"] <= 0:
+        raise ValueError(f"physical model: amplifier_bandwidth_hz must be > 0, got {p['amplifier_bandwidth_hz']}")
+    if p.get("sensor_bandwidth_hz", 1.0) <= 0 or p.get("bending_freq_hz", 1.0) <= 0:
+        raise ValueError("physical model: sensor_bandwidth_hz and bending_freq_hz must be > 0")
+    support = [k for k in _SUPPORT if k in p]
+    if support and len(support) != len(_SUPPORT):
+        raise ValueError(f"physical model: a support mode needs all of {list(_SUPPORT)}, got {support}")
+    if support and (p["support_freq_hz"] <= 0 or p["support_gain_per_kg"] < 0):
+        raise ValueError("physical model: support_freq_hz must be > 0 and support_gain_per_kg >= 0")
+    return p
+
+
+def physical_statespace(rotor: RotorModel, params: Mapping[str, float]) -> StateSpace:
+    """Continuous model u [A] -> y [m] of the parametrised rig, without the delay.
+
+    Args:
+        rotor: the rig's rotor model (``rig.rotor_model()``).
+        params: parameter name -> value (:data:`PARAMETERS`); ki, ks and the
+            amplifier bandwidth are required, the others optional (missing
+            sensor gains are 1, a missing bending mode keeps the rotor's, no
+            support or sensor-bandwidth parameters means none).
+
+    Returns:
+        StateSpace (dt = 0), 4 inputs (CURRENT_NAMES), 4 outputs (DISPLACEMENT_NAMES).
+    """
+    p = _check_params(params)
+    a_r = rotor.a.copy()
+    if "bending_freq_hz" in p or "bending_damping_ratio" in p:
+        idx = bending_coordinates(rotor)
+        if idx.size == 0:
+            raise ValueError("physical model: this rotor has no adjustable bending mode (none kept, or not in "
+                             "modal layout); drop bending_freq_hz and bending_damping_ratio")
+        r = a_r.shape[0] // 2
+        w_old = 2 * np.pi * rotor.flexible_freq_hz[0]
+        w = 2 * np.pi * p.get("bending_freq_hz", rotor.flexible_freq_hz[0])
+        a_r[r + idx, idx] = -w * w
+        if "bending_damping_ratio" in p:
+            a_r[r + idx, r + idx] = -2 * p["bending_damping_ratio"] * w
+        else:  # keep the rotor's damping ratio
+            a_r[r + idx, r + idx] *= w / w_old
+    ki, ks = p["ki_n_per_a"], p["ks_n_per_m"]
+    gains = np.array([p.get(f"sensor_gain_{a}", 1.0) for a in AXES])
+    has_support = "support_gain_per_kg" in p and p["support_gain_per_kg"] > 0
+    has_filter = "sensor_bandwidth_hz" in p
+    nr = rotor.n_states
+    eye = np.eye(4)
+    blocks = [("r", nr)] + ([("h", 4), ("hv", 4)] if has_support else []) + [("i", 4)] + \
+        ([("s", 4)] if has_filter else [])
+    sl, start = {}, 0
+    for name, size in blocks:
+        sl[name] = slice(start, start + size)
+        start += size
+    n = start
+    c_gap = np.zeros((4, n))
+    c_gap[:, sl["r"]] = rotor.c_bearing
+    c_rel = np.zeros((4, n))  # rotor minus stator at the sensor planes
+    c_rel[:, sl["r"]] = rotor.c_sensor
+    if has_support:
+        c_gap[:, sl["h"]] = -eye
+        c_rel[:, sl["h"]] = -eye
+    force = ks * c_gap
+    force[:, sl["i"]] += ki * eye
+    a = np.zeros((n, n))
+    a[sl["r"], sl["r"]] = a_r
+    a[sl["r"]] += rotor.b @ force
+    if has_support:
+        mh = 1.0 / p["support_gain_per_kg"]
+        wh = 2 * np.pi * p["support_freq_hz"]
+        a[sl["h"], sl["hv"]] = eye
+        a[sl["hv"]] = -force / mh
+        a[sl["hv"], sl["h"]] += -wh * wh * eye
+        a[sl["hv"], sl["hv"]] += -2 * p["support_damping_ratio"] * wh * eye
+    tau = 1.0 / (2 * np.pi * p["amplifier_bandwidth_hz"])
+    a[sl["i"], sl["i"]] = -eye / tau
+    b = np.zeros((n, 4))
+    b[sl["i"]] = eye / tau
+    if has_filter:
+        wc = 2 * np.pi * p["sensor_bandwidth_hz"]
+        a[sl["s"]] = wc * c_rel
+        a[sl["s"], sl["s"]] += -wc * eye
+        c = np.zeros((4, n))
+        c[:, sl["s"]] = np.diag(gains)
+    else:
+        c = gains[:, None] * c_rel
+    return StateSpace(a, b, c, np.zeros((4, 4)), 0.0, CURRENT_NAMES, DISPLACEMENT_NAMES, ("A",) * 4, ("m",) * 4)
+
+
+def physical_frf(rotor: RotorModel, params: Mapping[str, float], freq_hz: np.ndarray, dt_s: float) -> np.ndarray:
+    """FRF of the parametrised rig as measured, (L, 4, 4) complex [m/A].
+
+    Args:
+        rotor: the rig's rotor model.
+        params: as for :func:`physical_statespace` (``delay_s`` default 0).
+        freq_hz: (L,) lines [Hz].
+        dt_s: sample period [s] of the measurement: the zero-order-hold
+            sampled model at z = exp(j 2 pi f dt); 0 for the continuous one.
+    """
+    if not (math.isfinite(dt_s) and dt_s >= 0):
+        raise ValueError(f"dt_s must be >= 0 [s] (0 = continuous), got {dt_s}")
+    ss = physical_statespace(rotor, params)
+    f = np.atleast_1d(np.asarray(freq_hz, dtype=float))
+    d = float(params.get("delay_s", 0.0))
+    if not math.isfinite(d):
+        raise ValueError(f"delay_s must be finite, got {d}")
+    if dt_s == 0:
+        return _resolvent(ss.a, ss.b, ss.c, 2j * np.pi * f) * np.exp(-2j * np.pi * f * d)[:, None, None]
+    # delay = k dt + frac, 0 <= frac < dt: z^-k times the fractional-delay ZOH model
+    k = math.floor(d / dt_s)
+    frac = min(max(d - k * dt_s, 0.0), dt_s)
+    phi, g1, g0 = delayed_zoh(ss.a, ss.b, dt_s, frac)
+    z = np.exp(2j * np.pi * f * dt_s)
+    g = _resolvent(phi, np.hstack([g1, g0]), ss.c, z)
+    return (g[:, :, :4] + g[:, :, 4:] / z[:, None, None]) * (z ** -k)[:, None, None]
+
+
+def _resolvent(a: np.ndarray, b: np.ndarray, c: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """C (s I - A)^-1 B at every s (L,), (L, p, m); one batched solve (the model is evaluated
+    hundreds of times in an update, a per-line loop costs 20x more)."""
+    n = a.shape[0]
+    m = np.empty((s.size, n, n), dtype=complex)
+    m[:] = -a
+    i = np.arange(n)
+    m[:, i, i] += s[:, None]
+    x = np.linalg.solve(m, np.broadcast_to(b.astype(complex), (s.size,) + b.shape))
+    return np.einsum("pn,lnm->lpm", c, x)
+
+
+@dataclass(frozen=True)
+class PhysicalUpdate:
+    """Updated physical parameters.
+
+    Attributes:
+        result: the :class:`ambid.fit.UpdateResult` of the free parameters
+            (estimates, standard deviations, 95 % intervals, correlation).
+        start: every parameter's start value.
+        parameters: every parameter after the update (fixed ones as started).
+        free: names of the parameters updated.
+        dt_s: sample period the FRF was modelled at [s].
+    """
+
+    result: UpdateResult
+    start: dict[str, float]
+    parameters: dict[str, float]
+    free: tuple[str, ...]
+    dt_s: float
+
+    def to_dict(self) -> dict:
+        """JSON-safe: per parameter value, start, std, ci95, unit, free; plus the fit figures."""
+        r = self.result
+        std = dict(zip(r.names, r.std))
+        ci = dict(zip(r.names, r.ci95))
+        params = {name: dict(value=v, start=self.start[name], unit=PARAMETERS[name].unit, free=name in std,
+                             std=float(std[name]) if name in std else None,
+                             ci95=[float(c) for c in ci[name]] if name in ci else None)
+                  for name, v in self.parameters.items()}
+        return dict(parameters=params, chi2_per_dof=r.chi2_per_dof, dof=r.dof, success=r.success,
+                    message=r.message, n_evaluations=r.n_evaluations, correlation=r.correlation.tolist(),
+                    free=list(self.free))
+
+
+def update_physical_model(rotor: RotorModel, freq_hz: np.ndarray, G: np.ndarray, var: np.ndarray | None,
+                          start: Mapping[str, float], free: Sequence[str] | None = None, dt_s: float = 0.0,
+                          max_evaluations: int = 300) -> PhysicalUpdate:
+    """Fit the free physical parameters to a measured FRF (weighted least squares, CIs from the Jacobian).
+
+    Args:
+        rotor: the rig's rotor model.
+        freq_hz: (L,) lines [Hz].
+        G: (L, 4, 4) measured FRF u -> y [m/A].
+        var: (L, 4, 4) variance of G [(m/A)^2], or None (equal weights).
+        start: start values of every parameter of the model (e.g.
+            :func:`nominal_parameters` with changes); fixed ones stay.
+        free: parameters to update; default :data:`DEFAULT_FREE` (those in
+            ``start``) plus the support ones when ``start`` has them.
+        dt_s: sample period of the measurement [s] (0: continuous model).
+        max_evaluations: most model evaluations of the optimiser.
+
+    Returns:
+        :class:`PhysicalUpdate`.
+    """
+    st = _check_params(start)
+    unknown = sorted(set(start) - set(PARAMETERS))
+    if unknown:
+        raise ValueError(f"update_physical_model: unknown parameters {unknown}; known: {list(PARAMETERS)}")
+    if free is None:
+        free = [k for k in DEFAULT_FREE + _SUPPORT if k in st]
+    free = tuple(free)
+    bad = [k for k in free if k not in st]
+    if bad:
+        raise ValueError(f"update_physical_model: free parameters {bad} have no start value; add them to start")
+    if len(set(free)) != len(free) or not free:
+        raise ValueError(f"update_physical_model: free must name distinct parameters, got {list(free)}")
+    for k in free:
+        info = PARAMETERS[k]
+        if not info.low <= st[k] <= info.high:
+            raise ValueError(f"update_physical_model: start {k} = {st[k]} is outside [{info.low:g}, {info.high:g}] "
+                             f"{info.unit}")
+    g = np.asarray(G)
+    if g.ndim != 3 or g.shape[1:] != (4, 4):
+        raise ValueError(f"G must be (L, 4, 4) (outputs {DISPLACEMENT_NAMES}, inputs {CURRENT_NAMES}), got "
+                         f"{g.shape}")
+    f = np.asarray(freq_hz, dtype=float)
+
+    def model(theta: np.ndarray) -> np.ndarray:
+        p = dict(st)
+        p.update(zip(free, theta))
+        return physical_frf(rotor, p, f, dt_s)
+
+    theta0 = np.array([st[k] for k in free])
+    scales = np.array([abs(st[k]) if st[k] != 0 else (dt_s or PARAMETERS[k].typical) for k in free])
+    lower = [PARAMETERS[k].low for k in free]
+    upper = [PARAMETERS[k].high for k in free]
+    res = update_parameters(model, theta0, f, g, var, names=free, scales=scales, bounds=(lower, upper),
+                            max_evaluations=max_evaluations)
+    final = dict(st)
+    final.update(zip(free, (float(v) for v in res.theta)))
+    return PhysicalUpdate(result=res, start=st, parameters=final, free=free, dt_s=float(dt_s))
+
+
+def unmodelled_mode(mode_freq_hz: np.ndarray, mode_damping: np.ndarray, mode_strength: np.ndarray,
+                    nominal: StateSpace, band_hz: tuple[float, float], tol: float = 0.05) -> tuple[float, float] | None:
+    """The strongest fitted mode the nominal model lacks: a start for the support mode.
+
+    A fitted mode (in the band, damping in (0, 0.3)) is unmodelled when no
+    lightly damped pole pair of the nominal model lies within ``tol``
+    (relative) of its frequency.
+
+    Args:
+        mode_freq_hz, mode_damping, mode_strength: (K,) fitted modes'
+            natural frequency [Hz], damping ratio [-] and a size measure
+            (e.g. the largest residue singular value divided by the damping).
+        nominal: the nominal continuous model.
+        band_hz: (low, high) band of the data [Hz].
+        tol: relative frequency distance that counts as the same mode.
+
+    Returns:
+        (frequency [Hz], damping ratio [-]) of that mode, or None.
+    """
+    fm, zm, sm = (np.asarray(x, dtype=float).ravel() for x in (mode_freq_hz, mode_damping, mode_strength))
+    if not (fm.shape == zm.shape == sm.shape):
+        raise ValueError("mode_freq_hz, mode_damping and mode_strength must have the same length")
+    p = nominal.poles()
+    p = p[(p.imag > 0) & (-p.real < 0.3 * np.abs(p))]
+    f_nom = np.abs(p) / (2 * np.pi)
+    best = None
+    for f, z, s in zip(fm, zm, sm):
+        if not (band_hz[0] <= f <= band_hz[1] and 0 < z < 0.3):
+            continue
+        if f_nom.size and np.min(np.abs(f_nom - f)) <= tol * f:
+            continue
+        if best is None or s > best[2]:
+            best = (float(f), float(z), float(s))
+    return None if best is None else best[:2]

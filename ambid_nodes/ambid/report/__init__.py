@@ -1,0 +1,1 @@
+"""The identification report: figures (:mod:`.figures`) and the HTML page (:mod:`.html`)."""

@@ -1,0 +1,235 @@
+"""The identification report: ``DIR/index.html`` with the headline numbers and the figures (PNGs beside it)."""
+
+from __future__ import annotations
+
+import html
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ambid.report import figures
+
+if TYPE_CHECKING:
+    from ambid.excitation.design import ExcitationDesign
+    from ambid.fit.order_selection import StabilisationDiagram
+    from ambid.frf.streaming import FrfResult
+    from ambid.identification import LineLevels
+
+__all__ = ["write_report", "render_index"]
+
+_CSS = """
+body { font-family: sans-serif; max-width: 1200px; margin: 2em auto; color: #222; }
+table { border-collapse: collapse; margin: 0.5em 0 1.5em 0; }
+th, td { border: 1px solid #bbb; padding: 3px 8px; text-align: left; font-size: 0.92em; }
+th { background: #eee; }
+td.num { text-align: right; font-family: monospace; }
+figure { margin: 1.5em 0; }
+figure img { max-width: 100%; border: 1px solid #ddd; }
+figcaption { font-size: 0.92em; color: #333; margin-top: 0.3em; }
+.note { color: #a40; }
+"""
+
+
+def _fmt(x: Any, spec: str = ".4g") -> str:
+    if x is None:
+        return "-"
+    if isinstance(x, bool):
+        return "yes" if x else "no"
+    if isinstance(x, (int, float, np.floating, np.integer)):
+        return "-" if not math.isfinite(float(x)) else format(float(x), spec)
+    if isinstance(x, (list, tuple)):
+        return ", ".join(_fmt(v, spec) for v in x)
+    return str(x)
+
+
+def _pct(x: Any) -> str:
+    return "-" if x is None or not math.isfinite(float(x)) else f"{100 * float(x):.3g} %"
+
+
+def _table(header: list[str], rows: list[list[str]]) -> str:
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in rows)
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def _headline(s: Mapping[str, Any]) -> list[list[str]]:
+    ex, fit, sens, noise = s["excitation"], s["fit"], s["sensitivity"], s["noise"]
+    rows = [
+        ["session", f"{s['session']} (experiment {s['experiment_id']})"],
+        ["estimator", s["estimator"]],
+        ["excitation", f"{ex['kind']} ({ex.get('mimo') or '-'}, {ex.get('grid') or '-'}), {ex['n_excited_lines']} "
+                       f"lines, N = {ex['samples_per_period']}, P = {ex['n_periods']} + {ex['n_transient_periods']} "
+                       f"transient, M = {ex['n_realisations']}, Ne = {ex['n_experiments']}, "
+                       f"{_fmt(ex['measurement_time_s'])} s at {_fmt(ex['sample_rate_hz'])} Hz"],
+        ["crest factor per input [-]", _fmt(ex["crest_factor"], ".3g")],
+        ["band (excited lines) [Hz]", _fmt(s["band_hz"])],
+        ["inputs / outputs", f"{', '.join(s['inputs'])} / {', '.join(s['outputs'])}"],
+    ]
+    err = s.get("frf_error")
+    if err:
+        rows.append(["FRF error vs true rig, measured: median / worst",
+                     f"{_pct(err['median'])} / {_pct(err['worst'])} (at {_fmt(err['worst_at_hz'])} Hz)"])
+        rows.append(["FRF error vs true rig, fitted model: median / worst",
+                     f"{_pct(err['fitted_median'])} / {_pct(err['fitted_worst'])}"])
+        if "updated_median" in err:
+            rows.append(["FRF error vs true rig, updated physical model: median / worst",
+                         f"{_pct(err['updated_median'])} / {_pct(err['updated_worst'])}"])
+    std = noise.get("output_noise_std_m")
+    rows += [
+        ["output noise std [um]", _fmt([v * 1e6 if v is not None else None for v in std] if std else None, ".3g")],
+        ["relative FRF noise (median sigma/|G|)", _pct(noise.get("relative_frf_noise_std"))],
+        ["var_total / var_noise (median; ~1 if linear)", _fmt(noise.get("nonlinear_variance_ratio"), ".3g")],
+        ["odd / even detection lines above noise [dB]",
+         f"{_fmt(noise.get('distortion_odd_db'), '+.1f')} / {_fmt(noise.get('distortion_even_db'), '+.1f')}"],
+        ["model order (rule)", f"{fit['order']} ({fit['order_rule']})"],
+        ["fit chi2 / dof", _fmt(fit["chi2_per_dof"], ".3g")],
+        ["peak input sensitivity", f"{_fmt(sens['worst_peak'], '.3g')} on {sens['worst_input']} "
+                                   f"({_fmt(20 * math.log10(sens['worst_peak']), '.1f')} dB)"],
+        ["ISO 14839-3 zone", sens["iso_zone"]],
+    ]
+    if s.get("max_mode_freq_error") is not None:
+        rows.append(["worst mode frequency / damping error vs true",
+                     f"{_pct(s['max_mode_freq_error'])} / {_pct(s['max_mode_damping_error'])}"])
+    return rows
+
+
+def _modes_rows(s: Mapping[str, Any]) -> list[list[str]]:
+    rows = [[_fmt(m["freq_hz"], ".5g"), _fmt(m["damping"], ".4g"), _fmt(m["stable"]), "-", "-"]
+            for m in s["fit"]["modes"]]
+    for r in s.get("modes_vs_true") or []:
+        for row, m in zip(rows, s["fit"]["modes"]):
+            if m["freq_hz"] == r["freq_hz"]:
+                row[3] = f"{_fmt(r['true_freq_hz'], '.5g')} Hz, zeta {_fmt(r['true_damping'], '.4g')}"
+                row[4] = f"{_pct(r['freq_error'])} / {_pct(r['damping_error'])}"
+    return rows
+
+
+def _parameter_rows(s: Mapping[str, Any]) -> list[list[str]]:
+    upd = s.get("update") or {}
+    rows = []
+    for name, p in (upd.get("parameters") or {}).items():
+        ci = p.get("ci95")
+        half = None if ci is None else (ci[1] - ci[0]) / 2
+        rows.append([name, p["unit"], _fmt(p.get("nominal"), ".6g"), _fmt(p["start"], ".6g"),
+                     _fmt(p["value"], ".6g"), "fixed" if half is None else f"+- {_fmt(half, '.3g')}",
+                     _fmt(p.get("true"), ".6g"), _pct(p.get("error"))])
+    return rows
+
+
+def render_index(summary: Mapping[str, Any], figure_list: list[tuple[str, str]]) -> str:
+    """The index.html text: headline table, modes, parameters, figures with captions.
+
+    Args:
+        summary: the dict :func:`ambid.identification.identify_session` returns.
+        figure_list: [(PNG file name, caption)].
+    """
+    parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>ambid identification report</title>"
+             f"<style>{_CSS}</style></head><body>",
+             "<h1>ambid identification report</h1>",
+             "<h2>Headline figures</h2>", _table(["quantity", "value"], _headline(summary))]
+    for note in summary.get("notes") or []:
+        parts.append(f"<p class='note'>Note: {html.escape(str(note))}</p>")
+    parts += ["<h2>Fitted modes</h2>",
+              _table(["frequency [Hz]", "damping ratio [-]", "stable in diagram", "true mode", "error (f / zeta)"],
+                     _modes_rows(summary))]
+    reals = summary["fit"].get("real_poles") or []
+    if reals:
+        parts.append("<p>Real poles [Hz] (positive: unstable): "
+                     + html.escape(", ".join(_fmt(r["pole_hz"], ".4g") for r in reals)) + "</p>")
+    upd = summary.get("update")
+    if upd and "parameters" in upd:
+        parts += ["<h2>Updated physical parameters</h2>",
+                  _table(["parameter", "unit", "nominal", "start", "updated", "95 % CI", "true", "error vs true"],
+                         _parameter_rows(summary)),
+                  f"<p>Updating chi2/dof {_fmt(upd.get('chi2_per_dof'), '.3g')}, {html.escape(str(upd.get('message')))}."
+                  " True ki, ks are the small-signal slopes at the levitated operating point.</p>"]
+    elif upd and "error" in upd:
+        parts.append(f"<p class='note'>Model updating failed: {html.escape(upd['error'])}</p>")
+    parts.append("<h2>Figures</h2>")
+    for name, caption in figure_list:
+        parts.append(f"<figure><img src='{html.escape(name)}' alt='{html.escape(caption)}'>"
+                     f"<figcaption>{html.escape(caption)}</figcaption></figure>")
+    parts.append("</body></html>")
+    return "\n".join(parts)
+
+
+def _relative_error(g: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    return np.linalg.norm(g - ref, axis=(1, 2)) / np.linalg.norm(ref, axis=(1, 2))
+
+
+def write_report(report_dir: str | Path, summary: Mapping[str, Any], *, frf: FrfResult, design: ExcitationDesign,
+                 diagram: StabilisationDiagram, order: int, curves: Mapping[str, tuple[np.ndarray, np.ndarray]],
+                 levels: LineLevels | None = None, window: Mapping[str, Any] | None = None,
+                 true_frf: np.ndarray | None = None, line_models: Mapping[str, np.ndarray] | None = None) -> Path:
+    """Draw every figure into ``report_dir`` and write ``report_dir/index.html``.
+
+    Args:
+        report_dir: output folder (created).
+        summary: the identification summary (headline numbers).
+        frf: the measured FRF result.
+        design: the experiment's design.
+        diagram, order: stabilisation diagram and the chosen order.
+        curves: model label -> (freq (K,) [Hz], FRF (K, Ny, Nu) [m/A]).
+        levels: line levels for the noise / distortion figure, or None.
+        window: dict t_s, y, u, r, output_names, input_names for the time records, or None.
+        true_frf: (L, Ny, Nu) true FRF at the lines, or None (no error figure).
+        line_models: label -> (L, Ny, Nu) models at the lines, for the error figure.
+
+    Returns:
+        Path of index.html.
+    """
+    out = Path(report_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    var = frf.var_total if np.all(np.isfinite(frf.var_total)) else frf.var_noise
+    std = np.sqrt(var) if np.all(np.isfinite(var)) else None
+    sigma_kind = "total (noise + nonlinear)" if var is frf.var_total else "noise"
+    names = dict(input_names=frf.input_names, output_names=frf.output_names)
+    shown: list[tuple[str, str]] = []
+
+    def add(name: str, caption: str, draw) -> None:
+        draw(out / name)
+        shown.append((name, caption))
+
+    models = ", ".join(curves)
+    add("bode_magnitude.png", f"FRF matrix magnitude [dB re 1 m/A], measured ({frf.estimator} estimator, dots) "
+        f"with its +-2 sigma {sigma_kind} band, and {models}.",
+        lambda p: figures.bode_matrix(frf.freq_hz, frf.frf, std, curves, "magnitude", p, **names))
+    add("bode_phase.png", f"FRF matrix phase [deg], measured (dots) and {models}.",
+        lambda p: figures.bode_matrix(frf.freq_hz, frf.frf, std, curves, "phase", p, **names))
+    if true_frf is not None:
+        errs = {"measured": _relative_error(frf.frf, true_frf)}
+        errs.update({label: _relative_error(g, true_frf) for label, g in (line_models or {}).items()})
+        noise = None
+        if std is not None:
+            noise = 2 * np.linalg.norm(std, axis=(1, 2)) / np.linalg.norm(true_frf, axis=(1, 2))
+        add("frf_error.png", "Relative FRF-matrix error per line against the true rig's sampled small-signal model "
+            "(Frobenius norm over the matrix); the dotted line is the measurement's 2 sigma noise level.",
+            lambda p: figures.frf_error(frf.freq_hz, errs, noise, p))
+    if levels is not None:
+        dist = frf.distortion
+        add("noise_distortion.png", "Output line amplitudes (period means) at the excited lines, at the odd and "
+            "even detection lines (where only nonlinear distortion and noise appear) and the noise floor (standard "
+            "deviation of the period mean from the period-to-period scatter).",
+            lambda p: figures.noise_distortion(levels, frf.output_names, p, None if dist is None else dist.odd_db,
+                                               None if dist is None else dist.even_db))
+    add("stabilisation.png", f"Stabilisation diagram (poles of the fits of each order; filled green squares are "
+        f"stable in frequency and damping) over the CMIF (singular values of the measured FRF, grey); the dashed "
+        f"line marks the chosen order {order}.",
+        lambda p: figures.stabilisation(diagram, frf.freq_hz, frf.frf, order, p))
+    add("excitation.png", "Excitation design: line amplitudes of one period per input with its crest factor, "
+        "the unexcited detection lines, and the period in time.",
+        lambda p: figures.excitation(design, p))
+    add("input_sensitivity.png", "Input sensitivity |S_ii| (r -> u) per axis, measured; ISO 14839-3 zones A (< 3), "
+        "B (< 4), C (< 5) and D shaded.",
+        lambda p: figures.input_sensitivity(frf.freq_hz, frf.sensitivity, frf.input_names, p))
+    if window is not None:
+        add("time_records.png", "A short window of the recorded displacements y and currents u (applied) and r "
+            "(excitation) in steady state.",
+            lambda p: figures.time_records(window["t_s"], window["y"], window["u"], window["r"],
+                                           window["output_names"], window["input_names"], p))
+    index = out / "index.html"
+    index.write_text(render_index(summary, shown), encoding="utf-8")
+    return index

@@ -1,0 +1,211 @@
+"""Bring your own rotor: a linear rotor model from a ``.npz`` or ``.mat`` file.
+
+The model replaces the built-in finite-element rotor in both the analytical
+and the true rig (``rotor_file: my_rotor.npz`` in a rig YAML file, or
+``make_rig(..., rotor_import=load_rotor(path))``). It must be free-free: the
+magnets are its only supports. Channel order is the rig's: bearing A x,
+bearing B x, bearing A y, bearing B y, with x and y the bearing axes (turned
+45 deg from the vertical).
+
+Layout 1, state space (keys as written, case-sensitive)::
+
+    A  (n, n)   x' = A x + B f
+    B  (n, 4)   f: forces [N] on the rotor at the bearing planes
+    C  (8, n)   displacements [m]: bearing planes (4), then sensor planes (4)
+    mass_kg     total rotor mass [kg] (scalar)
+    D  (8, 4)   optional, must be zero
+    b_gravity (n,)  optional: x' caused by gravity; default: the bearing
+                forces that give the rigid body gravity's acceleration
+                (exact for the rigid motion, no sag)
+
+Layout 2, second order, M q'' + (D + Omega G) q' + K q = F (any DOF layout,
+e.g. ROSS's ``rotor.M()``, ``rotor.K(0)``, ``rotor.G()`` of a rotor built
+without bearing elements)::
+
+    M, K  (N, N)      mass [kg, kg m^2], stiffness [N/m, ...]
+    D     (N, N)      optional damping [N s/m]; default: the rig's
+                      ``modal_damping_ratio`` on every flexible mode
+    G     (N, N)      optional gyroscopic matrix, times the spin speed [rad/s]
+    bearing_dofs (4,) DOF indices of bearing A x, B x, A y, B y
+    sensor_dofs  (4,) DOF indices of sensor A x, B x, A y, B y
+    x_dofs, y_dofs    optional: every translation DOF along the bearing x
+                      (y) axis; then gravity is the consistent load M u_g and
+                      the mass is computed; otherwise give mass_kg
+    mass_kg           total rotor mass [kg], if x_dofs is not given
+    max_freq_hz       optional: modes kept below this frequency (default 5000)
+
+The second-order model is reduced to its undamped modes below
+``max_freq_hz`` (the rigid ones included).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from scipy import io as sio
+
+from ambid.modal import undamped_modes
+from ambid.rotor_model import GRAVITY_PER_AXIS, RotorModel, rigid_inverse_mass
+
+DEFAULT_MAX_FREQ_HZ = 5000.0
+_VECTOR_KEYS = {"b_gravity", "mass_kg", "bearing_dofs", "sensor_dofs", "x_dofs", "y_dofs", "max_freq_hz"}
+
+
+def _read(path: Path) -> dict[str, np.ndarray]:
+    if not path.exists():
+        raise ValueError(f"rotor file {path} does not exist")
+    if path.suffix == ".npz":
+        with np.load(path, allow_pickle=False) as data:
+            return {k: np.asarray(data[k]) for k in data.files}
+    if path.suffix == ".mat":
+        try:
+            raw = sio.loadmat(path, squeeze_me=False)
+        except NotImplementedError as exc:
+            raise ValueError(f"{path}: MAT v7.3 files are not supported; re-save with save(..., '-v7')") from exc
+        out = {k: np.asarray(v) for k, v in raw.items() if not k.startswith("__")}
+        for key in _VECTOR_KEYS & set(out):  # MATLAB stores vectors and scalars as 2-D
+            out[key] = out[key].ravel()
+        return out
+    raise ValueError(f"rotor file {path}: unknown extension {path.suffix!r}; use .npz or .mat")
+
+
+def _matrix(data: dict, key: str, shape: tuple, what: str) -> np.ndarray:
+    if key not in data:
+        raise ValueError(f"rotor file: key {key!r} ({what}) is missing; see ambid.rotor_import for the layout")
+    arr = np.asarray(data[key], dtype=float)
+    if any(s is not None and s != a for s, a in zip(shape, arr.shape)) or arr.ndim != len(shape):
+        want = tuple("n" if s is None else s for s in shape)
+        raise ValueError(f"rotor file: {key} ({what}) must have shape {want}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"rotor file: {key} contains NaN or inf")
+    return arr
+
+
+def _scalar(data: dict, key: str, what: str) -> float:
+    if key not in data:
+        raise ValueError(f"rotor file: key {key!r} ({what}) is missing; see ambid.rotor_import for the layout")
+    value = float(np.asarray(data[key], dtype=float).ravel()[0])
+    if not (np.isfinite(value) and value > 0):
+        raise ValueError(f"rotor file: {key} must be a positive number, got {value}")
+    return value
+
+
+def _indices(data: dict, key: str, n_dof: int, count: int | None = 4) -> np.ndarray:
+    if key not in data:
+        raise ValueError(f"rotor file: key {key!r} (DOF indices) is missing; see ambid.rotor_import")
+    idx = np.asarray(data[key]).ravel()
+    if idx.dtype.kind == "f" and np.all(idx == np.round(idx)):
+        idx = idx.astype(int)
+    if idx.dtype.kind not in "iu" or (count is not None and idx.size != count) or np.any((idx < 0) | (idx >= n_dof)):
+        need = f"{count} " if count is not None else ""
+        raise ValueError(f"rotor file: {key} must hold {need}integer DOF indices in [0, {n_dof}), got {idx.tolist()}")
+    return idx.astype(int)
+
+
+def _gravity_from_rigid_body(a: np.ndarray, b: np.ndarray, c_bearing: np.ndarray) -> np.ndarray:
+    """b_gravity from bearing forces that give the rigid body gravity's acceleration at both bearings."""
+    probe = RotorModel(a, b, c_bearing, c_bearing, np.zeros(a.shape[0]), 1.0)
+    w = rigid_inverse_mass(probe)
+    if not np.all(np.linalg.eigvalsh(0.5 * (w + w.T)) > 0):
+        raise ValueError("rotor model: no positive rigid-body inverse mass at the bearings; the rotor must be "
+                         "free-free (no bearing or support stiffness in the model)")
+    return b @ np.linalg.solve(w, np.full(4, GRAVITY_PER_AXIS))
+
+
+def rotor_from_state_space(data: dict, source: str = "") -> RotorModel:
+    """RotorModel from layout 1 (module docstring) given as a dict of arrays."""
+    a = np.asarray(data.get("A", np.zeros((0, 0))), dtype=float)
+    n = a.shape[0] if a.ndim == 2 else 0
+    a = _matrix(data, "A", (n, n), "state matrix")
+    b = _matrix(data, "B", (n, 4), "force input at bearings A x, B x, A y, B y")
+    c = _matrix(data, "C", (8, n), "displacements at the 4 bearing then 4 sensor channels")
+    if "D" in data and np.any(np.asarray(data["D"], dtype=float)):
+        raise ValueError("rotor file: D must be zero (a force cannot move the rotor instantly)")
+    mass = _scalar(data, "mass_kg", "total rotor mass")
+    if "b_gravity" in data:
+        b_g = _matrix(data, "b_gravity", (n,), "state derivative caused by gravity")
+    else:
+        b_g = _gravity_from_rigid_body(a, b, c[:4])
+    return RotorModel(a, b, c[:4], c[4:], b_g, mass, source=source)
+
+
+def rotor_from_second_order(data: dict, speed_rad_s: float = 0.0, damping_ratio: float = 0.005,
+                            source: str = "") -> RotorModel:
+    """RotorModel from layout 2 (module docstring): modal reduction of M, K (D, G)."""
+    m = np.asarray(data["M"], dtype=float)
+    n_dof = m.shape[0] if m.ndim == 2 else 0
+    m = _matrix(data, "M", (n_dof, n_dof), "mass matrix")
+    k = _matrix(data, "K", (n_dof, n_dof), "stiffness matrix")
+    i_b = _indices(data, "bearing_dofs", n_dof)
+    i_s = _indices(data, "sensor_dofs", n_dof)
+    f_max = float(np.asarray(data.get("max_freq_hz", DEFAULT_MAX_FREQ_HZ)).ravel()[0])
+    freq, shapes = undamped_modes(m, k)
+    keep = freq < f_max
+    if keep.sum() < 2:
+        raise ValueError(f"rotor file: no modes below max_freq_hz = {f_max} Hz")
+    freq, phi = freq[keep], shapes[:, keep]
+    r = freq.size
+    w = 2 * np.pi * freq
+    if "D" in data:
+        damp = phi.T @ _matrix(data, "D", (n_dof, n_dof), "damping matrix") @ phi
+    else:
+        damp = np.diag(2 * damping_ratio * w)
+    if "G" in data:
+        damp = damp + speed_rad_s * (phi.T @ _matrix(data, "G", (n_dof, n_dof), "gyroscopic matrix") @ phi)
+    a = np.block([[np.zeros((r, r)), np.eye(r)], [-np.diag(w * w), -damp]])
+    b = np.vstack([np.zeros((r, 4)), phi[i_b].T])
+    c_b = np.hstack([phi[i_b], np.zeros((4, r))])
+    c_s = np.hstack([phi[i_s], np.zeros((4, r))])
+    if "x_dofs" in data or "y_dofs" in data:
+        u_g = np.zeros(n_dof)
+        u_g[_indices(data, "x_dofs", n_dof, None)] = GRAVITY_PER_AXIS
+        u_g[_indices(data, "y_dofs", n_dof, None)] = GRAVITY_PER_AXIS
+        b_g = np.concatenate([np.zeros(r), phi.T @ (m @ u_g)])
+        u_x = np.zeros(n_dof)
+        u_x[_indices(data, "x_dofs", n_dof, None)] = 1.0
+        mass = float(u_x @ m @ u_x)
+    else:
+        b_g = _gravity_from_rigid_body(a, b, c_b)
+        mass = _scalar(data, "mass_kg", "total rotor mass (or give x_dofs and y_dofs)")
+    flexible = freq[freq >= 1.0]
+    return RotorModel(a, b, c_b, c_s, b_g, mass, flexible, source)
+
+
+def load_rotor(path: str | Path, speed_rpm: float = 0.0, damping_ratio: float = 0.005) -> RotorModel:
+    """Load a user rotor model (layout by keys: "M" present -> second order, else state space).
+
+    Args:
+        path: ``.npz`` or ``.mat`` file.
+        speed_rpm: spin speed for the gyroscopic matrix G (second order only) [rpm].
+        damping_ratio: modal damping of the flexible modes when no D is given
+            (second order only) [-].
+
+    Returns:
+        RotorModel with ``source = "file:<path>"``.
+
+    Raises:
+        ValueError naming the missing or malformed key.
+    """
+    path = Path(path)
+    data = _read(path)
+    source = f"file:{path}"
+    if "M" in data:
+        model = rotor_from_second_order(data, speed_rpm * np.pi / 30.0, damping_ratio, source)
+    else:
+        model = rotor_from_state_space(data, source)
+    _gravity_from_rigid_body(model.a, model.b, model.c_bearing)  # free-free check
+    return model
+
+
+def save_rotor(path: str | Path, model: RotorModel) -> None:
+    """Write a RotorModel in layout 1 (``.npz`` or ``.mat``), so ``load_rotor`` reads it back."""
+    path = Path(path)
+    data = {"A": model.a, "B": model.b, "C": np.vstack([model.c_bearing, model.c_sensor]),
+            "mass_kg": np.array(model.mass_kg), "b_gravity": model.b_gravity}
+    if path.suffix == ".npz":
+        np.savez(path, **data)
+    elif path.suffix == ".mat":
+        sio.savemat(path, data)
+    else:
+        raise ValueError(f"save_rotor: unknown extension {path.suffix!r}; use .npz or .mat")

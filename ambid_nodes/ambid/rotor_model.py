@@ -1,0 +1,134 @@
+"""The rotor as a linear state-space block: bearing forces in, displacements out.
+
+Every rotor the rig can carry (the built-in finite-element rotor, or a model a
+user brings, see :mod:`ambid.rotor_import`) is reduced to one
+:class:`RotorModel`::
+
+    x' = A x + B f + b_gravity
+    q_bearing = C_bearing x,   q_sensor = C_sensor x
+
+f (4,) are the lateral forces [N] on the rotor at the bearing planes, q the
+lateral displacements [m] at the bearing and sensor planes, all in the rig's
+channel order (bearing A x, bearing B x, bearing A y, bearing B y; the x and
+y axes are the bearing axes, turned 45 deg from the vertical, so gravity
+acts on both with -g / sqrt(2)). The rotor must be free-free: the magnets
+(and, on contact, the backup bearings) are its only supports.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ambid.fem_rotor import DOF_X, DOF_Y, RotorGeometry, assemble_rotor, dof_index, node_at, rigid_body_properties
+from ambid.modal import modal_state_space, plane_modes
+
+GRAVITY = 9.81  # standard gravity [m/s^2]
+# gravity per bearing axis: both axes are turned 45 deg from the vertical
+GRAVITY_PER_AXIS = -GRAVITY / np.sqrt(2.0)
+
+
+@dataclass(frozen=True)
+class RotorModel:
+    """Linear free-free rotor, force at the bearings -> displacement (module docstring).
+
+    Attributes:
+        a: (n, n) state matrix.
+        b: (n, 4) force input [N] at the bearing planes, AXES order.
+        c_bearing: (4, n) displacement [m] at the bearing planes.
+        c_sensor: (4, n) displacement [m] at the sensor planes.
+        b_gravity: (n,) state derivative caused by gravity (both 45-deg axes).
+        mass_kg: total rotor mass [kg].
+        flexible_freq_hz: free-free bending frequencies kept in the model,
+            one per plane mode at standstill [Hz] (empty if unknown).
+        source: where the model comes from (for reports).
+    """
+
+    a: np.ndarray
+    b: np.ndarray
+    c_bearing: np.ndarray
+    c_sensor: np.ndarray
+    b_gravity: np.ndarray
+    mass_kg: float
+    flexible_freq_hz: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        a = np.asarray(self.a, dtype=float)
+        n = a.shape[0] if a.ndim == 2 else -1
+        shapes = {"a": (n, n), "b": (n, 4), "c_bearing": (4, n), "c_sensor": (4, n), "b_gravity": (n,)}
+        for name, shape in shapes.items():
+            arr = np.asarray(getattr(self, name), dtype=float)
+            if arr.shape != shape:
+                raise ValueError(f"RotorModel.{name} must have shape {shape} (n = states, 4 = bearing axes "
+                                 f"A x, B x, A y, B y), got {arr.shape}")
+            if not np.all(np.isfinite(arr)):
+                raise ValueError(f"RotorModel.{name} contains NaN or inf")
+            object.__setattr__(self, name, arr)
+        if not (np.isfinite(self.mass_kg) and self.mass_kg > 0):
+            raise ValueError(f"RotorModel.mass_kg must be > 0, got {self.mass_kg!r}")
+        object.__setattr__(self, "flexible_freq_hz", np.asarray(self.flexible_freq_hz, dtype=float).ravel())
+
+    @property
+    def n_states(self) -> int:
+        return self.a.shape[0]
+
+    def bearing_velocity_map(self) -> np.ndarray:
+        """(4, n) map from the state to the bearing-plane velocities [m/s] (C_bearing A; C_bearing B = 0)."""
+        return self.c_bearing @ self.a
+
+
+def fem_rotor_model(geometry: RotorGeometry, bearing_z_m: tuple[float, float], sensor_z_m: tuple[float, float],
+                    n_bending: int, damping_ratio: float, speed_rad_s: float = 0.0) -> RotorModel:
+    """Finite-element rotor reduced to its rigid and first bending modes.
+
+    Args:
+        geometry: shaft, stacks and disks; ``stations_m`` must contain the
+            bearing and sensor positions.
+        bearing_z_m: bearing A, B positions from the left shaft end [m].
+        sensor_z_m: sensor A, B positions from the left shaft end [m].
+        n_bending: bending modes kept per plane (besides the 2 rigid ones).
+        damping_ratio: modal damping of the bending modes [-].
+        speed_rad_s: spin speed Omega [rad/s] (gyroscopic coupling).
+
+    Returns:
+        RotorModel with 4 (2 + n_bending) states; gravity is the consistent
+        distributed load M g (so the rotor also sags).
+    """
+    rotor = assemble_rotor(geometry)
+    modal = plane_modes(rotor.mass, rotor.stiffness, rotor.gyroscopic, n_flexible=int(n_bending))
+    if modal.n_rigid != 2:
+        raise ValueError(f"the rotor must be free-free (2 rigid modes per plane), found {modal.n_rigid}")
+    z = rotor.node_z_m
+    nodes_b = [node_at(z, p) for p in bearing_z_m]
+    nodes_s = [node_at(z, p) for p in sensor_z_m]
+
+    def axes_dofs(nodes: list[int]) -> list[int]:
+        return [int(dof_index(nodes[0], DOF_X)), int(dof_index(nodes[1], DOF_X)),
+                int(dof_index(nodes[0], DOF_Y)), int(dof_index(nodes[1], DOF_Y))]
+
+    zeta = np.where(modal.freq_hz > 0, damping_ratio, 0.0)
+    a, b, c = modal_state_space(modal, axes_dofs(nodes_b), axes_dofs(nodes_b) + axes_dofs(nodes_s),
+                                speed_rad_s=speed_rad_s, damping_ratio=zeta)
+    # consistent gravity load M u_g, u_g = g/sqrt(2) on every x and y translation
+    u_g = np.zeros(rotor.n_dof)
+    all_nodes = np.arange(z.size)
+    u_g[dof_index(all_nodes, DOF_X)] = GRAVITY_PER_AXIS
+    u_g[dof_index(all_nodes, DOF_Y)] = GRAVITY_PER_AXIS
+    r = modal.shapes.shape[1]
+    b_g = np.concatenate([np.zeros(r), modal.shapes.T @ (rotor.mass @ u_g)])
+    props = rigid_body_properties(rotor)
+    return RotorModel(a, b, c[:4], c[4:], b_g, props.mass_kg, modal.freq_hz[modal.n_rigid:],
+                      "finite-element rotor (ambid.fem_rotor), modal reduction")
+
+
+def rigid_inverse_mass(model: RotorModel, probe_hz: float = 1e-3) -> np.ndarray:
+    """Rigid-body inverse mass W (4, 4) [1/kg]: bearing accelerations per bearing force.
+
+    The low-frequency limit of s^2 C_bearing (s I - A)^-1 B of a free-free
+    rotor, evaluated at ``probe_hz`` (far below any bending mode).
+    """
+    s = 2j * np.pi * probe_hz
+    g = model.c_bearing @ np.linalg.solve(s * np.eye(model.n_states) - model.a, model.b)
+    return (s * s * g).real

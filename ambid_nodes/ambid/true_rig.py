@@ -1,0 +1,284 @@
+"""The "true" rig the simulator runs: chapter 2's model plus what reality adds.
+
+Against :func:`ambid.rig.analytical_model` it adds
+
+* magnets: the nonlinear differential force (eq. 2.14) of the *true* magnet
+  (ki, ks off by ``true_ki_factor``, ``true_ks_factor``), linearised at the
+  levitated operating point, where the gravity-carrying control current
+  raises ks by (1 + ic0^2 / ib^2);
+* a housing mode: each bearing stator sits on a pedestal (mass on springs,
+  ``housing_freq_hz``) that takes the reaction of the magnet and contact
+  forces; the sensors, on the pedestals too, measure rotor minus pedestal;
+* sensors: first-order low-pass (``sensor_bandwidth_hz``), gain, noise, an
+  optional cubic probe-curve error;
+* an extra input delay ``extra_delay_s`` (ADC and PWM update, <= 1 sample);
+* backup bearings (in :mod:`ambid.simulator`).
+
+Continuous affine model (:class:`TruePlant`), states
+x = [rotor (n_r), pedestal displacement h (4) [m], pedestal velocity (4)
+[m/s], coil control current i (4) [A], sensor filter s (4) [m]]::
+
+    x' = A x + B_u u(t - tau) + B_f f + B_s r_s + b_c
+    y  = C_y x (+ noise)
+
+u the current reference [A]; f extra forces on the rotor at the bearing
+planes [N] (contact, and the magnets' deviation from their affine
+linearisation), reacting on the pedestals; r_s the sensors' static-curve
+deviation [m]; b_c gravity and the affine magnets' constant force.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import linalg, signal
+
+from ambid.magnet import MagnetPair
+from ambid.rig import CURRENT_NAMES, DISPLACEMENT_NAMES, Rig
+from ambid.statespace import StateSpace, series
+
+_NEWTON_TOL = 1e-13
+
+
+@dataclass(frozen=True)
+class TruePlant:
+    """Continuous affine model of the true rig (module docstring), magnets linearised per axis as
+    F = force_const + ki i + ks g.
+
+    Attributes:
+        a, b_u, b_f, b_s: (n, n), (n, 4) x 3.
+        b_c: (n,) constant drive: gravity and the magnets' affine constant.
+        c_y: (4, n) measured output y [m] (without noise).
+        c_gap: (4, n) rotor minus stator displacement at the bearing planes [m].
+        c_current: (4, n) coil control currents [A].
+        c_sensor: (4, n) rotor minus pedestal displacement at the sensor planes [m].
+        ki, ks, force_const: (4,) affine magnet law per axis [N/A, N/m, N].
+        delay_s: input delay tau [s].
+        n_rotor: rotor states (the first n_rotor states).
+    """
+
+    a: np.ndarray
+    b_u: np.ndarray
+    b_f: np.ndarray
+    b_s: np.ndarray
+    b_c: np.ndarray
+    c_y: np.ndarray
+    c_gap: np.ndarray
+    c_current: np.ndarray
+    c_sensor: np.ndarray
+    ki: np.ndarray
+    ks: np.ndarray
+    force_const: np.ndarray
+    delay_s: float
+    n_rotor: int
+
+    @property
+    def n_states(self) -> int:
+        return self.a.shape[0]
+
+    def gap_velocity_map(self) -> np.ndarray:
+        """(4, n): rotor minus stator velocity at the bearing planes, C_gap A [m/s]."""
+        return self.c_gap @ self.a
+
+
+@dataclass(frozen=True)
+class OperatingPoint:
+    """Levitated equilibrium of the true rig: sensors read zero (what integral action settles to).
+
+    Attributes:
+        state: (n,) state of the :class:`TruePlant`.
+        current_a: (4,) control currents ic0 = current references [A].
+        gap_m: (4,) rotor minus stator displacement at the bearings [m].
+        force_n: (4,) magnet forces [N].
+        ki_n_per_a, ks_n_per_m: (4,) slopes of eq. 2.14 there.
+    """
+
+    state: np.ndarray
+    current_a: np.ndarray
+    gap_m: np.ndarray
+    force_n: np.ndarray
+    ki_n_per_a: np.ndarray
+    ks_n_per_m: np.ndarray
+
+
+def true_plant(rig: Rig, ki: np.ndarray | None = None, ks: np.ndarray | None = None,
+               force_const: np.ndarray | None = None) -> TruePlant:
+    """Affine model of the true rig with the magnet law F = force_const + ki i + ks g per axis.
+
+    Args:
+        rig: rig parameters.
+        ki, ks: (4,) slopes [N/A], [N/m]; None takes the true magnet's at the
+            centre (eqs. 2.16-2.17 times the tolerance factors).
+        force_const: (4,) [N]; None takes 0.
+    """
+    rotor = rig.rotor_model()
+    mag = rig.true_magnet
+    ki = np.full(4, mag.ki) if ki is None else np.asarray(ki, dtype=float)
+    ks = np.full(4, mag.ks) if ks is None else np.asarray(ks, dtype=float)
+    fc = np.zeros(4) if force_const is None else np.asarray(force_const, dtype=float)
+    v = rig.values
+    nr = rotor.n_states
+    n = nr + 16
+    r_, h_, hv_, i_, s_ = slice(0, nr), slice(nr, nr + 4), slice(nr + 4, nr + 8), slice(nr + 8, nr + 12), \
+        slice(nr + 12, nr + 16)
+    mh = v["housing_mass_kg"]
+    wh = 2 * np.pi * v["housing_freq_hz"]
+    kh, ch = mh * wh * wh, 2 * v["housing_damping_ratio"] * wh * mh
+    tau = 1.0 / (2 * np.pi * rig.current_loop_bandwidth_hz)
+    wc = 2 * np.pi * v["sensor_bandwidth_hz"]
+    eye = np.eye(4)
+    dki, dks = np.diag(ki), np.diag(ks)
+    # gap g = C_b x_r - h; magnet force on the rotor F = fc + ki i + ks g, on the pedestal -F
+    c_gap = np.zeros((4, n))
+    c_gap[:, r_], c_gap[:, h_] = rotor.c_bearing, -eye
+    c_sensor = np.zeros((4, n))
+    c_sensor[:, r_], c_sensor[:, h_] = rotor.c_sensor, -eye
+    c_current = np.zeros((4, n))
+    c_current[:, i_] = eye
+    force_map = dks @ c_gap + dki @ c_current  # F - fc as a function of x
+    a = np.zeros((n, n))
+    a[r_, :] = rotor.b @ force_map
+    a[r_, r_] += rotor.a
+    a[h_, hv_] = eye
+    a[hv_, :] = -force_map / mh
+    a[hv_, h_] += -kh / mh * eye
+    a[hv_, hv_] += -ch / mh * eye
+    a[i_, i_] = -eye / tau
+    a[s_, :] = wc * c_sensor
+    a[s_, s_] += -wc * eye
+    b_u = np.zeros((n, 4))
+    b_u[i_] = eye / tau
+    b_f = np.zeros((n, 4))
+    b_f[r_], b_f[hv_] = rotor.b, -eye / mh
+    b_s = np.zeros((n, 4))
+    b_s[s_] = wc * eye
+    b_c = b_f @ fc
+    b_c[r_] += rotor.b_gravity
+    c_y = np.zeros((4, n))
+    c_y[:, s_] = v["sensor_gain"] * eye
+    return TruePlant(a, b_u, b_f, b_s, b_c, c_y, c_gap, c_current, c_sensor, ki, ks, fc,
+                     float(v["extra_delay_s"]), nr)
+
+
+def magnet_force_and_slopes(mag: MagnetPair, current_a: np.ndarray, gap_m: np.ndarray,
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(F, dF/di, dF/dg) of eq. 2.14 per axis, each shaped like ``current_a`` [N, N/A, N/m]."""
+    return mag.force(current_a, gap_m), *mag.slopes(current_a, gap_m)
+
+
+def operating_point(rig: Rig) -> OperatingPoint:
+    """Levitated equilibrium of the true rig with the nonlinear magnets: y = 0, x' = 0.
+
+    Newton's method on [A x + B_u u + B_f r(x) + b_c = 0, C_y x = 0] for the
+    state x and the static current reference u (= ic0, unit amplifier gain),
+    with r the true magnets' deviation from their linearisation at the centre.
+    """
+    mag = rig.true_magnet
+    p = true_plant(rig)
+    n = p.n_states
+    z = np.zeros(n + 4)
+    jac = np.zeros((n + 4, n + 4))
+    jac[:n, n:] = p.b_u
+    jac[n:, :n] = p.c_y
+    for _ in range(50):
+        x, u = z[:n], z[n:]
+        i, g = p.c_current @ x, p.c_gap @ x
+        f, dfdi, dfdg = magnet_force_and_slopes(mag, i, g)
+        res = np.concatenate([p.a @ x + p.b_u @ u + p.b_f @ (f - p.ki * i - p.ks * g) + p.b_c, p.c_y @ x])
+        jac[:n, :n] = p.a + p.b_f @ ((dfdi - p.ki)[:, None] * p.c_current + (dfdg - p.ks)[:, None] * p.c_gap)
+        step = linalg.solve(jac, -res)
+        z = z + step
+        if np.max(np.abs(step[:n] @ p.c_gap.T)) < _NEWTON_TOL and np.max(np.abs(step[n:])) < 1e-12:
+            break
+    else:
+        raise ValueError("operating_point: Newton's method did not converge; the magnets cannot carry the "
+                         "rotor (check bias_current_a, current_limit_a and the rotor mass)")
+    x, u = z[:n], z[n:]
+    i, g = p.c_current @ x, p.c_gap @ x
+    if np.any(np.abs(u) > rig.current_limit_a):
+        raise ValueError(f"operating_point: carrying the rotor needs control currents {u} A, beyond "
+                         f"current_limit_a = {rig.current_limit_a} A")
+    f, dfdi, dfdg = magnet_force_and_slopes(mag, i, g)
+    return OperatingPoint(x, u, g, f, dfdi, dfdg)
+
+
+def levitated_plant(rig: Rig) -> tuple[TruePlant, OperatingPoint]:
+    """The true rig's affine model linearised at the levitated operating point, and that point."""
+    op = operating_point(rig)
+    fc = op.force_n - op.ki_n_per_a * op.current_a - op.ks_n_per_m * op.gap_m
+    return true_plant(rig, op.ki_n_per_a, op.ks_n_per_m, fc), op
+
+
+def pade_delay(n_channels: int, delay_s: float, order: int = 2) -> StateSpace:
+    """Continuous Pade approximation of exp(-s delay) on each channel (identity for delay 0)."""
+    if delay_s <= 0:
+        return StateSpace(np.zeros((0, 0)), np.zeros((0, n_channels)), np.zeros((n_channels, 0)),
+                          np.eye(n_channels))
+    # [order/order] Pade: coefficients of exp(-x) ~ N(x) / N(-x)
+    from math import factorial
+
+    coef = [factorial(2 * order - k) * factorial(order) / (factorial(2 * order) * factorial(k)
+                                                            * factorial(order - k)) for k in range(order + 1)]
+    num = [c * (-delay_s) ** k for k, c in enumerate(coef)][::-1]
+    den = [c * delay_s ** k for k, c in enumerate(coef)][::-1]
+    a1, b1, c1, d1 = signal.tf2ss(num, den)
+    a1, t = linalg.matrix_balance(a1, permute=False)  # companion entries span 1/tau^order: rescale
+    b1, c1 = linalg.solve(t, b1), c1 @ t
+    eye = np.eye(n_channels)
+    return StateSpace(np.kron(eye, a1), np.kron(eye, b1), np.kron(eye, c1), np.kron(eye, d1))
+
+
+def zoh_blocks(a: np.ndarray, b: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """(exp(A t), int_0^t exp(A s) ds B) via one augmented matrix exponential."""
+    n, m = b.shape
+    aug = np.zeros((n + m, n + m))
+    aug[:n, :n], aug[:n, n:] = a, b
+    e = linalg.expm(aug * t)
+    return e[:n, :n], e[:n, n:]
+
+
+def delayed_zoh(a: np.ndarray, b: np.ndarray, dt: float, delay_s: float) -> tuple[np.ndarray, np.ndarray,
+                                                                                  np.ndarray]:
+    """Exact discretisation of x' = A x + B u(t - tau) with u held per sample, 0 <= tau <= dt.
+
+    Returns:
+        (Phi, Gamma1, Gamma0) with x[k+1] = Phi x[k] + Gamma1 u[k] + Gamma0 u[k-1].
+    """
+    if not 0 <= delay_s <= dt * (1 + 1e-9):
+        raise ValueError(f"delayed_zoh: delay {delay_s} s must lie in [0, dt = {dt}] s")
+    delay_s = min(delay_s, dt)
+    phi, _ = zoh_blocks(a, b, dt)
+    e_rest, g1 = zoh_blocks(a, b, dt - delay_s)
+    _, g_tau = zoh_blocks(a, b, delay_s)
+    return phi, g1, e_rest @ g_tau
+
+
+def true_linear_model(rig: Rig, discrete: bool = False, pade_order: int = 2) -> StateSpace:
+    """Small-signal model of the true rig at the levitated operating point: u [A] -> y [m].
+
+    The reference every identification accuracy figure is measured against.
+
+    Args:
+        rig: rig parameters.
+        discrete: False gives the continuous model with the extra delay as a
+            Pade approximation (``pade_order``); True gives the exact
+            zero-order-hold model at rig.dt (the delay exact, 4 extra states
+            u[k-1]) -- what a sampled measurement of the simulator sees.
+        pade_order: order of the delay approximation (continuous only).
+
+    Returns:
+        StateSpace with 4 inputs (CURRENT_NAMES), 4 outputs (DISPLACEMENT_NAMES), D = 0.
+    """
+    p, _ = levitated_plant(rig)
+    names = dict(input_names=CURRENT_NAMES, output_names=DISPLACEMENT_NAMES, input_units=("A",) * 4,
+                 output_units=("m",) * 4)
+    if not discrete:
+        plant = StateSpace(p.a, p.b_u, p.c_y, np.zeros((4, 4)))
+        return series(pade_delay(4, p.delay_s, pade_order), plant)._replace(**names)
+    phi, g1, g0 = delayed_zoh(p.a, p.b_u, rig.dt, p.delay_s)
+    n = p.n_states
+    a = np.block([[phi, g0], [np.zeros((4, n + 4))]])
+    b = np.vstack([g1, np.eye(4)])
+    c = np.hstack([p.c_y, np.zeros((4, 4))])
+    return StateSpace(a, b, c, np.zeros((4, 4)), rig.dt, **names)

@@ -1,0 +1,96 @@
+"""What a node receives, per topic: every message received is either accepted or rejected with its reason.
+
+Every subscription of an ambid node is raw (CDR bytes) and decoded here, so a
+message that does not deserialize is counted and reported instead of being
+dropped silently by rclpy, and a handler that raises cannot stop the node's
+executor. Handlers signal a bad message by raising
+:class:`~ambid_nodes.conversions.BadMessage`; any other exception is a bug,
+counted apart (``errors``) and reported as an ERROR event, and the message
+counts as rejected.
+
+The counters are reported in every node's ``status`` (``keys``/``values``
+``received:<topic>``, ``accepted:<topic>``, ``rejected:<topic>``, and
+``handler_errors`` when there were any); ``received == accepted + rejected``
+holds per topic at any moment between callbacks.
+"""
+
+from __future__ import annotations
+
+import collections
+from typing import Callable
+
+from rclpy.node import Node
+
+from ambid_nodes.conversions import BadMessage, decode_message
+
+
+class Intake:
+    """Per-topic counters of one node and its raw, decoding subscriptions.
+
+    Args:
+        node: the node that subscribes.
+        on_reject: ``on_reject(topic, why)`` logs and reports one rejected message
+            (the node's event conventions); called once per rejected message.
+        on_error: ``on_error(topic, why)`` reports a handler bug (an ERROR event).
+    """
+
+    def __init__(self, node: Node, on_reject: Callable[[str, str], None],
+                 on_error: Callable[[str, str], None]) -> None:
+        self.node = node
+        self.on_reject = on_reject
+        self.on_error = on_error
+        self.received: collections.Counter[str] = collections.Counter()
+        self.accepted: collections.Counter[str] = collections.Counter()
+        self.rejected: collections.Counter[str] = collections.Counter()
+        self.errors = 0
+
+    def subscribe(self, msg_type, topic: str, handler: Callable, qos_profile):
+        """A raw subscription whose messages are decoded and handed to ``handler(msg)``.
+
+        ``handler`` raises BadMessage to reject a message; returning normally accepts it.
+        """
+        def on_raw(data: bytes) -> None:
+            self.received[topic] += 1
+            try:
+                handler(decode_message(data, msg_type, topic))
+            except BadMessage as exc:
+                self.reject(topic, str(exc))
+                return
+            except Exception as exc:  # noqa: BLE001 - a bug must not stop the node; it is reported
+                self.errors += 1
+                self.reject(topic, f"{topic}: the node failed to handle the message ({type(exc).__name__}: {exc})",
+                            error=True)
+                return
+            self.accepted[topic] += 1
+
+        return self.node.create_subscription(msg_type, topic, on_raw, qos_profile, raw=True)
+
+    # for hand-written raw handlers (the lock-step loop): count, then accept or reject exactly once
+    def count(self, topic: str) -> None:
+        self.received[topic] += 1
+
+    def accept(self, topic: str) -> None:
+        self.accepted[topic] += 1
+
+    def reject(self, topic: str, why: str, error: bool = False) -> None:
+        self.rejected[topic] += 1
+        (self.on_error if error else self.on_reject)(topic, why)
+
+    @property
+    def total_received(self) -> int:
+        return sum(self.received.values())
+
+    @property
+    def total_rejected(self) -> int:
+        return sum(self.rejected.values())
+
+    def figures(self) -> dict:
+        """``{"received:<topic>": n, "accepted:<topic>": n, "rejected:<topic>": n, ...}`` for status."""
+        out: dict = {}
+        for topic in sorted(self.received):
+            out[f"received:{topic}"] = self.received[topic]
+            out[f"accepted:{topic}"] = self.accepted[topic]
+            out[f"rejected:{topic}"] = self.rejected[topic]
+        if self.errors:
+            out["handler_errors"] = self.errors
+        return out

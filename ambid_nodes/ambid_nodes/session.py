@@ -1,0 +1,256 @@
+"""An identification session on the ROS graph: every node, one experiment, recorded.
+
+Composed layout (the default): recorder, plant_sim, excitation_generator,
+frf_consumer and position_controller as nodes of one process on one
+EventsExecutor. The experiment is designed here, handed to the generator
+through its ``start_experiment`` service before the loop starts, and placed
+at a fixed sample index after lift-off, so a session is reproducible for a
+seed. The loop starts when the controller joins, after the recorder and the
+consumer are subscribed, so nothing of the experiment is missed.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from ambid.excitation import ExcitationDesign
+from ambid.rig import load_rig, make_rig
+from ambid_nodes.commands.design import build_design
+from ambid_nodes.graph import DEFAULT_NAMESPACE, session_domain_id
+
+LIFT_OFF_S = 0.5  # levitate and settle before the experiment starts
+
+
+@dataclass
+class SessionConfig:
+    """What to run. Defaults: the main job of ``ambid identify``."""
+
+    out_dir: Path = Path("identify")
+    kind: str = "multisine"
+    band_hz: tuple[float, float] = (10.0, 1000.0)
+    resolution_hz: float = 5.0
+    peak_current_a: float = 0.5
+    periods: int = 4
+    realisations: int = 2
+    transient_periods: int = 3
+    grid: str = "random_odd"
+    mimo: str = "orthogonal"
+    seed: int = 1
+    rig_file: str = ""
+    nonlinear_magnets: bool = True
+    estimator: str = "indirect"
+    namespace: str = DEFAULT_NAMESPACE
+    progress: bool = True
+    extra: dict = field(default_factory=dict)
+
+    def design(self, fs_hz: float) -> ExcitationDesign:
+        return build_design(self.kind, self.band_hz, self.resolution_hz, fs_hz, peak_current_a=self.peak_current_a,
+                            n_periods=self.periods, n_realisations=self.realisations,
+                            n_transient_periods=self.transient_periods,
+                            grid=self.grid if self.kind == "multisine" else "",
+                            mimo=self.mimo if self.kind in ("multisine",) else "", seed=self.seed)
+
+
+class ProgressBar:
+    """One terminal line: simulated time, periods done, current FRF noise level."""
+
+    def __init__(self, enabled: bool, stream=sys.stderr) -> None:
+        self.enabled = enabled
+        self.stream = stream
+        self.last = 0.0
+
+    def show(self, fraction: float, text: str, force: bool = False) -> None:
+        now = time.monotonic()
+        if not self.enabled or (not force and now - self.last < 0.25):
+            return
+        self.last = now
+        n = 30
+        done = int(round(max(0.0, min(1.0, fraction)) * n))
+        self.stream.write(f"\r[{'#' * done}{'.' * (n - done)}] {100 * fraction:5.1f}% {text}\x1b[K")
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.enabled:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def run_session_composed(cfg: SessionConfig) -> dict:
+    """Run the whole graph in this process; returns the run's facts (no offline analysis)."""
+    import rclpy
+    from ambid_msgs.srv import StartExperiment
+    from rclpy.experimental import EventsExecutor
+    from rclpy.parameter import Parameter
+
+    from ambid_nodes.excitation_generator import ExcitationGenerator
+    from ambid_nodes.frf_consumer import FrfConsumer
+    from ambid_nodes.plant_sim import PlantSim
+    from ambid_nodes.position_controller import PositionController
+    from ambid_nodes.recorder import Recorder
+
+    rig = load_rig(cfg.rig_file) if cfg.rig_file else make_rig()
+    fs = 1.0 / rig.dt
+    design = cfg.design(fs)
+    start_index = int(round(LIFT_OFF_S * fs))
+    total = start_index + design.total_samples + 1000  # one block of tail so the last period is measured
+    cfg.out_dir.mkdir(parents=True, exist_ok=True)
+    mcap_path = cfg.out_dir / "session.mcap"
+
+    def params(d: dict) -> list:
+        return [Parameter(k, value=v) for k, v in d.items()]
+
+    rig_param = {"rig_file": cfg.rig_file} if cfg.rig_file else {}
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=session_domain_id())
+    executor = EventsExecutor(context=context)
+    nodes = []
+    bar = ProgressBar(cfg.progress)
+    wall0 = time.perf_counter()
+
+    def add(node):
+        nodes.append(node)
+        executor.add_node(node)
+        return node
+
+    def spin_until(pred, timeout_s: float, what: str) -> None:
+        end = time.monotonic() + timeout_s
+        while not pred():
+            if time.monotonic() > end:
+                raise RuntimeError(f"identify: timed out after {timeout_s:g} s waiting for {what}")
+            executor.spin_once(timeout_sec=0.05)
+
+    try:
+        ns = dict(namespace=cfg.namespace, context=context)
+        recorder = add(Recorder(**ns, parameter_overrides=params({
+            "output": str(mcap_path), "overwrite": True,
+            "session_facts": json.dumps({"session": "identify", "config": _jsonable(cfg)})})))
+        plant = add(PlantSim(**ns, parameter_overrides=params({
+            "sim_seconds": total / fs, "seed": cfg.seed, "nonlinear_magnets": cfg.nonlinear_magnets, **rig_param})))
+        generator = add(ExcitationGenerator(**ns, parameter_overrides=params({"start_margin": start_index,
+                                                                              **rig_param})))
+        consumer = add(FrfConsumer(**ns, parameter_overrides=params({"estimator": cfg.estimator})))
+        # the recorder and the consumer must hear the first measurement block
+        spin_until(lambda: plant.pub_block.get_subscription_count() >= 3, 30, "recorder, consumer and generator")
+        spin_until(lambda: generator.plant_known, 30, "the plant description at the generator")
+        client = nodes[0].create_client(StartExperiment, "start_experiment")
+        spin_until(client.service_is_ready, 30, "the start_experiment service")
+        future = client.call_async(StartExperiment.Request(start_index=start_index,
+                                                           design_json=json.dumps(design.to_dict())))
+        spin_until(future.done, 30, "the start_experiment answer")
+        answer = future.result()
+        if not answer.accepted:
+            raise ValueError(f"identify: the excitation generator refused the experiment: {answer.message}")
+        add(PositionController(**ns, parameter_overrides=params(rig_param)))
+        while not plant.finished.done():
+            executor.spin_until_future_complete(plant.finished, timeout_sec=0.25)
+            k = plant.k
+            st = _consumer_text(consumer)
+            rate = k / max(time.perf_counter() - wall0, 1e-9)
+            bar.show(k / total, f"sim {k / fs:6.2f}/{total / fs:.2f} s  {rate / 1000:5.1f}k samples/s  {st}")
+        bar.show(1.0, "simulation done, closing the recording", force=True)
+        bar.close()
+        plant_summary = plant.finished.result()
+        # let the consumer and the recorder take the last blocks
+        spin_until(lambda: answer.experiment_id in consumer.results, 30, "the final FRF estimate")
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.05)
+        rec = recorder.close()
+        wall = time.perf_counter() - wall0
+        return {
+            "experiment_id": answer.experiment_id,
+            "start_index": answer.start_index,
+            "plant": plant_summary,
+            "recorder": rec,
+            "live_frf": _live_figures(consumer.results[answer.experiment_id]),
+            "wall_s": wall,
+            "simulated_s": plant_summary["simulated_s"],
+            "samples_per_wall_s": plant_summary["samples"] / wall,
+            "loop_samples_per_wall_s": plant_summary["samples_per_wall_s"],
+            "layout": "composed",
+            "design": design,
+            "mcap_path": str(mcap_path),
+        }
+    finally:
+        executor.shutdown()
+        for n in nodes:
+            n.destroy_node()
+        rclpy.shutdown(context=context)
+
+
+def _consumer_text(consumer) -> str:
+    f = consumer.figures()
+    if not f:
+        return "waiting for the experiment"
+    noise = f.get("relative_noise_std")
+    noise_txt = f"  FRF noise {100 * noise:.2g} %" if noise is not None else ""
+    return f"periods {f['periods_done']}/{f['periods']}{noise_txt}"
+
+
+def _live_figures(result) -> dict:
+    return {"relative_noise_std": float(result.relative_noise_std), "periods": int(result.n_periods),
+            "realisations": int(result.n_realisations), "iso_zone": result.iso_zone,
+            "sensitivity_peak": [float(v) for v in result.sensitivity_peak]}
+
+
+def _jsonable(cfg: SessionConfig) -> dict:
+    d = asdict(cfg)
+    d["out_dir"] = str(cfg.out_dir)
+    return d
+
+
+def run_identify(cfg: SessionConfig) -> dict:
+    """The whole job: the recorded session on the graph, then the offline identification of it.
+
+    Writes ``out_dir/session.mcap``, ``out_dir/summary.json`` and ``out_dir/report/``.
+    """
+    from ambid.identification import identify_session
+
+    run = run_session_composed(cfg)
+    design: ExcitationDesign = run.pop("design")
+    offline = identify_session(run["mcap_path"], cfg.out_dir, estimator=cfg.estimator)
+    rec = run["recorder"]
+    summary = {
+        "excitation": {
+            "kind": design.kind, "multi_input": cfg.mimo if design.kind == "multisine" else None,
+            "grid": cfg.grid if design.kind == "multisine" else None,
+            "lines": int(len(design.excited_lines)), "samples_per_period": int(design.n_per_period),
+            "periods": int(design.n_periods), "transient_periods": int(design.n_transient_periods),
+            "realisations": int(design.n_realisations), "experiments": int(design.n_experiments),
+            "crest_factor": [float(c) for c in design.crest_factor],
+            "rms_a": [float(v) for v in design.rms_a], "peak_a": [float(v) for v in design.peak_a],
+            "measurement_time_s": float(design.measurement_time_s), "seed": cfg.seed,
+        },
+        "sample_rate_hz": float(design.fs_hz),
+        "band_hz": list(cfg.band_hz),
+        "inputs": list(design.input_names),
+        "simulated_time_s": run["simulated_s"],
+        "wall_time_s": run["wall_s"],
+        "simulated_samples_per_wall_s": run["samples_per_wall_s"],
+        "real_time_factor": run["simulated_s"] / run["wall_s"],
+        "layout": run["layout"],
+        "state": run["plant"]["state"],
+        "levitated": run["plant"]["levitated"],
+        "live_frf": run["live_frf"],
+        **offline,
+        "recording": {"path": run["mcap_path"], "messages": rec.get("messages", rec.get("message_count")),
+                      "complete": rec.get("complete", True)},
+    }
+    (cfg.out_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=_json_default))
+    return summary
+
+
+def _json_default(o):
+    import numpy as np
+
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
