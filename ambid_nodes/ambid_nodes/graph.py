@@ -56,7 +56,7 @@ def run_composed(cfg: GraphConfig) -> dict:
                                         parameter_overrides=overrides(cfg.controller)))
         for n in nodes:
             executor.add_node(n)
-        spin_until_done(executor, plant.finished)
+        spin_until_done(executor, plant.finished, context)
         return {**plant.finished.result(), "layout": "composed"}
     finally:
         executor.shutdown()
@@ -112,3 +112,39 @@ def run_processes(cfg: GraphConfig) -> dict:
         return {**summary, "layout": "processes"}
     finally:
         stop_processes(procs)
+
+
+def run_hardware(cfg: GraphConfig, target: str, local_port: int = 0) -> dict:
+    """The graph against a real-time target over the UDP bridge (docs/bridge_protocol.md).
+
+    The target runs the fast loop (plant and position controller); this
+    process runs ``hardware_bridge``, which publishes the measured blocks.
+    Returns the bridge's figures once ``cfg.sim_seconds`` of samples arrived
+    (or the target finished), after telling the target to stop.
+    """
+    import rclpy
+    from rclpy.experimental import EventsExecutor
+    from rclpy.parameter import Parameter
+
+    from ambid.rt_target import parse_address
+    from ambid_nodes.hardware_bridge import HardwareBridge
+
+    host, port = parse_address(target)
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=session_domain_id())
+    executor = EventsExecutor(context=context)
+    params = {"target_host": host, "target_port": port, "local_port": local_port, **cfg.plant}
+    bridge = HardwareBridge(namespace=cfg.namespace, context=context,
+                            parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
+    executor.add_node(bridge)
+    try:
+        wanted = int(round(cfg.sim_seconds / bridge.dt))
+        while not bridge.finished.done() and bridge.figures()["samples_published"] < wanted:
+            executor.spin_until_future_complete(bridge.finished, timeout_sec=0.25)
+        figures = bridge.figures()
+        return {**figures, "layout": f"hardware bridge to {target}",
+                "samples_per_wall_s": figures["samples_published"] / max(figures["wall_s"], 1e-9)}
+    finally:
+        executor.shutdown()
+        bridge.destroy_node()
+        rclpy.shutdown(context=context)

@@ -199,3 +199,37 @@ def test_every_node_installed_with_entry_point_and_parameter_file(ros_env):
                           os.path.join(share, "config", "plant_sim.yaml"), "-p", "block_size:=-1"],
                          env=ros_env, capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and "block_size" in out.stderr, out.stderr
+
+
+def _cli(args, env, timeout=120):
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    return subprocess.run([sys.executable, "-m", "ambid_nodes.cli", *args], env=env, cwd=root, capture_output=True,
+                          text=True, timeout=timeout)
+
+
+def test_graph_with_lqg_controller_levitates(ros_env):
+    out = _cli(["graph", "--controller", "lqg", "--sim-seconds", "0.4"], ros_env)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "LQG controller" in out.stdout and "rotor levitated" in out.stdout
+
+
+def test_graph_against_hardware_target_over_loopback(ros_env):
+    import socket
+
+    ports = []
+    for _ in range(2):  # two free UDP ports
+        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        s.bind(("127.0.0.1", 0))
+        ports.append(s.getsockname()[1])
+        s.close()
+    target = subprocess.Popen([sys.executable, "-m", "ambid.rt_target", "--bind", f"127.0.0.1:{ports[0]}",
+                               "--bridge", f"127.0.0.1:{ports[1]}", "--pace", "0", "--samples", "20000"],
+                              env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        out = _cli(["graph", "--hardware", f"127.0.0.1:{ports[0]}", "--local-port", str(ports[1]),
+                    "--sim-seconds", "0.3"], ros_env)
+        assert out.returncode == 0, out.stdout + out.stderr
+        assert "lost 0 samples in 0 gaps" in out.stdout and "target running normally" in out.stdout
+    finally:
+        target.terminate()
+        target.wait(timeout=30)

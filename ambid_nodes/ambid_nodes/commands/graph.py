@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ambid_nodes.graph import DEFAULT_NAMESPACE, GraphConfig, run_composed, run_processes, session_domain_id
+from ambid_nodes.graph import (DEFAULT_NAMESPACE, GraphConfig, run_composed, run_hardware, run_processes,
+                               session_domain_id)
 
 HELP = "run the plant and controller graph on the simulated rig"
 
@@ -17,15 +18,24 @@ def add_arguments(g: argparse.ArgumentParser) -> None:
     g.add_argument("--rig", help="rig parameter YAML file (default: the built-in rig)")
     g.add_argument("--nonlinear", action="store_true", help="nonlinear magnet force (eq. 2.14)")
     g.add_argument("--namespace", default=DEFAULT_NAMESPACE, help="ROS namespace of the rig (default /amb)")
+    g.add_argument("--controller", choices=["pid", "lqg"], default="pid",
+                   help="position controller: decentralised PID or centralised LQG (default pid)")
+    g.add_argument("--hardware", metavar="HOST:PORT",
+                   help="run against a real-time target over the UDP bridge instead of plant_sim "
+                        "(the target runs the fast loop; see docs/bridge_protocol.md)")
+    g.add_argument("--local-port", type=int, default=0, help="with --hardware: local UDP port (default: any)")
 
 
 def run(args: argparse.Namespace) -> int:
     plant = {"seed": args.seed, "nonlinear_magnets": args.nonlinear}
-    controller = {}
+    controller = {"controller": args.controller}
+    if args.hardware:
+        return run_on_hardware(args)
     if args.rig:
         plant["rig_file"] = controller["rig_file"] = args.rig
     cfg = GraphConfig(sim_seconds=args.sim_seconds, namespace=args.namespace, plant=plant, controller=controller)
     layout = "separate processes" if args.processes else "one process (EventsExecutor)"
+    layout += f", {args.controller.upper()} controller"
     print(f"ambid graph: plant_sim + position_controller in {layout}, namespace {args.namespace}, "
           f"ROS_DOMAIN_ID {session_domain_id()}, {args.sim_seconds:g} s simulated", flush=True)
     try:
@@ -48,3 +58,24 @@ def run(args: argparse.Namespace) -> int:
     return 0 if ok else 1
 
 
+
+
+def run_on_hardware(args: argparse.Namespace) -> int:
+    plant = {"rig_file": args.rig} if args.rig else {}
+    cfg = GraphConfig(sim_seconds=args.sim_seconds, namespace=args.namespace, plant=plant)
+    print(f"ambid graph: hardware_bridge to the real-time target at {args.hardware}, namespace {args.namespace}, "
+          f"ROS_DOMAIN_ID {session_domain_id()}, {args.sim_seconds:g} s of samples", flush=True)
+    try:
+        f = run_hardware(cfg, args.hardware, args.local_port)
+    except KeyboardInterrupt:
+        print("ambid graph: interrupted", file=sys.stderr)
+        return 130
+    except (RuntimeError, ValueError) as exc:
+        print(f"ambid graph: {exc}", file=sys.stderr)
+        return 1
+    print(f"samples published per wall second: {f['samples_per_wall_s']:.0f} ({f['samples_published']} samples)")
+    print(f"target state {f['target_state']}; lost {f['missing_samples']} samples in {f['gaps']} gaps, "
+          f"{f['datagrams_malformed']} malformed and {f['datagrams_foreign']} foreign datagrams")
+    ok = f["samples_published"] > 0 and not f["silent"] and f["target_state"] != "safe"
+    print("target running normally" if ok else "target NOT running normally")
+    return 0 if ok else 1
