@@ -45,7 +45,7 @@ from rclpy.node import Node
 from ambid.excitation import ExcitationDesign, check_headroom
 from ambid.rig import AXES, CURRENT_NAMES, load_rig, make_rig
 from ambid_nodes import qos
-from ambid_nodes.commands.design import DEFAULT_INPUTS, KINDS, build_design
+from ambid.excitation.spec import DEFAULT_INPUTS, KINDS, build_design
 from ambid_nodes.conversions import BadMessage, block_data, block_msg, check_plant_description, time_msg
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown

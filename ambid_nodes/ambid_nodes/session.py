@@ -19,7 +19,7 @@ from pathlib import Path
 
 from ambid.excitation import ExcitationDesign
 from ambid.rig import load_rig, make_rig
-from ambid_nodes.commands.design import build_design
+from ambid.excitation.spec import build_design
 from ambid_nodes.graph import DEFAULT_NAMESPACE, session_domain_id
 
 LIFT_OFF_S = 0.5  # levitate and settle before the experiment starts
