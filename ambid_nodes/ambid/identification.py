@@ -6,7 +6,9 @@
    total) variance (:func:`ambid.frf.offline.frf_from_session`);
 2. order selection on a stabilisation diagram (:func:`select_order`) and the
    common-denominator fit at that order, with a known delay of half a sample
-   (the zero-order hold of a sampled measurement);
+   (the zero-order hold of a sampled measurement), weighted by the FRF's
+   variance (total with M >= 2, else noise) averaged over the inputs of each
+   output;
 3. modes (frequency, damping) and real poles, the state-space export
    (``model.npz``, ``model.json``) and the FRF (``frf.npz``) in ``out_dir``;
 4. physical-model updating (:mod:`ambid.model_update`) started from the
@@ -17,13 +19,19 @@
    (:func:`ambid.true_rig.true_linear_model`) and its parameters;
 6. the report (``out_dir/report/index.html``) and ``identification.json``.
 
-Order-selection rule (:func:`select_order`): among the orders fitted, take
-those whose chi^2 per degree of freedom is within ``(1 + chi2_tol)`` of the
-smallest; of these, the lowest order whose physical-looking poles (complex
-pairs in the band with damping ratio in (0, ``max_damping``)) are all
-stable in frequency in the diagram (found again, within its tol_freq, at the
-next lower order fitted). If none qualifies, the lowest order within the chi^2
-tolerance.
+Order-selection rule (:func:`select_order`): the order with the smallest
+information criterion ``2 V + penalty * p`` (Akaike's for penalty 2; 2 V is
+chi^2 = chi^2/dof * (N - p), N real residuals, p real parameters) among the
+orders whose in-band lightly damped complex poles (damping ratio below
+``max_damping`` in magnitude) all have positive damping and are stable in
+frequency in the diagram (found again within its tol_freq at the next lower
+order fitted); if no order qualifies, the smallest criterion of all. The
+plant's only unstable poles are real (the magnets' negative stiffness), so
+a lightly damped unstable pair marks a spurious pole.
+
+Modes against the true rig (:func:`compare_modes`): true modes closer than
+the frequency resolution form one cluster, compared by mean frequency and
+damping with the fitted modes near it.
 
 FRF error figures: per line the relative matrix error
 ``||G - G_true||_F / ||G_true||_F`` (Frobenius norm over the Ny x Nu matrix,
@@ -55,7 +63,7 @@ from ambid.model_update import (PhysicalUpdate, nominal_parameters, physical_frf
 from ambid.rig import Rig, load_rig, make_rig
 
 __all__ = ["LineLevels", "select_order", "frf_relative_error", "line_levels", "session_rig", "true_modes",
-           "identify_session"]
+           "compare_modes", "identify_session"]
 
 _PLANT_TOPIC = "plant/description"
 _DESIGN_TOPIC = "excitation/design"
@@ -88,33 +96,47 @@ class LineLevels:
     even_noise: np.ndarray
 
 
-def select_order(diagram: StabilisationDiagram, band_hz: tuple[float, float], chi2_tol: float = 0.25,
-                 max_damping: float = 0.3) -> int:
+def select_order(diagram: StabilisationDiagram, band_hz: tuple[float, float], n_lines: int, n_entries: int,
+                 weighted: bool = True, penalty: float = 2.0, max_damping: float = 0.3) -> int:
     """The model order by the rule of the module docstring.
 
     Args:
-        diagram: from :func:`ambid.fit.stabilisation_diagram`.
+        diagram: from :func:`ambid.fit.stabilisation_diagram`, fitted with
+            relative degree 0 (a feed-through term).
         band_hz: (low, high) band whose poles count [Hz].
-        chi2_tol: relative chi^2 / dof tolerance above the smallest [-].
+        n_lines: L lines of the data; n_entries: Ny * Nu.
+        weighted: the fits were weighted by the noise variance (then
+            ``diagram.chi2_per_dof`` is chi^2/dof); False when unweighted
+            (then it holds the cost V, scaled here by the smallest V / dof).
+        penalty: criterion weight per parameter (2: AIC, ln N: MDL/BIC).
         max_damping: complex poles more damped than this are not checked [-].
 
     Returns:
         The chosen order.
     """
-    if not chi2_tol >= 0:
-        raise ValueError(f"chi2_tol must be >= 0, got {chi2_tol}")
+    if not (penalty >= 0 and n_lines >= 1 and n_entries >= 1):
+        raise ValueError(f"need penalty >= 0, n_lines >= 1, n_entries >= 1; got {penalty}, {n_lines}, {n_entries}")
+    orders = np.asarray(diagram.orders)
+    n_res = 2 * n_lines * n_entries
+    n_par = orders + n_entries * (orders + 1)  # poles + numerators and feed-through (fit_common_denominator)
+    dof = np.maximum(n_res - n_par, 1)
     chi = np.asarray(diagram.chi2_per_dof, dtype=float)
-    if not np.any(np.isfinite(chi)):
-        raise ValueError("the stabilisation diagram has no finite chi^2 values")
-    ok = diagram.orders[chi <= np.nanmin(chi) * (1 + chi2_tol)]
+    chi2 = chi * dof if weighted else 2 * chi
+    if not weighted:
+        chi2 = chi2 / np.nanmin(chi2 / dof)   # noise level from the best fit per degree of freedom
+    crit = np.where(np.isfinite(chi2), chi2 + penalty * n_par, np.inf)
+    if not np.any(np.isfinite(crit)):
+        raise ValueError("the stabilisation diagram has no finite cost values")
     lo, hi = band_hz
-    for n in ok:
+    clean = []
+    for n in orders:
         sel = diagram.order == n
         p, status, f, z = diagram.pole_rad_s[sel], diagram.status[sel], diagram.freq_hz[sel], diagram.damping[sel]
-        physical = (p.imag > 0) & (f >= lo) & (f <= hi) & (z > 0) & (z < max_damping)
-        if np.all(np.isin(status[physical], (1, 3))) and n != diagram.orders[0]:
-            return int(n)
-    return int(ok[0])
+        checked = (p.imag > 0) & (f >= lo) & (f <= hi) & (np.abs(z) < max_damping)
+        clean.append(n != orders[0] and bool(np.all(z[checked] > 0) and np.all(np.isin(status[checked], (1, 3)))))
+    clean = np.array(clean)
+    pick = np.where(clean, crit, np.inf) if np.any(clean & np.isfinite(crit)) else crit
+    return int(orders[int(np.argmin(pick))])
 
 
 def frf_relative_error(G: np.ndarray, G_ref: np.ndarray) -> np.ndarray:
@@ -205,7 +227,8 @@ def session_rig(path: str | os.PathLike, plant_topic: str = "/amb/plant/descript
     return rig, (str(source) if source else None)
 
 
-def true_modes(poles_rad_s: np.ndarray, band_hz: tuple[float, float], rel_tol: float = 1e-4) -> list[tuple[float, float]]:
+def true_modes(poles_rad_s: np.ndarray, band_hz: tuple[float, float],
+               rel_tol: float = 1e-4) -> list[tuple[float, float]]:
     """Distinct lightly damped pole pairs in a band: [(frequency [Hz], damping ratio [-])], ascending.
 
     Pairs within ``rel_tol`` of each other in frequency and damping (the x
@@ -223,12 +246,63 @@ def true_modes(poles_rad_s: np.ndarray, band_hz: tuple[float, float], rel_tol: f
     return out
 
 
-def _fit_variance(frf: FrfResult) -> tuple[np.ndarray | None, str]:
-    """The variance to weight the fits with: total (BLA) where known, else noise; floored."""
+def compare_modes(fitted: Sequence[tuple[float, float]], true: Sequence[tuple[float, float]],
+                  resolution_hz: float) -> list[dict]:
+    """Fitted modes against true ones, closely spaced modes as clusters.
+
+    Modes closer than the frequency resolution cannot be told apart by the
+    data, so true modes less than ``resolution_hz`` apart form a cluster,
+    compared by its mean frequency and damping with the mean of the fitted
+    modes within ``resolution_hz`` of the cluster (the nearest fitted mode
+    when none is).
+
+    Args:
+        fitted, true: [(frequency [Hz], damping ratio [-])].
+        resolution_hz: frequency resolution fs / N of the measurement [Hz].
+
+    Returns:
+        One dict per true cluster: true_freq_hz, true_damping, freq_hz,
+        damping, freq_error, damping_error (relative), n_true, n_fitted.
+    """
+    if not resolution_hz > 0:
+        raise ValueError(f"resolution_hz must be > 0, got {resolution_hz}")
+    clusters: list[list[tuple[float, float]]] = []
+    for f, z in sorted(true):
+        if clusters and f - clusters[-1][-1][0] < resolution_hz:
+            clusters[-1].append((f, z))
+        else:
+            clusters.append([(f, z)])
+    out = []
+    if not fitted:
+        return out
+    fit_f = np.array([f for f, _ in fitted])
+    fit_z = np.array([z for _, z in fitted])
+    for c in clusters:
+        lo, hi = c[0][0] - resolution_hz, c[-1][0] + resolution_hz
+        inside = (fit_f >= lo) & (fit_f <= hi)
+        if not np.any(inside):
+            inside = np.arange(fit_f.size) == np.argmin(np.abs(fit_f - np.mean([f for f, _ in c])))
+        ft, zt = float(np.mean([f for f, _ in c])), float(np.mean([z for _, z in c]))
+        ff, zf = float(fit_f[inside].mean()), float(fit_z[inside].mean())
+        out.append(dict(true_freq_hz=ft, true_damping=zt, freq_hz=ff, damping=zf, freq_error=ff / ft - 1,
+                        damping_error=zf / zt - 1, n_true=len(c), n_fitted=int(inside.sum())))
+    return out
+
+
+def _fit_variance(frf: FrfResult, pool: bool = True) -> tuple[np.ndarray | None, str]:
+    """The variance to weight the fits with: total (BLA) where known, else noise; floored.
+
+    With ``pool``, each output's variances are averaged over the inputs (one
+    row of G carries the same output noise): an estimate from P periods has
+    only 2 (P - 1) degrees of freedom, and weighting by such noisy variances
+    lets a fit of too high an order chase the weights.
+    """
     for name in ("var_total", "var_noise"):
         v = np.asarray(getattr(frf, name), dtype=float)
         if np.all(np.isfinite(v)) and np.any(v > 0):
-            return np.maximum(v, 1e-6 * np.median(v[v > 0])), name
+            if pool:
+                v = np.broadcast_to(v.mean(axis=2, keepdims=True), v.shape)
+            return np.maximum(v, 1e-6 * np.median(v[v > 0])), name + (", pooled over the inputs" if pool else "")
     return None, "none (equal weights)"
 
 
@@ -288,7 +362,8 @@ def _update(rig: Rig, frf: FrfResult, var, band, modes, dt_s, start_overrides, f
 def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, estimator: str = "indirect",
                      order: int | None = None, *, experiment_id: str | None = None,
                      rig: Rig | str | os.PathLike | Mapping | None = None, max_order: int = 32,
-                     chi2_tol: float = 0.1, update: bool = True, update_start: Mapping[str, float] | None = None,
+                     order_penalty: float = 2.0, update: bool = True,
+                     update_start: Mapping[str, float] | None = None,
                      update_free: Sequence[str] | None = None, report: bool = True,
                      recover: bool = False) -> dict:
     """Identify the rig from one experiment of a recorded session (module docstring).
@@ -304,7 +379,8 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
             file or a parameter dict); default the rig recorded in the
             session. Without one, no updating and no nominal model.
         max_order: highest order in the stabilisation diagram.
-        chi2_tol: chi^2 tolerance of the order rule.
+        order_penalty: criterion weight per parameter of the order rule
+            (2: Akaike; larger values choose lower orders).
         update: run the physical-model updating.
         update_start: start values replacing the nominal ones (parameter
             name -> value, :data:`ambid.model_update.PARAMETERS`).
@@ -316,9 +392,30 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
 
     Returns:
         JSON-safe summary dict (also written to ``identification.json``):
-        ``estimator, experiment_id, excitation, band_hz, inputs, outputs,
-        frf_error, noise, fit, modes_vs_true, update, sensitivity, files,
-        wall_s`` and ``notes`` (what could not be done and why).
+
+        * ``estimator, experiment_id, session, simulated``;
+        * ``excitation``: kind, mimo, grid, sample rate [Hz], N, P, Pt, M,
+          Ne, lines, design band [Hz], rms, peak [A], crest factor,
+          measurement time [s];
+        * ``band_hz`` (excited lines), ``inputs``, ``outputs``;
+        * ``frf_error`` (None unless simulated): median, worst (and
+          worst_at_hz) relative error of the measured FRF, fitted_* and
+          updated_* of the models, against the true sampled model;
+        * ``noise``: output_noise_std_m (Ny,), relative_frf_noise_std,
+          nonlinear_variance_ratio, distortion_odd_db / even_db (Ny,) [dB
+          above the noise], fit_weights;
+        * ``fit``: order, order_rule, chi2_per_dof, delay_s, orders_tried,
+          chi2_per_dof_by_order, modes [{freq_hz, damping, stable (found
+          within 1 % at the next lower order fitted)}], real_poles
+          [{pole_hz (signed, > 0 unstable), unstable}];
+        * ``modes_vs_true`` (:func:`compare_modes`), max_mode_freq_error,
+          max_mode_damping_error;
+        * ``update``: :meth:`ambid.model_update.PhysicalUpdate.to_dict` with
+          nominal, true and error (relative to true) per parameter, or
+          {error}; None without a rig;
+        * ``sensitivity``: peak (Nu,), peak_hz, worst_input, worst_peak,
+          iso_zone;
+        * ``files``, ``wall_s`` and ``notes`` (what could not be done and why).
     """
     t0 = time.perf_counter()
     out = Path(out_dir)
@@ -345,9 +442,10 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     if not orders:
         raise ValueError(f"{f.size} lines are too few for a parametric fit; excite more lines")
     diagram = stabilisation_diagram(f, frf.frf, var, orders=orders, delay_s=fit_delay)
-    rule = f"lowest order with chi2/dof <= (1 + {chi2_tol:g}) min and its in-band modes stable in frequency"
+    rule = (f"smallest chi2 + {order_penalty:g} p among orders with stable, positively damped in-band modes")
     if order is None:
-        order = select_order(diagram, band, chi2_tol)
+        order = select_order(diagram, band, f.size, frf.frf.shape[1] * frf.frf.shape[2], var is not None,
+                             order_penalty)
     else:
         rule = "given"
     fit: FitResult = fit_common_denominator(f, frf.frf, var, order=int(order), delay_s=fit_delay, **labels)
@@ -381,12 +479,11 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         true_rig = make_rig(facts)
         true_g = true_linear_model(true_rig, discrete=True).freqresp(f)
         true_params = true_parameters(true_rig)
-        for ft, zt in true_modes(true_linear_model(true_rig).poles(), band):
-            if not modes:
-                break
-            best = min(modes, key=lambda m: abs(m.freq_hz - ft))
-            modes_vs_true.append(dict(true_freq_hz=ft, true_damping=zt, freq_hz=best.freq_hz, damping=best.damping,
-                                      freq_error=best.freq_hz / ft - 1, damping_error=best.damping / zt - 1))
+        # physical-looking fitted modes: positively damped and found again at the next lower order
+        physical = [(m.freq_hz, m.damping) for m, row in zip(modes, mode_rows) if row["stable"] and m.damping > 0]
+        modes_vs_true = compare_modes(physical or [(m.freq_hz, m.damping) for m in modes],
+                                      true_modes(true_linear_model(true_rig).poles(), band),
+                                      design.fs_hz / design.n_per_period)
     elif the_rig is not None and not simulated:
         notes.append("not a simulated session: no true model to compare with")
     upd: PhysicalUpdate | None = None
@@ -456,7 +553,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         from ambid.report.html import write_report
 
         levels, window = _samples_for_report(path, chosen, design, frf, recover)
-        dense = np.geomspace(max(band[0] / 1.5, 1e-3), min(band[1] * 1.5, 0.499 * design.fs_hz), 600)
+        dense = np.geomspace(max(band[0] / 1.5, 1e-3), min(band[1] * 1.5, 0.499 * design.fs_hz), 400)
         curves = {"fitted model": (dense, fit.model.freqresp(dense))}
         if the_rig is not None:
             curves["analytical (nominal) model"] = (dense, physical_frf(the_rig.rotor_model(),

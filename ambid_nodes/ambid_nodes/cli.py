@@ -18,6 +18,7 @@ COMMANDS = {
     "node": "node",
     "design": "design",
     "inspect": "inspect",
+    "fit": "fit",
     "compare": "compare",
     "bench": "bench",
 }

@@ -97,14 +97,13 @@ def _headline(s: Mapping[str, Any]) -> list[list[str]]:
 
 
 def _modes_rows(s: Mapping[str, Any]) -> list[list[str]]:
-    rows = [[_fmt(m["freq_hz"], ".5g"), _fmt(m["damping"], ".4g"), _fmt(m["stable"]), "-", "-"]
-            for m in s["fit"]["modes"]]
-    for r in s.get("modes_vs_true") or []:
-        for row, m in zip(rows, s["fit"]["modes"]):
-            if m["freq_hz"] == r["freq_hz"]:
-                row[3] = f"{_fmt(r['true_freq_hz'], '.5g')} Hz, zeta {_fmt(r['true_damping'], '.4g')}"
-                row[4] = f"{_pct(r['freq_error'])} / {_pct(r['damping_error'])}"
-    return rows
+    return [[_fmt(m["freq_hz"], ".5g"), _fmt(m["damping"], ".4g"), _fmt(m["stable"])] for m in s["fit"]["modes"]]
+
+
+def _true_mode_rows(s: Mapping[str, Any]) -> list[list[str]]:
+    return [[_fmt(r["true_freq_hz"], ".5g"), _fmt(r["true_damping"], ".4g"), str(r["n_true"]),
+             _fmt(r["freq_hz"], ".5g"), _fmt(r["damping"], ".4g"), str(r["n_fitted"]), _pct(r["freq_error"]),
+             _pct(r["damping_error"])] for r in s.get("modes_vs_true") or []]
 
 
 def _parameter_rows(s: Mapping[str, Any]) -> list[list[str]]:
@@ -133,8 +132,14 @@ def render_index(summary: Mapping[str, Any], figure_list: list[tuple[str, str]])
     for note in summary.get("notes") or []:
         parts.append(f"<p class='note'>Note: {html.escape(str(note))}</p>")
     parts += ["<h2>Fitted modes</h2>",
-              _table(["frequency [Hz]", "damping ratio [-]", "stable in diagram", "true mode", "error (f / zeta)"],
-                     _modes_rows(summary))]
+              _table(["frequency [Hz]", "damping ratio [-]", "stable in diagram"], _modes_rows(summary))]
+    if summary.get("modes_vs_true"):
+        parts += ["<h3>Modes against the true rig</h3>",
+                  _table(["true frequency [Hz]", "true damping [-]", "true modes", "fitted frequency [Hz]",
+                          "fitted damping [-]", "fitted modes", "frequency error", "damping error"],
+                         _true_mode_rows(summary)),
+                  "<p>True modes closer than the frequency resolution are one cluster (mean frequency and damping), "
+                  "compared with the mean of the fitted modes near it.</p>"]
     reals = summary["fit"].get("real_poles") or []
     if reals:
         parts.append("<p>Real poles [Hz] (positive: unstable): "
@@ -144,7 +149,8 @@ def render_index(summary: Mapping[str, Any], figure_list: list[tuple[str, str]])
         parts += ["<h2>Updated physical parameters</h2>",
                   _table(["parameter", "unit", "nominal", "start", "updated", "95 % CI", "true", "error vs true"],
                          _parameter_rows(summary)),
-                  f"<p>Updating chi2/dof {_fmt(upd.get('chi2_per_dof'), '.3g')}, {html.escape(str(upd.get('message')))}."
+                  f"<p>Updating chi2/dof {_fmt(upd.get('chi2_per_dof'), '.3g')}, "
+                  f"{html.escape(str(upd.get('message')).rstrip('.'))}."
                   " True ki, ks are the small-signal slopes at the levitated operating point.</p>"]
     elif upd and "error" in upd:
         parts.append(f"<p class='note'>Model updating failed: {html.escape(upd['error'])}</p>")

@@ -26,6 +26,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mimo", default="orthogonal", choices=["orthogonal", "one_at_a_time"],
                    help="multisine over the 4 inputs (default orthogonal)")
     p.add_argument("--grid", default="random_odd", choices=["random_odd", "odd", "full"], help="multisine grid")
+    p.add_argument("--phases", default="crest_optimised", choices=["crest_optimised", "random", "schroeder"],
+                   help="multisine phases (default crest_optimised: lowest crest factor)")
     p.add_argument("--rig", default="", help="rig parameter YAML file (default: the built-in rig)")
     p.add_argument("--linear-magnets", action="store_true", help="linearised magnets instead of eq. 2.14")
     p.add_argument("--estimator", default="indirect",
@@ -39,7 +41,8 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = SessionConfig(out_dir=args.out, kind=args.kind, band_hz=tuple(args.band), resolution_hz=args.resolution,
                         peak_current_a=args.peak_current, periods=args.periods, realisations=args.realisations,
-                        transient_periods=args.transient_periods, grid=args.grid, mimo=args.mimo, seed=args.seed,
+                        transient_periods=args.transient_periods, grid=args.grid, mimo=args.mimo, phases=args.phases,
+                        seed=args.seed,
                         rig_file=args.rig, nonlinear_magnets=not args.linear_magnets, estimator=args.estimator,
                         progress=not args.no_progress and sys.stderr.isatty())
     try:
@@ -59,14 +62,23 @@ def format_headlines(s: dict, out: Path) -> str:
              f"({s['simulated_samples_per_wall_s']:.0f} samples/s, {s['layout']})"]
     err = s.get("frf_error")
     if err:
-        lines.append(f"  FRF error vs the true rig: median {100 * err['median']:.2f} %, worst line "
-                     f"{100 * err['max']:.2f} %")
-    if s.get("modes"):
-        lines.append("  modes: " + ", ".join(f"{m['frequency_hz']:.1f} Hz (zeta {m['damping_ratio']:.4f})"
-                                            for m in s["modes"][:4]))
-    if s.get("input_sensitivity"):
-        lines.append(f"  input sensitivity peak {s['input_sensitivity']['peak']:.2f}, ISO 14839-3 zone "
-                     f"{s['input_sensitivity']['zone']}")
+        lines.append(f"  FRF error vs the true rig: median {100 * err['median']:.2f} %, worst excited line "
+                     f"{100 * err['worst']:.2f} % (at {err['worst_at_hz']:.0f} Hz)")
+    fit = s.get("fit")
+    if fit:
+        modes = ", ".join(f"{m['freq_hz']:.1f} Hz (zeta {m['damping']:.4f})" for m in fit["modes"][:5])
+        lines.append(f"  fitted model: order {fit['order']}, modes {modes}")
+    upd = (s.get("update") or {}).get("parameters", {})
+    for name in ("ki_n_per_a", "ks_n_per_m"):
+        if name in upd:
+            p = upd[name]
+            true = p.get("true")
+            lines.append(f"  updated {name}: {p['value']:.5g} {p['unit']} (95 % CI {p['ci95'][0]:.5g}..{p['ci95'][1]:.5g})"
+                         + (f", true {true:.5g}" if true is not None else ""))
+    sens = s.get("sensitivity")
+    if sens:
+        lines.append(f"  input sensitivity peak {sens['worst_peak']:.2f} ({sens['worst_input']}), "
+                     f"ISO 14839-3 zone {sens['iso_zone']}")
     lines += [f"  summary: {out / 'summary.json'}", f"  report:  {out / 'report' / 'index.html'}",
               f"  session: {s['recording']['path']} ({s['recording']['messages']} messages)"]
     return "\n".join(lines)

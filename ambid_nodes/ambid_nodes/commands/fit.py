@@ -1,0 +1,98 @@
+"""ambid fit: identify the rig from a recorded session (never imports rclpy).
+
+FRF, order selection, fitted model (state space as .npz and JSON), modes,
+physical-model updating and the HTML report, all written to ``--out``
+(:func:`ambid.identification.identify_session`); the headline figures are
+printed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+
+HELP = "identify a recorded session: FRF, fitted model and modes, updated physical parameters, report"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from ambid.frf.streaming import ESTIMATORS
+
+    p.add_argument("file", help="session .mcap file")
+    p.add_argument("--out", required=True, help="output folder (model.npz, model.json, frf.npz, "
+                                                "identification.json, report/index.html)")
+    p.add_argument("--estimator", default="indirect", choices=ESTIMATORS, help="FRF estimator (default indirect)")
+    p.add_argument("--order", type=int, help="model order (default: chosen from the stabilisation diagram)")
+    p.add_argument("--max-order", type=int, default=32, help="highest order in the stabilisation diagram")
+    p.add_argument("--experiment", help="experiment id (default: the last one recorded)")
+    p.add_argument("--rig", help="rig parameter YAML for the nominal model and updating "
+                                 "(default: the rig recorded in the session)")
+    p.add_argument("--no-update", action="store_true", help="skip the physical-model updating")
+    p.add_argument("--no-report", action="store_true", help="skip the HTML report")
+    p.add_argument("--recover", action="store_true", help="read a file a killed recorder left")
+    p.add_argument("--json", action="store_true", help="print the whole summary as JSON")
+
+
+def _pct(x) -> str:
+    return "-" if x is None or not math.isfinite(x) else f"{100 * x:.3g} %"
+
+
+def format_summary(s: dict) -> str:
+    """Headline figures of an identification summary, a few lines of text."""
+    ex, fit, sens, noise = s["excitation"], s["fit"], s["sensitivity"], s["noise"]
+    lines = [f"experiment {s['experiment_id']}: {ex['kind']} ({ex.get('mimo')}), {ex['n_excited_lines']} lines in "
+             f"{s['band_hz'][0]:g}-{s['band_hz'][1]:g} Hz, {s['estimator']} estimator, "
+             f"{len(s['inputs'])} inputs x {len(s['outputs'])} outputs"]
+    err = s.get("frf_error")
+    if err:
+        lines.append(f"FRF error vs true rig: median {_pct(err['median'])}, worst {_pct(err['worst'])} at "
+                     f"{err['worst_at_hz']:g} Hz (fitted model: median {_pct(err['fitted_median'])})")
+    std = noise.get("output_noise_std_m") or []
+    odd, even = noise.get("distortion_odd_db"), noise.get("distortion_even_db")
+    lines.append("output noise std [um]: " + ", ".join("-" if v is None else f"{v * 1e6:.3g}" for v in std)
+                 + (f"; detection lines above noise: odd {max(odd):+.1f} dB, even {max(even):+.1f} dB (worst output)"
+                    if odd and even and None not in odd + even else ""))
+    lines.append(f"model order {fit['order']} (chi2/dof {fit['chi2_per_dof']:.3g}); modes: "
+                 + (", ".join(f"{m['freq_hz']:.5g} Hz / zeta {m['damping']:.3g}" for m in fit["modes"]) or "none"))
+    if s.get("max_mode_freq_error") is not None:
+        lines.append(f"modes vs true: worst frequency error {_pct(s['max_mode_freq_error'])}, worst damping error "
+                     f"{_pct(s['max_mode_damping_error'])}")
+    upd = s.get("update") or {}
+    for name in ("ki_n_per_a", "ks_n_per_m"):
+        p = (upd.get("parameters") or {}).get(name)
+        if p:
+            ci = p.get("ci95") or [math.nan, math.nan]
+            true = "" if p.get("true") is None else f", true {p['true']:.6g} ({_pct(p['error'])})"
+            lines.append(f"updated {name}: {p['value']:.6g} (95 % CI {ci[0]:.6g} .. {ci[1]:.6g}), nominal "
+                         f"{p['nominal']:.6g}{true}")
+    if "error" in upd:
+        lines.append(f"model updating failed: {upd['error']}")
+    lines.append(f"peak input sensitivity {sens['worst_peak']:.3g} on {sens['worst_input']}: ISO 14839-3 zone "
+                 f"{sens['iso_zone']}")
+    files = s["files"]
+    lines.append(f"written: {files['model_npz']}, {files['model_json']}" +
+                 (f", report {files['report']}" if "report" in files else ""))
+    lines += [f"note: {n}" for n in s.get("notes", [])]
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ambid.identification import identify_session
+    from ambid.mcap_session import IncompleteSessionError
+
+    try:
+        summary = identify_session(args.file, args.out, estimator=args.estimator, order=args.order,
+                                   experiment_id=args.experiment, rig=args.rig, max_order=args.max_order,
+                                   update=not args.no_update, report=not args.no_report, recover=args.recover)
+    except FileNotFoundError as exc:
+        print(f"ambid fit: {exc}", file=sys.stderr)
+        return 1
+    except IncompleteSessionError as exc:
+        print(f"ambid fit: {exc} (try --recover)", file=sys.stderr)
+        return 1
+    except ValueError as exc:
+        print(f"ambid fit: {exc}", file=sys.stderr)
+        return 1
+    print(json.dumps(summary, indent=1) if args.json else format_summary(summary))
+    return 0
