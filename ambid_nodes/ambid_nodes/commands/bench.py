@@ -1,0 +1,270 @@
+"""ambid bench: loop throughput, identify real-time factor, offline rates and memory, side by side.
+
+Sections (each can be skipped):
+
+* loop: plant + controller lock-step, composed and as processes, each beside a
+  bare rclpy ping-pong of the same message size, QoS, executor and layout,
+  interleaved (:mod:`ambid_nodes.bench.loop`);
+* identify: a full default ``identify`` session composed, recorder and
+  consumer included (:mod:`ambid_nodes.bench.identify`);
+* offline: FRF of a session beside bare reads of the same MCAP file
+  (:mod:`ambid_nodes.bench.offline`);
+* fit: the common-denominator fit of a 4x4 FRF of 2,000 lines;
+* memory: peak memory of sessions of one kind, one six times longer
+  (:mod:`ambid_nodes.bench.memory`).
+
+The machine may be shared: the ratios (ours over bare, measured back to
+back) are the robust figures; the load average is recorded with them.
+Exit code 0 when every target is met, 1 when one is missed, 2 when a section failed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import sys
+import tempfile
+import time
+import traceback
+from pathlib import Path
+
+HELP = "measure loop throughput, identify real-time factor, offline rates and memory against the targets"
+SECTIONS = ("loop", "identify", "offline", "fit", "memory")
+FACTOR = 6  # the long session of the memory figure is this many times longer
+
+# the sizes of a --quick run (the smoke test): every section, seconds each
+QUICK = {
+    "loop_seconds": 0.2, "repeats": 1, "fit_lines": 200, "fit_order": 12,
+    "identify": {"band_hz": (50.0, 1000.0), "resolution_hz": 50.0, "periods": 1, "realisations": 1,
+                 "transient_periods": 1},
+    "offline_design": {"band_hz": (50.0, 1000.0), "resolution_hz": 50.0, "n_periods": 1, "n_realisations": 1,
+                       "n_transient_periods": 1},
+    "live_memory": {"band_hz": (50.0, 1000.0), "resolution_hz": 50.0, "periods": 1, "realisations": 1,
+                    "transient_periods": 1},
+}
+# the default sizes: the identify session and the offline file are the default identify experiment
+FULL = {
+    "loop_seconds": 2.0, "repeats": 3, "fit_lines": 2000, "fit_order": 24,
+    "identify": {},
+    "offline_design": {},
+    "offline_memory_design": {"n_realisations": 1},
+    "live_memory": {"resolution_hz": 10.0, "periods": 2, "realisations": 1, "transient_periods": 1},
+}
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--json", metavar="FILE", help="write every figure and its details to FILE")
+    p.add_argument("--loop-seconds", type=float, help="simulated time per loop run [s], >= 0.05 (default 2)")
+    p.add_argument("--repeats", type=int, help="interleaved rounds of the loop and offline timings (default 3)")
+    p.add_argument("--fit-lines", type=int, help="lines of the 4x4 FRF to fit (default 2000)")
+    p.add_argument("--skip", default="", help=f"comma-separated sections to leave out: {','.join(SECTIONS)}")
+    p.add_argument("--quick", action="store_true", help="tiny sizes everywhere (a smoke test, not a measurement)")
+    p.add_argument("--work-dir", help="where session files go (default: a temporary directory, removed)")
+
+
+def _figure(name: str, value, unit: str, target: str | None = None, ok: bool | None = None) -> dict:
+    return {"name": name, "value": value, "unit": unit, "target": target, "pass": ok}
+
+
+def _at_least(name: str, value: float | None, unit: str, low: float, label: str) -> dict:
+    return _figure(name, value, unit, f">= {label}", None if value is None else bool(value >= low))
+
+
+def _at_most(name: str, value: float | None, unit: str, high: float, label: str) -> dict:
+    return _figure(name, value, unit, f"<= {label}", None if value is None else bool(value <= high))
+
+
+def _loop_section(sizes: dict, figures: list) -> dict:
+    from ambid_nodes.bench.loop import loop_figures
+
+    res = loop_figures(sizes["loop_seconds"], sizes["repeats"])
+    c, p = res["composed"], res["processes"]
+    figures += [
+        _at_least("loop composed: simulated samples/s", c["ours_samples_per_s"], "1/s", 20_000, "20000 (2x real time)"),
+        _figure("bare ping-pong composed: round trips/s", c["bare_samples_per_s"], "1/s"),
+        _at_least("loop composed / bare ping-pong composed", c["ratio"], "", 0.70, "0.70"),
+        _figure("loop composed: CPU per sample", c["ours_cpu_us_per_sample"], "us"),
+        _figure("bare ping-pong composed: CPU per round trip", c["bare_cpu_us_per_sample"], "us"),
+        _figure("loop composed / bare ping-pong composed, by CPU time", c["cpu_ratio"], ""),
+        _figure("loop processes: simulated samples/s", p["ours_samples_per_s"], "1/s"),
+        _figure("bare ping-pong processes: round trips/s", p["bare_samples_per_s"], "1/s"),
+        _at_least("loop processes / bare ping-pong processes", p["ratio"], "", 0.80, "0.80"),
+    ]
+    return res
+
+
+def _identify_section(sizes: dict, work: Path, figures: list) -> dict:
+    from ambid_nodes.bench.identify import identify_figures
+
+    res = identify_figures(work / "identify", sizes["identify"])
+    if not res["available"]:
+        figures.append(_figure("identify session real-time factor (composed)", None, "x", ">= 1.0", None))
+        return res
+    figures += [
+        _at_least("identify session real-time factor (composed)", res["real_time_factor"], "x", 1.0, "1.0"),
+        _figure("identify session, loop only: real-time factor", res["loop_real_time_factor"], "x"),
+    ]
+    return res
+
+
+def _offline_section(sizes: dict, work: Path, figures: list) -> dict:
+    from ambid_nodes.bench.offline import make_design, offline_figures, write_simulated_session
+
+    path = work / "offline.mcap"
+    t0 = time.perf_counter()
+    info = write_simulated_session(path, make_design(**sizes["offline_design"]))
+    info["write_s"] = time.perf_counter() - t0
+    res = {"session": info, **offline_figures(path, info["samples"], sizes["repeats"])}
+    figures += [
+        _figure("offline FRF of a session: MB/s", res["frf"]["mb_per_s"], "MB/s"),
+        _figure("offline FRF of a session: samples/s", res["frf"]["samples_per_s"], "1/s"),
+        _figure("bare MCAP read (mcap iter_messages): MB/s", res["mcap_bare"]["mb_per_s"], "MB/s"),
+        _figure("bare MCAP read (mcap iter_messages): samples/s", res["mcap_bare"]["samples_per_s"], "1/s"),
+        _figure("session reader (ambid iter_messages): MB/s", res["session_iter"]["mb_per_s"], "MB/s"),
+        _at_least("offline FRF / bare MCAP read", res["ratio_frf_to_bare"], "", 0.50, "0.50"),
+    ]
+    path.unlink()
+    return res
+
+
+def _fit_section(sizes: dict, figures: list) -> dict:
+    from ambid_nodes.bench.offline import fit_figures
+
+    res = fit_figures(sizes["fit_lines"], sizes["fit_order"])
+    figures.append(_at_most(f"4x4 fit of {res['n_lines']} lines, order {res['order']}: wall time",
+                            res["time_s"], "s", 10.0, "10 s"))
+    figures.append(_figure("4x4 fit: CPU time", res["cpu_time_s"], "s"))
+    return res
+
+
+def _memory_section(sizes: dict, work: Path, figures: list) -> dict:
+    from ambid_nodes.bench.memory import memory_figures
+
+    res = memory_figures(work, {**sizes["offline_design"], **sizes.get("offline_memory_design", {})},
+                         sizes["live_memory"], FACTOR)
+    off, live = res["offline"], res["live"]
+    figures += [
+        _figure("offline FRF, short session: peak RSS", off["short"]["peak_mb"], "MB"),
+        _at_most(f"offline FRF peak RSS, {FACTOR}x / 1x session", off["peak_ratio"], "", 1.10, "1.10"),
+    ]
+    if live["available"]:
+        figures += [
+            _figure("identify session composed, short: peak RSS", live["short"]["peak_mb"], "MB"),
+            _at_most(f"identify session peak RSS, {FACTOR}x / 1x experiment", live["peak_ratio"], "", 1.10,
+                     "1.10"),
+        ]
+    else:
+        figures.append(_figure(f"identify session peak RSS, {FACTOR}x / 1x experiment", None, "", "<= 1.10"))
+    return res
+
+
+def _format(value, unit: str) -> str:
+    if value is None:
+        return "n/a"
+    if unit in ("1/s",):
+        return f"{value:,.0f} /s"
+    if unit == "":
+        return f"{value:.2f}"
+    return f"{value:.3g} {unit}"
+
+
+def print_table(figures: list, out=None) -> None:
+    """The figures as a table: name, value, target, pass/FAIL."""
+    out = sys.stdout if out is None else out
+    w = max(len(f["name"]) for f in figures)
+    out.write(f"{'figure':<{w}}  {'value':>14}  {'target':<22}  result\n")
+    out.write("-" * (w + 48) + "\n")
+    for f in figures:
+        result = {True: "pass", False: "FAIL", None: "" if f["target"] is None else "n/a"}[f["pass"]]
+        out.write(f"{f['name']:<{w}}  {_format(f['value'], f['unit']):>14}  {f['target'] or '':<22}  {result}\n")
+
+
+def run(args: argparse.Namespace) -> int:
+    skip = {s.strip() for s in args.skip.split(",") if s.strip()}
+    unknown = skip - set(SECTIONS)
+    if unknown:
+        print(f"ambid bench: unknown section(s) {sorted(unknown)} in --skip; sections are {', '.join(SECTIONS)}",
+              file=sys.stderr)
+        return 2
+    sizes = dict(QUICK if args.quick else FULL)
+    for key, value, low in (("loop_seconds", args.loop_seconds, 0.05), ("repeats", args.repeats, 1),
+                            ("fit_lines", args.fit_lines, 50)):
+        if value is not None:
+            if value < low:
+                print(f"ambid bench: --{key.replace('_', '-')} must be at least {low}, got {value}", file=sys.stderr)
+                return 2
+            sizes[key] = value
+    work = Path(args.work_dir) if args.work_dir else Path(tempfile.mkdtemp(prefix="ambid_bench_"))
+    work.mkdir(parents=True, exist_ok=True)
+    report: dict = {
+        "machine": {"cpu_count": os.cpu_count(), "python": platform.python_version(),
+                    "rmw": os.environ.get("RMW_IMPLEMENTATION", ""),
+                    "openblas_threads": os.environ.get("OPENBLAS_NUM_THREADS", ""),
+                    "load_average_start": list(os.getloadavg())},
+        "config": {"quick": args.quick, "skip": sorted(skip), **{k: v for k, v in sizes.items()}},
+        "figures": [], "sections": {}, "errors": {},
+    }
+    figures = report["figures"]
+    sections = {
+        "loop": lambda: _loop_section(sizes, figures),
+        "identify": lambda: _identify_section(sizes, work, figures),
+        "offline": lambda: _offline_section(sizes, work, figures),
+        "fit": lambda: _fit_section(sizes, figures),
+        "memory": lambda: _memory_section(sizes, work, figures),
+    }
+    t_start = time.perf_counter()
+    try:
+        for name in SECTIONS:
+            if name in skip:
+                continue
+            print(f"ambid bench: {name} ...", file=sys.stderr, flush=True)
+            t0 = time.perf_counter()
+            load0 = os.getloadavg()[0]
+            try:
+                report["sections"][name] = sections[name]()
+            except KeyboardInterrupt:
+                raise
+            except Exception as exc:  # noqa: BLE001 - one failed section must not lose the others
+                report["errors"][name] = f"{type(exc).__name__}: {exc}"
+                traceback.print_exc()
+                print(f"ambid bench: the {name} section failed: {exc}", file=sys.stderr)
+                continue
+            report["sections"][name]["wall_s"] = time.perf_counter() - t0
+            report["sections"][name]["load_average_1min"] = [load0, os.getloadavg()[0]]
+    except KeyboardInterrupt:
+        print("ambid bench: interrupted", file=sys.stderr)
+        return 130
+    finally:
+        if not args.work_dir:
+            shutil.rmtree(work, ignore_errors=True)
+    report["machine"]["load_average_end"] = list(os.getloadavg())
+    report["wall_s"] = time.perf_counter() - t_start
+    if figures:
+        print_table(figures)
+    la = report["machine"]
+    print(f"load average (1, 5, 15 min): start {', '.join(f'{x:.2f}' for x in la['load_average_start'])}; "
+          f"end {', '.join(f'{x:.2f}' for x in la['load_average_end'])} on {la['cpu_count']} CPUs; "
+          f"bench took {report['wall_s']:.0f} s")
+    for name, err in report["errors"].items():
+        print(f"section {name} FAILED: {err}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(report, indent=2, default=_json_default))
+        print(f"figures written to {args.json}")
+    if report["errors"]:
+        return 2
+    return 1 if any(f["pass"] is False or (f["target"] and f["pass"] is None) for f in figures) else 0
+
+
+def _json_default(o):
+    import numpy as np
+
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")

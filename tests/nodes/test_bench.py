@@ -1,0 +1,41 @@
+"""ambid bench --quick: every section runs and reports its figures (a smoke test, nothing is timed)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+
+from ambid_nodes.commands import bench
+
+
+def test_quick_bench_reports_every_figure_as_a_positive_number(ros, tmp_path, capfd, monkeypatch):
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(ros.domain_id))  # the bench's graphs on the test's own domain
+    out = tmp_path / "bench.json"
+    args = argparse.Namespace(json=str(out), loop_seconds=None, repeats=None, fit_lines=None, skip="", quick=True,
+                              work_dir=str(tmp_path / "work"))
+    code = bench.run(args)
+    text = capfd.readouterr().out  # capfd: rclpy's EventsExecutor needs a real stderr (faulthandler)
+    report = json.loads(out.read_text())
+    assert report["errors"] == {}, report["errors"]
+    assert code in (0, 1)  # 1: a target missed, which tiny sizes on a shared machine may well do
+    assert set(report["sections"]) == set(bench.SECTIONS)
+    for name in bench.SECTIONS:
+        section = report["sections"][name]
+        assert section["wall_s"] > 0 and len(section["load_average_1min"]) == 2
+    names = [f["name"] for f in report["figures"]]
+    assert len(names) == len(set(names)) >= 16
+    for f in report["figures"]:
+        assert isinstance(f["value"], (int, float)) and math.isfinite(f["value"]) and f["value"] > 0, f
+        assert f["pass"] in ((True, False) if f["target"] else (None,)), f
+        assert f["name"] in text  # the table shows it
+    # the loop ran ours and bare in both layouts with the same sample count
+    loop = report["sections"]["loop"]
+    for layout in ("composed", "processes"):
+        (r,) = loop[layout]["rounds"]
+        assert r["ours"]["samples"] == r["bare"]["samples"] == loop["samples"] == 2000
+        assert math.isclose(loop[layout]["ratio"], r["ours"]["samples_per_wall_s"] / r["bare"]["samples_per_wall_s"])
+    assert report["sections"]["identify"]["state"] == "done"
+    mem = report["sections"]["memory"]
+    assert math.isclose(mem["offline"]["length_ratio"], bench.FACTOR) and mem["live"]["length_ratio"] > 1.5
+    assert len(report["machine"]["load_average_start"]) == 3
