@@ -13,10 +13,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import linalg
 
+from ambid.frf.sensitivity import iso14839_zone
 from ambid.statespace import StateSpace
 
 # ISO 14839-3 upper limits of the peak sensitivity for zones A, B, C (absolute gain)
-_ZONES = (("A", 3.0), ("B", 4.0), ("C", 5.0))
 
 
 def close_loop(plant_d: StateSpace, controller: StateSpace) -> StateSpace:
@@ -141,14 +141,6 @@ class LoopRobustness:
     max_singular_peak: float
 
 
-def iso_zone(peak: float) -> str:
-    """ISO 14839-3 zone of a sensitivity peak (absolute gain)."""
-    for zone, limit in _ZONES:
-        if peak < limit:
-            return zone
-    return "D"
-
-
 def robustness_grid(loop: StateSpace, f_lo_hz: float = 1.0, n_grid: int = 4000) -> np.ndarray:
     """Frequency grid [Hz] for peak searches: log-spaced to Nyquist plus dense patches around every
     lightly damped closed-loop pole (a 0.5 %-damped mode is narrower than any affordable log grid)."""
@@ -200,4 +192,4 @@ def loop_robustness(plant: StateSpace, controller: StateSpace, f_lo_hz: float = 
         for k in gain_cross:
             pm[j] = min(pm[j], 180.0 - abs(np.degrees(ang[k])))
     sv = np.linalg.svd(s, compute_uv=False)[:, 0].max()
-    return LoopRobustness(peak, f[idx], iso_zone(float(peak.max())), gm_low, gm_high, pm, float(sv))
+    return LoopRobustness(peak, f[idx], iso14839_zone(float(peak.max())), gm_low, gm_high, pm, float(sv))
