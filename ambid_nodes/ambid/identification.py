@@ -57,6 +57,7 @@ from ambid.fit import (FitResult, StabilisationDiagram, fit_common_denominator, 
                        save_model_npz, stabilisation_diagram)
 from ambid.frf.offline import frf_from_session, session_designs
 from ambid.frf.periods import period_spectra
+from ambid.frf.sensitivity import iso14839_zone
 from ambid.frf.streaming import FrfResult
 from ambid.model_update import (PhysicalUpdate, nominal_parameters, physical_frf, true_parameters, unmodelled_mode,
                                 update_physical_model)
@@ -545,7 +546,9 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         update=update_dict,
         sensitivity=dict(peak=frf.sensitivity_peak, peak_hz=frf.sensitivity_peak_hz,
                          worst_input=frf.input_names[worst], worst_peak=float(frf.sensitivity_peak[worst]),
-                         iso_zone=frf.iso_zone),
+                         iso_zone=frf.iso_zone,
+                         **_model_sensitivity(path, fit.model, band, design.fs_hz, the_rig if simulated else None,
+                                              recover)),
         files=dict(model_npz=str(out / "model.npz"), model_json=str(out / "model.json"),
                    frf_npz=str(out / "frf.npz"), summary_json=str(out / "identification.json")),
         notes=notes)
@@ -603,3 +606,45 @@ def _samples_for_report(path: str, chosen: dict, design: ExcitationDesign, frf: 
                       r=x[:, ny + nu:], output_names=frf.output_names, input_names=frf.input_names)
     return levels, window
 
+
+
+def _recorded_controller(path, recover: bool):
+    """The controller's discrete state-space from the session's ControllerDescription, or None."""
+    from ambid.mcap_session import iter_decoded
+    from ambid.statespace import StateSpace
+
+    for msg, dec in iter_decoded(path, recover=recover):
+        if msg.topic.endswith("controller/description"):
+            m = dec.model
+            n, nu, ny = m.n_states, m.n_inputs, m.n_outputs
+            return StateSpace(np.reshape(m.a, (n, n)), np.reshape(m.b, (n, nu)), np.reshape(m.c, (ny, n)),
+                              np.reshape(m.d, (ny, nu)), m.sample_period)
+    return None
+
+
+def _model_sensitivity(path, model, band, fs_hz: float, rig, recover: bool) -> dict:
+    """Input-sensitivity peak between the excited lines: S = (I - K G_fit)^-1 on a dense grid.
+
+    The measured S is known only at the excited lines, which can straddle a
+    sharp peak; the fitted plant with the recorded controller K(z) gives it in
+    between. With a simulated rig, the true loop's peak is given beside it.
+    """
+    k = _recorded_controller(path, recover)
+    if k is None:
+        return {}
+    f = np.linspace(band[0], band[1], 8000)
+    g = model.freqresp(f)
+    kz = k.freqresp(f)
+    s = np.linalg.inv(np.eye(g.shape[2])[None] - kz @ g)
+    diag = np.abs(np.diagonal(s, axis1=1, axis2=2))
+    i = diag.argmax(axis=0)
+    peak = diag[i, np.arange(diag.shape[1])]
+    out = dict(model_peak=peak, model_peak_hz=f[i], model_iso_zone=iso14839_zone(float(peak.max())),
+               model_note="fitted plant with the recorded controller, 8000 lines over the band")
+    if rig is not None:
+        from ambid.closed_loop import loop_robustness
+        from ambid.true_rig import true_linear_model
+
+        truth = loop_robustness(true_linear_model(rig), k)
+        out.update(true_peak=truth.sensitivity_peak, true_peak_hz=truth.peak_freq_hz, true_iso_zone=truth.zone)
+    return out
