@@ -327,11 +327,9 @@ class ExcitationGenerator(Node):
 
     # --- reporting -------------------------------------------------------------
     def on_reject(self, topic: str, why: str) -> None:
-        self.get_logger().warn(f"rejected message ({self.rejected} so far): {why}", throttle_duration_sec=1.0)
         self.event(SessionEvent.WARN, "rejected_message", why)
 
     def on_handler_error(self, topic: str, why: str) -> None:
-        self.get_logger().error(why, throttle_duration_sec=1.0)
         self.event(SessionEvent.ERROR, "handler_error", why)
 
     def event(self, severity: int, code: str, text: str) -> None:

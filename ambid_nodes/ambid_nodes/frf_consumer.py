@@ -42,7 +42,7 @@ from ambid.frf.streaming import ESTIMATORS, FrfResult, FrfStream, loop_consisten
 from ambid.statespace import StateSpace
 from ambid_nodes import qos
 from ambid_nodes.conversions import (BadMessage, block_data, check_controller_description, check_design,
-                                     statespace_from_msg, time_msg)
+                                     float_array, statespace_from_msg, time_msg)
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 
@@ -83,7 +83,9 @@ class FrfConsumer(Node):
         self.dt = 0.0
         self.index = 0
         self.state = SessionStatus.STATE_IDLE
+        self.status_received = -1
         self.publish_status()
+        self.create_timer(1.0, self.status_if_changed)  # rejections between the per-period statuses
 
     # --- inputs ---------------------------------------------------------------
     @property
@@ -194,19 +196,19 @@ class FrfConsumer(Node):
         self.result = result
         g = result.frf
 
-        def variance(v: np.ndarray) -> np.ndarray:
-            return np.empty(0) if np.all(np.isnan(v)) else v.ravel()
+        def variance(v: np.ndarray):
+            return float_array([]) if np.all(np.isnan(v)) else float_array(v.ravel())
 
         msg = FrfEstimate(stamp=time_msg(self.index * self.dt), experiment_id=self.experiment_id,
                           estimator=result.estimator, output_names=list(result.output_names),
                           input_names=list(result.input_names), periods_used=result.n_periods,
                           realisations_used=result.n_realisations, experiments_used=result.n_experiments)
-        msg.frequency = np.ascontiguousarray(result.freq_hz, dtype=float)
-        msg.real = np.ascontiguousarray(g.real).ravel()
-        msg.imag = np.ascontiguousarray(g.imag).ravel()
+        msg.frequency = float_array(result.freq_hz)
+        msg.real = float_array(g.real.ravel())
+        msg.imag = float_array(g.imag.ravel())
         msg.variance_noise = variance(result.var_noise)
         msg.variance_total = variance(result.var_total)
-        msg.coherence = np.ascontiguousarray(result.coherence, dtype=float).ravel()
+        msg.coherence = float_array(np.ravel(result.coherence))
         self.pub_frf.publish(msg)
         return result
 
@@ -268,7 +270,13 @@ class FrfConsumer(Node):
                 "controller_consistency": _json_float(self.consistency(r))})
         return f
 
+    def status_if_changed(self) -> None:
+        if self.received != self.status_received:
+            # after an experiment's end its final figures stay in the (latched) status
+            self.publish_status(self.figures(final=self.state != SessionStatus.STATE_RUNNING))
+
     def publish_status(self, figures: dict | None = None) -> None:
+        self.status_received = self.received
         f = self.figures() if figures is None else figures
         counts = self.intake.figures()
         if self.stream is None:
@@ -298,11 +306,9 @@ class FrfConsumer(Node):
             values=[json.dumps(v) for v in (*f.values(), *counts.values())]))
 
     def on_reject(self, topic: str, why: str) -> None:
-        self.get_logger().warn(f"rejected message ({self.rejected} so far): {why}", throttle_duration_sec=1.0)
         self.event(SessionEvent.WARN, "rejected_message", why)
 
     def on_handler_error(self, topic: str, why: str) -> None:
-        self.get_logger().error(why, throttle_duration_sec=1.0)
         self.event(SessionEvent.ERROR, "handler_error", why)
 
     def event(self, severity: int, code: str, text: str) -> None:

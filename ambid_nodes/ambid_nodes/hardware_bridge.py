@@ -243,6 +243,11 @@ class HardwareBridge(Node):
             self.event_throttled(SessionEvent.WARN if exc.reason != "version" else SessionEvent.ERROR,
                                  "malformed_datagram", f"refused a datagram from the target ({exc.reason}): {exc}")
             return
+        if not isinstance(msg, (bp.Measurement, bp.Heartbeat, bp.Ack)):
+            self.malformed["direction"] += 1  # refused, not counted received: nor a sign of a live target
+            self.event_throttled(SessionEvent.WARN, "malformed_datagram",
+                                 f"refused a {type(msg).__name__.upper()} datagram: only the bridge sends those")
+            return
         why = content_error(msg)
         if why:
             self.malformed["content"] += 1
@@ -269,12 +274,8 @@ class HardwareBridge(Node):
                                      "they were declared lost; dropped")
         elif isinstance(msg, bp.Heartbeat):
             self.on_heartbeat(msg, t_rx)
-        elif isinstance(msg, bp.Ack):
-            self.on_ack(msg)
         else:
-            self.malformed["direction"] += 1
-            self.event_throttled(SessionEvent.WARN, "malformed_datagram",
-                                 f"refused a {type(msg).__name__.upper()} datagram: only the bridge sends those")
+            self.on_ack(msg)
 
     def on_heartbeat(self, hb: bp.Heartbeat, t_rx: float) -> None:
         if self.hb_seq is not None:
@@ -494,12 +495,9 @@ class HardwareBridge(Node):
 
     # --- reporting --------------------------------------------------------
     def on_reject(self, topic: str, why: str) -> None:
-        self.get_logger().warn(f"rejected message ({self.intake.total_rejected} so far): {why}",
-                               throttle_duration_sec=1.0)
         self.event(SessionEvent.WARN, "rejected_message", why)
 
     def on_handler_error(self, topic: str, why: str) -> None:
-        self.get_logger().error(why, throttle_duration_sec=1.0)
         self.event(SessionEvent.ERROR, "handler_error", why)
 
     def event(self, severity: int, code: str, text: str, index: int | None = None) -> None:

@@ -8,6 +8,13 @@ executor. Handlers signal a bad message by raising
 counted apart (``errors``) and reported as an ERROR event, and the message
 counts as rejected.
 
+Reports are rate-limited, so a flood of bad messages costs the node little
+(rclpy's logger inspects the call stack on every call, a few ms, even when
+throttled): each rejection is reported as an event while a budget of
+``EVENT_BURST`` events, refilled at ``EVENT_RATE`` per second, lasts; beyond it
+rejections are folded into the next event, which says how many; the log gets
+at most one line per ``LOG_PERIOD_S``.
+
 The counters are reported in every node's ``status`` (``keys``/``values``
 ``received:<topic>``, ``accepted:<topic>``, ``rejected:<topic>``, and
 ``handler_errors`` when there were any); ``received == accepted + rejected``
@@ -17,11 +24,16 @@ holds per topic at any moment between callbacks.
 from __future__ import annotations
 
 import collections
+import time
 from typing import Callable
 
 from rclpy.node import Node
 
 from ambid_nodes.conversions import BadMessage, decode_message
+
+EVENT_BURST = 50       # rejection events reported back to back
+EVENT_RATE = 10.0      # rejection events per second beyond the burst
+LOG_PERIOD_S = 1.0     # log lines about rejections at most this often
 
 
 class Intake:
@@ -29,9 +41,9 @@ class Intake:
 
     Args:
         node: the node that subscribes.
-        on_reject: ``on_reject(topic, why)`` logs and reports one rejected message
-            (the node's event conventions); called once per rejected message.
-        on_error: ``on_error(topic, why)`` reports a handler bug (an ERROR event).
+        on_reject: ``on_reject(topic, why)`` reports a rejected message as an event (the node's
+            conventions); called within the event budget, ``why`` then says how many were folded.
+        on_error: ``on_error(topic, why)`` reports a handler bug (an ERROR event), same budget.
     """
 
     def __init__(self, node: Node, on_reject: Callable[[str, str], None],
@@ -43,6 +55,11 @@ class Intake:
         self.accepted: collections.Counter[str] = collections.Counter()
         self.rejected: collections.Counter[str] = collections.Counter()
         self.errors = 0
+        self._tokens = float(EVENT_BURST)
+        self._refilled = time.monotonic()
+        self._folded = 0
+        self._last_log = -1e9
+        self._log_folded = 0
 
     def subscribe(self, msg_type, topic: str, handler: Callable, qos_profile):
         """A raw subscription whose messages are decoded and handed to ``handler(msg)``.
@@ -74,6 +91,23 @@ class Intake:
 
     def reject(self, topic: str, why: str, error: bool = False) -> None:
         self.rejected[topic] += 1
+        now = time.monotonic()
+        if now - self._last_log >= LOG_PERIOD_S or error:
+            more = f" ({self._log_folded} more since the last line)" if self._log_folded else ""
+            log = self.node.get_logger()
+            (log.error if error else log.warn)(f"rejected message ({self.total_rejected} so far): {why}{more}")
+            self._last_log, self._log_folded = now, 0
+        else:
+            self._log_folded += 1
+        self._tokens = min(EVENT_BURST, self._tokens + (now - self._refilled) * EVENT_RATE)
+        self._refilled = now
+        if self._tokens < 1.0 and not error:
+            self._folded += 1
+            return
+        self._tokens -= 1.0
+        if self._folded:
+            why += f" ({self._folded} more rejections since the last event, not reported one by one)"
+            self._folded = 0
         (self.on_error if error else self.on_reject)(topic, why)
 
     @property

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
 import sys
+
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
@@ -12,6 +14,22 @@ from rclpy.task import Future
 from ambid_nodes.parameters import ParameterError
 
 SUMMARY_PREFIX = "AMBID_SUMMARY "
+
+
+def apply_network_defaults(environ=os.environ) -> str:
+    """Safe DDS default: discovery on this host only unless the user opened it.
+
+    Sets ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` when it is unset or empty (ROS 2 Jazzy's own
+    default is SUBNET); a value the user set (SUBNET, SYSTEM_DEFAULT, OFF) and ``ROS_STATIC_PEERS``
+    are kept. Returns a one-line description of the node's networking for its log.
+    """
+    if not environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE"):
+        environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    peers = environ.get("ROS_STATIC_PEERS", "")
+    security = "on" if environ.get("ROS_SECURITY_ENABLE", "").lower() == "true" else "off"
+    return (f"ROS_DOMAIN_ID={environ.get('ROS_DOMAIN_ID', '0')}, discovery range "
+            f"{environ['ROS_AUTOMATIC_DISCOVERY_RANGE']}" + (f", static peers {peers}" if peers else "")
+            + f", SROS2 security {security}")
 
 
 def spin_until_done(executor, future, context=None) -> None:
@@ -32,6 +50,7 @@ def run_single(node_class, args=None) -> int:
     A node with a ``finished`` future prints one line ``AMBID_SUMMARY {json}`` of its
     result for a supervising script.
     """
+    network = apply_network_defaults()  # before rclpy.init: the middleware reads it there
     try:
         rclpy.init(args=args)
     except Exception as exc:  # noqa: BLE001 - rcl reports malformed --ros-args and YAML files this way
@@ -43,6 +62,7 @@ def run_single(node_class, args=None) -> int:
     node = None
     try:
         node = node_class()
+        node.get_logger().info(f"networking: {network}")
         executor.add_node(node)
         finished = getattr(node, "finished", None)
         spin_until_done(executor, finished if finished is not None else Future())

@@ -110,6 +110,8 @@ class PositionController(Node):
         self.plant_ended: dict[str, bool] = {}  # node -> its last status was done/failed
         self.lost_at: int | None = None
         self.watchdog = self.create_timer(min(0.1, self.timeout / 2), self.check_plant)
+        self.status_received = -1
+        self.create_timer(1.0, self.status_when_idle)
         self.pub_desc.publish(ControllerDescription(
             stamp=time_msg(0.0), name=self.get_fully_qualified_name(), kind=self.kind,
             delay_samples=delay_samples, model=statespace_to_msg(self.model),
@@ -201,11 +203,9 @@ class PositionController(Node):
         self.publish_status()
 
     def on_reject(self, topic: str, why: str) -> None:
-        self.get_logger().warn(f"rejected message ({self.rejected} so far): {why}", throttle_duration_sec=1.0)
         self.event(SessionEvent.WARN, "rejected_message", why, self.expected or 0)
 
     def on_handler_error(self, topic: str, why: str) -> None:
-        self.get_logger().error(why, throttle_duration_sec=1.0)
         self.event(SessionEvent.ERROR, "handler_error", why, self.expected or 0)
 
     def event(self, severity: int, code: str, text: str, k: int) -> None:
@@ -214,7 +214,17 @@ class PositionController(Node):
         self.pub_event.publish(SessionEvent(stamp=time_msg(k * self.rig.dt), sample_index=k, severity=severity,
                                             node=self.get_fully_qualified_name(), code=code, text=text))
 
+    def status_when_idle(self) -> None:
+        # while the loop runs, status goes out every STATUS_EVERY samples; otherwise when the counters moved
+        if self.state != SessionStatus.STATE_RUNNING and self.status_signature() != self.status_received:
+            self.publish_status()
+
+    def status_signature(self) -> tuple[int, int]:
+        # not every received message: the controller hears its own status too
+        return self.intake.received["displacement"], self.rejected
+
     def publish_status(self) -> None:
+        self.status_received = self.status_signature()
         k = max((self.expected or 1) - 1, 0)
         f = {"plant_timeout_s": self.timeout, "lost_at": self.lost_at, **self.intake.figures()}
         states = {SessionStatus.STATE_IDLE: "idle", SessionStatus.STATE_RUNNING: "running",

@@ -180,6 +180,8 @@ class Recorder(Node):
         self.bytes = 0
         self.last_log_ns = 0
         self.clock_back_reported = False
+        self.unreadable = 0  # descriptions without readable facts since the last report
+        self.unreadable_reported = -1e9
         self.failed: str | None = None
         self.closed = False
         self.summary: dict | None = None
@@ -356,9 +358,16 @@ class Recorder(Node):
         except SessionWriteError as exc:
             self.fail(exc)
         except Exception as exc:  # noqa: BLE001 - a malformed description must not stop the recording
-            why = f"{topic}: recorded, but no session facts could be read from it: {exc}"
-            self.get_logger().warn(why, throttle_duration_sec=5.0)
-            self.event(SessionEvent.WARN, "unreadable_description", why)
+            # reported at most once a second (a flood of bad descriptions must not slow recording down:
+            # rclpy's logger costs milliseconds per call, throttled or not)
+            self.unreadable += 1
+            now = time.monotonic()
+            if now - self.unreadable_reported >= 1.0:
+                more = f" ({self.unreadable - 1} more since the last report)" if self.unreadable > 1 else ""
+                why = f"{topic}: recorded, but no session facts could be read from it: {exc}{more}"
+                self.get_logger().warn(why)
+                self.event(SessionEvent.WARN, "unreadable_description", why)
+                self.unreadable, self.unreadable_reported = 0, now
 
     def write_facts(self, facts: dict) -> None:
         self.facts.update(facts)

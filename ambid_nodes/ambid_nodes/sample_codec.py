@@ -11,10 +11,9 @@ Layout: encapsulation header 00 01 00 00, uint64 index, uint32 count,
 
 from __future__ import annotations
 
-import math
 import struct
 
-from ambid_nodes.conversions import BadMessage
+from ambid_nodes.conversions import BadMessage, all_finite
 
 _HEADER = b"\x00\x01\x00\x00"
 _HEAD = struct.Struct("<4sQI")
@@ -49,6 +48,6 @@ def decode_sample(data: bytes, n_expected: int, what: str) -> tuple[int, list[fl
     if len(data) < p.size:
         raise BadMessage(f"{what}: {len(data)} bytes for {count} values, expected {p.size}", index)
     values = list(p.unpack_from(data)[3:])
-    if not math.isfinite(math.fsum(values)):  # finite only if every term is
+    if not all_finite(values):
         raise BadMessage(f"{what}: non-finite value in {values}", index)
     return index, values

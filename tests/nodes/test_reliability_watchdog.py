@@ -1,0 +1,166 @@
+"""Issue 9, point 2: a controller or plant that dies (SIGKILL) or stalls (SIGSTOP) is detected by the
+other side within a bounded number of samples, and both stop safely.
+
+The survivor runs in the test's process (its state is read directly), the victim in its own. In
+lock-step the survivor waits at the very sample the victim did not serve, so the detection latency
+is 0 samples of simulated time; its wall time is the timeout plus at most one watchdog period.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from ambid_msgs.msg import Sample, SampleBlock, SessionEvent, SessionStatus
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from ambid_nodes import qos
+from ambid_nodes.conversions import block_data
+from ambid_nodes.node_main import SUMMARY_PREFIX
+from ambid_nodes.plant_sim import LANDING_S, MEASUREMENT_NAMES, PlantSim
+from ambid_nodes.position_controller import PositionController
+
+TIMEOUT_S = 0.5
+WATCHDOG_S = 0.1
+
+
+class Spy(Node):
+    def __init__(self, context, ns):
+        super().__init__("spy", namespace=ns, context=context)
+        self.y, self.ic, self.blocks, self.events = [], [], [], []
+        self.event_wall: dict[str, float] = {}
+        self.create_subscription(Sample, "displacement", lambda m: self.y.append(m.index), qos.LOOP)
+        self.create_subscription(Sample, "control_current", lambda m: self.ic.append(m.index), qos.LOOP)
+        self.create_subscription(SampleBlock, "measurement", self.blocks.append, qos.BLOCKS)
+        self.create_subscription(SessionEvent, "events", self.on_event, qos.EVENTS)
+        self.pub_y = self.create_publisher(Sample, "displacement", qos.LOOP)
+
+    def on_event(self, e):
+        self.events.append(e)
+        self.event_wall.setdefault(e.code, time.monotonic())
+
+    def code(self, code):
+        return [e for e in self.events if e.code == code]
+
+
+def start(module, ns, env, **params):
+    args = [sys.executable, "-m", f"ambid_nodes.{module}", "--ros-args", "-r", f"__ns:={ns}"]
+    for k, v in params.items():
+        args += ["-p", f"{k}:={v}"]
+    return subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True)
+
+
+def stop(proc):
+    if proc.poll() is None:
+        os.kill(proc.pid, signal.SIGCONT)
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    return proc.stdout.read()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGSTOP], ids=["killed", "stalled"])
+def test_plant_detects_a_dead_or_stalled_controller_and_lands_the_rotor(ros, ros_env, sig):
+    ns = f"/wd_ctrl_{sig.name.lower()}"
+    spy = ros.add(Spy(ros.context, ns))
+    ctrl = start("position_controller", ns, ros_env)
+    try:
+        plant = ros.add(PlantSim(namespace=ns, context=ros.context, parameter_overrides=[
+            Parameter("controller_timeout", value=TIMEOUT_S), Parameter("block_size", value=500)]))
+        assert ros.spin_until(lambda: plant.k >= 1000, 90), "the loop did not run across the two processes"
+        os.kill(ctrl.pid, sig)
+        t_fault = time.monotonic()
+        assert ros.spin_until(plant.finished.done, 20)
+        s = plant.finished.result()
+        assert ros.spin_until(lambda: spy.code("controller_lost") and spy.blocks
+                              and spy.blocks[-1].flags & SampleBlock.FLAG_FINAL, 10)
+    finally:
+        stop(ctrl)
+    assert s["state"] == "failed"
+    lost = spy.code("controller_lost")[0]
+    assert lost.severity == SessionEvent.FATAL
+    # latency in samples: the plant stopped at the first sample without an answer
+    last_answer = max(spy.ic)
+    assert lost.sample_index == last_answer + 1
+    quiet = s["controller_lost_after_s"]  # wall time from the last answer to the plant's verdict
+    wall = spy.event_wall["controller_lost"] - t_fault  # also simulates the landing before the spy runs
+    print(f"controller {sig.name}: detected at sample {lost.sample_index} (last answer {last_answer}, latency 0 "
+          f"samples), {quiet:.3f} s after the last answer; event at a subscriber {wall:.3f} s after the fault "
+          f"(timeout {TIMEOUT_S} s)")
+    assert TIMEOUT_S < quiet < TIMEOUT_S + WATCHDOG_S + 0.5  # scheduling slack on a loaded 2-core box
+    assert wall < TIMEOUT_S + 10
+    # nothing lost: the blocks tile [0, end); the safe state (zero current, landing) is recorded after it
+    firsts = [b.first_index for b in spy.blocks]
+    ends = [b.first_index + b.n_samples for b in spy.blocks]
+    assert firsts[0] == 0 and all(a == b for a, b in zip(ends, firsts[1:]))
+    data = np.concatenate([block_data(b, MEASUREMENT_NAMES) for b in spy.blocks])
+    flags = np.concatenate([np.asarray(b.sample_flags) for b in spy.blocks])
+    safe = flags & SampleBlock.FLAG_CONTROLLER_LOST != 0
+    assert np.flatnonzero(safe)[0] == lost.sample_index and safe[lost.sample_index:].all()
+    assert safe.sum() == round(LANDING_S / plant.dt) and not data[safe, 4:16].any()  # u = ic = r = 0
+    assert (flags[safe] & SampleBlock.FLAG_LANDED).any()  # on the backup bearings
+    assert not (flags[~safe] & SampleBlock.FLAG_CONTROLLER_LOST).any()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGSTOP], ids=["killed", "stalled"])
+def test_controller_detects_a_dead_or_stalled_plant_and_idles_safely(ros, ros_env, sig):
+    ns = f"/wd_plant_{sig.name.lower()}"
+    spy = ros.add(Spy(ros.context, ns))
+    plant = start("plant_sim", ns, ros_env, controller_timeout=TIMEOUT_S)
+    try:
+        ctrl = ros.add(PositionController(namespace=ns, context=ros.context,
+                                          parameter_overrides=[Parameter("plant_timeout", value=TIMEOUT_S)]))
+        assert ros.spin_until(lambda: (ctrl.expected or 0) >= 1000, 90), "the loop did not run"
+        os.kill(plant.pid, sig)
+        t_fault = time.monotonic()
+        assert ros.spin_until(lambda: ctrl.state == SessionStatus.STATE_FAILED, 20)
+        assert ros.spin_until(lambda: spy.code("plant_lost"), 5)
+        lost = spy.code("plant_lost")[0]
+        wall = spy.event_wall["plant_lost"] - t_fault
+        last_y = max(spy.y)
+        # the first sample the plant did not send; latency 0 samples
+        assert lost.severity == SessionEvent.ERROR and lost.sample_index == last_y + 1 == ctrl.lost_at
+        assert ctrl.ic_last == [0.0] * 4
+        print(f"plant {sig.name}: detected at sample {lost.sample_index} (last displacement {last_y}, latency 0 "
+              f"samples), {wall:.3f} s wall after the fault (timeout {TIMEOUT_S} s)")
+        assert wall < TIMEOUT_S + WATCHDOG_S + 1.0
+        if sig == signal.SIGSTOP:
+            # the stalled plant resumes: it is not answered any more, so it goes to its own safe state
+            os.kill(plant.pid, signal.SIGCONT)
+            code = plant.wait(30)
+            out = plant.stdout.read()
+            summary = json.loads(next(ln for ln in out.splitlines() if ln.startswith(SUMMARY_PREFIX))
+                                 [len(SUMMARY_PREFIX):])
+            assert code == 1 and summary["state"] == "failed", out[-2000:]
+            assert ros.spin_until(lambda: spy.code("controller_lost"), 10)
+        # the controller idles: a displacement of the lost session is refused, a new session (sample 0) served
+        n = ctrl.intake.rejected["displacement"]
+        spy.pub_y.publish(Sample(index=last_y + 5, values=[0.0] * 4))
+        assert ros.spin_until(lambda: ctrl.intake.rejected["displacement"] == n + 1, 5)
+        spy.pub_y.publish(Sample(index=0, values=[0.0] * 4))
+        assert ros.spin_until(lambda: ctrl.state == SessionStatus.STATE_RUNNING and ctrl.expected == 1, 5)
+    finally:
+        stop(plant)
+
+
+def test_a_plant_that_ends_its_run_is_not_reported_lost(ros):
+    ns = "/wd_end"
+    spy = ros.add(Spy(ros.context, ns))
+    plant = ros.add(PlantSim(namespace=ns, context=ros.context,
+                             parameter_overrides=[Parameter("sim_seconds", value=0.2)]))
+    ctrl = ros.add(PositionController(namespace=ns, context=ros.context,
+                                      parameter_overrides=[Parameter("plant_timeout", value=0.2)]))
+    assert ros.spin_until(plant.finished.done, 60)
+    assert ros.spin_until(lambda: ctrl.state == SessionStatus.STATE_DONE and spy.code("plant_finished"), 5)
+    assert not spy.code("plant_lost")
