@@ -33,9 +33,11 @@ class SessionConfig:
     kind: str = "multisine"
     band_hz: tuple[float, float] = (10.0, 1000.0)
     resolution_hz: float = 5.0
-    peak_current_a: float = 0.5
+    # 0.4 A keeps the magnets' odd distortion within ~3 dB of the noise (at 0.5 A it biased
+    # the housing-mode damping by 11 %); three realisations bring the worst line under 8 %
+    peak_current_a: float = 0.4
     periods: int = 4
-    realisations: int = 2
+    realisations: int = 3
     transient_periods: int = 3
     grid: str = "random_odd"
     mimo: str = "orthogonal"

@@ -19,9 +19,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--band", nargs=2, type=float, metavar=("LO", "HI"), default=(10.0, 1000.0),
                    help="band of interest [Hz] (default 10 1000)")
     p.add_argument("--resolution", type=float, default=5.0, help="frequency resolution [Hz] (default 5)")
-    p.add_argument("--peak-current", type=float, default=0.5, help="excitation peak per input [A] (default 0.5)")
+    p.add_argument("--peak-current", type=float, default=0.4, help="excitation peak per input [A] (default 0.4)")
     p.add_argument("--periods", type=int, default=4, help="steady-state periods per experiment (default 4)")
-    p.add_argument("--realisations", type=int, default=2, help="random-phase realisations (default 2)")
+    p.add_argument("--realisations", type=int, default=3, help="random-phase realisations (default 3)")
     p.add_argument("--transient-periods", type=int, default=3, help="periods discarded per experiment (default 3)")
     p.add_argument("--mimo", default="orthogonal", choices=["orthogonal", "one_at_a_time"],
                    help="multisine over the 4 inputs (default orthogonal)")
@@ -77,8 +77,13 @@ def format_headlines(s: dict, out: Path) -> str:
                          + (f", true {true:.5g}" if true is not None else ""))
     sens = s.get("sensitivity")
     if sens:
-        lines.append(f"  input sensitivity peak {sens['worst_peak']:.2f} ({sens['worst_input']}), "
-                     f"ISO 14839-3 zone {sens['iso_zone']}")
+        line = (f"  input sensitivity peak {sens['worst_peak']:.2f} at the excited lines ({sens['worst_input']}), "
+                f"ISO 14839-3 zone {sens['iso_zone']}")
+        if "model_peak" in sens:
+            line += f"; between the lines (fitted plant + controller) {max(sens['model_peak']):.2f}"
+            if "true_peak" in sens:
+                line += f", true loop {max(sens['true_peak']):.2f}"
+        lines.append(line)
     lines += [f"  summary: {out / 'summary.json'}", f"  report:  {out / 'report' / 'index.html'}",
               f"  session: {s['recording']['path']} ({s['recording']['messages']} messages)"]
     return "\n".join(lines)
