@@ -58,7 +58,7 @@ def all_finite(values) -> bool:
     try:
         # a sum is finite only if every term is (one C-level pass instead of a Python loop)
         return math.isfinite(math.fsum(values))
-    except OverflowError:  # finite values whose sum overflows (1e308 + 1e308)
+    except (OverflowError, ValueError):  # 1e308 + 1e308 overflows; fsum raises on inf + -inf
         return all(map(math.isfinite, values))
 
 

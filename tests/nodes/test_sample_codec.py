@@ -1,0 +1,37 @@
+"""The hand-packed lock-step Sample: same bytes as rclpy, and every bad value refused, never raised."""
+
+import math
+
+import pytest
+from ambid_msgs.msg import Sample
+from rclpy.serialization import deserialize_message
+
+from ambid_nodes.conversions import BadMessage, all_finite
+from ambid_nodes.sample_codec import decode_sample, encode_sample
+
+
+def test_round_trip_and_rclpy_reads_it():
+    data = encode_sample(7, [1.0, -2.5, 3e-6, 4.0])
+    assert decode_sample(data, 4, "y") == (7, [1.0, -2.5, 3e-6, 4.0])
+    msg = deserialize_message(data, Sample)
+    assert msg.index == 7 and list(msg.values) == [1.0, -2.5, 3e-6, 4.0]
+
+
+def test_huge_finite_values_accepted():
+    assert decode_sample(encode_sample(9, [1e308, 1e308, -1e308, 0.0]), 4, "y")[1][0] == 1e308
+
+
+@pytest.mark.parametrize("values", [[math.nan, 0, 0, 0], [math.inf, -math.inf, 0, 0], [0, 0, 0, -math.inf],
+                                    [1e308, 1e308, math.inf, -math.inf]])
+def test_non_finite_refused_with_index(values):
+    with pytest.raises(BadMessage) as err:
+        decode_sample(encode_sample(3, values), 4, "y")
+    assert err.value.index == 3 and "non-finite" in str(err.value)
+    assert not all_finite(values)
+
+
+def test_wrong_count_and_truncation_refused():
+    with pytest.raises(BadMessage, match="3 values, expected 4"):
+        decode_sample(encode_sample(3, [0.0] * 3), 4, "y")
+    with pytest.raises(BadMessage, match="bytes"):
+        decode_sample(encode_sample(3, [0.0] * 4)[:40], 4, "y")
