@@ -442,7 +442,7 @@ def test_target_serves_plant_sim_rows_with_excitation_at_its_index(target_sessio
 
 
 def test_target_flags_missing_excitation_and_goes_safe_when_the_bridge_is_silent(target_session):
-    tg, bridge, th = target_session(seed=1, pace=0, samples=0, bridge_timeout=0.3, safe_seconds=0.005, linger=0)
+    tg, bridge, th = target_session(seed=1, pace=1.0, samples=0, bridge_timeout=0.3, safe_seconds=0.005, linger=0)
     to = tg.address
     bridge.command(to, 1, bp.CommandCode.EXPERIMENT, 50, 1_000_000, 1)  # announced, never sent
     bridge.command(to, 2, bp.CommandCode.START)
