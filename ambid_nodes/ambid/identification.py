@@ -42,7 +42,6 @@ and worst value over the excited lines.
 from __future__ import annotations
 
 import json
-import math
 import os
 import time
 from collections.abc import Mapping, Sequence
@@ -59,6 +58,7 @@ from ambid.frf.offline import frf_from_session, session_designs
 from ambid.frf.periods import period_spectra
 from ambid.frf.sensitivity import iso14839_zone
 from ambid.frf.streaming import FrfResult
+from ambid.jsonable import to_jsonable
 from ambid.model_update import (PhysicalUpdate, nominal_parameters, physical_frf, true_parameters, unmodelled_mode,
                                 update_physical_model)
 from ambid.rig import Rig, load_rig, make_rig
@@ -305,22 +305,6 @@ def _fit_variance(frf: FrfResult, pool: bool = True) -> tuple[np.ndarray | None,
                 v = np.broadcast_to(v.mean(axis=2, keepdims=True), v.shape)
             return np.maximum(v, 1e-6 * np.median(v[v > 0])), name + (", pooled over the inputs" if pool else "")
     return None, "none (equal weights)"
-
-
-def _json(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _json(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_json(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _json(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        return float(x) if math.isfinite(x) else None
-    if isinstance(x, np.integer):
-        return int(x)
-    if isinstance(x, np.bool_):
-        return bool(x)
-    return x
 
 
 def _load_rig(rig: Rig | str | os.PathLike | Mapping | None, facts: dict | None) -> Rig | None:
@@ -573,10 +557,10 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
             line_models["updated physical model"] = physical_frf(the_rig.rotor_model(), upd.parameters, f, dt_s)
         summary["files"]["report"] = str(out / "report" / "index.html")
         summary["wall_s"] = time.perf_counter() - t0
-        write_report(out / "report", _json(summary), frf=frf, design=design, diagram=diagram, order=int(order),
+        write_report(out / "report", to_jsonable(summary), frf=frf, design=design, diagram=diagram, order=int(order),
                      curves=curves, levels=levels, window=window, true_frf=true_g, line_models=line_models)
     summary["wall_s"] = time.perf_counter() - t0
-    summary = _json(summary)
+    summary = to_jsonable(summary)
     (out / "identification.json").write_text(json.dumps(summary, indent=1))
     return summary
 

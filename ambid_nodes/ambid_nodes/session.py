@@ -18,8 +18,9 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from ambid.excitation import ExcitationDesign
-from ambid.rig import load_rig, make_rig
 from ambid.excitation.spec import build_design
+from ambid.jsonable import to_jsonable
+from ambid.rig import load_rig, make_rig
 from ambid_nodes.graph import DEFAULT_NAMESPACE, session_domain_id
 
 LIFT_OFF_S = 0.5  # levitate and settle before the experiment starts
@@ -246,17 +247,5 @@ def run_identify(cfg: SessionConfig) -> dict:
         "recording": {"path": run["mcap_path"], "messages": rec.get("messages", rec.get("message_count")),
                       "complete": rec.get("complete", True)},
     }
-    (cfg.out_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=_json_default))
+    (cfg.out_dir / "summary.json").write_text(json.dumps(to_jsonable(summary), indent=2))
     return summary
-
-
-def _json_default(o):
-    import numpy as np
-
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")

@@ -37,6 +37,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from ambid.jsonable import to_jsonable
+
 from .multisine import multisine_period
 from .signals import binary_waveform, filtered_noise, noise_taps, swept_sine_period
 
@@ -152,8 +154,8 @@ class ExcitationDesign:
             ph.setflags(write=False)
             setf(self, "phasors", ph)
         # private copies: the caller's dicts cannot change a frozen design
-        setf(self, "options", _json_safe(self.options))
-        setf(self, "source", _json_safe(self.source))
+        setf(self, "options", to_jsonable(self.options))
+        setf(self, "source", to_jsonable(self.source))
         layout = self._make_layout()
         for a in layout:
             a.setflags(write=False)
@@ -338,8 +340,8 @@ class ExcitationDesign:
              {"real": self.phasors.real.tolist(), "imag": self.phasors.imag.tolist()},
              "peak_a": self.peak_a.tolist(), "rms_a": self.rms_a.tolist(),
              "crest_factor": self.crest_factor.tolist(), "band_hz": list(self.band_hz),
-             "seed": self.seed, "options": _json_safe(self.options),
-             "source": _json_safe(self.source)}
+             "seed": self.seed, "options": to_jsonable(self.options),
+             "source": to_jsonable(self.source)}
         return d
 
     @classmethod
@@ -364,19 +366,6 @@ class ExcitationDesign:
         return self.to_dict() == other.to_dict()
 
     __hash__ = None  # mutable-looking array fields: not hashable
-
-
-def _json_safe(x: Any) -> Any:
-    """Convert numpy scalars/arrays and tuples to plain JSON types."""
-    if isinstance(x, dict):
-        return {str(k): _json_safe(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_json_safe(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _json_safe(x.tolist())
-    if isinstance(x, np.generic):
-        return x.item()
-    return x
 
 
 def _amps(x: float) -> str:

@@ -31,6 +31,8 @@ import time
 import traceback
 from pathlib import Path
 
+from ambid.jsonable import to_jsonable
+
 HELP = "measure loop throughput, identify real-time factor, offline rates and memory against the targets"
 SECTIONS = ("loop", "identify", "offline", "fit", "memory")
 FACTOR = 6  # the long session of the memory figure is this many times longer
@@ -251,20 +253,8 @@ def run(args: argparse.Namespace) -> int:
     for name, err in report["errors"].items():
         print(f"section {name} FAILED: {err}")
     if args.json:
-        Path(args.json).write_text(json.dumps(report, indent=2, default=_json_default))
+        Path(args.json).write_text(json.dumps(to_jsonable(report), indent=2))
         print(f"figures written to {args.json}")
     if report["errors"]:
         return 2
     return 1 if any(f["pass"] is False or (f["target"] and f["pass"] is None) for f in figures) else 0
-
-
-def _json_default(o):
-    import numpy as np
-
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
