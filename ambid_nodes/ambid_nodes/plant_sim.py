@@ -61,6 +61,7 @@ EXCITATION_NAMES = tuple(f"r_{a}" for a in AXES)
 LANDING_S = 0.05
 STATUS_PERIOD_S = 1.0  # wall time between status messages while the loop does not run (it reports per block)
 
+START_RETRY_S = 0.25  # wall time between re-sends of y[0] until the controller answers
 
 class PlantSim(Node):
     def __init__(self, **kwargs) -> None:
@@ -144,6 +145,15 @@ class PlantSim(Node):
         self.started_wall = self.last_answer_wall = time.perf_counter()
         self.event(SessionEvent.INFO, "started", f"lock-step loop started, {self.describe_run()}")
         self.publish_y()
+        # matched counts cannot tell the controller's subscription from another listener's (a
+        # recorder, a monitor): until the first answer arrives, send the same y[0] again
+        self.start_retry = self.create_timer(START_RETRY_S, self.resend_first_sample)
+
+    def resend_first_sample(self) -> None:
+        if self.k > 0 or self.state != SessionStatus.STATE_RUNNING:
+            self.start_retry.cancel()
+            return
+        self.pub_y.publish(self.y_bytes)
 
     def describe_run(self) -> str:
         t = f"{self.sim_seconds:g} s" if self.n_total else "until stopped"
@@ -152,7 +162,8 @@ class PlantSim(Node):
     # --- the loop ---------------------------------------------------------
     def publish_y(self) -> None:
         self.y = self.sim.output()
-        self.pub_y.publish(encode_sample(self.k, self.y.tolist()))
+        self.y_bytes = encode_sample(self.k, self.y.tolist())
+        self.pub_y.publish(self.y_bytes)
 
     @property
     def received(self) -> int:

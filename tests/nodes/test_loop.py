@@ -233,3 +233,25 @@ def test_graph_against_hardware_target_over_loopback(ros_env):
     finally:
         target.terminate()
         target.wait(timeout=30)
+
+
+class LateController(BadController):
+    """Misses the first y[0], as a controller whose subscription matched a moment too late does."""
+
+    def __init__(self, context):
+        super().__init__(context)
+        self.missed = False
+
+    def on_y(self, m):
+        if m.index == 0 and not self.missed:
+            self.missed = True
+            return
+        self.pub.publish(Sample(index=m.index, values=self.ctl.step(list(m.values))))
+
+
+def test_loop_starts_when_the_first_sample_is_missed(ros):
+    plant = ros.add(PlantSim(namespace=NS, context=ros.context,
+                             parameter_overrides=[Parameter("sim_seconds", value=0.2)]))
+    ctrl = ros.add(LateController(ros.context))
+    assert ros.spin_until(plant.finished.done, timeout_s=60)
+    assert ctrl.missed and plant.finished.result()["state"] == "done"
