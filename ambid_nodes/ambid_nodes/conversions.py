@@ -6,7 +6,9 @@ Light to import (no scipy: the recorder uses the checks and starts in a second).
 from __future__ import annotations
 
 import array
+import bisect
 import math
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from ambid_msgs.msg import SampleBlock
@@ -245,3 +247,37 @@ def check_design(msg, sample_period: float | None = None) -> None:
         values = getattr(msg, field)
         if len(values) and max(values) > half:
             raise BadMessage(f"{where}: {field} up to bin {max(values)}, beyond samples_per_period / 2 = {half}")
+
+
+def check_excitation_block(msg: SampleBlock, names: Sequence[str], dt: float, now: int, horizon: int,
+                           held_starts: Sequence[int], held_length: Callable[[int], int], who: str,
+                           passed: int | None = None) -> np.ndarray:
+    """The data (n, channels) [A] of an excitation block its receiver (the plant, or the bridge for its
+    target) can hold, or BadMessage naming what is wrong.
+
+    Checks the channels, values and sample period, that the block ends after ``passed`` (when given:
+    the receiver cannot apply anything at or before it), that it lies within ``horizon`` samples of
+    ``now``, and that it does not repeat or overlap a block already held (``held_starts`` sorted,
+    ``held_length(start)`` the length of the held block at ``start``).
+    """
+    try:
+        data = block_data(msg, names)
+    except BadMessage as exc:
+        raise BadMessage(f"excitation: {exc}") from None
+    if abs(msg.sample_period - dt) > 1e-9 * dt:
+        raise BadMessage(f"excitation: sample period {msg.sample_period!r} s, the {who}'s is {dt} s")
+    first, end = msg.first_index, msg.first_index + len(data)
+    if passed is not None and end <= passed:
+        raise BadMessage(f"excitation block at sample {first} arrived after the {who} passed it "
+                         f"(now {passed}); publish excitation further ahead")
+    if end > now + horizon:
+        raise BadMessage(f"excitation: samples [{first}, {end}) lie beyond the {who}'s horizon of {horizon} "
+                         f"samples ahead of sample {now} (parameter excitation_horizon)")
+    i = bisect.bisect_left(held_starts, end)  # held blocks are disjoint: only the one before end may overlap
+    if i > 0:
+        f = held_starts[i - 1]
+        f_end = f + held_length(f)
+        if first < f_end:
+            raise BadMessage(f"excitation: samples [{first}, {end}) repeat or overlap the block [{f}, {f_end}) "
+                             "already held")
+    return data

@@ -47,7 +47,7 @@ from ambid import bridge_protocol as bp
 from ambid.rig import analytical_model, load_rig, make_rig
 from ambid.rt_target import parse_address
 from ambid_nodes import qos
-from ambid_nodes.conversions import (MAX_SAMPLE_INDEX, BadMessage, block_data, block_msg, check_design,
+from ambid_nodes.conversions import (MAX_SAMPLE_INDEX, block_msg, check_design, check_excitation_block,
                                      statespace_to_msg, time_msg)
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
@@ -413,26 +413,9 @@ class HardwareBridge(Node):
 
     # --- excitation and commands in ---------------------------------------
     def on_excitation(self, msg: SampleBlock) -> None:
-        try:
-            data = block_data(msg, EXCITATION_NAMES)
-        except BadMessage as exc:
-            raise BadMessage(f"excitation: {exc}") from None
-        if abs(msg.sample_period - self.dt) > 1e-9 * self.dt:
-            raise BadMessage(f"excitation sample period {msg.sample_period} s, the target's is {self.dt} s")
         done = self.hb.sample_index if self.hb else 0
-        first, end = msg.first_index, msg.first_index + msg.n_samples
-        if end <= done:
-            raise BadMessage(f"excitation block at sample {first} arrived after the target passed it "
-                             f"(now {done}); publish excitation further ahead")
-        if end > done + self.horizon:
-            raise BadMessage(f"excitation: samples [{first}, {end}) lie beyond the bridge's horizon of "
-                             f"{self.horizon} samples ahead of the target's sample {done} (parameter "
-                             "excitation_horizon)")
-        i = bisect.bisect_left(self.exc_firsts, end)  # held chunks are disjoint: only the one before may overlap
-        if i > 0:
-            f = self.exc_firsts[i - 1]
-            if first < f + len(self.exc_chunks[f][0]):
-                raise BadMessage(f"excitation: samples [{first}, {end}) repeat or overlap samples held from {f}")
+        data = check_excitation_block(msg, EXCITATION_NAMES, self.dt, done, self.horizon, self.exc_firsts,
+                                      lambda f: len(self.exc_chunks[f][0]), "target", passed=done)
         now = time.monotonic()
         for off in range(0, msg.n_samples, self.chunk):
             first = msg.first_index + off

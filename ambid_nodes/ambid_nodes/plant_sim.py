@@ -38,7 +38,6 @@ import sys
 import time
 
 import numpy as np
-import rclpy
 from ambid_msgs.msg import ExcitationDesign, PlantDescription, Sample, SampleBlock, SessionEvent, SessionStatus
 from rclpy.node import Node
 from rclpy.task import Future
@@ -47,7 +46,8 @@ from rosgraph_msgs.msg import Clock
 from ambid.rig import AXES, CURRENT_NAMES, DISPLACEMENT_NAMES, analytical_model, load_rig, make_rig
 from ambid.simulator import PlantSimulator
 from ambid_nodes import qos
-from ambid_nodes.conversions import BadMessage, block_data, block_msg, check_design, statespace_to_msg, time_msg
+from ambid_nodes.conversions import (BadMessage, block_msg, check_design, check_excitation_block, statespace_to_msg,
+                                     time_msg)
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 from ambid_nodes.sample_codec import decode_sample, encode_sample
@@ -265,22 +265,9 @@ class PlantSim(Node):
         self.publish_status()
 
     def on_excitation(self, msg: SampleBlock) -> None:
-        try:
-            data = block_data(msg, EXCITATION_NAMES)
-        except BadMessage as exc:
-            raise BadMessage(f"excitation: {exc}") from None
-        if abs(msg.sample_period - self.dt) > 1e-9 * self.dt:
-            raise BadMessage(f"excitation: sample period {msg.sample_period!r} s, the plant's is {self.dt} s")
+        data = check_excitation_block(msg, EXCITATION_NAMES, self.dt, self.k, self.horizon, self.exc_starts,
+                                      lambda f: len(self.excitation[f]), "plant")
         first, end = msg.first_index, msg.first_index + len(data)
-        if end > self.k + self.horizon:
-            raise BadMessage(f"excitation: samples [{first}, {end}) lie beyond the plant's horizon of "
-                             f"{self.horizon} samples ahead of sample {self.k} (parameter excitation_horizon)")
-        i = bisect.bisect_left(self.exc_starts, end)  # held blocks starting before end: the last may overlap
-        if i > 0:
-            f = self.exc_starts[i - 1]
-            if first < f + len(self.excitation[f]):
-                raise BadMessage(f"excitation: samples [{first}, {end}) repeat or overlap the block "
-                                 f"[{f}, {f + len(self.excitation[f])}) already held")
         if first < self.k:
             late = min(self.k - first, len(data))
             self.event(SessionEvent.ERROR, "excitation_late",
