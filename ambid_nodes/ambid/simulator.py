@@ -11,8 +11,15 @@ sample is split into sub-steps (the delayed reference switches at the
 nearest sub-step there).
 
 One free-flight sample is one fused matrix-vector product,
-[x; u; C x][k+1] = M [x; u[k-1]; u[k]; f; r_s; 1], so ``step() + output()``
-costs ~20 us in Python.
+[x; u; C x][k+1] = M [x; u[k-1]; u[k]; f; r_s; 1], run together with the
+held forces by the compiled kernel :func:`ambid.step_kernels.plant_step`
+(``step_output()`` ~3 us per sample); the rare contact sub-steps run in
+numpy.
+
+Sensor noise: the noise of sample k is row k of ``default_rng(seed)``'s
+standard normal stream (drawn (NOISE_BLOCK, 4) at a time) times
+``sensor_noise_m``, whichever of ``output()`` and ``step_output()`` reads
+it, and however often.
 """
 
 from __future__ import annotations
@@ -22,6 +29,7 @@ import math
 import numpy as np
 from scipy import linalg
 
+from ambid import step_kernels as sk
 from ambid.rig import Rig
 from ambid.true_rig import OperatingPoint, TruePlant, delayed_zoh, levitated_plant, zoh_blocks
 
@@ -44,7 +52,7 @@ class PlantSimulator:
     Attributes:
         plant: the :class:`ambid.true_rig.TruePlant` integrated.
         operating_point: the levitated equilibrium (ic0, gaps, slopes).
-        index: samples stepped so far.
+        index: samples stepped so far (read-only).
 
     State ``x`` (n,): see :mod:`ambid.true_rig`. The rotor starts at rest on
     the backup bearings (static equilibrium in contact, zero currents).
@@ -52,7 +60,6 @@ class PlantSimulator:
 
     def __init__(self, rig: Rig, seed: int = 0, nonlinear_magnets: bool = False) -> None:
         self.rig = rig
-        self.nonlinear_magnets = bool(nonlinear_magnets)
         plant, op = levitated_plant(rig)
         self.plant: TruePlant = plant
         self.operating_point: OperatingPoint = op
@@ -67,9 +74,21 @@ class PlantSimulator:
         self._aux_map = np.vstack([plant.c_y, plant.c_gap, plant.c_current, plant.c_sensor])  # (16, n)
         shift = np.zeros((4, n + 17))
         shift[:, n + 4:n + 8] = np.eye(4)  # u[k] becomes u[k-1]
-        self._m = np.vstack([step_rows, shift, self._aux_map @ step_rows])
-        self._v = np.zeros(n + 17)
-        self._v[-1] = 1.0
+        m = np.vstack([step_rows, shift, self._aux_map @ step_rows])  # (n + 20, n + 17)
+        # one work vector holds parameters, aux, v, M and the noise block (ambid.step_kernels)
+        s = sk.plant_work(m, NOISE_BLOCK)
+        mag = rig.true_magnet
+        s[sk.PAR_LIMIT] = rig.current_limit_a
+        s[sk.PAR_NONLINEAR] = float(bool(nonlinear_magnets))
+        s[sk.PAR_KC] = mag.k_magnet * math.cos(mag.pole_angle_rad)
+        s[sk.PAR_IB] = mag.bias_current_a
+        s[sk.PAR_S0] = mag.air_gap_m
+        s[sk.PAR_GAP_GUARD] = _GAP_GUARD * mag.air_gap_m
+        s[sk.PAR_CUBIC] = rig.sensor_cubic_per_m2
+        s[sk.PAR_CLEAR2] = rig.backup_clearance_m * rig.backup_clearance_m
+        s[sk.PAR_LIN:sk.PAR_LIN + 12] = np.column_stack([plant.force_const, plant.ki, plant.ks]).ravel()
+        self._s = s
+        self._bind()
         # contact sub-steps (the delayed input switches at the nearest sub-step)
         h = dt / CONTACT_SUBSTEPS
         self._phi_s, self._gu_s = zoh_blocks(plant.a, plant.b_u, h)
@@ -77,24 +96,45 @@ class PlantSimulator:
         self._gf_s, self._gs_s, self._gc_s = gw_s[:, :4], gw_s[:, 4:8], gw_s[:, 8]
         self._delay_substeps = int(round(plant.delay_s / h))
         self._gap_vel = plant.gap_velocity_map()
-        # magnet law, as plain floats for the per-sample residual
-        mag = rig.true_magnet
-        self._res_consts = (mag.k_magnet * math.cos(mag.pole_angle_rad), mag.bias_current_a, mag.air_gap_m,
-                            _GAP_GUARD * mag.air_gap_m)
-        self._lin = [(float(fc), float(ki), float(ks)) for fc, ki, ks in zip(plant.force_const, plant.ki, plant.ks)]
         self._cubic = rig.sensor_cubic_per_m2
-        self._limit = rig.current_limit_a
         self._clear = rig.backup_clearance_m
-        self._clear2 = self._clear * self._clear
         self._kcon, self._dcon = rig.contact_stiffness_n_per_m, rig.contact_damping_ns_per_m
         self._noise_std = rig.sensor_noise_m
         self._rng = np.random.default_rng(seed)
-        self._noise = np.empty((0, 4))
-        self._noise_pos = 0
-        self.index = 0
+        self._draw_noise()  # rows for samples 0 .. NOISE_BLOCK - 1
         self.x = self._rest_state()
 
+    def _bind(self) -> None:
+        """The compiled step kernel, and named views into the work vector (the kernel reads and writes it)."""
+        self._plant_step = sk.compiled(sk.plant_step, sk.PLANT_STEP_ARGS)
+        s = self._s
+        iv, _, iz = sk.plant_offsets.py_func(self._n)
+        self._aux = s[sk.AUX:sk.AUX + sk.N_AUX]  # y, gap, current, sensor displacement at index
+        self._v = s[iv:iv + self._n + sk.N_EXTRA]
+        self._noise = s[iz:].reshape(NOISE_BLOCK, 4)
+
+    # copies (copy.deepcopy, pickle) rebind the views to their own work vector
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        for name in ("_plant_step", "_aux", "_v", "_noise"):
+            del state[name]
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._bind()
+
     # -- state -----------------------------------------------------------
+    @property
+    def nonlinear_magnets(self) -> bool:
+        """The full magnet law (eq. 2.14) is simulated (fixed at construction)."""
+        return bool(self._s[sk.PAR_NONLINEAR])
+
+    @property
+    def index(self) -> int:
+        """Samples stepped so far: the present sample is y[index]."""
+        return int(self._s[sk.PAR_INDEX])
+
     @property
     def x(self) -> np.ndarray:
         """State (n,) (a view; assign to ``x`` to set it)."""
@@ -106,32 +146,34 @@ class PlantSimulator:
         if value.shape != (self._n,) or not np.all(np.isfinite(value)):
             raise ValueError(f"PlantSimulator.x must be finite with shape ({self._n},), got {value.shape}")
         self._v[:self._n] = value
-        self._set_aux(self._aux_map @ value)
-
-    def _set_aux(self, aux: np.ndarray) -> None:
-        self._y = aux[0:4]
-        vals = aux[4:16].tolist()
-        self._gap, self._cur, self._sd = vals[0:4], vals[4:8], vals[8:12]
-        self._touch = self._touching(self._gap)
+        self._aux[:] = self._aux_map @ value
 
     @property
     def bearing_displacement(self) -> np.ndarray:
         """Rotor minus stator displacement at the bearings [m], (4,) in AXES order."""
-        return np.array(self._gap)
+        return self._aux[4:8].copy()
 
     def bearing_radius(self) -> np.ndarray:
         """Radial rotor-stator displacement at bearings A and B [m], (2,)."""
-        g = self._gap
+        g = self._aux[4:8].tolist()
         return np.array([math.hypot(g[0], g[2]), math.hypot(g[1], g[3])])
 
     def output(self) -> np.ndarray:
-        """Measured sensor displacements y[k] [m], (4,), with sensor noise."""
-        if self._noise_pos >= len(self._noise):
-            self._noise = self._rng.standard_normal((NOISE_BLOCK, 4)) * self._noise_std
-            self._noise_pos = 0
-        y = self._y + self._noise[self._noise_pos]
-        self._noise_pos += 1
-        return y
+        """Measured sensor displacements y[k] [m], (4,), with sensor noise, k = ``index``.
+
+        The noise of sample k is row k of the seed's stream (drawn in blocks
+        of ``NOISE_BLOCK`` rows): calling ``output()`` twice, or after
+        :meth:`step_output`, returns the same y.
+        """
+        s = self._s
+        return self._aux[0:4] + self._noise[int(s[sk.PAR_INDEX] - s[sk.PAR_NOISE_BASE])]
+
+    def _draw_noise(self) -> None:
+        """The next NOISE_BLOCK rows of the noise stream (the kernel asks when it runs out)."""
+        self._noise[:] = self._rng.standard_normal((NOISE_BLOCK, 4)) * self._noise_std
+        if self._s[sk.PAR_STATUS] == sk.STATUS_NOISE:
+            self._s[sk.PAR_NOISE_BASE] += NOISE_BLOCK
+            self._s[sk.PAR_STATUS] = 0.0
 
     def start_levitated(self) -> None:
         """Put the rig at the levitated operating point: x = operating_point.state, the previous
@@ -141,25 +183,11 @@ class PlantSimulator:
         self.x = self.operating_point.state
 
     # -- forces the affine model lacks -------------------------------------
-    def _touching(self, g: list[float]) -> bool:
-        c2 = self._clear2
-        return g[0] * g[0] + g[2] * g[2] > c2 or g[1] * g[1] + g[3] * g[3] > c2
-
-    def _magnet_residual(self, cur: list[float], gap: list[float]) -> list[float]:
-        """Eq. 2.14 minus its affine linearisation per axis [N] (plain floats: this runs every sample).
-
-        Free flight keeps |gap| below the retainer clearance, < s0; in contact
-        the gap is clamped short of the pole face.
-        """
-        kc, ib, s0, lim = self._res_consts
-        out = []
-        for j in range(4):
-            i, g = cur[j], gap[j]
-            if not -lim < g < lim:
-                g = lim if g > 0 else -lim
-            a, b, ip, im = s0 - g, s0 + g, ib + i, ib - i
-            fc, ki, ks = self._lin[j]
-            out.append(kc * (ip * ip / (a * a) - im * im / (b * b)) - fc - ki * i - ks * g)
+    def _magnet_residual(self, cur: np.ndarray, gap: np.ndarray) -> np.ndarray:
+        """Eq. 2.14 minus its affine linearisation per axis [N], (4,), for currents and gaps (4,)."""
+        out = np.empty(4)
+        sk.magnet_residual(self._s, np.ascontiguousarray(cur, dtype=float), np.ascontiguousarray(gap, dtype=float),
+                           out)
         return out
 
     def _contact_force(self, gap: np.ndarray, gap_vel: np.ndarray) -> np.ndarray:
@@ -185,7 +213,7 @@ class PlantSimulator:
             gap = p.c_gap @ x
             f = self._contact_force(gap, np.zeros(4))
             if self.nonlinear_magnets:
-                f = f + np.array(self._magnet_residual((p.c_current @ x).tolist(), gap.tolist()))
+                f = f + self._magnet_residual(p.c_current @ x, gap)
             rs = self._cubic * (p.c_sensor @ x) ** 3
             return p.a @ x + p.b_f @ f + p.b_s @ rs + p.b_c
 
@@ -218,53 +246,47 @@ class PlantSimulator:
             (clipped, contact): the amplifiers saturated at the current limit
             during this sample; the rotor touched the backup bearings.
         """
-        lim = self._limit
         u0, u1, u2, u3 = current_ref
-        u = [u0, u1, u2, u3]
-        clipped = not (-lim <= u0 <= lim and -lim <= u1 <= lim and -lim <= u2 <= lim and -lim <= u3 <= lim)
-        if clipped:
-            u = [lim if c > lim else -lim if c < -lim else c for c in u]
-        v = self._v
-        n = self._n
-        if self.nonlinear_magnets:
-            v[n + 4:n + 12] = u + self._magnet_residual(self._cur, self._gap)
-        else:
-            v[n + 4:n + 8] = u
-        if self._cubic:
-            c3 = self._cubic
-            v[n + 12:n + 16] = [c3 * d * d * d for d in self._sd]
-        if self._touch:
-            self._substeps(u)
-            contact = True
-        else:
-            out = self._m @ v
-            vals = out[n + 8:].tolist()  # gap (4), current (4), sensor displacement (4) at k + 1
-            c2 = self._clear2
-            contact = vals[0] * vals[0] + vals[2] * vals[2] > c2 or vals[1] * vals[1] + vals[3] * vals[3] > c2
-            if contact:  # entering contact during this step: redo it finely
-                self._substeps(u)
-            else:
-                v[:n + 4] = out[:n + 4]
-                self._y = out[n + 4:n + 8]
-                self._gap, self._cur, self._sd = vals[0:4], vals[4:8], vals[8:12]
-        self.index += 1
-        return clipped, contact
+        r = self.step_output(u0, u1, u2, u3)
+        return r[4], r[5]
 
-    def _substeps(self, u: list[float]) -> None:
+    def step_output(self, u0: float, u1: float, u2: float, u3: float) -> tuple[float, float, float, float, bool, bool]:
+        """``step([u0, u1, u2, u3])`` then ``output()`` in one call: the loop's per-sample call.
+
+        Args:
+            u0, u1, u2, u3: current reference u = ic + r [A] held over this sample.
+
+        Returns:
+            (y0, y1, y2, y3, clipped, contact): the next sample's measured
+            output y[k+1] [m] with its noise (what ``output()`` returns
+            after this call), then as :meth:`step`.
+        """
+        r = self._plant_step(self._s, u0, u1, u2, u3)
+        if r[5]:  # contact, or the noise block is used up
+            if self._s[sk.PAR_STATUS] == sk.STATUS_NOISE:
+                self._draw_noise()
+                return self.step_output(u0, u1, u2, u3)
+            self._substeps()
+            y0, y1, y2, y3 = self.output().tolist()
+            return y0, y1, y2, y3, r[4], True
+        return r
+
+    def _substeps(self) -> None:
+        """Redo the sample in CONTACT_SUBSTEPS sub-steps from v, with u[k] (clipped) in v's u slot."""
         p = self.plant
         n = self._n
         v = self._v
         x = v[:n].copy()
-        u_new, u_old = np.array(u), v[n:n + 4].copy()
+        u_new, u_old = v[n + 4:n + 8].copy(), v[n:n + 4].copy()
         for j in range(CONTACT_SUBSTEPS):
             gap = p.c_gap @ x
             f = self._contact_force(gap, self._gap_vel @ x)
             if self.nonlinear_magnets:
-                f += self._magnet_residual((p.c_current @ x).tolist(), gap.tolist())
+                f += self._magnet_residual(p.c_current @ x, gap)
             drive = self._gu_s @ (u_old if j < self._delay_substeps else u_new) + self._gc_s + self._gf_s @ f
             if self._cubic:
                 drive += self._gs_s @ (self._cubic * (p.c_sensor @ x) ** 3)
             x = self._phi_s @ x + drive
         v[:n] = x
         v[n:n + 4] = u_new
-        self._set_aux(self._aux_map @ x)
+        self._aux[:] = self._aux_map @ x
