@@ -5,15 +5,17 @@ one the frf_consumer node runs -- gives on the same samples.
 """
 
 import json
+import struct
 
 import numpy as np
 import pytest
 from frf_testbench import FS, loop_model, simulate
 from scipy.io import savemat
-from session_testbench import design_message, write_session
+from session_testbench import SAMPLE_BLOCK, block_message, design_message, encoder, write_session
 
+import ambid.frf.offline as offline
 from ambid.excitation import design_multisine
-from ambid.frf.offline import _read_sample_block, frf_from_arrays, frf_from_files, frf_from_session
+from ambid.frf.offline import _read_sample_block, frf_from_arrays, frf_from_files, frf_from_session, session_designs
 from ambid.frf.streaming import FrfStream
 from ambid.mcap_session import iter_decoded
 
@@ -120,3 +122,116 @@ def test_session_of_an_experiment_stopped_early(rec, tmp_path):
     res = frf_from_session(path, recover=True, **KW)     # also read front to back
     _equal(res, _streamed(rec, blocks, total=cut))
     assert res.n_realisations == 1 and res.complete
+
+
+def _second_passes(monkeypatch):
+    """Count the re-reads of a session's blocks (frf_from_session reads once unless it must)."""
+    calls = []
+    original = offline._session_blocks
+
+    def counted(*args, **kwargs):
+        calls.append(args[1])
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(offline, "_session_blocks", counted)
+    return calls
+
+
+@pytest.mark.parametrize("case", ["stop_before_the_cut", "stop_after_the_cut", "late_design", "two_experiments"])
+def test_one_pass_or_a_second_read_give_the_same_result(rec, tmp_path, monkeypatch, case):
+    """The single pass follows the experiment while reading; where it cannot be exact it re-reads.
+
+    Either way the result is the stream of the final design message fed every block.
+    """
+    d, x = rec["design"], rec["x"]
+    blocks = _blocks(x, 1000)
+    cut = d.segment_start(1, 0) + 10                     # stopped early in realisation 1
+    t_ns = lambda index: int(index / FS * 1e9)           # noqa: E731 - blocks are logged at first / FS + 1 ns
+    full = design_message(d, PRE)
+    if case == "stop_before_the_cut":                    # republished before any block reaches the cut
+        designs, expect, passes = [(0, full), (t_ns(3000), design_message(d, PRE, cut))], cut, 1
+    elif case == "stop_after_the_cut":                   # blocks beyond the cut came before the stop
+        designs, expect, passes = [(0, full), (t_ns(4000), design_message(d, PRE, cut))], cut, 2
+    elif case == "late_design":                          # the design after blocks of its experiment
+        designs, expect, passes = [(t_ns(2000), full)], None, 2
+    else:                                                # the last experiment is another one, started late
+        other = design_message(d, PRE, experiment_id="exp2")
+        designs, expect, passes = [(0, full), (t_ns(1000), other)], None, 2
+    path = tmp_path / f"{case}.mcap"
+    write_session(path, blocks, CHANNELS, designs, 1 / FS)
+    calls = _second_passes(monkeypatch)
+    res = frf_from_session(path, **KW)
+    _equal(res, _streamed(rec, blocks, total=expect))
+    assert 1 + len(calls) == passes and all(t == "/amb/measurement" for t in calls)
+    if case == "two_experiments":                        # the one the pass followed when asked for
+        first = frf_from_session(path, experiment_id="exp1", **KW)
+        _equal(first, res)
+        assert 1 + len(calls) == passes
+        assert [e["experiment_id"] for e in session_designs(path)] == ["exp1", "exp2"]
+    if case == "stop_before_the_cut":
+        _equal(frf_from_session(path, recover=True, **KW), res)   # front to back, also one pass
+        assert 1 + len(calls) == passes
+
+
+def test_blocks_of_other_namespaces_and_bad_blocks_are_left_alone(rec, tmp_path):
+    """Only the chosen experiment's measurement topic is estimated; an unreadable block elsewhere is not fatal,
+    one on that topic is reported."""
+    d, x = rec["design"], rec["x"]
+    blocks = _blocks(x, 1000)
+    path = tmp_path / "two_namespaces.mcap"
+    from session_testbench import DEFS, EXCITATION_DESIGN
+
+    from ambid.mcap_session import SessionWriter
+
+    def block_bytes(first, data):
+        return encoder(SAMPLE_BLOCK)(block_message(first, data, CHANNELS, 1 / FS))
+
+    with SessionWriter(path, compression="zstd", chunk_size_bytes=100_000) as w:
+        for topic, type_name in (("/amb/excitation/design", EXCITATION_DESIGN), ("/amb/measurement", SAMPLE_BLOCK),
+                                 ("/other/measurement", SAMPLE_BLOCK)):
+            w.add_topic(topic, type_name, definition=DEFS, type_hash="")
+        w.write("/amb/excitation/design", encoder(EXCITATION_DESIGN)(design_message(d, PRE)), 0)
+        w.write("/other/measurement", b"\x00\x01\x00\x00\x01", 1)         # not a SampleBlock
+        for first, data in blocks:
+            w.write("/amb/measurement", block_bytes(first, data), int(first / FS * 1e9) + 2)
+            w.write("/other/measurement", block_bytes(first, 2 * data), int(first / FS * 1e9) + 2)
+    _equal(frf_from_session(path, **KW), _streamed(rec, blocks))
+    # a truncated block on the experiment's own topic: the error of the block reader
+    broken = tmp_path / "broken.mcap"
+    with SessionWriter(broken, compression="none") as w:
+        w.add_topic("/amb/excitation/design", EXCITATION_DESIGN, definition=DEFS, type_hash="")
+        w.add_topic("/amb/measurement", SAMPLE_BLOCK, definition=DEFS, type_hash="")
+        w.write("/amb/excitation/design", encoder(EXCITATION_DESIGN)(design_message(d, PRE)), 0)
+        for k, (first, data) in enumerate(blocks):
+            payload = block_bytes(first, data)
+            w.write("/amb/measurement", payload[:-800] if k == 2 else payload, int(first / FS * 1e9) + 1)
+    with pytest.raises(ValueError, match="SampleBlock: 8000 values"):
+        frf_from_session(broken, **KW)
+
+
+def test_block_reader_reuses_the_layout_only_when_it_is_the_same(rec, monkeypatch):
+    """Blocks of one topic share their channel layout, but serialisers leave the alignment padding
+    uninitialised: the layout is reused across other padding bytes, parsed anew for other names."""
+    x = rec["x"]
+    enc = encoder(SAMPLE_BLOCK)
+    first = enc(block_message(0, x[:500], CHANNELS, 1 / FS))
+    body = memoryview(first)[4:]
+    at = 12 + struct.unpack_from("<I", body, 8)[0]
+    at += -at % 8 + 16                                           # n_samples, after first_index, sample_period
+    (_, _, _, data_at), spans = offline._sample_block_layout(body, at)
+    padding = sorted(set(range(at, data_at)) - {i for a, b in spans for i in range(a, b)})
+    assert padding                                               # 'y_1' etc.: 3 padding bytes after each
+    noisy = bytearray(enc(block_message(500, x[500:1000], CHANNELS, 1 / FS)))
+    for i in padding:
+        noisy[4 + i] = 0xA5
+    renamed = [n.replace("_1", "_9") for n in CHANNELS]          # same lengths, other bytes
+    other = enc(block_message(1000, x[1000:1500], renamed, 1 / FS))
+    parses = []
+    original = offline._sample_block_layout
+    monkeypatch.setattr(offline, "_sample_block_layout", lambda *a: parses.append(1) or original(*a))
+    read = offline._BlockReader()
+    for buf, names, n_parses in ((first, CHANNELS, 1), (bytes(noisy), CHANNELS, 1), (other, renamed, 2),
+                                 (first, CHANNELS, 3)):
+        f, dt, got_names, data = read(buf)
+        assert got_names == list(names) and len(parses) == n_parses and dt == 1 / FS
+        np.testing.assert_array_equal(data, x[f:f + 500])

@@ -405,3 +405,50 @@ def test_reading_a_file_without_footer_needs_recover(tmp_path, session):
         inspect_session(cut)
     d = inspect_session(cut, recover=True)
     assert not d["complete"] and d["message_count"] == len(written)  # only the summary was lost
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
+def test_message_order_is_the_mcap_librarys_with_overlapping_chunks(tmp_path, compression):
+    """Log times out of order across chunks (their time ranges overlap) and equal log times: the
+    summary-indexed reader gives the order of mcap's ``iter_messages(log_time_order=True)``, any topics."""
+    import random
+
+    rng = random.Random(3)
+    path = tmp_path / "shuffled.mcap"
+    with SessionWriter(path, chunk_size_bytes=400, compression=compression) as w:
+        for topic in ("/a", "/b", "/c"):
+            w.add_topic(topic, "std_msgs/msg/String")
+        for i in range(120):
+            w.write(rng.choice(["/a", "/b", "/c"]), cdr_string(f"m{i}" * rng.randint(1, 9)),
+                    rng.randint(0, 40) * 1000, sequence=i)
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    spans = sorted((c.message_start_time, c.message_end_time) for c in summary.chunk_indexes)
+    assert len(spans) > 5 and any(b[0] < a[1] for a, b in zip(spans, spans[1:]))   # overlapping chunks
+    for topics in (None, ["/b"], ["/a", "/c"]):
+        with open(path, "rb") as f:
+            want = [(c.topic, m.log_time, m.publish_time, m.sequence, m.data)
+                    for _, c, m in make_reader(f).iter_messages(topics=topics, log_time_order=True)]
+        got = [(m.topic, m.log_time_ns, m.publish_time_ns, m.sequence, m.data) for m in iter_messages(path, topics)]
+        assert got == want and len(got) > 10
+    assert len({lt for _, lt, *_ in want}) < len(want)                                # equal log times occur
+
+
+def test_a_corrupt_chunk_raises_instead_of_misreading(tmp_path):
+    from mcap.exceptions import McapError
+
+    path = tmp_path / "corrupt.mcap"
+    payload = cdr_string("x" * 91)
+    with SessionWriter(path, chunk_size_bytes=1024, compression="none") as w:
+        w.add_topic("/x", "std_msgs/msg/String")
+        for i in range(30):
+            w.write("/x", payload, i)
+    raw = bytearray(path.read_bytes())
+    with open(path, "rb") as f:
+        chunk = make_reader(f).get_summary().chunk_indexes[1]
+    records = raw.find(payload, chunk.chunk_start_offset) - 31      # first message record of that chunk
+    assert raw[records] == Opcode.MESSAGE
+    raw[records + 1:records + 9] = struct.pack("<Q", 10**6)          # its length now runs past the chunk
+    path.write_bytes(bytes(raw))
+    with pytest.raises(McapError, match="overruns the chunk"):
+        list(iter_messages(path))

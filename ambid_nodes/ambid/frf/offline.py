@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import os
 import struct
+import sys
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -27,7 +28,7 @@ import numpy as np
 
 from ambid.excitation.design import ExcitationDesign
 from ambid.frf.arrays_io import load_arrays, stack_channels
-from ambid.frf.streaming import FrfResult, FrfStream, match_inputs
+from ambid.frf.streaming import ESTIMATORS, FrfResult, FrfStream, match_inputs
 from ambid.rig import AXES, CURRENT_NAMES, DISPLACEMENT_NAMES
 
 __all__ = ["DEFAULT_OUTPUTS", "DEFAULT_INPUTS", "DEFAULT_REFERENCES", "load_design",
@@ -64,6 +65,10 @@ def _run(stream: FrfStream, blocks, estimator: str) -> FrfResult:
     for first_index, data in blocks:
         stream.add(first_index, data)
         n_blocks += 1
+    return _result(stream, n_blocks, estimator)
+
+
+def _result(stream: FrfStream, n_blocks: int, estimator: str) -> FrfResult:
     result = stream.estimate(estimator)
     if result is None:
         p = stream.progress()
@@ -113,25 +118,13 @@ def frf_from_files(data_path: str | os.PathLike, design_path: str | os.PathLike,
 
 # ------------------------------------------------------------------ sessions
 
-def _topics(path: str | os.PathLike, recover: bool) -> dict[str, str]:
-    """topic -> type name, from the summary (or a front-to-back scan with recover)."""
-    if recover:
-        from ambid.mcap_session.reader import scan_session
-        return dict(scan_session(path).topic_types)
-    from mcap.reader import make_reader
+def _is_design_topic(topic: str) -> bool:
+    return topic.rstrip("/").endswith(_DESIGN_TOPIC)
 
-    from ambid.mcap_session.reader import IncompleteSessionError
-    with open(path, "rb") as f:
-        try:
-            summary = make_reader(f).get_summary()
-        except Exception as exc:  # noqa: BLE001 - mcap raises several types for a missing footer
-            raise IncompleteSessionError(f"{os.fspath(path)} has no valid summary ({exc}); "
-                                         "pass recover=True") from exc
-    if summary is None:
-        raise ValueError(f"{os.fspath(path)} has no summary section; pass recover=True")
-    schemas = summary.schemas
-    return {c.topic: (schemas[c.schema_id].name if c.schema_id in schemas else "")
-            for c in summary.channels.values()}
+
+def _measurement_topic(design_topic: str) -> str:
+    """The measurement topic in the namespace of a design topic."""
+    return design_topic.rstrip("/")[:-len(_DESIGN_TOPIC)] + _MEASUREMENT_TOPIC
 
 
 def session_designs(path: str | os.PathLike, recover: bool = False) -> list[dict[str, Any]]:
@@ -143,44 +136,101 @@ def session_designs(path: str | os.PathLike, recover: bool = False) -> list[dict
         (ExcitationDesign); a republished design (an experiment stopped
         early) replaces the earlier one.
     """
-    return _designs(path, _topics(path, recover), recover)
+    from ambid.mcap_session.reader import _iter_raw, _Ros2Decoder
+
+    designs = _Designs(os.fspath(path))
+    decode = _Ros2Decoder()
+    for schema, channel, msg in _iter_raw(path, _is_design_topic, recover):
+        designs.add(channel.topic, decode(schema, channel, msg))
+    return designs.final()
 
 
-def _designs(path: str | os.PathLike, all_topics: Mapping[str, str], recover: bool) -> list[dict[str, Any]]:
-    from ambid.mcap_session.reader import iter_decoded
+class _Designs:
+    """The design messages of a session as they are read: the last one per (topic, experiment_id)."""
 
-    topics = [t for t in all_topics if t.rstrip("/").endswith(_DESIGN_TOPIC)]
-    found: dict[tuple[str, str], dict[str, Any]] = {}
-    for message, msg in (iter_decoded(path, topics, recover=recover) if topics else ()):
-        key = (message.topic, msg.experiment_id)
-        found.pop(key, None)  # keep the order of the last message
-        found[key] = {"topic": message.topic, "experiment_id": msg.experiment_id,
-                      "start_index": int(msg.start_index), "total_samples": int(msg.total_samples),
-                      "design_json": msg.design_json}
-    out = []
-    for entry in found.values():
-        try:
-            design = ExcitationDesign.from_dict(json.loads(entry.pop("design_json")))
-        except (ValueError, KeyError, TypeError) as exc:
-            raise ValueError(f"{os.fspath(path)}: the design of experiment {entry['experiment_id']!r} "
-                             f"on {entry['topic']} cannot be read: {exc}") from None
-        out.append({**entry, "design": design})
-    return out
+    def __init__(self, path: str) -> None:
+        self.path = path
+        self.found: dict[tuple[str, str], dict[str, Any]] = {}
+        self._parsed: dict[str, ExcitationDesign] = {}   # design_json -> design, each parsed once
+
+    def add(self, topic: str, msg: Any) -> tuple[tuple[str, str], dict[str, Any]]:
+        """Record a decoded ExcitationDesign message; returns its (key, entry)."""
+        key = (topic, msg.experiment_id)
+        self.found.pop(key, None)  # keep the order of the last message
+        entry = {"topic": topic, "experiment_id": msg.experiment_id, "start_index": int(msg.start_index),
+                 "total_samples": int(msg.total_samples), "design_json": msg.design_json}
+        self.found[key] = entry
+        return key, entry
+
+    def design(self, entry: dict[str, Any]) -> ExcitationDesign:
+        text = entry["design_json"]
+        if text not in self._parsed:
+            try:
+                self._parsed[text] = ExcitationDesign.from_dict(json.loads(text))
+            except (ValueError, KeyError, TypeError) as exc:
+                raise ValueError(f"{self.path}: the design of experiment {entry['experiment_id']!r} "
+                                 f"on {entry['topic']} cannot be read: {exc}") from None
+        return self._parsed[text]
+
+    def final(self) -> list[dict[str, Any]]:
+        """session_designs' list."""
+        out = []
+        for entry in self.found.values():
+            design = self.design(entry)
+            out.append({k: v for k, v in entry.items() if k != "design_json"} | {"design": design})
+        return out
 
 
-def _read_sample_block(buf: bytes) -> tuple[int, float, list[str], np.ndarray]:
-    """(first_index, sample_period, channel_names, data (n, ch)) of a CDR SampleBlock.
+class _BlockReader:
+    """Reads CDR SampleBlocks: :func:`_read_sample_block`, reusing the channel layout of the last block.
 
-    A direct little-endian CDR reader: the generic decoder unpacks the data
-    array one float at a time, this one takes it with one ``frombuffer``.
-    Field order and alignment follow ambid_msgs/msg/SampleBlock.msg (XCDR1:
-    each primitive aligned to its size from the start of the payload).
+    Consecutive blocks of a topic carry the same sizes, names and units; when
+    those bytes are unchanged their parse (32 strings for a plant's block,
+    most of the decoding time) is reused. The comparison skips the alignment
+    padding (serialisers leave it uninitialised), so reuse is exact: the parse
+    depends only on the bytes compared and their offset.
     """
-    if bytes(buf[:2]) not in (b"\x00\x01", b"\x00\x03"):
-        raise ValueError(f"SampleBlock: only little-endian CDR is read here, got encapsulation "
-                         f"{bytes(buf[:4]).hex()}")
-    body = memoryview(buf)[4:]
-    pos = 0
+
+    def __init__(self) -> None:
+        self._at = -1                               # offset of n_samples in the CDR body
+        self._keep = np.zeros(0, dtype=np.int64)    # offsets (from there) of the non-padding bytes
+        self._kept = b""                            # their values
+        self._layout: tuple[int, list[str], int, int] = (0, [], 0, 0)  # n_samples, names, n_values, data pos
+
+    def __call__(self, buf: bytes) -> tuple[int, float, list[str], np.ndarray]:
+        if bytes(buf[:2]) not in (b"\x00\x01", b"\x00\x03"):
+            raise ValueError(f"SampleBlock: only little-endian CDR is read here, got encapsulation "
+                             f"{bytes(buf[:4]).hex()}")
+        body = memoryview(buf)[4:]
+        (id_len,) = struct.unpack_from("<I", body, 8)     # after the stamp (int32 sec, uint32 nanosec)
+        pos = 12 + id_len                                # experiment_id (its length counts the NUL)
+        pos += -pos % 8
+        first_index, sample_period = struct.unpack_from("<Qd", body, pos)
+        pos += 16
+        data_pos = self._layout[3]
+        if not (pos == self._at and data_pos <= len(body)
+                and np.frombuffer(body, np.uint8, data_pos - pos, pos)[self._keep].tobytes() == self._kept):
+            self._layout, spans = _sample_block_layout(body, pos)
+            keep = np.concatenate([np.arange(a, b) for a, b in spans]) - pos
+            self._at, self._keep = pos, keep
+            self._kept = np.frombuffer(body, np.uint8, self._layout[3] - pos, pos)[keep].tobytes()
+        n_samples, names, n_values, data_pos = self._layout
+        if data_pos + 8 * n_values > len(body):
+            raise ValueError(f"SampleBlock: {n_values} values for {n_samples} samples x {len(names)} "
+                             f"channels but the message ends after {max(len(body) - data_pos, 0) // 8}")
+        data = np.frombuffer(body, dtype="<f8", count=n_values, offset=data_pos).reshape(n_samples, len(names))
+        return int(first_index), float(sample_period), list(names), data
+
+
+def _sample_block_layout(body: memoryview, pos: int) -> tuple[tuple[int, list[str], int, int],
+                                                               list[tuple[int, int]]]:
+    """Parse a SampleBlock body from its n_samples field on.
+
+    Returns:
+        ((n_samples, channel_names, n_values, data offset), the byte spans
+        [start, end) read, i.e. all but the alignment padding).
+    """
+    spans: list[tuple[int, int]] = []
 
     def align(n: int) -> None:
         nonlocal pos
@@ -190,21 +240,20 @@ def _read_sample_block(buf: bytes) -> tuple[int, float, list[str], np.ndarray]:
         nonlocal pos
         align(4)
         (v,) = struct.unpack_from("<I", body, pos)
+        spans.append((pos, pos + 4))
         pos += 4
         return v
 
     def string() -> str:
         nonlocal pos
         n = u32()
+        if n < 1 or pos + n > len(body):
+            raise ValueError(f"SampleBlock: bad string length {n} at byte {pos}")
         s = bytes(body[pos:pos + n - 1]).decode()
+        spans.append((pos, pos + n))
         pos += n
         return s
 
-    pos = 8                      # stamp: int32 sec, uint32 nanosec
-    string()                     # experiment_id
-    align(8)
-    first_index, sample_period = struct.unpack_from("<Qd", body, pos)
-    pos += 16
     n_samples = u32()
     names = [string() for _ in range(u32())]
     for _ in range(u32()):       # channel_units
@@ -212,26 +261,81 @@ def _read_sample_block(buf: bytes) -> tuple[int, float, list[str], np.ndarray]:
     n_values = u32()
     if n_values:
         align(8)
-    if n_values != n_samples * len(names) or pos + 8 * n_values > len(body):
+    if n_values != n_samples * len(names):
         raise ValueError(f"SampleBlock: {n_values} values for {n_samples} samples x {len(names)} channels")
-    data = np.frombuffer(body, dtype="<f8", count=n_values, offset=pos).reshape(n_samples, len(names))
-    return int(first_index), float(sample_period), names, data
+    return (n_samples, names, n_values, pos), spans
+
+
+def _read_sample_block(buf: bytes) -> tuple[int, float, list[str], np.ndarray]:
+    """(first_index, sample_period, channel_names, data (n, ch)) of a CDR SampleBlock.
+
+    A direct little-endian CDR reader: the generic decoder unpacks the data
+    array one float at a time, this one takes it with one ``frombuffer``
+    (no copy: ``data`` is a read-only view of ``buf``).
+    Field order and alignment follow ambid_msgs/msg/SampleBlock.msg (XCDR1:
+    each primitive aligned to its size from the start of the payload).
+    """
+    return _BlockReader()(buf)
 
 
 def _session_blocks(path: str | os.PathLike, topic: str, stream: FrfStream,
                     recover: bool) -> Iterator[tuple[int, np.ndarray]]:
     from ambid.mcap_session.reader import iter_messages
 
-    columns: dict[tuple[str, ...], np.ndarray] = {}
+    feed, read = _Feeder(stream), _BlockReader()
     for message in iter_messages(path, topic, recover=recover):
-        first, dt, names, data = _read_sample_block(message.data)
+        block = feed.block(*read(message.data))
+        if block is not None:
+            yield block
+
+
+class _Feeder:
+    """What of a SampleBlock goes to a stream: the blocks inside the experiment, its columns."""
+
+    def __init__(self, stream: FrfStream) -> None:
+        self.stream = stream
+        self.n_blocks = 0
+        self._columns: dict[tuple[str, ...], np.ndarray] = {}
+
+    def block(self, first: int, dt: float, names: list[str],
+              data: np.ndarray) -> tuple[int, np.ndarray] | None:
+        stream = self.stream
         if first + len(data) <= stream.start_index or first >= stream.end_index:
-            continue   # outside the experiment (no gap can be there either)
+            return None   # outside the experiment (no gap can be there either)
         key = tuple(names)
-        if key not in columns:
-            columns[key] = stream.columns(names)
+        if key not in self._columns:
+            self._columns[key] = stream.columns(names)
         stream.check_sample_period(dt)
-        yield first, data[:, columns[key]]
+        self.n_blocks += 1
+        return first, data[:, self._columns[key]]
+
+
+class _Pending:
+    """The experiment a single pass over a session estimates while reading.
+
+    ``exact`` stays True while the stream holds exactly what a stream made
+    from the final design message, fed every block of the topic, would hold.
+    """
+
+    def __init__(self, key: tuple[str, str], entry: dict[str, Any], feed: _Feeder | None,
+                 exact: bool) -> None:
+        self.key, self.entry, self.feed, self.exact = key, entry, feed, exact and feed is not None
+        self.topic = _measurement_topic(key[0])
+
+    def update(self, entry: dict[str, Any], seen_end: int) -> None:
+        """A later message of the same experiment (a stop republishes it with fewer samples)."""
+        old, self.entry = self.entry, entry
+        if not self.exact or entry == old:
+            return
+        same = all(entry[k] == old[k] for k in ("start_index", "design_json"))
+        stream = self.feed.stream
+        new_end = min(entry["total_samples"], stream.design.total_samples)
+        old_end = stream.end_index - stream.start_index
+        # exact while no block reached the earlier of the two ends: nothing was cut or skipped at either
+        if same and seen_end - stream.start_index <= min(old_end, new_end):
+            stream.truncate(new_end)
+        else:
+            self.exact = False
 
 
 def frf_from_session(path: str | os.PathLike, estimator: str = "indirect",
@@ -240,6 +344,12 @@ def frf_from_session(path: str | os.PathLike, estimator: str = "indirect",
                      references: Sequence[str] = DEFAULT_REFERENCES,
                      recover: bool = False) -> FrfResult:
     """FRF of an experiment in a recorded session (what frf_consumer computes live).
+
+    One pass over the file: the design messages and the measurement blocks
+    are read together, the blocks fed to the stream of the experiment as
+    they come. Should the experiment turn out to be another one than the
+    pass followed (a later design message), or its design to change in a way
+    the stream cannot follow exactly, the blocks are read a second time.
 
     Args:
         path: session .mcap file.
@@ -252,24 +362,76 @@ def frf_from_session(path: str | os.PathLike, estimator: str = "indirect",
     Returns:
         :class:`ambid.frf.streaming.FrfResult`.
     """
-    all_topics = _topics(path, recover)
-    designs = _designs(path, all_topics, recover)
-    if not designs:
+    from ambid.mcap_session.reader import _iter_raw, _Ros2Decoder
+
+    if estimator not in ESTIMATORS:   # before reading the file
+        raise ValueError(f"estimator must be one of {ESTIMATORS}, got {estimator!r}")
+    designs = _Designs(os.fspath(path))
+    decode = _Ros2Decoder()
+    readers: dict[str, _BlockReader] = {}
+    seen_end: dict[str, int] = {}       # measurement topic -> one past the last sample index read
+    pending: _Pending | None = None
+
+    def start(key: tuple[str, str], entry: dict[str, Any]) -> _Pending:
+        topic = _measurement_topic(key[0])
+        try:
+            d = designs.design(entry)
+            u_names, r_names = match_inputs(d.input_names, inputs, references)
+            stream = FrfStream(d, outputs, u_names, r_names, start_index=entry["start_index"],
+                               total_samples=min(entry["total_samples"], d.total_samples))
+        except ValueError:      # raised again below if this is the experiment
+            return _Pending(key, entry, None, False)
+        return _Pending(key, entry, _Feeder(stream), seen_end.get(topic, 0) <= entry["start_index"])
+
+    def wanted(topic: str) -> bool:
+        return _is_design_topic(topic) or topic.rstrip("/").endswith(_MEASUREMENT_TOPIC)
+
+    for schema, channel, msg in _iter_raw(path, wanted, recover):
+        topic = channel.topic
+        if _is_design_topic(topic):
+            key, entry = designs.add(topic, decode(schema, channel, msg))
+            if experiment_id is None or key[1] == experiment_id:
+                if pending is not None and pending.key == key:
+                    pending.update(entry, seen_end.get(pending.topic, 0))
+                else:
+                    pending = start(key, entry)
+            continue
+        try:
+            block = readers.setdefault(topic, _BlockReader())(msg.data)
+        except (ValueError, struct.error):  # unreadable: what follows on this topic is not exact
+            seen_end[topic] = sys.maxsize
+            if pending is not None and pending.topic == topic:
+                pending.exact = False
+            continue
+        seen_end[topic] = max(seen_end.get(topic, 0), block[0] + len(block[3]))
+        if pending is not None and pending.exact and pending.topic == topic:
+            try:
+                fed = pending.feed.block(*block)
+                if fed is not None:
+                    pending.feed.stream.add(*fed)
+            except ValueError:  # raised again by the second pass if this is the experiment
+                pending.exact = False
+
+    found = designs.final()
+    if not found:
         raise ValueError(f"{os.fspath(path)} holds no '{_DESIGN_TOPIC}' message: no experiment to "
                          "estimate (record the excitation/design topic)")
     if experiment_id is None:
-        chosen = designs[-1]
+        chosen = found[-1]
     else:
-        match = [d for d in designs if d["experiment_id"] == experiment_id]
+        match = [d for d in found if d["experiment_id"] == experiment_id]
         if not match:
             raise ValueError(f"no experiment {experiment_id!r} in {os.fspath(path)}; recorded: "
-                             f"{[d['experiment_id'] for d in designs]}")
+                             f"{[d['experiment_id'] for d in found]}")
         chosen = match[-1]
+    key = (chosen["topic"], chosen["experiment_id"])
+    topic = _measurement_topic(chosen["topic"])
+    if topic not in seen_end:
+        raise ValueError(f"{os.fspath(path)} has no {topic} messages beside {chosen['topic']}")
+    if pending is not None and pending.exact and pending.key == key and pending.entry == designs.found[key]:
+        return _result(pending.feed.stream, pending.feed.n_blocks, estimator)
+    # the pass followed another experiment or could not follow this one exactly: read its blocks again
     d = chosen["design"]
-    namespace = chosen["topic"].rstrip("/")[:-len(_DESIGN_TOPIC)]
-    topic = namespace + _MEASUREMENT_TOPIC
-    if topic not in all_topics:
-        raise ValueError(f"{os.fspath(path)} has no {topic} topic beside {chosen['topic']}")
     u_names, r_names = match_inputs(d.input_names, inputs, references)
     stream = FrfStream(d, outputs, u_names, r_names, start_index=chosen["start_index"],
                        total_samples=min(chosen["total_samples"], d.total_samples))
