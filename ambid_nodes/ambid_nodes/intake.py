@@ -36,6 +36,19 @@ EVENT_RATE = 10.0      # rejection events per second beyond the burst
 LOG_PERIOD_S = 1.0     # log lines about rejections at most this often
 
 
+class Tally:
+    """Messages of one topic accepted and rejected so far; received = accepted + rejected.
+
+    The per-sample loop handlers add to ``accepted`` directly (an attribute, no call).
+    """
+
+    __slots__ = ("accepted", "rejected")
+
+    def __init__(self) -> None:
+        self.accepted = 0
+        self.rejected = 0
+
+
 class Intake:
     """Per-topic counters of one node and its raw, decoding subscriptions.
 
@@ -51,9 +64,7 @@ class Intake:
         self.node = node
         self.on_reject = on_reject
         self.on_error = on_error
-        self.received: collections.Counter[str] = collections.Counter()
-        self.accepted: collections.Counter[str] = collections.Counter()
-        self.rejected: collections.Counter[str] = collections.Counter()
+        self.tallies: dict[str, Tally] = {}
         self.errors = 0
         self._tokens = float(EVENT_BURST)
         self._refilled = time.monotonic()
@@ -66,8 +77,9 @@ class Intake:
 
         ``handler`` raises BadMessage to reject a message; returning normally accepts it.
         """
+        tally = self.tally(topic)
+
         def on_raw(data: bytes) -> None:
-            self.received[topic] += 1
             try:
                 handler(decode_message(data, msg_type, topic))
             except BadMessage as exc:
@@ -78,19 +90,23 @@ class Intake:
                 self.reject(topic, f"{topic}: the node failed to handle the message ({type(exc).__name__}: {exc})",
                             error=True)
                 return
-            self.accepted[topic] += 1
+            tally.accepted += 1
 
         return self.node.create_subscription(msg_type, topic, on_raw, qos_profile, raw=True)
 
-    # for hand-written raw handlers (the lock-step loop): count, then accept or reject exactly once
-    def count(self, topic: str) -> None:
-        self.received[topic] += 1
+    # for hand-written raw handlers (the lock-step loop): accept or reject each message exactly once
+    def tally(self, topic: str) -> Tally:
+        """The counters of ``topic`` (created at zero)."""
+        t = self.tallies.get(topic)
+        if t is None:
+            t = self.tallies[topic] = Tally()
+        return t
 
     def accept(self, topic: str) -> None:
-        self.accepted[topic] += 1
+        self.tally(topic).accepted += 1
 
     def reject(self, topic: str, why: str, error: bool = False) -> None:
-        self.rejected[topic] += 1
+        self.tally(topic).rejected += 1
         now = time.monotonic()
         if now - self._last_log >= LOG_PERIOD_S or error:
             more = f" ({self._log_folded} more since the last line)" if self._log_folded else ""
@@ -111,20 +127,36 @@ class Intake:
         (self.on_error if error else self.on_reject)(topic, why)
 
     @property
+    def received(self) -> collections.Counter[str]:
+        """Messages received per topic (a snapshot)."""
+        return collections.Counter({t: c.accepted + c.rejected for t, c in self.tallies.items()})
+
+    @property
+    def accepted(self) -> collections.Counter[str]:
+        """Messages accepted per topic (a snapshot)."""
+        return collections.Counter({t: c.accepted for t, c in self.tallies.items()})
+
+    @property
+    def rejected(self) -> collections.Counter[str]:
+        """Messages rejected per topic (a snapshot)."""
+        return collections.Counter({t: c.rejected for t, c in self.tallies.items()})
+
+    @property
     def total_received(self) -> int:
-        return sum(self.received.values())
+        return sum(c.accepted + c.rejected for c in self.tallies.values())
 
     @property
     def total_rejected(self) -> int:
-        return sum(self.rejected.values())
+        return sum(c.rejected for c in self.tallies.values())
 
     def figures(self) -> dict:
         """``{"received:<topic>": n, "accepted:<topic>": n, "rejected:<topic>": n, ...}`` for status."""
         out: dict = {}
-        for topic in sorted(self.received):
-            out[f"received:{topic}"] = self.received[topic]
-            out[f"accepted:{topic}"] = self.accepted[topic]
-            out[f"rejected:{topic}"] = self.rejected[topic]
+        for topic in sorted(self.tallies):
+            c = self.tallies[topic]
+            out[f"received:{topic}"] = c.accepted + c.rejected
+            out[f"accepted:{topic}"] = c.accepted
+            out[f"rejected:{topic}"] = c.rejected
         if self.errors:
             out["handler_errors"] = self.errors
         return out

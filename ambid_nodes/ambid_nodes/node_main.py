@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import json
 import os
 import sys
@@ -38,9 +39,18 @@ def spin_until_done(executor, future, context=None) -> None:
     The EventsExecutor of rclpy 7.1 misses a future completed inside a
     callback, and a shutdown of its context, when it spins without a timeout
     (``spin()`` ignores SIGINT and busy-waits), so it wakes up to look.
+
+    The set-up's objects (modules, nodes, models) live as long as the run;
+    frozen while it spins, the cyclic garbage collector no longer walks them
+    on every full collection (~3 % of a lock-step loop's time otherwise).
     """
-    while not future.done() and rclpy.ok(context=context):
-        executor.spin_until_future_complete(future, timeout_sec=0.5)
+    gc.collect()
+    gc.freeze()
+    try:
+        while not future.done() and rclpy.ok(context=context):
+            executor.spin_until_future_complete(future, timeout_sec=0.5)
+    finally:
+        gc.unfreeze()
 
 
 def run_single(node_class, args=None) -> int:

@@ -2,7 +2,11 @@
 
 Lock-step on the sample index: publishes y[k] on ``displacement``, waits for
 the controller's ic[k] on ``control_current``, applies u = ic + r over the
-next sample period and steps. Publishes measurement blocks (y, u, ic, r),
+next sample period and steps. A controller with a computational delay
+answers y[k] with ic[k + 1] (and ic[0] first), so the next current is
+already on its way while the plant steps; the plant takes the currents in
+index order, the awaited one and at most one ahead, and the samples are the
+same either way. Publishes measurement blocks (y, u, ic, r),
 ``/clock``, a latched ``plant/description``, ``status`` and ``events``.
 
 Every received message is accepted or rejected with its reason (counted per
@@ -19,7 +23,9 @@ another experiment.
 Controller supervision. In lock-step the plant cannot advance past a sample
 whose answer has not arrived, so a dead or stalled controller is detected at
 that very sample: the detection latency is 0 samples of simulated time, and
-``controller_timeout`` (+ one watchdog period, at most 0.1 s) of wall time.
+``controller_timeout`` (+ up to two watchdog periods, each at most 0.1 s:
+the loop reads no clock per sample, the watchdog dates progress to its
+ticks) of wall time.
 Then the plant goes to its safe state: zero control current, the rotor drops
 onto the backup bearings (``LANDING_S`` simulated, recorded with FLAG_CONTROLLER_LOST
 and FLAG_LANDED), a FATAL ``controller_lost`` event, the session failed.
@@ -33,6 +39,7 @@ FLAG_CLIPPED; each block with clipped samples gives one ``clipped`` event.
 from __future__ import annotations
 
 import bisect
+from array import array
 import json
 import sys
 import time
@@ -50,7 +57,8 @@ from ambid_nodes.conversions import (BadMessage, block_msg, check_design, check_
                                      time_msg)
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
-from ambid_nodes.sample_codec import decode_sample, encode_sample
+from ambid_nodes.raw_publish import raw_publisher
+from ambid_nodes.sample_codec import decode_sample, encode_sample, encode_sample4
 from ambid.levitation import LevitationMonitor
 
 MEASUREMENT_NAMES = (DISPLACEMENT_NAMES + CURRENT_NAMES + tuple(f"ic_{a}" for a in AXES)
@@ -62,6 +70,11 @@ LANDING_S = 0.05
 STATUS_PERIOD_S = 1.0  # wall time between status messages while the loop does not run (it reports per block)
 
 START_RETRY_S = 0.25  # wall time between re-sends of y[0] until the controller answers
+ZERO4 = (0.0, 0.0, 0.0, 0.0)
+# message constants, read once: the per-sample path must not pay rosidl's class properties
+RUNNING, DONE, FAILED, IDLE = (SessionStatus.STATE_RUNNING, SessionStatus.STATE_DONE, SessionStatus.STATE_FAILED,
+                               SessionStatus.STATE_IDLE)
+FLAG_CLIPPED, FLAG_LANDED = SampleBlock.FLAG_CLIPPED, SampleBlock.FLAG_LANDED
 
 class PlantSim(Node):
     def __init__(self, **kwargs) -> None:
@@ -87,37 +100,48 @@ class PlantSim(Node):
         self.sim = PlantSimulator(self.rig, seed=self.seed, nonlinear_magnets=nonlinear)
         self.dt = self.rig.dt
         self.n_total = int(round(self.sim_seconds / self.dt)) if self.sim_seconds > 0 else None
+        self.last_k = self.n_total - 1 if self.n_total else 2**63  # the final sample's index
 
         self.pub_y = self.create_publisher(Sample, "displacement", qos.LOOP)
+        self.publish_y_raw = raw_publisher(self.pub_y)
         self.pub_block = self.create_publisher(SampleBlock, "measurement", qos.BLOCKS)
         self.pub_desc = self.create_publisher(PlantDescription, "plant/description", qos.LATCHED)
         self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
         self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
         self.pub_clock = self.create_publisher(Clock, "/clock", qos.CLOCK)
         self.intake = Intake(self, self.on_reject, self.on_handler_error)
+        self.ic_tally = self.intake.tally("control_current")
         self.sub_ic = self.create_subscription(Sample, "control_current", self.on_control, qos.LOOP, raw=True)
         self.intake.subscribe(SampleBlock, "excitation", self.on_excitation, qos.BLOCKS)
         self.intake.subscribe(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
 
         self.k = 0
         self.ic_last = [0.0] * 4
-        self.excitation: dict[int, np.ndarray] = {}  # first_index -> (n, 4) block, consumed in order
+        # currents received for samples k and k + 1 (a pipelined controller answers one ahead), in order
+        self.ic_ready: list[list[float]] = []
+        self.excitation: dict[int, list] = {}  # first_index -> rows (n x 4 floats), consumed in order
         self.exc_starts: list[int] = []  # sorted keys of self.excitation
         # sample ranges [start, end) a design says are excited: the plant waits for their blocks,
         # so where the excitation lands never depends on message timing
         self.excited_ranges: dict[str, tuple[int, int]] = {}
-        self.pending_ic: list[float] | None = None
-        self.buf = np.zeros((self.block_size, len(MEASUREMENT_NAMES)))
-        self.buf_flags = np.zeros(self.block_size, dtype=np.uint8)
+        # the excitation block in use: rows for [exc_first, exc_end); before exc_free_until no sample
+        # is excited and no block held (both recomputed when designs or blocks arrive or a block ends)
+        self.exc_first = self.exc_end = 0
+        self.exc_rows: list = []
+        self.exc_free_until = 0
+        # this block's y, ic and r, row after row (u = ic + r is formed per block: the same sums as applied)
+        self.rows_y, self.rows_ic, self.rows_r = array("d"), array("d"), array("d")
+        self.row_flags: dict[int, int] = {}  # row -> FLAG_* where not 0
         self.buf_start = 0
         self.clipped_samples = 0
         self.controller_lost_after_s: float | None = None  # wall time without an answer when declared lost
         self.monitor = LevitationMonitor(self.rig.backup_clearance_m,
                                          self.n_total // 2 if self.n_total else int(0.5 / self.dt))
-        self.state = SessionStatus.STATE_IDLE
+        self.state = IDLE
         self.started_wall = None
         self.finished_wall = None
         self.last_answer_wall = None
+        self.watch_k = -1  # the sample index the watchdog saw last
         self.summary: dict | None = None
         self.finished = Future()  # completes with the summary when the run ends
         self.publish_description()
@@ -141,7 +165,7 @@ class PlantSim(Node):
         if self.pub_y.get_subscription_count() < 1 or self.sub_ic.get_publisher_count() < 1:
             return
         self.start_timer.cancel()
-        self.state = SessionStatus.STATE_RUNNING
+        self.state = RUNNING
         self.started_wall = self.last_answer_wall = time.perf_counter()
         self.event(SessionEvent.INFO, "started", f"lock-step loop started, {self.describe_run()}")
         self.publish_y()
@@ -150,10 +174,10 @@ class PlantSim(Node):
         self.start_retry = self.create_timer(START_RETRY_S, self.resend_first_sample)
 
     def resend_first_sample(self) -> None:
-        if self.k > 0 or self.state != SessionStatus.STATE_RUNNING:
+        if self.k > 0 or self.state != RUNNING:
             self.start_retry.cancel()
             return
-        self.pub_y.publish(self.y_bytes)
+        self.publish_y_raw(self.y_bytes)
 
     def describe_run(self) -> str:
         t = f"{self.sim_seconds:g} s" if self.n_total else "until stopped"
@@ -161,9 +185,10 @@ class PlantSim(Node):
 
     # --- the loop ---------------------------------------------------------
     def publish_y(self) -> None:
-        self.y = self.sim.output()
-        self.y_bytes = encode_sample(self.k, self.y.tolist())
-        self.pub_y.publish(self.y_bytes)
+        """Publish y[0] (from then on step_and_record publishes each next y)."""
+        self.y = tuple(self.sim.output().tolist())
+        self.y_bytes = encode_sample(self.k, self.y)
+        self.publish_y_raw(self.y_bytes)
 
     @property
     def received(self) -> int:
@@ -174,93 +199,128 @@ class PlantSim(Node):
         return self.intake.total_rejected
 
     def on_control(self, data: bytes) -> None:
-        intake = self.intake
-        intake.count("control_current")
-        awaiting = self.state == SessionStatus.STATE_RUNNING and self.pending_ic is None
+        ready = self.ic_ready
+        running = self.state == RUNNING
+        nxt = self.k + len(ready)  # the only index the plant can take now
         try:
             index, ic = decode_sample(data, 4, "control_current")
         except BadMessage as exc:
-            if exc.index != self.k or not awaiting:
-                intake.reject("control_current", f"{exc} (sample {exc.index}, now {self.k})")
+            if exc.index != nxt or not running or len(ready) > 1:
+                self.intake.reject("control_current", f"{exc} (sample {exc.index}, now {self.k})")
                 return
-            intake.reject("control_current", f"{exc}; holding the previous current for sample {self.k}")
-            index, ic = self.k, self.ic_last
+            self.intake.reject("control_current", f"{exc}; holding the previous current for sample {nxt}")
+            index, ic = nxt, self.ic_last
         else:
-            if not awaiting:
-                why = ("the plant has not started" if self.state == SessionStatus.STATE_IDLE else
-                       "its sample is already answered" if self.state == SessionStatus.STATE_RUNNING else
-                       "the session has ended")
-                intake.reject("control_current", f"control_current {index} received while {why} (sample {self.k})")
+            if index != nxt or not running or len(ready) > 1:
+                self.refuse_control(index, nxt, running)
                 return
-            if index != self.k:
-                intake.reject("control_current", f"control_current index {index}, expected {self.k} "
-                              f"({'stale or duplicated' if index < self.k else 'ahead of the plant or out of range'})")
-                return
-            intake.accept("control_current")
-        self.last_answer_wall = time.perf_counter()
+            self.ic_tally.accepted += 1
         self.ic_last = ic
-        if self.excited_ranges and not self.has_excitation(self.k):
-            self.pending_ic = ic  # resumed by on_excitation
+        ready.append(ic)
+        self.run_ready()
+
+    def refuse_control(self, index: int, nxt: int, running: bool) -> None:
+        intake = self.intake
+        if self.state == DONE and index == self.k and not self.ic_ready:
+            intake.accept("control_current")  # a pipelined controller's current for the sample after the run
             return
-        self.advance(ic)
+        if not running:
+            why = "the plant has not started" if self.state == IDLE else "the session has ended"
+            intake.reject("control_current", f"control_current {index} received while {why} (sample {self.k})")
+        elif index < nxt:
+            intake.reject("control_current", f"control_current index {index}, expected {nxt} (stale or duplicated)")
+        else:
+            intake.reject("control_current", f"control_current index {index}, expected {nxt} (ahead of the "
+                          "plant: a controller answers y[k] with ic[k] or ic[k + 1], or out of range)")
 
-    def needs_excitation(self, k: int) -> bool:
-        return any(a <= k < b for a, b in self.excited_ranges.values())
+    def run_ready(self) -> None:
+        """Step every sample whose current (and excitation, where a design excites it) is here."""
+        ready = self.ic_ready
+        while ready and self.state == RUNNING:
+            k = self.k
+            if k < self.exc_end and k >= self.exc_first:
+                r = self.exc_rows[k - self.exc_first]
+                if k + 1 == self.exc_end:
+                    self.consume_excitation_block()
+            elif k < self.exc_free_until:
+                r = ZERO4
+            else:
+                r = self.excitation_slow(k)
+                if r is None:
+                    return  # waiting for the excitation generator; on_excitation resumes
+            self.step_and_record(ready.pop(0), r, 0, final=k == self.last_k)
+            if k == self.last_k:
+                self.finish(DONE)
 
-    def held_block(self, k: int) -> int | None:
-        """First index of the held excitation block covering sample k, or None."""
+    def excitation_slow(self, k: int):
+        """r[k] when sample k lies outside the block in use: from the held block covering k (then in use),
+        zeros if no design excites k, None while its block has not arrived."""
         i = bisect.bisect_right(self.exc_starts, k) - 1
         if i >= 0:
             first = self.exc_starts[i]
-            if k < first + len(self.excitation[first]):
-                return first
-        return None
+            rows = self.excitation[first]
+            if k < first + len(rows):
+                self.exc_first, self.exc_end, self.exc_rows = first, first + len(rows), rows
+                if k + 1 == self.exc_end:
+                    self.consume_excitation_block()
+                return rows[k - first]
+        if any(a <= k < b for a, b in self.excited_ranges.values()):
+            return None
+        self.update_excitation_free()
+        return ZERO4
 
-    def has_excitation(self, k: int) -> bool:
-        return not self.needs_excitation(k) or self.held_block(k) is not None
+    def consume_excitation_block(self) -> None:
+        del self.excitation[self.exc_first]
+        self.exc_starts.remove(self.exc_first)
+        self.update_excitation_free()
 
-    def excitation_at(self, k: int) -> list[float]:
-        first = self.held_block(k)
-        if first is None:
-            return [0.0, 0.0, 0.0, 0.0]
-        block = self.excitation[first]
-        if k == first + len(block) - 1:  # consumed
-            del self.excitation[first]
-            self.exc_starts.remove(first)
-        return block[k - first].tolist()
-
-    def advance(self, ic: list[float]) -> None:
-        r = self.excitation_at(self.k) if self.excitation else [0.0, 0.0, 0.0, 0.0]
-        done = self.n_total is not None and self.k + 1 >= self.n_total
-        self.step_and_record(ic, r, 0, final=done)
-        if done:
-            self.finish(SessionStatus.STATE_DONE)
-        else:
-            self.publish_y()
-
-    def step_and_record(self, ic: list[float], r: list[float], flags: int, final: bool = False) -> None:
-        """Apply u = ic + r over sample k (the amplifier saturates it), record y, u, ic, r as commanded."""
+    def update_excitation_free(self) -> None:
+        """Samples from k up to the next excited range or held block need no excitation lookup."""
         k = self.k
-        u = [ic[0] + r[0], ic[1] + r[1], ic[2] + r[2], ic[3] + r[3]]
-        clipped, contact = self.sim.step(u)
-        row = k - self.buf_start
-        self.buf[row] = (*self.y.tolist(), *u, *ic, *r)
-        self.buf_flags[row] = (flags | (SampleBlock.FLAG_CLIPPED if clipped else 0)
-                               | (SampleBlock.FLAG_LANDED if contact else 0))
-        self.k = k + 1
-        if self.k % self.clock_every == 0:
-            self.pub_clock.publish(Clock(clock=time_msg(self.k * self.dt)))
-        if row + 1 == self.block_size or final:
+        ahead = [a for a, b in self.excited_ranges.values() if b > k] + [f for f in self.exc_starts if f >= k]
+        covering = any(a <= k < b for a, b in self.excited_ranges.values()) or self.held_covering(k)
+        self.exc_free_until = k if covering else min([max(a, k) for a in ahead], default=2**63)
+
+    def held_covering(self, k: int) -> bool:
+        i = bisect.bisect_right(self.exc_starts, k) - 1
+        return i >= 0 and k < self.exc_starts[i] + len(self.excitation[self.exc_starts[i]])
+
+    def step_and_record(self, ic, r, flags: int, final: bool = False, publish: bool = True) -> None:
+        """Apply u = ic + r over sample k (the amplifier saturates it), record y, u, ic, r as commanded;
+        publish y[k + 1] unless this is the final sample (or ``publish`` is False: the safe state)."""
+        k = self.k
+        u0, u1, u2, u3 = ic[0] + r[0], ic[1] + r[1], ic[2] + r[2], ic[3] + r[3]
+        y0, y1, y2, y3, clipped, contact = self.sim.step_output(u0, u1, u2, u3)
+        self.rows_y.extend(self.y)
+        self.rows_ic.extend(ic)
+        self.rows_r.extend(r)
+        if flags or clipped or contact:
+            self.row_flags[k - self.buf_start] = (flags | (FLAG_CLIPPED if clipped else 0)
+                                                  | (FLAG_LANDED if contact else 0))
+        self.k = k = k + 1
+        self.y = (y0, y1, y2, y3)
+        if publish and not final:
+            self.publish_y_raw(encode_sample4(k, y0, y1, y2, y3))
+        if k % self.clock_every == 0:
+            self.pub_clock.publish(Clock(clock=time_msg(k * self.dt)))
+        if k - self.buf_start == self.block_size or final:
             self.flush_block(final=final)
 
     def flush_block(self, final: bool = False) -> None:
-        n = self.k - self.buf_start
+        n = len(self.rows_y) // 4
         if n <= 0:
             return
-        self.report_clipping(n)
-        self.monitor.add_block(self.buf_start, self.buf[:n, :4], self.buf_flags[:n] & SampleBlock.FLAG_LANDED)
-        self.pub_block.publish(block_msg(self.buf_start, self.dt, MEASUREMENT_NAMES, MEASUREMENT_UNITS, self.buf[:n],
-                                         self.buf_flags[:n], SampleBlock.FLAG_FINAL if final else 0))
+        ic = np.frombuffer(self.rows_ic, dtype=float).reshape(n, 4)
+        r = np.frombuffer(self.rows_r, dtype=float).reshape(n, 4)
+        buf = np.hstack([np.frombuffer(self.rows_y, dtype=float).reshape(n, 4), ic + r, ic, r])
+        flags = np.zeros(n, dtype=np.uint8)
+        for row, f in self.row_flags.items():
+            flags[row] = f
+        self.rows_y, self.rows_ic, self.rows_r, self.row_flags = array("d"), array("d"), array("d"), {}
+        self.report_clipping(buf, flags)
+        self.monitor.add_block(self.buf_start, buf[:, :4], flags & FLAG_LANDED)
+        self.pub_block.publish(block_msg(self.buf_start, self.dt, MEASUREMENT_NAMES, MEASUREMENT_UNITS, buf,
+                                         flags, SampleBlock.FLAG_FINAL if final else 0))
         self.buf_start = self.k
         self.publish_status()
 
@@ -276,9 +336,10 @@ class PlantSim(Node):
             if late == len(data):
                 raise BadMessage(f"excitation: samples [{first}, {end}) arrived after they were due (now {self.k})")
             first, data = first + late, data[late:]
-        self.excitation[first] = data
+        self.excitation[first] = data.tolist()
         bisect.insort(self.exc_starts, first)
-        self.resume()
+        self.update_excitation_free()
+        self.run_ready()
 
     def on_design(self, msg: ExcitationDesign) -> None:
         check_design(msg, self.dt)
@@ -301,43 +362,42 @@ class PlantSim(Node):
             self.excited_ranges.pop(exp_id, None)
         else:
             self.excited_ranges[exp_id] = (start, end)
-        self.resume()
-
-    def resume(self) -> None:
-        if self.pending_ic is not None and self.has_excitation(self.k):
-            ic, self.pending_ic = self.pending_ic, None
-            self.advance(ic)
+        self.update_excitation_free()
+        self.run_ready()
 
     # --- supervision ------------------------------------------------------
     def check_controller(self) -> None:
-        if self.state != SessionStatus.STATE_RUNNING or self.last_answer_wall is None:
+        if self.state != RUNNING or self.last_answer_wall is None:
             return
-        if self.pending_ic is not None:
-            return  # waiting for the excitation generator, not for the controller
-        quiet = time.perf_counter() - self.last_answer_wall
+        now = time.perf_counter()
+        if self.ic_ready or self.k != self.watch_k:
+            # progress, or waiting for the excitation generator, not for the controller: the loop
+            # reads no clock per sample, so the last answer is dated to the watchdog tick that saw it
+            self.watch_k, self.last_answer_wall = self.k, now
+            return
+        quiet = now - self.last_answer_wall
         if quiet > self.timeout:
             self.controller_lost_after_s = quiet
             self.event(SessionEvent.FATAL, "controller_lost",
                        f"no control current for sample {self.k} within {self.timeout:g} s ({quiet:.3f} s quiet): "
                        "safe state, control current zero, the rotor lands on the backup bearings")
             self.land()
-            self.finish(SessionStatus.STATE_FAILED)
+            self.finish(FAILED)
 
     def land(self) -> None:
         """The safe state: zero control current for LANDING_S simulated, the rotor drops onto the retainer; recorded."""
         n = max(1, int(round(LANDING_S / self.dt)))
-        zero = [0.0, 0.0, 0.0, 0.0]
         for i in range(n):
-            self.y = self.sim.output()
-            self.step_and_record(zero, zero, SampleBlock.FLAG_CONTROLLER_LOST, final=i == n - 1)
+            self.step_and_record(ZERO4, ZERO4, SampleBlock.FLAG_CONTROLLER_LOST, final=i == n - 1, publish=False)
 
-    def report_clipping(self, n: int) -> None:
+    def report_clipping(self, buf: np.ndarray, flags: np.ndarray) -> None:
         """One event per block with clipped samples: where, how many, the largest commanded |u|."""
-        clipped = np.flatnonzero(self.buf_flags[:n] & SampleBlock.FLAG_CLIPPED)
+        n = len(buf)
+        clipped = np.flatnonzero(flags & FLAG_CLIPPED)
         if clipped.size == 0:
             return
         self.clipped_samples += int(clipped.size)
-        peak = float(np.abs(self.buf[clipped, 4:8]).max())
+        peak = float(np.abs(buf[clipped, 4:8]).max())
         first = self.buf_start + int(clipped[0])
         self.event(SessionEvent.WARN, "clipped",
                    f"{clipped.size} of {n} samples in [{self.buf_start}, {self.buf_start + n}) exceeded the amplifier "
@@ -365,7 +425,7 @@ class PlantSim(Node):
                 **self.intake.figures()}
 
     def status_when_idle(self) -> None:
-        if self.state != SessionStatus.STATE_RUNNING and self.received != self.status_received:
+        if self.state != RUNNING and self.received != self.status_received:
             self.publish_status()
 
     def publish_status(self) -> None:
@@ -382,11 +442,11 @@ class PlantSim(Node):
 
     def finish(self, state: int) -> None:
         self.finished_wall = time.perf_counter()
-        if state == SessionStatus.STATE_DONE and not self.monitor.levitated():
-            state = SessionStatus.STATE_FAILED
+        if state == DONE and not self.monitor.levitated():
+            state = FAILED
             self.event(SessionEvent.ERROR, "not_levitated", "the rotor did not stay levitated")
         self.state = state
-        self.summary = {**self.figures(), "state": "done" if state == SessionStatus.STATE_DONE else "failed"}
+        self.summary = {**self.figures(), "state": "done" if state == DONE else "failed"}
         self.publish_status()
         self.event(SessionEvent.INFO, "finished", json.dumps(self.summary))
         self.start_timer.cancel()

@@ -1,8 +1,16 @@
 """position_controller: discrete position controller of the AMB, answering y[k] with ic[k].
 
-Subscribes ``displacement`` (ambid_msgs/Sample), publishes ``control_current``
-for the same sample index, a latched ``controller/description`` (its discrete
-state-space, so C(e^jwT) is known to every node) and ``status``.
+Subscribes ``displacement`` (ambid_msgs/Sample), publishes ``control_current``,
+a latched ``controller/description`` (its discrete state-space, so C(e^jwT)
+is known to every node) and ``status``.
+
+Pipelining. A controller with a computational delay (no feedthrough, D = 0:
+ic[k] depends on y[k-1] and older) answers y[k] with ic[k + 1], computed as
+soon as y[k] is in, and y[0] with ic[0] and ic[1]: the plant then finds its
+next current already there when it has stepped, and the two nodes' work
+overlaps when they run as separate processes. The currents are the very
+numbers of answering y[k] with ic[k]. A controller with feedthrough answers
+y[k] with ic[k].
 
 Before it answers anything it checks the closed loop with the rig's
 analytical model and refuses to run an unstable combination.
@@ -11,14 +19,16 @@ A displacement message with the wrong channel count or a NaN is rejected
 (counted, logged); the controller then answers with its previous current and
 leaves its state untouched, so one bad sample cannot destabilise the loop. A
 displacement for any index but the awaited one (stale, repeated, ahead, out of
-range) is rejected and changes nothing; a session starts at index 0. Every
+range) is rejected and changes nothing; a session starts at index 0 (a plant
+that re-sends y[0] before the loop moved on gets the same answer again). Every
 received message is counted per topic in ``status`` (``ambid_nodes.intake``).
 
 Plant supervision. Once the loop runs, a plant silent for ``plant_timeout``
 seconds of wall time is declared lost -- unless its last ``status`` said
 its run ended (done or failed). In lock-step the plant's next sample is the
 one that did not come, so the detection latency is 0 samples and
-``plant_timeout`` (+ one watchdog period, at most 0.1 s) of wall time. Then
+``plant_timeout`` (+ up to two watchdog periods, each at most 0.1 s: no
+clock is read per sample, the watchdog dates progress to its ticks) of wall time. Then
 the controller reports a FAILED status and an ERROR ``plant_lost`` event,
 resets its state to zero current and idles safely: it answers nothing until
 a plant starts a new session at sample 0 (a stalled plant that resumes is
@@ -45,9 +55,11 @@ from ambid_nodes import qos
 from ambid_nodes.conversions import BadMessage, statespace_to_msg, time_msg
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
-from ambid_nodes.sample_codec import decode_sample, encode_sample
+from ambid_nodes.raw_publish import raw_publisher
+from ambid_nodes.sample_codec import decode_sample, encode_sample, encode_sample4
 
 STATUS_EVERY = 10_000  # samples between status messages
+RUNNING = SessionStatus.STATE_RUNNING  # read once: rosidl constants are class properties
 
 
 class PositionController(Node):
@@ -67,6 +79,9 @@ class PositionController(Node):
             delay_samples=declare(self, "delay_samples", d.delay_samples, "computational delay", 0, 100),
             current_limit_a=declare(self, "current_limit", d.current_limit_a, "saturation of ic", 1e-3, 1e3, "A"),
         )
+        pipeline = declare(self, "pipeline", True,
+                           "answer y[k] with ic[k+1] when the controller has a computational delay (no "
+                           "feedthrough), so the next current travels while the plant steps; false: with ic[k]")
         self.timeout = declare(self, "plant_timeout", 2.0,
                                "wall time without a displacement before the running plant is declared lost",
                                0.01, 3600.0, "s")
@@ -92,10 +107,15 @@ class PositionController(Node):
         self.params = pid
         self.stepper = ControllerStepper(self.model, pid.current_limit_a)
         self.pub_ic = self.create_publisher(Sample, "control_current", qos.LOOP)
+        self.publish_ic = raw_publisher(self.pub_ic)
+        self.pipelined = bool(pipeline) and self.stepper.strictly_proper
+        self.lead = int(self.pipelined)  # y[k] is answered with ic[k + lead]
+        self.first_answers: list[bytes] = []  # the answers to y[0], sent again if the plant repeats y[0]
         self.pub_desc = self.create_publisher(ControllerDescription, "controller/description", qos.LATCHED)
         self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
         self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
         self.intake = Intake(self, self.on_reject, self.on_handler_error)
+        self.y_tally = self.intake.tally("displacement")
         self.create_subscription(Sample, "displacement", self.on_displacement, qos.LOOP, raw=True)
         # the plant's status says whether its silence is the end of its run; a deep queue so no
         # other node's status can push the plant's last one out before it is read
@@ -103,9 +123,10 @@ class PositionController(Node):
             history=HistoryPolicy.KEEP_LAST, depth=100, reliability=qos.STATUS.reliability,
             durability=qos.STATUS.durability))
         self.expected: int | None = None  # next displacement index awaited; None: no session
-        self.ic_last = [0.0] * 4
+        self.ic_last = (0.0, 0.0, 0.0, 0.0)
         self.state = SessionStatus.STATE_IDLE
-        self.last_y_wall: float | None = None
+        self.last_y_wall: float | None = None  # when the watchdog last saw the loop move on
+        self.watch_expected: int | None = None
         self.plant_nodes: set[str] = set()  # who publishes displacement
         self.plant_ended: dict[str, bool] = {}  # node -> its last status was done/failed
         self.lost_at: int | None = None
@@ -126,50 +147,67 @@ class PositionController(Node):
         return self.intake.total_rejected
 
     def on_displacement(self, data: bytes) -> None:
-        intake = self.intake
-        intake.count("displacement")
         try:
             k, y = decode_sample(data, 4, "displacement")
-            bad = ""
         except BadMessage as exc:
             if exc.index is None:
-                intake.reject("displacement", str(exc))
+                self.intake.reject("displacement", str(exc))
                 return
             k, y, bad = exc.index, None, str(exc)
-        running = self.state == SessionStatus.STATE_RUNNING
+        if k != self.expected or self.state != RUNNING:
+            if not self.start_or_refuse(k, self.state == RUNNING, y):
+                return
+        if y is None:
+            self.intake.reject("displacement", f"{bad}; answering with the previous current")
+            ic = self.ic_last  # and the state stays as it is
+        else:
+            self.y_tally.accepted += 1
+            ic = self.step(*y)
+        self.expected = k + 1
+        self.ic_last = ic
+        answer = encode_sample4(k + self.lead, *ic)
+        self.publish_ic(answer)
+        if k % STATUS_EVERY == 0:
+            if k == 0:
+                self.first_answers.append(answer)
+            self.publish_status()
+
+    def start_or_refuse(self, k: int, running: bool, y) -> bool:
+        """Off the per-sample path: start a session at y[0], answer a repeated y[0] again, or reject."""
+        intake = self.intake
+        if k == 0 and running and self.expected == 1 and y is not None:
+            intake.accept("displacement")  # the plant did not hear our answer yet: the same again
+            for answer in self.first_answers:
+                self.publish_ic(answer)
+            return False
         if k == 0 and not running:
             self.start_session()
-        elif not running:
+            return True
+        if not running:
             why = (f"the plant was declared lost at sample {self.lost_at}" if self.lost_at is not None
                    else "no session runs")
             intake.reject("displacement", f"displacement index {k} while {why}: waiting for a session to "
                                           "start at sample 0")
-            return
-        elif k != self.expected:
-            kind = "repeated or out of order" if k < self.expected else "ahead of the loop or out of range"
-            intake.reject("displacement", f"displacement index {k} {kind} (expected {self.expected})")
-            return
-        if y is None:
-            intake.reject("displacement", f"{bad}; answering with the previous current")
-            ic = self.ic_last
-        else:
-            intake.accept("displacement")
-            ic = self.stepper.step(y)
-        self.expected = k + 1
-        self.ic_last = ic
-        self.last_y_wall = time.perf_counter()
-        self.pub_ic.publish(encode_sample(k, ic))
-        if k % STATUS_EVERY == 0:
-            self.publish_status()
+            return False
+        kind = "repeated or out of order" if k < self.expected else "ahead of the loop or out of range"
+        intake.reject("displacement", f"displacement index {k} {kind} (expected {self.expected})")
+        return False
 
     def start_session(self) -> None:
         """Sample 0 of a plant: a new session from the controller's zero state."""
         if self.expected is not None:
             self.stepper = ControllerStepper(self.model, self.params.current_limit_a)
-        self.ic_last = [0.0] * 4
-        self.state, self.lost_at = SessionStatus.STATE_RUNNING, None
+        self.step = self.stepper.step_ahead4 if self.pipelined else self.stepper.step4
+        self.ic_last = (0.0, 0.0, 0.0, 0.0)
+        self.expected, self.watch_expected = 0, None
+        self.state, self.lost_at = RUNNING, None
         self.plant_ended.clear()
         self.update_plant_nodes()
+        self.first_answers = []
+        if self.pipelined:  # ic[0] does not depend on y[0]: it goes first
+            ic0 = encode_sample(0, self.stepper.current_output())
+            self.first_answers.append(ic0)
+            self.publish_ic(ic0)
 
     def update_plant_nodes(self) -> None:
         topic = self.resolve_topic_name("displacement")
@@ -181,11 +219,15 @@ class PositionController(Node):
             self.plant_ended[msg.node] = msg.state in (SessionStatus.STATE_DONE, SessionStatus.STATE_FAILED)
 
     def check_plant(self) -> None:
-        if self.state != SessionStatus.STATE_RUNNING or self.last_y_wall is None:
+        if self.state != RUNNING:
             return
         if not self.plant_nodes:
             self.update_plant_nodes()  # discovery may have been late at sample 0
-        quiet = time.perf_counter() - self.last_y_wall
+        now = time.perf_counter()
+        if self.expected != self.watch_expected:  # the loop moved on since the last tick
+            self.watch_expected, self.last_y_wall = self.expected, now
+            return
+        quiet = now - self.last_y_wall
         if quiet <= self.timeout:
             return
         k = self.expected

@@ -33,6 +33,12 @@ def encode_sample(index: int, values) -> bytes:
 
 
 _FOUR = _packer(4)  # the loop's 4-channel Sample, 52 bytes
+_PACK4 = _FOUR.pack
+
+
+def encode_sample4(index: int, a: float, b: float, c: float, d: float) -> bytes:
+    """CDR bytes of Sample(index, [a, b, c, d]): the loop's per-sample message."""
+    return _PACK4(_HEADER, index, 4, a, b, c, d)
 
 
 def decode_sample(data: bytes, n_expected: int, what: str) -> tuple[int, list[float]]:

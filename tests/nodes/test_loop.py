@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 import rclpy
 from ambid_msgs.msg import ControllerDescription, PlantDescription, Sample, SampleBlock, SessionEvent
@@ -53,9 +54,11 @@ def test_lockstep_10000_steps_levitates_from_rest(ros):
     plant, ctrl, spy = make_loop(ros, 1.0, block_size=2000)
     assert ros.spin_until(plant.finished.done, timeout_s=120)
     s = plant.finished.result()
-    # every sample index exactly once, in order, on both loop topics
+    # every sample index exactly once, in order, on both loop topics; the controller (one sample of
+    # computational delay) answers y[k] with ic[k + 1], y[0] with ic[0] and ic[1]
+    assert ros.spin_until(lambda: len(spy.y_idx) == 10_000 and len(spy.ic_idx) == 10_001, timeout_s=5)
     assert spy.y_idx == list(range(10_000))
-    assert spy.ic_idx == list(range(10_000))
+    assert spy.ic_idx == list(range(10_001))
     assert s["state"] == "done" and s["levitated"], s
     assert s["contact_samples"] > 0  # it started on the retainer ...
     assert s["lift_off_index"] is not None and s["lift_off_index"] < 2000  # ... and lifted off
@@ -74,6 +77,28 @@ def test_lockstep_10000_steps_levitates_from_rest(ros):
     assert list(spy.plant_desc.displacement_names) == ["y_a_x", "y_b_x", "y_a_y", "y_b_y"]
     assert spy.ctrl_desc.model.sample_period == pytest.approx(1e-4)
     assert spy.ctrl_desc.delay_samples == 1
+
+
+def test_pipelined_controller_gives_the_same_samples_as_lock_step_answers(ros):
+    """Answering y[k] with ic[k + 1] changes when the currents travel, not one recorded number."""
+    runs = {}
+    for pipeline in (True, False):
+        spy = ros.add(Spy(ros.context))
+        plant = ros.add(PlantSim(namespace=NS, context=ros.context, parameter_overrides=[
+            Parameter("sim_seconds", value=0.3), Parameter("seed", value=5), Parameter("block_size", value=1000)]))
+        ctrl = ros.add(PositionController(namespace=NS, context=ros.context,
+                                          parameter_overrides=[Parameter("pipeline", value=pipeline)]))
+        assert ros.spin_until(plant.finished.done, timeout_s=120)
+        assert plant.finished.result()["messages_rejected"] == 0
+        assert ros.spin_until(lambda: sum(b.n_samples for b in spy.blocks) == 3000, timeout_s=10)
+        assert ros.spin_until(lambda: len(spy.ic_idx) == 3000 + pipeline, timeout_s=5)
+        assert spy.ic_idx == list(range(3000 + pipeline))
+        runs[pipeline] = np.vstack([block_data(b, MEASUREMENT_NAMES) for b in spy.blocks])
+        for node in (spy, plant, ctrl):
+            ros.executor.remove_node(node)
+            node.destroy_node()
+    assert np.array_equal(runs[True], runs[False])
+    assert np.abs(runs[True][:, 8:12]).max() > 0.1  # the controller did carry the rotor
 
 
 def test_declared_parameters_have_descriptions_and_ranges(ros):

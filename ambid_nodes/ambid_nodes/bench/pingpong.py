@@ -3,8 +3,11 @@
 What the plant and controller do per sample, minus the work: the pinger
 (the plant's role) publishes a 52-byte ``ambid_msgs/Sample`` payload,
 the ponger (the controller's role) answers each with the same bytes; raw
-subscriptions, QoS ``qos.LOOP``, EventsExecutor, composed in one process or
-as two processes, exactly as :mod:`ambid_nodes.graph` runs the real nodes.
+subscriptions, QoS ``qos.LOOP``, bytes published the nodes' way
+(:func:`ambid_nodes.raw_publish.raw_publisher`), EventsExecutor, composed in
+one process or as two processes, exactly as :mod:`ambid_nodes.graph` runs the
+real nodes. One message in flight: the pinger sends the next ping when the
+pong is in.
 Its rate is the practical limit of the loop on this machine.
 
 As a process: ``python -m ambid_nodes.bench.pingpong ping|pong --ros-args -p samples:=N``;
@@ -27,6 +30,7 @@ from rclpy.task import Future
 from ambid_nodes import qos
 from ambid_nodes.node_main import SUMMARY_PREFIX, run_single, spin_until_done
 from ambid_nodes.parameters import declare, refuse_unknown
+from ambid_nodes.raw_publish import raw_publisher
 
 NAMESPACE = "/ambid_bench"
 # the size of a 4-channel Sample in CDR (sample_codec's layout): header, index, count, padding, 4 float64
@@ -41,6 +45,7 @@ class Pinger(Node):
         self.n_samples = declare(self, "samples", 10_000, "round trips to time", 1, 10**9)
         refuse_unknown(self)
         self.pub = self.create_publisher(Sample, "ping", qos.LOOP)
+        self.publish = raw_publisher(self.pub)
         self.sub = self.create_subscription(Sample, "pong", self.on_pong, qos.LOOP, raw=True)
         self.k = 0
         self.started = None
@@ -53,12 +58,12 @@ class Pinger(Node):
             return
         self.start_timer.cancel()
         self.started = time.perf_counter()
-        self.pub.publish(PAYLOAD)
+        self.publish(PAYLOAD)
 
     def on_pong(self, data: bytes) -> None:
         self.k += 1
         if self.k < self.n_samples:
-            self.pub.publish(PAYLOAD)
+            self.publish(PAYLOAD)
             return
         wall = time.perf_counter() - self.started
         self.finished.set_result({"samples": self.k, "wall_s": wall, "samples_per_wall_s": self.k / wall,
@@ -72,7 +77,11 @@ class Ponger(Node):
         super().__init__("ponger", **kwargs)
         refuse_unknown(self)
         self.pub = self.create_publisher(Sample, "pong", qos.LOOP)
-        self.create_subscription(Sample, "ping", self.pub.publish, qos.LOOP, raw=True)
+        self.publish = raw_publisher(self.pub)
+        self.create_subscription(Sample, "ping", self.on_ping, qos.LOOP, raw=True)
+
+    def on_ping(self, data: bytes) -> None:
+        self.publish(data)
 
 
 def run_pingpong_composed(n_samples: int, domain_id: int) -> dict:
