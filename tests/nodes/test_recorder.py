@@ -215,9 +215,12 @@ def test_sigkill_leaves_a_file_inspect_recovers(ros, ros_env, tmp_path, capsys):
         plant = plant_graph(ros, sim_seconds=0.5, block_size=250)
         spin_or_fail(ros, lambda: watcher.recorder_subscribed(MEAS), "the recorder to subscribe", rec)
         ros.add(PositionController(namespace=NS, context=ros.context))
-        # kill mid-run, once blocks were recorded and some chunks flushed
-        spin_or_fail(ros, lambda: watcher.recorded(MEAS) >= 3 and watcher.status["chunks"] >= 2,
-                     "flushed measurement blocks", rec)
+        # kill mid-run, once a chunk was flushed after blocks were recorded: that chunk (or an
+        # earlier one) holds blocks; chunks flushed before the first block arrived hold none
+        spin_or_fail(ros, lambda: watcher.recorded(MEAS) >= 3, "recorded measurement blocks", rec)
+        chunks_then = watcher.status["chunks"]
+        spin_or_fail(ros, lambda: watcher.status["chunks"] > max(chunks_then, 1), "flushed measurement blocks",
+                     rec)
         flushed_before_kill = watcher.status["flushed_messages"]
         code, _, _ = stop(rec, signal.SIGKILL)
     finally:
