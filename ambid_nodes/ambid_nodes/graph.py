@@ -73,10 +73,15 @@ def ros_args(namespace: str, params: dict) -> list[str]:
 
 
 def stop_processes(procs: list[subprocess.Popen], grace_s: float = 5.0) -> None:
-    """SIGINT every process (rclpy shuts down cleanly), SIGKILL what is left after grace_s."""
+    """SIGTERM every process, SIGKILL what is left after grace_s.
+
+    A running node shuts down cleanly on SIGTERM (rclpy handles it as SIGINT); a
+    process still importing ends quietly, where SIGINT would print a
+    KeyboardInterrupt traceback from the middle of an import.
+    """
     for p in procs:
         if p.poll() is None:
-            p.send_signal(signal.SIGINT)
+            p.send_signal(signal.SIGTERM)
     for p in procs:
         try:
             p.wait(timeout=grace_s)
