@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import json
 import os
@@ -44,11 +45,18 @@ def spin_until_done(executor, future, context=None) -> None:
     frozen while it spins, the cyclic garbage collector no longer walks them
     on every full collection (~3 % of a lock-step loop's time otherwise).
     """
+    with gc_frozen():
+        while not future.done() and rclpy.ok(context=context):
+            executor.spin_until_future_complete(future, timeout_sec=0.5)
+
+
+@contextlib.contextmanager
+def gc_frozen():
+    """Within: every object alive on entry is out of the cyclic garbage collector's sight (see spin_until_done)."""
     gc.collect()
     gc.freeze()
     try:
-        while not future.done() and rclpy.ok(context=context):
-            executor.spin_until_future_complete(future, timeout_sec=0.5)
+        yield
     finally:
         gc.unfreeze()
 

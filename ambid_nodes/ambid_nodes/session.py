@@ -22,8 +22,10 @@ from ambid.excitation.spec import build_design
 from ambid.jsonable import to_jsonable
 from ambid.rig import load_rig, make_rig
 from ambid_nodes.graph import DEFAULT_NAMESPACE, session_domain_id
+from ambid_nodes.node_main import gc_frozen
 
 LIFT_OFF_S = 0.5  # levitate and settle before the experiment starts
+SETTLE_S = 0.2  # wall time for the status and events the nodes publish as the run ends, once the data is in
 
 
 @dataclass
@@ -151,20 +153,24 @@ def run_session_composed(cfg: SessionConfig) -> dict:
         if not answer.accepted:
             raise ValueError(f"identify: the excitation generator refused the experiment: {answer.message}")
         add(PositionController(**ns, parameter_overrides=params(rig_param)))
-        while not plant.finished.done():
-            executor.spin_until_future_complete(plant.finished, timeout_sec=0.25)
-            k = plant.k
-            st = _consumer_text(consumer)
-            rate = k / max(time.perf_counter() - wall0, 1e-9)
-            bar.show(k / total, f"sim {k / fs:6.2f}/{total / fs:.2f} s  {rate / 1000:5.1f}k samples/s  {st}")
+        with gc_frozen():
+            while not plant.finished.done():
+                executor.spin_until_future_complete(plant.finished, timeout_sec=0.25)
+                k = plant.k
+                st = _consumer_text(consumer)
+                rate = k / max(time.perf_counter() - wall0, 1e-9)
+                bar.show(k / total, f"sim {k / fs:6.2f}/{total / fs:.2f} s  {rate / 1000:5.1f}k samples/s  {st}")
         bar.show(1.0, "simulation done, closing the recording", force=True)
         bar.close()
         plant_summary = plant.finished.result()
-        # let the consumer and the recorder take the last blocks
+        # let the consumer and the recorder take the last blocks, then what the nodes said at the end
         spin_until(lambda: answer.experiment_id in consumer.results, 30, "the final FRF estimate")
-        end = time.monotonic() + 1.0
+        meas = plant.pub_block.topic_name
+        n_blocks = -(-plant_summary["samples"] // plant.block_size)
+        spin_until(lambda: recorder.counts.get(meas, 0) >= n_blocks, 30, "the last measurement block at the recorder")
+        end = time.monotonic() + SETTLE_S
         while time.monotonic() < end:
-            executor.spin_once(timeout_sec=0.05)
+            executor.spin_once(timeout_sec=0.02)
         rec = recorder.close()
         wall = time.perf_counter() - wall0
         return {
