@@ -135,6 +135,19 @@ class ControllerStepper:
         self._proper = proper
         self._bind()
 
+    def kernel_args(self, ahead: bool) -> tuple[np.ndarray, int, int, float]:
+        """(work vector, state count n, step-matrix offset, output limit [A]) for a compiled caller that
+        steps a 4 x 4 controller itself (:func:`ambid.step_kernels.statespace_step` on ``w``; y at
+        w[n:n + 4], the output at w[n + 4:n + 8]); ``ahead``: the matrix of ``step_ahead4``.
+
+        Raises:
+            ValueError: the controller is not 4 x 4, or ``ahead`` and it has feedthrough.
+        """
+        mat = self._mat_ahead4 if ahead else self._mat4
+        if mat < 0:
+            raise ValueError(f"kernel_args: needs a 4 x 4 controller{' without feedthrough' if ahead else ''}")
+        return self._w, self._n, mat, self._limit
+
     def _bind(self) -> None:
         self._step = compiled(statespace_step, STATESPACE_STEP_ARGS)
         self._step4 = compiled(statespace_step4, STATESPACE_STEP4_ARGS)

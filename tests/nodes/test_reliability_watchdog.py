@@ -131,7 +131,7 @@ def test_controller_detects_a_dead_or_stalled_plant_and_idles_safely(ros, ros_en
         last_y = max(spy.y)
         # the first sample the plant did not send; latency 0 samples
         assert lost.severity == SessionEvent.ERROR and lost.sample_index == last_y + 1 == ctrl.lost_at
-        assert ctrl.ic_last == [0.0] * 4
+        assert list(ctrl.ic_last) == [0.0] * 4
         print(f"plant {sig.name}: detected at sample {lost.sample_index} (last displacement {last_y}, latency 0 "
               f"samples), {wall:.3f} s wall after the fault (timeout {TIMEOUT_S} s)")
         assert wall < TIMEOUT_S + WATCHDOG_S + 1.0
