@@ -130,7 +130,7 @@ class PlantSim(Node):
         self.exc_rows: list = []
         self.exc_free_until = 0
         # this block's y, ic and r, row after row (u = ic + r is formed per block: the same sums as applied)
-        self.rows_y, self.rows_ic, self.rows_r = array("d"), array("d"), array("d")
+        self.rows = array("d")
         self.row_flags: dict[int, int] = {}  # row -> FLAG_* where not 0
         self.buf_start = 0
         self.clipped_samples = 0
@@ -291,9 +291,7 @@ class PlantSim(Node):
         k = self.k
         u0, u1, u2, u3 = ic[0] + r[0], ic[1] + r[1], ic[2] + r[2], ic[3] + r[3]
         y0, y1, y2, y3, clipped, contact = self.sim.step_output(u0, u1, u2, u3)
-        self.rows_y.extend(self.y)
-        self.rows_ic.extend(ic)
-        self.rows_r.extend(r)
+        self.rows.extend((*self.y, *ic, *r))
         if flags or clipped or contact:
             self.row_flags[k - self.buf_start] = (flags | (FLAG_CLIPPED if clipped else 0)
                                                   | (FLAG_LANDED if contact else 0))
@@ -307,16 +305,16 @@ class PlantSim(Node):
             self.flush_block(final=final)
 
     def flush_block(self, final: bool = False) -> None:
-        n = len(self.rows_y) // 4
+        n = len(self.rows) // 12
         if n <= 0:
             return
-        ic = np.frombuffer(self.rows_ic, dtype=float).reshape(n, 4)
-        r = np.frombuffer(self.rows_r, dtype=float).reshape(n, 4)
-        buf = np.hstack([np.frombuffer(self.rows_y, dtype=float).reshape(n, 4), ic + r, ic, r])
+        rows = np.frombuffer(self.rows, dtype=float).reshape(n, 12)  # y, ic, r
+        ic, r = rows[:, 4:8], rows[:, 8:12]
+        buf = np.hstack([rows[:, :4], ic + r, ic, r])
         flags = np.zeros(n, dtype=np.uint8)
         for row, f in self.row_flags.items():
             flags[row] = f
-        self.rows_y, self.rows_ic, self.rows_r, self.row_flags = array("d"), array("d"), array("d"), {}
+        self.rows, self.row_flags = array("d"), {}
         self.report_clipping(buf, flags)
         self.monitor.add_block(self.buf_start, buf[:, :4], flags & FLAG_LANDED)
         self.pub_block.publish(block_msg(self.buf_start, self.dt, MEASUREMENT_NAMES, MEASUREMENT_UNITS, buf,
