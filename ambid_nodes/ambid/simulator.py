@@ -266,10 +266,27 @@ class PlantSimulator:
             if self._s[sk.PAR_STATUS] == sk.STATUS_NOISE:
                 self._draw_noise()
                 return self.step_output(u0, u1, u2, u3)
-            self._substeps()
-            y0, y1, y2, y3 = self.output().tolist()
+            y0, y1, y2, y3 = self.finish_contact_sample()
             return y0, y1, y2, y3, r[4], True
         return r
+
+    @property
+    def work(self) -> np.ndarray:
+        """The plant work vector (:mod:`ambid.step_kernels`), for a compiled caller of ``plant_step``
+        that handles its STATUS_* returns as :meth:`step_output` does."""
+        return self._s
+
+    def draw_noise(self) -> None:
+        """After ``plant_step`` returned STATUS_NOISE (nothing changed): the next block of the noise
+        stream; then call it again."""
+        self._draw_noise()
+
+    def finish_contact_sample(self) -> tuple[float, float, float, float]:
+        """After ``plant_step`` returned STATUS_CONTACT: the sample in contact sub-steps; returns
+        y[k+1] [m] with its noise."""
+        self._substeps()
+        y0, y1, y2, y3 = self.output().tolist()
+        return y0, y1, y2, y3
 
     def _substeps(self) -> None:
         """Redo the sample in CONTACT_SUBSTEPS sub-steps from v, with u[k] (clipped) in v's u slot."""

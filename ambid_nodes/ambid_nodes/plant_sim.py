@@ -39,7 +39,6 @@ FLAG_CLIPPED; each block with clipped samples gives one ``clipped`` event.
 from __future__ import annotations
 
 import bisect
-from array import array
 import json
 import sys
 import time
@@ -56,6 +55,9 @@ from ambid_nodes import qos
 from ambid_nodes.conversions import (BadMessage, block_msg, check_design, check_excitation_block, statespace_to_msg,
                                      time_msg)
 from ambid_nodes.intake import Intake
+from ambid_nodes.loop_kernels import (PLANT_CLIPPED, PLANT_CONTACT, PLANT_SAMPLE4_ARGS, PLANT_STEPPED,
+                                      SAMPLE4_BYTES, plant_sample4)
+from ambid.step_kernels import compiled
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 from ambid_nodes.raw_publish import raw_publisher
 from ambid_nodes.sample_codec import decode_sample, encode_sample, encode_sample4
@@ -71,6 +73,7 @@ STATUS_PERIOD_S = 1.0  # wall time between status messages while the loop does n
 
 START_RETRY_S = 0.25  # wall time between re-sends of y[0] until the controller answers
 ZERO4 = (0.0, 0.0, 0.0, 0.0)
+ZERO_ROWS = np.zeros((1, 4))  # r = 0, for the compiled path
 # message constants, read once: the per-sample path must not pay rosidl's class properties
 RUNNING, DONE, FAILED, IDLE = (SessionStatus.STATE_RUNNING, SessionStatus.STATE_DONE, SessionStatus.STATE_FAILED,
                                SessionStatus.STATE_IDLE)
@@ -98,6 +101,7 @@ class PlantSim(Node):
         except (ValueError, OSError) as exc:
             raise ParameterError(f"plant_sim: parameter 'rig_file': {exc}") from None
         self.sim = PlantSimulator(self.rig, seed=self.seed, nonlinear_magnets=nonlinear)
+        self.sim_work = self.sim.work
         self.dt = self.rig.dt
         self.n_total = int(round(self.sim_seconds / self.dt)) if self.sim_seconds > 0 else None
         self.last_k = self.n_total - 1 if self.n_total else 2**63  # the final sample's index
@@ -116,10 +120,9 @@ class PlantSim(Node):
         self.intake.subscribe(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
 
         self.k = 0
-        self.ic_last = [0.0] * 4
         # currents received for samples k and k + 1 (a pipelined controller answers one ahead), in order
         self.ic_ready: list[list[float]] = []
-        self.excitation: dict[int, list] = {}  # first_index -> rows (n x 4 floats), consumed in order
+        self.excitation: dict[int, np.ndarray] = {}  # first_index -> (n, 4) rows [A], consumed in order
         self.exc_starts: list[int] = []  # sorted keys of self.excitation
         # sample ranges [start, end) a design says are excited: the plant waits for their blocks,
         # so where the excitation lands never depends on message timing
@@ -127,10 +130,13 @@ class PlantSim(Node):
         # the excitation block in use: rows for [exc_first, exc_end); before exc_free_until no sample
         # is excited and no block held (both recomputed when designs or blocks arrive or a block ends)
         self.exc_first = self.exc_end = 0
-        self.exc_rows: list = []
+        self.exc_rows = ZERO_ROWS
         self.exc_free_until = 0
-        # this block's y, ic and r, row after row (u = ic + r is formed per block: the same sums as applied)
-        self.rows = array("d")
+        # this block's y, ic and r, 12 values a row (u = ic + r is formed per block: the same sums as applied)
+        self.rec = np.zeros(12 * self.block_size)
+        self.cur = np.zeros(8)  # y[k] as published, and the last current taken
+        self.out = np.zeros(SAMPLE4_BYTES, dtype=np.uint8)  # y[k+1] from the compiled path
+        self.fast_step = compiled(plant_sample4, PLANT_SAMPLE4_ARGS)
         self.row_flags: dict[int, int] = {}  # row -> FLAG_* where not 0
         self.buf_start = 0
         self.clipped_samples = 0
@@ -186,8 +192,8 @@ class PlantSim(Node):
     # --- the loop ---------------------------------------------------------
     def publish_y(self) -> None:
         """Publish y[0] (from then on step_and_record publishes each next y)."""
-        self.y = tuple(self.sim.output().tolist())
-        self.y_bytes = encode_sample(self.k, self.y)
+        self.cur[0:4] = self.sim.output()
+        self.y_bytes = encode_sample(self.k, self.cur[0:4].tolist())
         self.publish_y_raw(self.y_bytes)
 
     @property
@@ -199,6 +205,42 @@ class PlantSim(Node):
         return self.intake.total_rejected
 
     def on_control(self, data: bytes) -> None:
+        k = self.k
+        if self.state == RUNNING and not self.ic_ready and k != self.last_k:
+            if self.exc_first <= k < self.exc_end:
+                rows, row = self.exc_rows, k - self.exc_first
+            elif k < self.exc_free_until:
+                rows, row = ZERO_ROWS, 0
+            else:
+                rows = None
+            if rows is not None:
+                code = self.fast_step(self.sim_work, data, k, rows, row, self.rec, k - self.buf_start, self.cur,
+                                      self.out)
+                if code & 3 == PLANT_STEPPED or code & 3 == PLANT_CONTACT:
+                    self.stepped_compiled(k, code)
+                    return
+        self.on_control_checked(data)
+
+    def stepped_compiled(self, k: int, code: int) -> None:
+        """The compiled path took ic[k] and stepped: the rest of the sample, as step_and_record does."""
+        self.ic_tally.accepted += 1
+        if k + 1 == self.exc_end:
+            self.consume_excitation_block()
+        flags = FLAG_CLIPPED if code & PLANT_CLIPPED else 0
+        if code & 3 == PLANT_CONTACT:
+            self.cur[0:4] = y = self.sim.finish_contact_sample()
+            flags |= FLAG_LANDED
+            self.k = k + 1
+            self.publish_y_raw(encode_sample4(k + 1, *y))
+        else:
+            self.k = k + 1
+            self.publish_y_raw(self.out.tobytes())
+        if flags:
+            self.row_flags[k - self.buf_start] = flags
+        self.after_step(k + 1, False)
+
+    def on_control_checked(self, data: bytes) -> None:
+        """Every message the compiled path does not take: decided, reasons given, stepped if due."""
         ready = self.ic_ready
         running = self.state == RUNNING
         nxt = self.k + len(ready)  # the only index the plant can take now
@@ -209,13 +251,12 @@ class PlantSim(Node):
                 self.intake.reject("control_current", f"{exc} (sample {exc.index}, now {self.k})")
                 return
             self.intake.reject("control_current", f"{exc}; holding the previous current for sample {nxt}")
-            index, ic = nxt, self.ic_last
+            index, ic = nxt, (ready[-1] if ready else self.cur[4:8].tolist())
         else:
             if index != nxt or not running or len(ready) > 1:
                 self.refuse_control(index, nxt, running)
                 return
             self.ic_tally.accepted += 1
-        self.ic_last = ic
         ready.append(ic)
         self.run_ready()
 
@@ -291,30 +332,36 @@ class PlantSim(Node):
         k = self.k
         u0, u1, u2, u3 = ic[0] + r[0], ic[1] + r[1], ic[2] + r[2], ic[3] + r[3]
         y0, y1, y2, y3, clipped, contact = self.sim.step_output(u0, u1, u2, u3)
-        self.rows.extend((*self.y, *ic, *r))
+        row = 12 * (k - self.buf_start)
+        cur = self.cur
+        self.rec[row:row + 12] = (*cur[0:4], *ic, *r)
         if flags or clipped or contact:
             self.row_flags[k - self.buf_start] = (flags | (FLAG_CLIPPED if clipped else 0)
                                                   | (FLAG_LANDED if contact else 0))
         self.k = k = k + 1
-        self.y = (y0, y1, y2, y3)
+        cur[0:8] = (y0, y1, y2, y3, *ic)
         if publish and not final:
             self.publish_y_raw(encode_sample4(k, y0, y1, y2, y3))
+        self.after_step(k, final)
+
+    def after_step(self, k: int, final: bool) -> None:
+        """/clock, and the measurement block when full or final, once the samples before k are done."""
         if k % self.clock_every == 0:
             self.pub_clock.publish(Clock(clock=time_msg(k * self.dt)))
         if k - self.buf_start == self.block_size or final:
             self.flush_block(final=final)
 
     def flush_block(self, final: bool = False) -> None:
-        n = len(self.rows) // 12
+        n = self.k - self.buf_start
         if n <= 0:
             return
-        rows = np.frombuffer(self.rows, dtype=float).reshape(n, 12)  # y, ic, r
+        rows = self.rec[:12 * n].reshape(n, 12)  # y, ic, r
         ic, r = rows[:, 4:8], rows[:, 8:12]
         buf = np.hstack([rows[:, :4], ic + r, ic, r])
         flags = np.zeros(n, dtype=np.uint8)
         for row, f in self.row_flags.items():
             flags[row] = f
-        self.rows, self.row_flags = array("d"), {}
+        self.row_flags = {}
         self.report_clipping(buf, flags)
         self.monitor.add_block(self.buf_start, buf[:, :4], flags & FLAG_LANDED)
         self.pub_block.publish(block_msg(self.buf_start, self.dt, MEASUREMENT_NAMES, MEASUREMENT_UNITS, buf,
@@ -334,7 +381,7 @@ class PlantSim(Node):
             if late == len(data):
                 raise BadMessage(f"excitation: samples [{first}, {end}) arrived after they were due (now {self.k})")
             first, data = first + late, data[late:]
-        self.excitation[first] = data.tolist()
+        self.excitation[first] = np.ascontiguousarray(data, dtype=float)
         bisect.insort(self.exc_starts, first)
         self.update_excitation_free()
         self.run_ready()

@@ -55,7 +55,7 @@ from ambid.lqg import LqgParameters, lqg_controller
 from ambid.rig import load_rig, make_rig
 from ambid.step_kernels import compiled
 from ambid_nodes import qos
-from ambid_nodes.controller_kernel import ANSWER_SAMPLE4_ARGS, SAMPLE4_BYTES, answer_sample4
+from ambid_nodes.loop_kernels import ANSWER_SAMPLE4_ARGS, SAMPLE4_BYTES, answer_sample4
 from ambid_nodes.conversions import BadMessage, statespace_to_msg, time_msg
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown

@@ -1,0 +1,107 @@
+"""The controller node's compiled per-sample path against its Python path."""
+
+from __future__ import annotations
+
+import math
+import struct
+
+import numpy as np
+import pytest
+
+from ambid.controller import ControllerStepper, PidParameters, pid_controller
+from ambid.lqg import LqgParameters, lqg_controller
+from ambid.rig import make_rig
+from ambid_nodes.loop_kernels import SAMPLE4_BYTES, answer_sample4
+from ambid_nodes.sample_codec import encode_sample, encode_sample4
+
+
+def steppers(kind: str):
+    rig = make_rig()
+    model = pid_controller(PidParameters(), rig.dt) if kind == "pid" else lqg_controller(rig, LqgParameters())
+    return ControllerStepper(model, 3.0), ControllerStepper(model, 3.0)
+
+
+@pytest.mark.parametrize("kind", ["pid", "lqg"])
+@pytest.mark.parametrize("ahead", [True, False])
+def test_compiled_answers_are_the_python_answers(kind, ahead):
+    ref, fast = steppers(kind)
+    out = np.zeros(SAMPLE4_BYTES, dtype=np.uint8)
+    rng = np.random.default_rng(3)
+    for k in range(300):
+        y = tuple(rng.normal(0.0, 20e-6, 4))  # large enough to saturate some answers
+        ic = ref.step_ahead4(*y) if ahead else ref.step4(*y)
+        assert answer_sample4(*fast.kernel_args(ahead), encode_sample4(k, *y), k, int(ahead), out) == 1
+        assert out.tobytes() == encode_sample4(k + int(ahead), *ic)
+    assert np.array_equal(fast.x, ref.x)
+
+
+def test_anything_but_the_awaited_valid_sample_changes_nothing():
+    _, fast = steppers("pid")
+    w, n, mat, limit = fast.kernel_args(True)
+    out = np.zeros(SAMPLE4_BYTES, dtype=np.uint8)
+    good = encode_sample4(7, 1e-6, 2e-6, 3e-6, 4e-6)
+    bad = {
+        "wrong index": encode_sample4(8, 1e-6, 2e-6, 3e-6, 4e-6),
+        "NaN": encode_sample4(7, 1e-6, math.nan, 3e-6, 4e-6),
+        "+inf": encode_sample4(7, math.inf, 2e-6, 3e-6, 4e-6),
+        "+inf and -inf": encode_sample4(7, math.inf, -math.inf, 3e-6, 4e-6),
+        "3 values": encode_sample(7, [1e-6, 2e-6, 3e-6]),
+        "5 values": encode_sample(7, [1e-6] * 5),
+        "big-endian header": b"\x00\x00\x00\x00" + good[4:],
+        "short": good[:51],
+        "long": good + b"\x00",
+        "count field 4 + 2**8": good[:12] + struct.pack("<I", 4 + 256) + good[16:],
+        "index beyond 2**63": good[:4] + struct.pack("<Q", 2**63 + 7) + good[12:],
+    }
+    before = w.copy()
+    for what, data in bad.items():
+        out[:] = 0
+        assert answer_sample4(w, n, mat, limit, data, 7, 1, out) == 0, what
+        assert np.array_equal(w, before, equal_nan=True) and not out.any(), what
+    assert answer_sample4(w, n, mat, limit, good, 7, 1, out) == 1
+
+
+def test_compiled_plant_sample_is_the_python_step():
+    """From rest on the retainer (contact), through lift-off, with clipping and excitation: the compiled
+    plant path records, publishes and steps exactly what step_output does."""
+    from ambid.simulator import PlantSimulator
+    from ambid_nodes.loop_kernels import (PLANT_CLIPPED, PLANT_CONTACT, PLANT_NOISE, PLANT_STEPPED,
+                                          plant_sample4)
+
+    rig = make_rig()
+    ref, fast = PlantSimulator(rig, seed=4, nonlinear_magnets=True), PlantSimulator(rig, seed=4,
+                                                                                    nonlinear_magnets=True)
+    ctl = ControllerStepper(pid_controller(PidParameters(), rig.dt), 3.0)
+    rows = np.random.default_rng(1).normal(0.0, 1.5, (64, 4))  # excitation, some of it beyond the limit
+    rec, cur, out = np.zeros(12 * 64), np.zeros(8), np.zeros(SAMPLE4_BYTES, dtype=np.uint8)
+    cur[:4] = y = fast.output()
+    codes = set()
+    for k in range(6000):
+        assert np.array_equal(y, ref.output())
+        ic = ctl.step4(*y)
+        r = rows[k % 64] if k >= 3000 else np.zeros(4)
+        y0, y1, y2, y3, clipped, contact = ref.step_output(*(np.asarray(ic) + r))
+        data = encode_sample4(k, *ic)
+        code = plant_sample4(fast.work, data, k, rows if k >= 3000 else np.zeros((1, 4)),
+                             k % 64 if k >= 3000 else 0, rec, k % 64, cur, out)
+        if code == PLANT_NOISE:
+            fast.draw_noise()
+            code = plant_sample4(fast.work, data, k, rows if k >= 3000 else np.zeros((1, 4)),
+                                 k % 64 if k >= 3000 else 0, rec, k % 64, cur, out)
+        codes.add(code)
+        assert bool(code & PLANT_CLIPPED) == clipped and (code & 3 == PLANT_CONTACT) == contact
+        assert np.array_equal(rec[12 * (k % 64):12 * (k % 64) + 12], np.concatenate([y, ic, r]))
+        if code & 3 == PLANT_CONTACT:
+            cur[:4] = y = np.array(fast.finish_contact_sample())  # the caller finishes it (as plant_sim)
+        else:
+            assert code & 3 == PLANT_STEPPED
+            assert out.tobytes() == encode_sample4(k + 1, y0, y1, y2, y3)
+            y = cur[:4].copy()
+        assert np.array_equal(y, [y0, y1, y2, y3])
+    assert np.array_equal(fast.x, ref.x)
+    assert {PLANT_STEPPED, PLANT_CONTACT, PLANT_STEPPED | PLANT_CLIPPED} <= codes
+    # a message that is not the awaited valid sample changes nothing
+    before = fast.work.copy()
+    for data in (encode_sample4(6001, 0.0, 0.0, 0.0, 0.0), encode_sample4(6000, math.nan, 0.0, 0.0, 0.0)):
+        assert plant_sample4(fast.work, data, 6000, np.zeros((1, 4)), 0, rec, 0, cur, out) == 0
+        assert np.array_equal(fast.work, before)
