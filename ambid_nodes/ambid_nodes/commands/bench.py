@@ -49,7 +49,8 @@ QUICK = {
 }
 # the default sizes: the identify session and the offline file are the default identify experiment
 FULL = {
-    "loop_seconds": 2.0, "repeats": 3, "fit_lines": 2000, "fit_order": 24,
+    # five rounds: this machine's speed drifts by up to 2x within seconds, the median of five pairs holds
+    "loop_seconds": 2.0, "repeats": 5, "fit_lines": 2000, "fit_order": 24,
     "identify": {},
     "offline_design": {},
     "offline_memory_design": {"n_realisations": 1},
@@ -60,7 +61,7 @@ FULL = {
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", metavar="FILE", help="write every figure and its details to FILE")
     p.add_argument("--loop-seconds", type=float, help="simulated time per loop run [s], >= 0.05 (default 2)")
-    p.add_argument("--repeats", type=int, help="interleaved rounds of the loop and offline timings (default 3)")
+    p.add_argument("--repeats", type=int, help="interleaved rounds of the loop and offline timings (default 5)")
     p.add_argument("--fit-lines", type=int, help="lines of the 4x4 FRF to fit (default 2000)")
     p.add_argument("--skip", default="", help=f"comma-separated sections to leave out: {','.join(SECTIONS)}")
     p.add_argument("--quick", action="store_true", help="tiny sizes everywhere (a smoke test, not a measurement)")
