@@ -64,9 +64,15 @@ def all_finite(values) -> bool:
         return all(map(math.isfinite, values))
 
 
-def time_msg(seconds: float) -> Time:
+def sec_nanosec(seconds: float) -> tuple[int, int]:
+    """builtin_interfaces/Time's (sec, nanosec) of a time in seconds, rounded to the nanosecond."""
     ns = int(round(seconds * 1e9))
-    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+    return ns // 1_000_000_000, ns % 1_000_000_000
+
+
+def time_msg(seconds: float) -> Time:
+    sec, nanosec = sec_nanosec(seconds)
+    return Time(sec=sec, nanosec=nanosec)
 
 
 def check_values(values, n_expected: int, what: str) -> list[float]:

@@ -60,7 +60,7 @@ from ambid_nodes.loop_kernels import (PLANT_CLIPPED, PLANT_CONTACT, PLANT_SAMPLE
 from ambid.step_kernels import compiled
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 from ambid_nodes.raw_publish import raw_publisher
-from ambid_nodes.sample_codec import decode_sample, encode_sample, encode_sample4
+from ambid_nodes.sample_codec import decode_sample, encode_clock, encode_sample, encode_sample4
 from ambid.levitation import LevitationMonitor
 
 MEASUREMENT_NAMES = (DISPLACEMENT_NAMES + CURRENT_NAMES + tuple(f"ic_{a}" for a in AXES)
@@ -113,6 +113,7 @@ class PlantSim(Node):
         self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
         self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
         self.pub_clock = self.create_publisher(Clock, "/clock", qos.CLOCK)
+        self.publish_clock_raw = raw_publisher(self.pub_clock)
         self.intake = Intake(self, self.on_reject, self.on_handler_error)
         self.ic_tally = self.intake.tally("control_current")
         self.sub_ic = self.create_subscription(Sample, "control_current", self.on_control, qos.LOOP, raw=True)
@@ -237,7 +238,9 @@ class PlantSim(Node):
             self.publish_y_raw(self.out.tobytes())
         if flags:
             self.row_flags[k - self.buf_start] = flags
-        self.after_step(k + 1, False)
+        k += 1
+        if k % self.clock_every == 0 or k - self.buf_start == self.block_size:
+            self.after_step(k, False)
 
     def on_control_checked(self, data: bytes) -> None:
         """Every message the compiled path does not take: decided, reasons given, stepped if due."""
@@ -347,7 +350,7 @@ class PlantSim(Node):
     def after_step(self, k: int, final: bool) -> None:
         """/clock, and the measurement block when full or final, once the samples before k are done."""
         if k % self.clock_every == 0:
-            self.pub_clock.publish(Clock(clock=time_msg(k * self.dt)))
+            self.publish_clock_raw(encode_clock(k * self.dt))
         if k - self.buf_start == self.block_size or final:
             self.flush_block(final=final)
 

@@ -156,7 +156,8 @@ class PositionController(Node):
 
     def on_displacement(self, data: bytes) -> None:
         k = self.expected
-        if self.state == RUNNING and self.answer(*self.kernel, data, k, self.lead, self.out):
+        w, n, mat, limit = self.kernel
+        if self.state == RUNNING and self.answer(w, n, mat, limit, data, k, self.lead, self.out):
             # the awaited, valid sample: stepped and answered in one compiled call
             self.y_tally.accepted += 1
             self.expected = k + 1

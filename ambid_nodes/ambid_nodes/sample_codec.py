@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import struct
 
-from ambid_nodes.conversions import BadMessage, all_finite
+from ambid_nodes.conversions import BadMessage, all_finite, sec_nanosec
 
 _HEADER = b"\x00\x01\x00\x00"
 _HEAD = struct.Struct("<4sQI")
@@ -67,3 +67,12 @@ def decode_sample(data: bytes, n_expected: int, what: str) -> tuple[int, list[fl
     if not all_finite(values):
         raise BadMessage(f"{what}: non-finite value in {values}", index)
     return index, values
+
+
+_CLOCK = struct.Struct("<4siI")
+
+
+def encode_clock(seconds: float) -> bytes:
+    """CDR bytes of rosgraph_msgs/Clock(clock=time_msg(seconds)) (builtin_interfaces/Time: int32 sec,
+    uint32 nanosec), for the plant's /clock without building a message object (~30 us with one)."""
+    return _CLOCK.pack(_HEADER, *sec_nanosec(seconds))

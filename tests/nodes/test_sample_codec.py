@@ -35,3 +35,14 @@ def test_wrong_count_and_truncation_refused():
         decode_sample(encode_sample(3, [0.0] * 3), 4, "y")
     with pytest.raises(BadMessage, match="bytes"):
         decode_sample(encode_sample(3, [0.0] * 4)[:40], 4, "y")
+
+
+def test_clock_bytes_are_the_clock_message():
+    from rclpy.serialization import serialize_message
+    from rosgraph_msgs.msg import Clock
+
+    from ambid_nodes.conversions import time_msg
+    from ambid_nodes.sample_codec import encode_clock
+
+    for t in (0.0, 1e-4, 0.9999999996, 12.3456, 2.0**31 - 1.5):
+        assert encode_clock(t) == serialize_message(Clock(clock=time_msg(t)))
