@@ -94,6 +94,10 @@ def run_single(node_class, args=None) -> int:
         code = 2
     except (KeyboardInterrupt, ExternalShutdownException):
         code = 130
+    except Exception:
+        if rclpy.ok():
+            raise
+        code = 130  # SIGINT/SIGTERM shut the context down while the node was being built: rcl refuses
     finally:
         executor.shutdown()
         if node is not None:

@@ -81,3 +81,16 @@ def test_nodes_keep_discovery_on_localhost_unless_opened(ros_env):
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait()
+
+
+def test_a_node_stopped_while_it_starts_exits_quietly(ros_env):
+    """SIGTERM during start-up (the graph runner stopping a controller whose plant refused its rig) leaves
+    no traceback, whether it lands during the imports, while the node is built or once it runs."""
+    for delay in (0.3, 1.0, 2.0, 3.0):
+        p = subprocess.Popen([sys.executable, "-m", "ambid_nodes.position_controller"], env=ros_env, cwd=REPO,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        time.sleep(delay)
+        p.send_signal(signal.SIGTERM)
+        out, err = p.communicate(timeout=60)
+        assert "Traceback" not in out + err, (delay, err)
+        assert p.returncode in (0, 130, -signal.SIGTERM), (delay, p.returncode, err)
