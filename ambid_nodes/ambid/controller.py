@@ -209,6 +209,11 @@ class ControllerStepper:
                              f"{self._p} and {self._n_out}; use step(y)")
         return self._step4(self._w, self._n, mat, self._limit, y0, y1, y2, y3)
 
+    def last_output(self) -> tuple[float, ...]:
+        """The output of the last step, saturated [A] (q floats; zeros before the first step)."""
+        o = self._n + self._p
+        return tuple(self._w[o:o + self._n_out].tolist())
+
     def current_output(self) -> tuple[float, ...]:
         """ic = C x [A] of the present state, saturated (q floats); for a strictly proper controller
         this is what the next ``step`` returns.

@@ -38,7 +38,6 @@ not answered, so it goes to its own safe state).
 from __future__ import annotations
 
 import json
-import struct
 import sys
 import time
 from dataclasses import asdict
@@ -118,7 +117,6 @@ class PositionController(Node):
         self.answer = compiled(answer_sample4, ANSWER_SAMPLE4_ARGS)
         self.out = np.zeros(SAMPLE4_BYTES, dtype=np.uint8)  # the compiled path's answer
         self.kernel = (np.zeros(1), 0, 0, 0.0)  # set per session (start_session)
-        self.answered_fast = False
         self.pub_desc = self.create_publisher(ControllerDescription, "controller/description", qos.LATCHED)
         self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
         self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
@@ -131,7 +129,6 @@ class PositionController(Node):
             history=HistoryPolicy.KEEP_LAST, depth=100, reliability=qos.STATUS.reliability,
             durability=qos.STATUS.durability))
         self.expected: int | None = None  # next displacement index awaited; None: no session
-        self.ic_last = (0.0, 0.0, 0.0, 0.0)
         self.state = SessionStatus.STATE_IDLE
         self.last_y_wall: float | None = None  # when the watchdog last saw the loop move on
         self.watch_expected: int | None = None
@@ -146,14 +143,6 @@ class PositionController(Node):
             delay_samples=delay_samples, model=statespace_to_msg(self.model),
             current_limit=[pid.current_limit_a] * 4, parameters_json=json.dumps(params_json)))
 
-    @property
-    def received(self) -> int:
-        return self.intake.total_received
-
-    @property
-    def rejected(self) -> int:
-        return self.intake.total_rejected
-
     def on_displacement(self, data: bytes) -> None:
         k = self.expected
         w, n, mat, limit = self.kernel
@@ -161,7 +150,6 @@ class PositionController(Node):
             # the awaited, valid sample: stepped and answered in one compiled call
             self.y_tally.accepted += 1
             self.expected = k + 1
-            self.answered_fast = True
             self.publish_ic(self.out.tobytes())
             if k % STATUS_EVERY == 0:
                 self.publish_status()
@@ -170,9 +158,6 @@ class PositionController(Node):
 
     def on_displacement_checked(self, data: bytes) -> None:
         """Every message the compiled path does not take: decided, reasons given, answered if due."""
-        if self.answered_fast:  # the last answer came from the compiled path
-            self.ic_last = tuple(struct.unpack_from("<4d", self.out, 20))
-            self.answered_fast = False
         try:
             k, y = decode_sample(data, 4, "displacement")
         except BadMessage as exc:
@@ -190,13 +175,17 @@ class PositionController(Node):
             self.y_tally.accepted += 1
             ic = self.step(*y)
         self.expected = k + 1
-        self.ic_last = ic
         answer = encode_sample4(k + self.lead, *ic)
         self.publish_ic(answer)
+        if k == 0:
+            self.first_answers.append(answer)
         if k % STATUS_EVERY == 0:
-            if k == 0:
-                self.first_answers.append(answer)
             self.publish_status()
+
+    @property
+    def ic_last(self) -> tuple[float, ...]:
+        """The last current answered [A] (4): what a bad displacement is answered with."""
+        return self.stepper.last_output()
 
     def start_or_refuse(self, k: int, running: bool, y) -> bool:
         """Off the per-sample path: start a session at y[0], answer a repeated y[0] again, or reject."""
@@ -221,12 +210,9 @@ class PositionController(Node):
 
     def start_session(self) -> None:
         """Sample 0 of a plant: a new session from the controller's zero state."""
-        if self.expected is not None:
-            self.stepper = ControllerStepper(self.model, self.params.current_limit_a)
+        self.stepper = ControllerStepper(self.model, self.params.current_limit_a)
         self.step = self.stepper.step_ahead4 if self.pipelined else self.stepper.step4
         self.kernel = self.stepper.kernel_args(ahead=self.pipelined)
-        self.answered_fast = False
-        self.ic_last = (0.0, 0.0, 0.0, 0.0)
         self.expected, self.watch_expected = 0, None
         self.state, self.lost_at = RUNNING, None
         self.plant_ended.clear()
@@ -269,7 +255,7 @@ class PositionController(Node):
                        f"no displacement for sample {k} within {self.timeout:g} s ({quiet:.3f} s quiet) and the "
                        "plant did not report the end of its run: plant lost; control current reset to zero, "
                        "idle until a plant starts a new session at sample 0", k)
-        self.ic_last, self.answered_fast = (0.0, 0.0, 0.0, 0.0), False
+        self.stepper = ControllerStepper(self.model, self.params.current_limit_a)  # zero state, zero current
         self.publish_status()
 
     def on_reject(self, topic: str, why: str) -> None:
@@ -291,7 +277,7 @@ class PositionController(Node):
 
     def status_signature(self) -> tuple[int, int]:
         # not every received message: the controller hears its own status too
-        return self.intake.received["displacement"], self.rejected
+        return self.intake.received["displacement"], self.intake.total_rejected
 
     def publish_status(self) -> None:
         self.status_received = self.status_signature()
@@ -301,8 +287,9 @@ class PositionController(Node):
                   SessionStatus.STATE_DONE: "done", SessionStatus.STATE_FAILED: "failed: plant lost"}
         self.pub_status.publish(SessionStatus(
             stamp=time_msg(k * self.rig.dt), node=self.get_fully_qualified_name(), state=self.state,
-            sample_index=k, progress=-1.0, messages_received=self.received, messages_rejected=self.rejected,
-            text=f"{states[self.state]}, sample {k}, {self.kind}, rejected {self.rejected}",
+            sample_index=k, progress=-1.0, messages_received=self.intake.total_received,
+            messages_rejected=self.intake.total_rejected,
+            text=f"{states[self.state]}, sample {k}, {self.kind}, rejected {self.intake.total_rejected}",
             keys=list(f), values=[json.dumps(v) for v in f.values()]))
 
 
