@@ -197,26 +197,13 @@ class PlantSim(Node):
         self.y_bytes = encode_sample(self.k, self.cur[0:4].tolist())
         self.publish_y_raw(self.y_bytes)
 
-    @property
-    def received(self) -> int:
-        return self.intake.total_received
-
-    @property
-    def rejected(self) -> int:
-        return self.intake.total_rejected
-
     def on_control(self, data: bytes) -> None:
         k = self.k
         if self.state == RUNNING and not self.ic_ready and k != self.last_k:
-            if self.exc_first <= k < self.exc_end:
-                rows, row = self.exc_rows, k - self.exc_first
-            elif k < self.exc_free_until:
-                rows, row = ZERO_ROWS, 0
-            else:
-                rows = None
-            if rows is not None:
-                code = self.fast_step(self.sim_work, data, k, rows, row, self.rec, k - self.buf_start, self.cur,
-                                      self.out)
+            exc = self.excitation_rows(k)
+            if exc is not None:
+                code = self.fast_step(self.sim_work, data, k, exc[0], exc[1], self.rec, k - self.buf_start,
+                                      self.cur, self.out)
                 if code & 3 == PLANT_STEPPED or code & 3 == PLANT_CONTACT:
                     self.stepped_compiled(k, code)
                     return
@@ -225,8 +212,6 @@ class PlantSim(Node):
     def stepped_compiled(self, k: int, code: int) -> None:
         """The compiled path took ic[k] and stepped: the rest of the sample, as step_and_record does."""
         self.ic_tally.accepted += 1
-        if k + 1 == self.exc_end:
-            self.consume_excitation_block()
         flags = FLAG_CLIPPED if code & PLANT_CLIPPED else 0
         if code & 3 == PLANT_CONTACT:
             self.cur[0:4] = y = self.sim.finish_contact_sample()
@@ -238,9 +223,7 @@ class PlantSim(Node):
             self.publish_y_raw(self.out.tobytes())
         if flags:
             self.row_flags[k - self.buf_start] = flags
-        k += 1
-        if k % self.clock_every == 0 or k - self.buf_start == self.block_size:
-            self.after_step(k, False)
+        self.after_step(k + 1, False)
 
     def on_control_checked(self, data: bytes) -> None:
         """Every message the compiled path does not take: decided, reasons given, stepped if due."""
@@ -282,36 +265,31 @@ class PlantSim(Node):
         ready = self.ic_ready
         while ready and self.state == RUNNING:
             k = self.k
-            if k < self.exc_end and k >= self.exc_first:
-                r = self.exc_rows[k - self.exc_first]
-                if k + 1 == self.exc_end:
-                    self.consume_excitation_block()
-            elif k < self.exc_free_until:
-                r = ZERO4
-            else:
-                r = self.excitation_slow(k)
-                if r is None:
-                    return  # waiting for the excitation generator; on_excitation resumes
-            self.step_and_record(ready.pop(0), r, 0, final=k == self.last_k)
+            exc = self.excitation_rows(k)
+            if exc is None:
+                return  # waiting for the excitation generator; on_excitation resumes
+            self.step_and_record(ready.pop(0), exc[0][exc[1]], 0, final=k == self.last_k)
             if k == self.last_k:
                 self.finish(DONE)
 
-    def excitation_slow(self, k: int):
-        """r[k] when sample k lies outside the block in use: from the held block covering k (then in use),
-        zeros if no design excites k, None while its block has not arrived."""
+    def excitation_rows(self, k: int) -> tuple[np.ndarray, int] | None:
+        """(rows, i) with r[k] = rows[i] [A]: the block in use, or zeros where no design excites k;
+        None while the block of an excited sample has not arrived."""
+        if self.exc_first <= k < self.exc_end:
+            return self.exc_rows, k - self.exc_first
+        if k < self.exc_free_until:
+            return ZERO_ROWS, 0
         i = bisect.bisect_right(self.exc_starts, k) - 1
         if i >= 0:
             first = self.exc_starts[i]
             rows = self.excitation[first]
-            if k < first + len(rows):
+            if k < first + len(rows):  # a held block covers k: it is in use from now on
                 self.exc_first, self.exc_end, self.exc_rows = first, first + len(rows), rows
-                if k + 1 == self.exc_end:
-                    self.consume_excitation_block()
-                return rows[k - first]
+                return rows, k - first
         if any(a <= k < b for a, b in self.excited_ranges.values()):
             return None
         self.update_excitation_free()
-        return ZERO4
+        return ZERO_ROWS, 0
 
     def consume_excitation_block(self) -> None:
         del self.excitation[self.exc_first]
@@ -348,7 +326,10 @@ class PlantSim(Node):
         self.after_step(k, final)
 
     def after_step(self, k: int, final: bool) -> None:
-        """/clock, and the measurement block when full or final, once the samples before k are done."""
+        """Once the samples before k are done: the excitation block they used up, /clock, and the
+        measurement block when full or final."""
+        if k == self.exc_end and self.exc_first in self.excitation:
+            self.consume_excitation_block()
         if k % self.clock_every == 0:
             self.publish_clock_raw(encode_clock(k * self.dt))
         if k - self.buf_start == self.block_size or final:
@@ -468,24 +449,24 @@ class PlantSim(Node):
         wall = (self.finished_wall or time.perf_counter()) - (self.started_wall or time.perf_counter())
         return {**self.monitor.figures(), "samples": self.k, "simulated_s": self.k * self.dt, "wall_s": wall,
                 "samples_per_wall_s": self.k / wall if wall > 0 else 0.0,
-                "messages_received": self.received, "messages_rejected": self.rejected,
+                "messages_received": self.intake.total_received, "messages_rejected": self.intake.total_rejected,
                 "clipped_samples": self.clipped_samples, "controller_lost_after_s": self.controller_lost_after_s,
                 **self.intake.figures()}
 
     def status_when_idle(self) -> None:
-        if self.state != RUNNING and self.received != self.status_received:
+        if self.state != RUNNING and self.intake.total_received != self.status_received:
             self.publish_status()
 
     def publish_status(self) -> None:
-        self.status_received = self.received
+        self.status_received = self.intake.total_received
         f = self.figures()
         progress = self.k / self.n_total if self.n_total else -1.0
         text = (f"t={f['simulated_s']:.3f} s, {f['samples_per_wall_s']:.0f} samples/s, "
-                f"rms {f['displacement_rms_m'] * 1e6:.2f} um, rejected {self.rejected}")
+                f"rms {f['displacement_rms_m'] * 1e6:.2f} um, rejected {self.intake.total_rejected}")
         self.pub_status.publish(SessionStatus(
             stamp=time_msg(self.k * self.dt), node=self.get_fully_qualified_name(), state=self.state,
-            sample_index=self.k, progress=progress, messages_received=self.received,
-            messages_rejected=self.rejected, text=text,
+            sample_index=self.k, progress=progress, messages_received=self.intake.total_received,
+            messages_rejected=self.intake.total_rejected, text=text,
             keys=list(f), values=[json.dumps(v) for v in f.values()]))
 
     def finish(self, state: int) -> None:
