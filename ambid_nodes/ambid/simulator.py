@@ -101,7 +101,7 @@ class PlantSimulator:
         self._kcon, self._dcon = rig.contact_stiffness_n_per_m, rig.contact_damping_ns_per_m
         self._noise_std = rig.sensor_noise_m
         self._rng = np.random.default_rng(seed)
-        self._draw_noise()  # rows for samples 0 .. NOISE_BLOCK - 1
+        self.draw_noise()  # rows for samples 0 .. NOISE_BLOCK - 1
         self.x = self._rest_state()
 
     def _bind(self) -> None:
@@ -168,8 +168,9 @@ class PlantSimulator:
         s = self._s
         return self._aux[0:4] + self._noise[int(s[sk.PAR_INDEX] - s[sk.PAR_NOISE_BASE])]
 
-    def _draw_noise(self) -> None:
-        """The next NOISE_BLOCK rows of the noise stream (the kernel asks when it runs out)."""
+    def draw_noise(self) -> None:
+        """The next NOISE_BLOCK rows of the noise stream; a compiled caller of ``plant_step`` calls it
+        when the kernel returns STATUS_NOISE (nothing changed), then calls the kernel again."""
         self._noise[:] = self._rng.standard_normal((NOISE_BLOCK, 4)) * self._noise_std
         if self._s[sk.PAR_STATUS] == sk.STATUS_NOISE:
             self._s[sk.PAR_NOISE_BASE] += NOISE_BLOCK
@@ -264,7 +265,7 @@ class PlantSimulator:
         r = self._plant_step(self._s, u0, u1, u2, u3)
         if r[5]:  # contact, or the noise block is used up
             if self._s[sk.PAR_STATUS] == sk.STATUS_NOISE:
-                self._draw_noise()
+                self.draw_noise()
                 return self.step_output(u0, u1, u2, u3)
             y0, y1, y2, y3 = self.finish_contact_sample()
             return y0, y1, y2, y3, r[4], True
@@ -275,11 +276,6 @@ class PlantSimulator:
         """The plant work vector (:mod:`ambid.step_kernels`), for a compiled caller of ``plant_step``
         that handles its STATUS_* returns as :meth:`step_output` does."""
         return self._s
-
-    def draw_noise(self) -> None:
-        """After ``plant_step`` returned STATUS_NOISE (nothing changed): the next block of the noise
-        stream; then call it again."""
-        self._draw_noise()
 
     def finish_contact_sample(self) -> tuple[float, float, float, float]:
         """After ``plant_step`` returned STATUS_CONTACT: the sample in contact sub-steps; returns

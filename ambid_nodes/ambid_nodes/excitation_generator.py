@@ -158,14 +158,6 @@ class ExcitationGenerator(Node):
         self.create_timer(STATUS_PERIOD_S, self.publish_status)
 
     # --- inputs from the plant ---------------------------------------------
-    @property
-    def received(self) -> int:
-        return self.intake.total_received
-
-    @property
-    def rejected(self) -> int:
-        return self.intake.total_rejected
-
     def on_plant(self, msg: PlantDescription) -> None:
         check_plant_description(msg)
         changed = abs(msg.sample_period - self.dt) > 1e-12 * self.dt
@@ -356,8 +348,8 @@ class ExcitationGenerator(Node):
                    "plant_index": self.progress, "lookahead": self.lookahead, **self.intake.figures()}
         self.pub_status.publish(SessionStatus(
             stamp=time_msg(self.progress * self.dt), node=self.get_fully_qualified_name(), state=self.state,
-            sample_index=self.progress, progress=progress, messages_received=self.received,
-            messages_rejected=self.rejected, text=text, keys=list(figures),
+            sample_index=self.progress, progress=progress, messages_received=self.intake.total_received,
+            messages_rejected=self.intake.total_rejected, text=text, keys=list(figures),
             values=[json.dumps(v) for v in figures.values()]))
 
 

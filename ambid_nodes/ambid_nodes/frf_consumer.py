@@ -88,14 +88,6 @@ class FrfConsumer(Node):
         self.create_timer(1.0, self.status_if_changed)  # rejections between the per-period statuses
 
     # --- inputs ---------------------------------------------------------------
-    @property
-    def received(self) -> int:
-        return self.intake.total_received
-
-    @property
-    def rejected(self) -> int:
-        return self.intake.total_rejected
-
     def on_controller(self, msg: ControllerDescription) -> None:
         check_controller_description(msg)
         self.controller = statespace_from_msg(msg.model)
@@ -271,12 +263,12 @@ class FrfConsumer(Node):
         return f
 
     def status_if_changed(self) -> None:
-        if self.received != self.status_received:
+        if self.intake.total_received != self.status_received:
             # after an experiment's end its final figures stay in the (latched) status
             self.publish_status(self.figures(final=self.state != SessionStatus.STATE_RUNNING))
 
     def publish_status(self, figures: dict | None = None) -> None:
-        self.status_received = self.received
+        self.status_received = self.intake.total_received
         f = self.figures() if figures is None else figures
         counts = self.intake.figures()
         if self.stream is None:
@@ -301,8 +293,8 @@ class FrfConsumer(Node):
                 text = f"{self.experiment_id} ended without an estimate"
         self.pub_status.publish(SessionStatus(
             stamp=time_msg(self.index * self.dt), node=self.get_fully_qualified_name(), state=self.state,
-            sample_index=self.index, progress=progress, messages_received=self.received,
-            messages_rejected=self.rejected, text=text, keys=list(f) + list(counts),
+            sample_index=self.index, progress=progress, messages_received=self.intake.total_received,
+            messages_rejected=self.intake.total_rejected, text=text, keys=list(f) + list(counts),
             values=[json.dumps(v) for v in (*f.values(), *counts.values())]))
 
     def on_reject(self, topic: str, why: str) -> None:
