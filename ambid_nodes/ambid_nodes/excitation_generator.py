@@ -46,7 +46,8 @@ from ambid.excitation import ExcitationDesign, check_headroom
 from ambid.rig import AXES, CURRENT_NAMES, load_rig, make_rig
 from ambid_nodes import qos
 from ambid.excitation.spec import DEFAULT_INPUTS, KINDS, build_design
-from ambid_nodes.conversions import BadMessage, block_data, block_msg, check_plant_description, time_msg
+from ambid_nodes.conversions import (BadMessage, block_data, block_msg, check_plant_description, status_msg,
+                                     time_msg)
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 
@@ -346,11 +347,9 @@ class ExcitationGenerator(Node):
                    "experiment_samples_published": exp.next_offset if exp else 0,
                    "samples_published": self.samples_published, "blocks_published": self.blocks_published,
                    "plant_index": self.progress, "lookahead": self.lookahead, **self.intake.figures()}
-        self.pub_status.publish(SessionStatus(
-            stamp=time_msg(self.progress * self.dt), node=self.get_fully_qualified_name(), state=self.state,
-            sample_index=self.progress, progress=progress, messages_received=self.intake.total_received,
-            messages_rejected=self.intake.total_rejected, text=text, keys=list(figures),
-            values=[json.dumps(v) for v in figures.values()]))
+        self.pub_status.publish(status_msg(
+            time_msg(self.progress * self.dt), self.get_fully_qualified_name(), self.state, self.progress, progress,
+            self.intake.total_received, self.intake.total_rejected, text, figures))
 
 
 def main(args=None) -> int:

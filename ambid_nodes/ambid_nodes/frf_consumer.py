@@ -42,7 +42,7 @@ from ambid.frf.streaming import ESTIMATORS, FrfResult, FrfStream, loop_consisten
 from ambid.statespace import StateSpace
 from ambid_nodes import qos
 from ambid_nodes.conversions import (BadMessage, block_data, check_controller_description, check_design,
-                                     float_array, statespace_from_msg, time_msg)
+                                     float_array, statespace_from_msg, status_msg, time_msg)
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 
@@ -291,11 +291,9 @@ class FrfConsumer(Node):
                         f"(ISO 14839-3 zone {f['iso_zone']}), gaps {f['gaps']}")
             else:
                 text = f"{self.experiment_id} ended without an estimate"
-        self.pub_status.publish(SessionStatus(
-            stamp=time_msg(self.index * self.dt), node=self.get_fully_qualified_name(), state=self.state,
-            sample_index=self.index, progress=progress, messages_received=self.intake.total_received,
-            messages_rejected=self.intake.total_rejected, text=text, keys=list(f) + list(counts),
-            values=[json.dumps(v) for v in (*f.values(), *counts.values())]))
+        self.pub_status.publish(status_msg(
+            time_msg(self.index * self.dt), self.get_fully_qualified_name(), self.state, self.index, progress,
+            self.intake.total_received, self.intake.total_rejected, text, {**f, **counts}))
 
     def on_reject(self, topic: str, why: str) -> None:
         self.event(SessionEvent.WARN, "rejected_message", why)

@@ -48,7 +48,7 @@ from ambid.rig import analytical_model, load_rig, make_rig
 from ambid.rt_target import parse_address
 from ambid_nodes import qos
 from ambid_nodes.conversions import (MAX_SAMPLE_INDEX, block_msg, check_design, check_excitation_block,
-                                     statespace_to_msg, time_msg)
+                                     statespace_to_msg, status_msg, time_msg)
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 
@@ -527,13 +527,10 @@ class HardwareBridge(Node):
         text = (f"target {f['target_state']}{' SILENT' if self.silent else ''} at sample {f['target_sample_index']}, "
                 f"published {f['samples_published']}, lost {f['missing_samples']} samples in {f['gaps']} gaps, "
                 f"malformed {f['datagrams_malformed']}, foreign {f['datagrams_foreign']}")
-        self.pub_status.publish(SessionStatus(
-            stamp=time_msg(f["samples"] * self.dt), node=self.get_fully_qualified_name(), state=self.state,
-            sample_index=f["samples"], progress=-1.0,
-            messages_received=(self.intake.total_received + self.c["datagrams"] + f["datagrams_malformed"]
-                               + f["datagrams_foreign"]),
-            messages_rejected=self.intake.total_rejected + f["datagrams_malformed"] + f["datagrams_foreign"],
-            text=text, keys=list(f), values=[json.dumps(v) for v in f.values()]))
+        self.pub_status.publish(status_msg(
+            time_msg(f["samples"] * self.dt), self.get_fully_qualified_name(), self.state, f["samples"], -1.0,
+            self.intake.total_received + self.c["datagrams"] + f["datagrams_malformed"] + f["datagrams_foreign"],
+            self.intake.total_rejected + f["datagrams_malformed"] + f["datagrams_foreign"], text, f))
 
     def finish(self, state: int) -> None:
         self.state = state

@@ -22,24 +22,25 @@ SAMPLE4_BYTES = 52
 
 
 @numba.njit(cache=True)
-def _parse_sample4(data: bytes, expected: int) -> np.ndarray:
-    """The 4 values of the Sample in ``data`` if it is the awaited valid one, else an empty array."""
-    none = np.empty(0)
+def _parse_sample4(data: bytes, expected: int, dest: np.ndarray, at: int) -> bool:
+    """Whether ``data`` is the awaited valid Sample; its 4 values are copied to dest[at:at + 4]
+    (float64 scratch, also when False) once header, count and index are right."""
     b = np.frombuffer(data, dtype=np.uint8)
     if b.shape[0] != SAMPLE4_BYTES or b[0] != 0 or b[1] != 1 or b[2] != 0 or b[3] != 0:
-        return none
+        return False
     if b[12] != 4 or b[13] != 0 or b[14] != 0 or b[15] != 0:
-        return none
+        return False
     idx = np.uint64(0)
     for i in range(8):
         idx |= np.uint64(b[4 + i]) << np.uint64(8 * i)
     if expected < 0 or idx != np.uint64(expected):
-        return none
-    v = b[20:52].copy().view(np.float64)  # after 4 bytes of padding: float64 aligned in the CDR body
-    t = v[0] + v[1] + v[2] + v[3]
-    if not (t - t == 0.0):  # a non-finite value (or a finite sum that overflows: the slow path decides)
-        return none
-    return v
+        return False
+    # the values follow 4 bytes of padding: aligned in the CDR body, not in memory, so copied
+    v = dest[at:at + 4].view(np.uint8)
+    for i in range(32):
+        v[i] = b[20 + i]
+    t = dest[at] + dest[at + 1] + dest[at + 2] + dest[at + 3]
+    return t - t == 0.0  # False: a non-finite value (or a finite sum that overflows: the slow path decides)
 
 
 @numba.njit(cache=True)
@@ -55,7 +56,7 @@ def _pack_sample4(index: int, values: np.ndarray, out: np.ndarray) -> None:
     out[12] = 4
     for i in range(13, 20):
         out[i] = 0
-    bits = values.copy().view(np.uint64)
+    bits = values.view(np.uint64)  # values: contiguous
     for j in range(4):
         v = bits[j]
         for i in range(8):
@@ -73,79 +74,123 @@ def answer_sample4(w: np.ndarray, n: int, mat: int, limit: float, data: bytes, e
         data: the serialised Sample (52 bytes expected).
         expected: the sample index awaited.
         lead: the answer carries index expected + lead (1: pipelined, ic[k+1]; 0: ic[k]).
-        out: (52,) uint8, receives the answer Sample's bytes.
+        out: bytearray (52), receives the answer Sample's bytes (published as it is).
 
     Returns:
         1 if ``data`` was the awaited valid sample (state stepped, ``out`` written), else 0
-        (nothing changed).
+        (state and output unchanged; w's input slot may hold the refused values).
     """
-    y = _parse_sample4(data, expected)
-    if y.shape[0] == 0:
+    if not _parse_sample4(data, expected, w, n):  # y goes to the input slot w[n:n + 4]
         return 0
-    for i in range(4):
-        w[n + i] = y[i]
     statespace_step(w, n, 4, 4, mat, limit)
     _pack_sample4(expected + lead, w[n + 4:n + 8], out)
     return 1
 
 
-ANSWER_SAMPLE4_ARGS = (numba.float64[::1], numba.int64, numba.int64, numba.float64,
-                       types.Bytes(types.uint8, 1, "C", readonly=True), numba.int64, numba.int64, numba.uint8[::1])
+_BYTES = types.Bytes(types.uint8, 1, "C", readonly=True)  # a received message
+_BYTEARRAY = types.ByteArray(types.uint8, 1, "C")  # a message to publish: publish_raw takes a bytearray as it is
+
+ANSWER_SAMPLE4_ARGS = (numba.float64[::1], numba.int64, numba.int64, numba.float64, _BYTES, numba.int64,
+                       numba.int64, _BYTEARRAY)
 
 
-# plant_sample4's return codes (bit 4 adds: the amplifiers clipped u)
+# the plant's loop vector: the compiled path's buffers in one float64 array, because numba charges
+# ~0.2 us per array argument against ~1 us of arithmetic in a plant step
+LP_CUR = 0  # lp[0:8]: y[k] [m] as published, and the last current taken [A]
+LP_IC = 8  # lp[8:12]: scratch, the values of the message being parsed
+LP_REC = 12  # lp[12:]: the measurement block, a row of REC_COLS per sample
+REC_COLS = 16  # y [m], u = ic + r (as applied before saturation), ic, r [A]: 4 each
+
+
+def plant_loop_vector(block_size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A plant loop vector for blocks of ``block_size`` samples, zeroed, and its two views.
+
+    Returns:
+        (lp, cur, rec): lp (LP_REC + REC_COLS * block_size,) float64; cur (8,); rec (block_size, REC_COLS).
+    """
+    lp = np.zeros(LP_REC + REC_COLS * block_size)
+    return lp, lp[LP_CUR:LP_CUR + 8], lp[LP_REC:].reshape(block_size, REC_COLS)
+
+
+def sample4_buffer() -> bytearray:
+    """The buffer a compiled path packs its 4-channel Sample into, published as it is."""
+    return bytearray(SAMPLE4_BYTES)
+
+
+# plant_sample4's return codes: a kind in the low 3 bits, plus flags
 PLANT_NOT_TAKEN = 0  # not the awaited valid sample: nothing changed
 PLANT_STEPPED = 1  # free flight: the row recorded, cur and out hold y[k+1]
 PLANT_CONTACT = 2  # the rotor touches: the row recorded, the sample started; the caller finishes it
 PLANT_NOISE = 3  # the noise block is used up: nothing changed, the caller's Python path steps
-PLANT_CLIPPED = 4
+PLANT_LOOKUP = 4  # r[k] is neither in r_rows nor zero before free_until: nothing changed, look it up
+PLANT_KIND = 7
+PLANT_CLIPPED = 8  # stepped, and the amplifiers saturated u
+PLANT_AFTER = 16  # stepped, and the caller has a sample boundary to serve: /clock, a full block or
+# the end of the excitation block
 
 
 @numba.njit(cache=True)
-def plant_sample4(s: np.ndarray, data: bytes, expected: int, r_rows: np.ndarray, r_row: int, rec: np.ndarray,
-                  row: int, cur: np.ndarray, out: np.ndarray) -> int:
+def plant_sample4(s: np.ndarray, data: bytes, expected: int, r_rows: np.ndarray, r_first: int, free_until: int,
+                  lp: np.ndarray, row: int, clock_every: int, out: bytearray) -> int:
     """Step the simulated plant with the Sample ic[expected] in ``data`` and the excitation r.
 
     Args:
         s: the plant work vector (:attr:`ambid.simulator.PlantSimulator.work`).
         data: the serialised Sample (52 bytes expected).
         expected: the sample index k the plant steps.
-        r_rows, r_row: r[k] [A] is r_rows[r_row] ((m, 4) float64).
-        rec: (block_size * 12,) float64, the block's rows of y[k], ic[k], r[k]; row k goes at ``row``.
-        cur: (8,) float64, y[k] [m] (published) and the last ic [A]; y becomes y[k+1].
-        out: (52,) uint8, receives the Sample y[k+1].
+        r_rows, r_first: the excitation block in use, r[r_first + i] = r_rows[i] [A] ((m, 4) float64).
+        free_until: r[k] = 0 for k < free_until outside the block in use.
+        lp: the plant loop vector (:func:`plant_loop_vector`): y[k] is in cur and row k goes to
+            rec[row]; cur then holds y[k+1].
+        row: k's row in the block, < block_size.
+        clock_every: /clock is due after samples k with (k + 1) % clock_every == 0.
+        out: bytearray (52), receives the Sample y[k+1] when stepped in free flight.
 
     Returns:
-        One of PLANT_NOT_TAKEN, PLANT_STEPPED, PLANT_CONTACT, PLANT_NOISE, plus PLANT_CLIPPED
-        when stepped and the amplifiers saturated.
+        One of the PLANT_* kinds; when stepped, plus PLANT_CLIPPED and PLANT_AFTER as they apply.
     """
-    ic = _parse_sample4(data, expected)
-    if ic.shape[0] == 0:
+    i = expected - r_first
+    if 0 <= i < r_rows.shape[0]:
+        r0, r1, r2, r3 = r_rows[i, 0], r_rows[i, 1], r_rows[i, 2], r_rows[i, 3]
+        after = i + 1 == r_rows.shape[0]
+    elif expected < free_until:
+        r0 = r1 = r2 = r3 = 0.0
+        after = False
+    else:
+        return PLANT_LOOKUP
+    if not _parse_sample4(data, expected, lp, LP_IC):
         return PLANT_NOT_TAKEN
-    r0, r1, r2, r3 = r_rows[r_row, 0], r_rows[r_row, 1], r_rows[r_row, 2], r_rows[r_row, 3]
-    y0, y1, y2, y3, clipped, contact = plant_step(s, ic[0] + r0, ic[1] + r1, ic[2] + r2, ic[3] + r3)
+    ic = lp[LP_IC:LP_IC + 4]
+    u0, u1, u2, u3 = ic[0] + r0, ic[1] + r1, ic[2] + r2, ic[3] + r3
+    y0, y1, y2, y3, clipped, contact = plant_step(s, u0, u1, u2, u3)
     if contact and s[PAR_STATUS] == STATUS_NOISE:
         return PLANT_NOISE
-    o = 12 * row
-    for i in range(4):
-        rec[o + i] = cur[i]
-        rec[o + 4 + i] = ic[i]
-        cur[4 + i] = ic[i]
-    rec[o + 8] = r0
-    rec[o + 9] = r1
-    rec[o + 10] = r2
-    rec[o + 11] = r3
-    flag = PLANT_CLIPPED if clipped else 0
+    o = LP_REC + REC_COLS * row
+    c = LP_CUR
+    for j in range(4):
+        lp[o + j] = lp[c + j]
+        lp[o + 8 + j] = ic[j]
+        lp[c + 4 + j] = ic[j]
+    lp[o + 4] = u0
+    lp[o + 5] = u1
+    lp[o + 6] = u2
+    lp[o + 7] = u3
+    lp[o + 12] = r0
+    lp[o + 13] = r1
+    lp[o + 14] = r2
+    lp[o + 15] = r3
+    code = PLANT_CLIPPED if clipped else 0
+    if after or (expected + 1) % clock_every == 0 or LP_REC + REC_COLS * (row + 1) == lp.shape[0]:
+        code += PLANT_AFTER
     if contact:
-        return PLANT_CONTACT + flag
-    cur[0] = y0
-    cur[1] = y1
-    cur[2] = y2
-    cur[3] = y3
-    _pack_sample4(expected + 1, cur[0:4], out)
-    return PLANT_STEPPED + flag
+        return PLANT_CONTACT + code
+    lp[c] = y0
+    lp[c + 1] = y1
+    lp[c + 2] = y2
+    lp[c + 3] = y3
+    _pack_sample4(expected + 1, lp[c:c + 4], out)
+    return PLANT_STEPPED + code
 
 
-PLANT_SAMPLE4_ARGS = (numba.float64[::1], types.Bytes(types.uint8, 1, "C", readonly=True), numba.int64,
-                      numba.float64[:, ::1], numba.int64, numba.float64[::1], numba.int64, numba.float64[::1],
-                      numba.uint8[::1])
+PLANT_SAMPLE4_ARGS = (numba.float64[::1], _BYTES, numba.int64, numba.float64[:, ::1], numba.int64, numba.int64,
+                      numba.float64[::1], numba.int64, numba.int64, _BYTEARRAY)

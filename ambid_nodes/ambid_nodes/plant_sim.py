@@ -53,10 +53,11 @@ from ambid.rig import AXES, CURRENT_NAMES, DISPLACEMENT_NAMES, analytical_model,
 from ambid.simulator import PlantSimulator
 from ambid_nodes import qos
 from ambid_nodes.conversions import (BadMessage, block_msg, check_design, check_excitation_block, statespace_to_msg,
-                                     time_msg)
+                                     status_msg, time_msg)
 from ambid_nodes.intake import Intake
-from ambid_nodes.loop_kernels import (PLANT_CLIPPED, PLANT_CONTACT, PLANT_SAMPLE4_ARGS, PLANT_STEPPED,
-                                      SAMPLE4_BYTES, plant_sample4)
+from ambid_nodes.loop_kernels import (PLANT_AFTER, PLANT_CLIPPED, PLANT_CONTACT, PLANT_KIND, PLANT_LOOKUP,
+                                      PLANT_SAMPLE4_ARGS, PLANT_STEPPED, plant_loop_vector, plant_sample4,
+                                      sample4_buffer)
 from ambid.step_kernels import compiled
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 from ambid_nodes.raw_publish import raw_publisher
@@ -69,7 +70,8 @@ MEASUREMENT_UNITS = ("m",) * 4 + ("A",) * 12
 EXCITATION_NAMES = tuple(f"r_{a}" for a in AXES)
 # the safe state recorded after a lost controller: the drop through the clearance takes ~7 ms at 1 g
 LANDING_S = 0.05
-STATUS_PERIOD_S = 1.0  # wall time between status messages while the loop does not run (it reports per block)
+STATUS_PERIOD_S = 1.0  # wall time between status messages while the loop does not run
+STATUS_EVERY = 10_000  # while it runs: a status at the first block end past each multiple of this sample count
 
 START_RETRY_S = 0.25  # wall time between re-sends of y[0] until the controller answers
 ZERO4 = (0.0, 0.0, 0.0, 0.0)
@@ -82,6 +84,7 @@ FLAG_CLIPPED, FLAG_LANDED = SampleBlock.FLAG_CLIPPED, SampleBlock.FLAG_LANDED
 class PlantSim(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("plant_sim", **kwargs)
+        self.fqn = self.get_fully_qualified_name()
         rig_file = declare(self, "rig_file", "", "YAML rig parameter file; empty = the default rig")
         self.seed = declare(self, "seed", 0, "seed of the sensor noise", 0, 2**31 - 1)
         nonlinear = declare(self, "nonlinear_magnets", False, "use the nonlinear magnet force, eq. 2.14")
@@ -133,10 +136,10 @@ class PlantSim(Node):
         self.exc_first = self.exc_end = 0
         self.exc_rows = ZERO_ROWS
         self.exc_free_until = 0
-        # this block's y, ic and r, 12 values a row (u = ic + r is formed per block: the same sums as applied)
-        self.rec = np.zeros(12 * self.block_size)
-        self.cur = np.zeros(8)  # y[k] as published, and the last current taken
-        self.out = np.zeros(SAMPLE4_BYTES, dtype=np.uint8)  # y[k+1] from the compiled path
+        # one array for the compiled path (loop_kernels.plant_loop_vector): y[k] as published with the
+        # last current taken, and the block's rows (y, u, ic, r); it packs y[k+1] into out
+        self.lp, self.cur, self.rec = plant_loop_vector(self.block_size)
+        self.out = sample4_buffer()
         self.fast_step = compiled(plant_sample4, PLANT_SAMPLE4_ARGS)
         self.row_flags: dict[int, int] = {}  # row -> FLAG_* where not 0
         self.buf_start = 0
@@ -200,30 +203,43 @@ class PlantSim(Node):
     def on_control(self, data: bytes) -> None:
         k = self.k
         if self.state == RUNNING and not self.ic_ready and k != self.last_k:
-            exc = self.excitation_rows(k)
-            if exc is not None:
-                code = self.fast_step(self.sim_work, data, k, exc[0], exc[1], self.rec, k - self.buf_start,
-                                      self.cur, self.out)
-                if code & 3 == PLANT_STEPPED or code & 3 == PLANT_CONTACT:
-                    self.stepped_compiled(k, code)
-                    return
+            code = self.fast_step(self.sim_work, data, k, self.exc_rows, self.exc_first, self.exc_free_until,
+                                  self.lp, k - self.buf_start, self.clock_every, self.out)
+            if code == PLANT_STEPPED:  # free flight and nothing else due: most samples, kept lean
+                self.k = k + 1
+                self.ic_tally.accepted += 1
+                self.publish_y_raw(self.out)
+                return
+            if code and self.stepped_compiled(k, code, data):
+                return
         self.on_control_checked(data)
 
-    def stepped_compiled(self, k: int, code: int) -> None:
-        """The compiled path took ic[k] and stepped: the rest of the sample, as step_and_record does."""
+    def stepped_compiled(self, k: int, code: int, data: bytes) -> bool:
+        """The rest of a sample the compiled path took (as step_and_record does), after looking up
+        r[k] if it asked to; False if it did not step (the Python path decides)."""
+        if code == PLANT_LOOKUP:
+            exc = self.excitation_rows(k)
+            if exc is None:
+                return False  # the excitation block has not arrived
+            code = self.fast_step(self.sim_work, data, k, exc[0], k - exc[1], self.exc_free_until,
+                                  self.lp, k - self.buf_start, self.clock_every, self.out)
+        kind = code & PLANT_KIND
+        if kind != PLANT_STEPPED and kind != PLANT_CONTACT:
+            return False
         self.ic_tally.accepted += 1
         flags = FLAG_CLIPPED if code & PLANT_CLIPPED else 0
-        if code & 3 == PLANT_CONTACT:
+        self.k = k + 1
+        if kind == PLANT_CONTACT:
             self.cur[0:4] = y = self.sim.finish_contact_sample()
             flags |= FLAG_LANDED
-            self.k = k + 1
             self.publish_y_raw(encode_sample4(k + 1, *y))
         else:
-            self.k = k + 1
-            self.publish_y_raw(self.out.tobytes())
+            self.publish_y_raw(self.out)
         if flags:
             self.row_flags[k - self.buf_start] = flags
-        self.after_step(k + 1, False)
+        if code & PLANT_AFTER:
+            self.after_step(k + 1, False)
+        return True
 
     def on_control_checked(self, data: bytes) -> None:
         """Every message the compiled path does not take: decided, reasons given, stepped if due."""
@@ -301,7 +317,7 @@ class PlantSim(Node):
         k = self.k
         ahead = [a for a, b in self.excited_ranges.values() if b > k] + [f for f in self.exc_starts if f >= k]
         covering = any(a <= k < b for a, b in self.excited_ranges.values()) or self.held_covering(k)
-        self.exc_free_until = k if covering else min([max(a, k) for a in ahead], default=2**63)
+        self.exc_free_until = k if covering else min([max(a, k) for a in ahead], default=2**62)  # int64 for the kernel
 
     def held_covering(self, k: int) -> bool:
         i = bisect.bisect_right(self.exc_starts, k) - 1
@@ -313,9 +329,8 @@ class PlantSim(Node):
         k = self.k
         u0, u1, u2, u3 = ic[0] + r[0], ic[1] + r[1], ic[2] + r[2], ic[3] + r[3]
         y0, y1, y2, y3, clipped, contact = self.sim.step_output(u0, u1, u2, u3)
-        row = 12 * (k - self.buf_start)
         cur = self.cur
-        self.rec[row:row + 12] = (*cur[0:4], *ic, *r)
+        self.rec[k - self.buf_start] = (*cur[0:4], u0, u1, u2, u3, *ic, *r)
         if flags or clipped or contact:
             self.row_flags[k - self.buf_start] = (flags | (FLAG_CLIPPED if clipped else 0)
                                                   | (FLAG_LANDED if contact else 0))
@@ -339,9 +354,7 @@ class PlantSim(Node):
         n = self.k - self.buf_start
         if n <= 0:
             return
-        rows = self.rec[:12 * n].reshape(n, 12)  # y, ic, r
-        ic, r = rows[:, 4:8], rows[:, 8:12]
-        buf = np.hstack([rows[:, :4], ic + r, ic, r])
+        buf = self.rec[:n]  # y, u, ic, r: the measurement channels (block_msg copies it)
         flags = np.zeros(n, dtype=np.uint8)
         for row, f in self.row_flags.items():
             flags[row] = f
@@ -350,8 +363,9 @@ class PlantSim(Node):
         self.monitor.add_block(self.buf_start, buf[:, :4], flags & FLAG_LANDED)
         self.pub_block.publish(block_msg(self.buf_start, self.dt, MEASUREMENT_NAMES, MEASUREMENT_UNITS, buf,
                                          flags, SampleBlock.FLAG_FINAL if final else 0))
+        if self.k // STATUS_EVERY != self.buf_start // STATUS_EVERY:  # (finish() sends the final one)
+            self.publish_status()
         self.buf_start = self.k
-        self.publish_status()
 
     def on_excitation(self, msg: SampleBlock) -> None:
         data = check_excitation_block(msg, EXCITATION_NAMES, self.dt, self.k, self.horizon, self.exc_starts,
@@ -443,7 +457,7 @@ class PlantSim(Node):
     def event(self, severity: int, code: str, text: str, index: int | None = None) -> None:
         k = self.k if index is None else index
         self.pub_event.publish(SessionEvent(stamp=time_msg(k * self.dt), sample_index=k, severity=severity,
-                                            node=self.get_fully_qualified_name(), code=code, text=text))
+                                            node=self.fqn, code=code, text=text))
 
     def figures(self) -> dict:
         wall = (self.finished_wall or time.perf_counter()) - (self.started_wall or time.perf_counter())
@@ -463,11 +477,9 @@ class PlantSim(Node):
         progress = self.k / self.n_total if self.n_total else -1.0
         text = (f"t={f['simulated_s']:.3f} s, {f['samples_per_wall_s']:.0f} samples/s, "
                 f"rms {f['displacement_rms_m'] * 1e6:.2f} um, rejected {self.intake.total_rejected}")
-        self.pub_status.publish(SessionStatus(
-            stamp=time_msg(self.k * self.dt), node=self.get_fully_qualified_name(), state=self.state,
-            sample_index=self.k, progress=progress, messages_received=self.intake.total_received,
-            messages_rejected=self.intake.total_rejected, text=text,
-            keys=list(f), values=[json.dumps(v) for v in f.values()]))
+        self.pub_status.publish(status_msg(
+            time_msg(self.k * self.dt), self.fqn, self.state, self.k, progress, self.intake.total_received,
+            self.intake.total_rejected, text, f))
 
     def finish(self, state: int) -> None:
         self.finished_wall = time.perf_counter()

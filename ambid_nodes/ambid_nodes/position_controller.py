@@ -54,8 +54,8 @@ from ambid.lqg import LqgParameters, lqg_controller
 from ambid.rig import load_rig, make_rig
 from ambid.step_kernels import compiled
 from ambid_nodes import qos
-from ambid_nodes.loop_kernels import ANSWER_SAMPLE4_ARGS, SAMPLE4_BYTES, answer_sample4
-from ambid_nodes.conversions import BadMessage, statespace_to_msg, time_msg
+from ambid_nodes.loop_kernels import ANSWER_SAMPLE4_ARGS, answer_sample4, sample4_buffer
+from ambid_nodes.conversions import BadMessage, statespace_to_msg, status_msg, time_msg
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 from ambid_nodes.raw_publish import raw_publisher
@@ -115,7 +115,7 @@ class PositionController(Node):
         self.lead = int(self.pipelined)  # y[k] is answered with ic[k + lead]
         self.first_answers: list[bytes] = []  # the answers to y[0], sent again if the plant repeats y[0]
         self.answer = compiled(answer_sample4, ANSWER_SAMPLE4_ARGS)
-        self.out = np.zeros(SAMPLE4_BYTES, dtype=np.uint8)  # the compiled path's answer
+        self.out = sample4_buffer()  # the compiled path's answer, published as it is
         self.kernel = (np.zeros(1), 0, 0, 0.0)  # set per session (start_session)
         self.pub_desc = self.create_publisher(ControllerDescription, "controller/description", qos.LATCHED)
         self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
@@ -150,7 +150,7 @@ class PositionController(Node):
             # the awaited, valid sample: stepped and answered in one compiled call
             self.y_tally.accepted += 1
             self.expected = k + 1
-            self.publish_ic(self.out.tobytes())
+            self.publish_ic(self.out)
             if k % STATUS_EVERY == 0:
                 self.publish_status()
             return
@@ -285,12 +285,10 @@ class PositionController(Node):
         f = {"plant_timeout_s": self.timeout, "lost_at": self.lost_at, **self.intake.figures()}
         states = {SessionStatus.STATE_IDLE: "idle", SessionStatus.STATE_RUNNING: "running",
                   SessionStatus.STATE_DONE: "done", SessionStatus.STATE_FAILED: "failed: plant lost"}
-        self.pub_status.publish(SessionStatus(
-            stamp=time_msg(k * self.rig.dt), node=self.get_fully_qualified_name(), state=self.state,
-            sample_index=k, progress=-1.0, messages_received=self.intake.total_received,
-            messages_rejected=self.intake.total_rejected,
-            text=f"{states[self.state]}, sample {k}, {self.kind}, rejected {self.intake.total_rejected}",
-            keys=list(f), values=[json.dumps(v) for v in f.values()]))
+        self.pub_status.publish(status_msg(
+            time_msg(k * self.rig.dt), self.get_fully_qualified_name(), self.state, k, -1.0,
+            self.intake.total_received, self.intake.total_rejected,
+            f"{states[self.state]}, sample {k}, {self.kind}, rejected {self.intake.total_rejected}", f))
 
 
 def main(args=None) -> int:

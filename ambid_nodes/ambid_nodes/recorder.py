@@ -61,7 +61,6 @@ import sys
 import time
 
 from ambid_msgs.msg import SessionEvent, SessionStatus
-from builtin_interfaces.msg import Time
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -74,7 +73,8 @@ from ambid.mcap_session.writer import available_compressions
 from ambid.session_blocks import SAMPLE_BLOCK_TYPE, sample_block_span
 from ambid.session_facts import FACT_TYPES, controller_facts, design_facts, plant_facts
 from ambid_nodes import qos
-from ambid_nodes.conversions import check_controller_description, check_design, check_plant_description
+from ambid_nodes.conversions import (check_controller_description, check_design, check_plant_description,
+                                     status_msg)
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 
 #: every topic of the ambid graph, relative to the rig's namespace (plus /clock)
@@ -91,11 +91,6 @@ CONVENTIONAL_QOS = {"displacement": qos.LOOP, "control_current": qos.LOOP, "meas
 MAX_DESIGN_FACTS = 1000
 LOG_TIME_CONVENTION = ("receive time on the recorder's ROS clock (system time, or /clock with use_sim_time), "
                        "held non-decreasing; publish time = log time")
-
-
-def time_msg(ns: int) -> Time:
-    # not ambid_nodes.conversions.time_msg: that module loads scipy, seconds of start-up for nothing here
-    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
 
 def subscription_qos(offered: list, depth: int) -> QoSProfile:
@@ -415,34 +410,27 @@ class Recorder(Node):
     def publish_status(self) -> None:
         state = "failed" if self.failed else ("done" if self.closed else "running")
         f = self.figures(state)
-        keys = ["path", "messages", "bytes_received", "file_bytes", "chunks", "flushed_messages",
-                "last_flush_age_s"]
-        values = [self.path, f["messages"], f["bytes_received"], f["file_bytes"], f["chunks"],
-                  f["flushed_messages"], round(time.monotonic() - self.last_flush_wall, 3)]
-        for topic, n in sorted(self.counts.items()):
-            keys.append(f"messages:{topic}")
-            values.append(n)
-        for topic, end in sorted(self.block_end.items()):
-            keys.append(f"end_index:{topic}")
-            values.append(end)
+        shown = {"path": self.path, "messages": f["messages"], "bytes_received": f["bytes_received"],
+                 "file_bytes": f["file_bytes"], "chunks": f["chunks"], "flushed_messages": f["flushed_messages"],
+                 "last_flush_age_s": round(time.monotonic() - self.last_flush_wall, 3)}
+        shown.update((f"messages:{topic}", n) for topic, n in sorted(self.counts.items()))
+        shown.update((f"end_index:{topic}", end) for topic, end in sorted(self.block_end.items()))
         measurement = self.resolve_topic_name("measurement")
         text = (f"{state}: {f['messages']} messages ({f['messages_per_wall_s']:.0f}/s), "
                 f"{f['file_bytes'] / 1e6:.2f} MB in {self.path}" + (f"; {self.failed}" if self.failed else ""))
         states = {"running": SessionStatus.STATE_RUNNING, "done": SessionStatus.STATE_DONE,
                   "failed": SessionStatus.STATE_FAILED}
         try:
-            self.pub_status.publish(SessionStatus(
-                stamp=time_msg(self.get_clock().now().nanoseconds), node=self.get_fully_qualified_name(),
-                state=states[state], sample_index=self.block_end.get(measurement, 0), progress=-1.0,
-                messages_received=self.received, messages_rejected=self.rejected, text=text,
-                keys=keys, values=[json.dumps(v) for v in values]))
+            self.pub_status.publish(status_msg(
+                self.get_clock().now().to_msg(), self.get_fully_qualified_name(), states[state],
+                self.block_end.get(measurement, 0), -1.0, self.received, self.rejected, text, shown))
         except Exception:  # noqa: BLE001 - the context may already be shut down (SIGINT)
             pass
 
     def event(self, severity: int, code: str, text: str) -> None:
         try:
             self.pub_event.publish(SessionEvent(
-                stamp=time_msg(self.get_clock().now().nanoseconds),
+                stamp=self.get_clock().now().to_msg(),
                 sample_index=max(self.block_end.values(), default=0), severity=severity,
                 node=self.get_fully_qualified_name(), code=code, text=text))
         except Exception:  # noqa: BLE001 - the context may already be shut down (SIGINT)

@@ -11,7 +11,7 @@ import pytest
 from ambid.controller import ControllerStepper, PidParameters, pid_controller
 from ambid.lqg import LqgParameters, lqg_controller
 from ambid.rig import make_rig
-from ambid_nodes.loop_kernels import SAMPLE4_BYTES, answer_sample4
+from ambid_nodes.loop_kernels import answer_sample4, sample4_buffer
 from ambid_nodes.sample_codec import encode_sample, encode_sample4
 
 
@@ -25,20 +25,20 @@ def steppers(kind: str):
 @pytest.mark.parametrize("ahead", [True, False])
 def test_compiled_answers_are_the_python_answers(kind, ahead):
     ref, fast = steppers(kind)
-    out = np.zeros(SAMPLE4_BYTES, dtype=np.uint8)
+    out = sample4_buffer()
     rng = np.random.default_rng(3)
     for k in range(300):
         y = tuple(rng.normal(0.0, 20e-6, 4))  # large enough to saturate some answers
         ic = ref.step_ahead4(*y) if ahead else ref.step4(*y)
         assert answer_sample4(*fast.kernel_args(ahead), encode_sample4(k, *y), k, int(ahead), out) == 1
-        assert out.tobytes() == encode_sample4(k + int(ahead), *ic)
+        assert bytes(out) == encode_sample4(k + int(ahead), *ic)
     assert np.array_equal(fast.x, ref.x)
 
 
 def test_anything_but_the_awaited_valid_sample_changes_nothing():
     _, fast = steppers("pid")
     w, n, mat, limit = fast.kernel_args(True)
-    out = np.zeros(SAMPLE4_BYTES, dtype=np.uint8)
+    out = sample4_buffer()
     good = encode_sample4(7, 1e-6, 2e-6, 3e-6, 4e-6)
     bad = {
         "wrong index": encode_sample4(8, 1e-6, 2e-6, 3e-6, 4e-6),
@@ -54,18 +54,22 @@ def test_anything_but_the_awaited_valid_sample_changes_nothing():
         "index beyond 2**63": good[:4] + struct.pack("<Q", 2**63 + 7) + good[12:],
     }
     before = w.copy()
+    kept = np.ones(len(w), dtype=bool)
+    kept[n:n + 4] = False  # the input slot: scratch, y is parsed into it
     for what, data in bad.items():
-        out[:] = 0
+        out[:] = bytes(len(out))
         assert answer_sample4(w, n, mat, limit, data, 7, 1, out) == 0, what
-        assert np.array_equal(w, before, equal_nan=True) and not out.any(), what
+        assert np.array_equal(w[kept], before[kept]) and not any(out), what
     assert answer_sample4(w, n, mat, limit, good, 7, 1, out) == 1
 
 
 def test_compiled_plant_sample_is_the_python_step():
     """From rest on the retainer (contact), through lift-off, with clipping and excitation: the compiled
-    plant path records, publishes and steps exactly what step_output does."""
+    plant path records, publishes and steps exactly what step_output does, and says when a sample
+    boundary (clock, full block, end of the excitation block) or an excitation lookup is due."""
     from ambid.simulator import PlantSimulator
-    from ambid_nodes.loop_kernels import (PLANT_CLIPPED, PLANT_CONTACT, PLANT_NOISE, PLANT_STEPPED,
+    from ambid_nodes.loop_kernels import (LP_IC, PLANT_AFTER, PLANT_CLIPPED, PLANT_CONTACT, PLANT_KIND,
+                                          PLANT_LOOKUP, PLANT_NOISE, PLANT_STEPPED, plant_loop_vector,
                                           plant_sample4)
 
     rig = make_rig()
@@ -73,35 +77,47 @@ def test_compiled_plant_sample_is_the_python_step():
                                                                                     nonlinear_magnets=True)
     ctl = ControllerStepper(pid_controller(PidParameters(), rig.dt), 3.0)
     rows = np.random.default_rng(1).normal(0.0, 1.5, (64, 4))  # excitation, some of it beyond the limit
-    rec, cur, out = np.zeros(12 * 64), np.zeros(8), np.zeros(SAMPLE4_BYTES, dtype=np.uint8)
+    block, clock_every = 50, 7
+    lp, cur, rec = plant_loop_vector(block)
+    out = sample4_buffer()
     cur[:4] = y = fast.output()
     codes = set()
     for k in range(6000):
         assert np.array_equal(y, ref.output())
         ic = ctl.step4(*y)
-        r = rows[k % 64] if k >= 3000 else np.zeros(4)
+        # before 3000: no excitation (free until 3000); from 3000 on, 64-sample blocks, looked up per block
+        excited = k >= 3000
+        r = rows[k % 64] if excited else np.zeros(4)
         y0, y1, y2, y3, clipped, contact = ref.step_output(*(np.asarray(ic) + r))
         data = encode_sample4(k, *ic)
-        code = plant_sample4(fast.work, data, k, rows if k >= 3000 else np.zeros((1, 4)),
-                             k % 64 if k >= 3000 else 0, rec, k % 64, cur, out)
+        first = k - k % 64 if excited and k % 64 else -100  # the block in use; at a block's start, none yet
+        args = (rows, first, 3000, lp, k % block, clock_every, out)
+        code = plant_sample4(fast.work, data, k, *args)
+        if excited and k % 64 == 0:
+            assert code == PLANT_LOOKUP
+            code = plant_sample4(fast.work, data, k, rows, k, 3000, *args[3:])
         if code == PLANT_NOISE:
             fast.draw_noise()
-            code = plant_sample4(fast.work, data, k, rows if k >= 3000 else np.zeros((1, 4)),
-                                 k % 64 if k >= 3000 else 0, rec, k % 64, cur, out)
-        codes.add(code)
-        assert bool(code & PLANT_CLIPPED) == clipped and (code & 3 == PLANT_CONTACT) == contact
-        assert np.array_equal(rec[12 * (k % 64):12 * (k % 64) + 12], np.concatenate([y, ic, r]))
-        if code & 3 == PLANT_CONTACT:
+            code = plant_sample4(fast.work, data, k, *args)
+        codes.add(code & ~PLANT_AFTER)
+        assert bool(code & PLANT_CLIPPED) == clipped and (code & PLANT_KIND == PLANT_CONTACT) == contact
+        due = (k + 1) % clock_every == 0 or (k + 1) % block == 0 or (excited and (k + 1) % 64 == 0)
+        assert bool(code & PLANT_AFTER) == due, k
+        assert np.array_equal(rec[k % block], np.concatenate([y, np.asarray(ic) + r, ic, r]))
+        if code & PLANT_KIND == PLANT_CONTACT:
             cur[:4] = y = np.array(fast.finish_contact_sample())  # the caller finishes it (as plant_sim)
         else:
-            assert code & 3 == PLANT_STEPPED
-            assert out.tobytes() == encode_sample4(k + 1, y0, y1, y2, y3)
+            assert code & PLANT_KIND == PLANT_STEPPED
+            assert bytes(out) == encode_sample4(k + 1, y0, y1, y2, y3)
             y = cur[:4].copy()
         assert np.array_equal(y, [y0, y1, y2, y3])
     assert np.array_equal(fast.x, ref.x)
     assert {PLANT_STEPPED, PLANT_CONTACT, PLANT_STEPPED | PLANT_CLIPPED} <= codes
     # a message that is not the awaited valid sample changes nothing
-    before = fast.work.copy()
+    before, lp_before, out_before = fast.work.copy(), lp.copy(), bytes(out)
+    kept = np.ones(len(lp), dtype=bool)
+    kept[LP_IC:LP_IC + 4] = False  # scratch: the values being parsed
     for data in (encode_sample4(6001, 0.0, 0.0, 0.0, 0.0), encode_sample4(6000, math.nan, 0.0, 0.0, 0.0)):
-        assert plant_sample4(fast.work, data, 6000, np.zeros((1, 4)), 0, rec, 0, cur, out) == 0
-        assert np.array_equal(fast.work, before)
+        assert plant_sample4(fast.work, data, 6000, rows, -100, 10**9, lp, 0, clock_every, out) == 0
+        assert np.array_equal(fast.work, before) and np.array_equal(lp[kept], lp_before[kept])
+        assert bytes(out) == out_before
