@@ -43,7 +43,6 @@ import time
 from dataclasses import asdict
 
 import numpy as np
-import rclpy
 from ambid_msgs.msg import ControllerDescription, Sample, SessionEvent, SessionStatus
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile
