@@ -7,7 +7,9 @@ answers y[k] with ic[k + 1] (and ic[0] first), so the next current is
 already on its way while the plant steps; the plant takes the currents in
 index order, the awaited one and at most one ahead, and the samples are the
 same either way. Publishes measurement blocks (y, u, ic, r),
-``/clock``, a latched ``plant/description``, ``status`` and ``events``.
+``/clock``, a latched ``plant/description``, ``status`` (every 10,000 samples
+while the loop runs, at its end, and once a second while idle if its counts moved) and
+``events``.
 
 Every received message is accepted or rejected with its reason (counted per
 topic in ``status``, logged, reported as a ``rejected_message`` event; see
