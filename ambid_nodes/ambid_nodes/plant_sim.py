@@ -32,6 +32,14 @@ Then the plant goes to its safe state: zero control current, the rotor drops
 onto the backup bearings (``LANDING_S`` simulated, recorded with FLAG_CONTROLLER_LOST
 and FLAG_LANDED), a FATAL ``controller_lost`` event, the session failed.
 
+Excitation supervision. Where a design says a sample is excited, the plant
+waits for its excitation block (where excitation lands never depends on
+message timing), and simulated time stands still meanwhile. If the block
+has not come after ``excitation_timeout`` of wall time (+ up to two watchdog
+periods), the excitation generator is taken as lost: a FATAL
+``excitation_lost`` event naming the experiment and sample, the block so far
+published as final, the session failed; the samples before stay recorded.
+
 Amplifier limits. A sample whose current reference u = ic + r exceeds the
 amplifier limit is applied saturated, as a real amplifier does, but recorded
 as commanded (u is never altered in the measurement) and flagged
@@ -97,6 +105,9 @@ class PlantSim(Node):
         self.timeout = declare(self, "controller_timeout", 2.0,
                                "wall time without an answer before the controller is declared lost",
                                0.01, 3600.0, "s")
+        self.exc_timeout = declare(self, "excitation_timeout", 5.0,
+                                   "wall time waiting for an excitation block a design says is due before the "
+                                   "session fails", 0.01, 3600.0, "s")
         self.horizon = declare(self, "excitation_horizon", 1_000_000,
                                "most samples an excitation block may lie ahead of the plant (memory bound)",
                                1, 1_000_000_000)
@@ -154,7 +165,9 @@ class PlantSim(Node):
         self.finished_wall = None
         self.last_answer_wall = None
         self.watch_k = -1  # the sample index the watchdog saw last
+        self.exc_wait_k, self.exc_wait_wall = -1, 0.0  # the sample waiting for its excitation, since when
         self.summary: dict | None = None
+        self.failure: dict | None = None  # {"code", "text"} of the FATAL event that ended the run
         self.finished = Future()  # completes with the summary when the run ends
         self.publish_description()
         self.start_timer = self.create_timer(0.05, self.try_start)
@@ -419,15 +432,36 @@ class PlantSim(Node):
             # progress, or waiting for the excitation generator, not for the controller: the loop
             # reads no clock per sample, so the last answer is dated to the watchdog tick that saw it
             self.watch_k, self.last_answer_wall = self.k, now
+            if self.ic_ready:
+                self.check_excitation(now)
             return
         quiet = now - self.last_answer_wall
         if quiet > self.timeout:
             self.controller_lost_after_s = quiet
-            self.event(SessionEvent.FATAL, "controller_lost",
+            self.fatal("controller_lost",
                        f"no control current for sample {self.k} within {self.timeout:g} s ({quiet:.3f} s quiet): "
                        "safe state, control current zero, the rotor lands on the backup bearings")
             self.land()
             self.finish(FAILED)
+
+    def check_excitation(self, now: float) -> None:
+        """The plant waits for sample k's excitation block: fail the session once it waited too long."""
+        k = self.k
+        if k != self.exc_wait_k:
+            self.exc_wait_k, self.exc_wait_wall = k, now  # dated to this tick, as the answers are
+            return
+        waited = now - self.exc_wait_wall
+        if waited <= self.exc_timeout:
+            return
+        exp = next((e for e, (a, b) in self.excited_ranges.items() if a <= k < b), "?")
+        self.fatal("excitation_lost",
+                   f"no excitation block for sample {k} of experiment {exp!r} within {self.exc_timeout:g} s "
+                   f"({waited:.3f} s waiting): the excitation generator is lost or stalled; the session ends "
+                   f"failed at sample {k}, every sample before it recorded (simulated time stood still while "
+                   "the plant waited)")
+        self.ic_ready.clear()
+        self.flush_block(final=True)
+        self.finish(FAILED)
 
     def land(self) -> None:
         """The safe state: zero control current for LANDING_S simulated, the rotor drops onto the retainer; recorded."""
@@ -455,6 +489,11 @@ class PlantSim(Node):
 
     def on_handler_error(self, topic: str, why: str) -> None:
         self.event(SessionEvent.ERROR, "handler_error", why)
+
+    def fatal(self, code: str, text: str) -> None:
+        """The event that ends the run, kept for the summary."""
+        self.failure = {"code": code, "text": text, "sample_index": self.k}
+        self.event(SessionEvent.FATAL, code, text)
 
     def event(self, severity: int, code: str, text: str, index: int | None = None) -> None:
         k = self.k if index is None else index
@@ -489,7 +528,7 @@ class PlantSim(Node):
             state = FAILED
             self.event(SessionEvent.ERROR, "not_levitated", "the rotor did not stay levitated")
         self.state = state
-        self.summary = {**self.figures(), "state": "done" if state == DONE else "failed"}
+        self.summary = {**self.figures(), "state": "done" if state == DONE else "failed", "failure": self.failure}
         self.publish_status()
         self.event(SessionEvent.INFO, "finished", json.dumps(self.summary))
         self.start_timer.cancel()

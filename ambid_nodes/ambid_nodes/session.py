@@ -163,11 +163,16 @@ def run_session_composed(cfg: SessionConfig) -> dict:
         bar.show(1.0, "simulation done, closing the recording", force=True)
         bar.close()
         plant_summary = plant.finished.result()
-        # let the consumer and the recorder take the last blocks, then what the nodes said at the end
-        spin_until(lambda: answer.experiment_id in consumer.results, 30, "the final FRF estimate")
+        # let the recorder and the consumer take the last blocks, then what the nodes said at the end
         meas = plant.pub_block.topic_name
         n_blocks = -(-plant_summary["samples"] // plant.block_size)
         spin_until(lambda: recorder.counts.get(meas, 0) >= n_blocks, 30, "the last measurement block at the recorder")
+        failure = plant_summary.get("failure")
+        if failure:  # the run stopped short, no estimate will come: keep the recording, say why
+            recorder.close()
+            raise RuntimeError(f"the plant ended the session failed ({failure['code']}): {failure['text']}; "
+                               f"the recording so far is in {mcap_path}")
+        spin_until(lambda: answer.experiment_id in consumer.results, 30, "the final FRF estimate")
         end = time.monotonic() + SETTLE_S
         while time.monotonic() < end:
             executor.spin_once(timeout_sec=0.02)

@@ -1,5 +1,5 @@
 """Issue 9, point 2: a controller or plant that dies (SIGKILL) or stalls (SIGSTOP) is detected by the
-other side within a bounded number of samples, and both stop safely.
+other side within a bounded number of samples, and both stop safely; so is a lost excitation generator.
 
 The survivor runs in the test's process (its state is read directly), the victim in its own. In
 lock-step the survivor waits at the very sample the victim did not serve, so the detection latency
@@ -17,14 +17,14 @@ import time
 
 import numpy as np
 import pytest
-from ambid_msgs.msg import Sample, SampleBlock, SessionEvent, SessionStatus
+from ambid_msgs.msg import ExcitationDesign, Sample, SampleBlock, SessionEvent, SessionStatus
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from ambid_nodes import qos
-from ambid_nodes.conversions import block_data
+from ambid_nodes.conversions import block_data, block_msg
 from ambid_nodes.node_main import SUMMARY_PREFIX
-from ambid_nodes.plant_sim import LANDING_S, MEASUREMENT_NAMES, PlantSim
+from ambid_nodes.plant_sim import EXCITATION_NAMES, LANDING_S, MEASUREMENT_NAMES, PlantSim
 from ambid_nodes.position_controller import PositionController
 
 TIMEOUT_S = 0.5
@@ -87,7 +87,7 @@ def test_plant_detects_a_dead_or_stalled_controller_and_lands_the_rotor(ros, ros
                               and spy.blocks[-1].flags & SampleBlock.FLAG_FINAL, 10)
     finally:
         stop(ctrl)
-    assert s["state"] == "failed"
+    assert s["state"] == "failed" and s["failure"]["code"] == "controller_lost"
     lost = spy.code("controller_lost")[0]
     assert lost.severity == SessionEvent.FATAL
     # latency in samples: the plant stopped at the first sample without an answer
@@ -164,3 +164,41 @@ def test_a_plant_that_ends_its_run_is_not_reported_lost(ros):
     assert ros.spin_until(plant.finished.done, 60)
     assert ros.spin_until(lambda: ctrl.state == SessionStatus.STATE_DONE and spy.code("plant_finished"), 5)
     assert not spy.code("plant_lost")
+
+
+def test_a_lost_excitation_generator_fails_the_session_and_keeps_what_was_recorded(ros):
+    """A design excites samples [START, START + 1000); only the first 250 samples' block ever comes.
+    The plant waits at START + 250, then fails the session after excitation_timeout, naming the
+    experiment; every sample before is recorded, the last block marked final."""
+    ns, start, sent = "/wd_exc", 1500, 250
+    spy = ros.add(Spy(ros.context, ns))
+    pub_design = spy.create_publisher(ExcitationDesign, "excitation/design", qos.LATCHED)
+    pub_exc = spy.create_publisher(SampleBlock, "excitation", qos.BLOCKS)
+    plant = ros.add(PlantSim(namespace=ns, context=ros.context, parameter_overrides=[
+        Parameter("sim_seconds", value=0.5), Parameter("excitation_timeout", value=TIMEOUT_S)]))
+    dt = plant.dt
+    pub_design.publish(ExcitationDesign(
+        experiment_id="gone", kind="multisine", start_index=start, total_samples=1000, sample_rate=1 / dt,
+        samples_per_period=1000, n_periods=1, input_names=["u_a_x"], excited_lines=[5], peak=[0.1], rms=[0.07],
+        crest_factor=[1.4], measurement_time=1000 * dt, design_json="{}"))
+    assert ros.spin_until(lambda: "gone" in plant.excited_ranges, 10)
+    pub_exc.publish(block_msg(start, dt, EXCITATION_NAMES, ("A",) * 4, np.full((sent, 4), 0.05)))
+    assert ros.spin_until(lambda: len(plant.excitation) == 1, 10)
+    ros.add(PositionController(namespace=ns, context=ros.context))
+    assert ros.spin_until(lambda: plant.k == start + sent, 60)  # waiting for the next block
+    waiting = time.monotonic()
+    assert ros.spin_until(plant.finished.done, 10)
+    waited = time.monotonic() - waiting
+    assert TIMEOUT_S - 0.15 <= waited <= TIMEOUT_S + 3 * WATCHDOG_S + 1.0, waited
+    summary = plant.finished.result()
+    assert summary["state"] == "failed" and plant.k == start + sent
+    assert summary["failure"]["code"] == "excitation_lost" and summary["failure"]["sample_index"] == start + sent
+    assert ros.spin_until(lambda: spy.code("excitation_lost") and sum(b.n_samples for b in spy.blocks) == plant.k, 5)
+    lost = spy.code("excitation_lost")[0]
+    assert lost.severity == SessionEvent.FATAL and lost.sample_index == start + sent and "'gone'" in lost.text
+    assert [b.first_index for b in spy.blocks] == list(range(0, plant.k, plant.block_size))
+    assert spy.blocks[-1].flags & SampleBlock.FLAG_FINAL
+    data = np.concatenate([block_data(b, MEASUREMENT_NAMES) for b in spy.blocks])
+    np.testing.assert_array_equal(data[start:, 12:16], 0.05)  # the block that came was applied in full
+    assert not data[:start, 12:16].any()
+    assert np.abs(data[start:, 0:4]).max() < 0.5 * plant.rig.backup_clearance_m  # still levitated
