@@ -12,9 +12,10 @@ import time
 import numpy as np
 import pytest
 import rclpy
-from ambid_msgs.msg import ControllerDescription, PlantDescription, Sample, SampleBlock, SessionEvent
+from ambid_msgs.msg import ControllerDescription, PlantDescription, Sample, SampleBlock, SessionEvent, SessionStatus
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import HistoryPolicy, QoSProfile
 
 from ambid_nodes import qos
 from ambid_nodes.conversions import block_data
@@ -36,6 +37,10 @@ class Spy(Node):
         self.create_subscription(Sample, "control_current", lambda m: self.ic_idx.append(m.index), qos.LOOP)
         self.create_subscription(SampleBlock, "measurement", self.blocks.append, qos.BLOCKS)
         self.create_subscription(SessionEvent, "events", self.events.append, qos.EVENTS)
+        self.statuses = []
+        self.create_subscription(SessionStatus, "status", self.statuses.append, QoSProfile(
+            history=HistoryPolicy.KEEP_LAST, depth=100, reliability=qos.STATUS.reliability,
+            durability=qos.STATUS.durability))
         self.create_subscription(PlantDescription, "plant/description", lambda m: setattr(self, "plant_desc", m),
                                  qos.LATCHED)
         self.create_subscription(ControllerDescription, "controller/description",
@@ -77,6 +82,12 @@ def test_lockstep_10000_steps_levitates_from_rest(ros):
     assert list(spy.plant_desc.displacement_names) == ["y_a_x", "y_b_x", "y_a_y", "y_b_y"]
     assert spy.ctrl_desc.model.sample_period == pytest.approx(1e-4)
     assert spy.ctrl_desc.delay_samples == 1
+    # the plant's status: one at the first block end past each 10,000 samples while running, and the last
+    def plant_status():
+        return [(m.state, m.sample_index) for m in spy.statuses if m.node == plant.fqn]
+
+    assert ros.spin_until(lambda: len(plant_status()) >= 2, timeout_s=5)
+    assert plant_status() == [(SessionStatus.STATE_RUNNING, 10_000), (SessionStatus.STATE_DONE, 10_000)]
 
 
 def test_pipelined_controller_gives_the_same_samples_as_lock_step_answers(ros):
