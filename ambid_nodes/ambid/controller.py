@@ -15,8 +15,8 @@ from scipy import signal
 
 from ambid.rig import CURRENT_NAMES, DISPLACEMENT_NAMES
 from ambid.statespace import StateSpace, block_diag, delay, series
-from ambid.step_kernels import (STATESPACE_STEP4_ARGS, STATESPACE_STEP_ARGS, compiled, statespace_step,
-                                statespace_step4, statespace_work)
+from ambid.step_kernels import (STATESPACE_STEP4_ARGS, STATESPACE_STEP_ARGS, KernelOwner, compiled,
+                                statespace_step, statespace_step4, statespace_work)
 
 
 @dataclass(frozen=True)
@@ -97,7 +97,7 @@ def pid_parameters_dict(p: PidParameters) -> dict:
     return asdict(p)
 
 
-class ControllerStepper:
+class ControllerStepper(KernelOwner):
     """Runs a discrete controller sample by sample with output saturation.
 
     ``step(y)`` returns ic[k] for the measurement y[k]; with the model's
@@ -113,6 +113,8 @@ class ControllerStepper:
         model: discrete controller, y (p) [m] -> ic (q) [A].
         current_limit_a: output saturation [A].
     """
+
+    _UNPICKLED = ("_step", "_step4")  # the compiled kernels, bound again in a copy
 
     def __init__(self, model: StateSpace, current_limit_a: float) -> None:
         if model.dt <= 0:
@@ -151,16 +153,6 @@ class ControllerStepper:
     def _bind(self) -> None:
         self._step = compiled(statespace_step, STATESPACE_STEP_ARGS)
         self._step4 = compiled(statespace_step4, STATESPACE_STEP4_ARGS)
-
-    # pickling drops the compiled kernels (process-local) and binds them again
-    def __getstate__(self) -> dict:
-        state = self.__dict__.copy()
-        del state["_step"], state["_step4"]
-        return state
-
-    def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state)
-        self._bind()
 
     @property
     def strictly_proper(self) -> bool:

@@ -39,7 +39,7 @@ NOISE_BLOCK = 4096
 _GAP_GUARD = 0.98
 
 
-class PlantSimulator:
+class PlantSimulator(sk.KernelOwner):
     """The simulated rig: state, one step per sample, measured output.
 
     Args:
@@ -57,6 +57,8 @@ class PlantSimulator:
     State ``x`` (n,): see :mod:`ambid.true_rig`. The rotor starts at rest on
     the backup bearings (static equilibrium in contact, zero currents).
     """
+
+    _UNPICKLED = ("_plant_step", "_aux", "_v", "_noise")  # a copy binds them to its own work vector
 
     def __init__(self, rig: Rig, seed: int = 0, nonlinear_magnets: bool = False) -> None:
         self.rig = rig
@@ -112,17 +114,6 @@ class PlantSimulator:
         self._aux = s[sk.AUX:sk.AUX + sk.N_AUX]  # y, gap, current, sensor displacement at index
         self._v = s[iv:iv + self._n + sk.N_EXTRA]
         self._noise = s[iz:].reshape(NOISE_BLOCK, 4)
-
-    # copies (copy.deepcopy, pickle) rebind the views to their own work vector
-    def __getstate__(self) -> dict:
-        state = self.__dict__.copy()
-        for name in ("_plant_step", "_aux", "_v", "_noise"):
-            del state[name]
-        return state
-
-    def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state)
-        self._bind()
 
     # -- state -----------------------------------------------------------
     @property

@@ -78,6 +78,27 @@ def compiled(kernel, arg_types: tuple):
     return kernel.compile(arg_types)
 
 
+class KernelOwner:
+    """Base of a class that holds compiled kernels (process-local) and views into its own work
+    vector: copies (``copy.deepcopy``, pickle) leave out the attributes named in ``_UNPICKLED`` and
+    bind them again with ``_bind()``, so a copy steps its own work vector."""
+
+    _UNPICKLED: tuple[str, ...] = ()
+
+    def _bind(self) -> None:
+        raise NotImplementedError
+
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        for name in self._UNPICKLED:
+            del state[name]
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._bind()
+
+
 # -- plant -----------------------------------------------------------------
 @numba.njit(cache=True)
 def plant_offsets(n: int) -> tuple[int, int, int]:

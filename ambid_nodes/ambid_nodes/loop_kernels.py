@@ -6,8 +6,9 @@ count, 4 bytes of padding, 4 float64). Parsing, stepping, recording and
 packing in Python cost 6-15 us a sample per node; here each is one numba
 call. Only a message that is exactly what the loop awaits takes this path:
 the CDR header, 4 values, the awaited index, all finite. Anything else
-returns 0 and leaves everything untouched, and the node's Python path
-decides and says why (:func:`sample_codec.decode_sample`).
+returns 0 and changes nothing but a scratch slot for the parsed values, and
+the node's Python path decides and says why
+(:func:`sample_codec.decode_sample`).
 """
 
 from __future__ import annotations

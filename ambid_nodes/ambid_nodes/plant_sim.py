@@ -167,7 +167,7 @@ class PlantSim(Node):
         self.watch_k = -1  # the sample index the watchdog saw last
         self.exc_wait_k, self.exc_wait_wall = -1, 0.0  # the sample waiting for its excitation, since when
         self.summary: dict | None = None
-        self.failure: dict | None = None  # {"code", "text"} of the FATAL event that ended the run
+        self.failure: dict | None = None  # code, text and sample_index of the FATAL event that ended the run
         self.finished = Future()  # completes with the summary when the run ends
         self.publish_description()
         self.start_timer = self.create_timer(0.05, self.try_start)
@@ -310,14 +310,12 @@ class PlantSim(Node):
             return self.exc_rows, k - self.exc_first
         if k < self.exc_free_until:
             return ZERO_ROWS, 0
-        i = bisect.bisect_right(self.exc_starts, k) - 1
-        if i >= 0:
-            first = self.exc_starts[i]
+        first = self.held_block(k)
+        if first is not None:  # it is in use from now on
             rows = self.excitation[first]
-            if k < first + len(rows):  # a held block covers k: it is in use from now on
-                self.exc_first, self.exc_end, self.exc_rows = first, first + len(rows), rows
-                return rows, k - first
-        if any(a <= k < b for a, b in self.excited_ranges.values()):
+            self.exc_first, self.exc_end, self.exc_rows = first, first + len(rows), rows
+            return rows, k - first
+        if self.needs_excitation(k):
             return None
         self.update_excitation_free()
         return ZERO_ROWS, 0
@@ -331,12 +329,21 @@ class PlantSim(Node):
         """Samples from k up to the next excited range or held block need no excitation lookup."""
         k = self.k
         ahead = [a for a, b in self.excited_ranges.values() if b > k] + [f for f in self.exc_starts if f >= k]
-        covering = any(a <= k < b for a, b in self.excited_ranges.values()) or self.held_covering(k)
+        covering = self.needs_excitation(k) or self.held_block(k) is not None
         self.exc_free_until = k if covering else min([max(a, k) for a in ahead], default=2**62)  # int64 for the kernel
 
-    def held_covering(self, k: int) -> bool:
+    def needs_excitation(self, k: int) -> bool:
+        """A design says sample k is excited."""
+        return any(a <= k < b for a, b in self.excited_ranges.values())
+
+    def held_block(self, k: int) -> int | None:
+        """First index of the held excitation block covering sample k, or None."""
         i = bisect.bisect_right(self.exc_starts, k) - 1
-        return i >= 0 and k < self.exc_starts[i] + len(self.excitation[self.exc_starts[i]])
+        if i >= 0:
+            first = self.exc_starts[i]
+            if k < first + len(self.excitation[first]):
+                return first
+        return None
 
     def step_and_record(self, ic, r, flags: int, final: bool = False, publish: bool = True) -> None:
         """Apply u = ic + r over sample k (the amplifier saturates it), record y, u, ic, r as commanded;
