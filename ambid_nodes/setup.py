@@ -1,6 +1,6 @@
 from glob import glob
 
-from setuptools import find_packages, setup
+from setuptools import Extension, find_packages, setup
 
 package_name = "ambid_nodes"
 
@@ -16,8 +16,10 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
     ],
+    # the loop nodes' per-sample kernel call (see the C file); needs a C compiler and Python's headers
+    ext_modules=[Extension("ambid_nodes._loop_call", ["ambid_nodes/_loop_call.c"], extra_compile_args=["-O2"])],
     install_requires=["setuptools"],
-    zip_safe=True,
+    zip_safe=False,
     maintainer="ambid maintainers",
     maintainer_email="maintainers@ambid.dev",
     description="rclpy nodes and numerical core of the ambid AMB identification toolkit",

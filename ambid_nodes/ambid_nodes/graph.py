@@ -50,7 +50,7 @@ def run_composed(cfg: GraphConfig) -> dict:
     nodes = []
     try:
         plant = PlantSim(namespace=cfg.namespace, context=context,
-                         parameter_overrides=overrides({"sim_seconds": cfg.sim_seconds, **cfg.plant}))
+                         parameter_overrides=overrides({"sim_seconds": float(cfg.sim_seconds), **cfg.plant}))
         nodes.append(plant)
         nodes.append(PositionController(namespace=cfg.namespace, context=context,
                                         parameter_overrides=overrides(cfg.controller)))
@@ -100,7 +100,7 @@ def run_processes(cfg: GraphConfig) -> dict:
                                 env=env, start_new_session=True)
         procs.append(ctrl)
         plant = subprocess.Popen([py, "-m", "ambid_nodes.plant_sim",
-                                  *ros_args(cfg.namespace, {"sim_seconds": cfg.sim_seconds, **cfg.plant})],
+                                  *ros_args(cfg.namespace, {"sim_seconds": float(cfg.sim_seconds), **cfg.plant})],
                                  env=env, stdout=subprocess.PIPE, text=True, start_new_session=True)
         procs.append(plant)
         summary = None

@@ -3,19 +3,28 @@
 y[k] and ic[k] travel as the 52 bytes of a 4-channel ``ambid_msgs/Sample``
 (layout in :mod:`ambid_nodes.sample_codec`: header, uint64 index, uint32
 count, 4 bytes of padding, 4 float64). Parsing, stepping, recording and
-packing in Python cost 6-15 us a sample per node; here each is one numba
+packing in Python cost 6-15 us a sample per node; here each is one compiled
 call. Only a message that is exactly what the loop awaits takes this path:
 the CDR header, 4 values, the awaited index, all finite. Anything else
 returns 0 and changes nothing but a scratch slot for the parsed values, and
 the node's Python path decides and says why
 (:func:`sample_codec.decode_sample`).
+
+The nodes call the C entry points ``plant_kernel`` and ``controller_kernel``
+(numba cfuncs of type ``LOOP_KERNEL``) through :mod:`ambid_nodes.loop_call`
+with the message and k only: the buffers they work on are named in a context
+vector of int64 words (``PK_*``, ``CK_*``: an array's address, then its
+length). Through numba's Python entry point the same call cost 1-4 us, most
+of it boxing each array argument, against ~0.4 us of arithmetic.
 """
 
 from __future__ import annotations
 
 import numba
 import numpy as np
+from llvmlite import ir
 from numba import types
+from numba.extending import intrinsic
 
 from ambid.step_kernels import PAR_STATUS, STATUS_NOISE, plant_step, statespace_step
 
@@ -23,10 +32,9 @@ SAMPLE4_BYTES = 52
 
 
 @numba.njit(cache=True)
-def _parse_sample4(data: bytes, expected: int, dest: np.ndarray, at: int) -> bool:
-    """Whether ``data`` is the awaited valid Sample; its 4 values are copied to dest[at:at + 4]
-    (float64 scratch, also when False) once header, count and index are right."""
-    b = np.frombuffer(data, dtype=np.uint8)
+def _parse_sample4(b: np.ndarray, expected: int, dest: np.ndarray, at: int) -> bool:
+    """Whether the bytes ``b`` (uint8) are the awaited valid Sample; its 4 values are copied to
+    dest[at:at + 4] (float64 scratch, also when False) once header, count and index are right."""
     if b.shape[0] != SAMPLE4_BYTES or b[0] != 0 or b[1] != 1 or b[2] != 0 or b[3] != 0:
         return False
     if b[12] != 4 or b[13] != 0 or b[14] != 0 or b[15] != 0:
@@ -65,17 +73,17 @@ def _pack_sample4(index: int, values: np.ndarray, out: np.ndarray) -> None:
 
 
 @numba.njit(cache=True)
-def answer_sample4(w: np.ndarray, n: int, mat: int, limit: float, data: bytes, expected: int, lead: int,
+def answer_sample4(w: np.ndarray, n: int, mat: int, limit: float, data: np.ndarray, expected: int, lead: int,
                    out: np.ndarray) -> int:
     """Step the controller with the Sample y[expected] in ``data`` and pack the answer into ``out``.
 
     Args:
         w, n, mat, limit: the controller's work vector, state count, step-matrix offset and
             output saturation (:meth:`ambid.controller.ControllerStepper.kernel_args`).
-        data: the serialised Sample (52 bytes expected).
+        data: the serialised Sample, uint8 (52 bytes expected).
         expected: the sample index awaited.
         lead: the answer carries index expected + lead (1: pipelined, ic[k+1]; 0: ic[k]).
-        out: bytearray (52), receives the answer Sample's bytes (published as it is).
+        out: uint8 (52), receives the answer Sample's bytes.
 
     Returns:
         1 if ``data`` was the awaited valid sample (state stepped, ``out`` written), else 0
@@ -88,15 +96,7 @@ def answer_sample4(w: np.ndarray, n: int, mat: int, limit: float, data: bytes, e
     return 1
 
 
-_BYTES = types.Bytes(types.uint8, 1, "C", readonly=True)  # a received message
-_BYTEARRAY = types.ByteArray(types.uint8, 1, "C")  # a message to publish: publish_raw takes a bytearray as it is
-
-ANSWER_SAMPLE4_ARGS = (numba.float64[::1], numba.int64, numba.int64, numba.float64, _BYTES, numba.int64,
-                       numba.int64, _BYTEARRAY)
-
-
-# the plant's loop vector: the compiled path's buffers in one float64 array, because numba charges
-# ~0.2 us per array argument against ~1 us of arithmetic in a plant step
+# the plant's loop vector: the compiled path's float64 buffers in one array (one context entry)
 LP_CUR = 0  # lp[0:8]: y[k] [m] as published, and the last current taken [A]
 LP_IC = 8  # lp[8:12]: scratch, the values of the message being parsed
 LP_REC = 12  # lp[12:]: the measurement block, a row of REC_COLS per sample
@@ -132,12 +132,12 @@ PLANT_AFTER = 16  # stepped, and the caller has a sample boundary to serve: /clo
 
 @numba.njit(cache=True)
 def plant_sample4(s: np.ndarray, data: bytes, expected: int, r_rows: np.ndarray, r_first: int, free_until: int,
-                  lp: np.ndarray, row: int, clock_every: int, out: bytearray) -> int:
+                  lp: np.ndarray, row: int, clock_every: int, out: np.ndarray) -> int:
     """Step the simulated plant with the Sample ic[expected] in ``data`` and the excitation r.
 
     Args:
         s: the plant work vector (:attr:`ambid.simulator.PlantSimulator.work`).
-        data: the serialised Sample (52 bytes expected).
+        data: the serialised Sample, uint8 (52 bytes expected).
         expected: the sample index k the plant steps.
         r_rows, r_first: the excitation block in use, r[r_first + i] = r_rows[i] [A] ((m, 4) float64).
         free_until: r[k] = 0 for k < free_until outside the block in use.
@@ -145,7 +145,7 @@ def plant_sample4(s: np.ndarray, data: bytes, expected: int, r_rows: np.ndarray,
             rec[row]; cur then holds y[k+1].
         row: k's row in the block, < block_size.
         clock_every: /clock is due after samples k with (k + 1) % clock_every == 0.
-        out: bytearray (52), receives the Sample y[k+1] when stepped in free flight.
+        out: uint8 (52), receives the Sample y[k+1] when stepped in free flight.
 
     Returns:
         One of the PLANT_* kinds; when stepped, plus PLANT_CLIPPED and PLANT_AFTER as they apply.
@@ -193,5 +193,76 @@ def plant_sample4(s: np.ndarray, data: bytes, expected: int, r_rows: np.ndarray,
     return PLANT_STEPPED + code
 
 
-PLANT_SAMPLE4_ARGS = (numba.float64[::1], _BYTES, numba.int64, numba.float64[:, ::1], numba.int64, numba.int64,
-                      numba.float64[::1], numba.int64, numba.int64, _BYTEARRAY)
+# -- the C entry points ------------------------------------------------------
+# int64 kernel(const uint8 *data, int64 size, int64 k, int64 *context): what loop_call.LoopCall calls
+LOOP_KERNEL = types.int64(types.CPointer(types.uint8), types.int64, types.int64, types.CPointer(types.int64))
+
+# plant_kernel's context words; an array takes two, its address and its length (rows for r)
+PK_WORK = 0  # the plant work vector (float64)
+PK_LOOP = 2  # the plant loop vector (float64, plant_loop_vector)
+PK_OUT = 4  # the 52 bytes y[k+1] is packed into (uint8)
+PK_R = 6  # the excitation block in use, (rows, 4) float64
+PK_R_FIRST = 8  # its first sample index
+PK_FREE_UNTIL = 9  # r[k] = 0 for k < free_until outside the block in use
+PK_BLOCK_START = 10  # the sample index of the measurement block's row 0
+PK_CLOCK_EVERY = 11  # /clock after samples k with (k + 1) % clock_every == 0
+N_PK = 12
+
+# controller_kernel's context words
+CK_WORK = 0  # the controller work vector (float64, ControllerStepper.kernel_args)
+CK_OUT = 2  # the 52 bytes the answer is packed into (uint8)
+CK_N = 4  # state count
+CK_MAT = 5  # step-matrix offset in the work vector
+CK_LIMIT = 6  # output saturation [A], the bits of a float64
+CK_LEAD = 7  # the answer to y[k] is ic[k + lead]
+N_CK = 8
+
+
+@intrinsic
+def _pointer(typingctx, address, dtype):
+    """The ``dtype`` pointer at an integer ``address`` (a context word)."""
+    if not isinstance(address, types.Integer) or not isinstance(dtype, types.NumberClass):
+        return None
+    sig = types.CPointer(dtype.instance_type)(address, dtype)
+
+    def codegen(context, builder, signature, args):
+        return builder.inttoptr(args[0], context.get_value_type(signature.return_type))
+
+    return sig, codegen
+
+
+@intrinsic
+def _float_bits(typingctx, word):
+    """The float64 whose bits are the int64 ``word``."""
+    if not isinstance(word, types.Integer):
+        return None
+
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], ir.DoubleType())
+
+    return types.float64(word), codegen
+
+
+@numba.njit(cache=True)
+def _f8(c, word: int) -> np.ndarray:
+    return numba.carray(_pointer(c[word], np.float64), c[word + 1])
+
+
+@numba.njit(cache=True)
+def _u8(c, word: int) -> np.ndarray:
+    return numba.carray(_pointer(c[word], np.uint8), c[word + 1])
+
+
+@numba.cfunc(LOOP_KERNEL, cache=True)
+def plant_kernel(data, size, k, c):
+    """plant_sample4 on the buffers of context c (PK_*), for the Sample ic[k] in data[:size]."""
+    rows = numba.carray(_pointer(c[PK_R], np.float64), (c[PK_R + 1], 4))
+    return plant_sample4(_f8(c, PK_WORK), numba.carray(data, size), k, rows, c[PK_R_FIRST], c[PK_FREE_UNTIL],
+                         _f8(c, PK_LOOP), k - c[PK_BLOCK_START], c[PK_CLOCK_EVERY], _u8(c, PK_OUT))
+
+
+@numba.cfunc(LOOP_KERNEL, cache=True)
+def controller_kernel(data, size, k, c):
+    """answer_sample4 on the buffers of context c (CK_*), for the Sample y[k] in data[:size]."""
+    return answer_sample4(_f8(c, CK_WORK), c[CK_N], c[CK_MAT], _float_bits(c[CK_LIMIT]), numba.carray(data, size),
+                          k, c[CK_LEAD], _u8(c, CK_OUT))

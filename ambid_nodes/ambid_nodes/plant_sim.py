@@ -65,10 +65,10 @@ from ambid_nodes import qos
 from ambid_nodes.conversions import (BadMessage, block_msg, check_design, check_excitation_block, statespace_to_msg,
                                      status_msg, time_msg)
 from ambid_nodes.intake import Intake
-from ambid_nodes.loop_kernels import (PLANT_AFTER, PLANT_CLIPPED, PLANT_CONTACT, PLANT_KIND, PLANT_LOOKUP,
-                                      PLANT_SAMPLE4_ARGS, PLANT_STEPPED, plant_loop_vector, plant_sample4,
-                                      sample4_buffer)
-from ambid.step_kernels import compiled
+from ambid_nodes.loop_call import BoundKernel, ContextArray, ContextWord
+from ambid_nodes.loop_kernels import (N_PK, PK_BLOCK_START, PK_CLOCK_EVERY, PK_FREE_UNTIL, PK_LOOP, PK_OUT, PK_R,
+                                      PK_R_FIRST, PK_WORK, PLANT_AFTER, PLANT_CLIPPED, PLANT_CONTACT, PLANT_KIND,
+                                      PLANT_LOOKUP, PLANT_STEPPED, plant_kernel, plant_loop_vector, sample4_buffer)
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 from ambid_nodes.raw_publish import raw_publisher
 from ambid_nodes.sample_codec import decode_sample, encode_clock, encode_sample, encode_sample4
@@ -92,6 +92,12 @@ RUNNING, DONE, FAILED, IDLE = (SessionStatus.STATE_RUNNING, SessionStatus.STATE_
 FLAG_CLIPPED, FLAG_LANDED = SampleBlock.FLAG_CLIPPED, SampleBlock.FLAG_LANDED
 
 class PlantSim(Node):
+    # what the compiled path reads lives in its context (loop_call): the excitation block in use,
+    # rows r[exc_first + i] = exc_rows[i]; before exc_free_until no sample outside it is excited
+    exc_rows = ContextArray("fast", PK_R, np.float64, 4, writes=False)
+    exc_first = ContextWord("fast", PK_R_FIRST)
+    exc_free_until = ContextWord("fast", PK_FREE_UNTIL)
+    buf_start = ContextWord("fast", PK_BLOCK_START)  # the sample index of the measurement block's row 0
     def __init__(self, **kwargs) -> None:
         super().__init__("plant_sim", **kwargs)
         self.fqn = self.get_fully_qualified_name()
@@ -144,16 +150,22 @@ class PlantSim(Node):
         # sample ranges [start, end) a design says are excited: the plant waits for their blocks,
         # so where the excitation lands never depends on message timing
         self.excited_ranges: dict[str, tuple[int, int]] = {}
+        # the compiled path, called with (message, k): one C call into loop_kernels.plant_kernel
+        self.fast = BoundKernel(plant_kernel, N_PK)
+        self.fast_step = self.fast.call
         # the excitation block in use: rows for [exc_first, exc_end); before exc_free_until no sample
         # is excited and no block held (both recomputed when designs or blocks arrive or a block ends)
         self.exc_first = self.exc_end = 0
         self.exc_rows = ZERO_ROWS
         self.exc_free_until = 0
-        # one array for the compiled path (loop_kernels.plant_loop_vector): y[k] as published with the
-        # last current taken, and the block's rows (y, u, ic, r); it packs y[k+1] into out
+        # the plant loop vector (loop_kernels.plant_loop_vector): y[k] as published with the last
+        # current taken, and the block's rows (y, u, ic, r); y[k+1] is packed into out
         self.lp, self.cur, self.rec = plant_loop_vector(self.block_size)
         self.out = sample4_buffer()
-        self.fast_step = compiled(plant_sample4, PLANT_SAMPLE4_ARGS)
+        self.fast.bind(PK_WORK, self.sim_work, np.float64)
+        self.fast.bind(PK_LOOP, self.lp, np.float64)
+        self.fast.bind(PK_OUT, self.out, np.uint8)
+        self.fast.set(PK_CLOCK_EVERY, self.clock_every)
         self.row_flags: dict[int, int] = {}  # row -> FLAG_* where not 0
         self.buf_start = 0
         self.clipped_samples = 0
@@ -218,8 +230,7 @@ class PlantSim(Node):
     def on_control(self, data: bytes) -> None:
         k = self.k
         if self.state == RUNNING and not self.ic_ready and k != self.last_k:
-            code = self.fast_step(self.sim_work, data, k, self.exc_rows, self.exc_first, self.exc_free_until,
-                                  self.lp, k - self.buf_start, self.clock_every, self.out)
+            code = self.fast_step(data, k)
             if code == PLANT_STEPPED:  # free flight and nothing else due: most samples, kept lean
                 self.k = k + 1
                 self.ic_tally.accepted += 1
@@ -233,11 +244,9 @@ class PlantSim(Node):
         """The rest of a sample the compiled path took (as step_and_record does), after looking up
         r[k] if it asked to; False if it did not step (the Python path decides)."""
         if code == PLANT_LOOKUP:
-            exc = self.excitation_rows(k)
-            if exc is None:
+            if self.excitation_rows(k) is None:
                 return False  # the excitation block has not arrived
-            code = self.fast_step(self.sim_work, data, k, exc[0], k - exc[1], self.exc_free_until,
-                                  self.lp, k - self.buf_start, self.clock_every, self.out)
+            code = self.fast_step(data, k)  # the lookup set the block in use or the free range
         kind = code & PLANT_KIND
         if kind != PLANT_STEPPED and kind != PLANT_CONTACT:
             return False

@@ -51,9 +51,10 @@ from ambid.closed_loop import check_controller_on_rig
 from ambid.controller import ControllerStepper, PidParameters, pid_controller, pid_parameters_dict
 from ambid.lqg import LqgParameters, lqg_controller
 from ambid.rig import load_rig, make_rig
-from ambid.step_kernels import compiled
 from ambid_nodes import qos
-from ambid_nodes.loop_kernels import ANSWER_SAMPLE4_ARGS, answer_sample4, sample4_buffer
+from ambid_nodes.loop_call import BoundKernel
+from ambid_nodes.loop_kernels import (CK_LEAD, CK_LIMIT, CK_MAT, CK_N, CK_OUT, CK_WORK, N_CK, controller_kernel,
+                                      sample4_buffer)
 from ambid_nodes.conversions import BadMessage, statespace_to_msg, status_msg, time_msg
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
@@ -113,9 +114,14 @@ class PositionController(Node):
         self.pipelined = bool(pipeline) and self.stepper.strictly_proper
         self.lead = int(self.pipelined)  # y[k] is answered with ic[k + lead]
         self.first_answers: list[bytes] = []  # the answers to y[0], sent again if the plant repeats y[0]
-        self.answer = compiled(answer_sample4, ANSWER_SAMPLE4_ARGS)
+        # the compiled path, called with (message, k): one C call into loop_kernels.controller_kernel
+        # on the stepper's work vector (bound again with each session's stepper)
+        self.fast = BoundKernel(controller_kernel, N_CK)
+        self.answer = self.fast.call
         self.out = sample4_buffer()  # the compiled path's answer, published as it is
-        self.kernel = (np.zeros(1), 0, 0, 0.0)  # set per session (start_session)
+        self.fast.bind(CK_OUT, self.out, np.uint8)
+        self.fast.set(CK_LEAD, self.lead)
+        self.bind_stepper()
         self.pub_desc = self.create_publisher(ControllerDescription, "controller/description", qos.LATCHED)
         self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
         self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
@@ -144,8 +150,7 @@ class PositionController(Node):
 
     def on_displacement(self, data: bytes) -> None:
         k = self.expected
-        w, n, mat, limit = self.kernel
-        if self.state == RUNNING and self.answer(w, n, mat, limit, data, k, self.lead, self.out):
+        if self.state == RUNNING and self.answer(data, k):
             # the awaited, valid sample: stepped and answered in one compiled call
             self.y_tally.accepted += 1
             self.expected = k + 1
@@ -207,11 +212,19 @@ class PositionController(Node):
         intake.reject("displacement", f"displacement index {k} {kind} (expected {self.expected})")
         return False
 
+    def bind_stepper(self) -> None:
+        """Point the compiled path at the present stepper's work vector, matrix and limit."""
+        w, n, mat, limit = self.stepper.kernel_args(ahead=self.pipelined)
+        self.fast.bind(CK_WORK, w, np.float64)
+        self.fast.set(CK_N, n)
+        self.fast.set(CK_MAT, mat)
+        self.fast.set_float(CK_LIMIT, limit)
+
     def start_session(self) -> None:
         """Sample 0 of a plant: a new session from the controller's zero state."""
         self.stepper = ControllerStepper(self.model, self.params.current_limit_a)
         self.step = self.stepper.step_ahead4 if self.pipelined else self.stepper.step4
-        self.kernel = self.stepper.kernel_args(ahead=self.pipelined)
+        self.bind_stepper()
         self.expected, self.watch_expected = 0, None
         self.state, self.lost_at = RUNNING, None
         self.plant_ended.clear()

@@ -1,4 +1,5 @@
-"""The controller node's compiled per-sample path against its Python path."""
+"""The loop nodes' compiled per-sample paths (loop_kernels' C entry points, called as the nodes call
+them through loop_call) against their Python paths."""
 
 from __future__ import annotations
 
@@ -11,7 +12,10 @@ import pytest
 from ambid.controller import ControllerStepper, PidParameters, pid_controller
 from ambid.lqg import LqgParameters, lqg_controller
 from ambid.rig import make_rig
-from ambid_nodes.loop_kernels import answer_sample4, sample4_buffer
+from ambid_nodes.loop_call import BoundKernel
+from ambid_nodes.loop_kernels import (CK_LEAD, CK_LIMIT, CK_MAT, CK_N, CK_OUT, CK_WORK, N_CK, N_PK, PK_BLOCK_START,
+                                      PK_CLOCK_EVERY, PK_FREE_UNTIL, PK_LOOP, PK_OUT, PK_R, PK_R_FIRST, PK_WORK,
+                                      controller_kernel, plant_kernel, sample4_buffer)
 from ambid_nodes.sample_codec import encode_sample, encode_sample4
 
 
@@ -21,16 +25,30 @@ def steppers(kind: str):
     return ControllerStepper(model, 3.0), ControllerStepper(model, 3.0)
 
 
+def controller_call(stepper: ControllerStepper, ahead: bool, out: bytearray):
+    """The controller's compiled path bound to ``stepper`` as position_controller binds it: call(data, k)."""
+    w, n, mat, limit = stepper.kernel_args(ahead)
+    fast = BoundKernel(controller_kernel, N_CK)
+    fast.bind(CK_WORK, w, np.float64)
+    fast.bind(CK_OUT, out, np.uint8)
+    fast.set(CK_N, n)
+    fast.set(CK_MAT, mat)
+    fast.set_float(CK_LIMIT, limit)
+    fast.set(CK_LEAD, int(ahead))
+    return fast.call
+
+
 @pytest.mark.parametrize("kind", ["pid", "lqg"])
 @pytest.mark.parametrize("ahead", [True, False])
 def test_compiled_answers_are_the_python_answers(kind, ahead):
     ref, fast = steppers(kind)
     out = sample4_buffer()
+    answer = controller_call(fast, ahead, out)
     rng = np.random.default_rng(3)
     for k in range(300):
         y = tuple(rng.normal(0.0, 20e-6, 4))  # large enough to saturate some answers
         ic = ref.step_ahead4(*y) if ahead else ref.step4(*y)
-        assert answer_sample4(*fast.kernel_args(ahead), encode_sample4(k, *y), k, int(ahead), out) == 1
+        assert answer(encode_sample4(k, *y), k) == 1
         assert bytes(out) == encode_sample4(k + int(ahead), *ic)
     assert np.array_equal(fast.x, ref.x)
 
@@ -39,6 +57,7 @@ def test_anything_but_the_awaited_valid_sample_changes_nothing():
     _, fast = steppers("pid")
     w, n, mat, limit = fast.kernel_args(True)
     out = sample4_buffer()
+    answer = controller_call(fast, True, out)
     good = encode_sample4(7, 1e-6, 2e-6, 3e-6, 4e-6)
     bad = {
         "wrong index": encode_sample4(8, 1e-6, 2e-6, 3e-6, 4e-6),
@@ -58,9 +77,10 @@ def test_anything_but_the_awaited_valid_sample_changes_nothing():
     kept[n:n + 4] = False  # the input slot: scratch, y is parsed into it
     for what, data in bad.items():
         out[:] = bytes(len(out))
-        assert answer_sample4(w, n, mat, limit, data, 7, 1, out) == 0, what
+        assert answer(data, 7) == 0, what
         assert np.array_equal(w[kept], before[kept]) and not any(out), what
-    assert answer_sample4(w, n, mat, limit, good, 7, 1, out) == 1
+    assert answer(bytearray(good), 7) == 1  # any buffer, not only the bytes a subscription hands over
+    assert answer(memoryview(encode_sample4(8, 1e-6, 2e-6, 3e-6, 4e-6)), 8) == 1
 
 
 def test_compiled_plant_sample_is_the_python_step():
@@ -69,8 +89,7 @@ def test_compiled_plant_sample_is_the_python_step():
     boundary (clock, full block, end of the excitation block) or an excitation lookup is due."""
     from ambid.simulator import PlantSimulator
     from ambid_nodes.loop_kernels import (LP_IC, PLANT_AFTER, PLANT_CLIPPED, PLANT_CONTACT, PLANT_KIND,
-                                          PLANT_LOOKUP, PLANT_NOISE, PLANT_STEPPED, plant_loop_vector,
-                                          plant_sample4)
+                                          PLANT_LOOKUP, PLANT_NOISE, PLANT_STEPPED, plant_loop_vector)
 
     rig = make_rig()
     ref, fast = PlantSimulator(rig, seed=4, nonlinear_magnets=True), PlantSimulator(rig, seed=4,
@@ -80,6 +99,19 @@ def test_compiled_plant_sample_is_the_python_step():
     block, clock_every = 50, 7
     lp, cur, rec = plant_loop_vector(block)
     out = sample4_buffer()
+    kernel = BoundKernel(plant_kernel, N_PK)  # bound as plant_sim binds it
+    kernel.bind(PK_WORK, fast.work, np.float64)
+    kernel.bind(PK_LOOP, lp, np.float64)
+    kernel.bind(PK_OUT, out, np.uint8)
+    kernel.set(PK_CLOCK_EVERY, clock_every)
+
+    def plant_sample4(data, k, rows, first, free_until, block_start):
+        kernel.bind(PK_R, rows, np.float64, 4, writes=False)
+        kernel.set(PK_R_FIRST, first)
+        kernel.set(PK_FREE_UNTIL, free_until)
+        kernel.set(PK_BLOCK_START, block_start)
+        return kernel.call(data, k)
+
     cur[:4] = y = fast.output()
     codes = set()
     for k in range(6000):
@@ -91,14 +123,13 @@ def test_compiled_plant_sample_is_the_python_step():
         y0, y1, y2, y3, clipped, contact = ref.step_output(*(np.asarray(ic) + r))
         data = encode_sample4(k, *ic)
         first = k - k % 64 if excited and k % 64 else -100  # the block in use; at a block's start, none yet
-        args = (rows, first, 3000, lp, k % block, clock_every, out)
-        code = plant_sample4(fast.work, data, k, *args)
+        code = plant_sample4(data, k, rows, first, 3000, k - k % block)
         if excited and k % 64 == 0:
             assert code == PLANT_LOOKUP
-            code = plant_sample4(fast.work, data, k, rows, k, 3000, *args[3:])
+            code = plant_sample4(data, k, rows, k, 3000, k - k % block)
         if code == PLANT_NOISE:
             fast.draw_noise()
-            code = plant_sample4(fast.work, data, k, *args)
+            code = plant_sample4(data, k, rows, first, 3000, k - k % block)
         codes.add(code & ~PLANT_AFTER)
         assert bool(code & PLANT_CLIPPED) == clipped and (code & PLANT_KIND == PLANT_CONTACT) == contact
         due = (k + 1) % clock_every == 0 or (k + 1) % block == 0 or (excited and (k + 1) % 64 == 0)
@@ -118,6 +149,33 @@ def test_compiled_plant_sample_is_the_python_step():
     kept = np.ones(len(lp), dtype=bool)
     kept[LP_IC:LP_IC + 4] = False  # scratch: the values being parsed
     for data in (encode_sample4(6001, 0.0, 0.0, 0.0, 0.0), encode_sample4(6000, math.nan, 0.0, 0.0, 0.0)):
-        assert plant_sample4(fast.work, data, 6000, rows, -100, 10**9, lp, 0, clock_every, out) == 0
+        assert plant_sample4(data, 6000, rows, -100, 10**9, 6000) == 0
         assert np.array_equal(fast.work, before) and np.array_equal(lp[kept], lp_before[kept])
         assert bytes(out) == out_before
+
+
+def test_a_bound_kernel_refuses_what_its_kernel_would_misread():
+    fast = BoundKernel(controller_kernel, N_CK)
+    bad = {"float32": (np.zeros(8, np.float32), np.float64, None, True),
+           "strided": (np.zeros(16)[::2], np.float64, None, True),
+           "read-only where the kernel writes": (np.frombuffer(bytes(64)), np.float64, None, True),
+           "3 columns for 4": (np.zeros((5, 3)), np.float64, 4, False),
+           "1-D for 2-D": (np.zeros(8), np.float64, 4, False),
+           "a list": ([0.0] * 8, np.float64, None, True)}
+    for what, (arr, dtype, columns, writes) in bad.items():
+        with pytest.raises(ValueError, match=f"word {CK_WORK} needs"):
+            fast.bind(CK_WORK, arr, dtype, columns, writes)
+        assert not fast.context.any(), what  # nothing half-bound
+    ro = np.frombuffer(bytes(64)).reshape(2, 4)
+    fast.bind(CK_WORK, ro, np.float64, 4, writes=False)  # the kernel only reads it: fine
+    assert fast.context[CK_WORK] == ro.ctypes.data and fast.context[CK_WORK + 1] == 2
+    out = sample4_buffer()
+    fast.bind(CK_OUT, out, np.uint8)
+    with pytest.raises(BufferError):
+        out.extend(b"x")  # a bound bytearray cannot move under the kernel
+    with pytest.raises(TypeError, match="two positional arguments"):
+        fast.call(b"")
+    with pytest.raises(TypeError):
+        fast.call(1.5, 0)  # not a buffer
+    with pytest.raises(OverflowError):
+        fast.call(b"", 2**64)
