@@ -19,6 +19,7 @@ offsets from :func:`plant_offsets`)::
     s[24:40]                aux at the present sample k: y, gap, current,
                             sensor displacement (4 each) [m, m, A, m]
     s[v:v + n + 17]         v = [x; u[k-1]; u[k]; f; r_s; 1], the fused step's input
+    s[v + n + 17:mat]       scratch, n + 20: M v is summed here
     s[mat:noise]            M.T, (n + 17, n + 20) row-major: [x; u[k]; aux][k+1] = M v
     s[noise:]               sensor noise block, (rows, 4) row-major [m]
 
@@ -28,13 +29,15 @@ Controller work vector ``w`` (1-D), for n states, p inputs, q outputs
     w[0:n]                  state x
     w[n:n + p]              input y
     w[n + p:n + p + q]      output, saturated
+    w[n + p + q:h]          scratch, q + n: m [x; y] is summed here (h = 2 n + p + 2 q)
     w[mat:]                 step matrices m.T, (n + p, q + n) row-major each,
                             [output; x[k+1]] = m [x; y]
 
 Matrices are stored transposed because the product then runs column by
-column into a fresh array, which LLVM vectorises without reassociating any
-sum: each output is still summed in column order, as by a plain dot
-product.
+column into the scratch slice, which LLVM vectorises without reassociating
+any sum: each output is still summed in column order, as by a plain dot
+product. The scratch lives in the work vector so that a step allocates
+nothing (an allocation per step cost the controller half its time).
 """
 
 from __future__ import annotations
@@ -102,9 +105,10 @@ class KernelOwner:
 # -- plant -----------------------------------------------------------------
 @numba.njit(cache=True)
 def plant_offsets(n: int) -> tuple[int, int, int]:
-    """Offsets (v, mat, noise) in the plant work vector for n states (module docstring)."""
+    """Offsets (v, mat, noise) in the plant work vector for n states (module docstring); the
+    scratch lies between v and mat."""
     v = AUX + N_AUX
-    mat = v + n + N_EXTRA
+    mat = v + 2 * (n + N_EXTRA) + 3
     return v, mat, mat + (n + N_EXTRA) * (n + N_EXTRA + 3)
 
 
@@ -223,7 +227,8 @@ def plant_step(s: np.ndarray, u0: float, u1: float, u2: float,
     # out = [x; u; y; gap; current; sensor displacement][k+1] = M v; the f and r_s columns
     # only when they are in use (skipping exact zeros leaves every sum unchanged)
     no = n + N_EXTRA + 3
-    out = np.zeros(no)
+    out = s[mat - no:mat]  # the scratch
+    out[:] = 0.0
     _add_columns(s, mat, no, v, 0, n + 8, out)
     if nonlinear:
         _add_columns(s, mat, no, v, n + 8, n + 12, out)
@@ -253,7 +258,8 @@ def statespace_work(n: int, p: int, q: int, matrices: list[np.ndarray]) -> tuple
         w: float64 work vector, state, input and output zero.
         offsets: where each matrix (transposed) starts in w.
     """
-    offsets, blocks, at = [], [], n + p + q
+    head = n + p + 2 * q + n  # x, y, output, scratch
+    offsets, blocks, at = [], [], head
     for m in matrices:
         m = np.asarray(m, dtype=float)
         if m.shape != (q + n, n + p):
@@ -261,7 +267,7 @@ def statespace_work(n: int, p: int, q: int, matrices: list[np.ndarray]) -> tuple
         offsets.append(at)
         blocks.append(m.T.ravel())
         at += m.size
-    return np.concatenate([np.zeros(n + p + q), *blocks]), offsets
+    return np.concatenate([np.zeros(head), *blocks]), offsets
 
 
 @numba.njit(cache=True)
@@ -275,9 +281,10 @@ def statespace_step(w: np.ndarray, n: int, p: int, q: int, mat: int, limit: floa
         mat: offset of the step matrix m.T in w.
         limit: output saturation.
     """
-    out = np.zeros(q + n)
-    _add_columns(w, mat, q + n, 0, 0, n + p, out)
     o = n + p
+    out = w[o + q:o + 2 * q + n]  # the scratch
+    out[:] = 0.0
+    _add_columns(w, mat, q + n, 0, 0, n + p, out)
     for i in range(q):
         c = out[i]
         w[o + i] = limit if c > limit else -limit if c < -limit else c

@@ -44,6 +44,13 @@ def ros():
         return True
 
     yield SimpleNamespace(context=context, executor=executor, domain_id=domain, add=add, spin_until=spin_until)
+    if nodes:
+        # let DDS finish with peers that just left (a subprocess node the test stopped) before our
+        # entities go: their unmatch events racing the destruction can crash the EventsExecutor
+        # (ros2/rclpy#1644); bounded, a killed peer lingers until its lease expires
+        ours = {(n.get_name(), n.get_namespace()) for n in nodes}
+        spin_until(lambda: set(nodes[0].get_node_names_and_namespaces()) <= ours, 2.0)
+        spin_until(lambda: False, 0.05)  # and the events already queued
     executor.shutdown()
     for n in nodes:
         n.destroy_node()
