@@ -10,6 +10,7 @@ from types import SimpleNamespace
 import pytest
 
 rclpy = pytest.importorskip("rclpy", reason="rclpy missing: run the suite with ./launch_scripts/ambid test")
+from rclpy._rclpy_pybind11 import InvalidHandle  # noqa: E402
 from rclpy.experimental import EventsExecutor  # noqa: E402
 
 # domain ids 1..200, spread by process so concurrent test runs don't meet
@@ -29,11 +30,21 @@ def ros():
     rclpy.init(context=context, domain_id=domain)
     executor = EventsExecutor(context=context)
     nodes = []
+    names = set()  # (name, namespace) of every node added
 
     def add(node):
         nodes.append(node)
+        names.add((node.get_name(), node.get_namespace()))
         executor.add_node(node)
         return node
+
+    def graph() -> set:
+        for n in nodes:  # any node the test has not destroyed itself
+            try:
+                return set(n.get_node_names_and_namespaces())
+            except InvalidHandle:
+                continue
+        return set()
 
     def spin_until(predicate, timeout_s: float = 30.0) -> bool:
         end = time.monotonic() + timeout_s
@@ -48,8 +59,7 @@ def ros():
         # let DDS finish with peers that just left (a subprocess node the test stopped) before our
         # entities go: their unmatch events racing the destruction can crash the EventsExecutor
         # (ros2/rclpy#1644); bounded, a killed peer lingers until its lease expires
-        ours = {(n.get_name(), n.get_namespace()) for n in nodes}
-        spin_until(lambda: set(nodes[0].get_node_names_and_namespaces()) <= ours, 2.0)
+        spin_until(lambda: graph() <= names, 2.0)
         spin_until(lambda: False, 0.05)  # and the events already queued
     executor.shutdown()
     for n in nodes:
