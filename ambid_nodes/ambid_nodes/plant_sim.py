@@ -98,6 +98,7 @@ class PlantSim(Node):
     exc_first = ContextWord("fast", PK_R_FIRST)
     exc_free_until = ContextWord("fast", PK_FREE_UNTIL)
     buf_start = ContextWord("fast", PK_BLOCK_START)  # the sample index of the measurement block's row 0
+
     def __init__(self, **kwargs) -> None:
         super().__init__("plant_sim", **kwargs)
         self.fqn = self.get_fully_qualified_name()
