@@ -212,8 +212,14 @@ class PositionController(Node):
         intake.reject("displacement", f"displacement index {k} {kind} (expected {self.expected})")
         return False
 
+    def reset_stepper(self) -> None:
+        """A controller at zero state and zero current, stepped by both paths."""
+        self.stepper = ControllerStepper(self.model, self.params.current_limit_a)
+        self.bind_stepper()
+
     def bind_stepper(self) -> None:
-        """Point the compiled path at the present stepper's work vector, matrix and limit."""
+        """Point the Python path and the compiled path (work vector, matrix, limit) at the present stepper."""
+        self.step = self.stepper.step_ahead4 if self.pipelined else self.stepper.step4
         w, n, mat, limit = self.stepper.kernel_args(ahead=self.pipelined)
         self.fast.bind(CK_WORK, w, np.float64)
         self.fast.set(CK_N, n)
@@ -222,9 +228,7 @@ class PositionController(Node):
 
     def start_session(self) -> None:
         """Sample 0 of a plant: a new session from the controller's zero state."""
-        self.stepper = ControllerStepper(self.model, self.params.current_limit_a)
-        self.step = self.stepper.step_ahead4 if self.pipelined else self.stepper.step4
-        self.bind_stepper()
+        self.reset_stepper()
         self.expected, self.watch_expected = 0, None
         self.state, self.lost_at = RUNNING, None
         self.plant_ended.clear()
@@ -267,7 +271,7 @@ class PositionController(Node):
                        f"no displacement for sample {k} within {self.timeout:g} s ({quiet:.3f} s quiet) and the "
                        "plant did not report the end of its run: plant lost; control current reset to zero, "
                        "idle until a plant starts a new session at sample 0", k)
-        self.stepper = ControllerStepper(self.model, self.params.current_limit_a)  # zero state, zero current
+        self.reset_stepper()  # zero state, zero current
         self.publish_status()
 
     def on_reject(self, topic: str, why: str) -> None:
