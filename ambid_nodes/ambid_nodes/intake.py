@@ -27,6 +27,7 @@ import collections
 import time
 from typing import Callable
 
+import numpy as np
 from rclpy.node import Node
 
 from ambid_nodes.conversions import BadMessage, decode_message
@@ -39,14 +40,30 @@ LOG_PERIOD_S = 1.0     # log lines about rejections at most this often
 class Tally:
     """Messages of one topic accepted and rejected so far; received = accepted + rejected.
 
-    The per-sample loop handlers add to ``accepted`` directly (an attribute, no call).
+    The loop handlers add to ``accepted`` directly (an attribute, no call). The messages a
+    compiled path accepts it counts itself, in an int64 word :meth:`count_also` names.
     """
 
-    __slots__ = ("accepted", "rejected")
+    __slots__ = ("_accepted", "rejected", "_also")
 
     def __init__(self) -> None:
-        self.accepted = 0
+        self._accepted = 0
         self.rejected = 0
+        self._also: np.ndarray | None = None
+
+    @property
+    def accepted(self) -> int:
+        return self._accepted + (int(self._also[0]) if self._also is not None else 0)
+
+    @accepted.setter
+    def accepted(self, value: int) -> None:
+        self._accepted = value - (int(self._also[0]) if self._also is not None else 0)
+
+    def count_also(self, word: np.ndarray) -> None:
+        """Count the messages a compiled path accepts and adds to ``word[0]`` (an int64 view) as accepted."""
+        accepted = self.accepted
+        self._also = word
+        self.accepted = accepted
 
 
 class Intake:

@@ -26,6 +26,7 @@ class BoundKernel:
     def __init__(self, kernel, n_words: int) -> None:
         self.context = np.zeros(n_words, dtype=np.int64)
         self._bound: dict[int, np.ndarray] = {}
+        self.address = kernel.address
         self.call = LoopCall(kernel.address, self.context)
 
     def bind(self, word: int, array, dtype, columns: int | None = None, writes: bool = True) -> None:
@@ -60,17 +61,21 @@ class BoundKernel:
 
 class ContextWord:
     """An int attribute kept in word ``word`` of the owner's BoundKernel ``owner.<kernel>``: the one
-    home of a value both the node's Python path and its compiled path read."""
+    home of a value both the node's Python path and its compiled path read. With ``none`` given,
+    None is stored as that value."""
 
-    def __init__(self, kernel: str, word: int) -> None:
-        self.kernel, self.word = kernel, word
+    def __init__(self, kernel: str, word: int, none: int | None = None) -> None:
+        self.kernel, self.word, self.none = kernel, word, none
 
     def __get__(self, obj, objtype=None):
         if obj is None:
             return self
-        return int(getattr(obj, self.kernel).context[self.word])
+        value = int(getattr(obj, self.kernel).context[self.word])
+        return None if value == self.none else value
 
-    def __set__(self, obj, value: int) -> None:
+    def __set__(self, obj, value: int | None) -> None:
+        if value is None and self.none is not None:
+            value = self.none
         getattr(obj, self.kernel).context[self.word] = value
 
 

@@ -197,25 +197,37 @@ def plant_sample4(s: np.ndarray, data: bytes, expected: int, r_rows: np.ndarray,
 # int64 kernel(const uint8 *data, int64 size, int64 k, int64 *context): what loop_call.LoopCall calls
 LOOP_KERNEL = types.int64(types.CPointer(types.uint8), types.int64, types.int64, types.CPointer(types.int64))
 
-# plant_kernel's context words; an array takes two, its address and its length (rows for r)
-PK_WORK = 0  # the plant work vector (float64)
-PK_LOOP = 2  # the plant loop vector (float64, plant_loop_vector)
-PK_OUT = 4  # the 52 bytes y[k+1] is packed into (uint8)
-PK_R = 6  # the excitation block in use, (rows, 4) float64
-PK_R_FIRST = 8  # its first sample index
-PK_FREE_UNTIL = 9  # r[k] = 0 for k < free_until outside the block in use
-PK_BLOCK_START = 10  # the sample index of the measurement block's row 0
-PK_CLOCK_EVERY = 11  # /clock after samples k with (k + 1) % clock_every == 0
-N_PK = 12
+# the words every loop kernel's context starts with: what the compiled callback (_loop_callback.c) reads
+LOOP_K = 0  # the sample index the next message must carry, passed to the kernel as k
+LOOP_GATE = 1  # 0: the callback hands every message to the node's Python path
+LOOP_LIMIT = 2  # the callback runs the kernel only for k < limit
+LOOP_COUNT = 3  # messages the callback answered (accepted; the node's tally counts them too)
+LOOP_OUT = 4  # the bytes the kernel packs its answer into (uint8), published when it returns LOOP_DONE
+N_LOOP = 6
+LOOP_DONE = 1  # the kernel took the message and packed the answer; nothing else to do
+LOOP_NO_LIMIT = 2**62
 
-# controller_kernel's context words
-CK_WORK = 0  # the controller work vector (float64, ControllerStepper.kernel_args)
-CK_OUT = 2  # the 52 bytes the answer is packed into (uint8)
-CK_N = 4  # state count
-CK_MAT = 5  # step-matrix offset in the work vector
-CK_LIMIT = 6  # output saturation [A], the bits of a float64
-CK_LEAD = 7  # the answer to y[k] is ic[k + lead]
-N_CK = 8
+# plant_kernel's context words (after the LOOP_* words); an array takes two, its address and its
+# length (rows for r). It packs y[k+1] into LOOP_OUT; PLANT_STEPPED is LOOP_DONE.
+PK_WORK = 6  # the plant work vector (float64)
+PK_LOOP = 8  # the plant loop vector (float64, plant_loop_vector)
+PK_R = 10  # the excitation block in use, (rows, 4) float64
+PK_R_FIRST = 12  # its first sample index
+PK_FREE_UNTIL = 13  # r[k] = 0 for k < free_until outside the block in use
+PK_BLOCK_START = 14  # the sample index of the measurement block's row 0
+PK_CLOCK_EVERY = 15  # /clock after samples k with (k + 1) % clock_every == 0
+N_PK = 16
+
+# controller_kernel's context words (after the LOOP_* words); it packs the answer into LOOP_OUT
+CK_WORK = 6  # the controller work vector (float64, ControllerStepper.kernel_args)
+CK_N = 8  # state count
+CK_MAT = 9  # step-matrix offset in the work vector
+CK_LIMIT = 10  # output saturation [A], the bits of a float64
+CK_LEAD = 11  # the answer to y[k] is ic[k + lead]
+CK_STATUS_EVERY = 12  # answering y[k] with k % status_every == 0 returns CONTROLLER_STATUS (0: never)
+N_CK = 13
+CONTROLLER_ANSWERED = 1  # LOOP_DONE
+CONTROLLER_STATUS = 2  # answered, and the node has a status to publish
 
 
 @intrinsic
@@ -258,11 +270,16 @@ def plant_kernel(data, size, k, c):
     """plant_sample4 on the buffers of context c (PK_*), for the Sample ic[k] in data[:size]."""
     rows = numba.carray(_pointer(c[PK_R], np.float64), (c[PK_R + 1], 4))
     return plant_sample4(_f8(c, PK_WORK), numba.carray(data, size), k, rows, c[PK_R_FIRST], c[PK_FREE_UNTIL],
-                         _f8(c, PK_LOOP), k - c[PK_BLOCK_START], c[PK_CLOCK_EVERY], _u8(c, PK_OUT))
+                         _f8(c, PK_LOOP), k - c[PK_BLOCK_START], c[PK_CLOCK_EVERY], _u8(c, LOOP_OUT))
 
 
 @numba.cfunc(LOOP_KERNEL, cache=True)
 def controller_kernel(data, size, k, c):
-    """answer_sample4 on the buffers of context c (CK_*), for the Sample y[k] in data[:size]."""
-    return answer_sample4(_f8(c, CK_WORK), c[CK_N], c[CK_MAT], _float_bits(c[CK_LIMIT]), numba.carray(data, size),
-                          k, c[CK_LEAD], _u8(c, CK_OUT))
+    """answer_sample4 on the buffers of context c (CK_*), for the Sample y[k] in data[:size];
+    CONTROLLER_STATUS instead of CONTROLLER_ANSWERED where a status is due."""
+    code = answer_sample4(_f8(c, CK_WORK), c[CK_N], c[CK_MAT], _float_bits(c[CK_LIMIT]), numba.carray(data, size),
+                          k, c[CK_LEAD], _u8(c, LOOP_OUT))
+    every = c[CK_STATUS_EVERY]
+    if code and every > 0 and k % every == 0:
+        return CONTROLLER_STATUS
+    return code

@@ -66,9 +66,11 @@ from ambid_nodes.conversions import (BadMessage, block_msg, check_design, check_
                                      status_msg, time_msg)
 from ambid_nodes.intake import Intake
 from ambid_nodes.loop_call import BoundKernel, ContextArray, ContextWord
-from ambid_nodes.loop_kernels import (N_PK, PK_BLOCK_START, PK_CLOCK_EVERY, PK_FREE_UNTIL, PK_LOOP, PK_OUT, PK_R,
-                                      PK_R_FIRST, PK_WORK, PLANT_AFTER, PLANT_CLIPPED, PLANT_CONTACT, PLANT_KIND,
-                                      PLANT_LOOKUP, PLANT_STEPPED, plant_kernel, plant_loop_vector, sample4_buffer)
+from ambid_nodes.loop_kernels import (LOOP_COUNT, LOOP_GATE, LOOP_K, LOOP_LIMIT, LOOP_NO_LIMIT, LOOP_OUT, N_PK,
+                                      PK_BLOCK_START, PK_CLOCK_EVERY, PK_FREE_UNTIL, PK_LOOP, PK_R, PK_R_FIRST, PK_WORK,
+                                      PLANT_AFTER, PLANT_CLIPPED, PLANT_CONTACT, PLANT_KIND, PLANT_LOOKUP,
+                                      PLANT_STEPPED, plant_kernel, plant_loop_vector, sample4_buffer)
+from ambid_nodes.loop_callback import KernelCallback
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 from ambid_nodes.raw_publish import raw_publisher
 from ambid_nodes.sample_codec import decode_sample, encode_clock, encode_sample, encode_sample4
@@ -92,8 +94,10 @@ RUNNING, DONE, FAILED, IDLE = (SessionStatus.STATE_RUNNING, SessionStatus.STATE_
 FLAG_CLIPPED, FLAG_LANDED = SampleBlock.FLAG_CLIPPED, SampleBlock.FLAG_LANDED
 
 class PlantSim(Node):
-    # what the compiled path reads lives in its context (loop_call): the excitation block in use,
-    # rows r[exc_first + i] = exc_rows[i]; before exc_free_until no sample outside it is excited
+    # what the compiled path reads lives in its context (loop_call): the sample index k the plant
+    # steps next; the excitation block in use, rows r[exc_first + i] = exc_rows[i]; before
+    # exc_free_until no sample outside it is excited
+    k = ContextWord("fast", LOOP_K)
     exc_rows = ContextArray("fast", PK_R, np.float64, 4, writes=False)
     exc_first = ContextWord("fast", PK_R_FIRST)
     exc_free_until = ContextWord("fast", PK_FREE_UNTIL)
@@ -127,7 +131,13 @@ class PlantSim(Node):
         self.sim_work = self.sim.work
         self.dt = self.rig.dt
         self.n_total = int(round(self.sim_seconds / self.dt)) if self.sim_seconds > 0 else None
-        self.last_k = self.n_total - 1 if self.n_total else 2**63  # the final sample's index
+        self.last_k = self.n_total - 1 if self.n_total else LOOP_NO_LIMIT  # the final sample's index
+        # the compiled path: loop_kernels.plant_kernel, run on each control message by the
+        # subscription's compiled callback (its gate open while the loop runs and nothing waits,
+        # k < last_k: the final sample goes the Python way), or called with (message, k)
+        self.fast = BoundKernel(plant_kernel, N_PK)
+        self.fast_step = self.fast.call
+        self.fast.set(LOOP_LIMIT, self.last_k)
 
         self.pub_y = self.create_publisher(Sample, "displacement", qos.LOOP)
         self.publish_y_raw = raw_publisher(self.pub_y)
@@ -139,7 +149,6 @@ class PlantSim(Node):
         self.publish_clock_raw = raw_publisher(self.pub_clock)
         self.intake = Intake(self, self.on_reject, self.on_handler_error)
         self.ic_tally = self.intake.tally("control_current")
-        self.sub_ic = self.create_subscription(Sample, "control_current", self.on_control, qos.LOOP, raw=True)
         self.intake.subscribe(SampleBlock, "excitation", self.on_excitation, qos.BLOCKS)
         self.intake.subscribe(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
 
@@ -151,9 +160,6 @@ class PlantSim(Node):
         # sample ranges [start, end) a design says are excited: the plant waits for their blocks,
         # so where the excitation lands never depends on message timing
         self.excited_ranges: dict[str, tuple[int, int]] = {}
-        # the compiled path, called with (message, k): one C call into loop_kernels.plant_kernel
-        self.fast = BoundKernel(plant_kernel, N_PK)
-        self.fast_step = self.fast.call
         # the excitation block in use: rows for [exc_first, exc_end); before exc_free_until no sample
         # is excited and no block held (both recomputed when designs or blocks arrive or a block ends)
         self.exc_first = self.exc_end = 0
@@ -165,8 +171,13 @@ class PlantSim(Node):
         self.out = sample4_buffer()
         self.fast.bind(PK_WORK, self.sim_work, np.float64)
         self.fast.bind(PK_LOOP, self.lp, np.float64)
-        self.fast.bind(PK_OUT, self.out, np.uint8)
+        self.fast.bind(LOOP_OUT, self.out, np.uint8)
         self.fast.set(PK_CLOCK_EVERY, self.clock_every)
+        self.ic_tally.count_also(self.fast.context[LOOP_COUNT:LOOP_COUNT + 1])
+        # control_current: plant_kernel steps, publishes y[k + 1] and counts in compiled code
+        self.loop = KernelCallback(self, Sample, "control_current", qos.LOOP, self.pub_y, self.fast,
+                                   self.finish_control)
+        self.sub_ic = self.loop.subscription
         self.row_flags: dict[int, int] = {}  # row -> FLAG_* where not 0
         self.buf_start = 0
         self.clipped_samples = 0
@@ -187,6 +198,24 @@ class PlantSim(Node):
         self.watchdog = self.create_timer(min(0.1, self.timeout / 2), self.check_controller)
         self.status_received = -1
         self.create_timer(STATUS_PERIOD_S, self.status_when_idle)
+
+    @property
+    def state(self) -> int:
+        return self._state
+
+    @state.setter
+    def state(self, value: int) -> None:
+        self._state = value
+        self.regate()
+
+    def regate(self) -> None:
+        """Open the compiled callback's gate while it may take the next control message: the loop
+        runs and no current waits for its excitation (run_ready and the state keep it current)."""
+        self.fast.set(LOOP_GATE, int(self._state == RUNNING and not self.ic_ready))
+
+    def destroy_node(self) -> None:
+        self.loop.close()
+        super().destroy_node()
 
     # --- set-up -----------------------------------------------------------
     def publish_description(self) -> None:
@@ -228,17 +257,12 @@ class PlantSim(Node):
         self.y_bytes = encode_sample(self.k, self.cur[0:4].tolist())
         self.publish_y_raw(self.y_bytes)
 
-    def on_control(self, data: bytes) -> None:
-        k = self.k
-        if self.state == RUNNING and not self.ic_ready and k != self.last_k:
-            code = self.fast_step(data, k)
-            if code == PLANT_STEPPED:  # free flight and nothing else due: most samples, kept lean
-                self.k = k + 1
-                self.ic_tally.accepted += 1
-                self.publish_y_raw(self.out)
-                return
-            if code and self.stepped_compiled(k, code, data):
-                return
+    def finish_control(self, data: bytes, code: int) -> None:
+        """A control message the compiled callback did not finish: ``code`` is what plant_kernel
+        returned for sample k (not PLANT_STEPPED: the callback published that one), or NOT_RUN
+        where it did not run (gate closed, the final sample)."""
+        if code > 0 and self.stepped_compiled(self.k, code, data):
+            return
         self.on_control_checked(data)
 
     def stepped_compiled(self, k: int, code: int, data: bytes) -> bool:
@@ -304,14 +328,17 @@ class PlantSim(Node):
     def run_ready(self) -> None:
         """Step every sample whose current (and excitation, where a design excites it) is here."""
         ready = self.ic_ready
-        while ready and self.state == RUNNING:
-            k = self.k
-            exc = self.excitation_rows(k)
-            if exc is None:
-                return  # waiting for the excitation generator; on_excitation resumes
-            self.step_and_record(ready.pop(0), exc[0][exc[1]], 0, final=k == self.last_k)
-            if k == self.last_k:
-                self.finish(DONE)
+        try:
+            while ready and self.state == RUNNING:
+                k = self.k
+                exc = self.excitation_rows(k)
+                if exc is None:
+                    return  # waiting for the excitation generator; on_excitation resumes
+                self.step_and_record(ready.pop(0), exc[0][exc[1]], 0, final=k == self.last_k)
+                if k == self.last_k:
+                    self.finish(DONE)
+        finally:
+            self.regate()
 
     def excitation_rows(self, k: int) -> tuple[np.ndarray, int] | None:
         """(rows, i) with r[k] = rows[i] [A]: the block in use, or zeros where no design excites k;
@@ -477,6 +504,7 @@ class PlantSim(Node):
                    f"failed at sample {k}, every sample before it recorded (simulated time stood still while "
                    "the plant waited)")
         self.ic_ready.clear()
+        self.regate()
         self.flush_block(final=True)
         self.finish(FAILED)
 

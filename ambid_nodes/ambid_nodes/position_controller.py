@@ -52,9 +52,11 @@ from ambid.controller import ControllerStepper, PidParameters, pid_controller, p
 from ambid.lqg import LqgParameters, lqg_controller
 from ambid.rig import load_rig, make_rig
 from ambid_nodes import qos
-from ambid_nodes.loop_call import BoundKernel
-from ambid_nodes.loop_kernels import (CK_LEAD, CK_LIMIT, CK_MAT, CK_N, CK_OUT, CK_WORK, N_CK, controller_kernel,
-                                      sample4_buffer)
+from ambid_nodes.loop_call import BoundKernel, ContextWord
+from ambid_nodes.loop_kernels import (CK_LEAD, CK_LIMIT, CK_MAT, CK_N, CK_STATUS_EVERY, CK_WORK, CONTROLLER_STATUS,
+                                      LOOP_COUNT, LOOP_GATE, LOOP_K, LOOP_LIMIT, LOOP_NO_LIMIT, LOOP_OUT, N_CK,
+                                      controller_kernel, sample4_buffer)
+from ambid_nodes.loop_callback import KernelCallback
 from ambid_nodes.conversions import BadMessage, statespace_to_msg, status_msg, time_msg
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
@@ -66,6 +68,9 @@ RUNNING = SessionStatus.STATE_RUNNING  # read once: rosidl constants are class p
 
 
 class PositionController(Node):
+    # the next displacement index awaited (None: no session), in the compiled path's context
+    expected = ContextWord("fast", LOOP_K, none=-1)
+
     def __init__(self, **kwargs) -> None:
         super().__init__("position_controller", **kwargs)
         rig_file = declare(self, "rig_file", "", "YAML rig parameter file used for the stability check")
@@ -114,20 +119,25 @@ class PositionController(Node):
         self.pipelined = bool(pipeline) and self.stepper.strictly_proper
         self.lead = int(self.pipelined)  # y[k] is answered with ic[k + lead]
         self.first_answers: list[bytes] = []  # the answers to y[0], sent again if the plant repeats y[0]
-        # the compiled path, called with (message, k): one C call into loop_kernels.controller_kernel
-        # on the stepper's work vector (bound again with each session's stepper)
+        # the compiled path: loop_kernels.controller_kernel on the stepper's work vector (bound again
+        # with each session's stepper), run on each displacement by the subscription's compiled
+        # callback while a session runs
         self.fast = BoundKernel(controller_kernel, N_CK)
-        self.answer = self.fast.call
         self.out = sample4_buffer()  # the compiled path's answer, published as it is
-        self.fast.bind(CK_OUT, self.out, np.uint8)
+        self.fast.bind(LOOP_OUT, self.out, np.uint8)
+        self.fast.set(LOOP_LIMIT, LOOP_NO_LIMIT)
         self.fast.set(CK_LEAD, self.lead)
+        self.fast.set(CK_STATUS_EVERY, STATUS_EVERY)
         self.bind_stepper()
         self.pub_desc = self.create_publisher(ControllerDescription, "controller/description", qos.LATCHED)
         self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
         self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
         self.intake = Intake(self, self.on_reject, self.on_handler_error)
         self.y_tally = self.intake.tally("displacement")
-        self.create_subscription(Sample, "displacement", self.on_displacement, qos.LOOP, raw=True)
+        self.y_tally.count_also(self.fast.context[LOOP_COUNT:LOOP_COUNT + 1])
+        # displacement: controller_kernel steps, publishes the answer and counts in compiled code
+        self.loop = KernelCallback(self, Sample, "displacement", qos.LOOP, self.pub_ic, self.fast,
+                                   self.finish_displacement)
         # the plant's status says whether its silence is the end of its run; a deep queue so no
         # other node's status can push the plant's last one out before it is read
         self.intake.subscribe(SessionStatus, "status", self.on_status, QoSProfile(
@@ -148,15 +158,28 @@ class PositionController(Node):
             delay_samples=delay_samples, model=statespace_to_msg(self.model),
             current_limit=[pid.current_limit_a] * 4, parameters_json=json.dumps(params_json)))
 
-    def on_displacement(self, data: bytes) -> None:
-        k = self.expected
-        if self.state == RUNNING and self.answer(data, k):
-            # the awaited, valid sample: stepped and answered in one compiled call
+    @property
+    def state(self) -> int:
+        return self._state
+
+    @state.setter
+    def state(self, value: int) -> None:
+        self._state = value
+        self.fast.set(LOOP_GATE, int(value == RUNNING))  # the compiled callback runs the kernel meanwhile
+
+    def destroy_node(self) -> None:
+        self.loop.close()
+        super().destroy_node()
+
+    def finish_displacement(self, data: bytes, code: int) -> None:
+        """A displacement the compiled callback did not finish: ``code`` is what controller_kernel
+        returned for the awaited index (CONTROLLER_ANSWERED it published itself), or NOT_RUN
+        while no session runs."""
+        if code == CONTROLLER_STATUS:  # answered, and a status is due
             self.y_tally.accepted += 1
-            self.expected = k + 1
+            self.expected += 1
             self.publish_ic(self.out)
-            if k % STATUS_EVERY == 0:
-                self.publish_status()
+            self.publish_status()
             return
         self.on_displacement_checked(data)
 

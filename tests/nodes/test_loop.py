@@ -19,6 +19,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile
 
 from ambid_nodes import qos
 from ambid_nodes.conversions import block_data
+from ambid_nodes.loop_kernels import LOOP_COUNT, LOOP_GATE
 from ambid_nodes.parameters import ParameterError
 from ambid_nodes.plant_sim import MEASUREMENT_NAMES, PlantSim
 from ambid_nodes.position_controller import PositionController
@@ -105,6 +106,36 @@ def test_pipelined_controller_gives_the_same_samples_as_lock_step_answers(ros):
         assert ros.spin_until(lambda: len(spy.ic_idx) == 3000 + pipeline, timeout_s=5)
         assert spy.ic_idx == list(range(3000 + pipeline))
         runs[pipeline] = np.vstack([block_data(b, MEASUREMENT_NAMES) for b in spy.blocks])
+        for node in (spy, plant, ctrl):
+            ros.executor.remove_node(node)
+            node.destroy_node()
+    assert np.array_equal(runs[True], runs[False])
+    assert np.abs(runs[True][:, 8:12]).max() > 0.1  # the controller did carry the rotor
+
+
+def test_compiled_callbacks_give_the_same_samples_as_the_python_path(ros, monkeypatch):
+    """The kernels the subscription callbacks run and the nodes' Python path record the same numbers."""
+    runs = {}
+    for compiled in (True, False):
+        if not compiled:  # the gates stay closed: every message goes the Python way
+            monkeypatch.setattr(PlantSim, "regate", lambda self: self.fast.set(LOOP_GATE, 0))
+            monkeypatch.setattr(PositionController, "state", property(
+                lambda self: self._state, lambda self, value: setattr(self, "_state", value)))
+        spy = ros.add(Spy(ros.context))
+        plant = ros.add(PlantSim(namespace=NS, context=ros.context, parameter_overrides=[
+            Parameter("sim_seconds", value=0.3), Parameter("seed", value=5), Parameter("block_size", value=1000)]))
+        ctrl = ros.add(PositionController(namespace=NS, context=ros.context))
+        assert ros.spin_until(plant.finished.done, timeout_s=120)
+        summary = plant.finished.result()
+        assert summary["messages_rejected"] == 0 and summary["accepted:control_current"] >= 3000
+        # the compiled callbacks answered nearly every message, or none
+        answered = (int(plant.fast.context[LOOP_COUNT]), int(ctrl.fast.context[LOOP_COUNT]))
+        if compiled:
+            assert min(answered) > 2900, answered
+        else:
+            assert answered == (0, 0)
+        assert ros.spin_until(lambda: sum(b.n_samples for b in spy.blocks) == 3000, timeout_s=10)
+        runs[compiled] = np.vstack([block_data(b, MEASUREMENT_NAMES) for b in spy.blocks])
         for node in (spy, plant, ctrl):
             ros.executor.remove_node(node)
             node.destroy_node()

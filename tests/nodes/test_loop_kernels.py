@@ -13,8 +13,8 @@ from ambid.controller import ControllerStepper, PidParameters, pid_controller
 from ambid.lqg import LqgParameters, lqg_controller
 from ambid.rig import make_rig
 from ambid_nodes.loop_call import BoundKernel
-from ambid_nodes.loop_kernels import (CK_LEAD, CK_LIMIT, CK_MAT, CK_N, CK_OUT, CK_WORK, N_CK, N_PK, PK_BLOCK_START,
-                                      PK_CLOCK_EVERY, PK_FREE_UNTIL, PK_LOOP, PK_OUT, PK_R, PK_R_FIRST, PK_WORK,
+from ambid_nodes.loop_kernels import (CK_LEAD, CK_LIMIT, CK_MAT, CK_N, CK_WORK, N_CK, N_PK, PK_BLOCK_START,
+                                      PK_CLOCK_EVERY, PK_FREE_UNTIL, PK_LOOP, LOOP_OUT, PK_R, PK_R_FIRST, PK_WORK,
                                       controller_kernel, plant_kernel, sample4_buffer)
 from ambid_nodes.sample_codec import encode_sample, encode_sample4
 
@@ -30,7 +30,7 @@ def controller_call(stepper: ControllerStepper, ahead: bool, out: bytearray):
     w, n, mat, limit = stepper.kernel_args(ahead)
     fast = BoundKernel(controller_kernel, N_CK)
     fast.bind(CK_WORK, w, np.float64)
-    fast.bind(CK_OUT, out, np.uint8)
+    fast.bind(LOOP_OUT, out, np.uint8)
     fast.set(CK_N, n)
     fast.set(CK_MAT, mat)
     fast.set_float(CK_LIMIT, limit)
@@ -102,7 +102,7 @@ def test_compiled_plant_sample_is_the_python_step():
     kernel = BoundKernel(plant_kernel, N_PK)  # bound as plant_sim binds it
     kernel.bind(PK_WORK, fast.work, np.float64)
     kernel.bind(PK_LOOP, lp, np.float64)
-    kernel.bind(PK_OUT, out, np.uint8)
+    kernel.bind(LOOP_OUT, out, np.uint8)
     kernel.set(PK_CLOCK_EVERY, clock_every)
 
     def plant_sample4(data, k, rows, first, free_until, block_start):
@@ -170,7 +170,7 @@ def test_a_bound_kernel_refuses_what_its_kernel_would_misread():
     fast.bind(CK_WORK, ro, np.float64, 4, writes=False)  # the kernel only reads it: fine
     assert fast.context[CK_WORK] == ro.ctypes.data and fast.context[CK_WORK + 1] == 2
     out = sample4_buffer()
-    fast.bind(CK_OUT, out, np.uint8)
+    fast.bind(LOOP_OUT, out, np.uint8)
     with pytest.raises(BufferError):
         out.extend(b"x")  # a bound bytearray cannot move under the kernel
     with pytest.raises(TypeError, match="two positional arguments"):
