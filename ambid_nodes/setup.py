@@ -35,11 +35,11 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
     ],
-    # the loop nodes' per-sample kernel call and their compiled subscription callback (see the C
-    # files): they need a C compiler and Python's headers, the callback also rcl's headers and libraries
+    # the loop nodes' per-sample kernel call and their message pump (see the C
+    # files): they need a C compiler and Python's headers, the pump also rcl's headers and libraries
     ext_modules=[
         Extension("ambid_nodes._loop_call", ["ambid_nodes/_loop_call.c"], extra_compile_args=["-O2"]),
-        Extension("ambid_nodes._loop_callback", ["ambid_nodes/_loop_callback.c"], extra_compile_args=["-O2"],
+        Extension("ambid_nodes._loop_pump", ["ambid_nodes/_loop_pump.c"], extra_compile_args=["-O2"],
                   include_dirs=ROS_INCLUDES, libraries=["rcl", "rmw", "rcutils"],
                   library_dirs=[os.path.join(r, "lib") for r in ROS]),
     ],

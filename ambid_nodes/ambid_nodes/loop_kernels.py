@@ -197,11 +197,11 @@ def plant_sample4(s: np.ndarray, data: bytes, expected: int, r_rows: np.ndarray,
 # int64 kernel(const uint8 *data, int64 size, int64 k, int64 *context): what loop_call.LoopCall calls
 LOOP_KERNEL = types.int64(types.CPointer(types.uint8), types.int64, types.int64, types.CPointer(types.int64))
 
-# the words every loop kernel's context starts with: what the compiled callback (_loop_callback.c) reads
+# the words every loop kernel's context starts with: what the loop pump (_loop_pump.c) reads
 LOOP_K = 0  # the sample index the next message must carry, passed to the kernel as k
-LOOP_GATE = 1  # 0: the callback hands every message to the node's Python path
-LOOP_LIMIT = 2  # the callback runs the kernel only for k < limit
-LOOP_COUNT = 3  # messages the callback answered (accepted; the node's tally counts them too)
+LOOP_GATE = 1  # 0: the pump hands every message to the node's Python path
+LOOP_LIMIT = 2  # the pump runs the kernel only for k < limit
+LOOP_COUNT = 3  # messages the pump answered (accepted; the node's tally counts them too)
 LOOP_OUT = 4  # the bytes the kernel packs its answer into (uint8), published when it returns LOOP_DONE
 N_LOOP = 6
 LOOP_DONE = 1  # the kernel took the message and packed the answer; nothing else to do

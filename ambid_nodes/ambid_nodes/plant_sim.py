@@ -70,7 +70,7 @@ from ambid_nodes.loop_kernels import (LOOP_COUNT, LOOP_GATE, LOOP_K, LOOP_LIMIT,
                                       PK_BLOCK_START, PK_CLOCK_EVERY, PK_FREE_UNTIL, PK_LOOP, PK_R, PK_R_FIRST, PK_WORK,
                                       PLANT_AFTER, PLANT_CLIPPED, PLANT_CONTACT, PLANT_KIND, PLANT_LOOKUP,
                                       PLANT_STEPPED, plant_kernel, plant_loop_vector, sample4_buffer)
-from ambid_nodes.loop_callback import KernelCallback
+from ambid_nodes.loop_pump import LoopEntry
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 from ambid_nodes.raw_publish import raw_publisher
 from ambid_nodes.sample_codec import decode_sample, encode_clock, encode_sample, encode_sample4
@@ -133,7 +133,7 @@ class PlantSim(Node):
         self.n_total = int(round(self.sim_seconds / self.dt)) if self.sim_seconds > 0 else None
         self.last_k = self.n_total - 1 if self.n_total else LOOP_NO_LIMIT  # the final sample's index
         # the compiled path: loop_kernels.plant_kernel, run on each control message by the
-        # subscription's compiled callback (its gate open while the loop runs and nothing waits,
+        # loop pump (its gate open while the loop runs and nothing waits,
         # k < last_k: the final sample goes the Python way), or called with (message, k)
         self.fast = BoundKernel(plant_kernel, N_PK)
         self.fast_step = self.fast.call
@@ -174,8 +174,8 @@ class PlantSim(Node):
         self.fast.bind(LOOP_OUT, self.out, np.uint8)
         self.fast.set(PK_CLOCK_EVERY, self.clock_every)
         self.ic_tally.count_also(self.fast.context[LOOP_COUNT:LOOP_COUNT + 1])
-        # control_current: plant_kernel steps, publishes y[k + 1] and counts in compiled code
-        self.loop = KernelCallback(self, Sample, "control_current", qos.LOOP, self.pub_y, self.fast,
+        # control_current: the loop pump runs plant_kernel, publishes y[k + 1] and counts in compiled code
+        self.loop = LoopEntry(self, Sample, "control_current", qos.LOOP, self.pub_y, self.fast,
                                    self.finish_control)
         self.sub_ic = self.loop.subscription
         self.row_flags: dict[int, int] = {}  # row -> FLAG_* where not 0
@@ -209,7 +209,7 @@ class PlantSim(Node):
         self.regate()
 
     def regate(self) -> None:
-        """Open the compiled callback's gate while it may take the next control message: the loop
+        """Open the loop pump's gate while it may take the next control message: the loop
         runs and no current waits for its excitation (run_ready and the state keep it current)."""
         self.fast.set(LOOP_GATE, int(self._state == RUNNING and not self.ic_ready))
 
@@ -258,8 +258,8 @@ class PlantSim(Node):
         self.publish_y_raw(self.y_bytes)
 
     def finish_control(self, data: bytes, code: int) -> None:
-        """A control message the compiled callback did not finish: ``code`` is what plant_kernel
-        returned for sample k (not PLANT_STEPPED: the callback published that one), or NOT_RUN
+        """A control message the loop pump's kernel did not finish: ``code`` is what plant_kernel
+        returned for sample k (not PLANT_STEPPED: the pump published that one), or NOT_RUN
         where it did not run (gate closed, the final sample)."""
         if code > 0 and self.stepped_compiled(self.k, code, data):
             return

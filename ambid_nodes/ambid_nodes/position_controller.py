@@ -56,7 +56,7 @@ from ambid_nodes.loop_call import BoundKernel, ContextWord
 from ambid_nodes.loop_kernels import (CK_LEAD, CK_LIMIT, CK_MAT, CK_N, CK_STATUS_EVERY, CK_WORK, CONTROLLER_STATUS,
                                       LOOP_COUNT, LOOP_GATE, LOOP_K, LOOP_LIMIT, LOOP_NO_LIMIT, LOOP_OUT, N_CK,
                                       controller_kernel, sample4_buffer)
-from ambid_nodes.loop_callback import KernelCallback
+from ambid_nodes.loop_pump import LoopEntry
 from ambid_nodes.conversions import BadMessage, statespace_to_msg, status_msg, time_msg
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
@@ -135,8 +135,8 @@ class PositionController(Node):
         self.intake = Intake(self, self.on_reject, self.on_handler_error)
         self.y_tally = self.intake.tally("displacement")
         self.y_tally.count_also(self.fast.context[LOOP_COUNT:LOOP_COUNT + 1])
-        # displacement: controller_kernel steps, publishes the answer and counts in compiled code
-        self.loop = KernelCallback(self, Sample, "displacement", qos.LOOP, self.pub_ic, self.fast,
+        # displacement: the loop pump runs controller_kernel, publishes the answer and counts in compiled code
+        self.loop = LoopEntry(self, Sample, "displacement", qos.LOOP, self.pub_ic, self.fast,
                                    self.finish_displacement)
         # the plant's status says whether its silence is the end of its run; a deep queue so no
         # other node's status can push the plant's last one out before it is read
@@ -165,15 +165,15 @@ class PositionController(Node):
     @state.setter
     def state(self, value: int) -> None:
         self._state = value
-        self.fast.set(LOOP_GATE, int(value == RUNNING))  # the compiled callback runs the kernel meanwhile
+        self.fast.set(LOOP_GATE, int(value == RUNNING))  # the loop pump runs the kernel meanwhile
 
     def destroy_node(self) -> None:
         self.loop.close()
         super().destroy_node()
 
     def finish_displacement(self, data: bytes, code: int) -> None:
-        """A displacement the compiled callback did not finish: ``code`` is what controller_kernel
-        returned for the awaited index (CONTROLLER_ANSWERED it published itself), or NOT_RUN
+        """A displacement the loop pump's kernel did not finish: ``code`` is what controller_kernel
+        returned for the awaited index (CONTROLLER_ANSWERED the pump published itself), or NOT_RUN
         while no session runs."""
         if code == CONTROLLER_STATUS:  # answered, and a status is due
             self.y_tally.accepted += 1
