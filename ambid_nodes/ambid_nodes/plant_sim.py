@@ -132,9 +132,9 @@ class PlantSim(Node):
         self.dt = self.rig.dt
         self.n_total = int(round(self.sim_seconds / self.dt)) if self.sim_seconds > 0 else None
         self.last_k = self.n_total - 1 if self.n_total else LOOP_NO_LIMIT  # the final sample's index
-        # the compiled path: loop_kernels.plant_kernel, run on each control message by the
-        # loop pump (its gate open while the loop runs and nothing waits,
-        # k < last_k: the final sample goes the Python way), or called with (message, k)
+        # the compiled path: loop_kernels.plant_kernel, run on each control message by the loop
+        # pump (its gate open while the loop runs and nothing waits; k < last_k: the final sample
+        # goes the Python way), or called with (message, k)
         self.fast = BoundKernel(plant_kernel, N_PK)
         self.fast_step = self.fast.call
         self.fast.set(LOOP_LIMIT, self.last_k)
@@ -176,7 +176,7 @@ class PlantSim(Node):
         self.ic_tally.count_also(self.fast.context[LOOP_COUNT:LOOP_COUNT + 1])
         # control_current: the loop pump runs plant_kernel, publishes y[k + 1] and counts in compiled code
         self.loop = LoopEntry(self, Sample, "control_current", qos.LOOP, self.pub_y, self.fast,
-                                   self.finish_control)
+                              self.finish_control)
         self.sub_ic = self.loop.subscription
         self.row_flags: dict[int, int] = {}  # row -> FLAG_* where not 0
         self.buf_start = 0

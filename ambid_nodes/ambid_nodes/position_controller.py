@@ -120,8 +120,7 @@ class PositionController(Node):
         self.lead = int(self.pipelined)  # y[k] is answered with ic[k + lead]
         self.first_answers: list[bytes] = []  # the answers to y[0], sent again if the plant repeats y[0]
         # the compiled path: loop_kernels.controller_kernel on the stepper's work vector (bound again
-        # with each session's stepper), run on each displacement by the subscription's compiled
-        # callback while a session runs
+        # with each session's stepper), run on each displacement by the loop pump while a session runs
         self.fast = BoundKernel(controller_kernel, N_CK)
         self.out = sample4_buffer()  # the compiled path's answer, published as it is
         self.fast.bind(LOOP_OUT, self.out, np.uint8)
@@ -137,7 +136,7 @@ class PositionController(Node):
         self.y_tally.count_also(self.fast.context[LOOP_COUNT:LOOP_COUNT + 1])
         # displacement: the loop pump runs controller_kernel, publishes the answer and counts in compiled code
         self.loop = LoopEntry(self, Sample, "displacement", qos.LOOP, self.pub_ic, self.fast,
-                                   self.finish_displacement)
+                              self.finish_displacement)
         # the plant's status says whether its silence is the end of its run; a deep queue so no
         # other node's status can push the plant's last one out before it is read
         self.intake.subscribe(SessionStatus, "status", self.on_status, QoSProfile(
