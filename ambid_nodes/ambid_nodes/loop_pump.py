@@ -40,7 +40,7 @@ KICK_TOPIC = "~/_loop_pump_kick"
 KICK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.VOLATILE)
 
-__all__ = ["BUDGET", "NOT_RUN", "Entry", "LoopEntry", "Pump", "pump_of"]
+__all__ = ["BUDGET", "NOT_RUN", "Entry", "GatingState", "LoopEntry", "Pump", "pump_of"]
 
 
 def pump_of(context) -> Pump:
@@ -49,6 +49,21 @@ def pump_of(context) -> Pump:
     if pump is None:
         pump = _PUMPS[context] = Pump(BUDGET)
     return pump
+
+
+class GatingState:
+    """A node's state attribute whose every assignment also calls ``node.regate()``, which sets the
+    gate word of its loop kernel (the pump runs the kernel only while the state allows it)."""
+
+    def __set_name__(self, owner, name: str) -> None:
+        self.attr = "_" + name
+
+    def __get__(self, obj, objtype=None):
+        return self if obj is None else getattr(obj, self.attr)
+
+    def __set__(self, obj, value) -> None:
+        setattr(obj, self.attr, value)
+        obj.regate()
 
 
 class LoopEntry:

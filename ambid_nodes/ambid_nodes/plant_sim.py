@@ -70,7 +70,7 @@ from ambid_nodes.loop_kernels import (LOOP_COUNT, LOOP_GATE, LOOP_K, LOOP_LIMIT,
                                       PK_BLOCK_START, PK_CLOCK_EVERY, PK_FREE_UNTIL, PK_LOOP, PK_R, PK_R_FIRST, PK_WORK,
                                       PLANT_AFTER, PLANT_CLIPPED, PLANT_CONTACT, PLANT_KIND, PLANT_LOOKUP,
                                       PLANT_STEPPED, plant_kernel, plant_loop_vector, sample4_buffer)
-from ambid_nodes.loop_pump import LoopEntry
+from ambid_nodes.loop_pump import GatingState, LoopEntry
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 from ambid_nodes.raw_publish import raw_publisher
 from ambid_nodes.sample_codec import decode_sample, encode_clock, encode_sample, encode_sample4
@@ -98,6 +98,7 @@ class PlantSim(Node):
     # steps next; the excitation block in use, rows r[exc_first + i] = exc_rows[i]; before
     # exc_free_until no sample outside it is excited
     k = ContextWord("fast", LOOP_K)
+    state = GatingState()  # each assignment sets the loop pump's gate (regate)
     exc_rows = ContextArray("fast", PK_R, np.float64, 4, writes=False)
     exc_first = ContextWord("fast", PK_R_FIRST)
     exc_free_until = ContextWord("fast", PK_FREE_UNTIL)
@@ -198,15 +199,6 @@ class PlantSim(Node):
         self.watchdog = self.create_timer(min(0.1, self.timeout / 2), self.check_controller)
         self.status_received = -1
         self.create_timer(STATUS_PERIOD_S, self.status_when_idle)
-
-    @property
-    def state(self) -> int:
-        return self._state
-
-    @state.setter
-    def state(self, value: int) -> None:
-        self._state = value
-        self.regate()
 
     def regate(self) -> None:
         """Open the loop pump's gate while it may take the next control message: the loop

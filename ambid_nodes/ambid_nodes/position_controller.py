@@ -56,7 +56,7 @@ from ambid_nodes.loop_call import BoundKernel, ContextWord
 from ambid_nodes.loop_kernels import (CK_LEAD, CK_LIMIT, CK_MAT, CK_N, CK_STATUS_EVERY, CK_WORK, CONTROLLER_STATUS,
                                       LOOP_COUNT, LOOP_GATE, LOOP_K, LOOP_LIMIT, LOOP_NO_LIMIT, LOOP_OUT, N_CK,
                                       controller_kernel, sample4_buffer)
-from ambid_nodes.loop_pump import LoopEntry
+from ambid_nodes.loop_pump import GatingState, LoopEntry
 from ambid_nodes.conversions import BadMessage, statespace_to_msg, status_msg, time_msg
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
@@ -70,6 +70,7 @@ RUNNING = SessionStatus.STATE_RUNNING  # read once: rosidl constants are class p
 class PositionController(Node):
     # the next displacement index awaited (None: no session), in the compiled path's context
     expected = ContextWord("fast", LOOP_K, none=-1)
+    state = GatingState()  # each assignment sets the loop pump's gate (regate)
 
     def __init__(self, **kwargs) -> None:
         super().__init__("position_controller", **kwargs)
@@ -157,14 +158,9 @@ class PositionController(Node):
             delay_samples=delay_samples, model=statespace_to_msg(self.model),
             current_limit=[pid.current_limit_a] * 4, parameters_json=json.dumps(params_json)))
 
-    @property
-    def state(self) -> int:
-        return self._state
-
-    @state.setter
-    def state(self, value: int) -> None:
-        self._state = value
-        self.fast.set(LOOP_GATE, int(value == RUNNING))  # the loop pump runs the kernel meanwhile
+    def regate(self) -> None:
+        """The loop pump runs the kernel while a session runs."""
+        self.fast.set(LOOP_GATE, int(self._state == RUNNING))
 
     def destroy_node(self) -> None:
         self.loop.close()
