@@ -4,28 +4,28 @@
  * answer. Through rclpy each costs an executor dispatch, a Python callback and
  * a publish call, several times the work of the compiled kernels
  * (loop_kernels.py). A Pump runs the loop nodes' kernels on the messages
- * itself: given a message for one of its entries, it runs that entry's kernel,
- * publishes the answer with rcl, and then takes the next message from any
- * entry's subscription with rcl directly, until none is waiting or it has
- * taken `budget` messages. Composed in one process, Fast DDS hands a message
- * to a subscription of the same process during the publish call, so the plant
- * and controller answer each other without leaving this loop; as separate
+ * itself: it takes a message from an entry's subscription with rcl, runs the
+ * entry's kernel, publishes the answer with rcl, and goes on with the next
+ * message of any entry, until none is waiting or it has taken `budget`
+ * messages. Composed in one process, Fast DDS hands a message to a
+ * subscription of the same process during the publish call, so the plant and
+ * controller answer each other without leaving this loop; as separate
  * processes each process's pump takes its one message and returns.
  *
- * It runs on the executor's thread, inside the subscription callback: nothing
- * else of the node runs meanwhile (no locks, no second thread). The executor
- * still gets an event per message, and those for the messages the pump took
- * find nothing to take and call nothing. After `budget` messages the pump
- * takes every message then waiting (two, with a pipelined controller), holds
- * them and calls the first one's entry's kick() (unless a kick is already on
- * its way: each would start a run of its own), which makes the executor
- * call entry.resume() after the events queued so far: timers, services and
- * other subscribers (of the loop topics too) get their turn, in order. A
- * message left waiting instead would be taken by the first of those stale
- * events, restarting the pump ahead of everything else queued; the events
- * would pile up without bound and the other subscribers would lose messages.
- * A subscriber of the loop topics in the same process gets up to budget / 2
- * messages per turn: its queue must be at least that deep (qos.LOOP: 100).
+ * The entries' subscriptions are not the executor's: rmw tells the pump of a
+ * new message through the subscription's new-message callback, on the thread
+ * that delivers it (the publisher's, or a Fast DDS receive thread). While the
+ * pump runs it takes that message anyway; otherwise the callback sends a
+ * kick, a message on the entry's hidden kick topic, which the node subscribes
+ * to through the executor and whose callback calls entry.resume(). So the
+ * pump always runs on the executor's thread, in order with everything else
+ * queued there, and nothing else of the nodes runs meanwhile (no locks on
+ * their state). One kick at a time: each would start a run of its own. After
+ * `budget` messages the pump takes every message then waiting (two, with a
+ * pipelined controller), holds them and kicks: timers, services and other
+ * subscribers (of the loop topics too) get their turn first. A subscriber of
+ * the loop topics in the same process gets up to budget / 2 messages per
+ * turn: its queue must be at least that deep (qos.LOOP: 100).
  *
  * An entry's kernel has the type of loop_call.LoopCall's and reads the words
  * of its context (loop_kernels.LOOP_*):
@@ -40,16 +40,19 @@
  * handler(data: bytes, code: int) on this thread, which does the rest in Python.
  *
  *     Pump(budget)
- *     pump.add(subscription, publisher, kernel, context, handler, kick) -> Entry
- *         subscription, publisher: rcl_subscription_t / rcl_publisher_t addresses (rclpy's
- *         handle.pointer; the caller keeps the handles alive until entry.close())
- *         kernel: address of the cfunc; context: writable C-contiguous int64 buffer
- *     entry(data)     the subscription's callback: run the pump from this message
- *     entry.resume()  run the pump from the messages it holds, if any
- *     entry.close()   remove it from the pump (idempotent; drops messages held for it)
+ *     pump.add(subscription, publisher, kernel, context, handler, kick_publisher, kick, keep) -> Entry
+ *         subscription, publisher, kick_publisher: rcl_subscription_t / rcl_publisher_t
+ *         addresses (rclpy's handle.pointer; the caller keeps the handles alive until
+ *         entry.close()); the subscription must be no executor's (the pump sets its
+ *         new-message callback); kernel: the cfunc's address; context: a writable
+ *         C-contiguous int64 buffer; kick: the serialised kick message (bytes);
+ *         keep: held until the entry goes (the rclpy objects owning those addresses)
+ *     entry.resume()  the kick's callback: run the pump (held messages first)
+ *     entry.close()   out of the pump, its callback cleared (idempotent; drops messages held for it)
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <stdatomic.h>
 #include <stdint.h>
 #include <string.h>
 
@@ -80,14 +83,16 @@ typedef struct {
 
 struct Entry {
     PyObject_HEAD
-    vectorcallfunc vectorcall;
     Pump *pump;  /* NULL once closed */
     rcl_subscription_t *subscription;
     rcl_publisher_t *publisher;
     loop_kernel kernel;
     Py_buffer context;
     PyObject *handler;
-    PyObject *kick;
+    rcl_publisher_t *kick_publisher;
+    rcl_serialized_message_t kick;  /* its buffer: a copy the entry owns */
+    int listening;  /* its new-message callback is set */
+    PyObject *keep;  /* the rclpy handles of the addresses: alive while the entry is (not traversed) */
 };
 
 struct Pump {
@@ -97,11 +102,12 @@ struct Pump {
     Py_ssize_t capacity;
     uint64_t generation;  /* changes with the entries: a handler may close one */
     long budget;
-    int running;
+    atomic_int running;  /* a run is on (on the executor's thread) */
+    atomic_int arrived;  /* a message came while it ran: look again before stopping */
+    atomic_int kicked;  /* a kick is on its way */
     rcl_serialized_message_t message;  /* what the last take got */
     Held *held;  /* taken at the budget: every message then waiting, in the order taken */
     Py_ssize_t n_held, held_capacity;
-    Entry *kicked;  /* borrowed: the entry whose kick is on its way, NULL: none */
     unsigned long long taken, holds;  /* messages it took itself; runs it ended holding one */
 };
 
@@ -114,6 +120,32 @@ rcl_failure(const char *what)
     PyErr_Format(PyExc_RuntimeError, "loop pump: %s failed: %s", what, rcl_get_error_string().str);
     rcl_reset_error();
     return NULL;
+}
+
+/* Send e's kick unless one is on its way; any thread, no GIL. */
+static void
+kick_once(Pump *p, Entry *e)
+{
+    if (atomic_exchange(&p->kicked, 1)) {
+        return;
+    }
+    if (rcl_publish_serialized_message(e->kick_publisher, &e->kick, NULL) != RCL_RET_OK) {
+        rcl_reset_error();  /* the context is going: nothing left to resume */
+        atomic_store(&p->kicked, 0);
+    }
+}
+
+/* rmw's new-message callback of an entry's subscription, on the thread that delivers the message. */
+static void
+on_new_message(const void *user_data, size_t number_of_events)
+{
+    (void)number_of_events;
+    Entry *e = (Entry *)user_data;
+    Pump *p = e->pump;  /* set while the callback is (entry_detach clears the callback first) */
+    atomic_store(&p->arrived, 1);
+    if (!atomic_load(&p->running)) {
+        kick_once(p, e);
+    }
 }
 
 /* Run e's kernel on one message, publish where it completed; 0, or -1 with an exception set. */
@@ -224,87 +256,67 @@ hold_waiting(Pump *p, Py_ssize_t at)
         return 0;
     }
     p->holds++;
-    if (p->kicked != NULL) {  /* one kick at a time: each would start a run of its own */
-        return 0;
-    }
-    p->kicked = p->held[0].entry;
-    PyObject *result = PyObject_CallNoArgs(p->kicked->kick);
-    Py_XDECREF(result);
-    return result == NULL ? -1 : 0;
+    kick_once(p, p->held[0].entry);
+    return 0;
 }
 
-/* The pump from the held messages (if any), then `first`'s message (if given), then what waits. */
+/* The pump from the held messages (if any), then what waits, starting after entry `from`. */
 static PyObject *
-pump_run(Pump *p, Entry *first, const uint8_t *data, size_t size, PyObject *message)
+pump_run(Pump *p, Entry *from)
 {
     Py_INCREF(p);
-    p->running = 1;
+    atomic_store(&p->running, 1);
+    atomic_store(&p->arrived, 0);
     int err = 0;
-    Entry *last = first;
+    Entry *last = from;
     Py_ssize_t n_held = p->n_held;
     p->n_held = 0;
-    for (Py_ssize_t i = 0; !err && i < n_held; i++) {  /* taken before `first`'s message: they go first */
+    for (Py_ssize_t i = 0; !err && i < n_held; i++) {  /* taken before anything waiting now */
         Held *h = &p->held[i];
         if (h->entry != NULL) {
             last = h->entry;
             err = step_entry(h->entry, h->message.buffer, h->message.buffer_length, NULL);
         }
     }
-    if (!err && first != NULL) {
-        last = first;
-        err = step_entry(first, data, size, message);
-    }
     Py_ssize_t at = last != NULL ? entry_index(p, last) : -1;
     uint64_t generation = p->generation;
-    for (long taken = 0; !err && at >= 0 && p->budget > 0 && p->generation == generation; taken++) {
+    for (long taken = 0; !err && at >= 0 && p->generation == generation; taken++) {
         if (taken >= p->budget) {  /* hold what waits and let the executor have its turn */
             err = hold_waiting(p, at);
             break;
         }
-        at = take_into(p, at, &p->message);
-        if (at >= 0) {
-            p->taken++;
-            err = step_entry(p->entries[at], p->message.buffer, p->message.buffer_length, NULL);
+        Py_ssize_t next = take_into(p, at, &p->message);
+        if (next < 0) {
+            /* none waits: stop, unless one came meanwhile (its callback saw the run on) */
+            atomic_store(&p->running, 0);
+            if (!atomic_exchange(&p->arrived, 0)) {
+                break;
+            }
+            atomic_store(&p->running, 1);
+            continue;
         }
+        at = next;
+        p->taken++;
+        err = step_entry(p->entries[at], p->message.buffer, p->message.buffer_length, NULL);
     }
-    p->running = 0;
+    atomic_store(&p->running, 0);
+    if (atomic_exchange(&p->arrived, 0) && p->n_held == 0 && p->n_entries > 0) {
+        kick_once(p, p->entries[0]);  /* it stopped early (an error, entries changed): come back */
+    }
     Py_DECREF(p);
     return err ? NULL : Py_NewRef(Py_None);
 }
 
 static PyObject *
-Entry_vectorcall(PyObject *obj, PyObject *const *args, size_t nargsf, PyObject *kwnames)
-{
-    Entry *e = (Entry *)obj;
-    if (PyVectorcall_NARGS(nargsf) != 1 || kwnames != NULL) {
-        PyErr_SetString(PyExc_TypeError, "a loop pump entry takes one positional argument: the message");
-        return NULL;
-    }
-    Py_buffer view;
-    if (PyObject_GetBuffer(args[0], &view, PyBUF_C_CONTIGUOUS) < 0) {
-        return NULL;
-    }
-    PyObject *result;
-    if (e->pump == NULL || e->pump->running) {  /* closed, or called from a handler: this message only */
-        result = step_entry(e, view.buf, (size_t)view.len, args[0]) ? NULL : Py_NewRef(Py_None);
-    } else {
-        result = pump_run(e->pump, e, view.buf, (size_t)view.len, args[0]);
-    }
-    PyBuffer_Release(&view);
-    return result;
-}
-
-static PyObject *
 Entry_resume(PyObject *obj, PyObject *Py_UNUSED(ignored))
 {
-    Pump *p = ((Entry *)obj)->pump;
-    if (p != NULL && p->kicked == (Entry *)obj) {
-        p->kicked = NULL;
-    }
-    if (p == NULL || p->running || p->n_held == 0) {
+    Entry *e = (Entry *)obj;
+    Pump *p = e->pump;
+    if (p == NULL || atomic_load(&p->running)) {  /* closed, or called from a handler */
         Py_RETURN_NONE;
     }
-    return pump_run(p, NULL, NULL, 0, NULL);
+    atomic_store(&p->kicked, 0);  /* before the run: a message after it kicks again */
+    return pump_run(p, e);
 }
 
 static void
@@ -313,6 +325,12 @@ entry_detach(Entry *e)
     Pump *p = e->pump;
     if (p == NULL) {
         return;
+    }
+    if (e->listening) {  /* rmw returns once no callback runs: none comes after */
+        if (rcl_subscription_set_on_new_message_callback(e->subscription, NULL, NULL) != RCL_RET_OK) {
+            rcl_reset_error();
+        }
+        e->listening = 0;
     }
     Py_ssize_t i = entry_index(p, e);
     if (i >= 0) {
@@ -324,9 +342,7 @@ entry_detach(Entry *e)
             p->held[j].entry = NULL;  /* its node goes: nobody takes the message */
         }
     }
-    if (p->kicked == e) {
-        p->kicked = NULL;  /* what others hold goes with the next message the executor hands over */
-    }
+
     p->generation++;
     e->pump = NULL;
     Py_DECREF(p);
@@ -345,34 +361,11 @@ Entry_get_open(PyObject *obj, void *Py_UNUSED(closure))
     return PyBool_FromLong(((Entry *)obj)->pump != NULL);
 }
 
-/* inspect.signature(entry) is (data, /): rclpy checks a subscription callback's signature */
-static PyObject *
-Entry_get_signature(PyObject *Py_UNUSED(obj), void *Py_UNUSED(closure))
-{
-    PyObject *inspect = PyImport_ImportModule("inspect");
-    if (inspect == NULL) {
-        return NULL;
-    }
-    PyObject *result = NULL;
-    PyObject *parameter_type = PyObject_GetAttrString(inspect, "Parameter");
-    PyObject *kind = parameter_type ? PyObject_GetAttrString(parameter_type, "POSITIONAL_ONLY") : NULL;
-    PyObject *parameter = kind ? PyObject_CallFunction(parameter_type, "sO", "data", kind) : NULL;
-    if (parameter != NULL) {
-        result = PyObject_CallMethod(inspect, "Signature", "([O])", parameter);
-    }
-    Py_XDECREF(parameter);
-    Py_XDECREF(kind);
-    Py_XDECREF(parameter_type);
-    Py_DECREF(inspect);
-    return result;
-}
-
 static int
 Entry_traverse(PyObject *obj, visitproc visit, void *arg)
 {
     Entry *e = (Entry *)obj;
     Py_VISIT(e->handler);
-    Py_VISIT(e->kick);
     Py_VISIT(e->context.obj);
     return 0;
 }
@@ -382,7 +375,6 @@ Entry_clear(PyObject *obj)
 {
     Entry *e = (Entry *)obj;
     Py_CLEAR(e->handler);
-    Py_CLEAR(e->kick);
     return 0;
 }
 
@@ -393,7 +385,8 @@ Entry_dealloc(PyObject *obj)
     PyObject_GC_UnTrack(obj);
     entry_detach(e);
     Py_CLEAR(e->handler);
-    Py_CLEAR(e->kick);
+    Py_CLEAR(e->keep);  /* after the callback is cleared */
+    PyMem_Free(e->kick.buffer);
     if (e->context.obj != NULL) {
         PyBuffer_Release(&e->context);
     }
@@ -403,30 +396,46 @@ Entry_dealloc(PyObject *obj)
 static PyObject *
 Pump_add(PyObject *obj, PyObject *args, PyObject *kwds)
 {
-    static char *kwlist[] = {"subscription", "publisher", "kernel", "context", "handler", "kick", NULL};
+    static char *kwlist[] = {"subscription", "publisher", "kernel", "context", "handler", "kick_publisher", "kick",
+                             "keep", NULL};
     Pump *p = (Pump *)obj;
-    unsigned long long sub, pub, kernel;
-    PyObject *context, *handler, *kick;
-    if (!PyArg_ParseTupleAndKeywords(args, kwds, "KKKOOO", kwlist, &sub, &pub, &kernel, &context, &handler,
-                                     &kick)) {
+    unsigned long long sub, pub, kernel, kick_pub;
+    PyObject *context, *handler, *keep = Py_None;
+    Py_buffer kick;
+    if (!PyArg_ParseTupleAndKeywords(args, kwds, "KKKOOKy*|O", kwlist, &sub, &pub, &kernel, &context, &handler,
+                                     &kick_pub, &kick, &keep)) {
         return NULL;
     }
-    if (sub == 0 || pub == 0 || kernel == 0) {
+    if (sub == 0 || pub == 0 || kernel == 0 || kick_pub == 0) {
+        PyBuffer_Release(&kick);
         PyErr_SetString(PyExc_ValueError, "Pump.add: a subscription, publisher or kernel address is 0");
         return NULL;
     }
-    if (!PyCallable_Check(handler) || !PyCallable_Check(kick)) {
-        PyErr_SetString(PyExc_TypeError, "Pump.add: handler must be callable as handler(data, code), kick as kick()");
+    if (!PyCallable_Check(handler)) {
+        PyBuffer_Release(&kick);
+        PyErr_SetString(PyExc_TypeError, "Pump.add: handler must be callable as handler(data, code)");
         return NULL;
+    }
+    size_t kick_len = (size_t)kick.len;
+    uint8_t *kick_copy = PyMem_Malloc(kick_len > 0 ? kick_len : 1);
+    if (kick_copy != NULL) {
+        memcpy(kick_copy, kick.buf, kick_len);
+    }
+    PyBuffer_Release(&kick);
+    if (kick_copy == NULL) {
+        return PyErr_NoMemory();
     }
     Entry *e = PyObject_GC_New(Entry, &EntryType);
     if (e == NULL) {
+        PyMem_Free(kick_copy);
         return NULL;
     }
-    e->vectorcall = Entry_vectorcall;
     e->pump = NULL;
     e->handler = NULL;
-    e->kick = NULL;
+    e->keep = Py_NewRef(keep);
+    e->listening = 0;
+    e->kick = (rcl_serialized_message_t){.buffer = kick_copy, .buffer_length = kick_len, .buffer_capacity = kick_len,
+                                         .allocator = rcutils_get_default_allocator()};
     e->context.obj = NULL;
     if (PyObject_GetBuffer(context, &e->context, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) {
         e->context.obj = NULL;
@@ -452,12 +461,19 @@ Pump_add(PyObject *obj, PyObject *args, PyObject *kwds)
     e->subscription = (rcl_subscription_t *)(uintptr_t)sub;
     e->publisher = (rcl_publisher_t *)(uintptr_t)pub;
     e->kernel = (loop_kernel)(uintptr_t)kernel;
+    e->kick_publisher = (rcl_publisher_t *)(uintptr_t)kick_pub;
     e->handler = Py_NewRef(handler);
-    e->kick = Py_NewRef(kick);
     e->pump = (Pump *)Py_NewRef(obj);
     p->entries[p->n_entries++] = e;
     p->generation++;
     PyObject_GC_Track((PyObject *)e);
+    /* rmw calls it at once if messages wait already */
+    if (rcl_subscription_set_on_new_message_callback(e->subscription, on_new_message, e) != RCL_RET_OK) {
+        rcl_failure("setting the subscription's new-message callback");
+        Py_DECREF(e);  /* detaches it */
+        return NULL;
+    }
+    e->listening = 1;
     return (PyObject *)e;
 }
 
@@ -525,24 +541,21 @@ Pump_dealloc(PyObject *obj)
 
 static PyMethodDef Entry_methods[] = {
     {"close", Entry_close, METH_NOARGS, "Remove the entry from its pump (idempotent)."},
-    {"resume", Entry_resume, METH_NOARGS, "Run the pump from the message it holds, if any."},
+    {"resume", Entry_resume, METH_NOARGS, "The kick's callback: run the pump (held messages first)."},
     {NULL, NULL, 0, NULL},
 };
 
 static PyGetSetDef Entry_getset[] = {
     {"open", Entry_get_open, NULL, "False once closed.", NULL},
-    {"__signature__", Entry_get_signature, NULL, "(data, /)", NULL},
     {NULL, NULL, NULL, NULL, NULL},
 };
 
 static PyTypeObject EntryType = {
     PyVarObject_HEAD_INIT(NULL, 0)
     .tp_name = "ambid_nodes._loop_pump.Entry",
-    .tp_doc = "A loop node's subscription in a Pump; call it with a message to run the pump from there.",
+    .tp_doc = "A loop node's subscription in a Pump (see the module).",
     .tp_basicsize = sizeof(Entry),
-    .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_VECTORCALL | Py_TPFLAGS_HAVE_GC,
-    .tp_vectorcall_offset = offsetof(Entry, vectorcall),
-    .tp_call = PyVectorcall_Call,
+    .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_GC,
     .tp_dealloc = Entry_dealloc,
     .tp_traverse = Entry_traverse,
     .tp_clear = Entry_clear,
@@ -552,7 +565,7 @@ static PyTypeObject EntryType = {
 
 static PyMethodDef Pump_methods[] = {
     {"add", (PyCFunction)(void (*)(void))Pump_add, METH_VARARGS | METH_KEYWORDS,
-     "add(subscription, publisher, kernel, context, handler, kick) -> Entry"},
+     "add(subscription, publisher, kernel, context, handler, kick_publisher, kick, keep=None) -> Entry"},
     {NULL, NULL, 0, NULL},
 };
 

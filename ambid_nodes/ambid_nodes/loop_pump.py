@@ -11,17 +11,17 @@ are spun by one executor, as every ambid graph is.
 
 from __future__ import annotations
 
-import functools
 import weakref
 from typing import Callable
 
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
+from rclpy.type_support import check_for_type_support
 
 from ambid_nodes.loop_call import BoundKernel
-from ambid_nodes.raw_publish import raw_publisher
 
 try:
     from ambid_nodes._loop_pump import NOT_RUN, Entry, Pump
@@ -70,52 +70,50 @@ class LoopEntry:
     """A raw subscription of ``node`` to ``topic`` whose messages go through ``kernel`` in the
     pump of the node's context, the answers out on ``publisher``.
 
-    Its callback is the pump's :class:`Entry`. Per message: with the gate word
-    of the kernel's context open and k below its limit (``loop_kernels.LOOP_*``),
-    the kernel runs; where it returns ``LOOP_DONE`` the pump publishes the
-    answer it packed and adds 1 to k and to the count word. Anything else goes
-    to ``handler(data: bytes, code: int)`` on the executor's thread: ``code``
-    is what the kernel returned, or :data:`NOT_RUN` where it did not run. After
-    :data:`BUDGET` messages the pump holds what waits and publishes a kick on
-    the node's hidden topic :data:`KICK_TOPIC`: the executor serves what
-    queued meanwhile, then the kick resumes the pump. :meth:`close` before the node destroys its
-    entities: the entry holds the subscription's and publisher's rcl handles
-    until then.
+    The subscription is the pump's, not the executor's (rmw's new-message
+    callback wakes the pump; the node's other entities stay the executor's).
+    Per message: with the gate word of the kernel's context open and k below
+    its limit (``loop_kernels.LOOP_*``), the kernel runs; where it returns
+    ``LOOP_DONE`` the pump publishes the answer it packed and adds 1 to k and
+    to the count word. Anything else goes to ``handler(data: bytes, code: int)``
+    on the executor's thread: ``code`` is what the kernel returned, or
+    :data:`NOT_RUN` where it did not run. A message that comes while the pump
+    is idle, and every :data:`BUDGET` messages, the pump kicks itself through
+    the node's hidden topic :data:`KICK_TOPIC`, so it runs on the executor's
+    thread, after what queued there before. :meth:`close` before the node
+    destroys its entities.
     """
 
     def __init__(self, node: Node, msg_type, topic: str, qos_profile: QoSProfile, publisher: Publisher,
                  kernel: BoundKernel, handler: Callable[[bytes, int], None]) -> None:
-        self.handler = handler
-        self.subscription = node.create_subscription(msg_type, topic, self.not_run, qos_profile, raw=True)
-        kick_pub = node.create_publisher(msg_type, KICK_TOPIC, KICK_QOS)
+        check_for_type_support(msg_type)
+        with node.handle:  # as Node.create_subscription does, without handing it to the executor
+            self.subscription = _rclpy.Subscription(node.handle, msg_type, topic, qos_profile.get_c_qos_profile())
+        self._kick_pub = node.create_publisher(msg_type, KICK_TOPIC, KICK_QOS)
         self._kick_sub = node.create_subscription(msg_type, KICK_TOPIC, self._resume, KICK_QOS, raw=True)
-        kick = functools.partial(raw_publisher(kick_pub), serialize_message(msg_type()))
         # entering an rclpy handle defers its destruction until the matching exit: the pump's
-        # addresses stay valid even if the node goes without closing the entry
-        self._handles = [self.subscription.handle, publisher.handle]
+        # addresses stay valid until close()
+        self._handles = [self.subscription, publisher.handle, self._kick_pub.handle]
         for h in self._handles:
             h.__enter__()
         try:
-            self.entry = pump_of(node.context).add(self.subscription.handle.pointer, publisher.handle.pointer,
-                                                   kernel.address, kernel.context, handler, kick)
+            self.entry = pump_of(node.context).add(
+                self.subscription.pointer, publisher.handle.pointer, kernel.address, kernel.context, handler,
+                self._kick_pub.handle.pointer, serialize_message(msg_type()), tuple(self._handles))
         except BaseException:
             self._release()
             raise
-        self.subscription.callback = self.entry
-
-    def not_run(self, data: bytes) -> None:
-        self.handler(data, NOT_RUN)
 
     def _resume(self, _kick: bytes) -> None:
         self.entry.resume()
 
     def close(self) -> None:
-        """Out of the pump (every further message to the handler), the handles released (idempotent)."""
+        """Out of the pump, the subscription destroyed, the handles released (idempotent)."""
         if not self._handles:
             return
         self.entry.close()
-        self.subscription.callback = self.not_run
         self._release()
+        self.subscription.destroy_when_not_in_use()
 
     def _release(self) -> None:
         while self._handles:
