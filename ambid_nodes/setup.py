@@ -10,7 +10,6 @@ package_name = "ambid_nodes"
 NODES = ["plant_sim", "position_controller", "excitation_generator", "recorder", "hardware_bridge", "frf_consumer"]
 
 
-
 def ros_prefixes() -> list[str]:
     """Where ROS 2's headers and libraries are: this interpreter's prefix (ROS 2 from PyPI
     wheels) and the sourced workspaces (AMENT_PREFIX_PATH); those holding rcl."""

@@ -52,6 +52,7 @@
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <structmember.h>
 #include <stdatomic.h>
 #include <stdint.h>
 #include <string.h>
@@ -150,7 +151,7 @@ on_new_message(const void *user_data, size_t number_of_events)
 
 /* Run e's kernel on one message, publish where it completed; 0, or -1 with an exception set. */
 static int
-step_entry(Entry *e, const uint8_t *data, size_t size, PyObject *message)
+step_entry(Entry *e, const uint8_t *data, size_t size)
 {
     int64_t *c = (int64_t *)e->context.buf;
     int64_t k = c[LOOP_K];
@@ -170,17 +171,14 @@ step_entry(Entry *e, const uint8_t *data, size_t size, PyObject *message)
         }
         return 0;
     }
-    PyObject *owned = NULL;
+    PyObject *message = PyBytes_FromStringAndSize((const char *)data, (Py_ssize_t)size);
     if (message == NULL) {
-        message = owned = PyBytes_FromStringAndSize((const char *)data, (Py_ssize_t)size);
-        if (message == NULL) {
-            return -1;
-        }
+        return -1;
     }
     Py_INCREF(e);  /* the handler may close the entry and drop the last other reference */
     PyObject *result = PyObject_CallFunction(e->handler, "OL", message, (long long)code);
     Py_DECREF(e);
-    Py_XDECREF(owned);
+    Py_DECREF(message);
     if (result == NULL) {
         return -1;
     }
@@ -218,9 +216,11 @@ entry_index(Pump *p, Entry *e)
 }
 
 /* Take every waiting message into the held list and kick the first one's entry; 0, or -1 with an
- * exception set. All of them: a message left waiting (a pipelined controller keeps two in flight)
- * would be taken by the first of the executor's events queued for its subscription, restarting the
- * pump ahead of everything else queued, and those events would pile up without bound. */
+ * exception set. All of them (a pipelined controller keeps two in flight): while the executor owned
+ * the subscriptions, a message left waiting was taken by the first of its events queued there and
+ * restarted the pump ahead of everything else. The subscriptions are the pump's now, but leaving
+ * the messages in their queues instead made a test that times designs against the plant's progress
+ * (test_excitation_generator) fail 1 run in 4, for a reason not pinned down: kept. */
 static int
 hold_waiting(Pump *p, Py_ssize_t at)
 {
@@ -275,7 +275,7 @@ pump_run(Pump *p, Entry *from)
         Held *h = &p->held[i];
         if (h->entry != NULL) {
             last = h->entry;
-            err = step_entry(h->entry, h->message.buffer, h->message.buffer_length, NULL);
+            err = step_entry(h->entry, h->message.buffer, h->message.buffer_length);
         }
     }
     Py_ssize_t at = last != NULL ? entry_index(p, last) : -1;
@@ -297,7 +297,7 @@ pump_run(Pump *p, Entry *from)
         }
         at = next;
         p->taken++;
-        err = step_entry(p->entries[at], p->message.buffer, p->message.buffer_length, NULL);
+        err = step_entry(p->entries[at], p->message.buffer, p->message.buffer_length);
     }
     atomic_store(&p->running, 0);
     if (atomic_exchange(&p->arrived, 0) && p->n_held == 0 && p->n_entries > 0) {
@@ -342,7 +342,6 @@ entry_detach(Entry *e)
             p->held[j].entry = NULL;  /* its node goes: nobody takes the message */
         }
     }
-
     p->generation++;
     e->pump = NULL;
     Py_DECREF(p);
@@ -478,24 +477,6 @@ Pump_add(PyObject *obj, PyObject *args, PyObject *kwds)
 }
 
 static PyObject *
-Pump_get_entries(PyObject *obj, void *Py_UNUSED(closure))
-{
-    return PyLong_FromSsize_t(((Pump *)obj)->n_entries);
-}
-
-static PyObject *
-Pump_get_taken(PyObject *obj, void *Py_UNUSED(closure))
-{
-    return PyLong_FromUnsignedLongLong(((Pump *)obj)->taken);
-}
-
-static PyObject *
-Pump_get_holds(PyObject *obj, void *Py_UNUSED(closure))
-{
-    return PyLong_FromUnsignedLongLong(((Pump *)obj)->holds);
-}
-
-static PyObject *
 Pump_new(PyTypeObject *type, PyObject *args, PyObject *kwds)
 {
     static char *kwlist[] = {"budget", NULL};
@@ -513,11 +494,10 @@ Pump_new(PyTypeObject *type, PyObject *args, PyObject *kwds)
     }
     p->budget = budget;
     p->message = rmw_get_zero_initialized_serialized_message();
-
     rcutils_allocator_t allocator = rcutils_get_default_allocator();
     if (rmw_serialized_message_init(&p->message, 256, &allocator) != RMW_RET_OK) {
         Py_DECREF(p);
-        return rcl_failure("allocating the message buffers");
+        return rcl_failure("allocating the message buffer");
     }
     return (PyObject *)p;
 }
@@ -569,11 +549,11 @@ static PyMethodDef Pump_methods[] = {
     {NULL, NULL, 0, NULL},
 };
 
-static PyGetSetDef Pump_getset[] = {
-    {"entries", Pump_get_entries, NULL, "The number of open entries.", NULL},
-    {"taken", Pump_get_taken, NULL, "Messages the pump took itself (not through the executor).", NULL},
-    {"holds", Pump_get_holds, NULL, "Runs that ended at the budget, holding the next message.", NULL},
-    {NULL, NULL, NULL, NULL, NULL},
+static PyMemberDef Pump_members[] = {
+    {"entries", T_PYSSIZET, offsetof(Pump, n_entries), READONLY, "The number of open entries."},
+    {"taken", T_ULONGLONG, offsetof(Pump, taken), READONLY, "Messages the pump took."},
+    {"holds", T_ULONGLONG, offsetof(Pump, holds), READONLY, "Runs that ended at the budget, holding what waited."},
+    {NULL, 0, 0, 0, NULL},
 };
 
 static PyTypeObject PumpType = {
@@ -585,7 +565,7 @@ static PyTypeObject PumpType = {
     .tp_new = Pump_new,
     .tp_dealloc = Pump_dealloc,
     .tp_methods = Pump_methods,
-    .tp_getset = Pump_getset,
+    .tp_members = Pump_members,
 };
 
 static struct PyModuleDef module = {

@@ -10,11 +10,11 @@ returns 0 and changes nothing but a scratch slot for the parsed values, and
 the node's Python path decides and says why
 (:func:`sample_codec.decode_sample`).
 
-The nodes call the C entry points ``plant_kernel`` and ``controller_kernel``
-(numba cfuncs of type ``LOOP_KERNEL``) through :mod:`ambid_nodes.loop_call`
-with the message and k only: the buffers they work on are named in a context
-vector of int64 words (``PK_*``, ``CK_*``: an array's address, then its
-length). Through numba's Python entry point the same call cost 1-4 us, most
+The C entry points ``plant_kernel`` and ``controller_kernel`` (numba cfuncs
+of type ``LOOP_KERNEL``) are called with the message and k only, by the loop
+pump (:mod:`ambid_nodes.loop_pump`) or through :mod:`ambid_nodes.loop_call`:
+the buffers they work on are named in a context vector of int64 words
+(``LOOP_*``, then ``PK_*`` or ``CK_*``: an array's address, then its length). Through numba's Python entry point the same call cost 1-4 us, most
 of it boxing each array argument, against ~0.4 us of arithmetic.
 """
 
@@ -131,7 +131,7 @@ PLANT_AFTER = 16  # stepped, and the caller has a sample boundary to serve: /clo
 
 
 @numba.njit(cache=True)
-def plant_sample4(s: np.ndarray, data: bytes, expected: int, r_rows: np.ndarray, r_first: int, free_until: int,
+def plant_sample4(s: np.ndarray, data: np.ndarray, expected: int, r_rows: np.ndarray, r_first: int, free_until: int,
                   lp: np.ndarray, row: int, clock_every: int, out: np.ndarray) -> int:
     """Step the simulated plant with the Sample ic[expected] in ``data`` and the excitation r.
 
@@ -226,7 +226,7 @@ CK_LIMIT = 10  # output saturation [A], the bits of a float64
 CK_LEAD = 11  # the answer to y[k] is ic[k + lead]
 CK_STATUS_EVERY = 12  # answering y[k] with k % status_every == 0 returns CONTROLLER_STATUS (0: never)
 N_CK = 13
-CONTROLLER_ANSWERED = 1  # LOOP_DONE
+CONTROLLER_ANSWERED = LOOP_DONE
 CONTROLLER_STATUS = 2  # answered, and the node has a status to publish
 
 

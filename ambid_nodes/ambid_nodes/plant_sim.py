@@ -496,7 +496,6 @@ class PlantSim(Node):
                    f"failed at sample {k}, every sample before it recorded (simulated time stood still while "
                    "the plant waited)")
         self.ic_ready.clear()
-        self.regate()
         self.flush_block(final=True)
         self.finish(FAILED)
 

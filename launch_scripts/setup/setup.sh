@@ -119,7 +119,7 @@ ambid_setup_venv() {
 ambid_ws_inputs() {
     find "$AMBID_ROOT/ambid_msgs" "$AMBID_ROOT/ambid_nodes/config" "$AMBID_ROOT/ambid_nodes/resource" \
         -type f 2>/dev/null | sort
-    find "$AMBID_ROOT/ambid_nodes/ambid_nodes" -name '*.c' | sort  # the compiled extension's sources
+    find "$AMBID_ROOT/ambid_nodes/ambid_nodes" -name '*.c' | sort  # the C extensions' sources
     printf '%s\n' "$AMBID_ROOT/ambid_nodes/package.xml" "$AMBID_ROOT/ambid_nodes/setup.py" \
         "$AMBID_ROOT/ambid_nodes/setup.cfg" "$AMBID_VENV/.ambid-venv-stamp"
 }
