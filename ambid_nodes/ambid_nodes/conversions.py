@@ -12,10 +12,11 @@ import math
 from collections.abc import Callable, Sequence
 
 import numpy as np
-from ambid_msgs.msg import SampleBlock, SessionStatus
-from ambid_msgs.msg import StateSpace as StateSpaceMsg
 from builtin_interfaces.msg import Time
 from rclpy.serialization import deserialize_message
+
+from ambid_msgs.msg import SampleBlock, SessionStatus
+from ambid_msgs.msg import StateSpace as StateSpaceMsg
 
 
 class BadMessage(ValueError):

@@ -37,17 +37,17 @@ import sys
 from dataclasses import dataclass
 
 import numpy as np
+from ambid.channels import AXES, CURRENT_NAMES
+from ambid.excitation import ExcitationDesign, check_headroom
+from ambid.excitation.spec import DEFAULT_INPUTS, KINDS, build_design
+from ambid.plant.rig import load_rig, make_rig
+from rclpy.node import Node
+
 from ambid_msgs.msg import ExcitationDesign as DesignMsg
 from ambid_msgs.msg import PlantDescription, SampleBlock, SessionEvent, SessionStatus
 from ambid_msgs.srv import StartExperiment, StopExperiment
-from rclpy.node import Node
-
-from ambid.excitation import ExcitationDesign, check_headroom
-from ambid.rig import AXES, CURRENT_NAMES, load_rig, make_rig
 from ambid_nodes import qos
-from ambid.excitation.spec import DEFAULT_INPUTS, KINDS, build_design
-from ambid_nodes.conversions import (BadMessage, block_data, block_msg, check_plant_description, status_msg,
-                                     time_msg)
+from ambid_nodes.conversions import BadMessage, block_data, block_msg, check_plant_description, status_msg, time_msg
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 

@@ -32,17 +32,17 @@ import math
 import sys
 
 import numpy as np
-from ambid_msgs.msg import (ControllerDescription, ExcitationDesign, FrfEstimate, SampleBlock, SessionEvent,
-                            SessionStatus)
-from rclpy.node import Node
-
 from ambid.excitation import ExcitationDesign as Design
 from ambid.frf.offline import DEFAULT_INPUTS, DEFAULT_OUTPUTS, DEFAULT_REFERENCES
 from ambid.frf.streaming import ESTIMATORS, FrfResult, FrfStream, loop_consistency, match_inputs
 from ambid.statespace import StateSpace
+from rclpy.node import Node
+
+from ambid_msgs.msg import (ControllerDescription, ExcitationDesign, FrfEstimate, SampleBlock, SessionEvent,
+                            SessionStatus)
 from ambid_nodes import qos
-from ambid_nodes.conversions import (BadMessage, block_data, check_controller_description, check_design,
-                                     float_array, statespace_from_msg, status_msg, time_msg)
+from ambid_nodes.conversions import (BadMessage, block_data, check_controller_description, check_design, float_array,
+                                     statespace_from_msg, status_msg, time_msg)
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 

@@ -128,10 +128,10 @@ def run_hardware(cfg: GraphConfig, target: str, local_port: int = 0) -> dict:
     (or the target finished), after telling the target to stop.
     """
     import rclpy
+    from ambid.hardware.rt_target import parse_address
     from rclpy.experimental import EventsExecutor
     from rclpy.parameter import Parameter
 
-    from ambid.rt_target import parse_address
     from ambid_nodes.hardware_bridge import HardwareBridge
 
     host, port = parse_address(target)

@@ -38,14 +38,15 @@ import threading
 import time
 
 import numpy as np
-from ambid_msgs.msg import ExcitationDesign, PlantDescription, SampleBlock, SessionEvent, SessionStatus
+from ambid.hardware import bridge_protocol as bp
+from ambid.hardware.rt_target import parse_address
+from ambid.plant.analytical import analytical_model
+from ambid.plant.rig import load_rig, make_rig
 from rclpy.node import Node
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 
-from ambid import bridge_protocol as bp
-from ambid.rig import analytical_model, load_rig, make_rig
-from ambid.rt_target import parse_address
+from ambid_msgs.msg import ExcitationDesign, PlantDescription, SampleBlock, SessionEvent, SessionStatus
 from ambid_nodes import qos
 from ambid_nodes.conversions import (MAX_SAMPLE_INDEX, block_msg, check_design, check_excitation_block,
                                      statespace_to_msg, status_msg, time_msg)

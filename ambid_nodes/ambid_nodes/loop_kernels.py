@@ -22,11 +22,11 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from ambid.control.step_kernel import statespace_step
+from ambid.plant.step_kernel import PAR_STATUS, STATUS_NOISE, plant_step
 from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
-
-from ambid.step_kernels import PAR_STATUS, STATUS_NOISE, plant_step, statespace_step
 
 SAMPLE4_BYTES = 52
 
@@ -79,7 +79,7 @@ def answer_sample4(w: np.ndarray, n: int, mat: int, limit: float, data: np.ndarr
 
     Args:
         w, n, mat, limit: the controller's work vector, state count, step-matrix offset and
-            output saturation (:meth:`ambid.controller.ControllerStepper.kernel_args`).
+            output saturation (:meth:`ambid.control.stepper.ControllerStepper.kernel_args`).
         data: the serialised Sample, uint8 (52 bytes expected).
         expected: the sample index awaited.
         lead: the answer carries index expected + lead (1: pipelined, ic[k+1]; 0: ic[k]).
@@ -136,7 +136,7 @@ def plant_sample4(s: np.ndarray, data: np.ndarray, expected: int, r_rows: np.nda
     """Step the simulated plant with the Sample ic[expected] in ``data`` and the excitation r.
 
     Args:
-        s: the plant work vector (:attr:`ambid.simulator.PlantSimulator.work`).
+        s: the plant work vector (:attr:`ambid.plant.simulator.PlantSimulator.work`).
         data: the serialised Sample, uint8 (52 bytes expected).
         expected: the sample index k the plant steps.
         r_rows, r_first: the excitation block in use, r[r_first + i] = r_rows[i] [A] ((m, 4) float64).

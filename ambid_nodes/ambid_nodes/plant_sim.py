@@ -54,27 +54,29 @@ import sys
 import time
 
 import numpy as np
-from ambid_msgs.msg import ExcitationDesign, PlantDescription, Sample, SampleBlock, SessionEvent, SessionStatus
+from ambid.channels import AXES, CURRENT_NAMES, DISPLACEMENT_NAMES
+from ambid.plant.analytical import analytical_model
+from ambid.plant.levitation import LevitationMonitor
+from ambid.plant.rig import load_rig, make_rig
+from ambid.plant.simulator import PlantSimulator
 from rclpy.node import Node
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 
-from ambid.rig import AXES, CURRENT_NAMES, DISPLACEMENT_NAMES, analytical_model, load_rig, make_rig
-from ambid.simulator import PlantSimulator
+from ambid_msgs.msg import ExcitationDesign, PlantDescription, Sample, SampleBlock, SessionEvent, SessionStatus
 from ambid_nodes import qos
 from ambid_nodes.conversions import (BadMessage, block_msg, check_design, check_excitation_block, statespace_to_msg,
                                      status_msg, time_msg)
 from ambid_nodes.intake import Intake
 from ambid_nodes.loop_call import BoundKernel, ContextArray, ContextWord
 from ambid_nodes.loop_kernels import (LOOP_COUNT, LOOP_GATE, LOOP_K, LOOP_LIMIT, LOOP_NO_LIMIT, LOOP_OUT, N_PK,
-                                      PK_BLOCK_START, PK_CLOCK_EVERY, PK_FREE_UNTIL, PK_LOOP, PK_R, PK_R_FIRST, PK_WORK,
-                                      PLANT_AFTER, PLANT_CLIPPED, PLANT_CONTACT, PLANT_KIND, PLANT_LOOKUP,
+                                      PK_BLOCK_START, PK_CLOCK_EVERY, PK_FREE_UNTIL, PK_LOOP, PK_R, PK_R_FIRST,
+                                      PK_WORK, PLANT_AFTER, PLANT_CLIPPED, PLANT_CONTACT, PLANT_KIND, PLANT_LOOKUP,
                                       PLANT_STEPPED, plant_kernel, plant_loop_vector, sample4_buffer)
 from ambid_nodes.loop_pump import GatingState, LoopEntry
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 from ambid_nodes.raw_publish import raw_publisher
 from ambid_nodes.sample_codec import decode_sample, encode_clock, encode_sample, encode_sample4
-from ambid.levitation import LevitationMonitor
 
 MEASUREMENT_NAMES = (DISPLACEMENT_NAMES + CURRENT_NAMES + tuple(f"ic_{a}" for a in AXES)
                      + tuple(f"r_{a}" for a in AXES))

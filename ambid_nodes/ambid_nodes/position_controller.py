@@ -43,22 +43,23 @@ import time
 from dataclasses import asdict
 
 import numpy as np
-from ambid_msgs.msg import ControllerDescription, Sample, SessionEvent, SessionStatus
+from ambid.control.closed_loop import check_controller_on_rig
+from ambid.control.lqg import LqgParameters, lqg_controller
+from ambid.control.pid import PidParameters, pid_controller, pid_parameters_dict
+from ambid.control.stepper import ControllerStepper
+from ambid.plant.rig import load_rig, make_rig
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile
 
-from ambid.closed_loop import check_controller_on_rig
-from ambid.controller import ControllerStepper, PidParameters, pid_controller, pid_parameters_dict
-from ambid.lqg import LqgParameters, lqg_controller
-from ambid.rig import load_rig, make_rig
+from ambid_msgs.msg import ControllerDescription, Sample, SessionEvent, SessionStatus
 from ambid_nodes import qos
+from ambid_nodes.conversions import BadMessage, statespace_to_msg, status_msg, time_msg
+from ambid_nodes.intake import Intake
 from ambid_nodes.loop_call import BoundKernel, ContextWord
 from ambid_nodes.loop_kernels import (CK_LEAD, CK_LIMIT, CK_MAT, CK_N, CK_STATUS_EVERY, CK_WORK, CONTROLLER_STATUS,
                                       LOOP_COUNT, LOOP_GATE, LOOP_K, LOOP_LIMIT, LOOP_NO_LIMIT, LOOP_OUT, N_CK,
                                       controller_kernel, sample4_buffer)
 from ambid_nodes.loop_pump import GatingState, LoopEntry
-from ambid_nodes.conversions import BadMessage, statespace_to_msg, status_msg, time_msg
-from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 from ambid_nodes.raw_publish import raw_publisher
 from ambid_nodes.sample_codec import decode_sample, encode_sample, encode_sample4

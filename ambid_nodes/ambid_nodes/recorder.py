@@ -60,21 +60,20 @@ import signal
 import sys
 import time
 
-from ambid_msgs.msg import SessionEvent, SessionStatus
+import ambid
+from ambid.session import SessionWriteError, SessionWriter
+from ambid.session.blocks import SAMPLE_BLOCK_TYPE, sample_block_span
+from ambid.session.facts import FACT_TYPES, controller_facts, design_facts, plant_facts
+from ambid.session.writer import available_compressions
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from rclpy.task import Future
 
-import ambid
-from ambid.mcap_session import SessionWriteError, SessionWriter
-from ambid.mcap_session.writer import available_compressions
-from ambid.session_blocks import SAMPLE_BLOCK_TYPE, sample_block_span
-from ambid.session_facts import FACT_TYPES, controller_facts, design_facts, plant_facts
+from ambid_msgs.msg import SessionEvent, SessionStatus
 from ambid_nodes import qos
-from ambid_nodes.conversions import (check_controller_description, check_design, check_plant_description,
-                                     status_msg)
+from ambid_nodes.conversions import check_controller_description, check_design, check_plant_description, status_msg
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 
 #: every topic of the ambid graph, relative to the rig's namespace (plus /clock)

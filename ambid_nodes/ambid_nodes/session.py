@@ -20,7 +20,8 @@ from pathlib import Path
 from ambid.excitation import ExcitationDesign
 from ambid.excitation.spec import build_design
 from ambid.jsonable import to_jsonable
-from ambid.rig import load_rig, make_rig
+from ambid.plant.rig import load_rig, make_rig
+
 from ambid_nodes.graph import DEFAULT_NAMESPACE, session_domain_id
 from ambid_nodes.node_main import gc_frozen
 
@@ -90,10 +91,10 @@ class ProgressBar:
 def run_session_composed(cfg: SessionConfig) -> dict:
     """Run the whole graph in this process; returns the run's facts (no offline analysis)."""
     import rclpy
-    from ambid_msgs.srv import StartExperiment
     from rclpy.experimental import EventsExecutor
     from rclpy.parameter import Parameter
 
+    from ambid_msgs.srv import StartExperiment
     from ambid_nodes.excitation_generator import ExcitationGenerator
     from ambid_nodes.frf_consumer import FrfConsumer
     from ambid_nodes.plant_sim import PlantSim
@@ -225,7 +226,7 @@ def run_identify(cfg: SessionConfig) -> dict:
 
     Writes ``out_dir/session.mcap``, ``out_dir/summary.json`` and ``out_dir/report/``.
     """
-    from ambid.identification import identify_session
+    from ambid.studies.identification import identify_session
 
     run = run_session_composed(cfg)
     design: ExcitationDesign = run.pop("design")

@@ -157,11 +157,12 @@ ambid_activate() {
     fi
     export RMW_IMPLEMENTATION="${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"
     # numba's on-disk cache notices a change to a kernel's own file only: loop_kernels inlines
-    # step_kernels, so a cache that outlived a change of step_kernels ran the old code. One cache
-    # directory per version of the kernel sources (a user's NUMBA_CACHE_DIR is kept).
+    # the step kernels, so a cache that outlived a change of one of them ran the old code. One
+    # cache directory per version of the kernel sources (a user's NUMBA_CACHE_DIR is kept).
     if [ -z "${NUMBA_CACHE_DIR:-}" ]; then
         local kernels
-        kernels="$(cat "$AMBID_ROOT/ambid_nodes/ambid/step_kernels.py" "$AMBID_ROOT/ambid_nodes/ambid_nodes/loop_kernels.py" \
+        kernels="$(cat "$AMBID_ROOT"/ambid_nodes/ambid/compiled.py "$AMBID_ROOT"/ambid_nodes/ambid/*/step_kernel.py \
+            "$AMBID_ROOT/ambid_nodes/ambid_nodes/loop_kernels.py" \
             2>/dev/null | sha256sum | cut -c1-16)"
         export NUMBA_CACHE_DIR="$AMBID_ROOT/.numba_cache/$kernels"
     fi

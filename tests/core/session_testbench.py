@@ -10,10 +10,9 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from ambid.session import SessionWriter
+from ambid.session.ros2_schema import load_message_schema
 from mcap_ros2._dynamic import serialize_dynamic
-
-from ambid.mcap_session import SessionWriter
-from ambid.mcap_session.ros2_schema import load_message_schema
 
 MSG_DIR = Path(__file__).resolve().parents[2] / "ambid_msgs" / "msg"
 _TIME_MSG = Path(sys.prefix) / "share" / "builtin_interfaces" / "msg" / "Time.msg"
@@ -62,8 +61,9 @@ def block_message(first, data, names, dt, units=None, experiment_id=""):
 
 
 def plant_message(rig, seed=0, source="sim"):
-    """PlantDescription message dict of an ``ambid.rig.Rig`` (analytical model and rig JSON included)."""
-    from ambid.rig import CURRENT_NAMES, DISPLACEMENT_NAMES, analytical_model
+    """PlantDescription message dict of an ``ambid.plant.rig.Rig`` (analytical model and rig JSON included)."""
+    from ambid.channels import CURRENT_NAMES, DISPLACEMENT_NAMES
+    from ambid.plant.analytical import analytical_model
 
     ss = analytical_model(rig)
     model = {"sample_period": 0.0, "n_states": ss.n_states, "n_inputs": ss.n_inputs, "n_outputs": ss.n_outputs,
@@ -116,9 +116,10 @@ def simulate_closed_loop(rig, design, pre_samples, post_samples=0, seed=0, nonli
     Returns:
         (names, x): channel names (y_*, u_*, ic_*, r_*) and samples (n, 16).
     """
-    from ambid.controller import ControllerStepper, PidParameters, pid_controller
-    from ambid.rig import AXES
-    from ambid.simulator import PlantSimulator
+    from ambid.channels import AXES
+    from ambid.control.pid import PidParameters, pid_controller
+    from ambid.control.stepper import ControllerStepper
+    from ambid.plant.simulator import PlantSimulator
 
     sim = PlantSimulator(rig, seed=seed, nonlinear_magnets=nonlinear_magnets)
     pid = PidParameters()

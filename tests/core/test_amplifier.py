@@ -3,8 +3,7 @@
 import numpy as np
 import pytest
 import scipy.signal
-
-from ambid.amplifier import (Amplifier, amplifier_state_space, amplifier_step, closed_loop_response)
+from ambid.plant.amplifier import Amplifier, amplifier_state_space, amplifier_step, closed_loop_response
 
 L_H, UDC_V, IMAX_A = 0.01, 150.0, 6.0
 

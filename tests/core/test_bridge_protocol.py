@@ -10,9 +10,8 @@ import zlib
 
 import numpy as np
 import pytest
-
-from ambid import bridge_protocol as bp
-from ambid.rt_target import ExcitationBuffer, FaultInjector, Target, TargetConfig
+from ambid.hardware import bridge_protocol as bp
+from ambid.hardware.rt_target import ExcitationBuffer, FaultInjector, Target, TargetConfig
 
 
 def _measurement(seq=7, first=1234, n=10, seed=0):
@@ -333,9 +332,10 @@ def test_excitation_buffer_lookup_and_gaps():
 
 def _direct_rows(seed: int, n: int, excitation: dict[int, list[float]]) -> np.ndarray:
     """(n, 16) rows y, u, ic, r of the plant_sim order, computed here without any protocol."""
-    from ambid.controller import ControllerStepper, PidParameters, pid_controller
-    from ambid.rig import make_rig
-    from ambid.simulator import PlantSimulator
+    from ambid.control.pid import PidParameters, pid_controller
+    from ambid.control.stepper import ControllerStepper
+    from ambid.plant.rig import make_rig
+    from ambid.plant.simulator import PlantSimulator
 
     rig = make_rig()
     sim = PlantSimulator(rig, seed=seed, nonlinear_magnets=False)

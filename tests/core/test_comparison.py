@@ -1,4 +1,4 @@
-"""ambid.comparison on a tiny preset: structure, the orthogonal-versus-stepped claim, estimator bias,
+"""ambid.studies.comparison on a tiny preset: structure, the orthogonal-versus-stepped claim, estimator bias,
 nonlinear distortions, the lock-step loop's order and the error measure."""
 
 import copy
@@ -7,12 +7,12 @@ import math
 
 import numpy as np
 import pytest
-
-from ambid.comparison import (METHODS, PARTS, ComparePreset, comparison_markdown, frf_error, levitate, run_comparison,
-                              run_loop, settling_time)
-from ambid.controller import PidParameters, pid_controller
+from ambid.channels import CURRENT_NAMES
+from ambid.control.pid import PidParameters, pid_controller
 from ambid.excitation import design_stepped_sine
-from ambid.rig import CURRENT_NAMES, make_rig
+from ambid.plant.rig import make_rig
+from ambid.studies.comparison import (METHODS, PARTS, ComparePreset, comparison_markdown, frf_error, levitate,
+                                      run_comparison, run_loop, settling_time)
 
 # every part, shrunk: the stepped sine on every 5th line (time extrapolated), two multisine realisations,
 # one estimator realisation, the nonlinear runs at 40 Hz resolution

@@ -4,13 +4,14 @@ import re
 
 import numpy as np
 import pytest
-
-from ambid.closed_loop import check_controller_on_rig, close_loop, loop_robustness
-from ambid.controller import ControllerStepper, PidParameters, pid_controller
-from ambid.lqg import lqg_controller
-from ambid.rig import analytical_model, make_rig
-from ambid.simulator import PlantSimulator
-from ambid.true_rig import true_linear_model
+from ambid.control.closed_loop import check_controller_on_rig, close_loop, loop_robustness
+from ambid.control.lqg import lqg_controller
+from ambid.control.pid import PidParameters, pid_controller
+from ambid.control.stepper import ControllerStepper
+from ambid.plant.analytical import analytical_model
+from ambid.plant.rig import make_rig
+from ambid.plant.simulator import PlantSimulator
+from ambid.plant.true_rig import true_linear_model
 
 RIG = make_rig()
 

@@ -12,7 +12,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from ambid.excitation import ExcitationDesign, check_headroom
 from ambid_nodes.commands import design as cmd
 

@@ -4,9 +4,8 @@ import json
 
 import numpy as np
 import pytest
-
-from ambid.excitation import (ExcitationDesign, check_headroom, design_dibs, design_multisine,
-                              design_noise, design_prbs, design_stepped_sine, design_swept_sine)
+from ambid.excitation import (ExcitationDesign, check_headroom, design_dibs, design_multisine, design_noise,
+                              design_prbs, design_stepped_sine, design_swept_sine)
 
 NAMES = ("x_a", "y_a", "x_b", "y_b")
 FS = 1000.0

@@ -4,9 +4,8 @@ import itertools
 
 import numpy as np
 import pytest
-
-from ambid.excitation import (crest_factor, design_multisine, dft_weights, multisine_period,
-                              optimise_crest_phases, schroeder_phases)
+from ambid.excitation import (crest_factor, design_multisine, dft_weights, multisine_period, optimise_crest_phases,
+                              schroeder_phases)
 
 NAMES4 = ("x_a", "y_a", "x_b", "y_b")
 

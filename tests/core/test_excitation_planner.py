@@ -3,9 +3,8 @@
 import math
 
 import numpy as np
-
-from ambid.excitation import (describe, design_multisine, design_stepped_sine, format_plan,
-                              plan_measurements, plot_design)
+from ambid.excitation import (describe, design_multisine, design_stepped_sine, format_plan, plan_measurements,
+                              plot_design)
 
 NAMES = ("x_a", "y_a", "x_b", "y_b")
 

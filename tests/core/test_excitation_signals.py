@@ -2,12 +2,9 @@
 
 import numpy as np
 import pytest
-
-from ambid.excitation.lines import (band_bins, detection_lines, line_set, log_lines,
-                                    n_per_period, shape_amplitudes)
-from ambid.excitation.signals import (binary_levels, binary_waveform, dibs_bits, filtered_noise,
-                                      mls, noise_filter_spec, noise_taps, stepped_sine_layout,
-                                      swept_sine_period)
+from ambid.excitation.lines import band_bins, detection_lines, line_set, log_lines, n_per_period, shape_amplitudes
+from ambid.excitation.signals import (binary_levels, binary_waveform, dibs_bits, filtered_noise, mls,
+                                      noise_filter_spec, noise_taps, stepped_sine_layout, swept_sine_period)
 
 
 def test_n_per_period_integer_and_error_names_working_resolutions():

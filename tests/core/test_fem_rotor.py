@@ -5,13 +5,12 @@ import dataclasses
 import numpy as np
 import pytest
 import scipy.linalg
+from ambid.plant.fem_rotor import (DOF_RX, DOF_RY, DOF_X, DOF_Y, Disk, LaminationStack, Material, RotorGeometry,
+                                   ShaftSection, assemble_rotor, dof_index, mesh_nodes, node_at,
+                                   rigid_body_properties, shear_coefficient)
+from ambid.plant.modal import (modal_state_space, plane_modes, second_order_state_space, support_stiffness,
+                               undamped_modes, whirl_frequencies)
 from scipy.optimize import brentq
-
-from ambid.fem_rotor import (DOF_RX, DOF_RY, DOF_X, DOF_Y, Disk, LaminationStack, Material, RotorGeometry,
-                             ShaftSection, assemble_rotor, dof_index, mesh_nodes, node_at,
-                             rigid_body_properties, shear_coefficient)
-from ambid.modal import (modal_state_space, plane_modes, second_order_state_space, support_stiffness,
-                         undamped_modes, whirl_frequencies)
 
 STEEL = Material()
 E, RHO = STEEL.youngs_modulus_pa, STEEL.density_kg_m3

@@ -4,7 +4,6 @@ import warnings
 
 import numpy as np
 import pytest
-
 from ambid.fit import benchmark_fit, fit_common_denominator, modal_summary, synthetic_amb_plant
 from ambid.statespace import StateSpace, block_diag
 

@@ -4,9 +4,8 @@ import json
 
 import numpy as np
 import pytest
-
-from ambid.fit import (RationalModel, load_model_json, load_model_npz, load_statespace_json,
-                       load_statespace_npz, modal_summary, save_model_json, save_model_npz, to_statespace)
+from ambid.fit import (RationalModel, load_model_json, load_model_npz, load_statespace_json, load_statespace_npz,
+                       modal_summary, save_model_json, save_model_npz, to_statespace)
 
 F_HZ = np.linspace(1.0, 400.0, 300)
 

@@ -3,9 +3,7 @@
 import matplotlib.image
 import numpy as np
 import pytest
-
-from ambid.fit import (STATUS_LABELS, RationalModel, cmif, plot_cmif, plot_stabilisation,
-                       stabilisation_diagram)
+from ambid.fit import STATUS_LABELS, RationalModel, cmif, plot_cmif, plot_stabilisation, stabilisation_diagram
 
 F_HZ = np.linspace(5.0, 400.0, 400)
 

@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-
 from ambid.fit import update_parameters
 from ambid.fit._threads import single_threaded_blas
 from ambid.statespace import StateSpace

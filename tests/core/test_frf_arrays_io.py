@@ -2,9 +2,8 @@
 
 import numpy as np
 import pytest
-from scipy.io import savemat
-
 from ambid.frf import load_arrays, stack_channels
+from scipy.io import savemat
 
 
 @pytest.fixture

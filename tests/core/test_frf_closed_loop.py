@@ -10,17 +10,15 @@ measurement noise, fed back through C).
 
 import numpy as np
 import pytest
-from scipy import signal
-
-from ambid.frf import (bla_robust, distortion_levels, errors_in_variables, h1, indirect,
-                       input_sensitivity, input_sensitivity_from_models, iso14839_zone,
-                       output_noise_std, period_spectra, sensitivity_peak, split_periods,
-                       stepped_sine_frf, welch_frf)
+from ambid.frf import (bla_robust, distortion_levels, errors_in_variables, h1, indirect, input_sensitivity,
+                       input_sensitivity_from_models, iso14839_zone, output_noise_std, period_spectra,
+                       sensitivity_peak, split_periods, stepped_sine_frf, welch_frf)
 from frf_testbench import FS
 from frf_testbench import controller_frf as _controller
 from frf_testbench import loop_model as _loop
 from frf_testbench import plant_frf as _plant
 from frf_testbench import simulate as _simulate
+from scipy import signal
 
 N = 512          # samples per period
 PT = 2           # transient periods (slowest closed-loop pole decays in ~92 samples)

@@ -2,11 +2,9 @@
 
 import numpy as np
 import pytest
+from ambid.frf import (arithmetic_mean, errors_in_variables, h1, h2, indirect, log_mean, multiple_coherence,
+                       per_period_frf, sine_amplitude, stepped_sine_frf, welch_frf)
 from scipy import signal
-
-from ambid.frf import (arithmetic_mean, errors_in_variables, h1, h2, indirect, log_mean,
-                       multiple_coherence, per_period_frf, sine_amplitude, stepped_sine_frf,
-                       welch_frf)
 
 
 def _cn(rng, *shape):

@@ -7,17 +7,16 @@ one the frf_consumer node runs -- gives on the same samples.
 import json
 import struct
 
+import ambid.frf.offline as offline
 import numpy as np
 import pytest
-from frf_testbench import FS, loop_model, simulate
-from scipy.io import savemat
-from session_testbench import SAMPLE_BLOCK, block_message, design_message, encoder, write_session
-
-import ambid.frf.offline as offline
 from ambid.excitation import design_multisine
 from ambid.frf.offline import _read_sample_block, frf_from_arrays, frf_from_files, frf_from_session, session_designs
 from ambid.frf.streaming import FrfStream
-from ambid.mcap_session import iter_decoded
+from ambid.session import iter_decoded
+from frf_testbench import FS, loop_model, simulate
+from scipy.io import savemat
+from session_testbench import SAMPLE_BLOCK, block_message, design_message, encoder, write_session
 
 OUT, IN, REF = ("y_1", "y_2"), ("u_1", "u_2"), ("r_1", "r_2")
 CHANNELS = OUT + IN + ("ic_1", "ic_2") + REF         # as a plant would record them (ic unused)
@@ -179,9 +178,8 @@ def test_blocks_of_other_namespaces_and_bad_blocks_are_left_alone(rec, tmp_path)
     d, x = rec["design"], rec["x"]
     blocks = _blocks(x, 1000)
     path = tmp_path / "two_namespaces.mcap"
+    from ambid.session import SessionWriter
     from session_testbench import DEFS, EXCITATION_DESIGN
-
-    from ambid.mcap_session import SessionWriter
 
     def block_bytes(first, data):
         return encoder(SAMPLE_BLOCK)(block_message(first, data, CHANNELS, 1 / FS))

@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-
 from ambid.frf import layout_length, period_spectra, split_periods
 
 

@@ -2,9 +2,8 @@
 
 import numpy as np
 import pytest
-
-from ambid.frf import (input_sensitivity, input_sensitivity_from_models, iso14839_zone,
-                       sensitivity_diagonal, sensitivity_peak)
+from ambid.frf import (input_sensitivity, input_sensitivity_from_models, iso14839_zone, sensitivity_diagonal,
+                       sensitivity_peak)
 
 
 @pytest.mark.parametrize("peak,zone", [(0.0, "A"), (2.999, "A"), (3.0, "B"), (3.99, "B"),

@@ -7,13 +7,12 @@ samples before and after the experiment.
 
 import numpy as np
 import pytest
-from frf_testbench import FS, controller_frf, loop_model, plant_frf, simulate
-
 from ambid.excitation import design_multisine, design_noise, design_stepped_sine
-from ambid.frf import (arithmetic_mean, bla_robust, distortion_levels, errors_in_variables, h1, h2,
-                       frf_noise_variance, indirect, input_sensitivity, log_mean, multiple_coherence, output_noise_std,
+from ambid.frf import (arithmetic_mean, bla_robust, distortion_levels, errors_in_variables, frf_noise_variance, h1,
+                       h2, indirect, input_sensitivity, log_mean, multiple_coherence, output_noise_std,
                        period_spectra, sensitivity_peak, split_periods, stepped_sine_frf, welch_frf)
 from ambid.frf.streaming import ESTIMATORS, FrfStream, loop_consistency, match_inputs
+from frf_testbench import FS, controller_frf, loop_model, plant_frf, simulate
 
 NAMES = (("y_1", "y_2"), ("u_1", "u_2"), ("r_1", "r_2"))
 PRE, POST = 137, 250          # samples before and after the experiment

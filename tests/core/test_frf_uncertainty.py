@@ -2,9 +2,8 @@
 
 import numpy as np
 import pytest
-
-from ambid.frf import (bla_robust, distortion_levels, frf_noise_variance, output_noise_std,
-                       period_mean_variance, period_spectra, split_periods)
+from ambid.frf import (bla_robust, distortion_levels, frf_noise_variance, output_noise_std, period_mean_variance,
+                       period_spectra, split_periods)
 
 
 def _cn(rng, *shape):

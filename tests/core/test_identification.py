@@ -1,4 +1,4 @@
-"""ambid.identification: the whole offline job on a simulated session, and its pieces.
+"""ambid.studies.identification: the whole offline job on a simulated session, and its pieces.
 
 The session is a core-level closed loop of the default rig (true rig: housing mode, sensor filter, delay,
 ki and ks off their nominal values) with the default PID, excited by an orthogonal random-odd multisine on
@@ -11,19 +11,20 @@ from argparse import Namespace
 
 import numpy as np
 import pytest
-from session_testbench import design_message, plant_message, simulate_closed_loop, write_session
-
-from ambid.controller import PidParameters, pid_controller
+from ambid.channels import AXES
+from ambid.control.pid import PidParameters, pid_controller
 from ambid.excitation import design_multisine
 from ambid.fit import load_model_npz, load_statespace_json
+from ambid.fit.model_update import nominal_parameters, true_parameters
 from ambid.fit.order_selection import StabilisationDiagram
+from ambid.frf.levels import line_levels
 from ambid.frf.sensitivity import iso14839_zone
-from ambid.identification import (compare_modes, frf_relative_error, identify_session, line_levels, select_order,
-                                  session_rig, true_modes)
-from ambid.model_update import nominal_parameters, true_parameters
-from ambid.rig import AXES, make_rig
-from ambid.true_rig import true_linear_model
+from ambid.plant.rig import make_rig
+from ambid.plant.true_rig import true_linear_model
+from ambid.studies.identification import (compare_modes, frf_relative_error, identify_session, select_order,
+                                          session_rig, true_modes)
 from ambid_nodes.commands import fit as fit_command
+from session_testbench import design_message, plant_message, simulate_closed_loop, write_session
 
 RIG = make_rig()
 PRE = 3000

@@ -2,11 +2,11 @@
 
 import numpy as np
 import pytest
-
-from ambid.closed_loop import check_controller_on_rig, close_loop
-from ambid.lqg import LqgParameters, lqg_controller
-from ambid.rig import analytical_model, make_rig
-from ambid.true_rig import true_linear_model
+from ambid.control.closed_loop import check_controller_on_rig, close_loop
+from ambid.control.lqg import LqgParameters, lqg_controller
+from ambid.plant.analytical import analytical_model
+from ambid.plant.rig import make_rig
+from ambid.plant.true_rig import true_linear_model
 
 RIG = make_rig()
 

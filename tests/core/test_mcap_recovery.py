@@ -10,16 +10,9 @@ import textwrap
 from pathlib import Path
 
 import pytest
+from ambid.session import (IncompleteSessionError, SessionWriteError, SessionWriter, iter_decoded, iter_messages,
+                           scan_session)
 from mcap.reader import make_reader
-
-from ambid.mcap_session import (
-    IncompleteSessionError,
-    SessionWriteError,
-    SessionWriter,
-    iter_decoded,
-    iter_messages,
-    scan_session,
-)
 
 AMBID_NODES = Path(__file__).resolve().parents[2] / "ambid_nodes"
 STEP_NS = 1_000_000
@@ -77,7 +70,7 @@ def test_truncated_files_give_every_complete_chunk(tmp_path):
 CHILD = textwrap.dedent(
     """
     import struct, sys, time
-    from ambid.mcap_session import SessionWriter
+    from ambid.session import SessionWriter
 
     def payload(i):
         text = f"message {i:08d}".encode()

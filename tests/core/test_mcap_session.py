@@ -9,24 +9,14 @@ from pathlib import Path
 
 import pytest
 import yaml
+from ambid.session import (IncompleteSessionError, QosProfile, SessionWriter, format_inspection, inspect_session,
+                           iter_decoded, iter_messages, read_metadata, scan_session)
+from ambid.session.writer import parse_qos_profiles, qos_profile_from, serialize_qos_profiles
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
 from mcap.records import SummaryOffset
 from mcap.stream_reader import StreamReader
 from mcap_ros2._dynamic import serialize_dynamic
-
-from ambid.mcap_session import (
-    IncompleteSessionError,
-    QosProfile,
-    SessionWriter,
-    format_inspection,
-    inspect_session,
-    iter_decoded,
-    iter_messages,
-    read_metadata,
-    scan_session,
-)
-from ambid.mcap_session.writer import parse_qos_profiles, qos_profile_from, serialize_qos_profiles
 
 SHARE = Path(sys.prefix) / "share"
 SEP = "=" * 80

@@ -1,13 +1,13 @@
-"""ambid.model_update: the parametrised physical model against the rig's own models, and updating it."""
+"""ambid.fit.model_update: the parametrised physical model against the rig's own models, and updating it."""
 
 import numpy as np
 import pytest
-
-from ambid.model_update import (PARAMETERS, bending_coordinates, nominal_parameters, physical_frf,
-                                physical_statespace, true_parameters, unmodelled_mode, update_physical_model)
-from ambid.rig import analytical_model, make_rig
+from ambid.fit.model_update import (PARAMETERS, bending_coordinates, nominal_parameters, physical_frf,
+                                    physical_statespace, true_parameters, unmodelled_mode, update_physical_model)
+from ambid.plant.analytical import analytical_model
+from ambid.plant.rig import make_rig
+from ambid.plant.true_rig import levitated_plant, true_linear_model
 from ambid.statespace import StateSpace
-from ambid.true_rig import levitated_plant, true_linear_model
 
 RIG = make_rig()
 ROTOR = RIG.rotor_model()

@@ -9,15 +9,14 @@ import struct
 
 import numpy as np
 import pytest
-from frf_testbench import FS, loop_model, simulate
-
 from ambid.excitation import design_multisine
 from ambid.fit import stabilisation_diagram
+from ambid.frf.levels import LineLevels
 from ambid.frf.offline import frf_from_arrays
 from ambid.frf.sensitivity import iso14839_zone
-from ambid.identification import LineLevels
 from ambid.report import figures
 from ambid.report.html import render_index, write_report
+from frf_testbench import FS, loop_model, simulate
 
 F = np.geomspace(10.0, 1000.0, 30)
 FD = np.geomspace(7.0, 1500.0, 200)

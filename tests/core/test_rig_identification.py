@@ -9,15 +9,14 @@ The ROS graph runs this same loop (tests/nodes/test_frf_consumer.py).
 
 import numpy as np
 import pytest
-
-from ambid.closed_loop import input_sensitivity, loop_robustness
-from ambid.comparison import frf_error, levitate, run_loop, true_frf
-from ambid.controller import PidParameters, pid_controller
+from ambid.control.closed_loop import input_sensitivity, loop_robustness
+from ambid.control.pid import PidParameters, pid_controller
 from ambid.excitation import design_multisine
 from ambid.frf.offline import frf_from_arrays
 from ambid.frf.sensitivity import iso14839_zone
-from ambid.rig import make_rig
-from ambid.true_rig import true_linear_model
+from ambid.plant.rig import make_rig
+from ambid.plant.true_rig import true_linear_model
+from ambid.studies.comparison import frf_error, levitate, run_loop, true_frf
 
 INPUTS = ("u_a_x", "u_b_x", "u_a_y", "u_b_y")
 AXES = ("a_x", "b_x", "a_y", "b_y")

@@ -2,9 +2,9 @@
 
 import numpy as np
 import pytest
-
-from ambid.rig import analytical_model, make_rig
-from ambid.true_rig import levitated_plant, operating_point, true_linear_model
+from ambid.plant.analytical import analytical_model
+from ambid.plant.rig import make_rig
+from ambid.plant.true_rig import levitated_plant, operating_point, true_linear_model
 
 RHO = 7810.0
 G = 9.81

@@ -4,8 +4,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from ambid.rig import RIG_FIELDS, analytical_model, load_rig, make_rig, rig_markdown
+from ambid.plant.analytical import analytical_model
+from ambid.plant.rig import RIG_FIELDS, load_rig, make_rig
+from ambid.plant.rig_doc import rig_markdown
 
 REPO = Path(__file__).resolve().parents[2]
 MU0 = 4e-7 * np.pi

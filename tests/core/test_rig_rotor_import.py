@@ -2,10 +2,10 @@
 
 import numpy as np
 import pytest
-
-from ambid.fem_rotor import DOF_X, DOF_Y, assemble_rotor, dof_index, node_at
-from ambid.rig import analytical_model, load_rig, make_rig
-from ambid.rotor_import import load_rotor, save_rotor
+from ambid.plant.analytical import analytical_model
+from ambid.plant.fem_rotor import DOF_X, DOF_Y, assemble_rotor, dof_index, node_at
+from ambid.plant.rig import load_rig, make_rig
+from ambid.plant.rotor_import import load_rotor, save_rotor
 
 FREQ = np.array([5.0, 60.0, 300.0, 900.0])
 
@@ -53,7 +53,7 @@ def test_second_order_matrices_reduce_to_the_built_in_rotor(tmp_path):
     # same modes (2 rigid + 3 bending per plane below 2 kHz), same modal damping: same FRF
     assert _rel(analytical_model(user).freqresp(FREQ), analytical_model(builtin).freqresp(FREQ)) < 1e-6
     # gravity: the same weight on the rotor, so the same levitation current
-    from ambid.true_rig import operating_point
+    from ambid.plant.true_rig import operating_point
     assert operating_point(user).current_a == pytest.approx(operating_point(builtin).current_a, rel=1e-6)
 
 

@@ -1,4 +1,4 @@
-"""ambid.session_blocks: hand-written SampleBlock CDR reader against mcap_ros2's encoder and decoder."""
+"""ambid.session.blocks: hand-written SampleBlock CDR reader against mcap_ros2's encoder and decoder."""
 
 import sys
 import time
@@ -6,19 +6,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from ambid.session import SessionWriter, inspect_session, iter_messages
+from ambid.session.blocks import (SAMPLE_BLOCK_TYPE, block_spans, decode_sample_block, iter_sample_blocks,
+                                  read_samples, sample_block_span, sample_block_topics, sample_index_report)
 from mcap_ros2._dynamic import serialize_dynamic
-
-from ambid.mcap_session import SessionWriter, inspect_session, iter_messages
-from ambid.session_blocks import (
-    SAMPLE_BLOCK_TYPE,
-    block_spans,
-    decode_sample_block,
-    iter_sample_blocks,
-    read_samples,
-    sample_block_span,
-    sample_block_topics,
-    sample_index_report,
-)
 
 ROOT = Path(__file__).resolve().parents[2]
 SEP = "=" * 80

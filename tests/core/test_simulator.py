@@ -2,11 +2,12 @@
 
 import numpy as np
 import pytest
-
-from ambid.controller import ControllerStepper, PidParameters, pid_controller
-from ambid.rig import analytical_model, make_rig
-from ambid.simulator import PlantSimulator
-from ambid.true_rig import true_linear_model
+from ambid.control.pid import PidParameters, pid_controller
+from ambid.control.stepper import ControllerStepper
+from ambid.plant.analytical import analytical_model
+from ambid.plant.rig import make_rig
+from ambid.plant.simulator import PlantSimulator
+from ambid.plant.true_rig import true_linear_model
 
 
 def test_starts_at_rest_on_the_backup_bearing():

@@ -2,11 +2,10 @@
 
 import numpy as np
 import pytest
-from scipy import signal
-
-from ambid.closed_loop import check_stability, close_loop
-from ambid.levitation import LevitationMonitor
+from ambid.control.closed_loop import check_stability, close_loop
+from ambid.plant.levitation import LevitationMonitor
 from ambid.statespace import StateSpace, block_diag, delay, series, statespace_from_dict
+from scipy import signal
 
 
 def mass_spring(m=2.0, k=800.0, c=4.0) -> StateSpace:

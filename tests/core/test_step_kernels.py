@@ -6,13 +6,13 @@ import pickle
 
 import numpy as np
 import pytest
-
-from ambid import step_kernels as sk
-from ambid.controller import ControllerStepper, PidParameters, pid_controller
-from ambid.rig import make_rig
-from ambid.simulator import CONTACT_SUBSTEPS, NOISE_BLOCK, PlantSimulator
+from ambid.plant import step_kernel as sk
+from ambid.control.pid import PidParameters, pid_controller
+from ambid.control.stepper import ControllerStepper
+from ambid.plant.rig import make_rig
+from ambid.plant.simulator import CONTACT_SUBSTEPS, NOISE_BLOCK, PlantSimulator
+from ambid.plant.true_rig import delayed_zoh, zoh_blocks
 from ambid.statespace import StateSpace
-from ambid.true_rig import delayed_zoh, zoh_blocks
 
 
 def _reference_step(sim, x, u_prev, u, nonlinear, cubic):

@@ -7,24 +7,24 @@ import json
 import numpy as np
 import pytest
 import rclpy
-from ambid_msgs.msg import ExcitationDesign as DesignMsg
-from ambid_msgs.msg import FrfEstimate, SampleBlock, SessionEvent, SessionStatus
-from ambid_msgs.srv import StartExperiment
-from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-
 from ambid.excitation import design_multisine
 from ambid.frf.offline import frf_from_session
-from ambid.mcap_session import SessionWriter
-from ambid.rig import make_rig
-from ambid.true_rig import true_linear_model
-from ambid_nodes import qos
+from ambid.plant.rig import make_rig
+from ambid.plant.true_rig import true_linear_model
+from ambid.session import SessionWriter
 from ambid_nodes.conversions import block_msg
 from ambid_nodes.excitation_generator import ExcitationGenerator
 from ambid_nodes.frf_consumer import FrfConsumer
 from ambid_nodes.parameters import ParameterError
 from ambid_nodes.plant_sim import MEASUREMENT_NAMES, MEASUREMENT_UNITS, PlantSim
 from ambid_nodes.position_controller import PositionController
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+from ambid_msgs.msg import ExcitationDesign as DesignMsg
+from ambid_msgs.msg import FrfEstimate, SampleBlock, SessionEvent, SessionStatus
+from ambid_msgs.srv import StartExperiment
+from ambid_nodes import qos
 
 NS = "/amb"
 FS = 10_000.0

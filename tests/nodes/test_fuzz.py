@@ -23,20 +23,12 @@ import time
 import zlib
 
 import numpy as np
-from ambid_msgs.msg import (ControllerDescription, ExcitationDesign, FrfEstimate, PlantDescription, Sample,
-                            SampleBlock, SessionEvent, SessionStatus)
-from ambid_msgs.srv import StartExperiment
-from rclpy.node import Node
-from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile
-from rclpy.serialization import deserialize_message, serialize_message
-
-from ambid import bridge_protocol as bp
-from ambid.controller import PidParameters, pid_controller
-from ambid.mcap_session import scan_session
-from ambid.rig import analytical_model, make_rig
-from ambid.rt_target import Target, TargetConfig
-from ambid_nodes import qos
+from ambid.control.pid import PidParameters, pid_controller
+from ambid.hardware import bridge_protocol as bp
+from ambid.hardware.rt_target import Target, TargetConfig
+from ambid.plant.analytical import analytical_model
+from ambid.plant.rig import make_rig
+from ambid.session import scan_session
 from ambid_nodes.conversions import block_msg, float_array, statespace_to_msg
 from ambid_nodes.excitation_generator import ExcitationGenerator
 from ambid_nodes.frf_consumer import FrfConsumer
@@ -44,6 +36,15 @@ from ambid_nodes.hardware_bridge import HardwareBridge
 from ambid_nodes.plant_sim import MEASUREMENT_NAMES, MEASUREMENT_UNITS, PlantSim
 from ambid_nodes.position_controller import PositionController
 from ambid_nodes.recorder import Recorder
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile
+from rclpy.serialization import deserialize_message, serialize_message
+
+from ambid_msgs.msg import (ControllerDescription, ExcitationDesign, FrfEstimate, PlantDescription, Sample,
+                            SampleBlock, SessionEvent, SessionStatus)
+from ambid_msgs.srv import StartExperiment
+from ambid_nodes import qos
 
 DT = 1e-4
 R_NAMES = ("r_a_x", "r_b_x", "r_a_y", "r_b_y")

@@ -1,6 +1,6 @@
 """hardware_bridge over a real loopback UDP socket, talking to the simulated real-time target.
 
-The target runs as a separate process (``python -m ambid.rt_target``) in the lossless session and as
+The target runs as a separate process (``python -m ambid.hardware.rt_target``) in the lossless session and as
 a thread (same code, no second interpreter start-up) where faults are injected.
 """
 
@@ -17,18 +17,18 @@ import time
 
 import numpy as np
 import pytest
-from ambid_msgs.msg import ExcitationDesign, PlantDescription, SampleBlock, SessionEvent, SessionStatus
-from rclpy.node import Node
-from rclpy.parameter import Parameter
-from rosgraph_msgs.msg import Clock
-
-from ambid import bridge_protocol as bp
-from ambid.rt_target import SUMMARY_PREFIX, Target, TargetConfig
-from ambid_nodes import qos
+from ambid.hardware import bridge_protocol as bp
+from ambid.hardware.rt_target import SUMMARY_PREFIX, Target, TargetConfig
 from ambid_nodes.conversions import block_data
 from ambid_nodes.hardware_bridge import EXCITATION_NAMES, MEASUREMENT_NAMES, HardwareBridge
 from ambid_nodes.parameters import ParameterError
 from ambid_nodes.plant_sim import MEASUREMENT_NAMES as PLANT_SIM_NAMES
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rosgraph_msgs.msg import Clock
+
+from ambid_msgs.msg import ExcitationDesign, PlantDescription, SampleBlock, SessionEvent, SessionStatus
+from ambid_nodes import qos
 
 NS = "/amb"
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -75,9 +75,10 @@ def start_bridge(ros, **params):
 
 def direct_rows(seed: int, n: int, excitation: dict[int, list[float]] | None = None) -> np.ndarray:
     """(n, 16) rows y, u, ic, r as plant_sim computes them: PlantSimulator + ControllerStepper, no ROS, no UDP."""
-    from ambid.controller import ControllerStepper, PidParameters, pid_controller
-    from ambid.rig import make_rig
-    from ambid.simulator import PlantSimulator
+    from ambid.control.pid import PidParameters, pid_controller
+    from ambid.control.stepper import ControllerStepper
+    from ambid.plant.rig import make_rig
+    from ambid.plant.simulator import PlantSimulator
 
     excitation = excitation or {}
     rig = make_rig()
@@ -145,7 +146,7 @@ def test_lossless_session_over_udp_records_the_plant_sim_rows(ros, tmp_path):
         m.data = r[off:off + 500].ravel()
         spy.pub_exc.publish(m)
     assert ros.spin_until(lambda: sum(len(c[0]) for c in bridge.exc_chunks.values()) == length, timeout_s=10)
-    proc = subprocess.Popen([sys.executable, "-m", "ambid.rt_target", "--bind", target, "--bridge", local,
+    proc = subprocess.Popen([sys.executable, "-m", "ambid.hardware.rt_target", "--bind", target, "--bridge", local,
                              "--seed", str(seed), "--pace", "1", "--samples", str(n), "--linger", "0.3"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             cwd=os.path.join(REPO, "ambid_nodes"))

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import subprocess
@@ -11,18 +10,17 @@ import time
 
 import numpy as np
 import pytest
-import rclpy
-from ambid_msgs.msg import ControllerDescription, PlantDescription, Sample, SampleBlock, SessionEvent, SessionStatus
-from rclpy.node import Node
-from rclpy.parameter import Parameter
-from rclpy.qos import HistoryPolicy, QoSProfile
-
-from ambid_nodes import qos
 from ambid_nodes.conversions import block_data
 from ambid_nodes.loop_kernels import LOOP_COUNT, LOOP_GATE
 from ambid_nodes.parameters import ParameterError
 from ambid_nodes.plant_sim import MEASUREMENT_NAMES, PlantSim
 from ambid_nodes.position_controller import PositionController
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import HistoryPolicy, QoSProfile
+
+from ambid_msgs.msg import ControllerDescription, PlantDescription, Sample, SampleBlock, SessionEvent, SessionStatus
+from ambid_nodes import qos
 
 NS = "/amb"
 
@@ -178,7 +176,8 @@ class BadController(Node):
 
     def __init__(self, context):
         super().__init__("bad_controller", namespace=NS, context=context)
-        from ambid.controller import ControllerStepper, PidParameters, pid_controller
+        from ambid.control.pid import PidParameters, pid_controller
+        from ambid.control.stepper import ControllerStepper
         self.ctl = ControllerStepper(pid_controller(PidParameters(), 1e-4), 3.0)
         self.pub = self.create_publisher(Sample, "control_current", qos.LOOP)
         self.create_subscription(Sample, "displacement", self.on_y, qos.LOOP)
@@ -288,7 +287,7 @@ def test_graph_against_hardware_target_over_loopback(ros_env):
         s.bind(("127.0.0.1", 0))
         ports.append(s.getsockname()[1])
         s.close()
-    target = subprocess.Popen([sys.executable, "-m", "ambid.rt_target", "--bind", f"127.0.0.1:{ports[0]}",
+    target = subprocess.Popen([sys.executable, "-m", "ambid.hardware.rt_target", "--bind", f"127.0.0.1:{ports[0]}",
                                "--bridge", f"127.0.0.1:{ports[1]}", "--pace", "0", "--samples", "20000"],
                               env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:

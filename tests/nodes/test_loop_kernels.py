@@ -8,13 +8,13 @@ import struct
 
 import numpy as np
 import pytest
-
-from ambid.controller import ControllerStepper, PidParameters, pid_controller
-from ambid.lqg import LqgParameters, lqg_controller
-from ambid.rig import make_rig
+from ambid.control.lqg import LqgParameters, lqg_controller
+from ambid.control.pid import PidParameters, pid_controller
+from ambid.control.stepper import ControllerStepper
+from ambid.plant.rig import make_rig
 from ambid_nodes.loop_call import BoundKernel
-from ambid_nodes.loop_kernels import (CK_LEAD, CK_LIMIT, CK_MAT, CK_N, CK_WORK, N_CK, N_PK, PK_BLOCK_START,
-                                      PK_CLOCK_EVERY, PK_FREE_UNTIL, PK_LOOP, LOOP_OUT, PK_R, PK_R_FIRST, PK_WORK,
+from ambid_nodes.loop_kernels import (CK_LEAD, CK_LIMIT, CK_MAT, CK_N, CK_WORK, LOOP_OUT, N_CK, N_PK, PK_BLOCK_START,
+                                      PK_CLOCK_EVERY, PK_FREE_UNTIL, PK_LOOP, PK_R, PK_R_FIRST, PK_WORK,
                                       controller_kernel, plant_kernel, sample4_buffer)
 from ambid_nodes.sample_codec import encode_sample, encode_sample4
 
@@ -87,9 +87,9 @@ def test_compiled_plant_sample_is_the_python_step():
     """From rest on the retainer (contact), through lift-off, with clipping and excitation: the compiled
     plant path records, publishes and steps exactly what step_output does, and says when a sample
     boundary (clock, full block, end of the excitation block) or an excitation lookup is due."""
-    from ambid.simulator import PlantSimulator
-    from ambid_nodes.loop_kernels import (LP_IC, PLANT_AFTER, PLANT_CLIPPED, PLANT_CONTACT, PLANT_KIND,
-                                          PLANT_LOOKUP, PLANT_NOISE, PLANT_STEPPED, plant_loop_vector)
+    from ambid.plant.simulator import PlantSimulator
+    from ambid_nodes.loop_kernels import (LP_IC, PLANT_AFTER, PLANT_CLIPPED, PLANT_CONTACT, PLANT_KIND, PLANT_LOOKUP,
+                                          PLANT_NOISE, PLANT_STEPPED, plant_loop_vector)
 
     rig = make_rig()
     ref, fast = PlantSimulator(rig, seed=4, nonlinear_magnets=True), PlantSimulator(rig, seed=4,

@@ -14,14 +14,14 @@ import numba
 import numpy as np
 import pytest
 import rclpy
-from ambid_msgs.msg import Sample
-
-from ambid_nodes import qos
 from ambid_nodes.loop_call import BoundKernel
-from ambid_nodes.loop_pump import BUDGET, NOT_RUN, LoopEntry, Pump, pump_of
 from ambid_nodes.loop_kernels import (LOOP_COUNT, LOOP_DONE, LOOP_GATE, LOOP_K, LOOP_KERNEL, LOOP_LIMIT,
                                       LOOP_NO_LIMIT, LOOP_OUT, N_LOOP, _pointer)
+from ambid_nodes.loop_pump import BUDGET, NOT_RUN, LoopEntry, Pump, pump_of
 from ambid_nodes.sample_codec import decode_sample
+
+from ambid_msgs.msg import Sample
+from ambid_nodes import qos
 
 ECHO_STEP = N_LOOP  # the answer's index is the message's + step
 ECHO_EVERY = N_LOOP + 1  # ECHO_SPECIAL where k % every == 0 (0: never)

@@ -20,7 +20,6 @@ import subprocess
 import sys
 
 import pytest
-
 from ambid_nodes.node_main import SUMMARY_PREFIX
 
 TAG = f"amb{os.getpid() % 100000}"

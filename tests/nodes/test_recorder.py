@@ -19,21 +19,21 @@ import numpy as np
 import pytest
 import rclpy
 import yaml
-from ambid_msgs.msg import ExcitationDesign, SampleBlock, SessionEvent, SessionStatus
-from mcap.reader import make_reader
-from rclpy.node import Node
-from rclpy.parameter import Parameter
-from rclpy.serialization import deserialize_message
-
-from ambid.mcap_session import SessionWriter, iter_decoded, iter_messages, read_metadata, scan_session
-from ambid.mcap_session.writer import parse_qos_profiles
-from ambid.session_blocks import decode_sample_block
-from ambid_nodes import qos
+from ambid.session import SessionWriter, iter_decoded, iter_messages, read_metadata, scan_session
+from ambid.session.blocks import decode_sample_block
+from ambid.session.writer import parse_qos_profiles
 from ambid_nodes.commands import inspect as inspect_cmd
 from ambid_nodes.conversions import block_msg
 from ambid_nodes.node_main import SUMMARY_PREFIX
 from ambid_nodes.plant_sim import MEASUREMENT_NAMES, PlantSim
 from ambid_nodes.position_controller import PositionController
+from mcap.reader import make_reader
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.serialization import deserialize_message
+
+from ambid_msgs.msg import ExcitationDesign, SampleBlock, SessionEvent, SessionStatus
+from ambid_nodes import qos
 
 NS = "/amb"
 MEAS = f"{NS}/measurement"

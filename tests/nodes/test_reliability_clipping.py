@@ -7,14 +7,14 @@ from __future__ import annotations
 import re
 
 import numpy as np
-from ambid_msgs.msg import ExcitationDesign, SampleBlock, SessionEvent
-from rclpy.node import Node
-from rclpy.parameter import Parameter
-
-from ambid_nodes import qos
 from ambid_nodes.conversions import block_data, block_msg
 from ambid_nodes.plant_sim import EXCITATION_NAMES, MEASUREMENT_NAMES, PlantSim
 from ambid_nodes.position_controller import PositionController
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from ambid_msgs.msg import ExcitationDesign, SampleBlock, SessionEvent
+from ambid_nodes import qos
 
 NS = "/clip"
 START, N = 2000, 1000  # excited samples [2000, 3000)

@@ -7,18 +7,18 @@ from __future__ import annotations
 import argparse
 import json
 
-from ambid_msgs.msg import FrfEstimate, SampleBlock, SessionEvent
-from ambid_msgs.srv import StartExperiment
-from rclpy.node import Node
-from rclpy.parameter import Parameter
-
-from ambid_nodes import qos
 from ambid_nodes.commands import inspect as inspect_cmd
 from ambid_nodes.excitation_generator import ExcitationGenerator
 from ambid_nodes.frf_consumer import FrfConsumer
 from ambid_nodes.plant_sim import PlantSim
 from ambid_nodes.position_controller import PositionController
 from ambid_nodes.recorder import Recorder
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from ambid_msgs.msg import FrfEstimate, SampleBlock, SessionEvent
+from ambid_msgs.srv import StartExperiment
+from ambid_nodes import qos
 
 NS = "/gap"
 BLOCK = 500

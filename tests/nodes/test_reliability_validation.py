@@ -7,21 +7,22 @@ import json
 
 import numpy as np
 import pytest
-from ambid_msgs.msg import (ControllerDescription, ExcitationDesign, PlantDescription, Sample, SampleBlock,
-                            SessionEvent, SessionStatus)
-from rclpy.node import Node
-from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-
-from ambid.controller import PidParameters, pid_controller
-from ambid.rig import analytical_model, make_rig
-from ambid_nodes import qos
+from ambid.control.pid import PidParameters, pid_controller
+from ambid.plant.analytical import analytical_model
+from ambid.plant.rig import make_rig
 from ambid_nodes.conversions import block_msg, statespace_to_msg
 from ambid_nodes.excitation_generator import ExcitationGenerator
 from ambid_nodes.frf_consumer import FrfConsumer
 from ambid_nodes.hardware_bridge import HardwareBridge
 from ambid_nodes.plant_sim import MEASUREMENT_NAMES, MEASUREMENT_UNITS, PlantSim
 from ambid_nodes.position_controller import PositionController
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from ambid_msgs.msg import (ControllerDescription, ExcitationDesign, PlantDescription, Sample, SampleBlock,
+                            SessionEvent, SessionStatus)
+from ambid_nodes import qos
 
 DT = 1e-4
 R_NAMES = ("r_a_x", "r_b_x", "r_a_y", "r_b_y")

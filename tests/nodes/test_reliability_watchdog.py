@@ -17,15 +17,15 @@ import time
 
 import numpy as np
 import pytest
-from ambid_msgs.msg import ExcitationDesign, Sample, SampleBlock, SessionEvent, SessionStatus
-from rclpy.node import Node
-from rclpy.parameter import Parameter
-
-from ambid_nodes import qos
 from ambid_nodes.conversions import block_data, block_msg
 from ambid_nodes.node_main import SUMMARY_PREFIX
 from ambid_nodes.plant_sim import EXCITATION_NAMES, LANDING_S, MEASUREMENT_NAMES, PlantSim
 from ambid_nodes.position_controller import PositionController
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from ambid_msgs.msg import ExcitationDesign, Sample, SampleBlock, SessionEvent, SessionStatus
+from ambid_nodes import qos
 
 TIMEOUT_S = 0.5
 WATCHDOG_S = 0.1

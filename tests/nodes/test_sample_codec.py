@@ -3,11 +3,11 @@
 import math
 
 import pytest
-from ambid_msgs.msg import Sample
-from rclpy.serialization import deserialize_message
-
 from ambid_nodes.conversions import BadMessage, all_finite
 from ambid_nodes.sample_codec import decode_sample, encode_sample
+from rclpy.serialization import deserialize_message
+
+from ambid_msgs.msg import Sample
 
 
 def test_round_trip_and_rclpy_reads_it():
@@ -38,11 +38,10 @@ def test_wrong_count_and_truncation_refused():
 
 
 def test_clock_bytes_are_the_clock_message():
-    from rclpy.serialization import serialize_message
-    from rosgraph_msgs.msg import Clock
-
     from ambid_nodes.conversions import time_msg
     from ambid_nodes.sample_codec import encode_clock
+    from rclpy.serialization import serialize_message
+    from rosgraph_msgs.msg import Clock
 
     for t in (0.0, 1e-4, 0.9999999996, 12.3456, 2.0**31 - 1.5):
         assert encode_clock(t) == serialize_message(Clock(clock=time_msg(t)))

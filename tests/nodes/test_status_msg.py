@@ -4,9 +4,8 @@ import json
 import math
 
 import numpy as np
-from builtin_interfaces.msg import Time
-
 from ambid_nodes.conversions import json_text, status_msg
+from builtin_interfaces.msg import Time
 
 
 def test_status_values_are_json():

@@ -12,11 +12,10 @@ Approach, 2nd ed., ch. 5; Dobrowiecki, Schoukens & Guillaume (2006).
 """
 
 from .design import ExcitationDesign, SegmentIndex, check_headroom
-from .designers import (design_dibs, design_multisine, design_noise, design_prbs,
-                        design_stepped_sine, design_swept_sine)
+from .designers import design_dibs, design_multisine, design_noise, design_prbs, design_stepped_sine, design_swept_sine
 from .lines import band_bins, detection_lines, line_set, n_per_period, shape_amplitudes
-from .multisine import (crest_factor, dft_weights, mimo_phasors, multisine_period,
-                        optimise_crest_phases, schroeder_phases)
+from .multisine import (crest_factor, dft_weights, mimo_phasors, multisine_period, optimise_crest_phases,
+                        schroeder_phases)
 from .planner import PlanRow, format_plan, plan_measurements
 from .preview import describe, plot_design
 from .signals import binary_levels, dibs_bits, mls, swept_sine_period

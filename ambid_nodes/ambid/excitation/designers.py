@@ -13,12 +13,10 @@ import numpy as np
 from scipy.signal import freqz
 
 from .design import ExcitationDesign
-from .lines import (AmplitudeShape, band_bins, detection_lines, line_set, n_per_period,
-                    shape_amplitudes)
-from .multisine import (MIMO_MULTISINE, PHASES, experiment_shifts, mimo_phasors,
-                        optimise_crest_phases, schroeder_phases)
-from .signals import (binary_waveform, dibs_bits, mls, noise_filter_spec, noise_taps,
-                      stepped_sine_layout, swept_sine_period)
+from .lines import AmplitudeShape, band_bins, detection_lines, line_set, n_per_period, shape_amplitudes
+from .multisine import MIMO_MULTISINE, PHASES, experiment_shifts, mimo_phasors, optimise_crest_phases, schroeder_phases
+from .signals import (binary_waveform, dibs_bits, mls, noise_filter_spec, noise_taps, stepped_sine_layout,
+                      swept_sine_period)
 
 MIMO_BINARY = ("one_at_a_time", "orthogonal")
 MIMO_NOISE = ("simultaneous", "one_at_a_time")

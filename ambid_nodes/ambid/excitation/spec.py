@@ -92,8 +92,8 @@ def build_design(kind: str, band_hz: tuple[float, float], resolution_hz: float, 
     Raises:
         ValueError naming the bad argument (band above Nyquist, resolution not dividing fs, ...).
     """
-    from ambid.excitation import (design_dibs, design_multisine, design_noise, design_prbs,
-                                  design_stepped_sine, design_swept_sine)
+    from ambid.excitation import (design_dibs, design_multisine, design_noise, design_prbs, design_stepped_sine,
+                                  design_swept_sine)
 
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")

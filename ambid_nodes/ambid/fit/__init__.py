@@ -14,8 +14,8 @@ from ambid.fit.common_denominator import FitResult, RationalModel, fit_common_de
 from ambid.fit.export import (load_model_json, load_model_npz, load_statespace_json, load_statespace_npz,
                               save_model_json, save_model_npz)
 from ambid.fit.modes import ModalSummary, Mode, RealPole, modal_summary, to_statespace
-from ambid.fit.order_selection import (STATUS_LABELS, StabilisationDiagram, cmif, plot_cmif,
-                                       plot_stabilisation, stabilisation_diagram)
+from ambid.fit.order_selection import (STATUS_LABELS, StabilisationDiagram, cmif, plot_cmif, plot_stabilisation,
+                                       stabilisation_diagram)
 from ambid.fit.updating import UpdateResult, update_parameters
 
 __all__ = [

@@ -23,8 +23,8 @@ import numpy as np
 from scipy import linalg
 
 from ambid.fit import basis as fb
-from ambid.fit.vector_fitting import (LinearSolution, WeightedData, dependent_columns, null_map,
-                                      solve_coefficients, stack_real)
+from ambid.fit.vector_fitting import (LinearSolution, WeightedData, dependent_columns, null_map, solve_coefficients,
+                                      stack_real)
 
 
 @dataclass(frozen=True)

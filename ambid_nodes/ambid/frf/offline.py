@@ -26,10 +26,11 @@ from typing import Any
 
 import numpy as np
 
+from ambid.channels import AXES, CURRENT_NAMES, DISPLACEMENT_NAMES
 from ambid.excitation.design import ExcitationDesign
 from ambid.frf.arrays_io import load_arrays, stack_channels
 from ambid.frf.streaming import ESTIMATORS, FrfResult, FrfStream, match_inputs
-from ambid.rig import AXES, CURRENT_NAMES, DISPLACEMENT_NAMES
+from ambid.session.reader import Ros2Decoder, iter_messages, iter_raw
 
 __all__ = ["DEFAULT_OUTPUTS", "DEFAULT_INPUTS", "DEFAULT_REFERENCES", "load_design",
            "frf_from_arrays", "frf_from_files", "frf_from_session", "session_designs"]
@@ -136,11 +137,10 @@ def session_designs(path: str | os.PathLike, recover: bool = False) -> list[dict
         (ExcitationDesign); a republished design (an experiment stopped
         early) replaces the earlier one.
     """
-    from ambid.mcap_session.reader import _iter_raw, _Ros2Decoder
 
     designs = _Designs(os.fspath(path))
-    decode = _Ros2Decoder()
-    for schema, channel, msg in _iter_raw(path, _is_design_topic, recover):
+    decode = Ros2Decoder()
+    for schema, channel, msg in iter_raw(path, _is_design_topic, recover):
         designs.add(channel.topic, decode(schema, channel, msg))
     return designs.final()
 
@@ -280,7 +280,6 @@ def _read_sample_block(buf: bytes) -> tuple[int, float, list[str], np.ndarray]:
 
 def _session_blocks(path: str | os.PathLike, topic: str, stream: FrfStream,
                     recover: bool) -> Iterator[tuple[int, np.ndarray]]:
-    from ambid.mcap_session.reader import iter_messages
 
     feed, read = _Feeder(stream), _BlockReader()
     for message in iter_messages(path, topic, recover=recover):
@@ -362,12 +361,11 @@ def frf_from_session(path: str | os.PathLike, estimator: str = "indirect",
     Returns:
         :class:`ambid.frf.streaming.FrfResult`.
     """
-    from ambid.mcap_session.reader import _iter_raw, _Ros2Decoder
 
     if estimator not in ESTIMATORS:   # before reading the file
         raise ValueError(f"estimator must be one of {ESTIMATORS}, got {estimator!r}")
     designs = _Designs(os.fspath(path))
-    decode = _Ros2Decoder()
+    decode = Ros2Decoder()
     readers: dict[str, _BlockReader] = {}
     seen_end: dict[str, int] = {}       # measurement topic -> one past the last sample index read
     pending: _Pending | None = None
@@ -386,7 +384,7 @@ def frf_from_session(path: str | os.PathLike, estimator: str = "indirect",
     def wanted(topic: str) -> bool:
         return _is_design_topic(topic) or topic.rstrip("/").endswith(_MEASUREMENT_TOPIC)
 
-    for schema, channel, msg in _iter_raw(path, wanted, recover):
+    for schema, channel, msg in iter_raw(path, wanted, recover):
         topic = channel.topic
         if _is_design_topic(topic):
             key, entry = designs.add(topic, decode(schema, channel, msg))

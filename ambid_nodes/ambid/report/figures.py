@@ -19,7 +19,7 @@ if TYPE_CHECKING:
 
     from ambid.excitation.design import ExcitationDesign
     from ambid.fit.order_selection import StabilisationDiagram
-    from ambid.identification import LineLevels
+    from ambid.frf.levels import LineLevels
 
 __all__ = ["bode_matrix", "noise_distortion", "stabilisation", "excitation", "input_sensitivity", "time_records",
            "frf_error"]
@@ -147,7 +147,7 @@ def noise_distortion(levels: LineLevels, output_names: Sequence[str] = (), path:
     """Output amplitude at excited, odd- and even-detection lines against the noise floor, per output.
 
     Args:
-        levels: :class:`ambid.identification.LineLevels`.
+        levels: :class:`ambid.frf.levels.LineLevels`.
         output_names: (Ny,) labels.
         path: PNG to write.
         odd_db, even_db: (Ny,) distortion levels above the noise [dB] for the titles.

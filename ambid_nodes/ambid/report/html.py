@@ -15,8 +15,8 @@ from ambid.report import figures
 if TYPE_CHECKING:
     from ambid.excitation.design import ExcitationDesign
     from ambid.fit.order_selection import StabilisationDiagram
+    from ambid.frf.levels import LineLevels
     from ambid.frf.streaming import FrfResult
-    from ambid.identification import LineLevels
 
 __all__ = ["write_report", "render_index"]
 
@@ -122,7 +122,7 @@ def render_index(summary: Mapping[str, Any], figure_list: list[tuple[str, str]])
     """The index.html text: headline table, modes, parameters, figures with captions.
 
     Args:
-        summary: the dict :func:`ambid.identification.identify_session` returns.
+        summary: the dict :func:`ambid.studies.identification.identify_session` returns.
         figure_list: [(PNG file name, caption)].
     """
     parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>ambid identification report</title>"

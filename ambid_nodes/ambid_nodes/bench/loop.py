@@ -13,7 +13,8 @@ import os
 import statistics
 import time
 
-from ambid.rig import make_rig
+from ambid.plant.rig import make_rig
+
 from ambid_nodes.bench.pingpong import run_pingpong_composed, run_pingpong_processes
 from ambid_nodes.graph import GraphConfig, run_composed, run_processes, session_domain_id
 

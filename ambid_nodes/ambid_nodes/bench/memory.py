@@ -25,6 +25,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+
 def _status_mb(key: str) -> float:
     with open("/proc/self/status") as f:
         for line in f:

@@ -2,7 +2,7 @@
 
 The session file is written here from a core-level simulation, not by the
 graph (seconds instead of minutes for the long ones): the linearised true
-rig (:func:`ambid.true_rig.true_linear_model`) in closed loop with the
+rig (:func:`ambid.plant.true_rig.true_linear_model`) in closed loop with the
 default PID, driven by the experiment's excitation, with white sensor noise
 of the rig on the recorded y (not fed back). The file holds what the
 recorder writes of those topics, serialised as the nodes publish them:
@@ -20,17 +20,18 @@ import time
 from collections.abc import Callable
 
 import numpy as np
-from ambid_msgs.msg import ExcitationDesign as DesignMsg
-from ambid_msgs.msg import SampleBlock
+from ambid.channels import CURRENT_NAMES
+from ambid.control.closed_loop import close_loop
+from ambid.control.pid import PidParameters, pid_controller
+from ambid.excitation import ExcitationDesign
+from ambid.plant.rig import make_rig
+from ambid.plant.true_rig import true_linear_model
+from ambid.session import SessionWriter, iter_messages
 from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
 
-from ambid.closed_loop import close_loop
-from ambid.controller import PidParameters, pid_controller
-from ambid.excitation import ExcitationDesign
-from ambid.mcap_session import SessionWriter, iter_messages
-from ambid.rig import CURRENT_NAMES, make_rig
-from ambid.true_rig import true_linear_model
+from ambid_msgs.msg import ExcitationDesign as DesignMsg
+from ambid_msgs.msg import SampleBlock
 from ambid_nodes import qos
 from ambid_nodes.conversions import block_msg, time_msg
 from ambid_nodes.plant_sim import EXCITATION_NAMES, MEASUREMENT_NAMES, MEASUREMENT_UNITS
@@ -161,7 +162,7 @@ def offline_figures(path: str | os.PathLike, samples: int, repeats: int = 3) -> 
     Returns:
         dict reader -> {``s`` (median wall time), ``mb_per_s`` (file MB per s), ``samples_per_s``}
         for ``mcap_bare`` (the mcap library's iter_messages, nothing done with the data),
-        ``session_iter`` (:func:`ambid.mcap_session.iter_messages`, all topics) and ``frf``
+        ``session_iter`` (:func:`ambid.session.iter_messages`, all topics) and ``frf``
         (:func:`ambid.frf.offline.frf_from_session`), plus ``ratio_frf_to_bare`` (rate of frf over
         mcap_bare, median over rounds), ``ratio_frf_to_session_iter`` (the same over ambid's own
         reader: what the FRF costs beyond reading with it) and ``file_bytes``.

@@ -23,10 +23,10 @@ import sys
 import time
 
 import rclpy
-from ambid_msgs.msg import Sample
 from rclpy.node import Node
 from rclpy.task import Future
 
+from ambid_msgs.msg import Sample
 from ambid_nodes import qos
 from ambid_nodes.node_main import SUMMARY_PREFIX, run_single, spin_until_done
 from ambid_nodes.parameters import declare, refuse_unknown

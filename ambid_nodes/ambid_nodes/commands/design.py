@@ -18,8 +18,7 @@ from pathlib import Path
 
 HELP = "preview an excitation design: figures, headroom, measurement times, spectrum plot"
 
-from ambid.excitation.spec import (DEFAULT_INPUTS, GRIDS, KINDS, MIMOS, PHASES,  # noqa: F401 - re-exported
-                                   SPACINGS, build_design, prbs_clock)
+from ambid.excitation.spec import DEFAULT_INPUTS, GRIDS, KINDS, MIMOS, PHASES, SPACINGS, build_design, prbs_clock  # noqa: F401 - re-exported
 
 
 # ---- the command ------------------------------------------------------------
@@ -62,7 +61,7 @@ def _plan(args, fs_hz: float, inputs: tuple[str, ...]) -> list:
 
 def run(args: argparse.Namespace) -> int:
     from ambid.excitation import check_headroom, describe, format_plan, plot_design
-    from ambid.rig import load_rig, make_rig
+    from ambid.plant.rig import load_rig, make_rig
 
     try:
         rig = load_rig(args.rig) if args.rig else make_rig()

@@ -2,7 +2,7 @@
 
 FRF, order selection, fitted model (state space as .npz and JSON), modes,
 physical-model updating and the HTML report, all written to ``--out``
-(:func:`ambid.identification.identify_session`); the headline figures are
+(:func:`ambid.studies.identification.identify_session`); the headline figures are
 printed.
 """
 
@@ -78,8 +78,8 @@ def format_summary(s: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ambid.identification import identify_session
-    from ambid.mcap_session import IncompleteSessionError
+    from ambid.session import IncompleteSessionError
+    from ambid.studies.identification import identify_session
 
     try:
         summary = identify_session(args.file, args.out, estimator=args.estimator, order=args.order,

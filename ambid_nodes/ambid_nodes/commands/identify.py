@@ -4,7 +4,6 @@ records it, then fits, updates the model and writes summary.json and the report.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 

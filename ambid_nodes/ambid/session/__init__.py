@@ -11,15 +11,8 @@ Pure Python (mcap, mcap_ros2, PyYAML); nothing here imports rclpy.
 """
 
 from .inspect import format_inspection, inspect_session
-from .reader import (
-    IncompleteSessionError,
-    SessionMessage,
-    SessionScan,
-    iter_decoded,
-    iter_messages,
-    read_metadata,
-    scan_session,
-)
+from .reader import (IncompleteSessionError, SessionMessage, SessionScan, iter_decoded, iter_messages, read_metadata,
+                     scan_session)
 from .ros2_schema import MessageSchema, load_message_schema
 from .writer import QosProfile, SessionWriteError, SessionWriter, serialize_qos_profiles
 

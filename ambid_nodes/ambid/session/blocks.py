@@ -38,8 +38,8 @@ from typing import Any, Iterable, Iterator, Sequence
 import numpy as np
 
 # one gap/overlap rule for every sample-index report (inspect_session's, fed here from headers)
-from .mcap_session.inspect import _gap_report
-from .mcap_session.reader import SessionMessage, iter_messages, scan_session
+from ambid.session.inspect import gap_report
+from ambid.session.reader import SessionMessage, iter_messages, scan_session
 
 __all__ = [
     "SAMPLE_BLOCK_TYPE",
@@ -233,7 +233,7 @@ def iter_sample_blocks(
         path: session ``.mcap``.
         topic: full topic name, e.g. ``"/amb/measurement"``.
         recover: read a file a killed writer left (see
-            :func:`ambid.mcap_session.iter_messages`).
+            :func:`ambid.session.iter_messages`).
 
     Yields:
         ``(message, block)``; ``block.data`` views ``message.data``.
@@ -276,7 +276,7 @@ def sample_index_report(
     """
     if topics is None:
         topics = sample_block_topics(path)
-    return {t: _gap_report(b) for t, b in block_spans(path, topics, recover=recover).items()}
+    return {t: gap_report(b) for t, b in block_spans(path, topics, recover=recover).items()}
 
 
 @dataclass(frozen=True)

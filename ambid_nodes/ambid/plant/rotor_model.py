@@ -1,7 +1,7 @@
 """The rotor as a linear state-space block: bearing forces in, displacements out.
 
 Every rotor the rig can carry (the built-in finite-element rotor, or a model a
-user brings, see :mod:`ambid.rotor_import`) is reduced to one
+user brings, see :mod:`ambid.plant.rotor_import`) is reduced to one
 :class:`RotorModel`::
 
     x' = A x + B f + b_gravity
@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ambid.fem_rotor import DOF_X, DOF_Y, RotorGeometry, assemble_rotor, dof_index, node_at, rigid_body_properties
-from ambid.modal import modal_state_space, plane_modes
+from ambid.plant.fem_rotor import DOF_X, DOF_Y, RotorGeometry, assemble_rotor, dof_index, node_at, rigid_body_properties
+from ambid.plant.modal import modal_state_space, plane_modes
 
 GRAVITY = 9.81  # standard gravity [m/s^2]
 # gravity per bearing axis: both axes are turned 45 deg from the vertical
@@ -120,7 +120,7 @@ def fem_rotor_model(geometry: RotorGeometry, bearing_z_m: tuple[float, float], s
     b_g = np.concatenate([np.zeros(r), modal.shapes.T @ (rotor.mass @ u_g)])
     props = rigid_body_properties(rotor)
     return RotorModel(a, b, c[:4], c[4:], b_g, props.mass_kg, modal.freq_hz[modal.n_rigid:],
-                      "finite-element rotor (ambid.fem_rotor), modal reduction")
+                      "finite-element rotor (ambid.plant.fem_rotor), modal reduction")
 
 
 def rigid_inverse_mass(model: RotorModel, probe_hz: float = 1e-3) -> np.ndarray:

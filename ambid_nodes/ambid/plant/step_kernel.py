@@ -1,16 +1,6 @@
-"""Compiled per-sample kernels of the lock-step loop: the simulated plant's free-flight step
-and the controller's state-space step.
+"""The simulated plant's compiled free-flight step (:func:`plant_step`), one call per sample.
 
-The loop runs one plant step and one controller step per sample at 10 kHz;
-in numpy each costs 10-30 us, mostly interpreter overhead, so the
-arithmetic of one sample runs here as plain loops compiled by numba
-(``njit``, cached in ``__pycache__``; the first call in a process loads or
-compiles them, importing this module compiles nothing).
-
-The kernels hold no state: all of it lives in one float64 *work vector*
-per kernel that the caller owns and passes in, matrices included (numba
-charges ~0.25 us per array argument, against ~0.8 us of arithmetic in a
-plant step).
+Shared conventions (work vectors, compiled entry points): :mod:`ambid.compiled`.
 
 Plant work vector ``s`` (1-D), for n plant states (:func:`plant_work`,
 offsets from :func:`plant_offsets`)::
@@ -22,28 +12,14 @@ offsets from :func:`plant_offsets`)::
     s[v + n + 17:mat]       scratch, n + 20: M v is summed here
     s[mat:noise]            M.T, (n + 17, n + 20) row-major: [x; u[k]; aux][k+1] = M v
     s[noise:]               sensor noise block, (rows, 4) row-major [m]
-
-Controller work vector ``w`` (1-D), for n states, p inputs, q outputs
-(:func:`statespace_work`)::
-
-    w[0:n]                  state x
-    w[n:n + p]              input y
-    w[n + p:n + p + q]      output, saturated
-    w[n + p + q:h]          scratch, q + n: m [x; y] is summed here (h = 2 n + p + 2 q)
-    w[mat:]                 step matrices m.T, (n + p, q + n) row-major each,
-                            [output; x[k+1]] = m [x; y]
-
-Matrices are stored transposed because the product then runs column by
-column into the scratch slice, which LLVM vectorises without reassociating
-any sum: each output is still summed in column order, as by a plain dot
-product. The scratch lives in the work vector so that a step allocates
-nothing (an allocation per step cost the controller half its time).
 """
 
 from __future__ import annotations
 
 import numba
 import numpy as np
+
+from ambid.compiled import F8, VEC, add_columns
 
 # plant parameters, s[PAR_*]
 PAR_N = 0  # number of plant states n
@@ -66,43 +42,7 @@ AUX = N_PAR  # aux block: y (4), gap (4), current (4), sensor displacement (4)
 N_AUX = 16
 N_EXTRA = 17  # v = [x (n); u[k-1] (4); u[k] (4); f (4); r_s (4); 1]
 
-_F8, _I8, _VEC = numba.float64, numba.int64, numba.float64[::1]
 
-
-def compiled(kernel, arg_types: tuple):
-    """The machine code of ``kernel`` for exactly ``arg_types``, loaded from the cache or compiled
-    once per process.
-
-    Calling it skips numba's per-call type dispatch (0.5-1 us of a 2-3 us
-    call; ``Dispatcher.compile`` returns the compiled entry point). It
-    converts scalars like ``float()`` and ``int()`` but does not check
-    arrays: pass only 1-D float64 C-contiguous work vectors.
-    """
-    return kernel.compile(arg_types)
-
-
-class KernelOwner:
-    """Base of a class that holds compiled kernels (process-local) and views into its own work
-    vector: copies (``copy.deepcopy``, pickle) leave out the attributes named in ``_UNPICKLED`` and
-    bind them again with ``_bind()``, so a copy steps its own work vector."""
-
-    _UNPICKLED: tuple[str, ...] = ()
-
-    def _bind(self) -> None:
-        raise NotImplementedError
-
-    def __getstate__(self) -> dict:
-        state = self.__dict__.copy()
-        for name in self._UNPICKLED:
-            del state[name]
-        return state
-
-    def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state)
-        self._bind()
-
-
-# -- plant -----------------------------------------------------------------
 @numba.njit(cache=True)
 def plant_offsets(n: int) -> tuple[int, int, int]:
     """Offsets (v, mat, noise) in the plant work vector for n states (module docstring); the
@@ -152,15 +92,6 @@ def magnet_residual(s: np.ndarray, cur: np.ndarray, gap: np.ndarray, out: np.nda
     for j in range(4):
         out[j] = _residual_axis(s, j, cur[j], gap[j])
 
-
-@numba.njit(cache=True)
-def _add_columns(w: np.ndarray, mat: int, n_out: int, x0: int, j0: int, j1: int, out: np.ndarray) -> None:
-    """out += M[:, j0:j1] @ w[x0 + j0:x0 + j1], M.T stored row-major at w[mat:] with n_out columns."""
-    for j in range(j0, j1):
-        wj = w[x0 + j]
-        row = w[mat + j * n_out:mat + (j + 1) * n_out]  # a slice: non-negative indices, vectorised
-        for i in range(n_out):
-            out[i] += row[i] * wj
 
 
 @numba.njit(cache=True)
@@ -229,12 +160,12 @@ def plant_step(s: np.ndarray, u0: float, u1: float, u2: float,
     no = n + N_EXTRA + 3
     out = s[mat - no:mat]  # the scratch
     out[:] = 0.0
-    _add_columns(s, mat, no, v, 0, n + 8, out)
+    add_columns(s, mat, no, v, 0, n + 8, out)
     if nonlinear:
-        _add_columns(s, mat, no, v, n + 8, n + 12, out)
+        add_columns(s, mat, no, v, n + 8, n + 12, out)
     if c3 != 0.0:
-        _add_columns(s, mat, no, v, n + 12, n + 16, out)
-    _add_columns(s, mat, no, v, n + 16, n + 17, out)
+        add_columns(s, mat, no, v, n + 12, n + 16, out)
+    add_columns(s, mat, no, v, n + 16, n + 17, out)
     g = n + 8
     if out[g] * out[g] + out[g + 2] * out[g + 2] > c2 or out[g + 1] * out[g + 1] + out[g + 3] * out[g + 3] > c2:
         s[PAR_STATUS] = STATUS_CONTACT
@@ -247,65 +178,4 @@ def plant_step(s: np.ndarray, u0: float, u1: float, u2: float,
     return out[n + 4] + s[r], out[n + 5] + s[r + 1], out[n + 6] + s[r + 2], out[n + 7] + s[r + 3], clipped, False
 
 
-PLANT_STEP_ARGS = (_VEC, _F8, _F8, _F8, _F8)
-
-
-# -- controller ------------------------------------------------------------
-def statespace_work(n: int, p: int, q: int, matrices: list[np.ndarray]) -> tuple[np.ndarray, list[int]]:
-    """A controller work vector (module docstring) holding the step matrices, each (q + n, n + p).
-
-    Returns:
-        w: float64 work vector, state, input and output zero.
-        offsets: where each matrix (transposed) starts in w.
-    """
-    head = n + p + 2 * q + n  # x, y, output, scratch
-    offsets, blocks, at = [], [], head
-    for m in matrices:
-        m = np.asarray(m, dtype=float)
-        if m.shape != (q + n, n + p):
-            raise ValueError(f"statespace_work: step matrix must be ({q + n}, {n + p}), got {m.shape}")
-        offsets.append(at)
-        blocks.append(m.T.ravel())
-        at += m.size
-    return np.concatenate([np.zeros(head), *blocks]), offsets
-
-
-@numba.njit(cache=True)
-def statespace_step(w: np.ndarray, n: int, p: int, q: int, mat: int, limit: float) -> None:
-    """One step of a discrete state-space model with output saturation, in place:
-    [out; x[k+1]] = m [x; y], out clipped to [-limit, limit].
-
-    Args:
-        w: controller work vector (module docstring), y already in place.
-        n, p, q: number of states, inputs, outputs.
-        mat: offset of the step matrix m.T in w.
-        limit: output saturation.
-    """
-    o = n + p
-    out = w[o + q:o + 2 * q + n]  # the scratch
-    out[:] = 0.0
-    _add_columns(w, mat, q + n, 0, 0, n + p, out)
-    for i in range(q):
-        c = out[i]
-        w[o + i] = limit if c > limit else -limit if c < -limit else c
-    for i in range(n):
-        w[i] = out[q + i]
-
-
-STATESPACE_STEP_ARGS = (_VEC, _I8, _I8, _I8, _I8, _F8)
-
-
-@numba.njit(cache=True)
-def statespace_step4(w: np.ndarray, n: int, mat: int, limit: float,
-                     y0: float, y1: float, y2: float, y3: float) -> tuple[float, float, float, float]:
-    """:func:`statespace_step` of a 4-input, 4-output model for the input y0..y3; returns the output."""
-    w[n] = y0
-    w[n + 1] = y1
-    w[n + 2] = y2
-    w[n + 3] = y3
-    statespace_step(w, n, 4, 4, mat, limit)
-    o = n + 4
-    return w[o], w[o + 1], w[o + 2], w[o + 3]
-
-
-STATESPACE_STEP4_ARGS = (_VEC, _I8, _I8, _F8, _F8, _F8, _F8, _F8)
+PLANT_STEP_ARGS = (VEC, F8, F8, F8, F8)

@@ -1,7 +1,7 @@
 """A simulated real-time target: the AMB rig and its position controller served over UDP.
 
 Stands in for the dSPACE / FPGA / microcontroller that runs the fast loop
-of a real rig. It speaks :mod:`ambid.bridge_protocol` to one hardware
+of a real rig. It speaks :mod:`ambid.hardware.bridge_protocol` to one hardware
 bridge and, per sample k (the order of the lock-step ``plant_sim`` graph,
 so a lossless session records the same numbers for the same seed)::
 
@@ -40,7 +40,7 @@ flipped), ``duplicate``, ``reorder`` (held back behind the next 1 ..
 ``reorder_depth`` datagrams of its kind) probabilities, and ``mute_at`` /
 ``mute_seconds``: send nothing for a while from sample ``mute_at`` on.
 
-Run: ``python -m ambid.rt_target --bind 127.0.0.1:PORT --bridge 127.0.0.1:PORT2 [options]``; it
+Run: ``python -m ambid.hardware.rt_target --bind 127.0.0.1:PORT --bridge 127.0.0.1:PORT2 [options]``; it
 prints ``RT_TARGET_SUMMARY {json}`` when it exits (``--linger`` s after its clock stopped, on
 SIGINT/SIGTERM).
 """
@@ -61,7 +61,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ambid import bridge_protocol as bp
+from ambid.hardware import bridge_protocol as bp
 
 SUMMARY_PREFIX = "RT_TARGET_SUMMARY "
 MAX_BURST = 100          # samples between two looks at the socket
@@ -264,9 +264,10 @@ class Target:
 
     def __init__(self, cfg: TargetConfig, stop: threading.Event | None = None) -> None:
         # imported here: the bridge node imports parse_address from this module without the simulator
-        from ambid.controller import ControllerStepper, PidParameters, pid_controller
-        from ambid.rig import load_rig, make_rig
-        from ambid.simulator import PlantSimulator
+        from ambid.control.pid import PidParameters, pid_controller
+        from ambid.control.stepper import ControllerStepper
+        from ambid.plant.rig import load_rig, make_rig
+        from ambid.plant.simulator import PlantSimulator
 
         self.cfg = cfg
         self.stop = stop or threading.Event()
@@ -547,7 +548,7 @@ def serve(cfg: TargetConfig, stop: threading.Event | None = None) -> dict:
 
 def parse_args(argv: list[str] | None = None) -> TargetConfig:
     d = TargetConfig()
-    p = argparse.ArgumentParser(prog="python -m ambid.rt_target", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m ambid.hardware.rt_target", description=__doc__.split("\n\n")[0])
     p.add_argument("--bind", default=d.bind, help="local host:port to listen on")
     p.add_argument("--bridge", default=d.bridge, help="host:port of the only bridge accepted")
     p.add_argument("--seed", type=int, default=d.seed, help="seed of the simulated sensor noise")

@@ -31,7 +31,7 @@ FACT_TYPES = {
     "ambid_msgs/msg/ExcitationDesign": "excitation",
 }
 
-# rig fields an engineer wants at a glance (ambid.rig.Rig.to_dict names)
+# rig fields an engineer wants at a glance (ambid.plant.rig.Rig.to_dict names)
 _RIG_SHORT = (
     "name", "sample_rate_hz", "shaft_length_m", "shaft_diameter_m", "bias_current_a",
     "current_limit_a", "air_gap_m", "backup_clearance_m", "sensor_noise_m", "rotor_speed_rpm",

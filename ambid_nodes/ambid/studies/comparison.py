@@ -39,12 +39,12 @@ Rules that make the methods comparable:
   the fact* as the shortest that still meets the target (an oracle no real
   test has; reported separately as a sensitivity figure).
 
-The experiments run the same plant (:class:`ambid.simulator.PlantSimulator`)
-and controller (:class:`ambid.controller.ControllerStepper`) code the ROS
+The experiments run the same plant (:class:`ambid.plant.simulator.PlantSimulator`)
+and controller (:class:`ambid.control.stepper.ControllerStepper`) code the ROS
 nodes run, in a Python lock-step loop in the order of
 ``ambid_nodes.plant_sim``: y[k] = output, ic[k] = controller(y[k]),
 u[k] = ic[k] + r[k], step. The reference is the true rig's exact sampled
-small-signal FRF (:func:`ambid.true_rig.true_linear_model`).
+small-signal FRF (:func:`ambid.plant.true_rig.true_linear_model`).
 """
 
 from __future__ import annotations
@@ -56,17 +56,18 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ambid.closed_loop import close_loop
-from ambid.controller import ControllerStepper, PidParameters, pid_controller
-from ambid.excitation import (ExcitationDesign, design_multisine, design_noise, design_stepped_sine,
-                              design_swept_sine)
+from ambid.channels import AXES, CURRENT_NAMES, DISPLACEMENT_NAMES
+from ambid.control.closed_loop import close_loop
+from ambid.control.pid import PidParameters, pid_controller
+from ambid.control.stepper import ControllerStepper
+from ambid.excitation import ExcitationDesign, design_multisine, design_noise, design_stepped_sine, design_swept_sine
 from ambid.frf.estimators import stepped_sine_frf
 from ambid.frf.periods import period_spectra, split_periods
 from ambid.frf.streaming import ESTIMATORS, FrfResult, FrfStream
-from ambid.rig import AXES, CURRENT_NAMES, DISPLACEMENT_NAMES, Rig, make_rig
-from ambid.simulator import PlantSimulator
+from ambid.plant.rig import Rig, make_rig
+from ambid.plant.simulator import PlantSimulator
+from ambid.plant.true_rig import true_linear_model
 from ambid.statespace import StateSpace
-from ambid.true_rig import true_linear_model
 
 __all__ = ["ComparePreset", "PRESETS", "PARTS", "METHODS", "LoopStart", "LoopRecord", "true_frf", "frf_error",
            "settling_time", "levitate", "run_loop", "compare_methods", "compare_estimators",
@@ -691,7 +692,7 @@ def compare_odd_full(preset: ComparePreset, rig: Rig, start: LoopStart | None = 
 
 def run_comparison(preset: ComparePreset | str = "quick", rig: Rig | None = None,
                    parts: tuple[str, ...] = PARTS, methods: tuple[str, ...] = METHODS) -> dict:
-    """Run the comparisons of a preset on a rig (default :func:`ambid.rig.make_rig`).
+    """Run the comparisons of a preset on a rig (default :func:`ambid.plant.rig.make_rig`).
 
     Args:
         preset: a :class:`ComparePreset` or the name of one in :data:`PRESETS`.
@@ -713,7 +714,7 @@ def run_comparison(preset: ComparePreset | str = "quick", rig: Rig | None = None
     t0 = time.perf_counter()
     out: dict = {"preset": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(preset).items()},
                  "rig": rig.name, "sample_rate_hz": 1.0 / rig.dt,
-                 "loop": ("core lock-step loop of ambid.simulator.PlantSimulator and ambid.controller."
+                 "loop": ("core lock-step loop of ambid.plant.simulator.PlantSimulator and ambid.control.pid."
                           "ControllerStepper (default PID), in the order of the plant_sim node")}
     if "methods" in parts or "estimators" in parts:
         start = levitate(rig, preset.seed, False, preset.liftoff_s)

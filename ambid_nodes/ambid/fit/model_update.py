@@ -1,6 +1,6 @@
 """Updating the physical (chapter-2) model of the rig against a measured FRF matrix.
 
-The updating model is the analytical model of :func:`ambid.rig.analytical_model`
+The updating model is the analytical model of :func:`ambid.plant.analytical.analytical_model`
 with its physical parameters exposed, plus the two things a real rig adds
 most often, each switched on by giving its parameters:
 
@@ -23,7 +23,7 @@ most often, each switched on by giving its parameters:
 
 The FRF is taken the way the rig is measured: with ``dt_s > 0`` the exact
 zero-order-hold sampled model, u[k] held over a sample and delayed by
-``delay_s`` (:func:`ambid.true_rig.delayed_zoh`), at z = exp(j 2 pi f dt);
+``delay_s`` (:func:`ambid.plant.true_rig.delayed_zoh`), at z = exp(j 2 pi f dt);
 with ``dt_s = 0`` the continuous model times exp(-j 2 pi f delay_s).
 
 States of :func:`physical_statespace`: rotor (n_r), then (with a support
@@ -44,11 +44,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ambid.channels import AXES, CURRENT_NAMES, DISPLACEMENT_NAMES
 from ambid.fit.updating import UpdateResult, update_parameters
-from ambid.rig import AXES, CURRENT_NAMES, DISPLACEMENT_NAMES, Rig
-from ambid.rotor_model import RotorModel
+from ambid.plant.rig import Rig
+from ambid.plant.rotor_model import RotorModel
+from ambid.plant.true_rig import delayed_zoh, levitated_plant
 from ambid.statespace import StateSpace
-from ambid.true_rig import delayed_zoh, levitated_plant
 
 __all__ = ["ParameterInfo", "PARAMETERS", "DEFAULT_FREE", "PhysicalUpdate", "bending_coordinates",
            "nominal_parameters", "true_parameters", "physical_statespace", "physical_frf",
@@ -90,7 +91,7 @@ _REQUIRED = ("ki_n_per_a", "ks_n_per_m", "amplifier_bandwidth_hz")
 def bending_coordinates(rotor: RotorModel) -> np.ndarray:
     """Modal coordinates (both planes) of the rotor's first bending mode, (k,) int; empty if none.
 
-    Needs the modal layout of :func:`ambid.modal.modal_state_space`
+    Needs the modal layout of :func:`ambid.plant.modal.modal_state_space`
     (x = [eta, eta'], A = [[0, I], [-K, -C]] with K diagonal); an imported
     rotor of another layout has no adjustable bending mode here.
     """
@@ -111,7 +112,7 @@ def bending_coordinates(rotor: RotorModel) -> np.ndarray:
 def nominal_parameters(rig: Rig) -> dict[str, float]:
     """The analytical model's parameter values (nominal ki, ks, ideal sensors, no support mode, no delay).
 
-    With these, :func:`physical_statespace` equals :func:`ambid.rig.analytical_model`.
+    With these, :func:`physical_statespace` equals :func:`ambid.plant.analytical.analytical_model`.
     """
     p = {"ki_n_per_a": float(rig.magnet.ki), "ks_n_per_m": float(rig.magnet.ks),
          "amplifier_bandwidth_hz": float(rig.current_loop_bandwidth_hz),

@@ -20,7 +20,7 @@ SampleIndexExtractor = Callable[[Any], "tuple[int, int]"]
 _MAX_LISTED_GAPS = 20
 
 
-def _gap_report(blocks: list[tuple[int, int, int]]) -> dict[str, Any]:
+def gap_report(blocks: list[tuple[int, int, int]]) -> dict[str, Any]:
     """Gaps/overlaps between consecutive sample blocks.
 
     Args:
@@ -66,7 +66,7 @@ def inspect_session(
         path: session ``.mcap``.
         recover: accept a file without footer (killed writer); only complete
             chunks are counted. Without it, an incomplete file raises
-            :class:`~ambid.mcap_session.reader.IncompleteSessionError`.
+            :class:`~ambid.session.reader.IncompleteSessionError`.
         sample_index: extractors keyed by topic name or by type name
             (``pkg/msg/Type``; a topic key wins), each returning
             ``(first_index, n_samples)`` of a decoded message; those topics
@@ -119,7 +119,7 @@ def inspect_session(
         for msg, decoded in iter_decoded(path, list(extractors), recover=True):
             first, n = extractors[msg.topic](decoded)
             blocks[msg.topic].append((msg.log_time_ns, int(first), int(n)))
-        sample_reports = {t: _gap_report(b) for t, b in blocks.items()}
+        sample_reports = {t: gap_report(b) for t, b in blocks.items()}
 
     duration_s = (
         (scan.end_time_ns - scan.start_time_ns) * 1e-9 if scan.start_time_ns is not None else 0.0

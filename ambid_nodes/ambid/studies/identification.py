@@ -11,12 +11,12 @@
    output;
 3. modes (frequency, damping) and real poles, the state-space export
    (``model.npz``, ``model.json``) and the FRF (``frf.npz``) in ``out_dir``;
-4. physical-model updating (:mod:`ambid.model_update`) started from the
+4. physical-model updating (:mod:`ambid.fit.model_update`) started from the
    analytical (nominal) rig, with an extra support mode when the fit shows a
    mode the analytical model lacks;
 5. when the session is simulated (rig facts recorded, plant source 'sim'):
    the comparison against the true rig's sampled linear model
-   (:func:`ambid.true_rig.true_linear_model`) and its parameters;
+   (:func:`ambid.plant.true_rig.true_linear_model`) and its parameters;
 6. the report (``out_dir/report/index.html``) and ``identification.json``.
 
 Order-selection rule (:func:`select_order`): the order with the smallest
@@ -45,56 +45,37 @@ import json
 import os
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ambid.control.closed_loop import loop_robustness
 from ambid.excitation.design import ExcitationDesign
 from ambid.fit import (FitResult, StabilisationDiagram, fit_common_denominator, modal_summary, save_model_json,
                        save_model_npz, stabilisation_diagram)
+from ambid.fit.model_update import (PhysicalUpdate, nominal_parameters, physical_frf, true_parameters,
+                                    unmodelled_mode, update_physical_model)
+from ambid.frf.levels import LineLevels, line_levels
 from ambid.frf.offline import frf_from_session, session_designs
-from ambid.frf.periods import period_spectra
 from ambid.frf.sensitivity import iso14839_zone
 from ambid.frf.streaming import FrfResult
 from ambid.jsonable import to_jsonable
-from ambid.model_update import (PhysicalUpdate, nominal_parameters, physical_frf, true_parameters, unmodelled_mode,
-                                update_physical_model)
-from ambid.rig import Rig, load_rig, make_rig
+from ambid.plant.analytical import analytical_model
+from ambid.plant.rig import Rig, load_rig, make_rig
+from ambid.plant.true_rig import true_linear_model
+from ambid.report.html import write_report
+from ambid.session import iter_decoded, read_metadata
+from ambid.session.blocks import read_samples
+from ambid.session.facts import plant_facts
+from ambid.statespace import StateSpace
 
-__all__ = ["LineLevels", "select_order", "frf_relative_error", "line_levels", "session_rig", "true_modes",
+__all__ = ["select_order", "frf_relative_error", "session_rig", "true_modes",
            "compare_modes", "identify_session"]
 
 _PLANT_TOPIC = "plant/description"
 _DESIGN_TOPIC = "excitation/design"
 _MEASUREMENT_TOPIC = "measurement"
-
-
-@dataclass(frozen=True)
-class LineLevels:
-    """Output levels of a periodic experiment at its lines, for the noise / distortion figure.
-
-    Each ``*_amp`` is sqrt of the mean over realisations and experiments of
-    |Ybar|^2 (Ybar the period mean of the output line spectrum, amplitude
-    scaling of :func:`ambid.frf.periods.period_spectra`), each ``*_noise``
-    the standard deviation of Ybar from the period scatter [unit of y].
-
-    Attributes:
-        excited_hz, odd_hz, even_hz: (L,), (Lo,), (Le,) line frequencies [Hz].
-        excited_amp, odd_amp, even_amp: (L, Ny), (Lo, Ny), (Le, Ny) [m].
-        excited_noise, odd_noise, even_noise: same shapes [m].
-    """
-
-    excited_hz: np.ndarray
-    odd_hz: np.ndarray
-    even_hz: np.ndarray
-    excited_amp: np.ndarray
-    odd_amp: np.ndarray
-    even_amp: np.ndarray
-    excited_noise: np.ndarray
-    odd_noise: np.ndarray
-    even_noise: np.ndarray
 
 
 def select_order(diagram: StabilisationDiagram, band_hz: tuple[float, float], n_lines: int, n_entries: int,
@@ -148,50 +129,6 @@ def frf_relative_error(G: np.ndarray, G_ref: np.ndarray) -> np.ndarray:
     return np.linalg.norm(g - r, axis=(1, 2)) / np.linalg.norm(r, axis=(1, 2))
 
 
-def line_levels(y: np.ndarray, design: ExcitationDesign) -> LineLevels | None:
-    """Output levels at the excited and detection lines of a periodic experiment (P >= 2).
-
-    Args:
-        y: (total_samples, Ny) outputs over the experiment [m]; NaN where
-            samples are missing (those periods are left out).
-        design: the experiment's design.
-
-    Returns:
-        :class:`LineLevels`, or None when the design is not periodic with
-        one period length, or has fewer than two steady-state periods.
-    """
-    d = design
-    if not d.is_periodic or d.kind == "stepped_sine" or d.n_periods < 2:
-        return None
-    y = np.asarray(y, dtype=float)
-    if y.ndim != 2:
-        raise ValueError(f"y must be (n_samples, Ny), got shape {y.shape}")
-    n, pt, p, ne = d.n_per_period, d.n_transient_periods, d.n_periods, d.n_experiments
-    seg = (pt + p) * n
-    m = min(y.shape[0] // (seg * ne), d.n_realisations)
-    if m < 1:
-        return None
-    x = y[:m * ne * seg].reshape(m, ne, pt + p, n, y.shape[1])[:, :, pt:]
-    valid = np.all(np.isfinite(x), axis=(3, 4))                   # (M, Ne, P)
-
-    def levels(lines: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        if lines.size == 0:
-            return np.zeros((0, y.shape[1])), np.zeros((0, y.shape[1]))
-        spec = period_spectra(np.where(np.isfinite(x), x, 0.0), lines)   # (M, Ne, P, L, Ny)
-        spec = np.where(valid[..., None, None], spec, np.nan)
-        mean = np.nanmean(spec, axis=2)
-        count = valid.sum(axis=2)[..., None, None]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            var = np.nansum(np.abs(spec - mean[:, :, None]) ** 2, axis=2) / (count * (count - 1))
-        var = np.where(count >= 2, var, np.nan)
-        return np.sqrt(np.nanmean(np.abs(mean) ** 2, axis=(0, 1))), np.sqrt(np.nanmean(var, axis=(0, 1)))
-
-    res = d.fs_hz / n
-    ex, odd, even = (levels(lines) for lines in (d.excited_lines, d.detection_lines_odd, d.detection_lines_even))
-    return LineLevels(d.excited_lines * res, d.detection_lines_odd * res, d.detection_lines_even * res,
-                      ex[0], odd[0], even[0], ex[1], odd[1], even[1])
-
-
 def session_rig(path: str | os.PathLike, plant_topic: str = "/amb/plant/description",
                 recover: bool = False) -> tuple[dict | None, str | None]:
     """The rig parameters and plant source ('sim' | 'hardware') recorded in a session.
@@ -200,10 +137,8 @@ def session_rig(path: str | os.PathLike, plant_topic: str = "/amb/plant/descript
     first PlantDescription message on ``plant_topic``.
 
     Returns:
-        (rig dict for :func:`ambid.rig.make_rig` or None, source or None).
+        (rig dict for :func:`ambid.plant.rig.make_rig` or None, source or None).
     """
-    from ambid.mcap_session import iter_decoded, read_metadata
-    from ambid.session_facts import plant_facts
 
     def parsed(value: Any) -> Any:
         if isinstance(value, str):
@@ -320,7 +255,6 @@ def _load_rig(rig: Rig | str | os.PathLike | Mapping | None, facts: dict | None)
 def _update(rig: Rig, frf: FrfResult, var, band, modes, dt_s, start_overrides, free) -> tuple[PhysicalUpdate | None,
                                                                                              str | None]:
     """Model updating from the nominal rig; the support mode started at the fitted mode the rig lacks."""
-    from ambid.rig import analytical_model
 
     start = nominal_parameters(rig)
     # resonance peak height of R / (s - p) is |R| / (zeta omega)
@@ -368,7 +302,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
             (2: Akaike; larger values choose lower orders).
         update: run the physical-model updating.
         update_start: start values replacing the nominal ones (parameter
-            name -> value, :data:`ambid.model_update.PARAMETERS`).
+            name -> value, :data:`ambid.fit.model_update.PARAMETERS`).
         update_free: parameters to update; default ki, ks, amplifier
             bandwidth, bending mode (when in the band), support mode (when the
             fit shows one), delay.
@@ -395,7 +329,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
           [{pole_hz (signed, > 0 unstable), unstable}];
         * ``modes_vs_true`` (:func:`compare_modes`), max_mode_freq_error,
           max_mode_damping_error;
-        * ``update``: :meth:`ambid.model_update.PhysicalUpdate.to_dict` with
+        * ``update``: :meth:`ambid.fit.model_update.PhysicalUpdate.to_dict` with
           nominal, true and error (relative to true) per parameter, or
           {error}; None without a rig;
         * ``sensitivity``: peak (Nu,), peak_hz, worst_input, worst_peak,
@@ -459,7 +393,6 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     if the_rig is None:
         notes.append("no rig in the session and none given: no nominal model, no updating")
     if simulated and the_rig is not None:
-        from ambid.true_rig import true_linear_model
 
         true_rig = make_rig(facts)
         true_g = true_linear_model(true_rig, discrete=True).freqresp(f)
@@ -537,7 +470,6 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
                    frf_npz=str(out / "frf.npz"), summary_json=str(out / "identification.json")),
         notes=notes)
     if report:
-        from ambid.report.html import write_report
 
         levels, window = _samples_for_report(path, chosen, design, frf, recover)
         dense = np.geomspace(max(band[0] / 1.5, 1e-3), min(band[1] * 1.5, 0.499 * design.fs_hz), 400)
@@ -549,7 +481,6 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
             curves["updated physical model"] = (dense, physical_frf(the_rig.rotor_model(), upd.parameters,
                                                                      dense, dt_s))
         if simulated and the_rig is not None:
-            from ambid.true_rig import true_linear_model
 
             curves["true rig (simulated)"] = (dense, true_linear_model(make_rig(facts), discrete=True).freqresp(dense))
         line_models = {"fitted model": fit.model.freqresp(f)}
@@ -568,7 +499,6 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
 def _samples_for_report(path: str, chosen: dict, design: ExcitationDesign, frf: FrfResult,
                         recover: bool) -> tuple[LineLevels | None, dict | None]:
     """Line levels of the whole experiment and a short time window of y, u, r."""
-    from ambid.session_blocks import read_samples
 
     topic = chosen["topic"].rstrip("/")[:-len(_DESIGN_TOPIC)] + _MEASUREMENT_TOPIC
     refs = [("r_" + n[2:]) if n.startswith("u_") else "r_" + n for n in frf.input_names]
@@ -594,8 +524,6 @@ def _samples_for_report(path: str, chosen: dict, design: ExcitationDesign, frf: 
 
 def _recorded_controller(path, recover: bool):
     """The controller's discrete state-space from the session's ControllerDescription, or None."""
-    from ambid.mcap_session import iter_decoded
-    from ambid.statespace import StateSpace
 
     for msg, dec in iter_decoded(path, recover=recover):
         if msg.topic.endswith("controller/description"):
@@ -626,8 +554,6 @@ def _model_sensitivity(path, model, band, fs_hz: float, rig, recover: bool) -> d
     out = dict(model_peak=peak, model_peak_hz=f[i], model_iso_zone=iso14839_zone(float(peak.max())),
                model_note="fitted plant with the recorded controller, 8000 lines over the band")
     if rig is not None:
-        from ambid.closed_loop import loop_robustness
-        from ambid.true_rig import true_linear_model
 
         truth = loop_robustness(true_linear_model(rig), k)
         out.update(true_peak=truth.sensitivity_peak, true_peak_hz=truth.peak_freq_hz, true_iso_zone=truth.zone)

@@ -14,7 +14,7 @@ Two models of the same rig exist on purpose:
   nominal ki, ks (eqs. 2.16-2.17) at the centre, first-order amplifiers
   (eq. 2.21 with the power bandwidth of eq. 2.24), ideal sensors at their
   (non-collocated) planes.
-* the "true" rig (:mod:`ambid.true_rig`), which the simulator runs: the
+* the "true" rig (:mod:`ambid.plant.true_rig`), which the simulator runs: the
   same plus what reality adds (magnet tolerances, the nonlinear force, a
   housing mode, sensor dynamics, an extra delay).
 
@@ -32,16 +32,12 @@ from typing import Any
 import numpy as np
 import yaml
 
-from ambid.amplifier import Amplifier
-from ambid.fem_rotor import LaminationStack, Material, RotorGeometry, ShaftSection
-from ambid.magnet import MU0, MagnetPair
-from ambid.rigid_rotor import RigidRotor
-from ambid.rotor_model import RotorModel, fem_rotor_model, rigid_inverse_mass
-from ambid.statespace import StateSpace
-
-AXES = ("a_x", "b_x", "a_y", "b_y")
-DISPLACEMENT_NAMES = tuple(f"y_{a}" for a in AXES)
-CURRENT_NAMES = tuple(f"u_{a}" for a in AXES)
+from ambid.plant.amplifier import Amplifier
+from ambid.plant.fem_rotor import LaminationStack, Material, RotorGeometry, ShaftSection
+from ambid.plant.magnet import MU0, MagnetPair
+from ambid.plant.rigid_rotor import RigidRotor
+from ambid.plant.rotor_import import load_rotor
+from ambid.plant.rotor_model import RotorModel, fem_rotor_model, rigid_inverse_mass
 
 
 @dataclass(frozen=True)
@@ -129,7 +125,7 @@ class Rig:
         name: rig name.
         values: parameter name -> value (every key of RIG_FIELDS).
         rotor_import: a user's rotor model replacing the finite-element rotor
-            (:mod:`ambid.rotor_import`), or None.
+            (:mod:`ambid.plant.rotor_import`), or None.
     """
 
     name: str
@@ -214,7 +210,7 @@ class Rig:
                              max_element_length_m=min(0.025, v["shaft_length_m"] / 16))
 
     def rotor_model(self, n_bending: int | None = None) -> RotorModel:
-        """The rotor as a state-space block (:class:`ambid.rotor_model.RotorModel`).
+        """The rotor as a state-space block (:class:`ambid.plant.rotor_model.RotorModel`).
 
         Args:
             n_bending: bending modes per plane; None takes ``bending_modes``.
@@ -340,7 +336,7 @@ def make_rig(overrides: dict[str, Any] | None = None, name: str = "ambid-default
     Args:
         overrides: parameter name -> value (any subset of RIG_FIELDS); may
             also hold ``name`` and ``rotor_file`` (a user rotor model, see
-            :mod:`ambid.rotor_import`).
+            :mod:`ambid.plant.rotor_import`).
         name: rig name unless ``overrides`` gives one.
         rotor_import: a user rotor model replacing the finite-element rotor.
 
@@ -365,7 +361,6 @@ def make_rig(overrides: dict[str, Any] | None = None, name: str = "ambid-default
     if rotor_file is not None:
         if rotor_import is not None:
             raise ValueError("rig: give either rotor_file or rotor_import, not both")
-        from ambid.rotor_import import load_rotor  # rotor_import imports this module's names lazily
 
         rotor_import = load_rotor(rotor_file, speed_rpm=values["rotor_speed_rpm"],
                                   damping_ratio=values["modal_damping_ratio"])
@@ -396,66 +391,3 @@ def load_rig(path: str | Path) -> Rig:
         return make_rig(data, name=path.stem)
     except ValueError as exc:
         raise ValueError(f"rig file {path}: {exc}") from None
-
-
-def analytical_model(rig: Rig, n_bending: int | None = None) -> StateSpace:
-    """Chapter 2's linearised model, continuous time: current reference u [A] -> sensor y [m].
-
-    The rotor model (finite-element, modes as in the rig, or the imported
-    one), per axis F = ki ic + ks q at the bearing plane (eq. 2.18, nominal
-    ki, ks of eqs. 2.16-2.17 at the centre), first-order amplifiers with the
-    bandwidth of eq. 2.24, ideal sensors (unit gain, no lag) at the sensor
-    planes. No housing, no extra delay; gravity is a constant offset and not
-    part of the small-signal model.
-
-    Args:
-        rig: rig parameters.
-        n_bending: bending modes per plane; None takes ``rig.bending_modes``
-            (0 gives the rigid 4-DOF rotor of sec. 2.3.1).
-
-    Returns:
-        StateSpace, dt = 0, 4 inputs (CURRENT_NAMES) and 4 outputs
-        (DISPLACEMENT_NAMES); states: rotor states, then coil control
-        currents [A].
-    """
-    rotor = rig.rotor_model(n_bending)
-    ki, ks = rig.magnet.ki, rig.magnet.ks
-    tau = 1.0 / (2 * np.pi * rig.current_loop_bandwidth_hz)
-    n = rotor.n_states
-    i4 = np.eye(4)
-    a = np.block([[rotor.a + ks * rotor.b @ rotor.c_bearing, ki * rotor.b], [np.zeros((4, n)), -i4 / tau]])
-    b = np.vstack([np.zeros((n, 4)), i4 / tau])
-    c = np.hstack([rotor.c_sensor, np.zeros((4, 4))])
-    return StateSpace(a, b, c, np.zeros((4, 4)), 0.0, CURRENT_NAMES, DISPLACEMENT_NAMES,
-                      ("A",) * 4, ("m",) * 4)
-
-
-def _fmt(x: float) -> str:
-    return f"{x:.6g}"
-
-
-def rig_markdown(rig: Rig | None = None) -> str:
-    """Markdown tables of a rig: every parameter (value, unit, range, source), the derived values, and
-    the true rig's levitated operating point.
-
-    ``docs/default_rig.md`` holds this text for the default rig between the
-    markers ``<!-- rig-tables:begin -->`` and ``<!-- rig-tables:end -->``.
-    """
-    from ambid.true_rig import operating_point  # true_rig builds on this module
-
-    rig = make_rig() if rig is None else rig
-    lines = ["| parameter | value | unit | allowed range | source |", "| --- | --- | --- | --- | --- |"]
-    for key, f in RIG_FIELDS.items():
-        source = f.source.replace("|", "\\|")
-        lines.append(f"| `{key}` | {_fmt(rig.values[key])} | {f.unit} | [{_fmt(f.low)}, {_fmt(f.high)}] "
-                     f"| {source} |")
-    lines += ["", "| derived quantity | value |", "| --- | --- |"]
-    lines += [f"| `{k}` | {_fmt(v)} |" for k, v in rig.derived().items()]
-    op = operating_point(rig)
-    lines += ["", "| true rig, levitated (sensors read 0), bearing A x | value |", "| --- | --- |",
-              f"| control current ic0 [A] | {_fmt(op.current_a[0])} |",
-              f"| rotor-stator displacement at the bearing [m] | {_fmt(op.gap_m[0])} |",
-              f"| magnet force [N] | {_fmt(op.force_n[0])} |",
-              f"| ki there [N/A] | {_fmt(op.ki_n_per_a[0])} |",
-              f"| ks there [N/m] | {_fmt(op.ks_n_per_m[0])} |"]
-    return "\n".join(lines) + "\n"

@@ -1,6 +1,6 @@
 """Eigen-analysis, modal reduction and state-space models of a rotor.
 
-Works on the matrices of ``ambid.fem_rotor`` (4 DOFs per node: x, y,
+Works on the matrices of ``ambid.plant.fem_rotor`` (4 DOFs per node: x, y,
 theta_x, theta_y) or any M, K, G with that layout, for
 
     M q'' + (D + Omega G) q' + K q = F.
@@ -27,7 +27,7 @@ from typing import Sequence
 import numpy as np
 import scipy.linalg
 
-from ambid.fem_rotor import DOF_RX, DOF_RY, DOF_X, DOF_Y, DOFS_PER_NODE
+from ambid.plant.fem_rotor import DOF_RX, DOF_RY, DOF_X, DOF_Y, DOFS_PER_NODE
 
 
 @dataclass(frozen=True)
@@ -113,7 +113,7 @@ def plane_modes(mass: np.ndarray, stiffness: np.ndarray, gyroscopic: np.ndarray 
     """Modal reduction of an axisymmetric rotor: rigid modes + first flexible modes.
 
     Args:
-        mass: M, shape (4 n_nodes, 4 n_nodes), layout of ``ambid.fem_rotor``.
+        mass: M, shape (4 n_nodes, 4 n_nodes), layout of ``ambid.plant.fem_rotor``.
         stiffness: K, same shape, positive semi-definite (free-free, or with
             axisymmetric supports). Add negative magnet stiffness later, in
             ``modal_state_space(input_stiffness_n_m=...)``.
@@ -146,7 +146,7 @@ def plane_modes(mass: np.ndarray, stiffness: np.ndarray, gyroscopic: np.ndarray 
     if (np.abs(g[np.ix_(xp, xp)]).max() > 1e-9 * scale or np.abs(g[np.ix_(yp, yp)]).max() > 1e-9 * scale
             or np.abs(g[np.ix_(yp, xp)] + t[:, None] * polar_full).max() > 1e-9 * scale
             or np.abs(polar_full - polar_full.T).max() > 1e-9 * scale):
-        raise ValueError("gyroscopic matrix is not the axisymmetric plane coupling of ambid.fem_rotor "
+        raise ValueError("gyroscopic matrix is not the axisymmetric plane coupling of ambid.plant.fem_rotor "
                          "(G[x-plane, y-plane] = P T with P symmetric, G[y, x] = -T P)")
     mp, kp = m[np.ix_(xp, xp)], k[np.ix_(xp, xp)]
     freq, vec = undamped_modes(mp, kp)

@@ -28,17 +28,7 @@ from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
-from mcap.records import (
-    Attachment,
-    Channel,
-    Chunk,
-    ChunkIndex,
-    Footer,
-    Header,
-    Message,
-    Metadata,
-    Schema,
-)
+from mcap.records import Attachment, Channel, Chunk, ChunkIndex, Footer, Header, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk
 
 __all__ = [
@@ -387,7 +377,7 @@ def _normal_raw(
         yield from _indexed_raw(f, summary, wanted)
 
 
-def _iter_raw(
+def iter_raw(
     path: str | os.PathLike, topics: Iterable[str] | str | Callable[[str], bool] | None, recover: bool
 ) -> Iterator[tuple[Schema | None, Channel, Message]]:
     """(schema, channel, message) in log-time order; ``topics``: names, one name, a test on the name, or all."""
@@ -431,7 +421,7 @@ def iter_messages(
     Raises:
         IncompleteSessionError: without ``recover`` on a file lacking a footer.
     """
-    for schema, channel, msg in _iter_raw(path, topics, recover):
+    for schema, channel, msg in iter_raw(path, topics, recover):
         yield _to_session_message(schema, channel, msg)
 
 
@@ -445,12 +435,12 @@ def iter_decoded(
         object (attributes named like the .msg fields; arrays as lists or
         ``array.array``).
     """
-    decode = _Ros2Decoder()
-    for schema, channel, msg in _iter_raw(path, topics, recover):
+    decode = Ros2Decoder()
+    for schema, channel, msg in iter_raw(path, topics, recover):
         yield _to_session_message(schema, channel, msg), decode(schema, channel, msg)
 
 
-class _Ros2Decoder:
+class Ros2Decoder:
     """Decodes messages with mcap_ros2, one decoder per channel (built on first use)."""
 
     def __init__(self) -> None:

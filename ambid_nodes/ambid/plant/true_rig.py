@@ -1,6 +1,6 @@
 """The "true" rig the simulator runs: chapter 2's model plus what reality adds.
 
-Against :func:`ambid.rig.analytical_model` it adds
+Against :func:`ambid.plant.analytical.analytical_model` it adds
 
 * magnets: the nonlinear differential force (eq. 2.14) of the *true* magnet
   (ki, ks off by ``true_ki_factor``, ``true_ks_factor``), linearised at the
@@ -9,10 +9,10 @@ Against :func:`ambid.rig.analytical_model` it adds
 * a housing mode: each bearing stator sits on a pedestal (mass on springs,
   ``housing_freq_hz``) that takes the reaction of the magnet and contact
   forces; the sensors, on the pedestals too, measure rotor minus pedestal;
-* sensors: first-order low-pass (``sensor_bandwidth_hz``), gain, noise, an
-  optional cubic probe-curve error;
+* sensors (:mod:`ambid.plant.sensors`): first-order low-pass, gain, noise,
+  an optional cubic probe-curve error;
 * an extra input delay ``extra_delay_s`` (ADC and PWM update, <= 1 sample);
-* backup bearings (in :mod:`ambid.simulator`).
+* backup bearings (in :mod:`ambid.plant.simulator`).
 
 Continuous affine model (:class:`TruePlant`), states
 x = [rotor (n_r), pedestal displacement h (4) [m], pedestal velocity (4)
@@ -34,8 +34,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import linalg, signal
 
-from ambid.magnet import MagnetPair
-from ambid.rig import CURRENT_NAMES, DISPLACEMENT_NAMES, Rig
+from ambid.channels import CURRENT_NAMES, DISPLACEMENT_NAMES
+from ambid.plant.magnet import MagnetPair
+from ambid.plant.sensors import Sensors
+from ambid.plant.rig import Rig
 from ambid.statespace import StateSpace, series
 
 _NEWTON_TOL = 1e-13
@@ -126,7 +128,8 @@ def true_plant(rig: Rig, ki: np.ndarray | None = None, ks: np.ndarray | None = N
     wh = 2 * np.pi * v["housing_freq_hz"]
     kh, ch = mh * wh * wh, 2 * v["housing_damping_ratio"] * wh * mh
     tau = 1.0 / (2 * np.pi * rig.current_loop_bandwidth_hz)
-    wc = 2 * np.pi * v["sensor_bandwidth_hz"]
+    sensors = Sensors.from_rig(v)
+    a_ss, b_ss, c_ss = sensors.filter_blocks()
     eye = np.eye(4)
     dki, dks = np.diag(ki), np.diag(ks)
     # gap g = C_b x_r - h; magnet force on the rotor F = fc + ki i + ks g, on the pedestal -F
@@ -145,18 +148,18 @@ def true_plant(rig: Rig, ki: np.ndarray | None = None, ks: np.ndarray | None = N
     a[hv_, h_] += -kh / mh * eye
     a[hv_, hv_] += -ch / mh * eye
     a[i_, i_] = -eye / tau
-    a[s_, :] = wc * c_sensor
-    a[s_, s_] += -wc * eye
+    a[s_, :] = b_ss @ c_sensor
+    a[s_, s_] += a_ss
     b_u = np.zeros((n, 4))
     b_u[i_] = eye / tau
     b_f = np.zeros((n, 4))
     b_f[r_], b_f[hv_] = rotor.b, -eye / mh
     b_s = np.zeros((n, 4))
-    b_s[s_] = wc * eye
+    b_s[s_] = b_ss
     b_c = b_f @ fc
     b_c[r_] += rotor.b_gravity
     c_y = np.zeros((4, n))
-    c_y[:, s_] = v["sensor_gain"] * eye
+    c_y[:, s_] = c_ss
     return TruePlant(a, b_u, b_f, b_s, b_c, c_y, c_gap, c_current, c_sensor, ki, ks, fc,
                      float(v["extra_delay_s"]), nr)
 

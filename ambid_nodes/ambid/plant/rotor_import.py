@@ -45,8 +45,8 @@ from pathlib import Path
 import numpy as np
 from scipy import io as sio
 
-from ambid.modal import undamped_modes
-from ambid.rotor_model import GRAVITY_PER_AXIS, RotorModel, rigid_inverse_mass
+from ambid.plant.modal import undamped_modes
+from ambid.plant.rotor_model import GRAVITY_PER_AXIS, RotorModel, rigid_inverse_mass
 
 DEFAULT_MAX_FREQ_HZ = 5000.0
 _VECTOR_KEYS = {"b_gravity", "mass_kg", "bearing_dofs", "sensor_dofs", "x_dofs", "y_dofs", "max_freq_hz"}
@@ -72,7 +72,7 @@ def _read(path: Path) -> dict[str, np.ndarray]:
 
 def _matrix(data: dict, key: str, shape: tuple, what: str) -> np.ndarray:
     if key not in data:
-        raise ValueError(f"rotor file: key {key!r} ({what}) is missing; see ambid.rotor_import for the layout")
+        raise ValueError(f"rotor file: key {key!r} ({what}) is missing; see ambid.plant.rotor_import for the layout")
     arr = np.asarray(data[key], dtype=float)
     if any(s is not None and s != a for s, a in zip(shape, arr.shape)) or arr.ndim != len(shape):
         want = tuple("n" if s is None else s for s in shape)
@@ -84,7 +84,7 @@ def _matrix(data: dict, key: str, shape: tuple, what: str) -> np.ndarray:
 
 def _scalar(data: dict, key: str, what: str) -> float:
     if key not in data:
-        raise ValueError(f"rotor file: key {key!r} ({what}) is missing; see ambid.rotor_import for the layout")
+        raise ValueError(f"rotor file: key {key!r} ({what}) is missing; see ambid.plant.rotor_import for the layout")
     value = float(np.asarray(data[key], dtype=float).ravel()[0])
     if not (np.isfinite(value) and value > 0):
         raise ValueError(f"rotor file: {key} must be a positive number, got {value}")
@@ -93,7 +93,7 @@ def _scalar(data: dict, key: str, what: str) -> float:
 
 def _indices(data: dict, key: str, n_dof: int, count: int | None = 4) -> np.ndarray:
     if key not in data:
-        raise ValueError(f"rotor file: key {key!r} (DOF indices) is missing; see ambid.rotor_import")
+        raise ValueError(f"rotor file: key {key!r} (DOF indices) is missing; see ambid.plant.rotor_import")
     idx = np.asarray(data[key]).ravel()
     if idx.dtype.kind == "f" and np.all(idx == np.round(idx)):
         idx = idx.astype(int)

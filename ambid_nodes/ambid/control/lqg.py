@@ -1,11 +1,11 @@
 """Centralised model-based position controller: discrete LQG from the analytical model.
 
-The design model is :func:`ambid.rig.analytical_model` (zero-order hold at
+The design model is :func:`ambid.plant.analytical.analytical_model` (zero-order hold at
 the control rate) with
 
 * the computational delay: the controller is the *predictor* form, so
   ic[k] depends on y[k-1] and older, like the PID of
-  :mod:`ambid.controller` (extra samples of delay are added to the design
+  :mod:`ambid.control.pid` (extra samples of delay are added to the design
   model as input-delay states);
 * a constant input-disturbance model d (4 states, a current offset per
   axis) that the estimator tracks and the control cancels, so the rotor
@@ -30,7 +30,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import linalg
 
-from ambid.rig import CURRENT_NAMES, DISPLACEMENT_NAMES, Rig, analytical_model
+from ambid.channels import CURRENT_NAMES, DISPLACEMENT_NAMES
+from ambid.plant.analytical import analytical_model
+from ambid.plant.rig import Rig
 from ambid.statespace import StateSpace, delay, series
 
 

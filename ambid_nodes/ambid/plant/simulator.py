@@ -1,6 +1,6 @@
 """Sample-by-sample simulation of the true rig for the lock-step control loop.
 
-The rig is :mod:`ambid.true_rig`'s affine model, linearised at the levitated
+The rig is :mod:`ambid.plant.true_rig`'s affine model, linearised at the levitated
 operating point, integrated exactly over each sample with the current
 reference held (zero-order hold, the extra input delay exact). What the
 affine model lacks -- the magnets' deviation from their linearisation
@@ -12,7 +12,7 @@ nearest sub-step there).
 
 One free-flight sample is one fused matrix-vector product,
 [x; u; C x][k+1] = M [x; u[k-1]; u[k]; f; r_s; 1], run together with the
-held forces by the compiled kernel :func:`ambid.step_kernels.plant_step`
+held forces by the compiled kernel :func:`ambid.plant.step_kernel.plant_step`
 (``step_output()`` ~3 us per sample); the rare contact sub-steps run in
 numpy.
 
@@ -29,9 +29,11 @@ import math
 import numpy as np
 from scipy import linalg
 
-from ambid import step_kernels as sk
-from ambid.rig import Rig
-from ambid.true_rig import OperatingPoint, TruePlant, delayed_zoh, levitated_plant, zoh_blocks
+from ambid.compiled import KernelOwner, compiled
+from ambid.plant import step_kernel as sk
+from ambid.plant.rig import Rig
+from ambid.plant.sensors import Sensors
+from ambid.plant.true_rig import OperatingPoint, TruePlant, delayed_zoh, levitated_plant, zoh_blocks
 
 CONTACT_SUBSTEPS = 16
 NOISE_BLOCK = 4096
@@ -39,7 +41,7 @@ NOISE_BLOCK = 4096
 _GAP_GUARD = 0.98
 
 
-class PlantSimulator(sk.KernelOwner):
+class PlantSimulator(KernelOwner):
     """The simulated rig: state, one step per sample, measured output.
 
     Args:
@@ -50,11 +52,11 @@ class PlantSimulator(sk.KernelOwner):
             point.
 
     Attributes:
-        plant: the :class:`ambid.true_rig.TruePlant` integrated.
+        plant: the :class:`ambid.plant.true_rig.TruePlant` integrated.
         operating_point: the levitated equilibrium (ic0, gaps, slopes).
         index: samples stepped so far (read-only).
 
-    State ``x`` (n,): see :mod:`ambid.true_rig`. The rotor starts at rest on
+    State ``x`` (n,): see :mod:`ambid.plant.true_rig`. The rotor starts at rest on
     the backup bearings (static equilibrium in contact, zero currents).
     """
 
@@ -77,7 +79,7 @@ class PlantSimulator(sk.KernelOwner):
         shift = np.zeros((4, n + 17))
         shift[:, n + 4:n + 8] = np.eye(4)  # u[k] becomes u[k-1]
         m = np.vstack([step_rows, shift, self._aux_map @ step_rows])  # (n + 20, n + 17)
-        # one work vector holds parameters, aux, v, M and the noise block (ambid.step_kernels)
+        # one work vector holds parameters, aux, v, M and the noise block (ambid.plant.step_kernel)
         s = sk.plant_work(m, NOISE_BLOCK)
         mag = rig.true_magnet
         s[sk.PAR_LIMIT] = rig.current_limit_a
@@ -86,7 +88,7 @@ class PlantSimulator(sk.KernelOwner):
         s[sk.PAR_IB] = mag.bias_current_a
         s[sk.PAR_S0] = mag.air_gap_m
         s[sk.PAR_GAP_GUARD] = _GAP_GUARD * mag.air_gap_m
-        s[sk.PAR_CUBIC] = rig.sensor_cubic_per_m2
+        s[sk.PAR_CUBIC] = rig.values["sensor_cubic_per_m2"]  # Sensors.probe_error, compiled
         s[sk.PAR_CLEAR2] = rig.backup_clearance_m * rig.backup_clearance_m
         s[sk.PAR_LIN:sk.PAR_LIN + 12] = np.column_stack([plant.force_const, plant.ki, plant.ks]).ravel()
         self._s = s
@@ -98,17 +100,16 @@ class PlantSimulator(sk.KernelOwner):
         self._gf_s, self._gs_s, self._gc_s = gw_s[:, :4], gw_s[:, 4:8], gw_s[:, 8]
         self._delay_substeps = int(round(plant.delay_s / h))
         self._gap_vel = plant.gap_velocity_map()
-        self._cubic = rig.sensor_cubic_per_m2
+        self.sensors = Sensors.from_rig(rig.values)
         self._clear = rig.backup_clearance_m
         self._kcon, self._dcon = rig.contact_stiffness_n_per_m, rig.contact_damping_ns_per_m
-        self._noise_std = rig.sensor_noise_m
         self._rng = np.random.default_rng(seed)
         self.draw_noise()  # rows for samples 0 .. NOISE_BLOCK - 1
         self.x = self._rest_state()
 
     def _bind(self) -> None:
         """The compiled step kernel, and named views into the work vector (the kernel reads and writes it)."""
-        self._plant_step = sk.compiled(sk.plant_step, sk.PLANT_STEP_ARGS)
+        self._plant_step = compiled(sk.plant_step, sk.PLANT_STEP_ARGS)
         s = self._s
         iv, _, iz = sk.plant_offsets.py_func(self._n)
         self._aux = s[sk.AUX:sk.AUX + sk.N_AUX]  # y, gap, current, sensor displacement at index
@@ -162,7 +163,7 @@ class PlantSimulator(sk.KernelOwner):
     def draw_noise(self) -> None:
         """The next NOISE_BLOCK rows of the noise stream; a compiled caller of ``plant_step`` calls it
         when the kernel returns STATUS_NOISE (nothing changed), then calls the kernel again."""
-        self._noise[:] = self._rng.standard_normal((NOISE_BLOCK, 4)) * self._noise_std
+        self._noise[:] = self.sensors.draw_noise(self._rng, NOISE_BLOCK)
         if self._s[sk.PAR_STATUS] == sk.STATUS_NOISE:
             self._s[sk.PAR_NOISE_BASE] += NOISE_BLOCK
             self._s[sk.PAR_STATUS] = 0.0
@@ -206,7 +207,7 @@ class PlantSimulator(sk.KernelOwner):
             f = self._contact_force(gap, np.zeros(4))
             if self.nonlinear_magnets:
                 f = f + self._magnet_residual(p.c_current @ x, gap)
-            rs = self._cubic * (p.c_sensor @ x) ** 3
+            rs = self.sensors.probe_error(p.c_sensor @ x)
             return p.a @ x + p.b_f @ f + p.b_s @ rs + p.b_c
 
         # first guess: the operating point moved rigidly straight down onto the retainers
@@ -264,7 +265,7 @@ class PlantSimulator(sk.KernelOwner):
 
     @property
     def work(self) -> np.ndarray:
-        """The plant work vector (:mod:`ambid.step_kernels`), for a compiled caller of ``plant_step``
+        """The plant work vector (:mod:`ambid.plant.step_kernel`), for a compiled caller of ``plant_step``
         that handles its STATUS_* returns as :meth:`step_output` does."""
         return self._s
 
@@ -288,8 +289,8 @@ class PlantSimulator(sk.KernelOwner):
             if self.nonlinear_magnets:
                 f += self._magnet_residual(p.c_current @ x, gap)
             drive = self._gu_s @ (u_old if j < self._delay_substeps else u_new) + self._gc_s + self._gf_s @ f
-            if self._cubic:
-                drive += self._gs_s @ (self._cubic * (p.c_sensor @ x) ** 3)
+            if self.sensors.cubic_per_m2:
+                drive += self._gs_s @ self.sensors.probe_error(p.c_sensor @ x)
             x = self._phi_s @ x + drive
         v[:n] = x
         v[n:n + 4] = u_new

@@ -14,6 +14,8 @@ import numpy as np
 from scipy import linalg
 
 from ambid.frf.sensitivity import iso14839_zone
+from ambid.plant.analytical import analytical_model
+from ambid.plant.true_rig import true_linear_model
 from ambid.statespace import StateSpace
 
 # ISO 14839-3 upper limits of the peak sensitivity for zones A, B, C (absolute gain)
@@ -68,7 +70,7 @@ def check_controller_on_rig(rig, controller: StateSpace) -> dict[str, np.ndarray
     """Check a controller before a run: stable on the analytical and on the true linearised model.
 
     Args:
-        rig: :class:`ambid.rig.Rig`.
+        rig: :class:`ambid.plant.rig.Rig`.
         controller: discrete y -> ic model at rig.dt.
 
     Returns:
@@ -78,8 +80,6 @@ def check_controller_on_rig(rig, controller: StateSpace) -> dict[str, np.ndarray
         ValueError naming the model ("analytical model" or "true rig") and
         its unstable poles.
     """
-    from ambid.rig import analytical_model  # late: rig imports nothing from here, true_rig imports rig
-    from ambid.true_rig import true_linear_model
 
     if abs(controller.dt - rig.dt) > 1e-15:
         raise ValueError(f"controller sample period {controller.dt} s differs from the rig's {rig.dt} s")

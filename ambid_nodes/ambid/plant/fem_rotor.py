@@ -409,7 +409,7 @@ def assemble_rotor(geometry: RotorGeometry) -> RotorMatrices:
 
     Returns:
         RotorMatrices with node positions and the (4 n_nodes)^2 matrices;
-        no supports and no damping (see ``rayleigh_damping`` and ``ambid.modal``).
+        no supports and no damping (see ``rayleigh_damping`` and ``ambid.plant.modal``).
     """
     z = mesh_nodes(geometry)
     n_nodes = z.size
@@ -492,7 +492,7 @@ def rayleigh_damping(mass: np.ndarray, stiffness: np.ndarray, alpha_per_s: float
     """Proportional damping D = alpha M + beta K, shape of M [N s/m].
 
     A mode at omega [rad/s] gets damping ratio alpha / (2 omega) + beta omega / 2.
-    For damping ratios per mode use ``ambid.modal.modal_state_space``.
+    For damping ratios per mode use ``ambid.plant.modal.modal_state_space``.
     """
     if alpha_per_s < 0 or beta_s < 0:
         raise ValueError(f"rayleigh_damping needs alpha, beta >= 0, got {alpha_per_s!r}, {beta_s!r}")

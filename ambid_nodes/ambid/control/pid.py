@@ -1,0 +1,95 @@
+"""The default position controller: a decentralised PID with filters, as a discrete state-space model.
+
+A controller maps the measured displacements y [m] to the control currents
+ic [A], minus sign included (ic = K(z) y), and carries one sample of
+computational delay: ic[k] depends on y[k-1] and older, as in a digital
+controller that samples, computes and applies at the next sample instant.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from scipy import signal
+
+from ambid.channels import CURRENT_NAMES, DISPLACEMENT_NAMES
+from ambid.statespace import StateSpace, block_diag, delay, series
+
+
+@dataclass(frozen=True)
+class PidParameters:
+    """Decentralised PID with a filtered derivative and a low-pass, per axis.
+
+    C(s) = kp (1 + 1/(ti s) + td s / (1 + td s / n)) / (1 + s / (2 pi f_lp))
+
+    The defaults are tuned for the default rig (docs/default_rig.md): input
+    sensitivity peak 2.41 on the analytical model, 2.71 on the true rig
+    (ISO 14839-3 zone A).
+
+    Attributes:
+        kp_a_per_m: proportional gain [A/m].
+        ti_s: integral time [s].
+        td_s: derivative time [s].
+        derivative_filter_n: derivative filter ratio N [-] (lead up to N).
+        lowpass_hz: first-order low-pass corner [Hz].
+        delay_samples: computational delay [samples].
+        current_limit_a: saturation of ic [A].
+    """
+
+    kp_a_per_m: float = 12_000.0
+    ti_s: float = 0.05
+    td_s: float = 1.5e-3
+    derivative_filter_n: float = 10.0
+    lowpass_hz: float = 5_000.0
+    delay_samples: int = 1
+    current_limit_a: float = 3.0
+
+    def __post_init__(self) -> None:
+        checks = {
+            "kp_a_per_m": (0.0, 1e9), "ti_s": (1e-5, 1e4), "td_s": (0.0, 1.0),
+            "derivative_filter_n": (1.0, 1000.0), "lowpass_hz": (1.0, 1e6),
+            "delay_samples": (0, 100), "current_limit_a": (1e-3, 1e3),
+        }
+        for name, (lo, hi) in checks.items():
+            v = getattr(self, name)
+            if not (np.isfinite(v) and lo <= v <= hi):
+                raise ValueError(f"PID parameter {name} = {v!r} is outside [{lo:g}, {hi:g}]")
+        if self.kp_a_per_m <= 0:
+            raise ValueError("PID parameter kp_a_per_m must be > 0")
+
+
+def pid_axis(p: PidParameters, dt: float) -> StateSpace:
+    """One axis of the PID, continuous design discretised by Tustin, y [m] -> ic [A], minus sign included.
+
+    Realised with three well-scaled states (integral of y, derivative
+    filter, low-pass), not from the transfer-function polynomials, whose
+    coefficients span tens of decades.
+    """
+    kp, wl = p.kp_a_per_m, 2 * np.pi * p.lowpass_hz
+    # states: x_i' = y; x_d' = wd (y - x_d); x_l' = wl (pid - x_l); ic = -x_l
+    # pid = kp y + kp / ti x_i + kp td wd (y - x_d)
+    wd = p.derivative_filter_n / p.td_s if p.td_s > 0 else 0.0
+    kd = kp * p.td_s * wd
+    pid_x = np.array([kp / p.ti_s, -kd, 0.0])
+    pid_y = kp + kd
+    a = np.array([[0.0, 0.0, 0.0], [0.0, -wd, 0.0], [0.0, 0.0, -wl]])
+    a[2] += wl * pid_x
+    b = np.array([[1.0], [wd], [wl * pid_y]])
+    c = np.array([[0.0, 0.0, -1.0]])
+    if wd == 0.0:  # no derivative action: drop its state
+        a, b, c = a[np.ix_([0, 2], [0, 2])], b[[0, 2]], c[:, [0, 2]]
+    ad, bd, cd, dd, _ = signal.cont2discrete((a, b, c, np.zeros((1, 1))), dt, method="bilinear")
+    return StateSpace(ad, bd, cd, dd, dt)
+
+
+def pid_controller(p: PidParameters, dt: float) -> StateSpace:
+    """Decentralised 4-axis PID with computational delay, y (4) [m] -> ic (4) [A]."""
+    axes = block_diag(*(pid_axis(p, dt) for _ in range(4)))
+    k = series(axes, delay(4, p.delay_samples, dt))
+    return k._replace(input_names=DISPLACEMENT_NAMES, output_names=tuple(n.replace("u_", "ic_") for n in CURRENT_NAMES),
+                      input_units=("m",) * 4, output_units=("A",) * 4)
+
+
+def pid_parameters_dict(p: PidParameters) -> dict:
+    return asdict(p)
