@@ -40,12 +40,11 @@ from __future__ import annotations
 import json
 import sys
 import time
-from dataclasses import asdict
 
 import numpy as np
 from ambid.control.closed_loop import check_controller_on_rig
-from ambid.control.lqg import LqgParameters, lqg_controller
-from ambid.control.pid import PidParameters, pid_controller, pid_parameters_dict
+from ambid.control.kinds import describe_kinds, design_controller
+from ambid.control.pid import PidParameters
 from ambid.control.stepper import ControllerStepper
 from ambid.plant.rig import load_rig, make_rig
 from rclpy.node import Node
@@ -76,8 +75,7 @@ class PositionController(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("position_controller", **kwargs)
         rig_file = declare(self, "rig_file", "", "YAML rig parameter file used for the stability check")
-        self.kind = declare(self, "controller", "pid",
-                            "controller kind: pid (decentralised PID) | lqg (centralised LQG from the analytical model)")
+        self.kind = declare(self, "controller", "pid", f"controller kind: {describe_kinds()}")
         d = PidParameters()
         pid = PidParameters(
             kp_a_per_m=declare(self, "kp", d.kp_a_per_m, "proportional gain", 1.0, 1e9, "A/m"),
@@ -96,26 +94,23 @@ class PositionController(Node):
                                "wall time without a displacement before the running plant is declared lost",
                                0.01, 3600.0, "s")
         refuse_unknown(self)
-        if self.kind not in ("pid", "lqg"):
-            raise ParameterError(f"position_controller: controller '{self.kind}' is unknown; use 'pid' or 'lqg'")
         try:
             self.rig = load_rig(rig_file) if rig_file else make_rig()
         except (ValueError, OSError) as exc:
             raise ParameterError(f"position_controller: parameter 'rig_file': {exc}") from None
-        if self.kind == "pid":
-            self.model = pid_controller(pid, self.rig.dt)
-            delay_samples, params_json = pid.delay_samples, pid_parameters_dict(pid)
-        else:
-            lqg = LqgParameters()
-            self.model = lqg_controller(self.rig, lqg)
-            delay_samples, params_json = lqg.delay_samples, asdict(lqg)
+        try:
+            design = design_controller(self.kind, self.rig, pid)
+        except ValueError as exc:
+            raise ParameterError(f"position_controller: {exc}") from None
+        self.model = design.model
+        delay_samples, params_json = design.delay_samples, design.parameters
         try:
             # refuse to run a loop that is unstable on the analytical or on the true linearised rig
             check_controller_on_rig(self.rig, self.model)
         except ValueError as exc:
             raise ParameterError(str(exc)) from None
-        self.params = pid
-        self.stepper = ControllerStepper(self.model, pid.current_limit_a)
+        self.design = design
+        self.stepper = ControllerStepper(self.model, design.current_limit_a)
         self.pub_ic = self.create_publisher(Sample, "control_current", qos.LOOP)
         self.publish_ic = raw_publisher(self.pub_ic)
         self.pipelined = bool(pipeline) and self.stepper.strictly_proper
@@ -157,7 +152,7 @@ class PositionController(Node):
         self.pub_desc.publish(ControllerDescription(
             stamp=time_msg(0.0), name=self.get_fully_qualified_name(), kind=self.kind,
             delay_samples=delay_samples, model=statespace_to_msg(self.model),
-            current_limit=[pid.current_limit_a] * 4, parameters_json=json.dumps(params_json)))
+            current_limit=[design.current_limit_a] * 4, parameters_json=json.dumps(params_json)))
 
     def regate(self) -> None:
         """The loop pump runs the kernel while a session runs."""
@@ -233,7 +228,7 @@ class PositionController(Node):
 
     def reset_stepper(self) -> None:
         """A controller at zero state and zero current, stepped by both paths."""
-        self.stepper = ControllerStepper(self.model, self.params.current_limit_a)
+        self.stepper = ControllerStepper(self.model, self.design.current_limit_a)
         self.bind_stepper()
 
     def bind_stepper(self) -> None:

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ambid.control.kinds import CONTROLLER_KINDS, describe_kinds
+
 from ambid_nodes.graph import (DEFAULT_NAMESPACE, GraphConfig, run_composed, run_hardware, run_processes,
                                session_domain_id)
 
@@ -18,8 +20,8 @@ def add_arguments(g: argparse.ArgumentParser) -> None:
     g.add_argument("--rig", help="rig parameter YAML file (default: the built-in rig)")
     g.add_argument("--nonlinear", action="store_true", help="nonlinear magnet force (eq. 2.14)")
     g.add_argument("--namespace", default=DEFAULT_NAMESPACE, help="ROS namespace of the rig (default /amb)")
-    g.add_argument("--controller", choices=["pid", "lqg"], default="pid",
-                   help="position controller: decentralised PID or centralised LQG (default pid)")
+    g.add_argument("--controller", choices=list(CONTROLLER_KINDS), default="pid",
+                   help=f"position controller: {describe_kinds()} (default pid)")
     g.add_argument("--hardware", metavar="HOST:PORT",
                    help="run against a real-time target over the UDP bridge instead of plant_sim "
                         "(the target runs the fast loop; see docs/bridge_protocol.md)")
