@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 from ambid.fit import update_parameters
-from ambid.fit._threads import single_threaded_blas
+from ambid.fit.blas_threads import single_threaded_blas
 from ambid.statespace import StateSpace
 
 F_HZ = np.linspace(5.0, 500.0, 150)

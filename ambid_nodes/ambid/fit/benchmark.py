@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 
-from ambid.fit._threads import single_threaded_blas
+from ambid.fit.blas_threads import single_threaded_blas
 from ambid.fit.common_denominator import fit_common_denominator
 from ambid.statespace import StateSpace, block_diag
 

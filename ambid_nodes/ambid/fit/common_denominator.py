@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ambid.fit import basis as fb
-from ambid.fit._threads import single_threaded_blas
+from ambid.fit.blas_threads import single_threaded_blas
 from ambid.fit.refine import refine as ml_refine
 from ambid.fit.vector_fitting import WeightedData, starting_poles, vector_fit
 

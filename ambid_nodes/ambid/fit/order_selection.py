@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ambid.fit._threads import single_threaded_blas
+from ambid.fit.blas_threads import single_threaded_blas
 from ambid.fit.common_denominator import RationalModel, _fit
 
 if TYPE_CHECKING:  # matplotlib is imported by the plot functions only

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize, stats
 
-from ambid.fit._threads import single_threaded_blas
+from ambid.fit.blas_threads import single_threaded_blas
 from ambid.statespace import StateSpace
 
 __all__ = ["UpdateResult", "update_parameters"]
