@@ -8,12 +8,14 @@ import json
 import struct
 
 import ambid.frf.offline as offline
+import ambid.session.blocks as blocks
 import numpy as np
 import pytest
 from ambid.excitation import design_multisine
-from ambid.frf.offline import _read_sample_block, frf_from_arrays, frf_from_files, frf_from_session, session_designs
+from ambid.frf.offline import frf_from_arrays, frf_from_files, frf_from_session, session_designs
 from ambid.frf.streaming import FrfStream
 from ambid.session import iter_decoded
+from ambid.session.blocks import SampleBlockReader
 from frf_testbench import FS, loop_model, simulate
 from scipy.io import savemat
 from session_testbench import SAMPLE_BLOCK, block_message, design_message, encoder, write_session
@@ -99,7 +101,7 @@ def test_session_gives_the_streaming_result_with_its_gap(rec, tmp_path):
     _write_session(path, rec, blocks, [(0, rec["design"].total_samples)])
     # the fast block reader agrees with the generic CDR decoder
     for (msg, dec), (first, data) in zip(iter_decoded(path, "/amb/measurement"), blocks):
-        f, dt, names, arr = _read_sample_block(msg.data)
+        f, dt, names, arr = SampleBlockReader()(msg.data)
         assert (f, dt, names) == (dec.first_index, dec.sample_period, list(dec.channel_names))
         np.testing.assert_array_equal(arr, np.reshape(dec.data, (dec.n_samples, -1)))
         np.testing.assert_array_equal(arr, data)
@@ -216,7 +218,7 @@ def test_block_reader_reuses_the_layout_only_when_it_is_the_same(rec, monkeypatc
     body = memoryview(first)[4:]
     at = 12 + struct.unpack_from("<I", body, 8)[0]
     at += -at % 8 + 16                                           # n_samples, after first_index, sample_period
-    (_, _, _, data_at), spans = offline._sample_block_layout(body, at)
+    (_, _, _, data_at), spans = blocks._sample_block_layout(body, at)
     padding = sorted(set(range(at, data_at)) - {i for a, b in spans for i in range(a, b)})
     assert padding                                               # 'y_1' etc.: 3 padding bytes after each
     noisy = bytearray(enc(block_message(500, x[500:1000], CHANNELS, 1 / FS)))
@@ -225,9 +227,9 @@ def test_block_reader_reuses_the_layout_only_when_it_is_the_same(rec, monkeypatc
     renamed = [n.replace("_1", "_9") for n in CHANNELS]          # same lengths, other bytes
     other = enc(block_message(1000, x[1000:1500], renamed, 1 / FS))
     parses = []
-    original = offline._sample_block_layout
-    monkeypatch.setattr(offline, "_sample_block_layout", lambda *a: parses.append(1) or original(*a))
-    read = offline._BlockReader()
+    original = blocks._sample_block_layout
+    monkeypatch.setattr(blocks, "_sample_block_layout", lambda *a: parses.append(1) or original(*a))
+    read = SampleBlockReader()
     for buf, names, n_parses in ((first, CHANNELS, 1), (bytes(noisy), CHANNELS, 1), (other, renamed, 2),
                                  (first, CHANNELS, 3)):
         f, dt, got_names, data = read(buf)

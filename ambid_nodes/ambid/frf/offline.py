@@ -30,6 +30,7 @@ from ambid.channels import AXES, CURRENT_NAMES, DISPLACEMENT_NAMES
 from ambid.excitation.design import ExcitationDesign
 from ambid.frf.arrays_io import load_arrays, stack_channels
 from ambid.frf.streaming import ESTIMATORS, FrfResult, FrfStream, match_inputs
+from ambid.session.blocks import SampleBlockReader
 from ambid.session.reader import Ros2Decoder, iter_messages, iter_raw
 
 __all__ = ["DEFAULT_OUTPUTS", "DEFAULT_INPUTS", "DEFAULT_REFERENCES", "load_design",
@@ -181,107 +182,10 @@ class _Designs:
         return out
 
 
-class _BlockReader:
-    """Reads CDR SampleBlocks: :func:`_read_sample_block`, reusing the channel layout of the last block.
-
-    Consecutive blocks of a topic carry the same sizes, names and units; when
-    those bytes are unchanged their parse (32 strings for a plant's block,
-    most of the decoding time) is reused. The comparison skips the alignment
-    padding (serialisers leave it uninitialised), so reuse is exact: the parse
-    depends only on the bytes compared and their offset.
-    """
-
-    def __init__(self) -> None:
-        self._at = -1                               # offset of n_samples in the CDR body
-        self._keep = np.zeros(0, dtype=np.int64)    # offsets (from there) of the non-padding bytes
-        self._kept = b""                            # their values
-        self._layout: tuple[int, list[str], int, int] = (0, [], 0, 0)  # n_samples, names, n_values, data pos
-
-    def __call__(self, buf: bytes) -> tuple[int, float, list[str], np.ndarray]:
-        if bytes(buf[:2]) not in (b"\x00\x01", b"\x00\x03"):
-            raise ValueError(f"SampleBlock: only little-endian CDR is read here, got encapsulation "
-                             f"{bytes(buf[:4]).hex()}")
-        body = memoryview(buf)[4:]
-        (id_len,) = struct.unpack_from("<I", body, 8)     # after the stamp (int32 sec, uint32 nanosec)
-        pos = 12 + id_len                                # experiment_id (its length counts the NUL)
-        pos += -pos % 8
-        first_index, sample_period = struct.unpack_from("<Qd", body, pos)
-        pos += 16
-        data_pos = self._layout[3]
-        if not (pos == self._at and data_pos <= len(body)
-                and np.frombuffer(body, np.uint8, data_pos - pos, pos)[self._keep].tobytes() == self._kept):
-            self._layout, spans = _sample_block_layout(body, pos)
-            keep = np.concatenate([np.arange(a, b) for a, b in spans]) - pos
-            self._at, self._keep = pos, keep
-            self._kept = np.frombuffer(body, np.uint8, self._layout[3] - pos, pos)[keep].tobytes()
-        n_samples, names, n_values, data_pos = self._layout
-        if data_pos + 8 * n_values > len(body):
-            raise ValueError(f"SampleBlock: {n_values} values for {n_samples} samples x {len(names)} "
-                             f"channels but the message ends after {max(len(body) - data_pos, 0) // 8}")
-        data = np.frombuffer(body, dtype="<f8", count=n_values, offset=data_pos).reshape(n_samples, len(names))
-        return int(first_index), float(sample_period), list(names), data
-
-
-def _sample_block_layout(body: memoryview, pos: int) -> tuple[tuple[int, list[str], int, int],
-                                                               list[tuple[int, int]]]:
-    """Parse a SampleBlock body from its n_samples field on.
-
-    Returns:
-        ((n_samples, channel_names, n_values, data offset), the byte spans
-        [start, end) read, i.e. all but the alignment padding).
-    """
-    spans: list[tuple[int, int]] = []
-
-    def align(n: int) -> None:
-        nonlocal pos
-        pos += -pos % n
-
-    def u32() -> int:
-        nonlocal pos
-        align(4)
-        (v,) = struct.unpack_from("<I", body, pos)
-        spans.append((pos, pos + 4))
-        pos += 4
-        return v
-
-    def string() -> str:
-        nonlocal pos
-        n = u32()
-        if n < 1 or pos + n > len(body):
-            raise ValueError(f"SampleBlock: bad string length {n} at byte {pos}")
-        s = bytes(body[pos:pos + n - 1]).decode()
-        spans.append((pos, pos + n))
-        pos += n
-        return s
-
-    n_samples = u32()
-    names = [string() for _ in range(u32())]
-    for _ in range(u32()):       # channel_units
-        string()
-    n_values = u32()
-    if n_values:
-        align(8)
-    if n_values != n_samples * len(names):
-        raise ValueError(f"SampleBlock: {n_values} values for {n_samples} samples x {len(names)} channels")
-    return (n_samples, names, n_values, pos), spans
-
-
-def _read_sample_block(buf: bytes) -> tuple[int, float, list[str], np.ndarray]:
-    """(first_index, sample_period, channel_names, data (n, ch)) of a CDR SampleBlock.
-
-    A direct little-endian CDR reader: the generic decoder unpacks the data
-    array one float at a time, this one takes it with one ``frombuffer``
-    (no copy: ``data`` is a read-only view of ``buf``).
-    Field order and alignment follow ambid_msgs/msg/SampleBlock.msg (XCDR1:
-    each primitive aligned to its size from the start of the payload).
-    """
-    return _BlockReader()(buf)
-
-
 def _session_blocks(path: str | os.PathLike, topic: str, stream: FrfStream,
                     recover: bool) -> Iterator[tuple[int, np.ndarray]]:
 
-    feed, read = _Feeder(stream), _BlockReader()
+    feed, read = _Feeder(stream), SampleBlockReader()
     for message in iter_messages(path, topic, recover=recover):
         block = feed.block(*read(message.data))
         if block is not None:
@@ -366,7 +270,7 @@ def frf_from_session(path: str | os.PathLike, estimator: str = "indirect",
         raise ValueError(f"estimator must be one of {ESTIMATORS}, got {estimator!r}")
     designs = _Designs(os.fspath(path))
     decode = Ros2Decoder()
-    readers: dict[str, _BlockReader] = {}
+    readers: dict[str, SampleBlockReader] = {}
     seen_end: dict[str, int] = {}       # measurement topic -> one past the last sample index read
     pending: _Pending | None = None
 
@@ -395,7 +299,7 @@ def frf_from_session(path: str | os.PathLike, estimator: str = "indirect",
                     pending = start(key, entry)
             continue
         try:
-            block = readers.setdefault(topic, _BlockReader())(msg.data)
+            block = readers.setdefault(topic, SampleBlockReader())(msg.data)
         except (ValueError, struct.error):  # unreadable: what follows on this topic is not exact
             seen_end[topic] = sys.maxsize
             if pending is not None and pending.topic == topic:
