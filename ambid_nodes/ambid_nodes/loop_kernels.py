@@ -231,7 +231,7 @@ CONTROLLER_STATUS = 2  # answered, and the node has a status to publish
 
 
 @intrinsic
-def _pointer(typingctx, address, dtype):
+def pointer(typingctx, address, dtype):
     """The ``dtype`` pointer at an integer ``address`` (a context word)."""
     if not isinstance(address, types.Integer) or not isinstance(dtype, types.NumberClass):
         return None
@@ -257,18 +257,18 @@ def _float_bits(typingctx, word):
 
 @numba.njit(cache=True)
 def _f8(c, word: int) -> np.ndarray:
-    return numba.carray(_pointer(c[word], np.float64), c[word + 1])
+    return numba.carray(pointer(c[word], np.float64), c[word + 1])
 
 
 @numba.njit(cache=True)
 def _u8(c, word: int) -> np.ndarray:
-    return numba.carray(_pointer(c[word], np.uint8), c[word + 1])
+    return numba.carray(pointer(c[word], np.uint8), c[word + 1])
 
 
 @numba.cfunc(LOOP_KERNEL, cache=True)
 def plant_kernel(data, size, k, c):
     """plant_sample4 on the buffers of context c (PK_*), for the Sample ic[k] in data[:size]."""
-    rows = numba.carray(_pointer(c[PK_R], np.float64), (c[PK_R + 1], 4))
+    rows = numba.carray(pointer(c[PK_R], np.float64), (c[PK_R + 1], 4))
     return plant_sample4(_f8(c, PK_WORK), numba.carray(data, size), k, rows, c[PK_R_FIRST], c[PK_FREE_UNTIL],
                          _f8(c, PK_LOOP), k - c[PK_BLOCK_START], c[PK_CLOCK_EVERY], _u8(c, LOOP_OUT))
 

@@ -140,6 +140,12 @@ def test_no_private_name_crosses_a_folder():
             if private and target.rsplit(".", 1)[0] != m.rsplit(".", 1)[0] and not \
                     (target.rsplit(".", 1)[0] == m):  # a package may use its own private modules
                 bad.append((m, target, name))
+    for p in (ROOT / "tests").rglob("*.py"):  # the tests use the public names too
+        for target, name in _imports("tests." + p.stem, p, known):
+            if target.split(".")[0] in ("ambid", "ambid_nodes") and (
+                    (name.startswith("_") and not name.endswith("__"))
+                    or any(part.startswith("_") and part != "__init__" for part in target.split(".")[1:])):
+                bad.append((str(p.relative_to(ROOT)), target, name))
     assert bad == []
 
 

@@ -16,7 +16,7 @@ import pytest
 import rclpy
 from ambid_nodes.loop_call import BoundKernel
 from ambid_nodes.loop_kernels import (LOOP_COUNT, LOOP_DONE, LOOP_GATE, LOOP_K, LOOP_KERNEL, LOOP_LIMIT,
-                                      LOOP_NO_LIMIT, LOOP_OUT, N_LOOP, _pointer)
+                                      LOOP_NO_LIMIT, LOOP_OUT, N_LOOP, pointer)
 from ambid_nodes.loop_pump import BUDGET, NOT_RUN, LoopEntry, Pump, pump_of
 from ambid_nodes.sample_codec import decode_sample
 
@@ -37,7 +37,7 @@ def echo_kernel(data, size, k, c):
         index |= np.int64(data[4 + i]) << (8 * i)
     if index != k:
         return 0
-    out = numba.carray(_pointer(c[LOOP_OUT], np.uint8), c[LOOP_OUT + 1])
+    out = numba.carray(pointer(c[LOOP_OUT], np.uint8), c[LOOP_OUT + 1])
     for i in range(52):
         out[i] = data[i]
     answer = index + c[ECHO_STEP]
