@@ -11,7 +11,7 @@ import argparse
 import importlib
 import sys
 
-# subcommand -> module in ambid_nodes.commands, or a note for what is still to come
+# subcommand -> module in ambid_nodes.commands
 COMMANDS = {
     "graph": "graph",
     "identify": "identify",
@@ -22,21 +22,6 @@ COMMANDS = {
     "compare": "compare",
     "bench": "bench",
 }
-PLANNED = {
-    "identify": "the end-to-end identification session",
-    "design": "previewing an excitation design",
-    "inspect": "inspecting a recorded MCAP session",
-    "fit": "fitting a recorded session",
-    "compare": "comparing excitations and estimators",
-    "bench": "the benchmark",
-    "node": "starting a single node",
-}
-
-
-def not_yet(name: str, what: str) -> int:
-    print(f"ambid {name}: {what} is not available yet in this version; 'ambid graph' and 'ambid test' are.",
-          file=sys.stderr)
-    return 2
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -52,13 +37,17 @@ def main(argv: list[str] | None = None) -> int:
             p.set_defaults(func=mod.run)
         else:
             sub.add_parser(cmd)
-    for cmd, what in PLANNED.items():
-        if cmd not in COMMANDS:
-            s = sub.add_parser(cmd, help=f"{what} (not available yet)")
-            s.add_argument("rest", nargs=argparse.REMAINDER)
-            s.set_defaults(func=lambda a, what=what, cmd=cmd: not_yet(cmd, what))
-    args = parser.parse_args(argv)
-    return args.func(args)
+    args = parser.parse_args(argv)  # a bad option value: argparse's usage and one line, exit code 2
+    from ambid_nodes.commands.inputs import BadInput
+
+    try:
+        return args.func(args)
+    except BadInput as exc:
+        print(f"ambid {args.command}: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"ambid {args.command}: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

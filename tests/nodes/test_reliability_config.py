@@ -18,10 +18,15 @@ def test_bad_rig_file_through_ambid_graph_names_the_field_and_range(ros_env, tmp
     out = subprocess.run([sys.executable, "-m", "ambid_nodes.cli", "graph", "--processes", "--rig", str(rig),
                           "--sim-seconds", "0.1"], env=ros_env, cwd=REPO, capture_output=True, text=True, timeout=120)
     text = out.stdout + out.stderr
-    assert out.returncode != 0
+    assert out.returncode == 2  # refused before any node starts
     assert "bias_current_a = -3" in text and "allowed range [0.01, 100] A" in text, text
-    assert "parameter 'rig_file'" in text and str(rig) in text
+    assert f"rig file {rig}" in text
     assert "Traceback" not in text, text
+    # the node itself refuses it too, naming its parameter
+    node = subprocess.run([sys.executable, "-m", "ambid_nodes.plant_sim", "--ros-args", "-p", f"rig_file:={rig}"],
+                          env=ros_env, cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert node.returncode == 2 and "parameter 'rig_file'" in node.stderr and "bias_current_a = -3" in node.stderr
+    assert "Traceback" not in node.stderr
 
 
 def test_bad_parameter_file_names_the_field_and_range(ros_env, tmp_path):

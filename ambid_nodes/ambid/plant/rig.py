@@ -374,12 +374,23 @@ def load_rig(path: str | Path) -> Rig:
     folder) replaces the finite-element rotor by a user model.
     """
     path = Path(path)
+    fix = "give a YAML file of parameter: value lines like rigs/ideal.yaml, or leave out the rig file for the default"
     try:
-        data = yaml.safe_load(path.read_text())
+        text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise ValueError(f"rig file {path} does not exist") from None
+        raise ValueError(f"rig file {path} does not exist; {fix}") from None
+    except IsADirectoryError:
+        raise ValueError(f"rig file {path} is a folder; {fix}") from None
+    except UnicodeDecodeError:
+        raise ValueError(f"rig file {path} is not text (binary data); {fix}") from None
+    if not text.strip():
+        raise ValueError(f"rig file {path} is empty; {fix}")
+    try:
+        data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise ValueError(f"rig file {path} is not valid YAML: {exc}") from None
+        where = getattr(exc, "problem_mark", None)
+        at = f" at line {where.line + 1}" if where is not None else ""
+        raise ValueError(f"rig file {path} is not valid YAML{at}; {fix}") from None
     if data is None:
         data = {}
     if not isinstance(data, dict):

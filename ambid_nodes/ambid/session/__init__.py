@@ -11,19 +11,21 @@ Pure Python (mcap, mcap_ros2, PyYAML); nothing here imports rclpy.
 """
 
 from .inspect import format_inspection, inspect_session
-from .reader import (IncompleteSessionError, SessionMessage, SessionScan, iter_decoded, iter_messages, read_metadata,
-                     scan_session)
+from .reader import (IncompleteSessionError, NotASessionError, SessionMessage, SessionScan, check_session_file,
+                     iter_decoded, iter_messages, read_metadata, scan_session)
 from .ros2_schema import MessageSchema, load_message_schema
 from .writer import QosProfile, SessionWriteError, SessionWriter, serialize_qos_profiles
 
 __all__ = [
     "IncompleteSessionError",
     "MessageSchema",
+    "NotASessionError",
     "QosProfile",
     "SessionMessage",
     "SessionScan",
     "SessionWriteError",
     "SessionWriter",
+    "check_session_file",
     "format_inspection",
     "inspect_session",
     "iter_decoded",

@@ -34,6 +34,8 @@ from mcap.stream_reader import breakup_chunk
 __all__ = [
     "MCAP_MAGIC",
     "IncompleteSessionError",
+    "NotASessionError",
+    "check_session_file",
     "SessionMessage",
     "SessionScan",
     "iter_messages",
@@ -47,6 +49,29 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 class IncompleteSessionError(ValueError):
     """The file has no valid footer (writer killed or disk full); use ``recover=True``."""
+
+
+class NotASessionError(ValueError):
+    """The file cannot be a session: empty, or not MCAP at all."""
+
+
+def check_session_file(path: str | os.PathLike) -> None:
+    """Refuse what cannot be a recorded session before any reader touches it.
+
+    Raises:
+        FileNotFoundError: no such file.
+        IsADirectoryError: the path is a folder.
+        NotASessionError: the file is empty or does not start with the MCAP magic.
+    """
+    path = os.fspath(path)
+    if os.path.isdir(path):
+        raise IsADirectoryError(f"{path} is a folder, not a session file")
+    with open(path, "rb") as f:  # FileNotFoundError / PermissionError as they are
+        head = f.read(len(MCAP_MAGIC))
+    if not head:
+        raise NotASessionError(f"{path} is empty (0 bytes)")
+    if head != MCAP_MAGIC[:len(head)] or len(head) < len(MCAP_MAGIC):
+        raise NotASessionError(f"{path} is not an MCAP file (it does not start with the MCAP magic)")
 
 
 @dataclass(frozen=True)
@@ -381,6 +406,8 @@ def iter_raw(
     path: str | os.PathLike, topics: Iterable[str] | str | Callable[[str], bool] | None, recover: bool
 ) -> Iterator[tuple[Schema | None, Channel, Message]]:
     """(schema, channel, message) in log-time order; ``topics``: names, one name, a test on the name, or all."""
+    if not recover:  # recovery reads whatever is there, an empty file too (nothing)
+        check_session_file(path)
     if isinstance(topics, str):
         topics = [topics]
     if topics is None or callable(topics):
@@ -471,6 +498,7 @@ def read_metadata(path: str | os.PathLike, *, recover: bool = False) -> dict[str
     """
     if recover:
         return scan_session(path).metadata
+    check_session_file(path)
     with open(path, "rb") as f:
         reader = make_reader(f)
         try:

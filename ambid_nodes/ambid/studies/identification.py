@@ -338,11 +338,11 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     """
     t0 = time.perf_counter()
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     path = os.fspath(mcap_path)
     notes: list[str] = []
     frf = frf_from_session(path, estimator=estimator, experiment_id=experiment_id, recover=recover)
     designs = session_designs(path, recover=recover)
+    out.mkdir(parents=True, exist_ok=True)  # only once the session gave an FRF: a refusal leaves nothing behind
     chosen = [d for d in designs if experiment_id is None or d["experiment_id"] == experiment_id][-1]
     design: ExcitationDesign = chosen["design"]
     dt_s = 1.0 / design.fs_hz

@@ -31,6 +31,8 @@ import time
 import traceback
 from pathlib import Path
 
+from ambid_nodes.commands.inputs import output_dir, output_file, positive_float, positive_int
+
 from ambid.jsonable import to_jsonable
 
 HELP = "measure loop throughput, identify real-time factor, offline rates and memory against the targets"
@@ -60,9 +62,9 @@ FULL = {
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", metavar="FILE", help="write every figure and its details to FILE")
-    p.add_argument("--loop-seconds", type=float, help="simulated time per loop run [s], >= 0.05 (default 2)")
-    p.add_argument("--repeats", type=int, help="interleaved rounds of the loop and offline timings (default 5)")
-    p.add_argument("--fit-lines", type=int, help="lines of the 4x4 FRF to fit (default 2000)")
+    p.add_argument("--loop-seconds", type=positive_float, help="simulated time per loop run [s], >= 0.05 (default 2)")
+    p.add_argument("--repeats", type=positive_int, help="interleaved rounds of the loop and offline timings (default 5)")
+    p.add_argument("--fit-lines", type=positive_int, help="lines of the 4x4 FRF to fit (default 2000)")
     p.add_argument("--skip", default="", help=f"comma-separated sections to leave out: {','.join(SECTIONS)}")
     p.add_argument("--quick", action="store_true", help="tiny sizes everywhere (a smoke test, not a measurement)")
     p.add_argument("--work-dir", help="where session files go (default: a temporary directory, removed)")
@@ -186,6 +188,10 @@ def print_table(figures: list, out=None) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.json:
+        output_file(args.json, "--json")
+    if args.work_dir:
+        output_dir(args.work_dir, "--work-dir")
     skip = {s.strip() for s in args.skip.split(",") if s.strip()}
     unknown = skip - set(SECTIONS)
     if unknown:

@@ -17,6 +17,8 @@ import math
 import sys
 from pathlib import Path
 
+from ambid_nodes.commands.inputs import output_dir, rig_file
+
 HELP = "compare excitation methods, FRF estimators and odd/full multisines on the simulated rig"
 PARTS = ("methods", "estimators", "odd_full")
 
@@ -32,7 +34,6 @@ def add_arguments(g: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ambid.plant.rig import load_rig, make_rig
     from ambid.studies.comparison import comparison_markdown, run_comparison
 
     parts = tuple(p.strip() for p in args.parts.split(",") if p.strip())
@@ -40,12 +41,8 @@ def run(args: argparse.Namespace) -> int:
     if bad or not parts:
         print(f"ambid compare: --parts must name some of {', '.join(PARTS)}, got {args.parts!r}", file=sys.stderr)
         return 2
-    try:
-        rig = load_rig(args.rig) if args.rig else make_rig()
-    except (ValueError, OSError) as exc:
-        print(f"ambid compare: {exc}", file=sys.stderr)
-        return 2
-    out = Path(args.out)
+    rig = rig_file(args.rig)
+    out = output_dir(args.out)
     out.mkdir(parents=True, exist_ok=True)
     print(f"ambid compare: {args.preset} preset, parts {', '.join(parts)}, rig {rig.name}", flush=True)
     result = run_comparison(args.preset, rig, parts)

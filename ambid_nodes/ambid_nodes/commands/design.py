@@ -19,6 +19,7 @@ from pathlib import Path
 HELP = "preview an excitation design: figures, headroom, measurement times, spectrum plot"
 
 from ambid.excitation.spec import DEFAULT_INPUTS, GRIDS, KINDS, MIMOS, PHASES, SPACINGS, build_design, prbs_clock  # noqa: F401 - re-exported
+from ambid_nodes.commands.inputs import check_band, count, output_dir, positive_float, positive_int
 
 
 # ---- the command ------------------------------------------------------------
@@ -26,22 +27,22 @@ def add_arguments(g: argparse.ArgumentParser) -> None:
     g.add_argument("--kind", choices=KINDS, default="multisine", help="excitation kind (default multisine)")
     g.add_argument("--band", type=float, nargs=2, default=(10.0, 1000.0), metavar=("LOW", "HIGH"),
                    help="band of interest [Hz] (default 10 1000)")
-    g.add_argument("--resolution", type=float, default=5.0, help="frequency resolution fs/N [Hz] (default 5)")
+    g.add_argument("--resolution", type=positive_float, default=5.0, help="frequency resolution fs/N [Hz] (default 5)")
     g.add_argument("--inputs", default=",".join(DEFAULT_INPUTS),
                    help=f"comma-separated excited inputs (default {','.join(DEFAULT_INPUTS)})")
-    g.add_argument("--peak-current", type=float, default=0.5, help="excitation peak per input [A] (default 0.5)")
-    g.add_argument("--periods", type=int, default=4, help="steady-state periods P (default 4)")
-    g.add_argument("--realisations", type=int, default=1, help="realisations M (default 1)")
-    g.add_argument("--transient-periods", type=int, default=1, help="transient periods Pt (default 1)")
+    g.add_argument("--peak-current", type=positive_float, default=0.5, help="excitation peak per input [A] (default 0.5)")
+    g.add_argument("--periods", type=positive_int, default=4, help="steady-state periods P (default 4)")
+    g.add_argument("--realisations", type=positive_int, default=1, help="realisations M (default 1)")
+    g.add_argument("--transient-periods", type=count, default=1, help="transient periods Pt (default 1)")
     g.add_argument("--grid", default="", help="line grid: random_odd | odd | full (default: the kind's)")
     g.add_argument("--spacing", default="", help="linear | log (swept sine: the sweep law; default: the kind's)")
     g.add_argument("--phases", default="", help="multisine phases: random | schroeder | crest_optimised")
     g.add_argument("--mimo", default="", help="orthogonal | one_at_a_time | simultaneous (default: the kind's)")
     g.add_argument("--seed", type=int, default=0, help="seed of the random choices (default 0)")
-    g.add_argument("--settle", type=float, default=0.5, help="stepped sine settling wait per line [s]")
-    g.add_argument("--cycles", type=int, default=10, help="stepped sine measured cycles per line")
+    g.add_argument("--settle", type=positive_float, default=0.5, help="stepped sine settling wait per line [s]")
+    g.add_argument("--cycles", type=positive_int, default=10, help="stepped sine measured cycles per line")
     g.add_argument("--rig", help="rig parameter YAML file (default: the built-in rig): sample rate, current limit")
-    g.add_argument("--working-current", type=float, default=1.0,
+    g.add_argument("--working-current", type=positive_float, default=1.0,
                    help="controller's peak working current [A] for the headroom check (default 1.0)")
     g.add_argument("--no-plan", action="store_true", help="skip the stepped/swept/multisine time table")
     g.add_argument("--no-figure", action="store_true", help="skip design.png (quicker)")
@@ -63,6 +64,8 @@ def run(args: argparse.Namespace) -> int:
     from ambid.excitation import check_headroom, describe, format_plan, plot_design
     from ambid.plant.rig import load_rig, make_rig
 
+    check_band(tuple(args.band))
+    output_dir(args.out)
     try:
         rig = load_rig(args.rig) if args.rig else make_rig()
         fs_hz = float(rig.sample_rate_hz)

@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 
 HELP = "identify a recorded session: FRF, fitted model and modes, updated physical parameters, report"
 
@@ -19,12 +18,14 @@ HELP = "identify a recorded session: FRF, fitted model and modes, updated physic
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ambid.frf.streaming import ESTIMATORS
 
+    from ambid_nodes.commands.inputs import positive_int
+
     p.add_argument("file", help="session .mcap file")
     p.add_argument("--out", required=True, help="output folder (model.npz, model.json, frf.npz, "
                                                 "identification.json, report/index.html)")
     p.add_argument("--estimator", default="indirect", choices=ESTIMATORS, help="FRF estimator (default indirect)")
-    p.add_argument("--order", type=int, help="model order (default: chosen from the stabilisation diagram)")
-    p.add_argument("--max-order", type=int, default=32, help="highest order in the stabilisation diagram")
+    p.add_argument("--order", type=positive_int, help="model order (default: chosen from the stabilisation diagram)")
+    p.add_argument("--max-order", type=positive_int, default=32, help="highest order in the stabilisation diagram")
     p.add_argument("--experiment", help="experiment id (default: the last one recorded)")
     p.add_argument("--rig", help="rig parameter YAML for the nominal model and updating "
                                  "(default: the rig recorded in the session)")
@@ -81,18 +82,19 @@ def run(args: argparse.Namespace) -> int:
     from ambid.session import IncompleteSessionError
     from ambid.studies.identification import identify_session
 
+    from ambid_nodes.commands.inputs import BadInput, output_dir, rig_file, session_file
+
+    path = session_file(args.file, args.recover)  # checked before --out is touched: nothing is overwritten
+    output_dir(args.out)
+    if args.rig:
+        rig_file(args.rig)
     try:
-        summary = identify_session(args.file, args.out, estimator=args.estimator, order=args.order,
+        summary = identify_session(path, args.out, estimator=args.estimator, order=args.order,
                                    experiment_id=args.experiment, rig=args.rig, max_order=args.max_order,
                                    update=not args.no_update, report=not args.no_report, recover=args.recover)
-    except FileNotFoundError as exc:
-        print(f"ambid fit: {exc}", file=sys.stderr)
-        return 1
     except IncompleteSessionError as exc:
-        print(f"ambid fit: {exc} (try --recover)", file=sys.stderr)
-        return 1
-    except ValueError as exc:
-        print(f"ambid fit: {exc}", file=sys.stderr)
-        return 1
+        raise BadInput(f"{exc}; or run 'ambid fit --recover {path} --out {args.out}'") from None
+    except ValueError as exc:  # the session cannot give what fit needs: it says what and why
+        raise BadInput(str(exc)) from None
     print(json.dumps(summary, indent=1) if args.json else format_summary(summary))
     return 0

@@ -6,6 +6,7 @@ import argparse
 import sys
 
 from ambid.control.kinds import CONTROLLER_KINDS, describe_kinds
+from ambid_nodes.commands.inputs import address, count, positive_float, rig_file
 
 from ambid_nodes.graph import (DEFAULT_NAMESPACE, GraphConfig, run_composed, run_hardware, run_processes,
                                session_domain_id)
@@ -14,7 +15,7 @@ HELP = "run the plant and controller graph on the simulated rig"
 
 
 def add_arguments(g: argparse.ArgumentParser) -> None:
-    g.add_argument("--sim-seconds", type=float, default=2.0, help="simulated time [s] (default 2)")
+    g.add_argument("--sim-seconds", type=positive_float, default=2.0, help="simulated time [s] (default 2)")
     g.add_argument("--processes", action="store_true", help="run each node as its own process")
     g.add_argument("--seed", type=int, default=0, help="seed of the simulated noise")
     g.add_argument("--rig", help="rig parameter YAML file (default: the built-in rig)")
@@ -22,13 +23,14 @@ def add_arguments(g: argparse.ArgumentParser) -> None:
     g.add_argument("--namespace", default=DEFAULT_NAMESPACE, help="ROS namespace of the rig (default /amb)")
     g.add_argument("--controller", choices=list(CONTROLLER_KINDS), default="pid",
                    help=f"position controller: {describe_kinds()} (default pid)")
-    g.add_argument("--hardware", metavar="HOST:PORT",
+    g.add_argument("--hardware", metavar="HOST:PORT", type=address,
                    help="run against a real-time target over the UDP bridge instead of plant_sim "
                         "(the target runs the fast loop; see docs/bridge_protocol.md)")
-    g.add_argument("--local-port", type=int, default=0, help="with --hardware: local UDP port (default: any)")
+    g.add_argument("--local-port", type=count, default=0, help="with --hardware: local UDP port (default: any)")
 
 
 def run(args: argparse.Namespace) -> int:
+    rig_file(args.rig)  # a bad rig file stops here, before any node starts
     plant = {"seed": args.seed, "nonlinear_magnets": args.nonlinear}
     controller = {"controller": args.controller}
     if args.hardware:

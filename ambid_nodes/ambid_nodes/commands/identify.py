@@ -7,6 +7,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from ambid_nodes.commands.inputs import check_band, count, output_dir, positive_float, positive_int, rig_file
+
 HELP = "identify the simulated rig end to end (graph, experiment, recording, FRF, fit, report)"
 
 
@@ -17,11 +19,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="excitation kind (default: orthogonal random-odd multisine)")
     p.add_argument("--band", nargs=2, type=float, metavar=("LO", "HI"), default=(10.0, 1000.0),
                    help="band of interest [Hz] (default 10 1000)")
-    p.add_argument("--resolution", type=float, default=5.0, help="frequency resolution [Hz] (default 5)")
-    p.add_argument("--peak-current", type=float, default=0.4, help="excitation peak per input [A] (default 0.4)")
-    p.add_argument("--periods", type=int, default=4, help="steady-state periods per experiment (default 4)")
-    p.add_argument("--realisations", type=int, default=3, help="random-phase realisations (default 3)")
-    p.add_argument("--transient-periods", type=int, default=3, help="periods discarded per experiment (default 3)")
+    p.add_argument("--resolution", type=positive_float, default=5.0, help="frequency resolution [Hz] (default 5)")
+    p.add_argument("--peak-current", type=positive_float, default=0.4, help="excitation peak per input [A] (default 0.4)")
+    p.add_argument("--periods", type=positive_int, default=4, help="steady-state periods per experiment (default 4)")
+    p.add_argument("--realisations", type=positive_int, default=3, help="random-phase realisations (default 3)")
+    p.add_argument("--transient-periods", type=count, default=3, help="periods discarded per experiment (default 3)")
     p.add_argument("--mimo", default="orthogonal", choices=["orthogonal", "one_at_a_time"],
                    help="multisine over the 4 inputs (default orthogonal)")
     p.add_argument("--grid", default="random_odd", choices=["random_odd", "odd", "full"], help="multisine grid")
@@ -38,6 +40,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from ambid_nodes.session import SessionConfig, run_identify
 
+    check_band(tuple(args.band))
+    output_dir(args.out)
+    rig_file(args.rig)  # a bad rig file stops here, before any node starts
     cfg = SessionConfig(out_dir=args.out, kind=args.kind, band_hz=tuple(args.band), resolution_hz=args.resolution,
                         peak_current_a=args.peak_current, periods=args.periods, realisations=args.realisations,
                         transient_periods=args.transient_periods, grid=args.grid, mimo=args.mimo, phases=args.phases,

@@ -13,8 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import sys
 from typing import Any
 
 from ambid.session import IncompleteSessionError, format_inspection, inspect_session, iter_decoded
@@ -142,19 +140,17 @@ def format_report(report: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    path = args.file
-    if not os.path.isfile(path):
-        print(f"ambid inspect: {path}: no such file", file=sys.stderr)
-        return 1
+    from ambid_nodes.commands.inputs import BadInput, ambid_topics, session_file
+
+    path = session_file(args.file, args.recover)
     try:
         report = describe(path, recover=args.recover)
     except IncompleteSessionError as exc:
-        print(f"ambid inspect: {exc}. The recorder was killed or the disk filled up: "
-              f"run 'ambid inspect --recover {path}' to read what it wrote.", file=sys.stderr)
-        return 1
+        raise BadInput(f"{exc}; the recorder was killed or the disk filled up: run 'ambid inspect --recover "
+                       f"{path}' to read what it wrote") from None
     except ValueError as exc:
-        print(f"ambid inspect: {path}: {exc}", file=sys.stderr)
-        return 1
+        raise BadInput(f"{exc}; {path} cannot be read as a session") from None
+    ambid_topics(path, {t: info["type"] for t, info in report["topics"].items()})
     if args.json:
         print(json.dumps(report, indent=1, default=str))
     else:

@@ -1,0 +1,117 @@
+"""What the commands take from the user, checked before any work starts.
+
+A problem with the input is a :class:`BadInput`: one line naming the
+problem and the fix, which :func:`ambid_nodes.cli.main` prints after the
+command's name and turns into exit code 2. Option values are checked by
+argparse through the ``type=`` functions here, so they fail in argparse's
+own format (usage, then one line naming the option), also with exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+
+class BadInput(Exception):
+    """Input the command cannot use: the message is one line, the problem and the fix."""
+
+
+SESSION_FIX = "give the .mcap file that 'ambid identify' or the recorder wrote"
+
+
+def session_file(path: str | os.PathLike, recover: bool = False) -> str:
+    """``path`` if it can be a recorded session (exists, a file, not empty, MCAP), else :class:`BadInput`.
+
+    With ``recover`` a file whose end is missing is fine (the reader takes
+    what is complete); an empty or non-MCAP file never is.
+    """
+    from ambid.session import NotASessionError, check_session_file
+
+    path = os.fspath(path)
+    try:
+        check_session_file(path)
+    except FileNotFoundError:
+        raise BadInput(f"{path}: no such file; {SESSION_FIX}") from None
+    except IsADirectoryError:
+        raise BadInput(f"{path} is a folder; {SESSION_FIX}") from None
+    except PermissionError:
+        raise BadInput(f"{path} cannot be read (permission denied); make it readable") from None
+    except NotASessionError as exc:
+        raise BadInput(f"{exc}; {SESSION_FIX}") from None
+    return path
+
+
+def ambid_topics(path: str, topic_types: dict[str, str]) -> None:
+    """:class:`BadInput` unless the session's topics ({topic: type}) include one of an ambid type."""
+    if not any(t.startswith("ambid_msgs/") for t in topic_types.values()):
+        found = ", ".join(f"{t} ({ty})" for t, ty in sorted(topic_types.items())) or "no topics"
+        raise BadInput(f"{path} holds no ambid topics (found {found}); {SESSION_FIX}")
+
+
+def output_dir(path: str | os.PathLike, option: str = "--out") -> Path:
+    """``path`` as a folder to write into: refused if it is an existing file (nothing is written yet)."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise BadInput(f"{option} {p} is a file, not a folder; give a folder (it is created if missing)")
+    return p
+
+
+def output_file(path: str | os.PathLike, option: str) -> Path:
+    """``path`` as a file to write: refused if it is a folder or its folder does not exist."""
+    p = Path(path)
+    if p.is_dir():
+        raise BadInput(f"{option} {p} is a folder; give a file name")
+    if not p.parent.is_dir():
+        raise BadInput(f"{option} {p}: the folder {p.parent} does not exist; create it first")
+    return p
+
+
+def rig_file(path: str | os.PathLike | None):
+    """The rig of a ``--rig`` file (None: the default rig), loaded now so a bad file stops the command
+    before anything starts."""
+    from ambid.plant.rig import load_rig, make_rig
+
+    if not path:
+        return make_rig()
+    try:
+        return load_rig(path)
+    except (ValueError, OSError) as exc:
+        raise BadInput(str(exc)) from None
+
+
+def _number(kind: type, low: float, inclusive: bool, what: str):
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {what}") from None
+        if not (value >= low if inclusive else value > low) or value != value:
+            raise argparse.ArgumentTypeError(f"{text} is out of range: must be {what}")
+        return value
+    return parse
+
+
+positive_float = _number(float, 0.0, False, "a number > 0")
+positive_int = _number(int, 1, True, "a whole number >= 1")
+count = _number(int, 0, True, "a whole number >= 0")
+
+
+def address(text: str) -> str:
+    """A ``HOST:PORT`` option value, checked (argparse type); the text is kept."""
+    from ambid.hardware.rt_target import parse_address
+
+    try:
+        parse_address(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+def check_band(band: tuple[float, float], option: str = "--band") -> tuple[float, float]:
+    """(low, high) with 0 <= low < high, else :class:`BadInput`."""
+    lo, hi = band
+    if not (0 <= lo < hi):
+        raise BadInput(f"{option} {lo:g} {hi:g}: give LOW HIGH with 0 <= LOW < HIGH [Hz]")
+    return lo, hi

@@ -1,0 +1,181 @@
+"""Every CLI command meets bad input with one line naming the problem and the fix, and exit code 2:
+a table of commands x inputs (missing file, folder, empty file, random bytes, truncated session, an MCAP of
+unrelated topics, wrong option values), run in-process through ``ambid_nodes.cli.main``. None of these
+starts ROS: a bad input stops a command before its graph does."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+from ambid.channels import AXES
+from ambid.excitation import design_multisine
+from ambid.plant.rig import make_rig
+from ambid_nodes import cli
+from mcap.writer import Writer
+from session_testbench import design_message, plant_message, simulate_closed_loop, write_session
+
+FIX = re.compile(r"\b(give|run|record|check|create|leave out|make|use)\b")
+KINDS = ("missing", "folder", "empty", "random", "truncated", "unrelated")
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("bad")
+    rig = make_rig()
+    design = design_multisine((20.0, 500.0), 20.0, rig.sample_rate_hz, [f"u_{a}" for a in AXES], 0.5,
+                              n_periods=2, n_realisations=1, seed=3)
+    names, x = simulate_closed_loop(rig, design, 2000, post_samples=100, seed=4)
+    good = d / "good.mcap"
+    write_session(good, [(k, x[k:k + 1000]) for k in range(0, len(x), 1000)], names,
+                  [(0, design_message(design, 2000))], rig.dt, plant=plant_message(rig))
+    data = good.read_bytes()
+    (d / "truncated.mcap").write_bytes(data[:len(data) // 2])
+    (d / "empty.mcap").write_bytes(b"")
+    (d / "random.mcap").write_bytes(np.random.default_rng(0).bytes(5000))
+    (d / "folder.mcap").mkdir()
+    with open(d / "unrelated.mcap", "wb") as f:  # a valid MCAP with a ROS 2 string topic, nothing of ambid's
+        w = Writer(f)
+        w.start(profile="ros2")
+        schema = w.register_schema("std_msgs/msg/String", "ros2msg", b"string data")
+        channel = w.register_channel("/chatter", "cdr", schema)
+        w.add_message(channel, 0, b"\x00\x01\x00\x00\x06\x00\x00\x00hello\x00\x00\x00", 0)
+        w.finish()
+    paths = {k: str(d / f"{k}.mcap") for k in KINDS}
+    return dict(dir=d, good=str(good), **paths)
+
+
+def _run(argv, capsys):
+    try:
+        code = cli.main(argv)
+    except SystemExit as exc:  # argparse's own refusal of an option value
+        code = exc.code
+    out = capsys.readouterr()
+    assert "Traceback" not in out.err + out.out
+    return code, out
+
+
+def _one_line(err: str, command: str, names: str) -> str:
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1, err
+    line = lines[0]
+    assert line.startswith(f"ambid {command}: "), line
+    assert names in line, (names, line)
+    assert FIX.search(line), f"no fix in: {line}"
+    return line
+
+
+SESSION_COMMANDS = {
+    "fit": lambda f, d: ["fit", f, "--out", str(d / "fit_out"), "--no-report", "--no-update"],
+    "fit --recover": lambda f, d: ["fit", f, "--out", str(d / "fit_out"), "--no-report", "--no-update", "--recover"],
+    "inspect": lambda f, d: ["inspect", f],
+    "inspect --recover": lambda f, d: ["inspect", f, "--recover"],
+}
+# what each bad session file is refused for (a part of the one line)
+SESSION_REFUSAL = {"missing": "no such file", "folder": "is a folder", "empty": "is empty",
+                   "random": "is not an MCAP file", "truncated": "no valid MCAP footer|is incomplete",
+                   "unrelated": "holds no"}
+
+
+@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("command", list(SESSION_COMMANDS))
+def test_session_commands_refuse_bad_files(files, command, kind, capsys):
+    argv = SESSION_COMMANDS[command](files[kind], files["dir"])
+    code, out = _run(argv, capsys)
+    if command == "inspect --recover" and kind == "truncated":  # what recover is for: read what is complete
+        assert code == 0 and "RECOVERED" in out.out
+        return
+    assert code == 2
+    line = _one_line(out.err, argv[0], files[kind] if kind != "truncated" or command.startswith("inspect")
+                     else "")
+    expected = "no complete realisation" if command == "fit --recover" and kind == "truncated" else \
+        SESSION_REFUSAL[kind]
+    assert re.search(expected, line), line
+
+
+RIG_COMMANDS = {
+    "graph": lambda rig, d: ["graph", "--rig", rig, "--sim-seconds", "0.1"],
+    "identify": lambda rig, d: ["identify", "--rig", rig, "--out", str(d / "identify_out")],
+    "design": lambda rig, d: ["design", "--rig", rig, "--out", str(d / "design_out"), "--no-figure"],
+    "compare": lambda rig, d: ["compare", "--rig", rig, "--out", str(d / "compare_out")],
+    "fit": None,  # filled in the test: it needs the good session
+}
+RIG_REFUSAL = {"missing": "does not exist", "folder": "is a folder", "empty": "is empty", "random": "is not text",
+               "truncated": "is not text", "unrelated": "is not text"}
+
+
+@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("command", list(RIG_COMMANDS))
+def test_rig_files_are_refused_before_anything_starts(files, command, kind, capsys):
+    d = files["dir"]
+    argv = (["fit", files["good"], "--out", str(d / "fit_rig"), "--rig", files[kind]] if command == "fit"
+            else RIG_COMMANDS[command](files[kind], d))
+    code, out = _run(argv, capsys)
+    assert code == 2
+    line = _one_line(out.err, command, files[kind])
+    assert RIG_REFUSAL[kind] in line
+    assert not (d / f"{command}_out").exists() and not (d / "fit_rig").exists()  # nothing was started
+
+
+OPTION_VALUES = [  # argv, the option the error names
+    (["fit", "{good}", "--out", "{dir}/o", "--estimator", "bogus"], "--estimator"),
+    (["fit", "{good}", "--out", "{dir}/o", "--order", "-3"], "--order"),
+    (["fit", "{good}", "--out", "{dir}/o", "--max-order", "x"], "--max-order"),
+    (["inspect", "{good}", "--bogus"], "--bogus"),
+    (["identify", "--periods", "0"], "--periods"),
+    (["identify", "--seed", "x"], "--seed"),
+    (["identify", "--peak-current", "-0.4"], "--peak-current"),
+    (["design", "--resolution", "0"], "--resolution"),
+    (["design", "--kind", "bogus"], "--kind"),
+    (["graph", "--sim-seconds", "-1"], "--sim-seconds"),
+    (["graph", "--controller", "bogus"], "--controller"),
+    (["graph", "--hardware", "nonsense"], "--hardware"),
+    (["compare", "--preset", "huge"], "--preset"),
+    (["bench", "--repeats", "0"], "--repeats"),
+]
+
+
+@pytest.mark.parametrize("argv, option", OPTION_VALUES, ids=[" ".join(a[:1] + a[-2:]) for a, _ in OPTION_VALUES])
+def test_wrong_option_values_are_refused_by_name(files, argv, option, capsys):
+    argv = [a.format(good=files["good"], dir=files["dir"]) for a in argv]
+    code, out = _run(argv, capsys)
+    assert code == 2
+    errors = [ln for ln in out.err.splitlines() if "error:" in ln]
+    assert len(errors) == 1 and option in errors[0], out.err
+
+
+RANGE_REFUSALS = [  # values argparse cannot judge alone: the command's one line, naming the option
+    (["identify", "--band", "500", "10"], "--band 500 10"),
+    (["design", "--band", "500", "10", "--out", "{dir}/d2"], "--band 500 10"),
+    (["compare", "--parts", "bogus"], "--parts"),
+    (["bench", "--skip", "bogus"], "--skip"),
+    (["node", "bogus"], "unknown node 'bogus'"),
+    (["fit", "{good}", "--out", "{good}"], "--out"),
+    (["design", "--out", "{good}"], "--out"),
+    (["identify", "--out", "{good}"], "--out"),
+    (["compare", "--out", "{good}"], "--out"),
+    (["bench", "--json", "{dir}/no_such_folder/b.json"], "--json"),
+    (["bench", "--json", "{dir}"], "--json"),
+]
+
+
+@pytest.mark.parametrize("argv, names", RANGE_REFUSALS, ids=[" ".join(a[:2]) for a, _ in RANGE_REFUSALS])
+def test_impossible_values_get_one_line(files, argv, names, capsys):
+    argv = [a.format(good=files["good"], dir=files["dir"]) for a in argv]
+    code, out = _run(argv, capsys)
+    assert code == 2
+    line = [ln for ln in out.err.splitlines() if ln.strip()]
+    assert len(line) == 1 and line[0].startswith(f"ambid {argv[0]}: ") and names in line[0], out.err
+
+
+def test_bad_input_loses_nothing_already_written(files, capsys):
+    out = files["dir"] / "earlier"
+    out.mkdir()
+    (out / "summary.json").write_text('{"kept": true}')
+    for kind in KINDS:
+        code, _ = _run(["fit", files[kind], "--out", str(out)], capsys)
+        assert code == 2
+    assert [p.name for p in out.iterdir()] == ["summary.json"]
+    assert (out / "summary.json").read_text() == '{"kept": true}'
+    assert open(files["good"], "rb").read(8) == b"\x89MCAP0\r\n"  # the inputs are only read
