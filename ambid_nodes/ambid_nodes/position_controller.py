@@ -42,8 +42,7 @@ import sys
 import time
 
 import numpy as np
-from ambid.control.closed_loop import check_controller_on_rig
-from ambid.control.kinds import describe_kinds, design_controller
+from ambid.control.kinds import checked_design, describe_kinds
 from ambid.control.pid import PidParameters
 from ambid.control.stepper import ControllerStepper
 from ambid.plant.rig import load_rig, make_rig
@@ -75,7 +74,9 @@ class PositionController(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("position_controller", **kwargs)
         rig_file = declare(self, "rig_file", "", "YAML rig parameter file used for the stability check")
-        self.kind = declare(self, "controller", "pid", f"controller kind: {describe_kinds()}")
+        self.kind = declare(self, "controller", "",
+                            f"controller: {describe_kinds()}, or a controller file (.npz, .mat, .yaml: a discrete "
+                            "state space or per-axis transfer functions); empty: the rig file's controller, else pid")
         d = PidParameters()
         pid = PidParameters(
             kp_a_per_m=declare(self, "kp", d.kp_a_per_m, "proportional gain", 1.0, 1e9, "A/m"),
@@ -99,16 +100,12 @@ class PositionController(Node):
         except (ValueError, OSError) as exc:
             raise ParameterError(f"position_controller: parameter 'rig_file': {exc}") from None
         try:
-            design = design_controller(self.kind, self.rig, pid)
+            # refuses a loop that is unstable on the analytical or on the true linearised rig
+            design = checked_design(self.kind, self.rig, pid)
         except ValueError as exc:
             raise ParameterError(f"position_controller: {exc}") from None
         self.model = design.model
         delay_samples, params_json = design.delay_samples, design.parameters
-        try:
-            # refuse to run a loop that is unstable on the analytical or on the true linearised rig
-            check_controller_on_rig(self.rig, self.model)
-        except ValueError as exc:
-            raise ParameterError(str(exc)) from None
         self.design = design
         self.stepper = ControllerStepper(self.model, design.current_limit_a)
         self.pub_ic = self.create_publisher(Sample, "control_current", qos.LOOP)
@@ -150,7 +147,7 @@ class PositionController(Node):
         self.status_received = -1
         self.create_timer(1.0, self.status_when_idle)
         self.pub_desc.publish(ControllerDescription(
-            stamp=time_msg(0.0), name=self.get_fully_qualified_name(), kind=self.kind,
+            stamp=time_msg(0.0), name=self.get_fully_qualified_name(), kind=design.kind,
             delay_samples=delay_samples, model=statespace_to_msg(self.model),
             current_limit=[design.current_limit_a] * 4, parameters_json=json.dumps(params_json)))
 
@@ -318,7 +315,7 @@ class PositionController(Node):
         self.pub_status.publish(status_msg(
             time_msg(k * self.rig.dt), self.get_fully_qualified_name(), self.state, k, -1.0,
             self.intake.total_received, self.intake.total_rejected,
-            f"{states[self.state]}, sample {k}, {self.kind}, rejected {self.intake.total_rejected}", f))
+            f"{states[self.state]}, sample {k}, {self.design.kind}, rejected {self.intake.total_rejected}", f))
 
 
 def main(args=None) -> int:

@@ -49,6 +49,7 @@ class SessionConfig:
     phases: str = "crest_optimised"
     seed: int = 1
     rig_file: str = ""
+    controller: str = ""  # a kind or a controller file; empty: the rig file's controller, else pid
     nonlinear_magnets: bool = True
     estimator: str = "indirect"
     namespace: str = DEFAULT_NAMESPACE
@@ -153,7 +154,7 @@ def run_session_composed(cfg: SessionConfig) -> dict:
         answer = future.result()
         if not answer.accepted:
             raise ValueError(f"identify: the excitation generator refused the experiment: {answer.message}")
-        add(PositionController(**ns, parameter_overrides=params(rig_param)))
+        add(PositionController(**ns, parameter_overrides=params({**rig_param, "controller": cfg.controller})))
         with gc_frozen():
             while not plant.finished.done():
                 executor.spin_until_future_complete(plant.finished, timeout_sec=0.25)

@@ -107,8 +107,9 @@ def write_session(path, blocks, names, designs, dt, plant=None, facts=None, name
             w.write(topic, payload, log_time_ns=t_ns)
 
 
-def simulate_closed_loop(rig, design, pre_samples, post_samples=0, seed=0, nonlinear_magnets=False):
-    """The default rig in closed loop with the default PID, excited by ``design`` from ``pre_samples`` on.
+def simulate_closed_loop(rig, design, pre_samples, post_samples=0, seed=0, nonlinear_magnets=False, controller=None):
+    """The default rig in closed loop with the default PID (or ``controller``, a discrete StateSpace y -> ic),
+    excited by ``design`` from ``pre_samples`` on.
 
     The rotor starts on the backup bearings; the pre-roll lifts it off.
     Loop: y = sim.output(); ic = ctl.step(y); u = ic + r; sim.step(u).
@@ -123,7 +124,7 @@ def simulate_closed_loop(rig, design, pre_samples, post_samples=0, seed=0, nonli
 
     sim = PlantSimulator(rig, seed=seed, nonlinear_magnets=nonlinear_magnets)
     pid = PidParameters()
-    ctl = ControllerStepper(pid_controller(pid, rig.dt), pid.current_limit_a)
+    ctl = ControllerStepper(pid_controller(pid, rig.dt) if controller is None else controller, pid.current_limit_a)
     n = pre_samples + design.total_samples + post_samples
     r = np.zeros((n, 4))
     r[pre_samples:pre_samples + design.total_samples] = design.samples(0, design.total_samples)

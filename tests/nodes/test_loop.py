@@ -111,8 +111,18 @@ def test_pipelined_controller_gives_the_same_samples_as_lock_step_answers(ros):
     assert np.abs(runs[True][:, 8:12]).max() > 0.1  # the controller did carry the rotor
 
 
-def test_compiled_callbacks_give_the_same_samples_as_the_python_path(ros, monkeypatch):
-    """The kernels the subscription callbacks run and the nodes' Python path record the same numbers."""
+@pytest.mark.parametrize("user_controller", [False, True], ids=["pid", "user_file"])
+def test_compiled_callbacks_give_the_same_samples_as_the_python_path(ros, monkeypatch, tmp_path, user_controller):
+    """The kernels the subscription callbacks run and the nodes' Python path record the same numbers, for the
+    default PID and for a user's controller file (a dense one: the LQG's matrices saved as .npz)."""
+    controller = ""
+    if user_controller:
+        from ambid.control.lqg import lqg_controller
+        from ambid.plant.rig import make_rig
+
+        model = lqg_controller(make_rig())
+        controller = str(tmp_path / "dense.npz")
+        np.savez(controller, A=model.a, B=model.b, C=model.c, D=model.d, dt=model.dt)
     runs = {}
     for compiled in (True, False):
         if not compiled:  # the gates stay closed: every message goes the Python way
@@ -121,7 +131,9 @@ def test_compiled_callbacks_give_the_same_samples_as_the_python_path(ros, monkey
         spy = ros.add(Spy(ros.context))
         plant = ros.add(PlantSim(namespace=NS, context=ros.context, parameter_overrides=[
             Parameter("sim_seconds", value=0.3), Parameter("seed", value=5), Parameter("block_size", value=1000)]))
-        ctrl = ros.add(PositionController(namespace=NS, context=ros.context))
+        ctrl = ros.add(PositionController(namespace=NS, context=ros.context,
+                                          parameter_overrides=[Parameter("controller", value=controller)]))
+        assert ctrl.design.kind == ("file" if user_controller else "pid")
         assert ros.spin_until(plant.finished.done, timeout_s=120)
         summary = plant.finished.result()
         assert summary["messages_rejected"] == 0 and summary["accepted:control_current"] >= 3000

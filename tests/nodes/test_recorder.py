@@ -22,6 +22,7 @@ import yaml
 from ambid.session import SessionWriter, iter_decoded, iter_messages, read_metadata, scan_session
 from ambid.session.blocks import decode_sample_block
 from ambid.session.writer import parse_qos_profiles
+from ambid_nodes import cli
 from ambid_nodes.commands import inspect as inspect_cmd
 from ambid_nodes.conversions import block_msg
 from ambid_nodes.node_main import SUMMARY_PREFIX
@@ -111,7 +112,7 @@ def plant_graph(ros, sim_seconds: float, block_size: int):
 
 
 def inspect_json(capsys, path, recover: bool) -> tuple[int, dict | None, str]:
-    code = inspect_cmd.run(argparse.Namespace(file=str(path), json=True, recover=recover))
+    code = cli.main(["inspect", str(path), "--json"] + (["--recover"] if recover else []))
     out, err = capsys.readouterr()
     return code, (json.loads(out) if code == 0 else None), err
 
@@ -230,7 +231,7 @@ def test_sigkill_leaves_a_file_inspect_recovers(ros, ros_env, tmp_path, capsys):
     running = not plant.finished.done()
 
     code, _, err = inspect_json(capsys, path, recover=False)
-    assert code == 1 and "--recover" in err
+    assert code == 2 and "--recover" in err
 
     code, report, err = inspect_json(capsys, path, recover=True)
     assert code == 0, err

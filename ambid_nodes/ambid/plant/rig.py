@@ -126,11 +126,15 @@ class Rig:
         values: parameter name -> value (every key of RIG_FIELDS).
         rotor_import: a user's rotor model replacing the finite-element rotor
             (:mod:`ambid.plant.rotor_import`), or None.
+        controller: the controller the rig's owner runs, as the rig file names
+            it (a kind, a file, or a mapping; :func:`ambid.control.kinds.design_controller`
+            reads it), or None for the default.
     """
 
     name: str
     values: dict[str, float]
     rotor_import: RotorModel | None = field(default=None, compare=False)
+    controller: str | dict | None = field(default=None, compare=False)
 
     def __getattr__(self, item: str) -> float:
         values = object.__getattribute__(self, "values")
@@ -289,6 +293,8 @@ class Rig:
         out: dict[str, Any] = {"name": self.name, **self.values}
         if self.rotor_import is not None and self.rotor_import.source.startswith("file:"):
             out["rotor_file"] = self.rotor_import.source[len("file:"):]
+        if self.controller is not None:
+            out["controller"] = self.controller
         return out
 
 
@@ -335,8 +341,8 @@ def make_rig(overrides: dict[str, Any] | None = None, name: str = "ambid-default
 
     Args:
         overrides: parameter name -> value (any subset of RIG_FIELDS); may
-            also hold ``name`` and ``rotor_file`` (a user rotor model, see
-            :mod:`ambid.plant.rotor_import`).
+            also hold ``name``, ``rotor_file`` (a user rotor model, see
+            :mod:`ambid.plant.rotor_import`) and ``controller`` (see :class:`Rig`).
         name: rig name unless ``overrides`` gives one.
         rotor_import: a user rotor model replacing the finite-element rotor.
 
@@ -346,10 +352,13 @@ def make_rig(overrides: dict[str, Any] | None = None, name: str = "ambid-default
     overrides = dict(overrides or {})
     name = str(overrides.pop("name", name))
     rotor_file = overrides.pop("rotor_file", None)
+    controller = overrides.pop("controller", None)
+    if controller is not None and not isinstance(controller, (str, dict)):
+        raise ValueError(f"rig: controller must name a kind or a file, or be a mapping, got {controller!r}")
     unknown = sorted(set(overrides) - set(RIG_FIELDS))
     if unknown:
         raise ValueError(f"rig: unknown parameter(s) {unknown}; known are: {', '.join(RIG_FIELDS)}, "
-                         "name, rotor_file")
+                         "name, rotor_file, controller")
     values = {key: _check_value(key, f, overrides.get(key, f.default)) for key, f in RIG_FIELDS.items()}
     if values["backup_clearance_m"] >= values["air_gap_m"]:
         raise ValueError("rig: backup_clearance_m must be smaller than air_gap_m, so the rotor lands on the "
@@ -364,14 +373,21 @@ def make_rig(overrides: dict[str, Any] | None = None, name: str = "ambid-default
 
         rotor_import = load_rotor(rotor_file, speed_rpm=values["rotor_speed_rpm"],
                                   damping_ratio=values["modal_damping_ratio"])
-    return Rig(name, values, rotor_import)
+    return Rig(name, values, rotor_import, controller)
+
+
+def _beside(rig_path: Path, name: Any) -> Path:
+    p = Path(str(name))
+    return p if p.is_absolute() else rig_path.parent / p
 
 
 def load_rig(path: str | Path) -> Rig:
     """Rig from a YAML file of ``name: value`` pairs (any subset of :data:`RIG_FIELDS`).
 
     A ``rotor_file`` entry (a relative path is taken from the YAML file's
-    folder) replaces the finite-element rotor by a user model.
+    folder) replaces the finite-element rotor by a user model; a
+    ``controller`` entry names the controller the rig runs (a kind, a file
+    beside the YAML, or a mapping, see :class:`Rig`).
     """
     path = Path(path)
     fix = "give a YAML file of parameter: value lines like rigs/ideal.yaml, or leave out the rig file for the default"
@@ -398,6 +414,12 @@ def load_rig(path: str | Path) -> Rig:
     if "rotor_file" in data:
         rotor_path = Path(str(data["rotor_file"]))
         data["rotor_file"] = str(rotor_path if rotor_path.is_absolute() else path.parent / rotor_path)
+    ctrl = data.get("controller")
+    # a controller file is named relative to the rig file, like rotor_file
+    if isinstance(ctrl, dict) and "file" in ctrl:
+        data["controller"] = {**ctrl, "file": str(_beside(path, ctrl["file"]))}
+    elif isinstance(ctrl, str) and Path(ctrl).suffix.lower() in (".npz", ".mat", ".yaml", ".yml"):
+        data["controller"] = str(_beside(path, ctrl))
     try:
         return make_rig(data, name=path.stem)
     except ValueError as exc:

@@ -55,11 +55,21 @@ def _table(header: list[str], rows: list[list[str]]) -> str:
     return f"<table><tr>{head}</tr>{body}</table>"
 
 
+def _controller(c: Mapping[str, Any] | None) -> str:
+    if not c:
+        return "not recorded"
+    params = c.get("parameters") or {}
+    what = f" {params['file']}" if c.get("kind") == "file" and "file" in params else ""
+    return (f"{c.get('kind')}{what}: {c.get('n_states')} states, delay {c.get('delay_samples')} sample(s), "
+            f"current limit {_fmt((c.get('current_limit_a') or [None])[0])} A")
+
+
 def _headline(s: Mapping[str, Any]) -> list[list[str]]:
     ex, fit, sens, noise = s["excitation"], s["fit"], s["sensitivity"], s["noise"]
     rows = [
         ["session", f"{s['session']} (experiment {s['experiment_id']})"],
         ["estimator", s["estimator"]],
+        ["controller", _controller(s.get("controller"))],
         ["excitation", f"{ex['kind']} ({ex.get('mimo') or '-'}, {ex.get('grid') or '-'}), {ex['n_excited_lines']} "
                        f"lines, N = {ex['samples_per_period']}, P = {ex['n_periods']} + {ex['n_transient_periods']} "
                        f"transient, M = {ex['n_realisations']}, Ne = {ex['n_experiments']}, "

@@ -67,10 +67,10 @@ from ambid.plant.true_rig import true_linear_model
 from ambid.report.html import write_report
 from ambid.session import iter_decoded, read_metadata
 from ambid.session.blocks import read_samples
-from ambid.session.facts import plant_facts
+from ambid.session.facts import controller_facts, plant_facts
 from ambid.statespace import StateSpace
 
-__all__ = ["select_order", "frf_relative_error", "session_rig", "true_modes",
+__all__ = ["select_order", "frf_relative_error", "recorded_controller", "session_rig", "true_modes",
            "compare_modes", "identify_session"]
 
 _PLANT_TOPIC = "plant/description"
@@ -453,6 +453,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
                         rms_a=design.rms_a, peak_a=design.peak_a, crest_factor=design.crest_factor,
                         measurement_time_s=design.measurement_time_s),
         band_hz=list(band), inputs=list(frf.input_names), outputs=list(frf.output_names),
+        controller=(recorded_controller(path, recover) or (None, None))[1],
         simulated=simulated, frf_error=frf_error, noise=noise,
         fit=dict(order=int(order), order_rule=rule, chi2_per_dof=fit.chi2_per_dof, delay_s=fit_delay,
                  weights=var_kind, orders_tried=diagram.orders, chi2_per_dof_by_order=diagram.chi2_per_dof,
@@ -522,15 +523,15 @@ def _samples_for_report(path: str, chosen: dict, design: ExcitationDesign, frf: 
 
 
 
-def _recorded_controller(path, recover: bool):
-    """The controller's discrete state-space from the session's ControllerDescription, or None."""
-
+def recorded_controller(path: str | os.PathLike, recover: bool = False) -> tuple[StateSpace, dict] | None:
+    """The controller that ran: its discrete state space and its facts (kind, delay, parameters, ...) from
+    the session's ControllerDescription, or None when the session has none."""
     for msg, dec in iter_decoded(path, recover=recover):
         if msg.topic.endswith("controller/description"):
             m = dec.model
             n, nu, ny = m.n_states, m.n_inputs, m.n_outputs
-            return StateSpace(np.reshape(m.a, (n, n)), np.reshape(m.b, (n, nu)), np.reshape(m.c, (ny, n)),
-                              np.reshape(m.d, (ny, nu)), m.sample_period)
+            return (StateSpace(np.reshape(m.a, (n, n)), np.reshape(m.b, (n, nu)), np.reshape(m.c, (ny, n)),
+                               np.reshape(m.d, (ny, nu)), m.sample_period), controller_facts(dec))
     return None
 
 
@@ -541,9 +542,10 @@ def _model_sensitivity(path, model, band, fs_hz: float, rig, recover: bool) -> d
     sharp peak; the fitted plant with the recorded controller K(z) gives it in
     between. With a simulated rig, the true loop's peak is given beside it.
     """
-    k = _recorded_controller(path, recover)
-    if k is None:
+    recorded = recorded_controller(path, recover)
+    if recorded is None:
         return {}
+    k = recorded[0]
     f = np.linspace(band[0], band[1], 8000)
     g = model.freqresp(f)
     kz = k.freqresp(f)

@@ -21,8 +21,8 @@ from ambid_nodes.graph import GraphConfig, run_composed, run_processes, session_
 LAYOUTS = ("composed", "processes")
 
 
-def _ours(layout: str, sim_seconds: float) -> dict:
-    cfg = GraphConfig(sim_seconds=sim_seconds)
+def _ours(layout: str, sim_seconds: float, controller: str = "") -> dict:
+    cfg = GraphConfig(sim_seconds=sim_seconds, controller={"controller": controller} if controller else {})
     cpu0 = time.process_time()
     s = run_composed(cfg) if layout == "composed" else run_processes(cfg)
     if s.get("state") != "done":
@@ -46,13 +46,16 @@ def _bare(layout: str, n_samples: int) -> dict:
     return {k: s[k] for k in ("samples", "wall_s", "samples_per_wall_s", "cpu_s") if k in s}
 
 
-def loop_figures(sim_seconds: float = 2.0, repeats: int = 3, layouts: tuple[str, ...] = LAYOUTS) -> dict:
+def loop_figures(sim_seconds: float = 2.0, repeats: int = 3, layouts: tuple[str, ...] = LAYOUTS,
+                 user_controller: str = "") -> dict:
     """Simulated samples per wall second of the loop and of the bare ping-pong, per layout.
 
     Args:
         sim_seconds: simulated time per run [s], >= 0.05 (samples = sim_seconds / dt of the default rig).
         repeats: rounds; each round runs bare and ours once per layout, adjacent in time.
         layouts: any of ``"composed"``, ``"processes"``.
+        user_controller: a controller file; composed, each round also runs the loop with it
+            (``user_samples_per_s``, ``user_ratio`` against the same round's ping-pong).
 
     Returns:
         dict layout -> {``ours_samples_per_s`` (median), ``bare_samples_per_s`` (median),
@@ -76,6 +79,9 @@ def loop_figures(sim_seconds: float = 2.0, repeats: int = 3, layouts: tuple[str,
             for which in order:
                 res[which] = _bare(layout, n) if which == "bare" else _ours(layout, sim_seconds)
             res["ratio"] = res["ours"]["samples_per_wall_s"] / res["bare"]["samples_per_wall_s"]
+            if layout == "composed" and user_controller:
+                res["user"] = _ours(layout, sim_seconds, user_controller)
+                res["user_ratio"] = res["user"]["samples_per_wall_s"] / res["bare"]["samples_per_wall_s"]
             if layout == "composed":
                 cpu_short, n_short = _short_run_cpu()
                 res["ours"]["cpu_us_per_sample"] = 1e6 * max(res["ours"]["cpu_s_with_setup"] - cpu_short,
@@ -90,6 +96,9 @@ def loop_figures(sim_seconds: float = 2.0, repeats: int = 3, layouts: tuple[str,
             "ratio": statistics.median(x["ratio"] for x in rs),
             "rounds": rs,
         }
+        if layout == "composed" and user_controller:
+            out[layout].update(user_samples_per_s=statistics.median(x["user"]["samples_per_wall_s"] for x in rs),
+                               user_ratio=statistics.median(x["user_ratio"] for x in rs))
         if layout == "composed":
             out[layout].update(
                 ours_cpu_us_per_sample=statistics.median(x["ours"]["cpu_us_per_sample"] for x in rs),

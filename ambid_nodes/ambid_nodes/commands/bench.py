@@ -85,12 +85,24 @@ def _at_most(name: str, value: float | None, unit: str, high: float, label: str)
 def _loop_section(sizes: dict, figures: list) -> dict:
     from ambid_nodes.bench.loop import loop_figures
 
-    res = loop_figures(sizes["loop_seconds"], sizes["repeats"])
+    import numpy as np
+    from ambid.control.lqg import lqg_controller
+    from ambid.plant.rig import make_rig
+
+    # a user's controller file on the compiled path: the LQG's dense matrices as an .npz
+    user = lqg_controller(make_rig())
+    with tempfile.TemporaryDirectory(prefix="ambid_bench_ctrl_") as tmp:
+        path = str(Path(tmp) / "user_controller.npz")
+        np.savez(path, A=user.a, B=user.b, C=user.c, D=user.d, dt=user.dt)
+        res = loop_figures(sizes["loop_seconds"], sizes["repeats"], user_controller=path)
     c, p = res["composed"], res["processes"]
     figures += [
         _at_least("loop composed: simulated samples/s", c["ours_samples_per_s"], "1/s", 20_000, "20000 (2x real time)"),
         _figure("bare ping-pong composed: round trips/s", c["bare_samples_per_s"], "1/s"),
         _at_least("loop composed / bare ping-pong composed", c["ratio"], "", 0.70, "0.70"),
+        _figure(f"loop composed, user controller file ({user.n_states} states): samples/s", c["user_samples_per_s"],
+                "1/s"),
+        _at_least("loop composed, user controller file / bare ping-pong", c["user_ratio"], "", 0.70, "0.70"),
         _figure("loop composed: CPU per sample", c["ours_cpu_us_per_sample"], "us"),
         _figure("bare ping-pong composed: CPU per round trip", c["bare_cpu_us_per_sample"], "us"),
         _figure("loop composed / bare ping-pong composed, by CPU time", c["cpu_ratio"], ""),

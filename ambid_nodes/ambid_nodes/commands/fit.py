@@ -45,6 +45,10 @@ def format_summary(s: dict) -> str:
     lines = [f"experiment {s['experiment_id']}: {ex['kind']} ({ex.get('mimo')}), {ex['n_excited_lines']} lines in "
              f"{s['band_hz'][0]:g}-{s['band_hz'][1]:g} Hz, {s['estimator']} estimator, "
              f"{len(s['inputs'])} inputs x {len(s['outputs'])} outputs"]
+    ctrl = s.get("controller")
+    if ctrl:
+        lines.append(f"controller that ran: {ctrl['kind']} ({ctrl['n_states']} states, delay {ctrl['delay_samples']} "
+                     "sample(s))")
     err = s.get("frf_error")
     if err:
         lines.append(f"FRF error vs true rig: median {_pct(err['median'])}, worst {_pct(err['worst'])} at "

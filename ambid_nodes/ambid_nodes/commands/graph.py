@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ambid.control.kinds import CONTROLLER_KINDS, describe_kinds
-from ambid_nodes.commands.inputs import address, count, positive_float, rig_file
+from ambid.control.kinds import describe_kinds
+from ambid_nodes.commands.inputs import address, checked_controller, controller, count, positive_float, rig_file
 
 from ambid_nodes.graph import (DEFAULT_NAMESPACE, GraphConfig, run_composed, run_hardware, run_processes,
                                session_domain_id)
@@ -21,8 +21,9 @@ def add_arguments(g: argparse.ArgumentParser) -> None:
     g.add_argument("--rig", help="rig parameter YAML file (default: the built-in rig)")
     g.add_argument("--nonlinear", action="store_true", help="nonlinear magnet force (eq. 2.14)")
     g.add_argument("--namespace", default=DEFAULT_NAMESPACE, help="ROS namespace of the rig (default /amb)")
-    g.add_argument("--controller", choices=list(CONTROLLER_KINDS), default="pid",
-                   help=f"position controller: {describe_kinds()} (default pid)")
+    g.add_argument("--controller", type=controller, default="",
+                   help=f"position controller: {describe_kinds()}, or a controller file (.npz, .mat, .yaml) "
+                        "(default: the rig file's controller, else pid)")
     g.add_argument("--hardware", metavar="HOST:PORT", type=address,
                    help="run against a real-time target over the UDP bridge instead of plant_sim "
                         "(the target runs the fast loop; see docs/bridge_protocol.md)")
@@ -30,16 +31,17 @@ def add_arguments(g: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    rig_file(args.rig)  # a bad rig file stops here, before any node starts
-    plant = {"seed": args.seed, "nonlinear_magnets": args.nonlinear}
-    controller = {"controller": args.controller}
+    rig = rig_file(args.rig)  # a bad rig file stops here, before any node starts
     if args.hardware:
         return run_on_hardware(args)
+    ctrl = checked_controller(args.controller, rig)  # and an unknown or unstable controller
+    plant = {"seed": args.seed, "nonlinear_magnets": args.nonlinear}
+    ctrl_params = {"controller": args.controller}
     if args.rig:
-        plant["rig_file"] = controller["rig_file"] = args.rig
-    cfg = GraphConfig(sim_seconds=args.sim_seconds, namespace=args.namespace, plant=plant, controller=controller)
+        plant["rig_file"] = ctrl_params["rig_file"] = args.rig
+    cfg = GraphConfig(sim_seconds=args.sim_seconds, namespace=args.namespace, plant=plant, controller=ctrl_params)
     layout = "separate processes" if args.processes else "one process (EventsExecutor)"
-    layout += f", {args.controller.upper()} controller"
+    layout += f", {ctrl.kind.upper()} controller"
     print(f"ambid graph: plant_sim + position_controller in {layout}, namespace {args.namespace}, "
           f"ROS_DOMAIN_ID {session_domain_id()}, {args.sim_seconds:g} s simulated", flush=True)
     try:

@@ -7,7 +7,10 @@ import argparse
 import sys
 from pathlib import Path
 
-from ambid_nodes.commands.inputs import check_band, count, output_dir, positive_float, positive_int, rig_file
+from ambid.control.kinds import describe_kinds
+
+from ambid_nodes.commands.inputs import (check_band, checked_controller, controller, count, output_dir, positive_float,
+                                        positive_int, rig_file)
 
 HELP = "identify the simulated rig end to end (graph, experiment, recording, FRF, fit, report)"
 
@@ -30,6 +33,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--phases", default="crest_optimised", choices=["crest_optimised", "random", "schroeder"],
                    help="multisine phases (default crest_optimised: lowest crest factor)")
     p.add_argument("--rig", default="", help="rig parameter YAML file (default: the built-in rig)")
+    p.add_argument("--controller", type=controller, default="",
+                   help=f"position controller: {describe_kinds()}, or a controller file (.npz, .mat, .yaml) "
+                        "(default: the rig file's controller, else pid)")
     p.add_argument("--linear-magnets", action="store_true", help="linearised magnets instead of eq. 2.14")
     p.add_argument("--estimator", default="indirect",
                    choices=["indirect", "h1", "h2", "arithmetic_mean", "log_mean", "eiv"])
@@ -42,12 +48,14 @@ def run(args: argparse.Namespace) -> int:
 
     check_band(tuple(args.band))
     output_dir(args.out)
-    rig_file(args.rig)  # a bad rig file stops here, before any node starts
+    rig = rig_file(args.rig)  # a bad rig file stops here, before any node starts
+    checked_controller(args.controller, rig)  # and an unknown or unstable controller
     cfg = SessionConfig(out_dir=args.out, kind=args.kind, band_hz=tuple(args.band), resolution_hz=args.resolution,
                         peak_current_a=args.peak_current, periods=args.periods, realisations=args.realisations,
                         transient_periods=args.transient_periods, grid=args.grid, mimo=args.mimo, phases=args.phases,
                         seed=args.seed,
-                        rig_file=args.rig, nonlinear_magnets=not args.linear_magnets, estimator=args.estimator,
+                        rig_file=args.rig, controller=args.controller, nonlinear_magnets=not args.linear_magnets,
+                        estimator=args.estimator,
                         progress=not args.no_progress and sys.stderr.isatty())
     try:
         summary = run_identify(cfg)
@@ -64,6 +72,10 @@ def run(args: argparse.Namespace) -> int:
 def format_headlines(s: dict, out: Path) -> str:
     lines = [f"ambid identify: done in {s['wall_time_s']:.1f} s wall for {s['simulated_time_s']:.2f} s simulated "
              f"({s['simulated_samples_per_wall_s']:.0f} samples/s, {s['layout']})"]
+    ctrl = s.get("controller")
+    if ctrl:
+        what = (ctrl.get("parameters") or {}).get("file", "") if ctrl["kind"] == "file" else ""
+        lines.append(f"  controller: {ctrl['kind']}{' ' + what if what else ''} ({ctrl['n_states']} states)")
     err = s.get("frf_error")
     if err:
         lines.append(f"  FRF error vs the true rig: median {100 * err['median']:.2f} %, worst excited line "

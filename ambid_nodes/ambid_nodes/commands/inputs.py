@@ -81,6 +81,17 @@ def rig_file(path: str | os.PathLike | None):
         raise BadInput(str(exc)) from None
 
 
+def checked_controller(spec, rig):
+    """The controller ``spec`` names for ``rig`` (:func:`ambid.control.kinds.checked_design`), refused with
+    :class:`BadInput` if it cannot be designed, read, or hold the rig."""
+    from ambid.control.kinds import checked_design
+
+    try:
+        return checked_design(spec, rig)
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+
+
 def _number(kind: type, low: float, inclusive: bool, what: str):
     def parse(text: str):
         try:
@@ -107,6 +118,21 @@ def address(text: str) -> str:
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
     return text
+
+
+def controller(text: str) -> str:
+    """A ``--controller`` value (argparse type): a built-in kind, or a controller file that exists."""
+    from ambid.control.kinds import CONTROLLER_KINDS, FILE_SUFFIXES, is_controller_file
+
+    if text == "" or text in CONTROLLER_KINDS:  # "": the rig file's controller, else pid
+        return text
+    if is_controller_file(text):
+        if not Path(text).is_file():
+            raise argparse.ArgumentTypeError(f"controller file {text} does not exist")
+        return str(Path(text).resolve())
+    kinds = ", ".join(CONTROLLER_KINDS)
+    raise argparse.ArgumentTypeError(f"'{text}' is neither a controller kind ({kinds}) nor a controller file "
+                                     f"({', '.join(FILE_SUFFIXES)})")
 
 
 def check_band(band: tuple[float, float], option: str = "--band") -> tuple[float, float]:
