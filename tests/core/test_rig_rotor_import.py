@@ -73,3 +73,98 @@ def test_bad_rotor_files_name_the_key(tmp_path):
              mass_kg=1.0)
     with pytest.raises(ValueError, match="free-free"):
         load_rotor(path)
+
+
+def _six_dof_file(tmp_path, **changes):
+    from six_dof_rotor import six_dof_rotor
+
+    rotor = {**six_dof_rotor(), **changes}
+    path = tmp_path / "ross_like.npz"
+    np.savez(path, **rotor)
+    return path, rotor
+
+
+def _lateral(rotor):
+    """The test's own lateral-only matrices: the DOFs ux, uy, rx, ry of every node."""
+    from six_dof_rotor import RX, RY, UX, UY
+
+    n = rotor["M"].shape[0]
+    keep = np.sort(np.concatenate([np.arange(d, n, 6) for d in (UX, UY, RX, RY)]))
+    return keep, rotor["M"][np.ix_(keep, keep)], rotor["K"][np.ix_(keep, keep)]
+
+
+def test_six_dof_layout_drops_the_axial_and_torsional_dofs_and_says_so(tmp_path):
+    from scipy import linalg
+
+    path, rotor = _six_dof_file(tmp_path)
+    model = load_rotor(path)
+    assert len(model.notes) == 1 and "dropped 18 of 54 DOFs" in model.notes[0]
+    _, m, k = _lateral(rotor)
+    lam = linalg.eigh(k, m, eigvals_only=True)
+    own = np.sqrt(lam[lam > 1.0]) / (2 * np.pi)
+    own = own[own < 5000.0]
+    assert np.allclose(np.sort(model.flexible_freq_hz), own, rtol=1e-9)
+    assert model.mass_kg == pytest.approx(np.sum(rotor["M"][np.ix_(rotor["x_dofs"], rotor["x_dofs"])]), rel=1e-12)
+    # free-free: the rig levitates it (its operating point exists) and the rigid body has its mass
+    from ambid.plant.true_rig import operating_point
+
+    rig = make_rig({"housing_mass_kg": 1e4}, rotor_import=model)
+    assert np.all(np.isfinite(operating_point(rig).current_a))
+
+
+def test_support_springs_in_the_stiffness_are_named(tmp_path):
+    from six_dof_rotor import six_dof_rotor
+
+    rotor = six_dof_rotor()
+    k = rotor["K"].copy()
+    for i in rotor["bearing_dofs"]:  # a ROSS rotor built with its bearing elements
+        k[i, i] += 2.5e7
+    path, _ = _six_dof_file(tmp_path, K=k)
+    with pytest.raises(ValueError, match=r"not free-free: 0 of the 4 lateral rigid-body modes.*"
+                                         rf"DOF {rotor['bearing_dofs'][0]} \(2\.5e\+07 N/m\)"):
+        load_rotor(path)
+
+
+def test_gyroscopic_matrix_is_scaled_by_the_rigs_speed(tmp_path):
+    """The disk's polar inertia couples the tilts at speed: the import's whirl frequencies against the
+    test's own eigen-analysis of the full second-order model M q'' + Omega G q' + K q = 0."""
+    from six_dof_rotor import RX, RY, six_dof_rotor
+
+    rotor = six_dof_rotor()
+    n = rotor["M"].shape[0]
+    g = np.zeros((n, n))
+    disk, ip = 6 * 4, 0.30
+    g[disk + RX, disk + RY], g[disk + RY, disk + RX] = ip, -ip
+    path, rotor = _six_dof_file(tmp_path, G=g, D=np.zeros((n, n)))
+    rpm = 12_000.0
+    omega = rpm * np.pi / 30
+    keep, m, k = _lateral(rotor)
+    gl = g[np.ix_(keep, keep)]
+    z = np.zeros_like(m)
+    first = np.block([[z, np.eye(len(keep))], [-np.linalg.solve(m, k), -omega * np.linalg.solve(m, gl)]])
+    own = np.sort(np.abs(np.linalg.eigvals(first).imag)) / (2 * np.pi)
+    own = np.unique(np.round(own[(own > 1.0) & (own < 700.0)], 6))
+    model = load_rotor(path, speed_rpm=rpm)
+    got = np.abs(np.linalg.eigvals(model.a).imag) / (2 * np.pi)
+    got = np.unique(np.round(got[(got > 1.0) & (got < 700.0)], 6))
+    assert got.size == own.size == 4  # the first two bending modes, each split into backward and forward
+    assert np.allclose(got, own, rtol=2e-3)  # modal truncation at 5 kHz
+    assert got[1] - got[0] > 1.0  # the split is real
+    rig = load_rig(_rig_yaml(tmp_path, path, f"rotor_speed_rpm: {rpm}\n"))
+    assert np.allclose(np.linalg.eigvals(rig.rotor_import.a), np.linalg.eigvals(model.a))
+
+
+def _rig_yaml(tmp_path, rotor_path, extra=""):
+    p = tmp_path / "rig.yaml"
+    p.write_text(f"rotor_file: {rotor_path.name}\n{extra}")
+    return p
+
+
+def test_the_commands_say_what_the_import_dropped(tmp_path, capsys):
+    from ambid_nodes.commands.inputs import rig_file
+
+    path, _ = _six_dof_file(tmp_path)
+    rig = rig_file(_rig_yaml(tmp_path, path))
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rig.rotor_import is not None
+    assert len(err) == 1 and err[0].startswith("ambid: rotor file: dropped 18 of 54 DOFs")

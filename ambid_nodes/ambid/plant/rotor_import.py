@@ -35,7 +35,12 @@ without bearing elements)::
     max_freq_hz       optional: modes kept below this frequency (default 5000)
 
 The second-order model is reduced to its undamped modes below
-``max_freq_hz`` (the rigid ones included).
+``max_freq_hz`` (the rigid ones included). DOFs that no bearing or sensor
+DOF is coupled to through M, K, D or G (the axial and torsional DOFs of a
+six-DOF-per-node layout) are dropped first, and so are modes that neither
+the bearings nor the sensors see; ``RotorModel.notes`` says what went. K must
+be free-free (four lateral rigid-body modes): support springs in it are
+named in the error. G is scaled by the rig's ``rotor_speed_rpm``.
 """
 
 from __future__ import annotations
@@ -44,6 +49,8 @@ from pathlib import Path
 
 import numpy as np
 from scipy import io as sio
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components
 
 from ambid.plant.modal import undamped_modes
 from ambid.plant.rotor_model import GRAVITY_PER_AXIS, RotorModel, rigid_inverse_mass
@@ -130,29 +137,97 @@ def rotor_from_state_space(data: dict, source: str = "") -> RotorModel:
     return RotorModel(a, b, c[:4], c[4:], b_g, mass, source=source)
 
 
+def _coupled_to(seeds: np.ndarray, matrices: list[np.ndarray]) -> np.ndarray:
+    """(N,) bool: the DOFs that ``seeds`` reach through a non-zero entry of any of ``matrices``.
+
+    A radial bearing holds only the DOFs coupled to its own; the axial and torsional DOFs of a
+    rotordynamics code's six-DOF layout are coupled to none of them (decoupled blocks of M, K, G)."""
+    n = matrices[0].shape[0]
+    link = np.zeros((n, n), dtype=bool)
+    for mat in matrices:
+        scale = np.max(np.abs(mat))
+        if scale > 0:  # round-off in a code's assembly is not a coupling
+            link |= np.abs(mat) > 1e-10 * scale
+    link |= link.T
+    _, label = connected_components(csr_matrix(link), directed=False)
+    return np.isin(label, np.unique(label[seeds]))
+
+
+def _support_springs(k: np.ndarray, data: dict, n_dof: int) -> str:
+    """Where a stiffness matrix holds the rotor to ground: the reaction of each DOF to a unit rigid
+    translation along the bearing x (and y) axis, which a free-free K gives as zero."""
+    found = []
+    for axis in ("x_dofs", "y_dofs"):
+        if axis not in data:
+            continue
+        u = np.zeros(n_dof)
+        u[_indices(data, axis, n_dof, None)] = 1.0
+        reaction = k @ u
+        tol = 1e-8 * np.max(np.abs(k))
+        found += [f"DOF {i} ({reaction[i]:.3g} N/m)" for i in np.flatnonzero(np.abs(reaction) > tol)]
+    return ", ".join(found)
+
+
 def rotor_from_second_order(data: dict, speed_rad_s: float = 0.0, damping_ratio: float = 0.005,
                             source: str = "") -> RotorModel:
-    """RotorModel from layout 2 (module docstring): modal reduction of M, K (D, G)."""
+    """RotorModel from layout 2 (module docstring): modal reduction of M, K (D, G).
+
+    DOFs that no bearing or sensor DOF is coupled to (axial and torsional ones) are dropped first,
+    then the modes that neither the bearings nor the sensors see; ``RotorModel.notes`` says what went.
+
+    Raises:
+        ValueError naming the key, or the support springs of a rotor that is not free-free.
+    """
     m = np.asarray(data["M"], dtype=float)
     n_dof = m.shape[0] if m.ndim == 2 else 0
     m = _matrix(data, "M", (n_dof, n_dof), "mass matrix")
     k = _matrix(data, "K", (n_dof, n_dof), "stiffness matrix")
+    d = _matrix(data, "D", (n_dof, n_dof), "damping matrix") if "D" in data else None
+    g = _matrix(data, "G", (n_dof, n_dof), "gyroscopic matrix") if "G" in data else None
     i_b = _indices(data, "bearing_dofs", n_dof)
     i_s = _indices(data, "sensor_dofs", n_dof)
     f_max = float(np.asarray(data.get("max_freq_hz", DEFAULT_MAX_FREQ_HZ)).ravel()[0])
-    freq, shapes = undamped_modes(m, k)
+    notes = []
+    held = _coupled_to(np.concatenate([i_b, i_s]), [x for x in (m, k, d, g) if x is not None])
+    if not held.all():
+        dropped = np.flatnonzero(~held)
+        shown = ", ".join(map(str, dropped[:12])) + (", ..." if dropped.size > 12 else "")
+        notes.append(f"dropped {dropped.size} of {n_dof} DOFs that no bearing or sensor DOF is coupled to "
+                     f"(axial, torsional or other decoupled DOFs: {shown})")
+    try:
+        freq, shapes = undamped_modes(m[np.ix_(held, held)], k[np.ix_(held, held)])
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        raise ValueError(f"rotor file: M of the DOFs the bearings hold is not positive definite ({exc}); "
+                         "check that every kept DOF has mass or inertia") from None
+    phi_all = np.zeros((n_dof, freq.size))
+    phi_all[held] = shapes
     keep = freq < f_max
+    # a mode that neither the bearings nor the sensors see cannot be held or measured
+    seen = np.linalg.norm(phi_all[np.concatenate([i_b, i_s])], axis=0)
+    unseen = keep & (seen <= 1e-9 * seen.max())
+    if unseen.any():
+        notes.append(f"dropped {unseen.sum()} mode(s) that neither the bearings nor the sensors see "
+                     f"({', '.join(f'{f:.1f} Hz' for f in freq[unseen])})")
+    keep &= ~unseen
     if keep.sum() < 2:
         raise ValueError(f"rotor file: no modes below max_freq_hz = {f_max} Hz")
-    freq, phi = freq[keep], shapes[:, keep]
+    freq, phi = freq[keep], phi_all[:, keep]
+    n_rigid = int(np.sum(freq < 1.0))
+    if n_rigid < 4:
+        springs = _support_springs(k, data, n_dof)
+        where = (f"its stiffness matrix holds support springs at {springs}" if springs else
+                 "its stiffness matrix holds the rotor to ground (a support spring or a rotational one)")
+        raise ValueError(f"rotor file: the rotor is not free-free: {n_rigid} of the 4 lateral rigid-body modes "
+                         f"remain, {where}; give M and K without bearing or support elements (in ROSS: a rotor "
+                         "built with its shaft and disk elements only), the magnets are the rig's supports")
+    # rigid-body modes are exactly that: round-off leaves them at mHz, which the rigid inverse mass
+    # (taken at 1 mHz) and gravity's equilibrium would mistake for a soft support
+    freq = np.where(freq < 1.0, 0.0, freq)
     r = freq.size
     w = 2 * np.pi * freq
-    if "D" in data:
-        damp = phi.T @ _matrix(data, "D", (n_dof, n_dof), "damping matrix") @ phi
-    else:
-        damp = np.diag(2 * damping_ratio * w)
-    if "G" in data:
-        damp = damp + speed_rad_s * (phi.T @ _matrix(data, "G", (n_dof, n_dof), "gyroscopic matrix") @ phi)
+    damp = phi.T @ d @ phi if d is not None else np.diag(2 * damping_ratio * w)
+    # at standstill first: the rigid-body checks and gravity's share hold for the resting rotor
+    # (spinning, the gyroscopic coupling turns the rigid tilt into a precession)
     a = np.block([[np.zeros((r, r)), np.eye(r)], [-np.diag(w * w), -damp]])
     b = np.vstack([np.zeros((r, 4)), phi[i_b].T])
     c_b = np.hstack([phi[i_b], np.zeros((4, r))])
@@ -168,8 +243,10 @@ def rotor_from_second_order(data: dict, speed_rad_s: float = 0.0, damping_ratio:
     else:
         b_g = _gravity_from_rigid_body(a, b, c_b)
         mass = _scalar(data, "mass_kg", "total rotor mass (or give x_dofs and y_dofs)")
+    if g is not None and speed_rad_s:
+        a[r:, r:] -= speed_rad_s * (phi.T @ g @ phi)
     flexible = freq[freq >= 1.0]
-    return RotorModel(a, b, c_b, c_s, b_g, mass, flexible, source)
+    return RotorModel(a, b, c_b, c_s, b_g, mass, flexible, source, tuple(notes))
 
 
 def load_rotor(path: str | Path, speed_rpm: float = 0.0, damping_ratio: float = 0.005) -> RotorModel:
@@ -190,10 +267,9 @@ def load_rotor(path: str | Path, speed_rpm: float = 0.0, damping_ratio: float = 
     path = Path(path)
     data = _read(path)
     source = f"file:{path}"
-    if "M" in data:
-        model = rotor_from_second_order(data, speed_rpm * np.pi / 30.0, damping_ratio, source)
-    else:
-        model = rotor_from_state_space(data, source)
+    if "M" in data:  # checks its own free-free-ness, at standstill
+        return rotor_from_second_order(data, speed_rpm * np.pi / 30.0, damping_ratio, source)
+    model = rotor_from_state_space(data, source)
     _gravity_from_rigid_body(model.a, model.b, model.c_bearing)  # free-free check
     return model
 

@@ -43,6 +43,8 @@ class RotorModel:
         flexible_freq_hz: free-free bending frequencies kept in the model,
             one per plane mode at standstill [Hz] (empty if unknown).
         source: where the model comes from (for reports).
+        notes: what the import changed in the model the user gave (DOFs or
+            modes dropped), one sentence each, for the commands to say.
     """
 
     a: np.ndarray
@@ -53,6 +55,7 @@ class RotorModel:
     mass_kg: float
     flexible_freq_hz: np.ndarray = field(default_factory=lambda: np.zeros(0))
     source: str = ""
+    notes: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         a = np.asarray(self.a, dtype=float)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 from pathlib import Path
 
 
@@ -76,9 +77,13 @@ def rig_file(path: str | os.PathLike | None):
     if not path:
         return make_rig()
     try:
-        return load_rig(path)
+        rig = load_rig(path)
     except (ValueError, OSError) as exc:
         raise BadInput(str(exc)) from None
+    if rig.rotor_import is not None:
+        for note in rig.rotor_import.notes:  # what the import changed in the user's model, said once
+            print(f"ambid: rotor file: {note}", file=sys.stderr)
+    return rig
 
 
 def checked_controller(spec, rig):
