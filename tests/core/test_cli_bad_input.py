@@ -132,6 +132,7 @@ OPTION_VALUES = [  # argv, the option the error names
     (["graph", "--sim-seconds", "-1"], "--sim-seconds"),
     (["graph", "--controller", "bogus"], "--controller"),
     (["graph", "--hardware", "nonsense"], "--hardware"),
+    (["identify", "--hardware", "nonsense"], "--hardware"),
     (["compare", "--preset", "huge"], "--preset"),
     (["bench", "--repeats", "0"], "--repeats"),
 ]
@@ -159,6 +160,9 @@ RANGE_REFUSALS = [  # values argparse cannot judge alone: the command's one line
     (["bench", "--json", "{dir}/no_such_folder/b.json"], "--json"),
     (["bench", "--json", "{dir}"], "--json"),
     (["target-model", "--out", "{dir}"], "--out"),
+    (["identify", "--true-model", "{good}"], "--true-model needs --hardware"),
+    (["identify", "--hardware", "127.0.0.1:9", "--true-model", "{good}"], "--true-model"),
+    (["identify", "--hardware", "127.0.0.1:9", "--true-model", "{dir}"], "--true-model"),
     (["target-model", "--out", "{dir}/no_such_folder/m.txt"], "--out"),
 ]
 
