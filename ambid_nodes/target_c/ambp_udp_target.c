@@ -20,11 +20,13 @@
 #include <netdb.h>
 #include <netinet/in.h>
 #include <poll.h>
+#include <sched.h>
 #include <signal.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
 #include <time.h>
@@ -236,7 +238,7 @@ typedef struct {
     const char *model, *bind, *bridge;
     double pace, heartbeat, bridge_timeout, safe_seconds, linger;
     long long samples, seed;
-    int block, float32, hold, version, queue;
+    int block, float32, hold, version, queue, priority;
 } options;
 
 static double opt_double(const char *name, const char *v, double lo, double hi) {
@@ -284,7 +286,7 @@ static struct sockaddr_in opt_address(const char *name, const char *text) {
 static const char *USAGE =
     "usage: ambp_udp_target --model FILE --bind HOST:PORT --bridge HOST:PORT [--seed N] [--pace P] [--samples N]\n"
     "  [--block N] [--float32] [--heartbeat S] [--bridge-timeout S] [--safe-seconds S] [--linger S]\n"
-    "  [--hold-for-excitation] [--protocol-version N] [--queue N]\n"
+    "  [--hold-for-excitation] [--protocol-version N] [--queue N] [--priority N]\n"
     "  --pace 1 = real time (clock_nanosleep on absolute deadlines), 0 = free-running, p = 1/p of real time\n";
 
 static void parse_options(int argc, char **argv, options *o) {
@@ -308,7 +310,7 @@ static void parse_options(int argc, char **argv, options *o) {
             die2("unexpected argument '%s'; options start with --, see --help", a);
         static const char *const with_value[] = {"--model", "--bind", "--bridge", "--seed", "--pace", "--samples",
             "--block", "--heartbeat", "--bridge-timeout", "--safe-seconds", "--linger", "--protocol-version",
-            "--queue", NULL};
+            "--queue", "--priority", NULL};
         int known = 0;
         for (int k = 0; with_value[k]; k++) known |= !strcmp(a, with_value[k]);
         if (!known) die2("unknown option '%s'; see --help", a);
@@ -327,6 +329,7 @@ static void parse_options(int argc, char **argv, options *o) {
         else if (!strcmp(a, "--linger")) o->linger = opt_double(a, v, 0.0, 3600.0);
         else if (!strcmp(a, "--protocol-version")) o->version = (int)opt_int(a, v, 1, 255);
         else if (!strcmp(a, "--queue")) o->queue = (int)opt_int(a, v, 1024, 1 << 24);
+        else if (!strcmp(a, "--priority")) o->priority = (int)opt_int(a, v, 1, 99);
     }
     if (!o->model) die2("--model FILE is required; write one with './launch_scripts/ambid target-model --out FILE'");
     int most = o->float32 ? 22 : 11;
@@ -335,6 +338,8 @@ static void parse_options(int argc, char **argv, options *o) {
              o->float32 ? "float32" : "float64");
     if (o->hold && o->pace != 0)
         die2("--hold-for-excitation needs --pace 0 (a real-time target cannot wait)");
+    if (o->priority && o->pace == 0)
+        die2("--priority needs --pace > 0 (a free-running loop at real-time priority would starve the host)");
 }
 
 /* ---- the program ------------------------------------------------------------------------------- */
@@ -345,6 +350,14 @@ int main(int argc, char **argv) {
     struct sockaddr_in bridge_addr = opt_address("--bridge", o.bridge);
     target_model m;
     load_model(o.model, &m);
+    if (o.priority) { /* Linux-RT style: locked memory, SCHED_FIFO; the loop sleeps between samples */
+        struct sched_param sp;
+        memset(&sp, 0, sizeof sp);
+        sp.sched_priority = o.priority;
+        if (mlockall(MCL_CURRENT | MCL_FUTURE) != 0 || sched_setscheduler(0, SCHED_FIFO, &sp) != 0)
+            die2("--priority %d: cannot lock memory and run at SCHED_FIFO priority (%s); run as root or with "
+                 "CAP_SYS_NICE and CAP_IPC_LOCK, or leave --priority out", o.priority, strerror(errno));
+    }
 
     uint32_t rate_hz = (uint32_t)floor(1.0 / m.dt + 0.5);
     ambp_config cfg;

@@ -298,6 +298,8 @@ def test_bad_model_files_get_one_line_and_exit_code_2(model_files):
     (["--model", "{m}", "--bogus", "1"], "unknown option '--bogus'"),
     (["--model", "{m}", "--hold-for-excitation"], "needs --pace 0"),
     (["--model", "{m}", "stray"], "unexpected argument"),
+    (["--model", "{m}", "--pace", "0", "--priority", "50"], "needs --pace > 0"),
+    (["--model", "{m}", "--priority", "0"], "--priority"),
 ])
 def test_bad_options_get_one_line_and_exit_code_2(model_files, args, words):
     args = [a.format(m=model_files["quiet"]) for a in args]
