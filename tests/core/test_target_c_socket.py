@@ -191,6 +191,10 @@ def test_excitation_reordered_duplicated_lost_and_malformed_is_applied_sample_ex
     assert np.abs(rows[:, :4]).max() > 1e-7  # the excitation moved the rotor: the check above is not of zeros
     hb = bridge.hbs[-1][1]
     assert hb.state == bp.TargetState.DONE and not hb.clock_running and hb.sent_end == n
+    # sequence numbers per kind, +1 per datagram: what lets the bridge count losses
+    assert sorted(m.sequence for m in bridge.meas) == list(range(n // 10)) == list(range(hb.next_measurement_sequence))
+    assert [h.sequence for _, h in bridge.hbs] == list(range(len(bridge.hbs)))
+    assert [a.sequence for a in bridge.acks] == list(range(len(bridge.acks)))
     assert hb.rx_rejected == 4 and hb.excitation_next == bp.NO_INDEX
 
 
