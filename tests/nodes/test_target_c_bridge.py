@@ -96,6 +96,22 @@ def test_identify_hardware_gives_the_c_target_the_accuracy_of_the_simulated_rig(
     assert 0.8 < eb["median"] / ea["median"] < 1.25
     assert 1 / 1.6 < eb["worst"] / ea["worst"] < 1.6
     assert b["max_mode_freq_error"] < 0.01 and b["modes_vs_true"]
+    # the Python target serves the simulated rig itself (same seed): over the same bridge path the figures
+    # are the simulated session's to the last bit, so the C target's differ by its noise realisation only
+    tp, lp = free_port(), free_port()
+    py_target = subprocess.Popen([sys.executable, "-m", "ambid.hardware.rt_target", "--bind", f"127.0.0.1:{tp}",
+                                  "--bridge", f"127.0.0.1:{lp}", "--pace", "0", "--hold-for-excitation",
+                                  "--samples", str(total), "--seed", "1", "--linger", "0.3"],
+                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT / "ambid_nodes")
+    try:
+        py = cli("identify", "--hardware", f"127.0.0.1:{tp}", "--local-port", str(lp), "--true-model", str(model),
+                 "--out", str(tmp_path / "py"), *SMALL)
+        py_target.communicate(timeout=30)
+    finally:
+        py_target.kill()
+    assert py.returncode == 0, py.stdout + py.stderr
+    ep = json.loads((tmp_path / "py" / "summary.json").read_text())["frf_error"]
+    assert ep["median"] == ea["median"] and ep["worst"] == ea["worst"]
     # recorded as any session: every sample's measurement, read back by the offline FRF above
     assert Path(b["recording"]["path"]).is_file() and b["recording"]["complete"]
     assert b["state"] == "done" and b["simulated_time_s"] == total / fs
