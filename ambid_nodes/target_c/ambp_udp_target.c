@@ -370,7 +370,8 @@ int main(int argc, char **argv) {
     cfg.safe_samples = (uint64_t)floor(o.safe_seconds / m.dt + 0.5);
     cfg.max_samples = (uint64_t)o.samples;
     cfg.hold_for_excitation = o.hold;
-    /* the state and the queue are static: what an embedded build would do; main only sizes the queue */
+    /* the state is static, as an embedded build has it; the queue is sized by --queue, so it is allocated
+     * once here (the core itself never allocates) */
     static ambp_target t;
     ambp_exc_slot *queue = malloc(sizeof(ambp_exc_slot) * (size_t)o.queue);
     if (!queue) die2("out of memory for an excitation queue of %d samples; use a smaller --queue", o.queue);
@@ -423,7 +424,7 @@ int main(int argc, char **argv) {
             k_start = t.k;
             wall0 = t_now;
         }
-        if (t.stop_requested) goto flush_and_leave;
+        if (t.stop_requested) break; /* STOP answered: leave once its ACK is out (below) */
 
         int burst = t.clock_running ? (o.pace == 0 ? FREE_RUN_POLL : 1) : 0;
         for (int s = 0; s < burst; s++) {
@@ -494,14 +495,10 @@ int main(int argc, char **argv) {
             }
         }
     }
-    if (0) {
-    flush_and_leave:;
-        const uint8_t *d;
-        size_t len;
-        while (ambp_target_tx(&t, &d, &len))
-            sendto(fd, d, len, 0, (struct sockaddr *)&bridge_addr, sizeof bridge_addr);
-        if (!wall_end) wall_end = now_ns();
-    }
+    const uint8_t *d;
+    size_t len;
+    while (ambp_target_tx(&t, &d, &len))
+        sendto(fd, d, len, 0, (struct sockaddr *)&bridge_addr, sizeof bridge_addr);
     if (!wall_end) wall_end = now_ns();
     close(fd);
     static const char *const states[] = {"idle", "running", "safe", "done"};
