@@ -119,7 +119,6 @@ def run_session_composed(cfg: SessionConfig) -> dict:
     fs = 1.0 / rig.dt
     design = cfg.design(fs)
     start_index, total = session_samples(design, fs)
-    cfg.out_dir.mkdir(parents=True, exist_ok=True)
     mcap_path = cfg.out_dir / "session.mcap"
 
     def params(d: dict) -> list:
@@ -147,9 +146,6 @@ def run_session_composed(cfg: SessionConfig) -> dict:
 
     try:
         ns = dict(namespace=cfg.namespace, context=context)
-        recorder = add(Recorder(**ns, parameter_overrides=params({
-            "output": str(mcap_path), "overwrite": True,
-            "session_facts": json.dumps({"session": "identify", "config": _jsonable(cfg)})})))
         if cfg.hardware:
             # the target runs plant and controller; it starts only once it knows the experiment (below)
             from ambid.hardware.rt_target import parse_address
@@ -158,7 +154,14 @@ def run_session_composed(cfg: SessionConfig) -> dict:
             plant = add(HardwareBridge(**ns, parameter_overrides=params({
                 "target_host": host, "target_port": port, "local_port": cfg.local_port, "autostart": False,
                 **rig_param})))
-        else:
+            # the target must answer before anything is written: a wrong address leaves no recording behind
+            spin_until(lambda: plant.connected, 15, f"the real-time target at {cfg.hardware} (is it running and "
+                                                    "sending to this bridge's port?); nothing was recorded")
+        cfg.out_dir.mkdir(parents=True, exist_ok=True)
+        recorder = add(Recorder(**ns, parameter_overrides=params({
+            "output": str(mcap_path), "overwrite": True,
+            "session_facts": json.dumps({"session": "identify", "config": _jsonable(cfg)})})))
+        if not cfg.hardware:
             plant = add(PlantSim(**ns, parameter_overrides=params({
                 "sim_seconds": total / fs, "seed": cfg.seed, "nonlinear_magnets": cfg.nonlinear_magnets,
                 **rig_param})))
@@ -168,7 +171,7 @@ def run_session_composed(cfg: SessionConfig) -> dict:
         # the recorder and the consumer must hear the first measurement block
         spin_until(lambda: plant.pub_block.get_subscription_count() >= 3, 30, "recorder, consumer and generator")
         spin_until(lambda: generator.plant_known, 30, "the plant description at the generator")
-        client = nodes[0].create_client(StartExperiment, "start_experiment")
+        client = recorder.create_client(StartExperiment, "start_experiment")
         spin_until(client.service_is_ready, 30, "the start_experiment service")
         future = client.call_async(StartExperiment.Request(start_index=start_index,
                                                            design_json=json.dumps(design.to_dict())))
