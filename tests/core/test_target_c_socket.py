@@ -233,7 +233,7 @@ def test_real_time_run_applies_r_zero_where_excitation_is_late_and_says_so(bridg
 def test_silent_bridge_sends_the_target_to_its_safe_state(bridge, model_files):
     timeout = 0.15
     bridge.start(model_files["rig"], "--pace", "1", "--bridge-timeout", str(timeout), "--safe-seconds", "0.01",
-                 "--linger", "0.2")
+                 "--linger", "0.2", "--float32", "--block", "22")  # the most samples float32 datagrams carry
     assert bridge.command(1, bp.CommandCode.START).result == bp.AckResult.OK
     end = time.monotonic() + 0.3
     while time.monotonic() < end:
@@ -251,6 +251,8 @@ def test_silent_bridge_sends_the_target_to_its_safe_state(bridge, model_files):
     assert safe.sum() == 100 and safe[-100:].all()  # 0.01 s of landing at zero current, then the clock stops
     assert not rows[safe, 4:].any() and rows[~safe, 8:12].any()
     assert bridge.hbs[-1][1].state == bp.TargetState.SAFE and not bridge.hbs[-1][1].clock_running
+    assert {len(m.data) for m in bridge.meas[:-1]} == {22} and rows.dtype == float
+    assert np.array_equal(rows, rows.astype(np.float32).astype(float))  # float32 on the wire
 
 
 def _write(path: Path, text: str | bytes) -> Path:
