@@ -9,6 +9,8 @@ import subprocess
 import sys
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from ambid_nodes.node_main import SUMMARY_PREFIX, spin_until_done
 
 DEFAULT_NAMESPACE = "/amb"
@@ -123,16 +125,23 @@ def run_hardware(cfg: GraphConfig, target: str, local_port: int = 0) -> dict:
     """The graph against a real-time target over the UDP bridge (docs/bridge_protocol.md).
 
     The target runs the fast loop (plant and position controller); this
-    process runs ``hardware_bridge``, which publishes the measured blocks.
-    Returns the bridge's figures once ``cfg.sim_seconds`` of samples arrived
-    (or the target finished), after telling the target to stop.
+    process runs ``hardware_bridge``, which publishes the measured blocks,
+    and a listener that judges the levitation from them as plant_sim does
+    (over the second half of the run). Once ``cfg.sim_seconds`` of samples
+    arrived (or the target finished) the target is told to STOP, and the
+    bridge's figures are returned with the levitation's.
     """
     import rclpy
+    from ambid.hardware.bridge_protocol import CommandCode
     from ambid.hardware.rt_target import parse_address
+    from ambid.plant.levitation import LevitationMonitor
     from rclpy.experimental import EventsExecutor
     from rclpy.parameter import Parameter
 
-    from ambid_nodes.hardware_bridge import HardwareBridge
+    from ambid_msgs.msg import SampleBlock
+    from ambid_nodes import qos
+    from ambid_nodes.conversions import block_data
+    from ambid_nodes.hardware_bridge import MEASUREMENT_NAMES, HardwareBridge
 
     host, port = parse_address(target)
     context = rclpy.Context()
@@ -141,15 +150,28 @@ def run_hardware(cfg: GraphConfig, target: str, local_port: int = 0) -> dict:
     params = {"target_host": host, "target_port": port, "local_port": local_port, **cfg.plant}
     bridge = HardwareBridge(namespace=cfg.namespace, context=context,
                             parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
+    wanted = int(round(cfg.sim_seconds / bridge.dt))
+    monitor = LevitationMonitor(bridge.rig.backup_clearance_m, wanted // 2)
+    listener = rclpy.create_node("graph_levitation", namespace=cfg.namespace, context=context)
+
+    def on_block(msg) -> None:
+        data = block_data(msg, MEASUREMENT_NAMES)
+        monitor.add_block(msg.first_index, data[:, :4], (np.asarray(msg.sample_flags) & SampleBlock.FLAG_LANDED) != 0)
+
+    listener.create_subscription(SampleBlock, "measurement", on_block, qos.BLOCKS)
     executor.add_node(bridge)
+    executor.add_node(listener)
     try:
-        wanted = int(round(cfg.sim_seconds / bridge.dt))
         while not bridge.finished.done() and bridge.figures()["samples_published"] < wanted:
             executor.spin_until_future_complete(bridge.finished, timeout_sec=0.25)
+        if not bridge.finished.done() and bridge.connected:
+            bridge.queue_command(CommandCode.STOP)  # the session is over: the target stops its clock
+            executor.spin_until_future_complete(bridge.finished, timeout_sec=2.0)
         figures = bridge.figures()
-        return {**figures, "layout": f"hardware bridge to {target}",
+        return {**figures, **monitor.figures(), "layout": f"hardware bridge to {target}",
                 "samples_per_wall_s": figures["samples_published"] / max(figures["wall_s"], 1e-9)}
     finally:
         executor.shutdown()
+        listener.destroy_node()
         bridge.destroy_node()
         rclpy.shutdown(context=context)

@@ -18,6 +18,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from ambid.excitation import ExcitationDesign
+from ambid.hardware.bridge_protocol import CommandCode
 from ambid.excitation.spec import build_design
 from ambid.jsonable import to_jsonable
 from ambid.plant.rig import load_rig, make_rig
@@ -54,6 +55,9 @@ class SessionConfig:
     estimator: str = "indirect"
     namespace: str = DEFAULT_NAMESPACE
     progress: bool = True
+    hardware: str = ""      # HOST:PORT of a real-time target: hardware_bridge replaces plant_sim and the controller
+    local_port: int = 0     # with hardware: the bridge's UDP port (0: any)
+    true_model: str = ""    # with hardware: the C target's model file, the truth the FRF is compared with
     extra: dict = field(default_factory=dict)
 
     def design(self, fs_hz: float) -> ExcitationDesign:
@@ -89,6 +93,14 @@ class ProgressBar:
             self.stream.flush()
 
 
+def session_samples(design: ExcitationDesign, fs: float) -> tuple[int, int]:
+    """(the experiment's first sample index, the session's samples): lift-off, the experiment, and one
+    block of tail so the last period is measured. A free-running target can be told the count
+    (ambp_udp_target --samples) so it stops where the session does."""
+    start_index = int(round(LIFT_OFF_S * fs))
+    return start_index, start_index + design.total_samples + 1000
+
+
 def run_session_composed(cfg: SessionConfig) -> dict:
     """Run the whole graph in this process; returns the run's facts (no offline analysis)."""
     import rclpy
@@ -98,6 +110,7 @@ def run_session_composed(cfg: SessionConfig) -> dict:
     from ambid_msgs.srv import StartExperiment
     from ambid_nodes.excitation_generator import ExcitationGenerator
     from ambid_nodes.frf_consumer import FrfConsumer
+    from ambid_nodes.hardware_bridge import HardwareBridge
     from ambid_nodes.plant_sim import PlantSim
     from ambid_nodes.position_controller import PositionController
     from ambid_nodes.recorder import Recorder
@@ -105,9 +118,7 @@ def run_session_composed(cfg: SessionConfig) -> dict:
     rig = load_rig(cfg.rig_file) if cfg.rig_file else make_rig()
     fs = 1.0 / rig.dt
     design = cfg.design(fs)
-    start_index = int(round(LIFT_OFF_S * fs))
-    total = start_index + design.total_samples + 1000  # one block of tail so the last period is measured
-    cfg.out_dir.mkdir(parents=True, exist_ok=True)
+    start_index, total = session_samples(design, fs)
     mcap_path = cfg.out_dir / "session.mcap"
 
     def params(d: dict) -> list:
@@ -135,18 +146,32 @@ def run_session_composed(cfg: SessionConfig) -> dict:
 
     try:
         ns = dict(namespace=cfg.namespace, context=context)
+        if cfg.hardware:
+            # the target runs plant and controller; it starts only once it knows the experiment (below)
+            from ambid.hardware.rt_target import parse_address
+
+            host, port = parse_address(cfg.hardware)
+            plant = add(HardwareBridge(**ns, parameter_overrides=params({
+                "target_host": host, "target_port": port, "local_port": cfg.local_port, "autostart": False,
+                **rig_param})))
+            # the target must answer before anything is written: a wrong address leaves no recording behind
+            spin_until(lambda: plant.connected, 15, f"the real-time target at {cfg.hardware} (is it running and "
+                                                    "sending to this bridge's port?); nothing was recorded")
+        cfg.out_dir.mkdir(parents=True, exist_ok=True)
         recorder = add(Recorder(**ns, parameter_overrides=params({
             "output": str(mcap_path), "overwrite": True,
             "session_facts": json.dumps({"session": "identify", "config": _jsonable(cfg)})})))
-        plant = add(PlantSim(**ns, parameter_overrides=params({
-            "sim_seconds": total / fs, "seed": cfg.seed, "nonlinear_magnets": cfg.nonlinear_magnets, **rig_param})))
+        if not cfg.hardware:
+            plant = add(PlantSim(**ns, parameter_overrides=params({
+                "sim_seconds": total / fs, "seed": cfg.seed, "nonlinear_magnets": cfg.nonlinear_magnets,
+                **rig_param})))
         generator = add(ExcitationGenerator(**ns, parameter_overrides=params({"start_margin": start_index,
                                                                               **rig_param})))
         consumer = add(FrfConsumer(**ns, parameter_overrides=params({"estimator": cfg.estimator})))
         # the recorder and the consumer must hear the first measurement block
         spin_until(lambda: plant.pub_block.get_subscription_count() >= 3, 30, "recorder, consumer and generator")
         spin_until(lambda: generator.plant_known, 30, "the plant description at the generator")
-        client = nodes[0].create_client(StartExperiment, "start_experiment")
+        client = recorder.create_client(StartExperiment, "start_experiment")
         spin_until(client.service_is_ready, 30, "the start_experiment service")
         future = client.call_async(StartExperiment.Request(start_index=start_index,
                                                            design_json=json.dumps(design.to_dict())))
@@ -154,20 +179,35 @@ def run_session_composed(cfg: SessionConfig) -> dict:
         answer = future.result()
         if not answer.accepted:
             raise ValueError(f"identify: the excitation generator refused the experiment: {answer.message}")
-        add(PositionController(**ns, parameter_overrides=params({**rig_param, "controller": cfg.controller})))
+        if cfg.hardware:
+            spin_until(lambda: answer.experiment_id in plant.slots and plant.connected and not plant.commands, 30,
+                       f"the real-time target at {cfg.hardware} to acknowledge the experiment (is it running, "
+                       "idle, and sending to this bridge's port?)")
+            plant.queue_command(CommandCode.START)
+        else:
+            add(PositionController(**ns, parameter_overrides=params({**rig_param, "controller": cfg.controller})))
+        stop_sent = False
         with gc_frozen():
             while not plant.finished.done():
                 executor.spin_until_future_complete(plant.finished, timeout_sec=0.25)
-                k = plant.k
+                if cfg.hardware:
+                    k = plant.figures()["samples_published"]
+                    if k >= total and not stop_sent:  # enough recorded: the target's clock may stop
+                        plant.queue_command(CommandCode.STOP)
+                        stop_sent = True
+                else:
+                    k = plant.k
                 st = _consumer_text(consumer)
                 rate = k / max(time.perf_counter() - wall0, 1e-9)
                 bar.show(k / total, f"sim {k / fs:6.2f}/{total / fs:.2f} s  {rate / 1000:5.1f}k samples/s  {st}")
         bar.show(1.0, "simulation done, closing the recording", force=True)
         bar.close()
         plant_summary = plant.finished.result()
+        if cfg.hardware:
+            plant_summary = _hardware_summary(plant_summary, total, fs, time.perf_counter() - wall0)
         # let the recorder and the consumer take the last blocks, then what the nodes said at the end
         meas = plant.pub_block.topic_name
-        n_blocks = -(-plant_summary["samples"] // plant.block_size)
+        n_blocks = (plant.figures()["blocks"] if cfg.hardware else -(-plant_summary["samples"] // plant.block_size))
         spin_until(lambda: recorder.counts.get(meas, 0) >= n_blocks, 30, "the last measurement block at the recorder")
         failure = plant_summary.get("failure")
         if failure:  # the run stopped short, no estimate will come: keep the recording, say why
@@ -190,7 +230,7 @@ def run_session_composed(cfg: SessionConfig) -> dict:
             "simulated_s": plant_summary["simulated_s"],
             "samples_per_wall_s": plant_summary["samples"] / wall,
             "loop_samples_per_wall_s": plant_summary["samples_per_wall_s"],
-            "layout": "composed",
+            "layout": f"hardware bridge to {cfg.hardware}" if cfg.hardware else "composed",
             "design": design,
             "mcap_path": str(mcap_path),
         }
@@ -199,6 +239,17 @@ def run_session_composed(cfg: SessionConfig) -> dict:
         for n in nodes:
             n.destroy_node()
         rclpy.shutdown(context=context)
+
+
+def _hardware_summary(bridge: dict, total: int, fs: float, wall_s: float) -> dict:
+    """The bridge's summary in the terms of plant_sim's (samples, state, failure), with its figures kept."""
+    out = {**bridge, "simulated_s": bridge["samples"] / fs, "samples_per_wall_s": bridge["samples"] / wall_s,
+           "levitated": None}  # the target keeps the rotor up; the bridge cannot tell
+    if bridge["state"] != "done" or bridge["samples"] < total:
+        out["failure"] = {"code": "target", "text": (
+            f"the target ended {bridge['target_state']} after {bridge['samples']} of {total} samples "
+            f"(silent episodes {bridge['silent_episodes']}, {bridge['missing_samples']} samples lost)")}
+    return out
 
 
 def _consumer_text(consumer) -> str:
@@ -231,7 +282,12 @@ def run_identify(cfg: SessionConfig) -> dict:
 
     run = run_session_composed(cfg)
     design: ExcitationDesign = run.pop("design")
-    offline = identify_session(run["mcap_path"], cfg.out_dir, estimator=cfg.estimator)
+    true_model = None
+    if cfg.true_model:
+        from ambid.hardware.target_model import read_target_model
+
+        true_model = read_target_model(cfg.true_model).plant
+    offline = identify_session(run["mcap_path"], cfg.out_dir, estimator=cfg.estimator, true_model=true_model)
     rec = run["recorder"]
     summary = {
         "excitation": {

@@ -120,6 +120,7 @@ ambid_ws_inputs() {
     find "$AMBID_ROOT/ambid_msgs" "$AMBID_ROOT/ambid_nodes/config" "$AMBID_ROOT/ambid_nodes/resource" \
         -type f 2>/dev/null | sort
     find "$AMBID_ROOT/ambid_nodes/ambid_nodes" -name '*.c' | sort  # the C extensions' sources
+    find "$AMBID_ROOT/ambid_nodes/target_c" -name '*.[ch]' | sort  # the C reference target's sources
     printf '%s\n' "$AMBID_ROOT/ambid_nodes/package.xml" "$AMBID_ROOT/ambid_nodes/setup.py" \
         "$AMBID_ROOT/ambid_nodes/setup.cfg" "$AMBID_VENV/.ambid-venv-stamp"
 }
@@ -145,7 +146,23 @@ ambid_build_ws() {
         ambid_die "colcon build of ros_ws failed (last lines below; full log $log). Fix the package named there, then run './launch_scripts/ambid setup' again.
 $(grep -iE 'error|failed' "$log" | tail -n 12)"
     fi
+    ambid_build_target_c
     printf '%s\n' "$want" >"$stamp"
+}
+
+ambid_build_target_c() {
+    # the C reference target (docs/target_c.md): the UDP example program and the protocol core as a
+    # shared library (the golden-datagram tests load it with ctypes); strict C99, warnings are errors
+    local src="$AMBID_ROOT/ambid_nodes/target_c" out="$AMBID_WS/install/target_c" log="$AMBID_WS/target_c-build.log"
+    local -a flags=(-std=c99 -O2 -Wall -Wextra -Wpedantic -Werror)
+    command -v "${CC:-gcc}" >/dev/null 2>&1 || ambid_die "no C compiler (${CC:-gcc}) found; install gcc (e.g. 'apt-get install gcc'), then run './launch_scripts/ambid setup' again."
+    mkdir -p "$out"
+    if ! { "${CC:-gcc}" "${flags[@]}" -o "$out/ambp_udp_target" "$src/ambp.c" "$src/ambp_udp_target.c" -lm &&
+        "${CC:-gcc}" "${flags[@]}" -fPIC -shared -o "$out/libambp.so" "$src/ambp.c" -lm; } >"$log" 2>&1; then
+        rm -rf "$out"
+        ambid_die "the C reference target did not compile (last lines below; full log $log). Fix the source named there, then run './launch_scripts/ambid setup' again.
+$(tail -n 12 "$log")"
+    fi
 }
 
 ambid_activate() {

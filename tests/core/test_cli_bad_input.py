@@ -100,6 +100,7 @@ RIG_COMMANDS = {
     "design": lambda rig, d: ["design", "--rig", rig, "--out", str(d / "design_out"), "--no-figure"],
     "compare": lambda rig, d: ["compare", "--rig", rig, "--out", str(d / "compare_out")],
     "fit": None,  # filled in the test: it needs the good session
+    "target-model": lambda rig, d: ["target-model", "--rig", rig, "--out", str(d / "target-model_out")],
 }
 RIG_REFUSAL = {"missing": "does not exist", "folder": "is a folder", "empty": "is empty", "random": "is not text",
                "truncated": "is not text", "unrelated": "is not text"}
@@ -131,6 +132,7 @@ OPTION_VALUES = [  # argv, the option the error names
     (["graph", "--sim-seconds", "-1"], "--sim-seconds"),
     (["graph", "--controller", "bogus"], "--controller"),
     (["graph", "--hardware", "nonsense"], "--hardware"),
+    (["identify", "--hardware", "nonsense"], "--hardware"),
     (["compare", "--preset", "huge"], "--preset"),
     (["bench", "--repeats", "0"], "--repeats"),
 ]
@@ -157,6 +159,11 @@ RANGE_REFUSALS = [  # values argparse cannot judge alone: the command's one line
     (["compare", "--out", "{good}"], "--out"),
     (["bench", "--json", "{dir}/no_such_folder/b.json"], "--json"),
     (["bench", "--json", "{dir}"], "--json"),
+    (["target-model", "--out", "{dir}"], "--out"),
+    (["identify", "--true-model", "{good}"], "--true-model needs --hardware"),
+    (["identify", "--hardware", "127.0.0.1:9", "--true-model", "{good}"], "--true-model"),
+    (["identify", "--hardware", "127.0.0.1:9", "--true-model", "{dir}"], "--true-model"),
+    (["target-model", "--out", "{dir}/no_such_folder/m.txt"], "--out"),
 ]
 
 

@@ -284,7 +284,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
                      order_penalty: float = 2.0, update: bool = True,
                      update_start: Mapping[str, float] | None = None,
                      update_free: Sequence[str] | None = None, report: bool = True,
-                     recover: bool = False) -> dict:
+                     recover: bool = False, true_model: StateSpace | None = None) -> dict:
     """Identify the rig from one experiment of a recorded session (module docstring).
 
     Args:
@@ -308,6 +308,10 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
             fit shows one), delay.
         report: write the HTML report.
         recover: read a session file a killed recorder left.
+        true_model: the plant the session measured, u [A] -> y [m], when it is
+            known from elsewhere (a hardware session against the C reference
+            target, whose model file says what it runs): the FRF error and the
+            modes are compared with it, as with a simulated session's true rig.
 
     Returns:
         JSON-safe summary dict (also written to ``identification.json``):
@@ -402,6 +406,13 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         modes_vs_true = compare_modes(physical or [(m.freq_hz, m.damping) for m in modes],
                                       true_modes(true_linear_model(true_rig).poles(), band),
                                       design.fs_hz / design.n_per_period)
+    if true_model is not None:  # given: it is the truth, whatever the session's source
+        true_g = true_model.freqresp(f)
+        z = true_model.poles()
+        s_poles = np.log(z[np.abs(z) > 0]) / true_model.dt if true_model.dt > 0 else true_model.poles()
+        physical = [(m.freq_hz, m.damping) for m, row in zip(modes, mode_rows) if row["stable"] and m.damping > 0]
+        modes_vs_true = compare_modes(physical or [(m.freq_hz, m.damping) for m in modes], true_modes(s_poles, band),
+                                      design.fs_hz / design.n_per_period)
     elif the_rig is not None and not simulated:
         notes.append("not a simulated session: no true model to compare with")
     upd: PhysicalUpdate | None = None
@@ -417,7 +428,8 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     if true_g is not None:
         e_meas = frf_relative_error(frf.frf, true_g)
         e_fit = frf_relative_error(fit.model.freqresp(f), true_g)
-        frf_error = dict(reference="true rig, small-signal model sampled with zero-order hold",
+        frf_error = dict(reference="the given plant model" if true_model is not None else
+                         "true rig, small-signal model sampled with zero-order hold",
                          median=float(np.median(e_meas)), worst=float(np.max(e_meas)),
                          worst_at_hz=float(f[np.argmax(e_meas)]), fitted_median=float(np.median(e_fit)),
                          fitted_worst=float(np.max(e_fit)))

@@ -82,6 +82,9 @@ def run_on_hardware(args: argparse.Namespace) -> int:
     print(f"samples published per wall second: {f['samples_per_wall_s']:.0f} ({f['samples_published']} samples)")
     print(f"target state {f['target_state']}; lost {f['missing_samples']} samples in {f['gaps']} gaps, "
           f"{f['datagrams_malformed']} malformed and {f['datagrams_foreign']} foreign datagrams")
+    print(f"displacement RMS: {f['displacement_rms_m'] * 1e6:.3f} um (max {f['max_abs_displacement_m'] * 1e6:.2f} um "
+          f"over the second half, {f['contact_samples']} samples landed)")
     ok = f["samples_published"] > 0 and not f["silent"] and f["target_state"] != "safe"
     print("target running normally" if ok else "target NOT running normally")
-    return 0 if ok else 1
+    print("rotor levitated" if f["levitated"] else "rotor NOT levitated")
+    return 0 if ok and f["levitated"] else 1

@@ -9,8 +9,8 @@ from pathlib import Path
 
 from ambid.control.kinds import describe_kinds
 
-from ambid_nodes.commands.inputs import (check_band, checked_controller, controller, count, output_dir, positive_float,
-                                        positive_int, rig_file)
+from ambid_nodes.commands.inputs import (BadInput, address, check_band, checked_controller, controller, count,
+                                        output_dir, positive_float, positive_int, rig_file)
 
 HELP = "identify the simulated rig end to end (graph, experiment, recording, FRF, fit, report)"
 
@@ -41,6 +41,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    choices=["indirect", "h1", "h2", "arithmetic_mean", "log_mean", "eiv"])
     p.add_argument("--seed", type=int, default=1, help="seed of the noise and the random phases (default 1)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--hardware", metavar="HOST:PORT", type=address,
+                   help="identify a real-time target over the UDP bridge instead of the simulated rig (the target "
+                        "runs plant and controller, e.g. the C reference target; see docs/bridge_protocol.md)")
+    p.add_argument("--local-port", type=count, default=0, help="with --hardware: local UDP port (default: any)")
+    p.add_argument("--true-model", default="", metavar="FILE",
+                   help="with --hardware: the model file the C reference target runs ('ambid target-model'); "
+                        "the FRF error and modes are compared with it")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -50,12 +57,22 @@ def run(args: argparse.Namespace) -> int:
     output_dir(args.out)
     rig = rig_file(args.rig)  # a bad rig file stops here, before any node starts
     checked_controller(args.controller, rig)  # and an unknown or unstable controller
+    if args.true_model:
+        if not args.hardware:
+            raise BadInput("--true-model needs --hardware: a simulated session is compared with its own true rig")
+        from ambid.hardware.target_model import read_target_model
+
+        try:
+            read_target_model(args.true_model)
+        except (OSError, ValueError, IndexError) as exc:
+            raise BadInput(f"--true-model {args.true_model}: {exc}; give the file 'ambid target-model' wrote")
     cfg = SessionConfig(out_dir=args.out, kind=args.kind, band_hz=tuple(args.band), resolution_hz=args.resolution,
                         peak_current_a=args.peak_current, periods=args.periods, realisations=args.realisations,
                         transient_periods=args.transient_periods, grid=args.grid, mimo=args.mimo, phases=args.phases,
                         seed=args.seed,
                         rig_file=args.rig, controller=args.controller, nonlinear_magnets=not args.linear_magnets,
-                        estimator=args.estimator,
+                        estimator=args.estimator, hardware=args.hardware or "", local_port=args.local_port,
+                        true_model=args.true_model,
                         progress=not args.no_progress and sys.stderr.isatty())
     try:
         summary = run_identify(cfg)

@@ -1,0 +1,462 @@
+/* ambp: the target side of the ambid bridge protocol, version 1. See ambp.h and docs/bridge_protocol.md.
+ * C99, no heap, no OS calls; byte order written explicitly, so it runs on big-endian targets too. */
+#include "ambp.h"
+
+#include <math.h>
+#include <string.h>
+
+/* ---- little-endian fields ------------------------------------------------------------------- */
+static void put16(uint8_t *p, uint16_t v) { p[0] = (uint8_t)v; p[1] = (uint8_t)(v >> 8); }
+static void put32(uint8_t *p, uint32_t v) { for (int i = 0; i < 4; i++) p[i] = (uint8_t)(v >> (8 * i)); }
+static void put64(uint8_t *p, uint64_t v) { for (int i = 0; i < 8; i++) p[i] = (uint8_t)(v >> (8 * i)); }
+static uint16_t get16(const uint8_t *p) { return (uint16_t)(p[0] | (p[1] << 8)); }
+static uint32_t get32(const uint8_t *p) {
+    return (uint32_t)p[0] | ((uint32_t)p[1] << 8) | ((uint32_t)p[2] << 16) | ((uint32_t)p[3] << 24);
+}
+static uint64_t get64(const uint8_t *p) { return (uint64_t)get32(p) | ((uint64_t)get32(p + 4) << 32); }
+static void put_f64(uint8_t *p, double v) { uint64_t u; memcpy(&u, &v, 8); put64(p, u); }
+static void put_f32(uint8_t *p, double v) { float f = (float)v; uint32_t u; memcpy(&u, &f, 4); put32(p, u); }
+static double get_f64(const uint8_t *p) { uint64_t u = get64(p); double v; memcpy(&v, &u, 8); return v; }
+static double get_f32(const uint8_t *p) { uint32_t u = get32(p); float f; memcpy(&f, &u, 4); return (double)f; }
+
+/* ---- CRC-32 (IEEE 802.3, reflected 0xEDB88320, as zlib.crc32), a 16-entry table: small and fast enough */
+static const uint32_t crc_nibble[16] = {
+    0x00000000u, 0x1DB71064u, 0x3B6E20C8u, 0x26D930ACu, 0x76DC4190u, 0x6B6B51F4u, 0x4DB26158u, 0x5005713Cu,
+    0xEDB88320u, 0xF00F9344u, 0xD6D6A3E8u, 0xCB61B38Cu, 0x9B64C2B0u, 0x86D3D2D4u, 0xA00AE278u, 0xBDBDF21Cu};
+
+uint32_t ambp_crc32(const uint8_t *data, size_t n) {
+    uint32_t c = 0xFFFFFFFFu;
+    for (size_t i = 0; i < n; i++) {
+        c ^= data[i];
+        c = (c >> 4) ^ crc_nibble[c & 15u];
+        c = (c >> 4) ^ crc_nibble[c & 15u];
+    }
+    return c ^ 0xFFFFFFFFu;
+}
+
+static const char *const reason_names[AMBP_N_REASONS] = {"ok", "oversized", "length", "magic", "version",
+                                                         "crc", "kind", "content", "foreign"};
+
+const char *ambp_reason_name(int reason) {
+    return (reason >= 0 && reason < AMBP_N_REASONS) ? reason_names[reason] : "unknown";
+}
+
+/* ---- codec ----------------------------------------------------------------------------------- */
+static unsigned block_channels(int kind) { return kind == AMBP_MEASUREMENT ? 16u : 4u; }
+static unsigned block_channel_set(int kind) { return kind == AMBP_MEASUREMENT ? 1u : 2u; }
+
+static size_t payload_size(const ambp_message *m) {
+    switch (m->kind) {
+    case AMBP_MEASUREMENT:
+    case AMBP_EXCITATION: {
+        size_t per = (size_t)block_channels(m->kind) * m->value_bytes + (m->kind == AMBP_MEASUREMENT ? 1u : 0u);
+        return AMBP_BLOCK_HEADER_BYTES + (size_t)m->n_samples * per;
+    }
+    case AMBP_HEARTBEAT: return 56;
+    case AMBP_COMMAND: return 32;
+    case AMBP_ACK: return 16;
+    default: return 0;
+    }
+}
+
+size_t ambp_encode(const ambp_message *m, uint8_t version, uint8_t *out, size_t cap) {
+    size_t pl = payload_size(m);
+    if (pl == 0) return 0;
+    int block = m->kind == AMBP_MEASUREMENT || m->kind == AMBP_EXCITATION;
+    if (block) {
+        size_t nv = (size_t)m->n_samples * block_channels(m->kind);
+        if ((m->value_bytes != 8 && m->value_bytes != 4) || m->n_samples == 0 || nv > AMBP_MAX_VALUES ||
+            (m->kind == AMBP_MEASUREMENT && m->n_samples > AMBP_MAX_MEAS_SAMPLES))
+            return 0;
+        for (size_t i = 0; i < nv; i++)
+            if (!isfinite(m->data[i])) return 0;
+    }
+    size_t size = AMBP_OVERHEAD_BYTES + pl;
+    if (size > AMBP_MAX_DATAGRAM || size > cap) return 0;
+    memcpy(out, "AMBP", 4);
+    out[4] = version;
+    out[5] = m->kind;
+    put16(out + 6, 0);
+    put32(out + 8, m->sequence);
+    put16(out + 12, (uint16_t)pl);
+    put16(out + 14, 0);
+    uint8_t *p = out + AMBP_HEADER_BYTES;
+    memset(p, 0, pl);
+    switch (m->kind) {
+    case AMBP_MEASUREMENT:
+    case AMBP_EXCITATION: {
+        unsigned nch = block_channels(m->kind);
+        put64(p, m->first_index);
+        put16(p + 8, m->n_samples);
+        put16(p + 10, (uint16_t)nch);
+        put16(p + 12, (uint16_t)block_channel_set(m->kind));
+        p[14] = m->value_bytes;
+        size_t nv = (size_t)m->n_samples * nch;
+        uint8_t *v = p + AMBP_BLOCK_HEADER_BYTES;
+        for (size_t i = 0; i < nv; i++) {
+            if (m->value_bytes == 8) put_f64(v + 8 * i, m->data[i]);
+            else put_f32(v + 4 * i, m->data[i]);
+        }
+        if (m->kind == AMBP_MEASUREMENT) memcpy(v + nv * m->value_bytes, m->sample_flags, m->n_samples);
+        break;
+    }
+    case AMBP_HEARTBEAT:
+        p[0] = m->state; p[1] = m->safe_reason; p[2] = m->clock_running ? 1 : 0;
+        put32(p + 4, m->sample_rate_hz);
+        put64(p + 8, m->sample_index); put64(p + 16, m->sent_end); put64(p + 24, m->excitation_next);
+        put32(p + 32, m->next_measurement_sequence); put32(p + 36, m->rx_datagrams);
+        put32(p + 40, m->rx_rejected); put32(p + 44, m->late_excitation_samples); put32(p + 48, m->overruns);
+        break;
+    case AMBP_COMMAND:
+        put32(p, m->command_id); p[4] = m->code;
+        put64(p + 8, m->arg0); put64(p + 16, m->arg1); put32(p + 24, m->arg2);
+        break;
+    case AMBP_ACK:
+        put32(p, m->command_id); p[4] = m->code; p[5] = m->result; p[6] = m->state;
+        put64(p + 8, m->sample_index);
+        break;
+    }
+    put32(out + AMBP_HEADER_BYTES + pl, ambp_crc32(out, AMBP_HEADER_BYTES + pl));
+    return size;
+}
+
+static int decode_block(const uint8_t *p, size_t pl, ambp_message *m) {
+    if (pl < AMBP_BLOCK_HEADER_BYTES) return AMBP_E_LENGTH;
+    uint64_t first = get64(p);
+    uint16_t n = get16(p + 8), nch = get16(p + 10), set = get16(p + 12);
+    uint8_t vb = p[14];
+    if (set != block_channel_set(m->kind) || nch != block_channels(m->kind)) return AMBP_E_CONTENT;
+    if (vb != 8 && vb != 4) return AMBP_E_CONTENT;
+    if (n < 1) return AMBP_E_CONTENT;
+    size_t n_flags = m->kind == AMBP_MEASUREMENT ? n : 0;
+    size_t want = AMBP_BLOCK_HEADER_BYTES + (size_t)n * nch * vb + n_flags;
+    if (pl != want) return AMBP_E_LENGTH;
+    /* a datagram within 1472 bytes cannot hold more values than the arrays take */
+    size_t nv = (size_t)n * nch;
+    const uint8_t *v = p + AMBP_BLOCK_HEADER_BYTES;
+    for (size_t i = 0; i < nv; i++) {
+        double x = vb == 8 ? get_f64(v + 8 * i) : get_f32(v + 4 * i);
+        if (!isfinite(x)) return AMBP_E_CONTENT;
+        m->data[i] = x;
+    }
+    if (n_flags) memcpy(m->sample_flags, v + nv * vb, n_flags);
+    m->first_index = first;
+    m->n_samples = n;
+    m->value_bytes = vb;
+    return AMBP_OK;
+}
+
+int ambp_decode(const uint8_t *d, size_t n, uint8_t version, ambp_message *m) {
+    if (n > AMBP_MAX_DATAGRAM) return AMBP_E_OVERSIZED;
+    if (n < AMBP_OVERHEAD_BYTES) return AMBP_E_LENGTH;
+    if (memcmp(d, "AMBP", 4) != 0) return AMBP_E_MAGIC;
+    if (d[4] != version) return AMBP_E_VERSION;
+    if (ambp_crc32(d, n - 4) != get32(d + n - 4)) return AMBP_E_CRC;
+    size_t pl = get16(d + 12);
+    if (pl != n - AMBP_OVERHEAD_BYTES) return AMBP_E_LENGTH;
+    uint8_t kind = d[5];
+    if (kind < AMBP_MEASUREMENT || kind > AMBP_ACK) return AMBP_E_KIND;
+    const uint8_t *p = d + AMBP_HEADER_BYTES;
+    m->kind = kind;
+    m->sequence = get32(d + 8);
+    switch (kind) {
+    case AMBP_MEASUREMENT:
+    case AMBP_EXCITATION: return decode_block(p, pl, m);
+    case AMBP_HEARTBEAT:
+        if (pl != 56) return AMBP_E_LENGTH;
+        m->state = p[0]; m->safe_reason = p[1]; m->clock_running = p[2] != 0;
+        m->sample_rate_hz = get32(p + 4);
+        m->sample_index = get64(p + 8); m->sent_end = get64(p + 16); m->excitation_next = get64(p + 24);
+        m->next_measurement_sequence = get32(p + 32); m->rx_datagrams = get32(p + 36);
+        m->rx_rejected = get32(p + 40); m->late_excitation_samples = get32(p + 44); m->overruns = get32(p + 48);
+        return AMBP_OK;
+    case AMBP_COMMAND:
+        if (pl != 32) return AMBP_E_LENGTH;
+        m->command_id = get32(p); m->code = p[4];
+        m->arg0 = get64(p + 8); m->arg1 = get64(p + 16); m->arg2 = get32(p + 24);
+        return AMBP_OK;
+    default: /* AMBP_ACK */
+        if (pl != 16) return AMBP_E_LENGTH;
+        m->command_id = get32(p); m->code = p[4]; m->result = p[5]; m->state = p[6];
+        m->sample_index = get64(p + 8);
+        return AMBP_OK;
+    }
+}
+
+/* ---- the target ------------------------------------------------------------------------------- */
+void ambp_default_config(ambp_config *cfg, uint32_t sample_rate_hz) {
+    memset(cfg, 0, sizeof *cfg);
+    cfg->version = AMBP_VERSION;
+    cfg->value_bytes = 8;
+    cfg->block = 10;
+    cfg->sample_rate_hz = sample_rate_hz;
+    cfg->heartbeat_ns = 50000000u;
+    cfg->bridge_timeout_ns = 500000000u;
+    cfg->safe_samples = (uint64_t)sample_rate_hz / 5u; /* 0.2 s */
+}
+
+int ambp_target_init(ambp_target *t, const ambp_config *cfg, ambp_exc_slot *storage, uint32_t capacity,
+                     uint64_t now_ns) {
+    unsigned most = (AMBP_MAX_DATAGRAM - AMBP_OVERHEAD_BYTES - AMBP_BLOCK_HEADER_BYTES) /
+                    (16u * (cfg->value_bytes ? cfg->value_bytes : 8u) + 1u);
+    if ((cfg->value_bytes != 8 && cfg->value_bytes != 4) || cfg->block < 1 || cfg->block > most ||
+        cfg->sample_rate_hz == 0 || cfg->heartbeat_ns == 0 || storage == NULL || capacity == 0)
+        return -1;
+    memset(t, 0, sizeof *t);
+    t->cfg = *cfg;
+    t->exc = storage;
+    t->exc_capacity = capacity;
+    for (uint32_t i = 0; i < capacity; i++) storage[i].index = AMBP_NO_INDEX;
+    t->state = AMBP_IDLE;
+    t->next_hb_ns = now_ns; /* the first poll announces the target */
+    return 0;
+}
+
+static void push_out(ambp_target *t, ambp_message *m) {
+    m->sequence = t->seq[m->kind]++;
+    if (t->out_count == AMBP_OUTBOX) { /* the caller did not drain: the oldest goes (counted) */
+        t->out_head = (t->out_head + 1) % AMBP_OUTBOX;
+        t->out_count--;
+        t->tx_dropped++;
+    }
+    uint32_t slot = (t->out_head + t->out_count) % AMBP_OUTBOX;
+    size_t n = ambp_encode(m, t->cfg.version, t->out[slot], AMBP_MAX_DATAGRAM);
+    if (n == 0) { t->tx_dropped++; return; }
+    t->out_len[slot] = (uint16_t)n;
+    t->out_count++;
+}
+
+int ambp_target_tx(ambp_target *t, const uint8_t **data, size_t *len) {
+    if (t->out_count == 0) return 0;
+    *data = t->out[t->out_head];
+    *len = t->out_len[t->out_head];
+    t->out_head = (t->out_head + 1) % AMBP_OUTBOX;
+    t->out_count--;
+    return 1;
+}
+
+uint32_t ambp_target_rx_rejected(const ambp_target *t) {
+    uint32_t s = 0;
+    for (int i = 1; i < AMBP_N_REASONS; i++) s += t->rx_rejected_by_reason[i];
+    return s;
+}
+
+static int have_excitation(const ambp_target *t, uint64_t i) {
+    return t->exc[i % t->exc_capacity].index == i;
+}
+
+uint64_t ambp_target_excitation_next(const ambp_target *t) {
+    uint64_t best = AMBP_NO_INDEX, window_end = t->k + t->exc_capacity;
+    for (unsigned s = 0; s < AMBP_MAX_EXPERIMENTS; s++) {
+        if (!t->range_used[s]) continue;
+        uint64_t i = t->range_start[s] > t->k ? t->range_start[s] : t->k;
+        uint64_t end = t->range_end[s] < window_end ? t->range_end[s] : window_end;
+        for (; i < end && i < best; i++)
+            if (!have_excitation(t, i)) { best = i; break; }
+    }
+    return best;
+}
+
+static void heartbeat(ambp_target *t, uint64_t now_ns) {
+    ambp_message *m = &t->scratch;
+    memset(m, 0, offsetof(ambp_message, data));
+    m->kind = AMBP_HEARTBEAT;
+    m->state = t->state;
+    m->safe_reason = t->safe_reason;
+    m->clock_running = t->clock_running;
+    m->sample_rate_hz = t->cfg.sample_rate_hz;
+    m->sample_index = t->k;
+    m->sent_end = t->sent_end;
+    m->excitation_next = ambp_target_excitation_next(t);
+    m->next_measurement_sequence = t->seq[AMBP_MEASUREMENT];
+    m->rx_datagrams = t->rx;
+    m->rx_rejected = ambp_target_rx_rejected(t);
+    m->late_excitation_samples = t->late_excitation;
+    m->overruns = t->overruns;
+    push_out(t, m);
+    t->next_hb_ns = now_ns + t->cfg.heartbeat_ns;
+}
+
+static void send_block(ambp_target *t) {
+    if (t->n_rows == 0) return;
+    ambp_message *m = &t->scratch;
+    m->kind = AMBP_MEASUREMENT;
+    m->value_bytes = t->cfg.value_bytes;
+    m->n_samples = t->n_rows;
+    m->first_index = t->k - t->n_rows;
+    memcpy(m->data, t->rows, sizeof(double) * 16u * t->n_rows);
+    memcpy(m->sample_flags, t->row_flags, t->n_rows);
+    push_out(t, m);
+    t->sent_end = t->k;
+    t->n_rows = 0;
+}
+
+static void halt(ambp_target *t, uint8_t state, uint64_t now_ns) {
+    send_block(t);
+    t->state = state;
+    t->clock_running = 0;
+    heartbeat(t, now_ns);
+}
+
+static void enter_safe(ambp_target *t, uint8_t reason, uint64_t now_ns) {
+    int was_running = t->state == AMBP_RUNNING;
+    t->state = AMBP_SAFE;
+    t->safe_reason = reason;
+    t->safe_left = was_running ? t->cfg.safe_samples : 0;
+    if (t->safe_left == 0) halt(t, AMBP_SAFE, now_ns);
+    else heartbeat(t, now_ns); /* every state change is announced */
+}
+
+static void add_excitation(ambp_target *t, const ambp_message *m) {
+    uint64_t first = m->first_index, n = m->n_samples;
+    if (first + n <= t->k || first < t->k) t->excitation_late_datagrams++; /* (a part) already past: cut */
+    for (uint64_t j = 0; j < n; j++) {
+        uint64_t i = first + j;
+        if (i < t->k) continue;
+        if (i - t->k >= t->exc_capacity) { /* beyond the queue: asked for again via excitation_next */
+            t->excitation_beyond_queue++;
+            continue;
+        }
+        ambp_exc_slot *s = &t->exc[i % t->exc_capacity];
+        s->index = i;
+        memcpy(s->r, &m->data[4 * j], sizeof s->r);
+    }
+}
+
+static uint8_t execute(ambp_target *t, const ambp_message *c, uint64_t now_ns) {
+    switch (c->code) {
+    case AMBP_CMD_START:
+        if (t->state == AMBP_RUNNING) return AMBP_ACK_OK;
+        if (t->state != AMBP_IDLE) return AMBP_ACK_REFUSED;
+        t->state = AMBP_RUNNING;
+        t->clock_running = 1;
+        return AMBP_ACK_OK;
+    case AMBP_CMD_SAFE_STATE:
+        if (t->state == AMBP_RUNNING || t->state == AMBP_IDLE) enter_safe(t, AMBP_SAFE_COMMANDED, now_ns);
+        return AMBP_ACK_OK;
+    case AMBP_CMD_STOP:
+        if (t->state != AMBP_DONE) halt(t, AMBP_DONE, now_ns);
+        t->stop_requested = 1;
+        return AMBP_ACK_OK;
+    case AMBP_CMD_EXPERIMENT: {
+        int at = -1, free_slot = -1;
+        for (unsigned s = 0; s < AMBP_MAX_EXPERIMENTS; s++) {
+            if (t->range_used[s] && t->range_slot[s] == c->arg2) at = (int)s;
+            if (!t->range_used[s] && free_slot < 0) free_slot = (int)s;
+        }
+        if (c->arg1 == 0) {
+            if (at >= 0) t->range_used[at] = 0;
+            return AMBP_ACK_OK;
+        }
+        if (c->arg1 >= AMBP_NO_INDEX - c->arg0) return AMBP_ACK_BAD_ARGUMENT;
+        if (at < 0) at = free_slot;
+        if (at < 0) return AMBP_ACK_REFUSED; /* AMBP_MAX_EXPERIMENTS announced and not cancelled */
+        t->range_used[at] = 1;
+        t->range_slot[at] = c->arg2;
+        t->range_start[at] = c->arg0;
+        t->range_end[at] = c->arg0 + c->arg1;
+        return AMBP_ACK_OK;
+    }
+    default: return AMBP_ACK_BAD_ARGUMENT;
+    }
+}
+
+static void command(ambp_target *t, uint64_t now_ns) {
+    ambp_message *m = &t->scratch;
+    uint32_t id = m->command_id;
+    uint8_t code = m->code, result = 0;
+    int known = 0;
+    for (unsigned i = 0; i < AMBP_ACK_MEMORY; i++)
+        if (t->ack_used[i] && t->ack_id[i] == id) { result = t->ack_result[i]; known = 1; break; }
+    if (!known) {
+        ambp_message c = *m; /* execute may send (and so reuse the scratch message) */
+        result = execute(t, &c, now_ns);
+        unsigned slot = t->ack_next++ % AMBP_ACK_MEMORY;
+        t->ack_used[slot] = 1;
+        t->ack_id[slot] = id;
+        t->ack_result[slot] = result;
+    }
+    memset(m, 0, offsetof(ambp_message, data));
+    m->kind = AMBP_ACK;
+    m->command_id = id;
+    m->code = code;
+    m->result = result;
+    m->state = t->state;
+    m->sample_index = t->k;
+    push_out(t, m);
+    heartbeat(t, now_ns);
+}
+
+int ambp_target_receive(ambp_target *t, const uint8_t *d, size_t n, int from_bridge, uint64_t now_ns) {
+    if (!from_bridge) {
+        t->rx_rejected_by_reason[AMBP_E_FOREIGN]++;
+        return AMBP_E_FOREIGN;
+    }
+    int why = ambp_decode(d, n, t->cfg.version, &t->scratch);
+    if (why != AMBP_OK) {
+        t->rx_rejected_by_reason[why]++;
+        return why;
+    }
+    t->rx++;
+    t->heard = 1;
+    t->last_rx_ns = now_ns;
+    switch (t->scratch.kind) {
+    case AMBP_EXCITATION: add_excitation(t, &t->scratch); break;
+    case AMBP_COMMAND: command(t, now_ns); break;
+    case AMBP_HEARTBEAT: break;
+    default: /* MEASUREMENT or ACK never go to a target */
+        t->rx_unexpected_kind++;
+        t->rx_rejected_by_reason[AMBP_E_KIND]++;
+        break;
+    }
+    return AMBP_OK;
+}
+
+void ambp_target_poll(ambp_target *t, uint64_t now_ns) {
+    if (t->state == AMBP_RUNNING && t->heard && now_ns - t->last_rx_ns > t->cfg.bridge_timeout_ns)
+        enter_safe(t, AMBP_SAFE_BRIDGE_SILENT, now_ns);
+    if (now_ns >= t->next_hb_ns) heartbeat(t, now_ns);
+}
+
+void ambp_target_count_overrun(ambp_target *t) { t->overruns++; }
+
+static int announced(const ambp_target *t, uint64_t k) {
+    for (unsigned s = 0; s < AMBP_MAX_EXPERIMENTS; s++)
+        if (t->range_used[s] && t->range_start[s] <= k && k < t->range_end[s]) return 1;
+    return 0;
+}
+
+int ambp_target_sample_begin(ambp_target *t, double r[4], uint8_t *flags) {
+    *flags = 0;
+    r[0] = r[1] = r[2] = r[3] = 0.0;
+    if (!t->clock_running) return AMBP_SAMPLE_STOPPED;
+    if (t->state == AMBP_SAFE) {
+        *flags = AMBP_FLAG_SAFE_STATE;
+        return AMBP_SAMPLE_SAFE;
+    }
+    const ambp_exc_slot *s = &t->exc[t->k % t->exc_capacity];
+    if (s->index == t->k) {
+        memcpy(r, s->r, sizeof s->r);
+    } else if (announced(t, t->k)) {
+        if (t->cfg.hold_for_excitation) return AMBP_SAMPLE_HOLD;
+        *flags = AMBP_FLAG_EXCITATION_LATE; /* a real-time loop cannot wait: r = 0, counted */
+        t->late_excitation++;
+    }
+    return AMBP_SAMPLE_CONTROL;
+}
+
+void ambp_target_sample_end(ambp_target *t, const double y[4], const double u[4], const double ic[4],
+                            const double r[4], uint8_t flags, uint64_t now_ns) {
+    double *row = &t->rows[16u * t->n_rows];
+    memcpy(row, y, 4 * sizeof(double));
+    memcpy(row + 4, u, 4 * sizeof(double));
+    memcpy(row + 8, ic, 4 * sizeof(double));
+    memcpy(row + 12, r, 4 * sizeof(double));
+    t->row_flags[t->n_rows++] = flags;
+    t->exc[t->k % t->exc_capacity].index = AMBP_NO_INDEX; /* applied: the slot is free for k + capacity */
+    t->k++;
+    if (t->state == AMBP_SAFE && t->safe_left > 0) t->safe_left--;
+    if (t->n_rows == t->cfg.block) send_block(t);
+    if (t->cfg.max_samples && t->k >= t->cfg.max_samples) halt(t, AMBP_DONE, now_ns);
+    else if (t->state == AMBP_SAFE && t->safe_left == 0) halt(t, AMBP_SAFE, now_ns);
+}

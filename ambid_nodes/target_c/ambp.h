@@ -1,0 +1,178 @@
+/* ambp: the target side of the ambid bridge protocol, version 1 (docs/bridge_protocol.md), in C99.
+ *
+ * Portable core: no heap, no OS calls, no globals that change. The caller owns every byte: one
+ * ambp_target struct of state, the excitation queue's storage, and the clock (monotonic
+ * nanoseconds passed in). It fits a Simulink S-function, a Speedgoat model or a microcontroller;
+ * the POSIX UDP program ambp_udp_target.c is one caller. See docs/target_c.md.
+ *
+ * A caller's loop, per sample k:
+ *     ambp_target_receive()  for each datagram that arrived (from_bridge: its source is the bridge)
+ *     ambp_target_poll()     heartbeat due? bridge silent?
+ *     ambp_target_sample_begin() -> r[k] and the flags; run the controller (or not, in the safe state)
+ *     ambp_target_sample_end()   with y, u, ic, r of sample k
+ *     while (ambp_target_tx()) send the datagram to the bridge
+ */
+#ifndef AMBP_H
+#define AMBP_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define AMBP_VERSION 1u
+#define AMBP_MAX_DATAGRAM 1472u       /* 1500-byte MTU minus IPv4 and UDP headers */
+#define AMBP_HEADER_BYTES 16u
+#define AMBP_OVERHEAD_BYTES 20u       /* header + CRC-32 trailer */
+#define AMBP_BLOCK_HEADER_BYTES 16u
+#define AMBP_NO_INDEX UINT64_MAX
+#define AMBP_MAX_MEAS_SAMPLES 22u     /* float32; 11 at float64 */
+#define AMBP_MAX_VALUES 356u          /* most sample values one block datagram carries (89 float32 excitation rows) */
+#define AMBP_MAX_EXPERIMENTS 16u      /* announced ranges held at once */
+#define AMBP_ACK_MEMORY 64u           /* command ids remembered, so a repeated command gets its first answer */
+#define AMBP_OUTBOX 8u                /* datagrams waiting for ambp_target_tx */
+
+enum ambp_kind { AMBP_MEASUREMENT = 1, AMBP_EXCITATION = 2, AMBP_HEARTBEAT = 3, AMBP_COMMAND = 4, AMBP_ACK = 5 };
+enum ambp_state { AMBP_IDLE = 0, AMBP_RUNNING = 1, AMBP_SAFE = 2, AMBP_DONE = 3 };
+enum ambp_safe_reason { AMBP_SAFE_NONE = 0, AMBP_SAFE_COMMANDED = 1, AMBP_SAFE_BRIDGE_SILENT = 2 };
+enum ambp_command_code { AMBP_CMD_START = 1, AMBP_CMD_STOP = 2, AMBP_CMD_SAFE_STATE = 3, AMBP_CMD_EXPERIMENT = 4 };
+enum ambp_ack_result { AMBP_ACK_OK = 0, AMBP_ACK_REFUSED = 1, AMBP_ACK_BAD_ARGUMENT = 2 };
+enum ambp_sample_flag {
+    AMBP_FLAG_CLIPPED = 1, AMBP_FLAG_LANDED = 2, AMBP_FLAG_SAFE_STATE = 8, AMBP_FLAG_EXCITATION_LATE = 16
+};
+/* why a datagram was refused (0: accepted), in the protocol's order of checks */
+enum ambp_reason {
+    AMBP_OK = 0, AMBP_E_OVERSIZED, AMBP_E_LENGTH, AMBP_E_MAGIC, AMBP_E_VERSION, AMBP_E_CRC, AMBP_E_KIND,
+    AMBP_E_CONTENT, AMBP_E_FOREIGN, AMBP_N_REASONS
+};
+/* what the caller does with sample k (ambp_target_sample_begin) */
+enum ambp_sample_action {
+    AMBP_SAMPLE_STOPPED = 0, /* the clock does not run: no sample */
+    AMBP_SAMPLE_CONTROL = 1, /* run the controller, apply u = ic + r */
+    AMBP_SAMPLE_SAFE = 2,    /* safe state: ic = r = u = 0, the controller is not applied */
+    AMBP_SAMPLE_HOLD = 3     /* hold_for_excitation: r[k] has not arrived; try again later, no sample */
+};
+
+/* One decoded (or to be encoded) datagram; the fields of its kind are used, the rest ignored. */
+typedef struct {
+    uint8_t kind;                      /* enum ambp_kind */
+    uint8_t value_bytes;               /* block kinds: 8 (float64) or 4 (float32) */
+    uint16_t n_samples;                /* block kinds */
+    uint32_t sequence;
+    uint64_t first_index;              /* block kinds */
+    /* HEARTBEAT; ACK uses state and sample_index too */
+    uint8_t state, safe_reason, clock_running, reserved0;
+    uint32_t sample_rate_hz;
+    uint64_t sample_index, sent_end, excitation_next;
+    uint32_t next_measurement_sequence, rx_datagrams, rx_rejected, late_excitation_samples, overruns;
+    /* COMMAND and ACK */
+    uint32_t command_id;
+    uint8_t code, result, reserved1, reserved2;
+    uint64_t arg0, arg1;
+    uint32_t arg2, reserved3;
+    /* block data, row-major n_samples x channels (16 MEASUREMENT, 4 EXCITATION), and sample flags */
+    double data[AMBP_MAX_VALUES];
+    uint8_t sample_flags[AMBP_MAX_MEAS_SAMPLES];
+} ambp_message;
+
+uint32_t ambp_crc32(const uint8_t *data, size_t n);
+
+/* The datagram of m (version in the header) into out[cap]; returns its length, 0 when m is invalid
+ * (unknown kind, n_samples 0 or too many, value_bytes not 4 or 8, NaN/Inf data) or cap too small. */
+size_t ambp_encode(const ambp_message *m, uint8_t version, uint8_t *out, size_t cap);
+
+/* The message in datagram d[n] (checks in the protocol's order); returns AMBP_OK or the reason. */
+int ambp_decode(const uint8_t *d, size_t n, uint8_t version, ambp_message *m);
+
+const char *ambp_reason_name(int reason);
+
+/* excitation queue slot: r [A] of the sample `index` (AMBP_NO_INDEX: empty) */
+typedef struct {
+    uint64_t index;
+    double r[4];
+} ambp_exc_slot;
+
+typedef struct {
+    uint8_t version;            /* protocol version spoken (1) */
+    uint8_t value_bytes;        /* MEASUREMENT values: 8 or 4 */
+    uint16_t block;             /* samples per MEASUREMENT datagram, 1..11 (float64) or 1..22 (float32) */
+    uint32_t sample_rate_hz;    /* control rate, reported in the heartbeat */
+    uint64_t heartbeat_ns;      /* heartbeat period */
+    uint64_t bridge_timeout_ns; /* bridge silence while RUNNING -> safe state */
+    uint64_t safe_samples;      /* samples of landing in the safe state before the clock stops */
+    uint64_t max_samples;       /* DONE after this many samples; 0 = until STOP */
+    int hold_for_excitation;    /* free-running callers only: wait for missing excitation instead of r = 0 */
+} ambp_config;
+
+typedef struct {
+    ambp_config cfg;
+    ambp_exc_slot *exc;          /* caller's storage: sample i lives in exc[i % exc_capacity] */
+    uint32_t exc_capacity;
+    uint8_t state, safe_reason, clock_running, stop_requested;
+    uint64_t k;                  /* samples done = the next sample index */
+    uint64_t sent_end;
+    uint32_t seq[6];             /* next sequence per kind */
+    /* counters */
+    uint32_t rx, rx_rejected_by_reason[AMBP_N_REASONS], rx_unexpected_kind;
+    uint32_t late_excitation, overruns, excitation_late_datagrams, excitation_beyond_queue, tx_dropped;
+    /* announced experiments: slot id -> [start, end) */
+    uint32_t range_slot[AMBP_MAX_EXPERIMENTS];
+    uint64_t range_start[AMBP_MAX_EXPERIMENTS], range_end[AMBP_MAX_EXPERIMENTS];
+    uint8_t range_used[AMBP_MAX_EXPERIMENTS];
+    /* answered commands */
+    uint32_t ack_id[AMBP_ACK_MEMORY];
+    uint8_t ack_result[AMBP_ACK_MEMORY], ack_used[AMBP_ACK_MEMORY];
+    uint32_t ack_next;
+    /* timing */
+    int heard;
+    uint64_t last_rx_ns, next_hb_ns, safe_left;
+    /* the MEASUREMENT datagram being filled */
+    double rows[AMBP_MAX_MEAS_SAMPLES * 16];
+    uint8_t row_flags[AMBP_MAX_MEAS_SAMPLES];
+    uint16_t n_rows;
+    /* datagrams to send, in order */
+    uint8_t out[AMBP_OUTBOX][AMBP_MAX_DATAGRAM];
+    uint16_t out_len[AMBP_OUTBOX];
+    uint32_t out_head, out_count;
+    ambp_message scratch;        /* decode and encode buffer: nothing large on the caller's stack */
+} ambp_target;
+
+/* Defaults of the protocol document: version 1, float64, block 10, heartbeat 50 ms, timeout 0.5 s. */
+void ambp_default_config(ambp_config *cfg, uint32_t sample_rate_hz);
+
+/* Returns 0, or -1 when cfg is invalid (block out of range, value_bytes, rate 0, capacity 0). The
+ * queue holds excitation for samples [k, k + capacity): more than the bridge sends ahead. */
+int ambp_target_init(ambp_target *t, const ambp_config *cfg, ambp_exc_slot *storage, uint32_t capacity,
+                     uint64_t now_ns);
+
+/* One received datagram. from_bridge = 0: another sender, dropped and counted. Returns the reason
+ * it was refused, or AMBP_OK. */
+int ambp_target_receive(ambp_target *t, const uint8_t *d, size_t n, int from_bridge, uint64_t now_ns);
+
+/* Time-driven work: the safe state when the bridge is silent, the periodic heartbeat. */
+void ambp_target_poll(ambp_target *t, uint64_t now_ns);
+
+/* Sample k = t->k: r[4] to apply and flags (AMBP_FLAG_SAFE_STATE, AMBP_FLAG_EXCITATION_LATE). */
+int ambp_target_sample_begin(ambp_target *t, double r[4], uint8_t *flags);
+
+/* Sample k is done: its row and flags (those of sample_begin OR CLIPPED/LANDED of the plant). */
+void ambp_target_sample_end(ambp_target *t, const double y[4], const double u[4], const double ic[4],
+                            const double r[4], uint8_t flags, uint64_t now_ns);
+
+/* The next datagram to send (valid until the next call into the core); 0 when none is waiting. */
+int ambp_target_tx(ambp_target *t, const uint8_t **data, size_t *len);
+
+/* The caller's schedule fell more than 10 ms behind (counted, reported in the heartbeat). */
+void ambp_target_count_overrun(ambp_target *t);
+
+/* First announced sample >= k without excitation, within the queue's window; AMBP_NO_INDEX if none. */
+uint64_t ambp_target_excitation_next(const ambp_target *t);
+
+uint32_t ambp_target_rx_rejected(const ambp_target *t);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

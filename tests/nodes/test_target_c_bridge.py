@@ -1,0 +1,118 @@
+"""The C reference target behind the real hardware bridge, over loopback: `ambid graph --hardware` levitates,
+and `ambid identify --hardware` records a session and identifies the C target's plant as accurately as the
+simulated rig at the same noise."""
+
+from __future__ import annotations
+
+import json
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+from ambid.hardware.target_model import rig_target_model, write_target_model
+from ambid.plant.rig import make_rig
+
+from ambid_nodes.session import SessionConfig, session_samples
+
+ROOT = Path(__file__).resolve().parents[2]
+BIN = ROOT / "ros_ws" / "install" / "target_c" / "ambp_udp_target"
+SMALL = ["--resolution", "10", "--periods", "2", "--realisations", "1", "--transient-periods", "1", "--no-progress"]
+
+
+def free_port() -> int:
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    return port
+
+
+def start_target(model: Path, *args: str) -> tuple[subprocess.Popen, str, int]:
+    assert BIN.is_file(), f"{BIN} is missing: run './launch_scripts/ambid setup' (it compiles the C target)"
+    tp, lp = free_port(), free_port()
+    proc = subprocess.Popen([str(BIN), "--model", str(model), "--bind", f"127.0.0.1:{tp}",
+                             "--bridge", f"127.0.0.1:{lp}", "--linger", "0.3", *args],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return proc, f"127.0.0.1:{tp}", lp
+
+
+def target_summary(proc: subprocess.Popen) -> dict:
+    out, err = proc.communicate(timeout=30)
+    line = next((ln for ln in out.splitlines() if ln.startswith("RT_TARGET_SUMMARY ")), None)
+    assert line, err
+    return json.loads(line.split(" ", 1)[1])
+
+
+def cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "ambid_nodes.cli", *args], capture_output=True, text=True,
+                          timeout=240, cwd=ROOT)
+
+
+def test_graph_hardware_levitates_against_the_c_target(tmp_path):
+    model = tmp_path / "rig.txt"
+    write_target_model(model, rig_target_model())
+    proc, target, local = start_target(model, "--pace", "1")
+    try:
+        p = cli("graph", "--hardware", target, "--local-port", str(local), "--sim-seconds", "0.5")
+        s = target_summary(proc)
+    finally:
+        proc.kill()
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert "rotor levitated" in p.stdout and "lost 0 samples in 0 gaps" in p.stdout, p.stdout
+    assert "target state done" in p.stdout, p.stdout  # told to STOP once the samples were in
+    assert s["state"] == "done" and s["samples"] >= 5000 and proc.returncode == 0
+    print(f"C target under the bridge: {s['samples_per_wall_s']:.0f} samples/s of {s['commanded_samples_per_s']:.0f}"
+          f" commanded, {s['late_samples']} late samples (max {s['max_late_us']:.0f} us), {s['overruns']} overruns")
+
+
+def test_identify_hardware_gives_the_c_target_the_accuracy_of_the_simulated_rig(tmp_path):
+    model = tmp_path / "rig.txt"
+    write_target_model(model, rig_target_model())
+    sim = cli("identify", "--out", str(tmp_path / "sim"), "--linear-magnets", *SMALL)
+    assert sim.returncode == 0, sim.stdout + sim.stderr
+    # free-running, waiting for excitation: deterministic and fast; stops where the session does
+    fs = 1 / make_rig().dt
+    _, total = session_samples(SessionConfig(resolution_hz=10, periods=2, realisations=1,
+                                             transient_periods=1).design(fs), fs)
+    proc, target, local = start_target(model, "--pace", "0", "--hold-for-excitation", "--samples", str(total),
+                                       "--seed", "7")
+    try:
+        hw = cli("identify", "--hardware", target, "--local-port", str(local), "--true-model", str(model),
+                 "--out", str(tmp_path / "hw"), *SMALL)
+        s = target_summary(proc)
+    finally:
+        proc.kill()
+    assert hw.returncode == 0, hw.stdout + hw.stderr
+    assert s["state"] == "done" and s["samples"] == total and s["late_excitation_samples"] == 0
+    a = json.loads((tmp_path / "sim" / "summary.json").read_text())
+    b = json.loads((tmp_path / "hw" / "summary.json").read_text())
+    assert b["layout"].startswith("hardware bridge") and b["frf_error"]["reference"] == "the given plant model"
+    ea, eb = a["frf_error"], b["frf_error"]
+    print(f"FRF error, simulated rig: median {100 * ea['median']:.2f} %, worst {100 * ea['worst']:.2f} %; "
+          f"C target: median {100 * eb['median']:.2f} %, worst {100 * eb['worst']:.2f} %")
+    # the same accuracy at the same noise: the median over ~100 lines within 25 %, the worst line within 1.6x
+    assert 0.8 < eb["median"] / ea["median"] < 1.25
+    assert 1 / 1.6 < eb["worst"] / ea["worst"] < 1.6
+    assert b["max_mode_freq_error"] < 0.01 and b["modes_vs_true"]
+    # the Python target serves the simulated rig itself (same seed): over the same bridge path the figures
+    # are the simulated session's to the last bit, so the C target's differ by its noise realisation only
+    tp, lp = free_port(), free_port()
+    py_target = subprocess.Popen([sys.executable, "-m", "ambid.hardware.rt_target", "--bind", f"127.0.0.1:{tp}",
+                                  "--bridge", f"127.0.0.1:{lp}", "--pace", "0", "--hold-for-excitation",
+                                  "--samples", str(total), "--seed", "1", "--linger", "0.3"],
+                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT / "ambid_nodes")
+    try:
+        py = cli("identify", "--hardware", f"127.0.0.1:{tp}", "--local-port", str(lp), "--true-model", str(model),
+                 "--out", str(tmp_path / "py"), *SMALL)
+        py_target.communicate(timeout=30)
+    finally:
+        py_target.kill()
+    assert py.returncode == 0, py.stdout + py.stderr
+    ep = json.loads((tmp_path / "py" / "summary.json").read_text())["frf_error"]
+    assert ep["median"] == ea["median"] and ep["worst"] == ea["worst"]
+    # recorded as any session: every sample's measurement, read back by the offline FRF above
+    assert Path(b["recording"]["path"]).is_file() and b["recording"]["complete"]
+    assert b["state"] == "done" and b["simulated_time_s"] == total / fs
+    assert np.isfinite(b["noise"]["relative_frf_noise_std"])
