@@ -21,6 +21,8 @@ COMMANDS = {
     "fit": "fit",
     "compare": "compare",
     "bench": "bench",
+    "import": "import_record",
+    "export": "export_record",
 }
 
 
