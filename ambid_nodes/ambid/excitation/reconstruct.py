@@ -12,9 +12,10 @@ record's length) and finds:
   experiment is one run, all runs of the same length Pt + P;
 * the excited lines: DFT bins of a period with amplitude above ``rel_tol``
   of the largest; amplitudes and phasors (2/N times the DFT at the lines);
-* experiments and realisations: Nu consecutive segments whose phasors are
-  those of the first times the orthogonal DFT weights (Dobrowiecki et al.
-  2006) are one realisation of an orthogonal design; Nu segments each
+* experiments and realisations: Nu consecutive segments whose phase
+  matrix over (input, experiment) is Nu times unitary at every line
+  (Dobrowiecki et al. 2006; the DFT weights ambid uses, a Hadamard matrix,
+  any input order) are one realisation of an orthogonal design; Nu segments each
   exciting one input, one of a one-at-a-time design; else every segment is
   a realisation of one simultaneous experiment;
 * the transient periods Pt, which the excitation does not show (a transient
@@ -38,7 +39,6 @@ import numpy as np
 from .design import ExcitationDesign
 from .designers import _finish
 from .lines import band_bins, detection_lines
-from .multisine import dft_weights
 
 __all__ = ["MAX_PERIOD", "DesignNotFound", "FoundDesign", "DesignFinder"]
 
@@ -268,15 +268,13 @@ class DesignFinder:
             return ("simultaneous" if nu > 1 else "orthogonal"), 1
         tol = 1e-6
         groups = x.reshape(s // nu, nu, nu, -1)           # (M, e, i, L)
-        w = dft_weights(nu)                                # W[i, e]
-        ok = True
-        for g in groups:
-            ref = g[0]
-            on = np.abs(ref) > tol * np.abs(ref).max()
-            for e in range(1, nu):
-                want = ref * w[:, e][:, None]
-                if np.max(np.abs(np.where(on, g[e] - want, 0))) > tol * np.abs(ref).max():
-                    ok = False
+        amp = np.abs(groups).max(axis=1, keepdims=True)
+        ok = bool(np.all(amp > tol * amp.max()))
+        if ok:
+            # orthogonal: at every line the (input x experiment) phase matrix T has T T^H = Nu I
+            t = (groups / amp).transpose(0, 3, 2, 1)      # (M, L, i, e)
+            gram = t @ t.conj().transpose(0, 1, 3, 2)
+            ok = bool(np.max(np.abs(gram - nu * np.eye(nu))) <= 1e-6 * nu)
         if ok:
             return "orthogonal", nu
         m = mag.reshape(s // nu, nu, nu, -1)
