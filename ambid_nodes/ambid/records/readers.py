@@ -298,19 +298,20 @@ def _csv_chunks(rec: Record, names: Sequence[str], chunk_rows: int) -> Iterator[
         f.readline()
         line_no = 1
         while True:
-            lines = list(itertools.islice(f, chunk_rows))
-            if not lines:
+            raw = list(itertools.islice(f, chunk_rows))
+            if not raw:
                 break
-            lines = [ln for ln in lines if ln.strip()]
+            lines = [ln for ln in raw if ln.strip()]
             if delim == ";":
                 lines = [ln.replace(",", ".") for ln in lines]
             try:
-                values = np.loadtxt(lines, delimiter=delim, ndmin=2, dtype=float, comments=None)
+                values = np.loadtxt(lines, delimiter=delim, ndmin=2, dtype=float, comments=None) if lines \
+                    else np.zeros((0, k))
             except ValueError:
                 values = None
             if values is None or values.shape[1] != k:
-                _csv_bad_line(rec, lines, line_no, row, k, delim)
-            line_no += len(lines)
+                _csv_bad_line(rec, raw, line_no, row, k, delim)
+            line_no += len(raw)
             if values.shape[0]:
                 yield row, values[:, cols]
             row += values.shape[0]
@@ -318,9 +319,15 @@ def _csv_chunks(rec: Record, names: Sequence[str], chunk_rows: int) -> Iterator[
 
 
 def _csv_bad_line(rec: Record, lines: list[str], line_no: int, row: int, k: int, delim: str) -> None:
-    for i, ln in enumerate(lines):
+    i = -1
+    for n, ln in enumerate(lines):
+        if not ln.strip():
+            continue
+        i += 1
         fields = ln.rstrip("\r\n").split(delim)
-        where = f"{rec.path}: line {line_no + i + 1} (row {row + i + 1})"
+        if delim == ";":
+            fields = [v.replace(",", ".") for v in fields]
+        where = f"{rec.path}: line {line_no + n + 1} (row {row + i + 1})"
         if len(fields) != k:
             raise RecordError(f"{where} has {len(fields)} fields but the header names {k} columns; the columns "
                               "have different lengths there: cut the record before that line or give the "
