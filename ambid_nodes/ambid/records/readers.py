@@ -423,19 +423,32 @@ def _record(path: str, kind: str, sources: list) -> Record:
 # ---------------------------------------------------------------- MAT v7.3 (HDF5)
 
 class _H5Source(_Source):
+    """One MATLAB matrix (or vector) of a v7.3 file, read in whole HDF5 chunks: each is read and inflated once."""
+
     def __init__(self, path: str, var: str, names, n_rows: int) -> None:
         import h5py
 
-        self.f = h5py.File(path, "r")
-        self.ds, self.names, self.n_rows, self.pos = self.f[var], tuple(names), n_rows, 0
+        # no HDF5 chunk cache (it kept what was read: RSS grew with the file); this source buffers one chunk
+        self.f = h5py.File(path, "r", rdcc_nbytes=0)
+        self.ds, self.names, self.n_rows = self.f[var], tuple(names), n_rows
+        self.step = max(self.ds.chunks[1] if self.ds.chunks else 0, CHUNK_ROWS)
+        self.buf, self.at, self.pos = np.zeros((0, len(self.names))), 0, 0
 
     def read(self, n: int) -> np.ndarray:
-        # MATLAB n x k is an HDF5 (k, n) dataset: rows are the last axis
-        block = np.asarray(self.ds[:, self.pos:self.pos + n], dtype=float).T
-        if block.shape[0] != n:
-            raise EOFError
-        self.pos += n
-        return block
+        out = []
+        while n:
+            if self.at >= len(self.buf):
+                # MATLAB n x k is an HDF5 (k, n) dataset: rows are the last axis
+                self.buf = np.asarray(self.ds[:, self.pos:self.pos + self.step], dtype=float).T
+                self.pos += len(self.buf)
+                self.at = 0
+                if not len(self.buf):
+                    raise EOFError
+            take = min(n, len(self.buf) - self.at)
+            out.append(self.buf[self.at:self.at + take])
+            self.at += take
+            n -= take
+        return np.concatenate(out) if len(out) > 1 else out[0]
 
     def close(self) -> None:
         self.f.close()

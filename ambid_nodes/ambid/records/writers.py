@@ -117,16 +117,30 @@ def write_record(path: str | os.PathLike, fmt: str, names: Sequence[str], n_rows
         elif fmt == "mat73":
             import h5py
 
-            with h5py.File(tmp, "w", userblock_size=512) as h:
+            step = min(max(n_rows, 1), 65536)
+            # whole HDF5 chunks at a time and no chunk cache (it kept what was written: RSS grew with the file)
+            with h5py.File(tmp, "w", userblock_size=512, rdcc_nbytes=0) as h:
                 sets = []
                 for name in names:
-                    ds = h.create_dataset(name, shape=(1, n_rows), dtype="<f8", chunks=(1, min(max(n_rows, 1), 65536)))
+                    ds = h.create_dataset(name, shape=(1, n_rows), dtype="<f8", chunks=(1, step))
                     ds.attrs["MATLAB_class"] = np.bytes_("double")
                     sets.append(ds)
-                for first, x in chunks:
+                pending, at = [], 0
+
+                def put(rows: list) -> int:
+                    x = np.concatenate(rows)
                     for j, ds in enumerate(sets):
-                        ds[0, first:first + len(x)] = x[:, j]
+                        ds[0, at:at + len(x)] = x[:, j]
+                    return len(x)
+
+                for _, x in chunks:
+                    pending.append(x)
                     written += len(x)
+                    if written - at >= step:
+                        at += put(pending)
+                        pending = []
+                if pending:
+                    at += put(pending)
             with open(tmp, "r+b") as f:
                 f.write(_mat_header(b"\x00\x02", "MATLAB 7.3 MAT-file", 128, " HDF5 schema 1.00 ."))
         else:
