@@ -141,3 +141,23 @@ def test_a_rig_simulated_here_is_identified_from_its_logs(own_rig, tmp_path, kin
     unstable = [p["pole_hz"] for p in s["fit"]["real_poles"] if p["unstable"]]
     assert any(abs(p / 50.33 - 1) < 0.01 for p in unstable)   # sqrt(ks/m) / 2 pi, the magnets' pair
     assert json.loads((tmp_path / "fit" / "identification.json").read_text())["experiment_id"] == "import"
+
+
+def test_a_given_design_is_used_and_checked_against_the_record(ambid_session, tmp_path, capsys):
+    session, design = ambid_session
+    _cli(["export", session, "--format", "csv", "--out", tmp_path / "rig.csv"], capsys)
+    m = yaml.safe_load((tmp_path / "rig.MAP.yaml").read_text())
+    (tmp_path / "design.json").write_text(json.dumps(design.to_dict()))   # as 'ambid design --out' writes it
+    (tmp_path / "d.yaml").write_text(yaml.safe_dump({**m, "design": "design.json"}))
+    out = _cli(["import", tmp_path / "rig.csv", "--map", tmp_path / "d.yaml", "--out", tmp_path / "s.mcap"], capsys)
+    assert "design given" in out
+    assert session_designs(tmp_path / "s.mcap")[0]["design"] == design
+    assert np.max(np.abs(frf_from_session(tmp_path / "s.mcap").frf / frf_from_session(session).frf - 1)) < 1e-9
+    other = design_multisine((20.0, 900.0), 10.0, FS, INPUTS, 0.4, n_periods=2, n_realisations=2,
+                             n_transient_periods=1, seed=6)   # the same layout, other phases: not what ran
+    (tmp_path / "design.json").write_text(json.dumps(other.to_dict()))
+    code = cli.main(["import", str(tmp_path / "rig.csv"), "--map", str(tmp_path / "d.yaml"), "--out",
+                     str(tmp_path / "t.mcap")])
+    err = capsys.readouterr().err
+    assert code == 2 and f"excitation column 'r_a_x' at row {PRE + 1} is" in err and "gives" in err
+    assert not (tmp_path / "t.mcap").exists() and not list(tmp_path.glob(".*.part"))

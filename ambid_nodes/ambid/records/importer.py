@@ -166,6 +166,31 @@ def _given_design(m: RecordMap, fs: float) -> ExcitationDesign:
     return d
 
 
+class _DesignCheck:
+    """The recorded excitation over the given design's first period is the design's waveform."""
+
+    def __init__(self, design: ExcitationDesign, start: int, m: RecordMap, path: str) -> None:
+        self.d, self.start, self.m, self.path = design, start, m, path
+        self.end = start + min(design.n_per_period, design.total_samples)
+        tags = [n.split("_", 1)[-1] for n in design.input_names]
+        self.cols = [tags.index(c.name[2:]) for c in m.excitation]   # design input of each excitation column
+        self.tol = 1e-3 * float(np.max(design.peak_a))
+
+    def add(self, row0: int, r: np.ndarray) -> None:
+        lo, hi = max(row0, self.start), min(row0 + len(r), self.end)
+        if lo >= hi:
+            return
+        want = self.d.samples(lo - self.start, hi - lo)[:, self.cols]
+        err = np.abs(r[lo - row0:hi - row0] - want)
+        if err.max() > self.tol:
+            k, j = np.unravel_index(np.argmax(err > self.tol), err.shape)
+            c = self.m.excitation[j]
+            raise RecordError(f"{self.path}: excitation column '{c.column}' at row {lo + k + 1} is "
+                              f"{r[lo - row0 + k, j]:.6g} A but the design {self.m.design} gives {want[k, j]:.6g} A; "
+                              "check that the design is the one that ran and the excitation's scale, or leave "
+                              "design: out to find it from the record")
+
+
 def import_record(data: str | os.PathLike, record_map: str | os.PathLike | RecordMap,
                   out: str | os.PathLike, chunk_rows: int = CHUNK_ROWS) -> ImportResult:
     """Convert a rig's record into a session MCAP (module docstring).
@@ -267,8 +292,11 @@ def import_record(data: str | os.PathLike, record_map: str | os.PathLike | Recor
             w.write(f"{ns}/excitation/design", encode_message("ambid_msgs/msg/ExcitationDesign", design_msg),
                     int(round(start * dt * 1e9)))
             carry = np.zeros((0, len(names)))
+            check = None if finder is not None else _DesignCheck(design, start, m, rec.path)
             for first, x in rec.chunks(cols, chunk_rows):
                 x = np.concatenate([carry, x[:, sel] * scale + offset])
+                if check is not None:
+                    check.add(first - len(carry), x[:, len(y_cols) + len(u_cols):])
                 row0 = first - len(carry)
                 k = 0
                 while len(x) - k >= BLOCK_ROWS:
