@@ -84,3 +84,16 @@ def test_sample_block_encoder_matches_the_msg_codec():
     for field in ("stamp_ns", "experiment_id", "first_index", "sample_period_s", "channel_names", "channel_units"):
         assert getattr(mine, field) == getattr(theirs, field)
     np.testing.assert_array_equal(mine.data, theirs.data)
+
+
+def test_csv_as_loggers_vary_it(tmp_path):
+    """A units row under the names, a delimiter closing every line, CRLF, a BOM, blank lines."""
+    body = "\r\n".join(f"{i * 0.5:g};{x:.10g};{-x:.10g};".replace(".", ",") for i, x in enumerate(X[:50, 1]))
+    (tmp_path / "a.csv").write_text("\ufefft;x1;x2;\r\ns;V;V;\r\n" + body + "\r\n\r\n", encoding="utf-8")
+    rec, got = open_record(tmp_path / "a.csv"), None
+    assert rec.names == ("t", "x1", "x2")
+    got = np.vstack([c for _, c in rec.chunks(["x2", "t"], 7)])
+    np.testing.assert_allclose(got, np.column_stack([-X[:50, 1], np.arange(50) * 0.5]), rtol=1e-9)
+    (tmp_path / "b.csv").write_text("1,2,3\n4,5,6\n")
+    with pytest.raises(ValueError, match="line 1 holds numbers"):
+        open_record(tmp_path / "b.csv")

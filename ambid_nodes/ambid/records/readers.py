@@ -273,7 +273,9 @@ def _open_csv(path: str, head: bytes) -> Record:
         raise RecordError(f"{path} is not a CSV text file (not UTF-8 text); give the logger's CSV export with "
                           "a header row") from None
     delim = ";" if header.count(";") > header.count(",") else ","
-    names = [h.strip().strip('"').strip() for h in header.rstrip("\r\n").split(delim)]
+    fields = header.rstrip("\r\n").split(delim)
+    trailing = len(fields) > 1 and not fields[-1].strip()   # a logger that ends every line with the delimiter
+    names = [h.strip().strip('"').strip() for h in (fields[:-1] if trailing else fields)]
     if not header.strip() or any(not n for n in names):
         raise RecordError(f"{path}: line 1 must be a header of channel names, one per column, none empty; "
                           "make the logger write its header row")
@@ -281,26 +283,40 @@ def _open_csv(path: str, head: bytes) -> Record:
         dup = next(n for n in names if names.count(n) > 1)
         raise RecordError(f"{path}: column name '{dup}' appears twice in the header; give every column its "
                           "own name")
-    try:
-        [float(n.replace(",", ".")) for n in names]
+    if all(_is_number(n) for n in names):
         raise RecordError(f"{path}: line 1 holds numbers, not channel names; give the file a header row")
+    with open(path, encoding="utf-8-sig", newline="", errors="replace") as f:
+        f.readline()
+        second = f.readline().rstrip("\r\n").split(delim)
+    second = second[:-1] if trailing and len(second) > 1 else second
+    units_row = len(second) == len(names) and not any(_is_number(v) for v in second)   # "s;V;V;A" under the names
+    return Record(path, "csv", tuple(names), None, [], {"delimiter": delim, "trailing": trailing,
+                                                        "skip": 2 if units_row else 1})
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text.replace(",", ".").strip().strip('"'))
     except ValueError:
-        pass
-    return Record(path, "csv", tuple(names), None, [], {"delimiter": delim})
+        return False
+    return True
 
 
 def _csv_chunks(rec: Record, names: Sequence[str], chunk_rows: int) -> Iterator[tuple[int, np.ndarray]]:
-    delim = rec._csv["delimiter"]
+    delim, skip = rec._csv["delimiter"], rec._csv["skip"]
     cols = [rec.names.index(n) for n in names]
     k = len(rec.names)
     row = 0
     with open(rec.path, encoding="utf-8-sig", newline="") as f:
-        f.readline()
-        line_no = 1
+        for _ in range(skip):
+            f.readline()
+        line_no = skip
         while True:
             raw = list(itertools.islice(f, chunk_rows))
             if not raw:
                 break
+            if rec._csv["trailing"]:
+                raw = [ln.rstrip("\r\n").removesuffix(delim) + "\n" for ln in raw]
             lines = [ln for ln in raw if ln.strip()]
             if delim == ";":
                 lines = [ln.replace(",", ".") for ln in lines]
