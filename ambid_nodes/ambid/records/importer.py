@@ -1,13 +1,14 @@
 """A rig's time records and their MAP.yaml become a session, in the MCAP layout the recorder writes.
 
-Two passes over the record, each in row chunks (memory flat in its length):
+One pass over the record in row chunks, one over its checked and scaled
+copy spooled to disk (memory flat in the record's length):
 
 1. check: every mapped column is there, finite in every row, all of the same
    length; the time column (if any) is evenly spaced and agrees with
    ``sample_rate_hz``; the excitation's design is found again
    (:class:`ambid.excitation.reconstruct.DesignFinder`) unless MAP.yaml
    gives it;
-2. write: ``<ns>/measurement`` SampleBlocks of y, u, r (SI units, sample
+2. write (from the spool): ``<ns>/measurement`` SampleBlocks of y, u, r (SI units, sample
    index = record row), ``<ns>/excitation/design`` (ExcitationDesign, start
    index = the excitation's first row), ``<ns>/controller/description`` when
    MAP.yaml names a controller, and the session facts, into a file beside
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import json
 import os
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -74,12 +76,6 @@ class ImportResult:
     notes: list[str] = field(default_factory=list)
     bytes_read: int = 0
     seconds: float = 0.0
-
-
-def _scaled(x: np.ndarray, cols: list[int], m: RecordMap, chs) -> np.ndarray:
-    scale = np.array([c.scale for c in chs])
-    offset = np.array([c.offset for c in chs])
-    return x[:, cols] * scale + offset
 
 
 class _TimeCheck:
@@ -213,12 +209,25 @@ def import_record(data: str | os.PathLike, record_map: str | os.PathLike | Recor
     y_cols = [idx[c.column] for c in m.outputs]
     u_cols = [idx[c.column] for c in m.currents]
     r_cols = [idx[c.column] for c in m.excitation]
+    sel = y_cols + u_cols + r_cols
+    scale = np.array([c.scale for c in m.channels])
+    offset = np.array([c.offset for c in m.channels])
+    ny, nu = len(y_cols), len(u_cols)
+    out = Path(out)
+    # the checked, scaled rows go to a binary spool on disk (about half a CSV's size, deleted on close): the
+    # second pass reads them back instead of parsing or inflating the record again
+    spool = tempfile.TemporaryFile(dir=out.parent if out.parent.is_dir() else None)
+    with spool:
+        return _import(rec, m, out, cols, idx, sel, scale, offset, ny, nu, spool, chunk_rows, t_start)
+
+
+def _import(rec, m, out, cols, idx, sel, scale, offset, ny, nu, spool, chunk_rows, t_start) -> ImportResult:
     tcheck = _TimeCheck(m, rec.path) if m.time_column else None
     finder = None if m.design else DesignFinder([f"u_{c.name[2:]}" for c in m.currents], 1.0,
                                                 m.transient_periods, m.band_hz)
     first_on = None
     n_rows = 0
-    # ---- pass 1: check, find the design
+    # ---- pass 1: check, find the design, spool
     for first, x in rec.chunks(cols, chunk_rows):
         bad = ~np.isfinite(x)
         if bad.any():
@@ -227,13 +236,15 @@ def import_record(data: str | os.PathLike, record_map: str | os.PathLike | Recor
                               "values (interpolate the gap, or cut the record before that row)")
         if tcheck is not None:
             tcheck.add(first, x[:, idx[m.time_column]])
-        r = _scaled(x, r_cols, m, m.excitation)
+        v = x[:, sel] * scale + offset
+        spool.write(v.tobytes())
+        r = v[:, ny + nu:]
         if first_on is None:
             on = np.flatnonzero(np.any(r != 0, axis=1))
             first_on = first + int(on[0]) if on.size else None
         if finder is not None:
             try:
-                finder.add(r, _scaled(x, y_cols, m, m.outputs))
+                finder.add(r, v[:, :ny])
             except DesignNotFound as exc:
                 raise RecordError(f"{rec.path}: {exc}") from None
         n_rows = first + len(x)
@@ -267,16 +278,12 @@ def import_record(data: str | os.PathLike, record_map: str | os.PathLike | Recor
     # ---- pass 2: write
     names = [c.name for c in m.channels]
     units = [c.unit for c in m.channels]
-    sel = y_cols + u_cols + r_cols
-    scale = np.array([c.scale for c in m.channels])
-    offset = np.array([c.offset for c in m.channels])
     dt = 1.0 / fs
     ns = NAMESPACE
     design_msg = _design_message(design, start, m.experiment_id)
     facts = {"excitation": {m.experiment_id: design_facts(SimpleNamespace(**design_msg))},
              "import": {"record": os.path.abspath(rec.path), "map": os.path.abspath(m.path), "rows": n_rows,
                         "reconstructed": finder is not None, "notes": notes}}
-    out = Path(out)
     with atomic_path(out) as tmp:
         with SessionWriter(tmp, overwrite=True) as w:
             w.add_topic(f"{ns}/excitation/design", "ambid_msgs/msg/ExcitationDesign", [_LATCHED])
@@ -293,10 +300,13 @@ def import_record(data: str | os.PathLike, record_map: str | os.PathLike | Recor
                     int(round(start * dt * 1e9)))
             carry = np.zeros((0, len(names)))
             check = None if finder is not None else _DesignCheck(design, start, m, rec.path)
-            for first, x in rec.chunks(cols, chunk_rows):
-                x = np.concatenate([carry, x[:, sel] * scale + offset])
+            spool.seek(0)
+            for first in range(0, n_rows, chunk_rows):
+                n = min(chunk_rows, n_rows - first)
+                x = np.frombuffer(spool.read(n * len(names) * 8), dtype=float).reshape(n, len(names))
+                x = np.concatenate([carry, x])
                 if check is not None:
-                    check.add(first - len(carry), x[:, len(y_cols) + len(u_cols):])
+                    check.add(first - len(carry), x[:, ny + nu:])
                 row0 = first - len(carry)
                 k = 0
                 while len(x) - k >= BLOCK_ROWS:

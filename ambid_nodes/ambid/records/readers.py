@@ -632,10 +632,50 @@ def _open_mat5(path: str, head: bytes) -> Record:
 
         def make(v=var, c=cols, r=rows, o=off, nb=n, z=compressed, d=_MI[dtype], kk=k):
             head = _header_bytes(path, o, nb, z)
-            return _ByteColumns(c, r, d, [_mat5_reader(path, o, nb, z, head + j * r * np.dtype(d).itemsize)
-                                          for j in range(kk)])
+            size = np.dtype(d).itemsize
+            if z and kk > 1:
+                # a compressed matrix is column-major: inflating it once to disk beats one zlib stream per
+                # column, each inflating every column before its own
+                return _ByteColumns(c, r, d, _inflated_columns(path, o, nb, head, kk, r * size))
+            return _ByteColumns(c, r, d, [_mat5_reader(path, o, nb, z, head + j * r * size) for j in range(kk)])
         sources.append((make, cols, rows))
     return _record(path, "mat5", sources)
+
+
+class _PRead:
+    """Forward reads at an offset of a shared file descriptor (the spool of an inflated matrix)."""
+
+    def __init__(self, f, offset: int) -> None:
+        self.f, self.pos = f, offset
+
+    def read(self, n: int) -> bytes:
+        b = os.pread(self.f.fileno(), n, self.pos)
+        self.pos += len(b)
+        return b
+
+    def close(self) -> None:
+        if not self.f.closed:
+            self.f.close()
+
+
+def _inflated_columns(path: str, off: int, nbytes: int, head: int, k: int, col_bytes: int) -> list[_PRead]:
+    """Readers of the k columns of a compressed matrix, inflated once into an unnamed temporary file."""
+    import tempfile
+
+    spool = tempfile.TemporaryFile()
+    src = _Inflate(path, off, nbytes, head)
+    try:
+        left = k * col_bytes
+        while left:
+            b = src.read(min(left, 1 << 22))
+            if not b:
+                break
+            spool.write(b)
+            left -= len(b)
+        spool.flush()
+    finally:
+        src.close()
+    return [_PRead(spool, j * col_bytes) for j in range(k)]
 
 
 def _header_bytes(path: str, off: int, n: int, compressed: bool) -> int:
