@@ -161,3 +161,28 @@ def test_a_given_design_is_used_and_checked_against_the_record(ambid_session, tm
     err = capsys.readouterr().err
     assert code == 2 and f"excitation column 'r_a_x' at row {PRE + 1} is" in err and "gives" in err
     assert not (tmp_path / "t.mcap").exists() and not list(tmp_path.glob(".*.part"))
+
+
+def test_one_experiment_of_several_is_exported(ambid_session, tmp_path, capsys):
+    """Two experiments in one session: the export of either holds its own rows only and imports back."""
+    _, design = ambid_session
+    gap = 600
+    r = np.zeros((PRE + 2 * design.total_samples + gap + POST, 4))
+    second = PRE + design.total_samples + gap
+    r[PRE:PRE + design.total_samples] = design.samples(0, design.total_samples)
+    r[second:second + design.total_samples] = design.samples(0, design.total_samples)
+    y, u = closed_loop(r, 2e-8, seed=2)
+    names = [f"{p}_{a}" for p in ("y", "u", "ic", "r") for a in AXES]
+    x = np.hstack([y, u, u - r, r])
+    write_session(tmp_path / "two.mcap", [(k, x[k:k + 1000]) for k in range(0, len(x), 1000)], names,
+                  [(0, design_message(design, PRE, experiment_id="one")),
+                   (1, design_message(design, second, experiment_id="two"))], 1 / FS)
+    for exp in ("one", "two"):
+        _cli(["export", tmp_path / "two.mcap", "--format", "npz", "--experiment", exp, "--out",
+              tmp_path / f"{exp}.npz"], capsys)
+        _cli(["import", tmp_path / f"{exp}.npz", "--map", tmp_path / f"{exp}.MAP.yaml", "--out",
+              tmp_path / f"{exp}_back.mcap"], capsys)
+        a = frf_from_session(tmp_path / "two.mcap", experiment_id=exp)
+        b = frf_from_session(tmp_path / f"{exp}_back.mcap")
+        assert np.max(np.abs(b.frf / a.frf - 1)) < 1e-9
+    assert np.load(tmp_path / "one.npz")["data"].shape[0] == PRE + design.total_samples + gap

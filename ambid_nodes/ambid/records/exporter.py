@@ -1,7 +1,7 @@
 """A session's time records out, with the MAP.yaml that imports them again.
 
-The ``measurement`` SampleBlocks of the experiment's namespace become rows
-(sample index - first index), one column per channel plus ``t`` [s]; the
+The ``measurement`` SampleBlocks of the experiment's namespace, between the
+end of the experiment before it and the start of the one after, become rows, one column per channel plus ``t`` [s]; the
 MAP.yaml beside the file (``<stem>.MAP.yaml``) maps y, u and r of the
 design's inputs back, with the two facts the excitation cannot show
 (transient periods, band of the detection lines), and the recorded
@@ -65,6 +65,7 @@ def export_session(session: str | os.PathLike, out: str | os.PathLike, fmt: str,
         designs = session_designs(path)
     except ValueError as exc:
         raise RecordError(f"{path}: {exc}") from None
+    every = designs
     if experiment_id is not None:
         designs = [d for d in designs if d["experiment_id"] == experiment_id]
     if not designs:
@@ -84,7 +85,14 @@ def export_session(session: str | os.PathLike, out: str | os.PathLike, fmt: str,
             raise RecordError(f"{path}: {topic} jumps from sample {end} to {first} (a gap or an overlap); export "
                               "needs an unbroken record: run 'ambid inspect' to see the gaps, and record again")
         end = first + n
-    n_rows = end - first0
+    # the rows between the neighbouring experiments: the import finds one experiment in a record
+    exp0 = chosen["start_index"]
+    exp1 = exp0 + min(chosen["total_samples"], design.total_samples)
+    others = [(d["start_index"], d["start_index"] + min(d["total_samples"], d["design"].total_samples))
+              for d in every if d is not chosen and d["topic"] == chosen["topic"]]
+    lo = max([first0] + [b for a, b in others if b <= exp0])
+    hi = min([end] + [a for a, b in others if a >= exp1])
+    n_rows = hi - lo
     _, block = next(iter_sample_blocks(path, topic))
     names = list(block.channel_names)
     dt = block.sample_period_s
@@ -95,8 +103,10 @@ def export_session(session: str | os.PathLike, out: str | os.PathLike, fmt: str,
             if list(b.channel_names) != names:
                 raise RecordError(f"{path}: {topic} changes its channels at sample {b.first_index}; export one "
                                   "layout at a time")
-            t = (b.first_index + np.arange(b.n_samples)) * dt
-            yield b.first_index - first0, np.column_stack([t, b.data])
+            a, z = max(b.first_index, lo), min(b.first_index + b.n_samples, hi)
+            if a < z:
+                t = np.arange(a, z) * dt
+                yield a - lo, np.column_stack([t, b.data[a - b.first_index:z - b.first_index]])
 
     out = Path(out)
     stem = out.with_suffix("")
