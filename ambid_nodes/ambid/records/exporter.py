@@ -21,6 +21,7 @@ import numpy as np
 from ambid.control.user_controller import save_controller
 from ambid.frf.offline import session_designs
 from ambid.session.blocks import block_spans, iter_sample_blocks
+from ambid.session.facts import controller_model
 from ambid.session.reader import iter_decoded
 from ambid.statespace import StateSpace
 
@@ -45,11 +46,8 @@ class ExportResult:
 
 
 def _controller(path: str, namespace: str) -> StateSpace | None:
-    for msg, dec in iter_decoded(path, [f"{namespace}controller/description"]):
-        mm = dec.model
-        n, nu, ny = mm.n_states, mm.n_inputs, mm.n_outputs
-        return StateSpace(np.reshape(mm.a, (n, n)), np.reshape(mm.b, (n, nu)), np.reshape(mm.c, (ny, n)),
-                          np.reshape(mm.d, (ny, nu)), mm.sample_period)
+    for _, dec in iter_decoded(path, [f"{namespace}controller/description"]):
+        return controller_model(dec)
     return None
 
 
