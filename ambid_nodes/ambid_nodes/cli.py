@@ -22,6 +22,8 @@ COMMANDS = {
     "compare": "compare",
     "bench": "bench",
     "target-model": "target_model",
+    "import": "import_record",
+    "export": "export_record",
 }
 
 

@@ -71,6 +71,7 @@ SESSION_COMMANDS = {
     "fit --recover": lambda f, d: ["fit", f, "--out", str(d / "fit_out"), "--no-report", "--no-update", "--recover"],
     "inspect": lambda f, d: ["inspect", f],
     "inspect --recover": lambda f, d: ["inspect", f, "--recover"],
+    "export": lambda f, d: ["export", f, "--format", "csv", "--out", str(d / "export_out.csv")],
 }
 # what each bad session file is refused for (a part of the one line)
 SESSION_REFUSAL = {"missing": "no such file", "folder": "is a folder", "empty": "is empty",
@@ -186,3 +187,50 @@ def test_bad_input_loses_nothing_already_written(files, capsys):
     assert [p.name for p in out.iterdir()] == ["summary.json"]
     assert (out / "summary.json").read_text() == '{"kept": true}'
     assert open(files["good"], "rb").read(8) == b"\x89MCAP0\r\n"  # the inputs are only read
+
+
+# ambid import: the record (each format) and MAP.yaml, as a missing file, a folder, empty, random bytes
+RECORD_REFUSAL = {"missing": "no such file", "folder": "is a folder", "empty": "is empty",
+                  "random": "is not a CSV text file|is not an .npz file|is not a MATLAB .mat file"}
+MAP_REFUSAL = {"missing": "no such file", "folder": "is a folder", "empty": "is empty", "random": "is not YAML text"}
+
+
+def _bad_file(d, kind, name):
+    p = d / "import_bad" / kind / name
+    p.parent.mkdir(parents=True, exist_ok=True)
+    if kind == "folder":
+        p.mkdir(exist_ok=True)
+    elif kind == "empty":
+        p.write_bytes(b"")
+    elif kind == "random":
+        p.write_bytes(np.random.default_rng(1).bytes(3000))
+    return p
+
+
+@pytest.mark.parametrize("kind", list(RECORD_REFUSAL))
+@pytest.mark.parametrize("ext", ["csv", "mat", "npz"])
+def test_import_refuses_bad_record_and_map_files(files, kind, ext, capsys):
+    d = files["dir"]
+    good_map = d / "import_map.yaml"
+    good_map.write_text("sample_rate_hz: 10000\noutputs: {y_a_x: x1}\ncurrents: {u_a_x: i1}\n"
+                        "excitation: {r_a_x: e1}\n")
+    data = _bad_file(d, kind, f"rec.{ext}")
+    out = d / "import_out.mcap"
+    code, res = _run(["import", str(data), "--map", str(good_map), "--out", str(out)], capsys)
+    assert code == 2 and re.search(RECORD_REFUSAL[kind], _one_line(res.err, "import", str(data)))
+    good_csv = d / "import_good.csv"
+    good_csv.write_text("x1,i1,e1\n0,0,0\n")
+    bad_map = _bad_file(d, kind, "MAP.yaml")
+    code, res = _run(["import", str(good_csv), "--map", str(bad_map), "--out", str(out)], capsys)
+    assert code == 2 and re.search(MAP_REFUSAL[kind], _one_line(res.err, "import", str(bad_map)))
+    assert not out.exists()
+
+
+def test_import_and_export_options(files, capsys):
+    d = files["dir"]
+    code, res = _run(["export", files["good"], "--format", "xls", "--out", str(d / "x.xls")], capsys)
+    assert code == 2 and "--format" in res.err
+    code, res = _run(["import", files["good"], "--map", str(d / "m.yaml"), "--out", files["good"]], capsys)
+    assert code == 2 and "--out" in _one_line(res.err, "import", files["good"])
+    code, res = _run(["export", files["good"], "--format", "csv", "--out", str(d)], capsys)
+    assert code == 2 and "is a folder" in _one_line(res.err, "export", str(d))

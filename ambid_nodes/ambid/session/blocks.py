@@ -46,6 +46,7 @@ __all__ = [
     "SampleBlockData",
     "SampleRange",
     "decode_sample_block",
+    "encode_sample_block",
     "SampleBlockReader",
     "sample_block_span",
     "iter_sample_blocks",
@@ -457,3 +458,50 @@ def read_samples(
     return SampleRange(
         first_index=int(start_index), channel_names=names, data=data, present=present, sample_period_s=period
     )
+
+
+def encode_sample_block(first_index: int, sample_period_s: float, channel_names: Sequence[str],
+                        channel_units: Sequence[str], data: np.ndarray, experiment_id: str = "",
+                        stamp_ns: int = 0, flags: int = 0) -> bytes:
+    """CDR bytes of a SampleBlock (the layout in the module docstring), as rclpy serialises it.
+
+    Args:
+        first_index: sample index of the first row.
+        sample_period_s: sample period [s].
+        channel_names, channel_units: (k,) per column.
+        data: (n, k) values [channel units].
+        experiment_id: the experiment, or "".
+        stamp_ns: time of the first sample [ns].
+        flags: OR of the rows' flags (no per-row flags are written).
+    """
+    data = np.ascontiguousarray(data, dtype="<f8")
+    n, k = data.shape
+    if k != len(channel_names) or k != len(channel_units):
+        raise ValueError(f"{k} columns for {len(channel_names)} names and {len(channel_units)} units")
+    out = bytearray(_CDR_LE + b"\x00\x00")
+
+    def align(a: int) -> None:
+        out.extend(b"\x00" * (-(len(out) - 4) % a))
+
+    def string(s: str) -> None:
+        b = s.encode("utf-8") + b"\x00"
+        align(4)
+        out.extend(struct.pack("<I", len(b)) + b)
+
+    out.extend(struct.pack("<iI", stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000))
+    string(experiment_id)
+    align(8)
+    out.extend(struct.pack("<QdI", int(first_index), float(sample_period_s), n))
+    for seq in (channel_names, channel_units):
+        align(4)
+        out.extend(struct.pack("<I", len(seq)))
+        for s in seq:
+            string(s)
+    align(4)
+    out.extend(struct.pack("<I", n * k))
+    align(8)
+    out.extend(data.tobytes())
+    align(4)
+    out.extend(struct.pack("<I", 0))
+    out.extend(struct.pack("<I", int(flags)))
+    return bytes(out)

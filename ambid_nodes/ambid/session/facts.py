@@ -15,10 +15,15 @@ import json
 import math
 from typing import Any, Mapping
 
+import numpy as np
+
+from ambid.statespace import StateSpace
+
 __all__ = [
     "FACT_TYPES",
     "plant_facts",
     "controller_facts",
+    "controller_model",
     "design_facts",
     "rig_summary",
     "design_summary",
@@ -89,6 +94,14 @@ def controller_facts(msg: Any) -> dict[str, Any]:
         "n_outputs": int(model.n_outputs),
         "parameters": _json_or_text(str(msg.parameters_json)),
     }
+
+
+def controller_model(msg: Any) -> StateSpace:
+    """The discrete state space (y [m] -> ic [A]) a ControllerDescription carries."""
+    m = msg.model
+    n, nu, ny = int(m.n_states), int(m.n_inputs), int(m.n_outputs)
+    return StateSpace(np.reshape(m.a, (n, n)), np.reshape(m.b, (n, nu)), np.reshape(m.c, (ny, n)),
+                      np.reshape(m.d, (ny, nu)), float(m.sample_period))
 
 
 def design_facts(msg: Any) -> dict[str, Any]:

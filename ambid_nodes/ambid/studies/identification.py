@@ -67,7 +67,7 @@ from ambid.plant.true_rig import true_linear_model
 from ambid.report.html import write_report
 from ambid.session import iter_decoded, read_metadata
 from ambid.session.blocks import read_samples
-from ambid.session.facts import controller_facts, plant_facts
+from ambid.session.facts import controller_facts, controller_model, plant_facts
 from ambid.statespace import StateSpace
 
 __all__ = ["select_order", "frf_relative_error", "recorded_controller", "session_rig", "true_modes",
@@ -540,10 +540,7 @@ def recorded_controller(path: str | os.PathLike, recover: bool = False) -> tuple
     the session's ControllerDescription, or None when the session has none."""
     for msg, dec in iter_decoded(path, recover=recover):
         if msg.topic.endswith("controller/description"):
-            m = dec.model
-            n, nu, ny = m.n_states, m.n_inputs, m.n_outputs
-            return (StateSpace(np.reshape(m.a, (n, n)), np.reshape(m.b, (n, nu)), np.reshape(m.c, (ny, n)),
-                               np.reshape(m.d, (ny, nu)), m.sample_period), controller_facts(dec))
+            return controller_model(dec), controller_facts(dec)
     return None
 
 

@@ -1,0 +1,197 @@
+"""MAP.yaml: which column of a rig's record is which ambid channel, in which unit and scale.
+
+::
+
+    sample_rate_hz: 10000            # or: time_column: t  (seconds; time_scale: 1e-3 for ms)
+    outputs:    {y_a_x: {column: x1, scale: 2.0e-5, unit: m}, ...}   # measured displacements
+    currents:   {u_a_x: {column: i1, scale: 1.0}, ...}                # total applied control currents
+    excitation: {r_a_x: {column: exc1}, ...}                           # the injected excitation, same order
+    controller: controller.npz       # optional: discrete state space A, B, C, D, dt (.npz, .mat, .yaml)
+    design: design.json              # optional: the excitation design as 'ambid design --out' writes it
+    transient_periods: 3             # optional, without design: periods per segment to discard
+    band_hz: [10, 1000]              # optional, without design: band of the detection lines
+
+A channel's value in SI units is ``scale * (column value) + offset``.
+Output keys are ambid's displacement names (``y_a_x``, ``y_b_x``,
+``y_a_y``, ``y_b_y``), currents ``u_<axis>``, excitation ``r_<axis>`` on
+the same axes as the currents. File paths are relative to MAP.yaml's folder.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from ambid.channels import AXES, CURRENT_NAMES, DISPLACEMENT_NAMES
+
+from .readers import RecordError
+
+__all__ = ["MapChannel", "RecordMap", "load_map", "map_yaml"]
+
+_KEYS = {"sample_rate_hz", "time_column", "time_scale", "outputs", "currents", "excitation", "controller",
+         "design", "transient_periods", "band_hz", "experiment_id"}
+_UNITS = {"outputs": "m", "currents": "A", "excitation": "A"}
+
+
+@dataclass(frozen=True)
+class MapChannel:
+    """One ambid channel: its name, the record column, value = scale * column + offset [unit]."""
+
+    name: str
+    column: str
+    scale: float = 1.0
+    offset: float = 0.0
+    unit: str = ""
+
+
+@dataclass(frozen=True)
+class RecordMap:
+    """A parsed MAP.yaml (see the module docstring); paths resolved against its folder."""
+
+    path: str
+    sample_rate_hz: float | None
+    time_column: str | None
+    time_scale: float
+    outputs: tuple[MapChannel, ...]
+    currents: tuple[MapChannel, ...]
+    excitation: tuple[MapChannel, ...]
+    controller: str | None = None
+    design: str | None = None
+    transient_periods: int | None = None
+    band_hz: tuple[float, float] | None = None
+    experiment_id: str = "import"
+
+    @property
+    def channels(self) -> tuple[MapChannel, ...]:
+        """Outputs, currents, excitation, in that order."""
+        return self.outputs + self.currents + self.excitation
+
+    @property
+    def columns(self) -> list[str]:
+        """Record columns read: the channels' and the time column (once each, in order)."""
+        cols = [c.column for c in self.channels] + ([self.time_column] if self.time_column else [])
+        return list(dict.fromkeys(cols))
+
+
+def _bad(path: str, what: str) -> RecordError:
+    return RecordError(f"{path}: {what}")
+
+
+def _number(path: str, where: str, value: Any, positive: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or \
+            (positive and value <= 0):
+        raise _bad(path, f"{where} is {value!r}; give a finite{' positive' if positive else ''} number")
+    return float(value)
+
+
+def _channels(path: str, raw: dict, group: str, allowed: tuple[str, ...]) -> tuple[MapChannel, ...]:
+    entries = raw.get(group)
+    if not isinstance(entries, dict) or not entries:
+        raise _bad(path, f"'{group}' must map channel names ({', '.join(allowed)}) to {{column: ...}}; give "
+                         f"at least one")
+    out = []
+    for name, spec in entries.items():
+        if name not in allowed:
+            raise _bad(path, f"{group} name '{name}' is not one of ambid's ({', '.join(allowed)}); use those "
+                             "names as keys and put the rig's column name under column:")
+        if isinstance(spec, str):
+            spec = {"column": spec}
+        if not isinstance(spec, dict) or not isinstance(spec.get("column"), (str, int)) or \
+                set(spec) - {"column", "scale", "offset", "unit"}:
+            raise _bad(path, f"{group}.{name} must be {{column: NAME, scale: x, offset: x, unit: {_UNITS[group]}}}; "
+                             "give at least column:")
+        unit = str(spec.get("unit", _UNITS[group]))
+        if unit != _UNITS[group]:
+            raise _bad(path, f"{group}.{name}: unit '{unit}' after scaling must be {_UNITS[group]}; give the scale "
+                             f"that turns the column into {_UNITS[group]} and unit: {_UNITS[group]}")
+        out.append(MapChannel(name, str(spec["column"]), _number(path, f"{group}.{name}.scale",
+                                                                 spec.get("scale", 1.0)),
+                              _number(path, f"{group}.{name}.offset", spec.get("offset", 0.0)), unit))
+    return tuple(out)
+
+
+def _file(base: Path, path: str, key: str, value: Any) -> str | None:
+    if value is None:
+        return None
+    if not isinstance(value, str) or not value:
+        raise _bad(path, f"{key}: must be a file name; give the path (relative to MAP.yaml)")
+    p = (base / value) if not os.path.isabs(value) else Path(value)
+    if not p.is_file():
+        raise _bad(path, f"{key}: {p} does not exist or is not a file; give the {key} file's path "
+                         "(relative to MAP.yaml)")
+    return str(p)
+
+
+def load_map(path: str | os.PathLike) -> RecordMap:
+    """Read and check a MAP.yaml (:class:`RecordError` naming the key and the fix)."""
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise RecordError(f"{path}: no such file; give the MAP.yaml that names the record's channels")
+    if os.path.isdir(path):
+        raise RecordError(f"{path} is a folder; give the MAP.yaml file")
+    try:
+        raw = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, yaml.YAMLError):
+        raise RecordError(f"{path} is not YAML text; give a MAP.yaml as 'ambid import --help' shows") from None
+    if raw is None:
+        raise RecordError(f"{path} is empty; give sample_rate_hz (or time_column), outputs, currents and "
+                          "excitation")
+    if not isinstance(raw, dict):
+        raise RecordError(f"{path} is not a mapping of keys; give sample_rate_hz, outputs, currents, excitation")
+    unknown = sorted(set(raw) - _KEYS)
+    if unknown:
+        raise _bad(path, f"unknown key '{unknown[0]}'; use {', '.join(sorted(_KEYS))}")
+    rate = raw.get("sample_rate_hz")
+    tcol = raw.get("time_column")
+    if rate is None and tcol is None:
+        raise _bad(path, "neither sample_rate_hz nor time_column; give one of them")
+    rate = None if rate is None else _number(path, "sample_rate_hz", rate, positive=True)
+    outputs = _channels(path, raw, "outputs", DISPLACEMENT_NAMES)
+    currents = _channels(path, raw, "currents", CURRENT_NAMES)
+    refs = tuple(f"r_{a}" for a in AXES)
+    excitation = _channels(path, raw, "excitation", refs)
+    if [c.name[2:] for c in excitation] != [c.name[2:] for c in currents]:
+        raise _bad(path, f"excitation {[c.name for c in excitation]} must name the same axes as currents "
+                         f"{[c.name for c in currents]}, in the same order; give one r_<axis> per u_<axis>")
+    pt = raw.get("transient_periods")
+    if pt is not None and (isinstance(pt, bool) or not isinstance(pt, int) or pt < 0):
+        raise _bad(path, f"transient_periods is {pt!r}; give a whole number >= 0")
+    band = raw.get("band_hz")
+    if band is not None:
+        if not isinstance(band, list) or len(band) != 2:
+            raise _bad(path, f"band_hz is {band!r}; give [f_lo, f_hi] in Hz")
+        band = (_number(path, "band_hz[0]", band[0]), _number(path, "band_hz[1]", band[1]))
+    base = Path(path).resolve().parent
+    return RecordMap(path=path, sample_rate_hz=rate, time_column=None if tcol is None else str(tcol),
+                     time_scale=_number(path, "time_scale", raw.get("time_scale", 1.0), positive=True),
+                     outputs=outputs, currents=currents, excitation=excitation,
+                     controller=_file(base, path, "controller", raw.get("controller")),
+                     design=_file(base, path, "design", raw.get("design")), transient_periods=pt, band_hz=band,
+                     experiment_id=str(raw.get("experiment_id", "import")))
+
+
+def map_yaml(m: RecordMap, comment: str = "") -> str:
+    """MAP.yaml text of ``m`` (paths as given), with an optional leading comment."""
+    def group(chs):
+        return {c.name: {"column": c.column, "scale": c.scale, "offset": c.offset, "unit": c.unit} for c in chs}
+
+    d: dict[str, Any] = {}
+    if m.sample_rate_hz is not None:
+        d["sample_rate_hz"] = m.sample_rate_hz
+    if m.time_column is not None:
+        d["time_column"] = m.time_column
+        d["time_scale"] = m.time_scale
+    d.update(outputs=group(m.outputs), currents=group(m.currents), excitation=group(m.excitation))
+    for key in ("controller", "design", "transient_periods"):
+        if getattr(m, key) is not None:
+            d[key] = getattr(m, key)
+    if m.band_hz is not None:
+        d["band_hz"] = list(m.band_hz)
+    d["experiment_id"] = m.experiment_id
+    head = "".join(f"# {ln}\n" for ln in comment.splitlines())
+    return head + yaml.safe_dump(d, sort_keys=False, default_flow_style=False)

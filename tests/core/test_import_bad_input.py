@@ -1,0 +1,164 @@
+"""Every record ambid import cannot use is refused with one line naming the column, the row and the fix,
+exit code 2, and nothing written: not periodic, shorter than a period, NaN/Inf, columns of different
+lengths, a name not in the file, a time column at odds with sample_rate_hz or with gaps, an excitation
+that stops mid-period, damaged files and bad MAP.yaml entries."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+import scipy.io as sio
+import yaml
+from ambid_nodes import cli
+
+FS, N = 1000.0, 100
+FIX = re.compile(r"\b(give|run|record|check|create|leave out|make|use|cut|add)\b")
+
+
+def _signals(seed=0):
+    """An orthogonal 4-input multisine (N = 100, lines 1-10, Pt = 1, P = 1) and a made-up response."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(N)
+    w = np.exp(-2j * np.pi * np.outer(np.arange(4), np.arange(4)) / 4)
+    ph = np.exp(1j * rng.uniform(0, 2 * np.pi, (4, 10)))
+    segs = [np.tile((0.1 * ph[:, :, None] * w[:, e][:, None, None] *
+                     np.exp(2j * np.pi * np.arange(1, 11)[None, :, None] * t / N)).real.sum(axis=1).T, (2, 1))
+            for e in range(4)]
+    r = np.vstack([np.zeros((50, 4)), *segs, np.zeros((50, 4))])
+    y = 1e-5 * np.roll(r, 3, axis=0) + 1e-8 * rng.standard_normal(r.shape)
+    return r, y, r + 0.01 * y / 1e-5
+
+
+def _columns(r, y, u):
+    return {"time": np.arange(len(r)) / FS, **{f"x{i + 1}": y[:, i] for i in range(4)},
+            **{f"i{i + 1}": u[:, i] for i in range(4)}, **{f"exc{i + 1}": r[:, i] for i in range(4)}}
+
+
+AX = ("a_x", "b_x", "a_y", "b_y")
+MAP = {"sample_rate_hz": FS, "time_column": "time",
+       "outputs": {f"y_{a}": {"column": f"x{i + 1}"} for i, a in enumerate(AX)},
+       "currents": {f"u_{a}": {"column": f"i{i + 1}"} for i, a in enumerate(AX)},
+       "excitation": {f"r_{a}": {"column": f"exc{i + 1}"} for i, a in enumerate(AX)}}
+
+
+def _csv(path, cols, cut_last=False, text=None):
+    names = list(cols)
+    x = np.column_stack(list(cols.values()))
+    lines = [",".join(names)] + [",".join(repr(float(v)) for v in row) for row in x]
+    if cut_last:
+        lines[-1] = ",".join(lines[-1].split(",")[:3])
+    path.write_text(text if text is not None else "\n".join(lines) + "\n")
+    return path
+
+
+def _run(tmp_path, data, rmap, capsys):
+    (tmp_path / "MAP.yaml").write_text(yaml.safe_dump(rmap) if isinstance(rmap, dict) else rmap)
+    out = tmp_path / "out" / "s.mcap"
+    out.parent.mkdir(exist_ok=True)
+    code = cli.main(["import", str(data), "--map", str(tmp_path / "MAP.yaml"), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("ambid import: ") and FIX.search(lines[0]), err
+    assert list(out.parent.iterdir()) == []   # nothing half-written
+    return lines[0]
+
+
+def test_the_good_record_imports(tmp_path, capsys):
+    """The base the cases below spoil one thing of."""
+    r, y, u = _signals()
+    _csv(tmp_path / "d.csv", _columns(r, y, u))
+    (tmp_path / "MAP.yaml").write_text(yaml.safe_dump(MAP))
+    assert cli.main(["import", str(tmp_path / "d.csv"), "--map", str(tmp_path / "MAP.yaml"), "--out",
+                     str(tmp_path / "s.mcap")]) == 0
+    assert "Ne = 4 experiment(s) x M = 1" in capsys.readouterr().out
+
+
+def _case(name):
+    r, y, u = _signals()
+    cols, rmap, kw = _columns(r, y, u), dict(MAP), {}
+    if name == "not periodic":
+        cols.update({f"exc{i + 1}": np.random.default_rng(i).standard_normal(len(r)) for i in range(4)})
+    elif name == "shorter than a period":
+        for i in range(4):
+            cols[f"exc{i + 1}"] = np.where(np.arange(len(r)) < 110, r[:, i], 0.0)
+    elif name == "stops mid-period":
+        for i in range(4):
+            cols[f"exc{i + 1}"] = np.where(np.arange(len(r)) < 50 + 7 * N + 40, r[:, i], 0.0)
+    elif name == "nan":
+        cols["i2"] = cols["i2"].copy()
+        cols["i2"][300] = np.nan
+    elif name == "inf":
+        cols["x3"] = cols["x3"].copy()
+        cols["x3"][42] = -np.inf
+    elif name == "different lengths":
+        kw["cut_last"] = True
+    elif name == "name not in file":
+        rmap = {**MAP, "outputs": {**MAP["outputs"], "y_b_y": {"column": "x9"}}}
+    elif name == "rate vs time column":
+        rmap = {**MAP, "sample_rate_hz": 1200.0}
+    elif name == "time gap":
+        cols["time"] = cols["time"].copy()
+        cols["time"][500:] += 1 / FS
+        rmap = {k: v for k, v in MAP.items() if k != "sample_rate_hz"}
+    elif name == "unknown output":
+        rmap = {**MAP, "outputs": {"y_c_z": {"column": "x1"}}}
+    elif name == "wrong unit":
+        rmap = {**MAP, "outputs": {**MAP["outputs"], "y_a_x": {"column": "x1", "unit": "V"}}}
+    elif name == "excitation axes":
+        rmap = {**MAP, "excitation": {"r_a_x": {"column": "exc1"}}}
+    return cols, rmap, kw
+
+
+CASES = {  # case -> what the one line must say
+    "not periodic": r"does not repeat itself within \d+ rows: it is not periodic",
+    "shorter than a period": r"from row 51 does not repeat itself .*shorter than two periods",
+    "stops mid-period": r"stops at row 791, 40 rows into a period of 100; cut the record at row 750",
+    "nan": r"column 'i2' is nan at row 301",
+    "inf": r"column 'x3' is -inf at row 43",
+    "different lengths": r"line 901 \(row 900\) has 3 fields but the header names 13 columns",
+    "name not in file": r"no channel 'x9' \(named in MAP.yaml",
+    "rate vs time column": r"time column 'time' at row \d+ is .* but sample_rate_hz 1200 .*the column says 1000 Hz",
+    "time gap": r"time column 'time' is not evenly spaced: row 501",
+    "unknown output": r"outputs name 'y_c_z' is not one of ambid's",
+    "wrong unit": r"outputs.y_a_x: unit 'V' after scaling must be m",
+    "excitation axes": r"must name the same axes as currents",
+}
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_bad_records_are_refused_by_column_and_row(tmp_path, name, capsys):
+    cols, rmap, kw = _case(name)
+    line = _run(tmp_path, _csv(tmp_path / "d.csv", cols, **kw), rmap, capsys)
+    assert re.search(CASES[name], line), line
+
+
+def test_npz_vectors_of_different_lengths(tmp_path, capsys):
+    cols, _, _ = _case("nan")
+    cols["i2"] = np.zeros(10)
+    np.savez(tmp_path / "d.npz", **cols)
+    line = _run(tmp_path, tmp_path / "d.npz", MAP, capsys)
+    assert re.search(r"channel '\w+' has 10 rows but '\w+' has 900", line), line
+
+
+def test_damaged_mat_files(tmp_path, capsys):
+    r, y, u = _signals()
+    sio.savemat(tmp_path / "d.mat", _columns(r, y, u), do_compression=True)
+    data = (tmp_path / "d.mat").read_bytes()
+    (tmp_path / "cut.mat").write_bytes(data[:len(data) * 2 // 3])
+    assert re.search(r"cut off|truncated", _run(tmp_path, tmp_path / "cut.mat", MAP, capsys))
+    (tmp_path / "txt.mat").write_text("x1,x2\n1,2\n")
+    assert "is not a MATLAB .mat file" in _run(tmp_path, tmp_path / "txt.mat", MAP, capsys)
+
+
+@pytest.mark.parametrize("text, expect", [
+    ("", "is empty"), ("[1, 2]", "is not a mapping"), ("outputs: {", "is not YAML"),
+    ("sample_rate_hz: 1000\nfoo: 1\n", "unknown key 'foo'"),
+    ("outputs: {y_a_x: x1}\n", "neither sample_rate_hz nor time_column"),
+    ("sample_rate_hz: -5\n", "sample_rate_hz is -5"),
+])
+def test_bad_map_files(tmp_path, text, expect, capsys):
+    r, y, u = _signals()
+    assert expect in _run(tmp_path, _csv(tmp_path / "d.csv", _columns(r, y, u)), text, capsys)
