@@ -52,17 +52,21 @@ class SessionConfig:
     controller: str = ""  # a kind or a controller file; empty: the rig file's controller, else pid
     nonlinear_magnets: bool = True
     estimator: str = "indirect"
+    # at speed a multisine steers clear of the synchronous harmonics; None: the rig's rotor_speed_rpm
+    speed_rpm: float | None = None
     namespace: str = DEFAULT_NAMESPACE
     progress: bool = True
     extra: dict = field(default_factory=dict)
 
-    def design(self, fs_hz: float) -> ExcitationDesign:
+    def design(self, fs_hz: float, rig_speed_rpm: float = 0.0) -> ExcitationDesign:
+        speed = rig_speed_rpm if self.speed_rpm is None else self.speed_rpm
         return build_design(self.kind, self.band_hz, self.resolution_hz, fs_hz, peak_current_a=self.peak_current_a,
                             n_periods=self.periods, n_realisations=self.realisations,
                             n_transient_periods=self.transient_periods,
                             grid=self.grid if self.kind == "multisine" else "",
                             mimo=self.mimo if self.kind == "multisine" else "",
-                            phases=self.phases if self.kind == "multisine" else "", seed=self.seed)
+                            phases=self.phases if self.kind == "multisine" else "", seed=self.seed,
+                            speed_rpm=speed if self.kind == "multisine" else 0.0)
 
 
 class ProgressBar:
@@ -104,7 +108,7 @@ def run_session_composed(cfg: SessionConfig) -> dict:
 
     rig = load_rig(cfg.rig_file) if cfg.rig_file else make_rig()
     fs = 1.0 / rig.dt
-    design = cfg.design(fs)
+    design = cfg.design(fs, float(rig.rotor_speed_rpm))
     start_index = int(round(LIFT_OFF_S * fs))
     total = start_index + design.total_samples + 1000  # one block of tail so the last period is measured
     cfg.out_dir.mkdir(parents=True, exist_ok=True)

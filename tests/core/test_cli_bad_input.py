@@ -128,6 +128,7 @@ OPTION_VALUES = [  # argv, the option the error names
     (["identify", "--peak-current", "-0.4"], "--peak-current"),
     (["design", "--resolution", "0"], "--resolution"),
     (["design", "--kind", "bogus"], "--kind"),
+    (["design", "--harmonics", "0"], "--harmonics"),
     (["graph", "--sim-seconds", "-1"], "--sim-seconds"),
     (["graph", "--controller", "bogus"], "--controller"),
     (["graph", "--hardware", "nonsense"], "--hardware"),
@@ -148,6 +149,7 @@ def test_wrong_option_values_are_refused_by_name(files, argv, option, capsys):
 RANGE_REFUSALS = [  # values argparse cannot judge alone: the command's one line, naming the option
     (["identify", "--band", "500", "10"], "--band 500 10"),
     (["design", "--band", "500", "10", "--out", "{dir}/d2"], "--band 500 10"),
+    (["design", "--speed-rpm", "-5", "--out", "{dir}/d3"], "--speed-rpm"),
     (["compare", "--parts", "bogus"], "--parts"),
     (["bench", "--skip", "bogus"], "--skip"),
     (["node", "bogus"], "unknown node 'bogus'"),
