@@ -89,3 +89,23 @@ def whirl(shape: np.ndarray, x_idx: Sequence[int] = X_CHANNELS, y_idx: Sequence[
     share = float(f / (f + b)) if f + b > 0 else 0.5
     kind = "forward" if share > _STANDING[1] else "backward" if share < _STANDING[0] else "standing"
     return kind, share
+
+
+def whirl_of_residue(residue: np.ndarray, x_idx: Sequence[int] = X_CHANNELS, y_idx: Sequence[int] = Y_CHANNELS,
+                     ) -> tuple[str, float]:
+    """Whirl direction of a mode from its residue matrix R (Ny, Nu) at the pole with Im > 0.
+
+    The forward and backward directional FRFs have the residues R_f, R_b (the combinations of
+    :func:`directional_frf` applied to R); the forward share is ||R_f||^2 / (||R_f||^2 + ||R_b||^2).
+    Unlike a single shape vector this also judges a pair of coincident modes (an isotropic rotor at
+    standstill, a rank-2 residue): its share is 1/2, 'standing'.
+
+    Returns:
+        ('forward' | 'backward' | 'standing', forward share in [0, 1]).
+    """
+    r = np.asarray(residue, dtype=complex)[None]
+    d = directional_frf([0.0], r, None, x_idx, y_idx, x_idx, y_idx)
+    f, b = np.sum(np.abs(d.forward) ** 2), np.sum(np.abs(d.backward) ** 2)
+    share = float(f / (f + b)) if f + b > 0 else 0.5
+    kind = "forward" if share > _STANDING[1] else "backward" if share < _STANDING[0] else "standing"
+    return kind, share

@@ -90,10 +90,11 @@ def campbell_figure(speeds_rpm: np.ndarray, identified: Sequence[Mapping], predi
                           color=_WHIRL_COLOUR[kind], label=f"identified, {kind} whirl")
             ax_z.plot([r["speed_rpm"] for r in rows], [100 * r["damping"] for r in rows], marker, ms=6,
                       color=_WHIRL_COLOUR[kind], label=kind)
-    for c in critical:
+    for i, c in enumerate(critical):
         ax_f.plot(c["speed_rpm"], c["freq_hz"], "kx", ms=8)
         ax_f.annotate(f"{c['label']}\n{c['speed_rpm']:.0f} rpm", (c["speed_rpm"], c["freq_hz"]), fontsize=7,
-                      xytext=(4, -18), textcoords="offset points")
+                      xytext=(-70, 14 + 22 * (i % 3)), textcoords="offset points", ha="left",
+                      arrowprops=dict(arrowstyle="-", lw=0.5, color="0.3"))
     ax_f.plot([], [], color="0.4", ls="--", label="predicted (model), by whirl colour")
     ax_f.plot([], [], "kx", label="critical speed (mode crosses 1X)")
     if f_max_hz:
@@ -103,7 +104,7 @@ def campbell_figure(speeds_rpm: np.ndarray, identified: Sequence[Mapping], predi
     ax_f.set_ylabel("frequency [Hz]")
     ax_f.set_title("Campbell diagram")
     ax_f.grid(True, alpha=0.3)
-    ax_f.legend(fontsize=7, loc="upper left")
+    ax_f.legend(fontsize=7, loc="center left", bbox_to_anchor=(0.0, 0.62))
     ax_z.set_xlabel("rotor speed [rpm]")
     ax_z.set_ylabel("damping ratio [%]")
     ax_z.set_title("identified damping")

@@ -56,7 +56,7 @@ from ambid.fit import (FitResult, StabilisationDiagram, fit_common_denominator, 
                        save_model_npz, stabilisation_diagram)
 from ambid.fit.model_update import (PhysicalUpdate, nominal_parameters, physical_frf, true_parameters,
                                     unmodelled_mode, update_physical_model)
-from ambid.frf.directional import directional_frf, whirl
+from ambid.frf.directional import directional_frf, whirl_of_residue
 from ambid.frf.levels import LineLevels, line_levels
 from ambid.frf.offline import frf_from_session, session_designs
 from ambid.frf.sensitivity import iso14839_zone
@@ -384,7 +384,8 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     dfrf = directional_frf(f, frf.frf, var) if rotor_axes else None
     if rotor_axes:
         for m, row in zip(modes, mode_rows):
-            row["whirl"], row["forward_share"] = whirl(m.output_shape)
+            k = int(np.argmin(np.abs(fit.model.poles - m.pole_rad_s)))
+            row["whirl"], row["forward_share"] = whirl_of_residue(fit.model.residues[k])
     save_model_npz(out / "model.npz", fit.model)
     save_model_json(out / "model.json", fit.model)
     np.savez(out / "frf.npz", freq_hz=f, frf=frf.frf, var_noise=frf.var_noise, var_total=frf.var_total,
