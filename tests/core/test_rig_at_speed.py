@@ -159,6 +159,8 @@ def test_the_spinning_rig_with_unbalance_and_runout_levitates(kind):
         radius[k], y_log[k] = sim.bearing_radius(), y
     assert contact[0] and not contact[-last:].any()
     assert radius[-last:].max() < 0.1 * rig.backup_clearance_m
+    # the rotor angle, turned sample by sample (contact sub-steps included), is still Omega t
+    assert sim.rotor_angle_rad == pytest.approx((rig.speed_rad_s * rig.dt * n) % (2 * np.pi), abs=1e-10)
     # the synchronous response is there: y carries a 1X line well above the noise
     spec = np.abs(np.fft.rfft(y_log[-last:, 0])) / last
     f = np.fft.rfftfreq(last, rig.dt)

@@ -12,7 +12,8 @@ nearest sub-step there).
 
 Spinning, the unbalance forces and the probes' runout are known functions
 of the rotor angle theta, integrated from the speed sample by sample: the
-unbalance drive rotates within a sample, and its exact integral over the
+unbalance drive rotates within a sample (the kernel turns the angle's phasor
+by Omega dt per sample, no trigonometry), and its exact integral over the
 sample is a fixed matrix times [cos theta_k; sin theta_k]
 (:func:`_rotating_drive`); the runout is added to y at theta_k.
 
@@ -98,7 +99,8 @@ class PlantSimulator(KernelOwner):
         s[sk.PAR_CUBIC] = rig.values["sensor_cubic_per_m2"]  # Sensors.probe_error, compiled
         s[sk.PAR_CLEAR2] = rig.backup_clearance_m * rig.backup_clearance_m
         s[sk.PAR_LIN:sk.PAR_LIN + 12] = np.column_stack([plant.force_const, plant.ki, plant.ks]).ravel()
-        s[sk.PAR_OMEGA_DT] = plant.speed_rad_s * dt
+        s[sk.PAR_COS_STEP], s[sk.PAR_SIN_STEP] = math.cos(plant.speed_rad_s * dt), math.sin(plant.speed_rad_s * dt)
+        s[sk.PAR_COS] = 1.0  # the rotor angle is 0 at sample 0
         s[sk.PAR_UNBALANCE] = float(plant.b_unbalance is not None)
         if plant.runout is not None:
             s[sk.PAR_RUNOUT_N] = plant.runout.shape[0]
@@ -157,12 +159,12 @@ class PlantSimulator(KernelOwner):
         """aux at the present sample from the state x, the probes' runout at the present rotor angle included."""
         self._aux[:] = self._aux_map @ x
         if self.plant.runout is not None:
-            self._aux[0:4] += runout(self.plant.runout, self._s[sk.PAR_THETA])
+            self._aux[0:4] += runout(self.plant.runout, self.rotor_angle_rad)
 
     @property
     def rotor_angle_rad(self) -> float:
         """Rotor angle theta at the present sample, in [0, 2 pi) [rad] (0 at sample 0)."""
-        return float(self._s[sk.PAR_THETA])
+        return float(math.atan2(self._s[sk.PAR_SIN], self._s[sk.PAR_COS]) % (2 * math.pi))
 
     @property
     def bearing_displacement(self) -> np.ndarray:
@@ -308,7 +310,7 @@ class PlantSimulator(KernelOwner):
         x = v[:n].copy()
         u_new, u_old = v[n + 4:n + 8].copy(), v[n:n + 4].copy()
         h = self.rig.dt / CONTACT_SUBSTEPS
-        theta = float(self._s[sk.PAR_THETA] - self._s[sk.PAR_OMEGA_DT])  # the angle at the sample's start
+        theta = self.rotor_angle_rad - p.speed_rad_s * h * CONTACT_SUBSTEPS  # the angle at the sample's start
         for j in range(CONTACT_SUBSTEPS):
             gap = p.c_gap @ x
             f = self._contact_force(gap, self._gap_vel @ x)

@@ -37,11 +37,13 @@ PAR_LIN = 9  # (force_const [N], ki [N/A], ks [N/m]) of axis j at PAR_LIN + 3 j
 PAR_INDEX = 21  # sample index k of the present sample
 PAR_NOISE_BASE = 22  # sample index of the noise block's first row
 PAR_STATUS = 23  # why the last plant_step returned contact = True: STATUS_*
-PAR_OMEGA_DT = 24  # rotor angle turned per sample, Omega dt [rad]
-PAR_THETA = 25  # rotor angle at the present sample k, in [0, 2 pi) [rad]
-PAR_UNBALANCE = 26  # 1.0: the unbalance columns of M are in use
-PAR_RUNOUT_N = 27  # harmonics of the probes' runout in use (0: none)
-PAR_RUNOUT = 28  # runout table, (RUNOUT_HARMONICS, 4, 2) row-major [m] (ambid.plant.sensors.runout_table)
+PAR_COS_STEP = 24  # cos(Omega dt): the rotor angle turned per sample, as a rotation
+PAR_SIN_STEP = 25  # sin(Omega dt)
+PAR_COS = 26  # cos theta of the rotor angle at the present sample k
+PAR_SIN = 27  # sin theta
+PAR_UNBALANCE = 28  # 1.0: the unbalance columns of M are in use
+PAR_RUNOUT_N = 29  # harmonics of the probes' runout in use (0: none)
+PAR_RUNOUT = 30  # runout table, (RUNOUT_HARMONICS, 4, 2) row-major [m] (ambid.plant.sensors.runout_table)
 N_PAR = PAR_RUNOUT + 8 * RUNOUT_HARMONICS
 STATUS_CONTACT = 1.0  # the rotor touches: sub-step the sample
 STATUS_NOISE = 2.0  # the noise block is used up: draw the next one and call again
@@ -49,7 +51,6 @@ AUX = N_PAR  # aux block: y (4), gap (4), current (4), sensor displacement (4)
 N_AUX = 16
 N_EXTRA = 19  # v = [x (n); u[k-1] (4); u[k] (4); f (4); r_s (4); cos theta; sin theta; 1]
 N_OUT = 20  # M v = [x (n); u[k] (4); aux (16)][k+1]
-TWO_PI = 2.0 * np.pi
 
 
 @numba.njit(cache=True)
@@ -103,9 +104,9 @@ def magnet_residual(s: np.ndarray, cur: np.ndarray, gap: np.ndarray, out: np.nda
 
 
 @numba.njit(cache=True)
-def add_runout(s: np.ndarray, theta: float, y: np.ndarray, at: int) -> None:
-    """Add the probes' runout at rotor angle theta [rad] to y[at:at + 4] [m] (the table in s)."""
-    c1, s1 = np.cos(theta), np.sin(theta)
+def add_runout(s: np.ndarray, c1: float, s1: float, y: np.ndarray, at: int) -> None:
+    """Add the probes' runout at the rotor angle (cos theta, sin theta) = (c1, s1) to y[at:at + 4] [m]
+    (the table in s)."""
     ch, sh = c1, s1
     for h in range(int(s[PAR_RUNOUT_N])):
         base = PAR_RUNOUT + 8 * h
@@ -121,7 +122,8 @@ def plant_step(s: np.ndarray, u0: float, u1: float, u2: float,
     """One free-flight sample of the simulated plant with the current reference u [A] held.
 
     Clips u to the current limit and stores it as u[k] in v, and the rotor
-    angle's cos and sin at k; advances the rotor angle by Omega dt; with
+    angle's cos and sin at k; turns the rotor angle by Omega dt (a rotation
+    of its phasor, held at unit length); with
     nonlinear magnets, stores the magnets' residual force at sample k, and
     the sensors' cubic term, both held over the step; then, unless the
     rotor touches the backup bearings at k or k + 1, advances v and aux to
@@ -130,8 +132,8 @@ def plant_step(s: np.ndarray, u0: float, u1: float, u2: float,
 
     * STATUS_NOISE: the noise block has no row for k + 1; nothing changed:
       draw the next block, advance s[PAR_NOISE_BASE], call again;
-    * STATUS_CONTACT: the rotor touches; s[PAR_INDEX] and s[PAR_THETA]
-      are at k + 1, u[k] (clipped) and the angle at k are in v, v[:n + 4]
+    * STATUS_CONTACT: the rotor touches; s[PAR_INDEX] and s[PAR_COS],
+      s[PAR_SIN] are at k + 1, u[k] (clipped) and the angle at k are in v, v[:n + 4]
       and aux are still at k: sub-step the sample.
 
     Args:
@@ -151,15 +153,20 @@ def plant_step(s: np.ndarray, u0: float, u1: float, u2: float,
         s[PAR_STATUS] = STATUS_NOISE
         return nan, nan, nan, nan, False, True
     s[PAR_INDEX] = k
-    theta = s[PAR_THETA]
+    c, sn = s[PAR_COS], s[PAR_SIN]
     unbalance = s[PAR_UNBALANCE] != 0.0
     if unbalance:
-        s[v + n + 16] = np.cos(theta)
-        s[v + n + 17] = np.sin(theta)
-    theta += s[PAR_OMEGA_DT]  # the rotor angle, integrated from the speed
-    if theta >= TWO_PI:
-        theta -= TWO_PI
-    s[PAR_THETA] = theta
+        s[v + n + 16] = c
+        s[v + n + 17] = sn
+    # the rotor angle, integrated from the speed: e^{j theta[k+1]} = e^{j theta[k]} e^{j Omega dt}, the
+    # phasor's length held at 1 by one Newton step of 1 / sqrt(|z|^2) (no trigonometry per sample)
+    cs, ss = s[PAR_COS_STEP], s[PAR_SIN_STEP]
+    c, sn = c * cs - sn * ss, sn * cs + c * ss
+    g = 1.5 - 0.5 * (c * c + sn * sn)
+    c *= g
+    sn *= g
+    s[PAR_COS] = c
+    s[PAR_SIN] = sn
     lim = s[PAR_LIMIT]
     clipped = not (-lim <= u0 <= lim and -lim <= u1 <= lim and -lim <= u2 <= lim and -lim <= u3 <= lim)
     if clipped:
@@ -201,7 +208,7 @@ def plant_step(s: np.ndarray, u0: float, u1: float, u2: float,
     else:
         add_columns(s, mat, no, v, n + 18, n + 19, out)
     if s[PAR_RUNOUT_N] > 0.0:
-        add_runout(s, theta, out, n + 4)
+        add_runout(s, c, sn, out, n + 4)
     g = n + 8
     if out[g] * out[g] + out[g + 2] * out[g + 2] > c2 or out[g + 1] * out[g + 1] + out[g + 3] * out[g + 3] > c2:
         s[PAR_STATUS] = STATUS_CONTACT
