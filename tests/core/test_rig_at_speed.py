@@ -165,3 +165,8 @@ def test_the_spinning_rig_with_unbalance_and_runout_levitates(kind):
     spec = np.abs(np.fft.rfft(y_log[-last:, 0])) / last
     f = np.fft.rfftfreq(last, rig.dt)
     assert spec[np.argmin(np.abs(f - 200.0))] > 10 * np.median(spec)
+
+
+def test_an_imported_rotor_cannot_carry_a_stack_unbalance():
+    with pytest.raises(ValueError, match="imported rotor"):
+        make_rig({"stack_eccentricity_m": 1e-6}, rotor_import=make_rig().rotor_model())

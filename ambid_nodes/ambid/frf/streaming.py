@@ -44,6 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ambid.excitation.design import ExcitationDesign
+from ambid.frf.directional import DirectionalFrf, directional_frf
 from ambid.frf.estimators import (arithmetic_mean, errors_in_variables, h1, h2, indirect, log_mean,
                                   multiple_coherence, per_period_frf)
 from ambid.frf.sensitivity import input_sensitivity, iso14839_zone, sensitivity_peak
@@ -205,6 +206,13 @@ class FrfResult:
     gaps: tuple[Gap, ...]
     complete: bool
     synchronous: SynchronousResponse | None = None
+
+    def directional(self) -> DirectionalFrf | None:
+        """Forward and backward whirl FRFs (:mod:`ambid.frf.directional`) of a rotor's 4 x 4 x/y matrix in
+        AXES order, with the noise variance; None for another shape."""
+        if self.frf.shape[1:] != (4, 4):
+            return None
+        return directional_frf(self.freq_hz, self.frf, self.var_noise)
 
     @property
     def relative_noise_std(self) -> float:
