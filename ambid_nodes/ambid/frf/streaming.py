@@ -130,8 +130,9 @@ class SynchronousResponse:
         lines: (D,) its DFT bin.
         amplitude: (D, C) |mean| of the line's complex amplitude per channel [m for y, A for u].
         phase_rad: (D, C) its phase at the experiment's first sample [rad] (cosine reference).
-        amplitude_std: (D, C) standard uncertainty of the amplitude (and of each component of the complex
-            mean), from the record-to-record scatter [unit of the channel].
+        amplitude_std: (D, C) standard uncertainty of each component of the complex mean, from the
+            record-to-record scatter, and so of the amplitude where it is well above this [unit of the
+            channel] (an amplitude within a few of these is biased upwards, as any |mean| is).
         channel_names: (C,) the outputs, then the inputs.
         n_records: records averaged.
         on_lines: the harmonics fall exactly on lines (else leakage blurs amplitude and phase).

@@ -156,6 +156,6 @@ def run(args: argparse.Namespace) -> int:
           f"{'right' if camp['first_bending_whirl_right'] else 'WRONG'} at every speed" if err is not None else
           "first bending mode: no true rig to compare with")
     print(f"critical speeds (analytical model): {crit}")
-    print(f"campaign: {n} speeds, {camp['wall_time_s']:.1f} s wall ({len(walls)} run now)")
+    print(f"campaign: {n} speed{'s' if n != 1 else ''}, {camp['wall_time_s']:.1f} s wall ({len(walls)} run now)")
     print(f"campbell: {out / 'campbell.json'}\nreport:   {index}")
     return 0
