@@ -24,6 +24,7 @@ COMMANDS = {
     "target-model": "target_model",
     "import": "import_record",
     "export": "export_record",
+    "campaign": "campaign",
 }
 
 

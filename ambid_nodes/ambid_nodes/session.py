@@ -53,6 +53,8 @@ class SessionConfig:
     controller: str = ""  # a kind or a controller file; empty: the rig file's controller, else pid
     nonlinear_magnets: bool = True
     estimator: str = "indirect"
+    # at speed a multisine steers clear of the synchronous harmonics; None: the rig's rotor_speed_rpm
+    speed_rpm: float | None = None
     namespace: str = DEFAULT_NAMESPACE
     progress: bool = True
     hardware: str = ""      # HOST:PORT of a real-time target: hardware_bridge replaces plant_sim and the controller
@@ -60,13 +62,15 @@ class SessionConfig:
     true_model: str = ""    # with hardware: the C target's model file, the truth the FRF is compared with
     extra: dict = field(default_factory=dict)
 
-    def design(self, fs_hz: float) -> ExcitationDesign:
+    def design(self, fs_hz: float, rig_speed_rpm: float = 0.0) -> ExcitationDesign:
+        speed = rig_speed_rpm if self.speed_rpm is None else self.speed_rpm
         return build_design(self.kind, self.band_hz, self.resolution_hz, fs_hz, peak_current_a=self.peak_current_a,
                             n_periods=self.periods, n_realisations=self.realisations,
                             n_transient_periods=self.transient_periods,
                             grid=self.grid if self.kind == "multisine" else "",
                             mimo=self.mimo if self.kind == "multisine" else "",
-                            phases=self.phases if self.kind == "multisine" else "", seed=self.seed)
+                            phases=self.phases if self.kind == "multisine" else "", seed=self.seed,
+                            speed_rpm=speed if self.kind == "multisine" else 0.0)
 
 
 class ProgressBar:
@@ -117,7 +121,7 @@ def run_session_composed(cfg: SessionConfig) -> dict:
 
     rig = load_rig(cfg.rig_file) if cfg.rig_file else make_rig()
     fs = 1.0 / rig.dt
-    design = cfg.design(fs)
+    design = cfg.design(fs, float(rig.rotor_speed_rpm))
     start_index, total = session_samples(design, fs)
     mcap_path = cfg.out_dir / "session.mcap"
 

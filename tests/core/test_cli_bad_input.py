@@ -100,6 +100,7 @@ RIG_COMMANDS = {
     "identify": lambda rig, d: ["identify", "--rig", rig, "--out", str(d / "identify_out")],
     "design": lambda rig, d: ["design", "--rig", rig, "--out", str(d / "design_out"), "--no-figure"],
     "compare": lambda rig, d: ["compare", "--rig", rig, "--out", str(d / "compare_out")],
+    "campaign": lambda rig, d: ["campaign", "--speeds-rpm", "0", "--rig", rig, "--out", str(d / "campaign_out")],
     "fit": None,  # filled in the test: it needs the good session
     "target-model": lambda rig, d: ["target-model", "--rig", rig, "--out", str(d / "target-model_out")],
 }
@@ -130,6 +131,9 @@ OPTION_VALUES = [  # argv, the option the error names
     (["identify", "--peak-current", "-0.4"], "--peak-current"),
     (["design", "--resolution", "0"], "--resolution"),
     (["design", "--kind", "bogus"], "--kind"),
+    (["design", "--harmonics", "0"], "--harmonics"),
+    (["campaign", "--out", "{dir}/c1", "--speeds-rpm", "fast"], "--speeds-rpm"),
+    (["campaign", "--out", "{dir}/c1", "--speeds-rpm", "0", "--resolution", "-5"], "--resolution"),
     (["graph", "--sim-seconds", "-1"], "--sim-seconds"),
     (["graph", "--controller", "bogus"], "--controller"),
     (["graph", "--hardware", "nonsense"], "--hardware"),
@@ -151,6 +155,9 @@ def test_wrong_option_values_are_refused_by_name(files, argv, option, capsys):
 RANGE_REFUSALS = [  # values argparse cannot judge alone: the command's one line, naming the option
     (["identify", "--band", "500", "10"], "--band 500 10"),
     (["design", "--band", "500", "10", "--out", "{dir}/d2"], "--band 500 10"),
+    (["design", "--speed-rpm", "-5", "--out", "{dir}/d3"], "--speed-rpm"),
+    (["campaign", "--speeds-rpm", "0", "-3000", "--out", "{dir}/c2"], "--speeds-rpm"),
+    (["campaign", "--speeds-rpm", "0", "--out", "{good}"], "--out"),
     (["compare", "--parts", "bogus"], "--parts"),
     (["bench", "--skip", "bogus"], "--skip"),
     (["node", "bogus"], "unknown node 'bogus'"),

@@ -166,7 +166,7 @@ def test_simulator_copies_and_pickles():
 
 
 def test_plant_work_checks_the_matrix():
-    with pytest.raises(ValueError, match="n \\+ 20, n \\+ 17"):
+    with pytest.raises(ValueError, match="n \\+ 20, n \\+ 19"):
         sk.plant_work(np.zeros((10, 20)), 4)
 
 

@@ -15,6 +15,8 @@ from scipy.signal import freqz
 from .design import ExcitationDesign
 from .lines import AmplitudeShape, band_bins, detection_lines, line_set, n_per_period, shape_amplitudes
 from .multisine import MIMO_MULTISINE, PHASES, experiment_shifts, mimo_phasors, optimise_crest_phases, schroeder_phases
+from .synchronous import (DEFAULT_GUARD_BINS, DEFAULT_HARMONICS, DEFAULT_MAX_PERIOD_CHANGE, commensurate_period,
+                          harmonic_bins, steer_lines, synchronous_options)
 from .signals import (binary_waveform, dibs_bits, mls, noise_filter_spec, noise_taps, stepped_sine_layout,
                       swept_sine_period)
 
@@ -115,7 +117,9 @@ def design_multisine(band_hz: tuple[float, float], resolution_hz: float, fs_hz: 
                      grid: str = "random_odd", spacing: str = "linear",
                      phases: str = "random", mimo: str = "orthogonal",
                      amplitude_shape: AmplitudeShape = None, seed: int = 0,
-                     n_lines: int | None = None, group_size: int = 3) -> ExcitationDesign:
+                     n_lines: int | None = None, group_size: int = 3, speed_rpm: float = 0.0,
+                     n_harmonics: int = DEFAULT_HARMONICS, guard_bins: int = DEFAULT_GUARD_BINS,
+                     max_period_change: float = DEFAULT_MAX_PERIOD_CHANGE) -> ExcitationDesign:
     """Periodic multisine, single or multiple input.
 
     Args:
@@ -135,6 +139,11 @@ def design_multisine(band_hz: tuple[float, float], resolution_hz: float, fs_hz: 
         seed: seed of the random grid choice and phases.
         n_lines: number of lines for log spacing.
         group_size: random-odd group length.
+        speed_rpm: rotor speed [rpm]; > 0 steers the lines clear of the synchronous harmonics
+            1..n_harmonics (:mod:`ambid.excitation.synchronous`): the period is changed by at most
+            ``max_period_change`` so that they fall on lines, excited lines within ``guard_bins`` of one
+            move, and the design's ``options["synchronous"]`` says what moved and names the
+            disturbance lines.
 
     Returns:
         ExcitationDesign of kind 'multisine' with Ne = Nu experiments.
@@ -148,8 +157,26 @@ def design_multisine(band_hz: tuple[float, float], resolution_hz: float, fs_hz: 
     _choice("mimo", mimo, MIMO_MULTISINE)
     seed = _seed(seed)
     rng = np.random.default_rng(seed)
+    sync = None
+    speed_rpm = float(speed_rpm)
+    if not np.isfinite(speed_rpm) or speed_rpm < 0:
+        raise ValueError(f"speed_rpm must be finite and >= 0 [rpm], got {speed_rpm!r}")
+    if speed_rpm > 0:
+        n_harmonics = _count("n_harmonics", n_harmonics, 1)
+        guard_bins = _count("guard_bins", guard_bins, 0)
+        requested = n
+        n = commensurate_period(speed_rpm, fs_hz, n, max_period_change) or n
+        k_lo, k_hi = band_bins(band_hz, float(fs_hz), n)
     lines = line_set(k_lo, k_hi, grid, spacing, n_lines, group_size, rng)
     odd, even = detection_lines(lines, k_lo, k_hi)
+    if speed_rpm > 0:
+        harm = harmonic_bins(speed_rpm, fs_hz, n, n_harmonics)
+        steered = steer_lines(lines, k_lo, k_hi, n, harm, guard_bins)
+        lines, odd, even = steered.excited, steered.detection_odd, steered.detection_even
+        if lines.size == 0:
+            raise ValueError(f"at {speed_rpm:g} rpm every line of the band lies within {guard_bins} bin(s) of a "
+                             "synchronous harmonic; refine the resolution or lower guard_bins")
+        sync = synchronous_options(speed_rpm, n_harmonics, guard_bins, harm, steered, requested, n)
     shape = shape_amplitudes(amplitude_shape, lines * (fs_hz / n))
     nu = len(names)
     if phases == "schroeder":
@@ -168,7 +195,8 @@ def design_multisine(band_hz: tuple[float, float], resolution_hz: float, fs_hz: 
         peak_a=np.zeros(nu), rms_a=np.zeros(nu), crest_factor=np.zeros(nu),
         band_hz=band_hz, seed=seed,
         options={"grid": grid, "spacing": spacing, "phases": phases, "mimo": mimo,
-                 "group_size": group_size, "shaped": amplitude_shape is not None})
+                 "group_size": group_size, "shaped": amplitude_shape is not None,
+                 **({"synchronous": sync} if sync else {})})
     peak0, _, _ = _periodic_figures(unit)
     return _finish(unit, amplitudes_a=unit.amplitudes_a * (peaks / peak0)[:, None])
 

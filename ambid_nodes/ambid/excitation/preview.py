@@ -97,7 +97,7 @@ def describe(design: ExcitationDesign) -> str:
     """Multi-line text summary: lines, N, crest factor, RMS/peak per input, time."""
     d = design
     res = d.fs_hz / d.n_per_period
-    opts = ", ".join(f"{k}={v}" for k, v in d.options.items() if k != "power_fraction")
+    opts = ", ".join(f"{k}={v}" for k, v in d.options.items() if k not in ("power_fraction", "synchronous"))
     lines = [
         f"excitation: {d.kind} ({opts})",
         f"sample rate {d.fs_hz:g} Hz, N = {d.n_per_period} samples per period, "

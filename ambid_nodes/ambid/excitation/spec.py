@@ -10,6 +10,8 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+from ambid.excitation.synchronous import DEFAULT_GUARD_BINS, DEFAULT_HARMONICS
+
 KINDS = ("multisine", "stepped_sine", "swept_sine", "noise", "prbs", "dibs")
 DEFAULT_INPUTS = ("u_a_x", "u_b_x", "u_a_y", "u_b_y")
 # choices per kind that take them; the first is the kind's default ("" selects it)
@@ -69,7 +71,8 @@ def build_design(kind: str, band_hz: tuple[float, float], resolution_hz: float, 
                  input_names: Sequence[str] = DEFAULT_INPUTS, peak_current_a: float = 0.5,
                  n_periods: int = 4, n_realisations: int = 1, n_transient_periods: int = 1,
                  grid: str = "", spacing: str = "", phases: str = "", mimo: str = "", seed: int = 0,
-                 settle_s: float = 0.5, n_cycles: int = 10):
+                 settle_s: float = 0.5, n_cycles: int = 10, speed_rpm: float = 0.0,
+                 n_harmonics: int = DEFAULT_HARMONICS, guard_bins: int = DEFAULT_GUARD_BINS):
     """An ExcitationDesign from the user's terms, for any kind.
 
     Args:
@@ -85,6 +88,8 @@ def build_design(kind: str, band_hz: tuple[float, float], resolution_hz: float, 
             ``spacing`` is the sweep law.
         seed: seed of the random choices.
         settle_s, n_cycles: stepped sine settling wait [s] and measured cycles per line.
+        speed_rpm: rotor speed [rpm]; > 0 (multisine only) steers the lines clear of the synchronous
+            harmonics 1..n_harmonics, ``guard_bins`` bins each side (:mod:`ambid.excitation.synchronous`).
 
     Returns:
         ExcitationDesign.
@@ -102,11 +107,15 @@ def build_design(kind: str, band_hz: tuple[float, float], resolution_hz: float, 
     spacing = _option(kind, "spacing", spacing, SPACINGS)
     phases = _option(kind, "phases", phases, PHASES)
     mimo = _option(kind, "mimo", mimo, MIMOS)
+    if speed_rpm and kind != "multisine":
+        raise ValueError(f"a {kind} design cannot steer clear of the synchronous harmonics at speed; use kind "
+                         "multisine, or leave out the speed")
     common = dict(input_names=tuple(input_names), peak_current_a=peak_current_a)
     periodic = dict(n_periods=n_periods, n_realisations=n_realisations, n_transient_periods=n_transient_periods)
     if kind == "multisine":
         return design_multisine(band, resolution_hz, fs_hz, **common, **periodic, grid=grid, spacing=spacing,
-                                phases=phases, mimo=mimo, seed=seed)
+                                phases=phases, mimo=mimo, seed=seed, speed_rpm=speed_rpm,
+                                n_harmonics=n_harmonics, guard_bins=guard_bins)
     if kind == "stepped_sine":
         return design_stepped_sine(band, resolution_hz, fs_hz, **common, settle_s=settle_s, n_cycles=n_cycles,
                                    grid=grid, spacing=spacing)

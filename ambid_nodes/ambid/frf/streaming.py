@@ -44,12 +44,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ambid.excitation.design import ExcitationDesign
+from ambid.frf.directional import DirectionalFrf, directional_frf
 from ambid.frf.estimators import (arithmetic_mean, errors_in_variables, h1, h2, indirect, log_mean,
                                   multiple_coherence, per_period_frf)
 from ambid.frf.sensitivity import input_sensitivity, iso14839_zone, sensitivity_peak
 from ambid.frf.uncertainty import DistortionLevels, distortion_levels, frf_noise_variance
 
-__all__ = ["ESTIMATORS", "Gap", "BlockReport", "StreamProgress", "FrfResult", "FrfStream",
+__all__ = ["ESTIMATORS", "Gap", "BlockReport", "StreamProgress", "SynchronousResponse", "FrfResult", "FrfStream",
            "match_inputs", "loop_consistency"]
 
 #: Estimator names, as in the FrfEstimate message.
@@ -117,6 +118,38 @@ class StreamProgress:
 
 
 @dataclass(frozen=True)
+class SynchronousResponse:
+    """The spinning rotor's synchronous response at the disturbance lines of a design steered clear of
+    the harmonics k * Omega (:mod:`ambid.excitation.synchronous`): the complex mean over every record
+    (period, experiment, realisation), phase-locked to the experiment's start when the harmonics fall on
+    lines.
+
+    Attributes:
+        harmonic: (D,) harmonic number k.
+        freq_hz: (D,) frequency of the disturbance line [Hz].
+        lines: (D,) its DFT bin.
+        amplitude: (D, C) |mean| of the line's complex amplitude per channel [m for y, A for u].
+        phase_rad: (D, C) its phase at the experiment's first sample [rad] (cosine reference).
+        amplitude_std: (D, C) standard uncertainty of each component of the complex mean, from the
+            record-to-record scatter, and so of the amplitude where it is well above this [unit of the
+            channel] (an amplitude within a few of these is biased upwards, as any |mean| is).
+        channel_names: (C,) the outputs, then the inputs.
+        n_records: records averaged.
+        on_lines: the harmonics fall exactly on lines (else leakage blurs amplitude and phase).
+    """
+
+    harmonic: np.ndarray
+    freq_hz: np.ndarray
+    lines: np.ndarray
+    amplitude: np.ndarray
+    phase_rad: np.ndarray
+    amplitude_std: np.ndarray
+    channel_names: tuple[str, ...]
+    n_records: int
+    on_lines: bool
+
+
+@dataclass(frozen=True)
 class FrfResult:
     """An FRF estimate with its uncertainty and the loop's figures.
 
@@ -148,6 +181,9 @@ class FrfResult:
         n_experiments: Ne.
         gaps: every gap found so far.
         complete: the whole experiment was processed.
+        synchronous: the synchronous response at the disturbance lines of a design steered clear of a
+            spinning rotor's harmonics, or None (no such lines); those lines are in neither the FRF,
+            its noise estimate nor the distortion levels.
     """
 
     estimator: str
@@ -170,6 +206,14 @@ class FrfResult:
     n_experiments: int
     gaps: tuple[Gap, ...]
     complete: bool
+    synchronous: SynchronousResponse | None = None
+
+    def directional(self) -> DirectionalFrf | None:
+        """Forward and backward whirl FRFs (:mod:`ambid.frf.directional`) of a rotor's 4 x 4 x/y matrix in
+        AXES order, with the noise variance; None for another shape."""
+        if self.frf.shape[1:] != (4, 4):
+            return None
+        return directional_frf(self.freq_hz, self.frf, self.var_noise)
 
     @property
     def relative_noise_std(self) -> float:
@@ -328,12 +372,18 @@ class FrfStream:
             if np.any(bins * d.n_per_period != d.excited_lines * self._p):
                 raise ValueError("stepped-sine layout: a period does not hold whole cycles of its line")
             self._bins = [np.array([b]) for b in bins]
-            self._n_exc, self._n_odd = 1, 0
+            self._n_exc, self._n_odd, self._n_even = 1, 0, 0
+            self._sync = None
         else:
+            # a design steered clear of a spinning rotor's harmonics names its disturbance lines: analysed
+            # after the detection lines, for the synchronous response alone
+            self._sync = d.options.get("synchronous") or None
+            dist = np.asarray(self._sync["disturbance_lines"] if self._sync else [], dtype=np.int64)
             all_lines = np.concatenate([d.excited_lines, d.detection_lines_odd,
-                                        d.detection_lines_even]).astype(np.int64)
+                                        d.detection_lines_even, dist]).astype(np.int64)
             self._bins = [all_lines] * d.n_realisations
             self._n_exc, self._n_odd = d.excited_lines.size, d.detection_lines_odd.size
+            self._n_even = d.detection_lines_even.size
         # period_spectra's scaling per line (2/N, 1/N at DC and Nyquist), applied to the rfft in _period_done
         self._scale = []
         for pm, b in zip(self._p.tolist(), self._bins):
@@ -608,7 +658,27 @@ class FrfStream:
             distortion=fig["distortion"], noise_std=noise_std, output_names=self.output_names,
             input_names=self.input_names, n_realisations=len(used),
             n_periods=int(sum(g.shape[2] for g in groups)), n_experiments=self.design.n_experiments,
-            gaps=self.gaps, complete=self.finished)
+            gaps=self.gaps, complete=self.finished,
+            synchronous=None if self._sync is None else self._synchronous(groups))
+
+    def _synchronous(self, groups: list[np.ndarray]) -> SynchronousResponse | None:
+        """Mean and scatter of the disturbance lines over all records (y and u channels)."""
+        first = self._n_exc + self._n_odd + self._n_even
+        d = self.design
+        if len(self._bins[0]) == first:
+            return None
+        nc = self._ny + self._nu
+        x = np.concatenate([g[0, :, :, first:, :nc].reshape(-1, len(self._bins[0]) - first, nc) for g in groups])
+        k = x.shape[0]
+        mean = x.mean(axis=0)
+        std = (np.sqrt(np.sum(np.abs(x - mean) ** 2, axis=0) / (2 * (k - 1) * k)) if k >= 2
+               else np.full(mean.shape, np.nan))
+        lines = np.asarray(self._sync["disturbance_lines"], dtype=np.int64)
+        return SynchronousResponse(
+            harmonic=np.asarray(self._sync["disturbance_harmonics"], dtype=np.int64),
+            freq_hz=lines * (d.fs_hz / d.n_per_period), lines=lines, amplitude=np.abs(mean),
+            phase_rad=np.angle(mean), amplitude_std=std, channel_names=self.output_names + self.input_names,
+            n_records=k, on_lines=bool(self._sync["on_lines"]))
 
     def _figures(self, estimator: str, groups: list[np.ndarray], used: list[int]) -> dict:
         """Estimates from per-realisation spectra groups (1, Ne, K_m, L, ch)."""
@@ -650,8 +720,9 @@ class FrfStream:
                 var_total = g_m.var(axis=0, ddof=1) / n
             det = [g for g in groups if g.shape[2] >= 2]
             if det and not self._stepped:
+                n_even = self._n_even
                 levels = [distortion_levels(g[:, :, :, n_exc:n_exc + n_odd, :ny],
-                                            g[:, :, :, n_exc + n_odd:, :ny]) for g in det]
+                                            g[:, :, :, n_exc + n_odd:n_exc + n_odd + n_even, :ny]) for g in det]
                 distortion = _mean_levels(levels)
         return {"frf": frf, "var_noise": var_noise, "var_total": var_total,
                 "coherence": multiple_coherence(y, r), "sensitivity": input_sensitivity(u, r),

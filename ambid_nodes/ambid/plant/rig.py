@@ -104,6 +104,25 @@ RIG_FIELDS: dict[str, RigField] = {
     # delay (true rig only)
     "extra_delay_s": RigField(50e-6, "s", 0.0, 0.01, "ADC conversion and PWM update, half a sample; at most "
                               "one sample"),
+    # at speed (true rig only; nothing of this acts at standstill)
+    "stack_eccentricity_m": RigField(0.0, "m", 0.0, 1e-3, "mass unbalance of the central stack: its centre of "
+                                     "mass off the spin axis (1 um ~ ISO 21940 G1.3 at 12,000 rpm); force "
+                                     "m e Omega^2"),
+    "stack_unbalance_phase_deg": RigField(0.0, "deg", -360.0, 360.0, "angle of the stack's unbalance from the "
+                                          "x axis at rotor angle 0, in the sense of the spin"),
+    "sleeve_a_eccentricity_m": RigField(0.0, "m", 0.0, 1e-3, "mass unbalance of the bearing sleeve at A"),
+    "sleeve_a_unbalance_phase_deg": RigField(0.0, "deg", -360.0, 360.0, "angle of the sleeve A unbalance"),
+    "sleeve_b_eccentricity_m": RigField(0.0, "m", 0.0, 1e-3, "mass unbalance of the bearing sleeve at B"),
+    "sleeve_b_unbalance_phase_deg": RigField(0.0, "deg", -360.0, 360.0, "angle of the sleeve B unbalance"),
+    **{f"runout_{kind}_{h}x_{q}": RigField(0.0, unit, lo, hi, f"{what} runout of the probe tracks, harmonic "
+                                           f"{h} of the rotor angle, {desc}")
+       for kind, what, hs in (("mech", "mechanical (track out of round, eccentric)", (1, 2)),
+                              ("elec", "electrical (conductivity, permeability, residual magnetism)", (1, 2, 3)))
+       for h in hs
+       for q, unit, lo, hi, desc in (("m", "m", 0.0, 1e-4, "amplitude (API 670 allows 6 um in all)"),
+                                     ("phase_deg", "deg", -360.0, 360.0, "phase"))},
+    "runout_b_phase_deg": RigField(0.0, "deg", -360.0, 360.0, "the B track's runout profile turned by this "
+                                   "angle against the A track's"),
     # backup bearings
     "backup_clearance_m": RigField(0.25e-3, "m", 1e-6, 0.01, "radial retainer clearance, < s0"),
     "contact_stiffness_n_per_m": RigField(5e7, "N/m", 1e3, 1e10, "backup bearing and retainer stiffness"),
@@ -113,7 +132,9 @@ RIG_FIELDS: dict[str, RigField] = {
 _ROTOR_KEYS = ("shaft_length_m", "shaft_diameter_m", "stack_length_m", "stack_diameter_m", "sleeve_length_m",
                "sleeve_diameter_m", "density_kg_m3", "youngs_modulus_pa", "bending_modes",
                "modal_damping_ratio", "rotor_speed_rpm", "bearing_a_z_m", "bearing_b_z_m", "sensor_a_z_m",
-               "sensor_b_z_m")
+               "sensor_b_z_m", "stack_eccentricity_m", "stack_unbalance_phase_deg", "sleeve_a_eccentricity_m",
+               "sleeve_a_unbalance_phase_deg", "sleeve_b_eccentricity_m", "sleeve_b_unbalance_phase_deg")
+_UNBALANCE_KEYS = ("stack_eccentricity_m", "sleeve_a_eccentricity_m", "sleeve_b_eccentricity_m")
 _ROTOR_CACHE: dict[tuple, RotorModel] = {}
 
 
@@ -195,6 +216,30 @@ class Rig:
 
     # -- rotor -----------------------------------------------------------
     @property
+    def speed_rad_s(self) -> float:
+        """Spin speed Omega = 2 pi rpm / 60 [rad/s]."""
+        return self.values["rotor_speed_rpm"] * np.pi / 30.0
+
+    def unbalance_planes(self) -> tuple[tuple[float, float, float], ...]:
+        """The unbalanced planes: (position from the left shaft end [m], m e [kg m], angle [rad]) of the
+        central stack and the two bearing sleeves, those with an eccentricity only; m is the stack's own
+        mass (the laminations around the shaft)."""
+        v = self.values
+        half = v["shaft_length_m"] / 2
+        rho, d = v["density_kg_m3"], v["shaft_diameter_m"]
+        out = []
+        for key, phase, z, length, dia in (
+                ("stack_eccentricity_m", "stack_unbalance_phase_deg", half, "stack_length_m", "stack_diameter_m"),
+                ("sleeve_a_eccentricity_m", "sleeve_a_unbalance_phase_deg", half + v["bearing_a_z_m"],
+                 "sleeve_length_m", "sleeve_diameter_m"),
+                ("sleeve_b_eccentricity_m", "sleeve_b_unbalance_phase_deg", half + v["bearing_b_z_m"],
+                 "sleeve_length_m", "sleeve_diameter_m")):
+            mass = rho * np.pi / 4 * (v[dia] ** 2 - d * d) * v[length]
+            if v[key] > 0 and mass > 0:
+                out.append((float(z), float(mass * v[key]), float(np.deg2rad(v[phase]))))
+        return tuple(out)
+
+    @property
     def rotor_geometry(self) -> RotorGeometry:
         """Finite-element geometry of the built-in rotor (z from the left shaft end)."""
         v = self.values
@@ -230,7 +275,7 @@ class Rig:
             half = v["shaft_length_m"] / 2
             model = fem_rotor_model(self.rotor_geometry, (half + v["bearing_a_z_m"], half + v["bearing_b_z_m"]),
                                     (half + v["sensor_a_z_m"], half + v["sensor_b_z_m"]), nb,
-                                    v["modal_damping_ratio"], v["rotor_speed_rpm"] * np.pi / 30.0)
+                                    v["modal_damping_ratio"], self.speed_rad_s, self.unbalance_planes())
             if len(_ROTOR_CACHE) > 16:
                 _ROTOR_CACHE.clear()
             _ROTOR_CACHE[key] = model
@@ -373,6 +418,9 @@ def make_rig(overrides: dict[str, Any] | None = None, name: str = "ambid-default
 
         rotor_import = load_rotor(rotor_file, speed_rpm=values["rotor_speed_rpm"],
                                   damping_ratio=values["modal_damping_ratio"])
+    if rotor_import is not None and any(values[k] > 0 for k in _UNBALANCE_KEYS):
+        raise ValueError("rig: an imported rotor model has no stack planes to carry an unbalance; set "
+                         f"{', '.join(_UNBALANCE_KEYS)} to 0 (or use the finite-element rotor)")
     return Rig(name, values, rotor_import, controller)
 
 

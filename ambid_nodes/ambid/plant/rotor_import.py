@@ -246,7 +246,7 @@ def rotor_from_second_order(data: dict, speed_rad_s: float = 0.0, damping_ratio:
     if g is not None and speed_rad_s:
         a[r:, r:] -= speed_rad_s * (phi.T @ g @ phi)
     flexible = freq[freq >= 1.0]
-    return RotorModel(a, b, c_b, c_s, b_g, mass, flexible, source, tuple(notes))
+    return RotorModel(a, b, c_b, c_s, b_g, mass, flexible, source, notes=tuple(notes))
 
 
 def load_rotor(path: str | Path, speed_rpm: float = 0.0, damping_ratio: float = 0.005) -> RotorModel:

@@ -13,6 +13,12 @@ channel order (bearing A x, bearing B x, bearing A y, bearing B y; the x and
 y axes are the bearing axes, turned 45 deg from the vertical, so gravity
 acts on both with -g / sqrt(2)). The rotor must be free-free: the magnets
 (and, on contact, the backup bearings) are its only supports.
+
+Spinning at Omega with mass unbalance, the rotor also feels the synchronous
+forces m e Omega^2 of its unbalanced planes, rotating with the rotor angle
+theta = Omega t (forward, from x towards y)::
+
+    x' = ... + Omega^2 B_unbalance [cos theta; sin theta]
 """
 
 from __future__ import annotations
@@ -43,6 +49,9 @@ class RotorModel:
         flexible_freq_hz: free-free bending frequencies kept in the model,
             one per plane mode at standstill [Hz] (empty if unknown).
         source: where the model comes from (for reports).
+        b_unbalance: (n, 2) state derivative per Omega^2 [1/s^2 -> state units]
+            of the unbalance forces, for [cos theta, sin theta] (module
+            docstring); None: no unbalance.
         notes: what the import changed in the model the user gave (DOFs or
             modes dropped), one sentence each, for the commands to say.
     """
@@ -55,6 +64,7 @@ class RotorModel:
     mass_kg: float
     flexible_freq_hz: np.ndarray = field(default_factory=lambda: np.zeros(0))
     source: str = ""
+    b_unbalance: np.ndarray | None = None
     notes: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
@@ -69,6 +79,11 @@ class RotorModel:
             if not np.all(np.isfinite(arr)):
                 raise ValueError(f"RotorModel.{name} contains NaN or inf")
             object.__setattr__(self, name, arr)
+        if self.b_unbalance is not None:
+            bu = np.asarray(self.b_unbalance, dtype=float)
+            if bu.shape != (n, 2) or not np.all(np.isfinite(bu)):
+                raise ValueError(f"RotorModel.b_unbalance must be finite with shape ({n}, 2), got {bu.shape}")
+            object.__setattr__(self, "b_unbalance", bu)
         if not (np.isfinite(self.mass_kg) and self.mass_kg > 0):
             raise ValueError(f"RotorModel.mass_kg must be > 0, got {self.mass_kg!r}")
         object.__setattr__(self, "flexible_freq_hz", np.asarray(self.flexible_freq_hz, dtype=float).ravel())
@@ -83,7 +98,8 @@ class RotorModel:
 
 
 def fem_rotor_model(geometry: RotorGeometry, bearing_z_m: tuple[float, float], sensor_z_m: tuple[float, float],
-                    n_bending: int, damping_ratio: float, speed_rad_s: float = 0.0) -> RotorModel:
+                    n_bending: int, damping_ratio: float, speed_rad_s: float = 0.0,
+                    unbalance: tuple[tuple[float, float, float], ...] = ()) -> RotorModel:
     """Finite-element rotor reduced to its rigid and first bending modes.
 
     Args:
@@ -94,6 +110,9 @@ def fem_rotor_model(geometry: RotorGeometry, bearing_z_m: tuple[float, float], s
         n_bending: bending modes kept per plane (besides the 2 rigid ones).
         damping_ratio: modal damping of the bending modes [-].
         speed_rad_s: spin speed Omega [rad/s] (gyroscopic coupling).
+        unbalance: unbalanced planes (position from the left shaft end [m],
+            mass times eccentricity m e [kg m], angle from x at theta = 0
+            [rad]); each acts at the node nearest its position.
 
     Returns:
         RotorModel with 4 (2 + n_bending) states; gravity is the consistent
@@ -122,8 +141,18 @@ def fem_rotor_model(geometry: RotorGeometry, bearing_z_m: tuple[float, float], s
     r = modal.shapes.shape[1]
     b_g = np.concatenate([np.zeros(r), modal.shapes.T @ (rotor.mass @ u_g)])
     props = rigid_body_properties(rotor)
+    b_unb = None
+    if unbalance:
+        b_unb = np.zeros((a.shape[0], 2))
+        for z_m, me, phase in unbalance:
+            node = int(np.argmin(np.abs(z - z_m)))
+            dofs = [int(dof_index(node, DOF_X)), int(dof_index(node, DOF_Y))]
+            _, b_node, _ = modal_state_space(modal, dofs, dofs, speed_rad_s=speed_rad_s, damping_ratio=zeta)
+            # F = m e Omega^2 [cos(theta + phase); sin(theta + phase)] = m e Omega^2 R(phase) [cos; sin]
+            cp, sp = np.cos(phase), np.sin(phase)
+            b_unb += me * b_node @ np.array([[cp, -sp], [sp, cp]])
     return RotorModel(a, b, c[:4], c[4:], b_g, props.mass_kg, modal.freq_hz[modal.n_rigid:],
-                      "finite-element rotor (ambid.plant.fem_rotor), modal reduction")
+                      "finite-element rotor (ambid.plant.fem_rotor), modal reduction", b_unb)
 
 
 def rigid_inverse_mass(model: RotorModel, probe_hz: float = 1e-3) -> np.ndarray:

@@ -7,6 +7,13 @@ pedestal displacement d at its plane [m]::
     s'  = wc (d + r_s - s)           electronics: first-order low-pass, wc = 2 pi bandwidth_hz
     y   = gain s + n                 n white Gaussian, std noise_std_m per sample [m]
 
+Spinning, each probe also reads its track's runout (mechanical: the track
+out of round or off the spin axis; electrical: conductivity, permeability
+and residual magnetism varying round the track), a sum of harmonics of the
+rotor angle theta added to y (:func:`runout_table`, :func:`runout`); the
+rotor does not move with it. At standstill the track's static reading is
+part of the calibration zero, so runout acts only while the rotor spins.
+
 The linear part (d -> s -> y) is a block of the true rig's state-space
 model (:func:`ambid.plant.true_rig.true_plant` places it); the cubic error
 enters that model as the input r_s, evaluated at the start of each step and
@@ -78,3 +85,42 @@ class Sensors:
     def draw_noise(self, rng: np.random.Generator, n_samples: int, n_channels: int = 4) -> np.ndarray:
         """The output noise of n_samples samples, (n_samples, n_channels) [m], from ``rng``'s stream."""
         return rng.standard_normal((n_samples, n_channels)) * self.noise_std_m
+
+
+RUNOUT_HARMONICS = 3  # harmonics of the rotor angle a rig file can give runout at
+_RUNOUT_KINDS = {"mech": (1, 2), "elec": (1, 2, 3)}
+
+
+def runout_table(values: Mapping[str, Any]) -> np.ndarray:
+    """Runout of the four probes as harmonics of the rotor angle theta, from a rig's parameter values.
+
+    Each track has a profile rho(psi) = sum_h a_h cos(h psi + phi_h) (mechanical
+    plus electrical); the x probe reads it at psi = theta, the y probe, a
+    quarter turn on in the sense of the spin, at psi = theta - pi / 2, and
+    track B's profile is turned by ``runout_b_phase_deg`` (beta):
+    a cos(h (theta - gamma) + phi + h beta). A 1X runout thus reads as a
+    forward circular orbit.
+
+    Returns:
+        T: (RUNOUT_HARMONICS, 4, 2) [m]; probe c (AXES order) reads
+        sum_h T[h - 1, c, 0] cos(h theta) + T[h - 1, c, 1] sin(h theta).
+    """
+    t = np.zeros((RUNOUT_HARMONICS, 4, 2))
+    beta = math.radians(float(values["runout_b_phase_deg"]))
+    for kind, harmonics in _RUNOUT_KINDS.items():
+        for h in harmonics:
+            a = float(values[f"runout_{kind}_{h}x_m"])
+            phi = math.radians(float(values[f"runout_{kind}_{h}x_phase_deg"]))
+            for c, (track, gamma) in enumerate(((0.0, 0.0), (beta, 0.0), (0.0, math.pi / 2), (beta, math.pi / 2))):
+                psi = phi + h * (track - gamma)
+                t[h - 1, c] += a * math.cos(psi), -a * math.sin(psi)
+    return t
+
+
+def runout(table: np.ndarray, theta_rad: np.ndarray) -> np.ndarray:
+    """The probes' runout at rotor angles theta [rad], shape theta.shape + (4,) [m] (table from
+    :func:`runout_table`)."""
+    th = np.asarray(theta_rad, dtype=float)[..., None]
+    h = np.arange(1, table.shape[0] + 1)
+    c, s = np.cos(h * th), np.sin(h * th)  # (..., H)
+    return c @ table[:, :, 0] + s @ table[:, :, 1]

@@ -10,8 +10,15 @@ while the rotor touches the retainer, where the contact spring is stiff, the
 sample is split into sub-steps (the delayed reference switches at the
 nearest sub-step there).
 
+Spinning, the unbalance forces and the probes' runout are known functions
+of the rotor angle theta, integrated from the speed sample by sample: the
+unbalance drive rotates within a sample (the kernel turns the angle's phasor
+by Omega dt per sample, no trigonometry), and its exact integral over the
+sample is a fixed matrix times [cos theta_k; sin theta_k]
+(:func:`_rotating_drive`); the runout is added to y at theta_k.
+
 One free-flight sample is one fused matrix-vector product,
-[x; u; C x][k+1] = M [x; u[k-1]; u[k]; f; r_s; 1], run together with the
+[x; u; C x][k+1] = M [x; u[k-1]; u[k]; f; r_s; cos theta_k; sin theta_k; 1], run together with the
 held forces by the compiled kernel :func:`ambid.plant.step_kernel.plant_step`
 (``step_output()`` ~3 us per sample); the rare contact sub-steps run in
 numpy.
@@ -32,7 +39,7 @@ from scipy import linalg
 from ambid.compiled import KernelOwner, compiled
 from ambid.plant import step_kernel as sk
 from ambid.plant.rig import Rig
-from ambid.plant.sensors import Sensors
+from ambid.plant.sensors import Sensors, runout
 from ambid.plant.true_rig import OperatingPoint, TruePlant, delayed_zoh, levitated_plant, zoh_blocks
 
 CONTACT_SUBSTEPS = 16
@@ -70,15 +77,16 @@ class PlantSimulator(KernelOwner):
         n = plant.n_states
         self._n = n
         dt = rig.dt
-        # free-flight step: x[k+1] = Phi x + G0 u[k-1] + G1 u[k] + Gw [f; r_s; 1]
+        # free-flight step: x[k+1] = Phi x + G0 u[k-1] + G1 u[k] + Gw [f; r_s] + Gr [cos; sin](theta_k) + gc
         phi, g1, g0 = delayed_zoh(plant.a, plant.b_u, dt, plant.delay_s)
         b_w = np.column_stack([plant.b_f, plant.b_s, plant.b_c])
         _, g_w = zoh_blocks(plant.a, b_w, dt)
-        step_rows = np.hstack([phi, g0, g1, g_w])  # (n, n + 17)
+        g_rot = _rotating_drive(plant, dt)
+        step_rows = np.hstack([phi, g0, g1, g_w[:, :8], g_rot, g_w[:, 8:]])  # (n, n + 19)
         self._aux_map = np.vstack([plant.c_y, plant.c_gap, plant.c_current, plant.c_sensor])  # (16, n)
-        shift = np.zeros((4, n + 17))
+        shift = np.zeros((4, n + sk.N_EXTRA))
         shift[:, n + 4:n + 8] = np.eye(4)  # u[k] becomes u[k-1]
-        m = np.vstack([step_rows, shift, self._aux_map @ step_rows])  # (n + 20, n + 17)
+        m = np.vstack([step_rows, shift, self._aux_map @ step_rows])  # (n + 20, n + 19)
         # one work vector holds parameters, aux, v, M and the noise block (ambid.plant.step_kernel)
         s = sk.plant_work(m, NOISE_BLOCK)
         mag = rig.true_magnet
@@ -91,6 +99,12 @@ class PlantSimulator(KernelOwner):
         s[sk.PAR_CUBIC] = rig.values["sensor_cubic_per_m2"]  # Sensors.probe_error, compiled
         s[sk.PAR_CLEAR2] = rig.backup_clearance_m * rig.backup_clearance_m
         s[sk.PAR_LIN:sk.PAR_LIN + 12] = np.column_stack([plant.force_const, plant.ki, plant.ks]).ravel()
+        s[sk.PAR_COS_STEP], s[sk.PAR_SIN_STEP] = math.cos(plant.speed_rad_s * dt), math.sin(plant.speed_rad_s * dt)
+        s[sk.PAR_COS] = 1.0  # the rotor angle is 0 at sample 0
+        s[sk.PAR_UNBALANCE] = float(plant.b_unbalance is not None)
+        if plant.runout is not None:
+            s[sk.PAR_RUNOUT_N] = plant.runout.shape[0]
+            s[sk.PAR_RUNOUT:sk.PAR_RUNOUT + plant.runout.size] = plant.runout.ravel()
         self._s = s
         self._bind()
         # contact sub-steps (the delayed input switches at the nearest sub-step)
@@ -98,6 +112,7 @@ class PlantSimulator(KernelOwner):
         self._phi_s, self._gu_s = zoh_blocks(plant.a, plant.b_u, h)
         _, gw_s = zoh_blocks(plant.a, b_w, h)
         self._gf_s, self._gs_s, self._gc_s = gw_s[:, :4], gw_s[:, 4:8], gw_s[:, 8]
+        self._grot_s = _rotating_drive(plant, h)
         self._delay_substeps = int(round(plant.delay_s / h))
         self._gap_vel = plant.gap_velocity_map()
         self.sensors = Sensors.from_rig(rig.values)
@@ -138,7 +153,18 @@ class PlantSimulator(KernelOwner):
         if value.shape != (self._n,) or not np.all(np.isfinite(value)):
             raise ValueError(f"PlantSimulator.x must be finite with shape ({self._n},), got {value.shape}")
         self._v[:self._n] = value
-        self._aux[:] = self._aux_map @ value
+        self._set_aux(value)
+
+    def _set_aux(self, x: np.ndarray) -> None:
+        """aux at the present sample from the state x, the probes' runout at the present rotor angle included."""
+        self._aux[:] = self._aux_map @ x
+        if self.plant.runout is not None:
+            self._aux[0:4] += runout(self.plant.runout, self.rotor_angle_rad)
+
+    @property
+    def rotor_angle_rad(self) -> float:
+        """Rotor angle theta at the present sample, in [0, 2 pi) [rad] (0 at sample 0)."""
+        return float(math.atan2(self._s[sk.PAR_SIN], self._s[sk.PAR_COS]) % (2 * math.pi))
 
     @property
     def bearing_displacement(self) -> np.ndarray:
@@ -283,6 +309,8 @@ class PlantSimulator(KernelOwner):
         v = self._v
         x = v[:n].copy()
         u_new, u_old = v[n + 4:n + 8].copy(), v[n:n + 4].copy()
+        h = self.rig.dt / CONTACT_SUBSTEPS
+        theta = self.rotor_angle_rad - p.speed_rad_s * h * CONTACT_SUBSTEPS  # the angle at the sample's start
         for j in range(CONTACT_SUBSTEPS):
             gap = p.c_gap @ x
             f = self._contact_force(gap, self._gap_vel @ x)
@@ -291,7 +319,26 @@ class PlantSimulator(KernelOwner):
             drive = self._gu_s @ (u_old if j < self._delay_substeps else u_new) + self._gc_s + self._gf_s @ f
             if self.sensors.cubic_per_m2:
                 drive += self._gs_s @ self.sensors.probe_error(p.c_sensor @ x)
+            if p.b_unbalance is not None:
+                th = theta + j * p.speed_rad_s * h
+                drive += self._grot_s @ np.array([math.cos(th), math.sin(th)])
             x = self._phi_s @ x + drive
         v[:n] = x
         v[n:n + 4] = u_new
-        self._aux[:] = self._aux_map @ x
+        self._set_aux(x)
+
+
+def _rotating_drive(plant: TruePlant, t: float) -> np.ndarray:
+    """(n, 2) G with int_0^t exp(A (t - s)) B_unb [cos; sin](theta_k + Omega s) ds = G [cos; sin](theta_k).
+
+    The rotating phasor w = [cos; sin](theta) obeys w' = S w, S = [[0, -Omega], [Omega, 0]], so G is the
+    coupling block of exp([[A, B_unb], [0, S]] t) (zeros without unbalance).
+    """
+    n = plant.n_states
+    if plant.b_unbalance is None:
+        return np.zeros((n, 2))
+    om = plant.speed_rad_s
+    aug = np.zeros((n + 2, n + 2))
+    aug[:n, :n], aug[:n, n:] = plant.a, plant.b_unbalance
+    aug[n:, n:] = [[0.0, -om], [om, 0.0]]
+    return linalg.expm(aug * t)[:n, n:]

@@ -5,12 +5,13 @@ Shared conventions (work vectors, compiled entry points): :mod:`ambid.compiled`.
 Plant work vector ``s`` (1-D), for n plant states (:func:`plant_work`,
 offsets from :func:`plant_offsets`)::
 
-    s[0:24]                 parameters and counters, indices PAR_*
-    s[24:40]                aux at the present sample k: y, gap, current,
+    s[0:N_PAR]              parameters and counters, indices PAR_*
+    s[AUX:AUX + 16]         aux at the present sample k: y, gap, current,
                             sensor displacement (4 each) [m, m, A, m]
-    s[v:v + n + 17]         v = [x; u[k-1]; u[k]; f; r_s; 1], the fused step's input
-    s[v + n + 17:mat]       scratch, n + 20: M v is summed here
-    s[mat:noise]            M.T, (n + 17, n + 20) row-major: [x; u[k]; aux][k+1] = M v
+    s[v:v + n + 19]         v = [x; u[k-1]; u[k]; f; r_s; cos theta; sin theta; 1], the
+                            fused step's input (theta the rotor angle at k)
+    s[v + n + 19:mat]       scratch, n + 20: M v is summed here
+    s[mat:noise]            M.T, (n + 19, n + 20) row-major: [x; u[k]; aux][k+1] = M v
     s[noise:]               sensor noise block, (rows, 4) row-major [m]
 """
 
@@ -20,6 +21,7 @@ import numba
 import numpy as np
 
 from ambid.compiled import F8, VEC, add_columns
+from ambid.plant.sensors import RUNOUT_HARMONICS
 
 # plant parameters, s[PAR_*]
 PAR_N = 0  # number of plant states n
@@ -35,12 +37,20 @@ PAR_LIN = 9  # (force_const [N], ki [N/A], ks [N/m]) of axis j at PAR_LIN + 3 j
 PAR_INDEX = 21  # sample index k of the present sample
 PAR_NOISE_BASE = 22  # sample index of the noise block's first row
 PAR_STATUS = 23  # why the last plant_step returned contact = True: STATUS_*
-N_PAR = 24
+PAR_COS_STEP = 24  # cos(Omega dt): the rotor angle turned per sample, as a rotation
+PAR_SIN_STEP = 25  # sin(Omega dt)
+PAR_COS = 26  # cos theta of the rotor angle at the present sample k
+PAR_SIN = 27  # sin theta
+PAR_UNBALANCE = 28  # 1.0: the unbalance columns of M are in use
+PAR_RUNOUT_N = 29  # harmonics of the probes' runout in use (0: none)
+PAR_RUNOUT = 30  # runout table, (RUNOUT_HARMONICS, 4, 2) row-major [m] (ambid.plant.sensors.runout_table)
+N_PAR = PAR_RUNOUT + 8 * RUNOUT_HARMONICS
 STATUS_CONTACT = 1.0  # the rotor touches: sub-step the sample
 STATUS_NOISE = 2.0  # the noise block is used up: draw the next one and call again
 AUX = N_PAR  # aux block: y (4), gap (4), current (4), sensor displacement (4)
 N_AUX = 16
-N_EXTRA = 17  # v = [x (n); u[k-1] (4); u[k] (4); f (4); r_s (4); 1]
+N_EXTRA = 19  # v = [x (n); u[k-1] (4); u[k] (4); f (4); r_s (4); cos theta; sin theta; 1]
+N_OUT = 20  # M v = [x (n); u[k] (4); aux (16)][k+1]
 
 
 @numba.njit(cache=True)
@@ -48,12 +58,12 @@ def plant_offsets(n: int) -> tuple[int, int, int]:
     """Offsets (v, mat, noise) in the plant work vector for n states (module docstring); the
     scratch lies between v and mat."""
     v = AUX + N_AUX
-    mat = v + 2 * (n + N_EXTRA) + 3
-    return v, mat, mat + (n + N_EXTRA) * (n + N_EXTRA + 3)
+    mat = v + n + N_EXTRA + n + N_OUT
+    return v, mat, mat + (n + N_EXTRA) * (n + N_OUT)
 
 
 def plant_work(m: np.ndarray, noise_rows: int) -> np.ndarray:
-    """A plant work vector for the fused step matrix m (n + 20, n + 17): n, M.T and v's constant 1
+    """A plant work vector for the fused step matrix m (n + 20, n + 19): n, M.T and v's constant 1
     set, everything else zero (the caller sets the PAR_* parameters).
 
     Returns:
@@ -61,8 +71,8 @@ def plant_work(m: np.ndarray, noise_rows: int) -> np.ndarray:
     """
     nr, nc = m.shape
     n = nc - N_EXTRA
-    if n < 0 or nr != n + N_EXTRA + 3:
-        raise ValueError(f"plant_work: the fused step matrix must be (n + 20, n + 17), got {m.shape}")
+    if n < 0 or nr != n + N_OUT:
+        raise ValueError(f"plant_work: the fused step matrix must be (n + 20, n + 19), got {m.shape}")
     v, mat, noise = plant_offsets.py_func(n)
     s = np.zeros(noise + 4 * noise_rows)
     s[PAR_N] = n
@@ -93,13 +103,27 @@ def magnet_residual(s: np.ndarray, cur: np.ndarray, gap: np.ndarray, out: np.nda
         out[j] = _residual_axis(s, j, cur[j], gap[j])
 
 
+@numba.njit(cache=True)
+def add_runout(s: np.ndarray, c1: float, s1: float, y: np.ndarray, at: int) -> None:
+    """Add the probes' runout at the rotor angle (cos theta, sin theta) = (c1, s1) to y[at:at + 4] [m]
+    (the table in s)."""
+    ch, sh = c1, s1
+    for h in range(int(s[PAR_RUNOUT_N])):
+        base = PAR_RUNOUT + 8 * h
+        for j in range(4):
+            y[at + j] += s[base + 2 * j] * ch + s[base + 2 * j + 1] * sh
+        ch, sh = ch * c1 - sh * s1, sh * c1 + ch * s1  # (h + 1) theta from h theta
+
+
 
 @numba.njit(cache=True)
 def plant_step(s: np.ndarray, u0: float, u1: float, u2: float,
                u3: float) -> tuple[float, float, float, float, bool, bool]:
     """One free-flight sample of the simulated plant with the current reference u [A] held.
 
-    Clips u to the current limit and stores it as u[k] in v; with
+    Clips u to the current limit and stores it as u[k] in v, and the rotor
+    angle's cos and sin at k; turns the rotor angle by Omega dt (a rotation
+    of its phasor, held at unit length); with
     nonlinear magnets, stores the magnets' residual force at sample k, and
     the sensors' cubic term, both held over the step; then, unless the
     rotor touches the backup bearings at k or k + 1, advances v and aux to
@@ -108,9 +132,9 @@ def plant_step(s: np.ndarray, u0: float, u1: float, u2: float,
 
     * STATUS_NOISE: the noise block has no row for k + 1; nothing changed:
       draw the next block, advance s[PAR_NOISE_BASE], call again;
-    * STATUS_CONTACT: the rotor touches; s[PAR_INDEX] is k + 1, u[k]
-      (clipped) is in v, v[:n + 4] and aux are still at k: sub-step the
-      sample.
+    * STATUS_CONTACT: the rotor touches; s[PAR_INDEX] and s[PAR_COS],
+      s[PAR_SIN] are at k + 1, u[k] (clipped) and the angle at k are in v, v[:n + 4]
+      and aux are still at k: sub-step the sample.
 
     Args:
         s: plant work vector (module docstring).
@@ -129,6 +153,20 @@ def plant_step(s: np.ndarray, u0: float, u1: float, u2: float,
         s[PAR_STATUS] = STATUS_NOISE
         return nan, nan, nan, nan, False, True
     s[PAR_INDEX] = k
+    c, sn = s[PAR_COS], s[PAR_SIN]
+    unbalance = s[PAR_UNBALANCE] != 0.0
+    if unbalance:
+        s[v + n + 16] = c
+        s[v + n + 17] = sn
+    # the rotor angle, integrated from the speed: e^{j theta[k+1]} = e^{j theta[k]} e^{j Omega dt}, the
+    # phasor's length held at 1 by one Newton step of 1 / sqrt(|z|^2) (no trigonometry per sample)
+    cs, ss = s[PAR_COS_STEP], s[PAR_SIN_STEP]
+    c, sn = c * cs - sn * ss, sn * cs + c * ss
+    g = 1.5 - 0.5 * (c * c + sn * sn)
+    c *= g
+    sn *= g
+    s[PAR_COS] = c
+    s[PAR_SIN] = sn
     lim = s[PAR_LIMIT]
     clipped = not (-lim <= u0 <= lim and -lim <= u1 <= lim and -lim <= u2 <= lim and -lim <= u3 <= lim)
     if clipped:
@@ -157,7 +195,7 @@ def plant_step(s: np.ndarray, u0: float, u1: float, u2: float,
         return nan, nan, nan, nan, clipped, True
     # out = [x; u; y; gap; current; sensor displacement][k+1] = M v; the f and r_s columns
     # only when they are in use (skipping exact zeros leaves every sum unchanged)
-    no = n + N_EXTRA + 3
+    no = n + N_OUT
     out = s[mat - no:mat]  # the scratch
     out[:] = 0.0
     add_columns(s, mat, no, v, 0, n + 8, out)
@@ -165,7 +203,12 @@ def plant_step(s: np.ndarray, u0: float, u1: float, u2: float,
         add_columns(s, mat, no, v, n + 8, n + 12, out)
     if c3 != 0.0:
         add_columns(s, mat, no, v, n + 12, n + 16, out)
-    add_columns(s, mat, no, v, n + 16, n + 17, out)
+    if unbalance:
+        add_columns(s, mat, no, v, n + 16, n + 19, out)
+    else:
+        add_columns(s, mat, no, v, n + 18, n + 19, out)
+    if s[PAR_RUNOUT_N] > 0.0:
+        add_runout(s, c, sn, out, n + 4)
     g = n + 8
     if out[g] * out[g] + out[g + 2] * out[g + 2] > c2 or out[g + 1] * out[g + 1] + out[g + 3] * out[g + 3] > c2:
         s[PAR_STATUS] = STATUS_CONTACT

@@ -12,14 +12,20 @@ Against :func:`ambid.plant.analytical.analytical_model` it adds
 * sensors (:mod:`ambid.plant.sensors`): first-order low-pass, gain, noise,
   an optional cubic probe-curve error;
 * an extra input delay ``extra_delay_s`` (ADC and PWM update, <= 1 sample);
-* backup bearings (in :mod:`ambid.plant.simulator`).
+* backup bearings (in :mod:`ambid.plant.simulator`);
+* spinning: the unbalance forces m e Omega^2 of the rotor's unbalanced
+  planes, rotating with the rotor angle theta = Omega t (``b_unbalance``),
+  and the probes' runout, harmonics of theta added to y (``runout``,
+  :func:`ambid.plant.sensors.runout_table`). Both are known functions of
+  time, not states: the small-signal model and the operating point do
+  not see them.
 
 Continuous affine model (:class:`TruePlant`), states
 x = [rotor (n_r), pedestal displacement h (4) [m], pedestal velocity (4)
 [m/s], coil control current i (4) [A], sensor filter s (4) [m]]::
 
-    x' = A x + B_u u(t - tau) + B_f f + B_s r_s + b_c
-    y  = C_y x (+ noise)
+    x' = A x + B_u u(t - tau) + B_f f + B_s r_s + b_c + B_unb [cos theta; sin theta]
+    y  = C_y x + runout(theta) (+ noise)
 
 u the current reference [A]; f extra forces on the rotor at the bearing
 planes [N] (contact, and the magnets' deviation from their affine
@@ -36,7 +42,7 @@ from scipy import linalg, signal
 
 from ambid.channels import CURRENT_NAMES, DISPLACEMENT_NAMES
 from ambid.plant.magnet import MagnetPair
-from ambid.plant.sensors import Sensors
+from ambid.plant.sensors import Sensors, runout_table
 from ambid.plant.rig import Rig
 from ambid.statespace import StateSpace, series
 
@@ -58,6 +64,11 @@ class TruePlant:
         ki, ks, force_const: (4,) affine magnet law per axis [N/A, N/m, N].
         delay_s: input delay tau [s].
         n_rotor: rotor states (the first n_rotor states).
+        speed_rad_s: spin speed Omega [rad/s]; the rotor angle is theta = Omega t.
+        b_unbalance: (n, 2) unbalance drive for [cos theta, sin theta] (Omega^2
+            included) [state units / s]; None: none.
+        runout: (H, 4, 2) probe runout table (:func:`ambid.plant.sensors.runout_table`)
+            [m]; None: none.
     """
 
     a: np.ndarray
@@ -74,6 +85,9 @@ class TruePlant:
     force_const: np.ndarray
     delay_s: float
     n_rotor: int
+    speed_rad_s: float = 0.0
+    b_unbalance: np.ndarray | None = None
+    runout: np.ndarray | None = None
 
     @property
     def n_states(self) -> int:
@@ -160,8 +174,17 @@ def true_plant(rig: Rig, ki: np.ndarray | None = None, ks: np.ndarray | None = N
     b_c[r_] += rotor.b_gravity
     c_y = np.zeros((4, n))
     c_y[:, s_] = c_ss
+    omega = rig.speed_rad_s
+    b_unb = ro = None
+    if omega != 0.0:  # at standstill the unbalance has no force and the runout is calibrated out
+        if rotor.b_unbalance is not None:
+            b_unb = np.zeros((n, 2))
+            b_unb[r_] = omega * omega * rotor.b_unbalance
+        ro = runout_table(v)
+        if not np.any(ro):
+            ro = None
     return TruePlant(a, b_u, b_f, b_s, b_c, c_y, c_gap, c_current, c_sensor, ki, ks, fc,
-                     float(v["extra_delay_s"]), nr)
+                     float(v["extra_delay_s"]), nr, omega, b_unb, ro)
 
 
 def magnet_force_and_slopes(mag: MagnetPair, current_a: np.ndarray, gap_m: np.ndarray,

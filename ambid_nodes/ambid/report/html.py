@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import html
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -107,7 +107,19 @@ def _headline(s: Mapping[str, Any]) -> list[list[str]]:
 
 
 def _modes_rows(s: Mapping[str, Any]) -> list[list[str]]:
-    return [[_fmt(m["freq_hz"], ".5g"), _fmt(m["damping"], ".4g"), _fmt(m["stable"])] for m in s["fit"]["modes"]]
+    return [[_fmt(m["freq_hz"], ".5g"), _fmt(m["damping"], ".4g"), _fmt(m["stable"])]
+            + ([f"{m['whirl']} ({_pct(m['forward_share'])} forward)"] if "whirl" in m else [])
+            for m in s["fit"]["modes"]]
+
+
+def _synchronous_rows(s: Mapping[str, Any]) -> list[list[str]]:
+    sync = s.get("synchronous") or {}
+    channels = sync.get("channels") or []
+    ny = len(s.get("outputs") or [])
+    return [[f"{h['harmonic']}X", _fmt(h["freq_hz"], ".5g")]
+            + [f"{_fmt(a * 1e6, '.3g')} +- {_fmt(sd * 1e6, '.2g')} um, {_fmt(ph, '.0f')} deg"
+               for a, sd, ph in zip(h["amplitude"][:ny], h["amplitude_std"][:ny], h["phase_deg"][:ny])]
+            for h in sync.get("harmonics") or [] if channels]
 
 
 def _true_mode_rows(s: Mapping[str, Any]) -> list[list[str]]:
@@ -141,8 +153,16 @@ def render_index(summary: Mapping[str, Any], figure_list: list[tuple[str, str]])
              "<h2>Headline figures</h2>", _table(["quantity", "value"], _headline(summary))]
     for note in summary.get("notes") or []:
         parts.append(f"<p class='note'>Note: {html.escape(str(note))}</p>")
+    whirl_col = ["whirl"] if any("whirl" in m for m in summary["fit"]["modes"]) else []
     parts += ["<h2>Fitted modes</h2>",
-              _table(["frequency [Hz]", "damping ratio [-]", "stable in diagram"], _modes_rows(summary))]
+              _table(["frequency [Hz]", "damping ratio [-]", "stable in diagram"] + whirl_col, _modes_rows(summary))]
+    if summary.get("synchronous"):
+        parts += ["<h3>Synchronous response (disturbance lines at k x the rotation)</h3>",
+                  _table(["harmonic", "frequency [Hz]"] + list(summary.get("outputs") or []),
+                         _synchronous_rows(summary)),
+                  "<p>Mean over every record of each output's line at the harmonic (amplitude +- its standard "
+                  "uncertainty, phase at the experiment's first sample); these lines carry no excitation and "
+                  "are kept out of the FRF and its noise estimate.</p>"]
     if summary.get("modes_vs_true"):
         parts += ["<h3>Modes against the true rig</h3>",
                   _table(["true frequency [Hz]", "true damping [-]", "true modes", "fitted frequency [Hz]",
@@ -179,7 +199,8 @@ def _relative_error(g: np.ndarray, ref: np.ndarray) -> np.ndarray:
 def write_report(report_dir: str | Path, summary: Mapping[str, Any], *, frf: FrfResult, design: ExcitationDesign,
                  diagram: StabilisationDiagram, order: int, curves: Mapping[str, tuple[np.ndarray, np.ndarray]],
                  levels: LineLevels | None = None, window: Mapping[str, Any] | None = None,
-                 true_frf: np.ndarray | None = None, line_models: Mapping[str, np.ndarray] | None = None) -> Path:
+                 true_frf: np.ndarray | None = None, line_models: Mapping[str, np.ndarray] | None = None,
+                 extra_figures: Sequence[tuple[str, str, Callable[[Path], Any]]] = ()) -> Path:
     """Draw every figure into ``report_dir`` and write ``report_dir/index.html``.
 
     Args:
@@ -193,6 +214,7 @@ def write_report(report_dir: str | Path, summary: Mapping[str, Any], *, frf: Frf
         window: dict t_s, y, u, r, output_names, input_names for the time records, or None.
         true_frf: (L, Ny, Nu) true FRF at the lines, or None (no error figure).
         line_models: label -> (L, Ny, Nu) models at the lines, for the error figure.
+        extra_figures: (file name, caption, draw(path)) of further figures, shown after the FRF error.
 
     Returns:
         Path of index.html.
@@ -224,6 +246,8 @@ def write_report(report_dir: str | Path, summary: Mapping[str, Any], *, frf: Frf
         add("frf_error.png", "Relative FRF-matrix error per line against the true rig's sampled small-signal model "
             "(Frobenius norm over the matrix); the dotted line is the measurement's 2 sigma noise level.",
             lambda p: figures.frf_error(frf.freq_hz, errs, noise, p))
+    for name, caption, draw in extra_figures:
+        add(name, caption, draw)
     if levels is not None:
         dist = frf.distortion
         add("noise_distortion.png", "Output line amplitudes (period means) at the excited lines, at the odd and "

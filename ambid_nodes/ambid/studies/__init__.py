@@ -1,2 +1,2 @@
-"""Whole jobs built from the other packages: identifying a recorded session (identification) and
-the thesis's method comparisons (comparison)."""
+"""Whole jobs built from the other packages: identifying a recorded session (identification), the
+thesis's method comparisons (comparison) and a measured Campbell diagram over speed (campbell)."""

@@ -56,6 +56,7 @@ from ambid.fit import (FitResult, StabilisationDiagram, fit_common_denominator, 
                        save_model_npz, stabilisation_diagram)
 from ambid.fit.model_update import (PhysicalUpdate, nominal_parameters, physical_frf, true_parameters,
                                     unmodelled_mode, update_physical_model)
+from ambid.frf.directional import directional_frf, whirl_of_residue
 from ambid.frf.levels import LineLevels, line_levels
 from ambid.frf.offline import frf_from_session, session_designs
 from ambid.frf.sensitivity import iso14839_zone
@@ -65,6 +66,7 @@ from ambid.plant.analytical import analytical_model
 from ambid.plant.rig import Rig, load_rig, make_rig
 from ambid.plant.true_rig import true_linear_model
 from ambid.report.html import write_report
+from ambid.report.rotor_figures import directional_frf_figure
 from ambid.session import iter_decoded, read_metadata
 from ambid.session.blocks import read_samples
 from ambid.session.facts import controller_facts, controller_model, plant_facts
@@ -381,11 +383,19 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
                                   <= 0.01 * m.freq_hz))
                  for m in modes]
     real_rows = [dict(pole_hz=r.pole_rad_s / (2 * np.pi), unstable=r.unstable) for r in summary_modes.real_poles]
+    # a rotor's x/y matrix (4 x 4, AXES order): forward and backward whirl told apart
+    rotor_axes = frf.frf.shape[1:] == (4, 4)
+    dfrf = directional_frf(f, frf.frf, var) if rotor_axes else None
+    if rotor_axes:
+        for m, row in zip(modes, mode_rows):
+            k = int(np.argmin(np.abs(fit.model.poles - m.pole_rad_s)))
+            row["whirl"], row["forward_share"] = whirl_of_residue(fit.model.residues[k])
     save_model_npz(out / "model.npz", fit.model)
     save_model_json(out / "model.json", fit.model)
     np.savez(out / "frf.npz", freq_hz=f, frf=frf.frf, var_noise=frf.var_noise, var_total=frf.var_total,
              coherence=frf.coherence, sensitivity=frf.sensitivity, input_names=np.array(frf.input_names),
-             output_names=np.array(frf.output_names))
+             output_names=np.array(frf.output_names),
+             **({} if dfrf is None else dict(forward=dfrf.forward, backward=dfrf.backward)))
 
     # --- rig: nominal, truth, updating --------------------------------------------------
     namespace = chosen["topic"].rstrip("/")[:-len(_DESIGN_TOPIC)]
@@ -463,7 +473,8 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
                         n_realisations=design.n_realisations, n_experiments=design.n_experiments,
                         n_excited_lines=int(design.excited_lines.size), design_band_hz=list(design.band_hz),
                         rms_a=design.rms_a, peak_a=design.peak_a, crest_factor=design.crest_factor,
-                        measurement_time_s=design.measurement_time_s),
+                        measurement_time_s=design.measurement_time_s,
+                        synchronous=design.options.get("synchronous")),
         band_hz=list(band), inputs=list(frf.input_names), outputs=list(frf.output_names),
         controller=(recorded_controller(path, recover) or (None, None))[1],
         simulated=simulated, frf_error=frf_error, noise=noise,
@@ -471,6 +482,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
                  weights=var_kind, orders_tried=diagram.orders, chi2_per_dof_by_order=diagram.chi2_per_dof,
                  modes=mode_rows, real_poles=real_rows, refine_message=fit.message),
         modes_vs_true=modes_vs_true,
+        synchronous=_synchronous_dict(frf),
         max_mode_freq_error=max((abs(r["freq_error"]) for r in modes_vs_true), default=None),
         max_mode_damping_error=max((abs(r["damping_error"]) for r in modes_vs_true), default=None),
         update=update_dict,
@@ -501,12 +513,34 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
             line_models["updated physical model"] = physical_frf(the_rig.rotor_model(), upd.parameters, f, dt_s)
         summary["files"]["report"] = str(out / "report" / "index.html")
         summary["wall_s"] = time.perf_counter() - t0
+        extra = []
+        if dfrf is not None:
+            d_curves = {label: directional_frf(fc, gc) for label, (fc, gc) in curves.items()
+                        if label in ("fitted model", "true rig (simulated)")}
+            whirls = [(row["freq_hz"], row["whirl"]) for row in mode_rows]
+            extra.append(("directional_frf.png", "Directional FRFs p / f (p = x + j y, f = u_x + j u_y per bearing "
+                          "plane): forward whirl (blue) and backward whirl (red), measured (dots) and models; a "
+                          "forward mode peaks in the forward FRF, a backward one in the backward FRF.",
+                          lambda p: directional_frf_figure(dfrf, d_curves, whirls, p)))
         write_report(out / "report", to_jsonable(summary), frf=frf, design=design, diagram=diagram, order=int(order),
-                     curves=curves, levels=levels, window=window, true_frf=true_g, line_models=line_models)
+                     curves=curves, levels=levels, window=window, true_frf=true_g, line_models=line_models,
+                     extra_figures=extra)
     summary["wall_s"] = time.perf_counter() - t0
     summary = to_jsonable(summary)
     (out / "identification.json").write_text(json.dumps(summary, indent=1))
     return summary
+
+
+def _synchronous_dict(frf: FrfResult) -> dict | None:
+    """The synchronous response at the disturbance lines of a run at speed (None at standstill)."""
+    s = frf.synchronous
+    if s is None:
+        return None
+    return dict(on_lines=s.on_lines, n_records=s.n_records, channels=list(s.channel_names),
+                harmonics=[dict(harmonic=int(k), freq_hz=float(fq), amplitude=a, phase_deg=np.degrees(ph),
+                                amplitude_std=sd)
+                           for k, fq, a, ph, sd in zip(s.harmonic, s.freq_hz, s.amplitude, s.phase_rad,
+                                                       s.amplitude_std)])
 
 
 def _samples_for_report(path: str, chosen: dict, design: ExcitationDesign, frf: FrfResult,

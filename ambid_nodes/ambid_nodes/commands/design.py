@@ -42,6 +42,11 @@ def add_arguments(g: argparse.ArgumentParser) -> None:
     g.add_argument("--settle", type=positive_float, default=0.5, help="stepped sine settling wait per line [s]")
     g.add_argument("--cycles", type=positive_int, default=10, help="stepped sine measured cycles per line")
     g.add_argument("--rig", help="rig parameter YAML file (default: the built-in rig): sample rate, current limit")
+    g.add_argument("--speed-rpm", type=float, default=None,
+                   help="rotor speed [rpm]: keep the lines clear of its synchronous harmonics and say which moved "
+                        "(default: the rig file's rotor_speed_rpm; 0 = standstill)")
+    g.add_argument("--harmonics", type=positive_int, default=6, help="synchronous harmonics kept clear (default 6)")
+    g.add_argument("--guard-bins", type=count, default=1, help="bins kept free each side of a harmonic (default 1)")
     g.add_argument("--working-current", type=positive_float, default=1.0,
                    help="controller's peak working current [A] for the headroom check (default 1.0)")
     g.add_argument("--no-plan", action="store_true", help="skip the stepped/swept/multisine time table")
@@ -62,6 +67,7 @@ def _plan(args, fs_hz: float, inputs: tuple[str, ...]) -> list:
 
 def run(args: argparse.Namespace) -> int:
     from ambid.excitation import check_headroom, describe, format_plan, plot_design
+    from ambid.excitation.synchronous import describe_steering
     from ambid.plant.rig import load_rig, make_rig
 
     check_band(tuple(args.band))
@@ -70,9 +76,13 @@ def run(args: argparse.Namespace) -> int:
         rig = load_rig(args.rig) if args.rig else make_rig()
         fs_hz = float(rig.sample_rate_hz)
         inputs = tuple(s.strip() for s in args.inputs.split(",") if s.strip())
+        speed = float(rig.rotor_speed_rpm) if args.speed_rpm is None else args.speed_rpm
+        if not (speed >= 0 and speed < 1e6):
+            raise ValueError(f"--speed-rpm must be a speed in rpm >= 0, got {args.speed_rpm!r}")
         design = build_design(args.kind, tuple(args.band), args.resolution, fs_hz, inputs, args.peak_current,
                               args.periods, args.realisations, args.transient_periods, args.grid, args.spacing,
-                              args.phases, args.mimo, args.seed, args.settle, args.cycles)
+                              args.phases, args.mimo, args.seed, args.settle, args.cycles, speed_rpm=speed,
+                              n_harmonics=args.harmonics, guard_bins=args.guard_bins)
         plan = None if args.no_plan else _plan(args, fs_hz, inputs)
     except (ValueError, OSError) as exc:
         print(f"ambid design: {exc}", file=sys.stderr)
@@ -100,9 +110,12 @@ def run(args: argparse.Namespace) -> int:
             "plan": None if plan is None else [
                 {"method": r.name, "n_lines": r.n_lines, "n_experiments": r.n_experiments,
                  "total_samples": r.total_samples, "measurement_time_s": r.measurement_time_s} for r in plan],
-            "figure": png and str(png), "design_json": str(out / "design.json")}))
+            "figure": png and str(png), "design_json": str(out / "design.json"),
+            "synchronous": design.options.get("synchronous")}))
     else:
         print(describe(design))
+        for line in describe_steering(design.options, design.fs_hz):
+            print(line)
         print(headroom["text"])
         if plan is not None:
             print(f"\nmeasurement time of the full {len(inputs)} x {len(inputs)} FRF matrix on the same lines:")

@@ -99,7 +99,9 @@ def format_headlines(s: dict, out: Path) -> str:
                      f"{100 * err['worst']:.2f} % (at {err['worst_at_hz']:.0f} Hz)")
     fit = s.get("fit")
     if fit:
-        modes = ", ".join(f"{m['freq_hz']:.1f} Hz (zeta {m['damping']:.4f})" for m in fit["modes"][:5])
+        modes = ", ".join(f"{m['freq_hz']:.1f} Hz (zeta {m['damping']:.4f}"
+                          + (f", {m['whirl']}" if m.get("whirl") and m["whirl"] != "standing" else "") + ")"
+                          for m in fit["modes"][:5])
         lines.append(f"  fitted model: order {fit['order']}, modes {modes}")
     upd = (s.get("update") or {}).get("parameters", {})
     for name in ("ki_n_per_a", "ks_n_per_m"):
@@ -108,6 +110,13 @@ def format_headlines(s: dict, out: Path) -> str:
             true = p.get("true")
             lines.append(f"  updated {name}: {p['value']:.5g} {p['unit']} (95 % CI {p['ci95'][0]:.5g}..{p['ci95'][1]:.5g})"
                          + (f", true {true:.5g}" if true is not None else ""))
+    sync = s.get("synchronous")
+    if sync and sync.get("harmonics"):
+        h1 = sync["harmonics"][0]
+        ny = len(s.get("outputs") or [])
+        moved = len(((s.get("excitation") or {}).get("synchronous") or {}).get("moved") or [])
+        lines.append(f"  at speed: {moved} excited line(s) moved off k x {h1['freq_hz']:.1f} Hz; synchronous 1X "
+                     f"response {max(h1['amplitude'][:ny]) * 1e6:.2f} um (largest output), kept out of the FRF")
     sens = s.get("sensitivity")
     if sens:
         line = (f"  input sensitivity peak {sens['worst_peak']:.2f} at the excited lines ({sens['worst_input']}), "

@@ -1,0 +1,111 @@
+"""Directional (complex) FRFs of a rotor: forward and backward whirl told apart.
+
+With the complex coordinates p = x + j y of the displacements and
+f = u_x + j u_y of the inputs at each bearing plane (Lee, *Vibration
+Analysis of Rotors*, 1993), a real x/y FRF matrix G splits into
+
+    H_f(w) = (G_xx + G_yy + j (G_yx - G_xy)) / 2     forward: p, f turning with the spin
+    H_b(w) = (G_xx + G_yy - j (G_yx - G_xy)) / 2     backward: against it
+
+(H_b(w) is the directional FRF at -w, conjugated). A forward whirl mode
+peaks in H_f, a backward one in H_b; at standstill, for an isotropic rotor,
+the two are equal. The x axis turns into the y axis in the sense of the
+spin (as in :mod:`ambid.plant.modal`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+# AXES order (A x, B x, A y, B y): the x and the y channels of the two bearing planes
+X_CHANNELS = (0, 1)
+Y_CHANNELS = (2, 3)
+# a mode whose forward share of the orbit lies between these is called standing (no clear direction)
+_STANDING = (0.4, 0.6)
+
+
+@dataclass(frozen=True)
+class DirectionalFrf:
+    """Forward and backward directional FRFs between the bearing planes.
+
+    Attributes:
+        freq_hz: (L,) [Hz].
+        forward, backward: (L, Np, Np) complex, p (outputs) per f (inputs) [m/A].
+        var_forward, var_backward: (L, Np, Np) variances [(m/A)^2] from the x/y variances, the
+            elements taken independent; None without them.
+    """
+
+    freq_hz: np.ndarray
+    forward: np.ndarray
+    backward: np.ndarray
+    var_forward: np.ndarray | None = None
+    var_backward: np.ndarray | None = None
+
+
+def directional_frf(freq_hz: np.ndarray, frf: np.ndarray, var: np.ndarray | None = None,
+                    x_out: Sequence[int] = X_CHANNELS, y_out: Sequence[int] = Y_CHANNELS,
+                    x_in: Sequence[int] = X_CHANNELS, y_in: Sequence[int] = Y_CHANNELS) -> DirectionalFrf:
+    """Forward and backward directional FRFs from an x/y FRF matrix (module docstring).
+
+    Args:
+        freq_hz: (L,) [Hz].
+        frf: (L, Ny, Nu) u -> y, e.g. 4 x 4 in AXES order [m/A].
+        var: (L, Ny, Nu) variance of each element, or None.
+        x_out, y_out, x_in, y_in: channel indices of the planes' x and y outputs and inputs.
+
+    Returns:
+        :class:`DirectionalFrf` with (L, len(x_out), len(x_in)) matrices.
+    """
+    g = np.asarray(frf)
+    xo, yo, xi, yi = (np.asarray(i, dtype=np.int64) for i in (x_out, y_out, x_in, y_in))
+    gxx, gyy = g[:, xo][:, :, xi], g[:, yo][:, :, yi]
+    gxy, gyx = g[:, xo][:, :, yi], g[:, yo][:, :, xi]
+    fwd = (gxx + gyy + 1j * (gyx - gxy)) / 2
+    bwd = (gxx + gyy - 1j * (gyx - gxy)) / 2
+    vf = None
+    if var is not None:
+        v = np.asarray(var, dtype=float)
+        vf = (v[:, xo][:, :, xi] + v[:, yo][:, :, yi] + v[:, xo][:, :, yi] + v[:, yo][:, :, xi]) / 4
+    return DirectionalFrf(np.asarray(freq_hz, dtype=float), fwd, bwd, vf, vf)
+
+
+def whirl(shape: np.ndarray, x_idx: Sequence[int] = X_CHANNELS, y_idx: Sequence[int] = Y_CHANNELS,
+          ) -> tuple[str, float]:
+    """Whirl direction of a mode from its complex shape at the planes (the response ~ Re(shape e^{j w t})).
+
+    The orbit p = x + j y of each plane is (s_x + j s_y) / 2 e^{j w t} (forward) plus
+    conj(s_x - j s_y) / 2 e^{-j w t} (backward); the forward share is
+    sum |s_x + j s_y|^2 / (sum |s_x + j s_y|^2 + sum |s_x - j s_y|^2) over the planes.
+
+    Returns:
+        ('forward' | 'backward' | 'standing', forward share in [0, 1]).
+    """
+    s = np.asarray(shape, dtype=complex)
+    sx, sy = s[list(x_idx)], s[list(y_idx)]
+    f, b = np.sum(np.abs(sx + 1j * sy) ** 2), np.sum(np.abs(sx - 1j * sy) ** 2)
+    share = float(f / (f + b)) if f + b > 0 else 0.5
+    kind = "forward" if share > _STANDING[1] else "backward" if share < _STANDING[0] else "standing"
+    return kind, share
+
+
+def whirl_of_residue(residue: np.ndarray, x_idx: Sequence[int] = X_CHANNELS, y_idx: Sequence[int] = Y_CHANNELS,
+                     ) -> tuple[str, float]:
+    """Whirl direction of a mode from its residue matrix R (Ny, Nu) at the pole with Im > 0.
+
+    The forward and backward directional FRFs have the residues R_f, R_b (the combinations of
+    :func:`directional_frf` applied to R); the forward share is ||R_f||^2 / (||R_f||^2 + ||R_b||^2).
+    Unlike a single shape vector this also judges a pair of coincident modes (an isotropic rotor at
+    standstill, a rank-2 residue): its share is 1/2, 'standing'.
+
+    Returns:
+        ('forward' | 'backward' | 'standing', forward share in [0, 1]).
+    """
+    r = np.asarray(residue, dtype=complex)[None]
+    d = directional_frf([0.0], r, None, x_idx, y_idx, x_idx, y_idx)
+    f, b = np.sum(np.abs(d.forward) ** 2), np.sum(np.abs(d.backward) ** 2)
+    share = float(f / (f + b)) if f + b > 0 else 0.5
+    kind = "forward" if share > _STANDING[1] else "backward" if share < _STANDING[0] else "standing"
+    return kind, share

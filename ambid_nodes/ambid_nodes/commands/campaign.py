@@ -1,0 +1,161 @@
+"""ambid campaign: one identification session per rotor speed, then a measured Campbell diagram.
+
+For each speed the rig (``--rig``, default the built-in one) runs at that speed, with its unbalance and
+runout, and ``identify`` runs on it with a multisine steered clear of the synchronous harmonics; each
+speed gets its own folder ``DIR/rpm_NNNNN/`` (session.mcap, summary.json, report/). A campaign that
+stops half way continues where it stopped: a speed whose summary.json is there and done is not run
+again (the settings must be the same; ``DIR/campaign.json`` keeps them). At the end ``DIR/campbell.json``
+(:mod:`ambid.studies.campbell`) and ``DIR/report/`` (campbell.png, index.html).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+HELP = "identify at several rotor speeds (one session each, resumable) and draw the measured Campbell diagram"
+
+from ambid_nodes.commands.inputs import (BadInput, check_band, checked_controller, controller, output_dir,
+                                         positive_float, positive_int, rig_file)
+
+_FORMAT = "ambid.campaign/1"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--speeds-rpm", type=float, nargs="+", required=True, metavar="RPM",
+                   help="rotor speeds [rpm], e.g. 0 3000 6000 9000 12000")
+    p.add_argument("--out", required=True, help="campaign folder (created; an existing campaign there continues)")
+    p.add_argument("--rig", default="", help="rig parameter YAML file (default: the built-in rig); its speed is "
+                                             "replaced by each of --speeds-rpm")
+    p.add_argument("--controller", type=controller, default="",
+                   help="position controller: a kind or a controller file (default: the rig file's, else pid)")
+    p.add_argument("--band", nargs=2, type=float, metavar=("LO", "HI"), default=(10.0, 1000.0),
+                   help="band of interest [Hz] (default 10 1000)")
+    p.add_argument("--resolution", type=positive_float, default=5.0, help="frequency resolution [Hz] (default 5)")
+    p.add_argument("--realisations", type=positive_int, default=3, help="random-phase realisations (default 3)")
+    p.add_argument("--seed", type=int, default=1, help="seed of the noise and the random phases (default 1)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar per session")
+
+
+def _speeds(values: list[float]) -> list[float]:
+    speeds = sorted(set(float(v) for v in values))
+    bad = [v for v in speeds if not (0.0 <= v <= 100_000.0)]
+    if bad:
+        raise BadInput(f"--speeds-rpm {bad[0]:g} is outside [0, 100000] rpm; give speeds in rpm, e.g. 0 3000 6000")
+    return speeds
+
+
+def _settings(args: argparse.Namespace, rig) -> dict:
+    """What must not change between a campaign's runs (the speeds may grow)."""
+    return dict(rig=rig.to_dict(), controller=args.controller, band_hz=list(args.band), resolution_hz=args.resolution,
+                realisations=args.realisations, seed=args.seed)
+
+
+def _speed_dir(out: Path, rpm: float) -> Path:
+    return out / (f"rpm_{rpm:05.0f}" if rpm == int(rpm) else f"rpm_{rpm:07.1f}")
+
+
+def _done(folder: Path) -> dict | None:
+    try:
+        s = json.loads((folder / "summary.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return s if isinstance(s, dict) and s.get("state", "done") == "done" and "fit" in s else None
+
+
+def run(args: argparse.Namespace) -> int:
+    import yaml
+
+    from ambid.jsonable import to_jsonable
+    from ambid.plant.rig import make_rig
+    from ambid.studies.campbell import campbell_summary, campbell_table, write_campbell_report
+    from ambid_nodes.session import SessionConfig, run_identify
+
+    check_band(tuple(args.band))
+    out = output_dir(args.out)
+    speeds = _speeds(args.speeds_rpm)
+    base = rig_file(args.rig)
+    for rpm in speeds:  # every speed's rig and controller are checked before the first session starts
+        try:
+            at = make_rig({**base.to_dict(), "rotor_speed_rpm": rpm})
+        except ValueError as exc:
+            raise BadInput(f"the rig at {rpm:g} rpm: {exc}") from None
+        checked_controller(args.controller, at)
+    settings = _settings(args, base)
+    manifest = out / "campaign.json"
+    if manifest.exists():
+        try:
+            old = json.loads(manifest.read_text())
+        except (OSError, ValueError):
+            raise BadInput(f"--out {out} holds a campaign.json that is not a campaign's; give another folder") from None
+        if not isinstance(old, dict) or old.get("format") != _FORMAT:
+            raise BadInput(f"--out {out} holds a campaign.json that is not a campaign's; give another folder")
+        if old.get("settings") != to_jsonable(settings):
+            raise BadInput(f"--out {out} holds a campaign with other settings (rig, controller, band, resolution, "
+                           "realisations or seed); continue it with the same ones or give another folder")
+        speeds = sorted(set(speeds) | set(old.get("speeds_rpm", [])))
+    out.mkdir(parents=True, exist_ok=True)
+    tmp = manifest.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps({"format": _FORMAT, "settings": to_jsonable(settings), "speeds_rpm": speeds}, indent=1))
+    tmp.replace(manifest)
+
+    t0 = time.perf_counter()
+    runs, walls = [], {}
+    n = len(speeds)
+    for i, rpm in enumerate(speeds, start=1):
+        folder = _speed_dir(out, rpm)
+        done = _done(folder)
+        head = f"ambid campaign: [{i}/{n}] {rpm:.0f} rpm"
+        if done is not None:
+            print(f"{head}: done before, kept ({folder})", file=sys.stderr)
+            runs.append((rpm, done))
+            continue
+        print(f"{head}: identifying ... ({i - 1} of {n} speeds done, {time.perf_counter() - t0:.0f} s so far)",
+              file=sys.stderr)
+        folder.mkdir(parents=True, exist_ok=True)
+        rig_path = folder / "rig.yaml"
+        rig_path.write_text(yaml.safe_dump({**to_jsonable(base.to_dict()), "rotor_speed_rpm": rpm}, sort_keys=False))
+        cfg = SessionConfig(out_dir=folder, band_hz=tuple(args.band), resolution_hz=args.resolution,
+                            realisations=args.realisations, seed=args.seed, rig_file=str(rig_path),
+                            controller=args.controller,
+                            progress=not args.no_progress and sys.stderr.isatty())
+        t_speed = time.perf_counter()
+        try:
+            summary = run_identify(cfg)
+        except KeyboardInterrupt:
+            print(f"ambid campaign: interrupted at {rpm:.0f} rpm; run the same command again to continue",
+                  file=sys.stderr)
+            return 130
+        except (ValueError, RuntimeError) as exc:
+            print(f"ambid campaign: {rpm:.0f} rpm failed: {exc}", file=sys.stderr)
+            return 1
+        walls[rpm] = time.perf_counter() - t_speed
+        if summary.get("state", "done") != "done":
+            print(f"ambid campaign: {rpm:.0f} rpm did not finish ({summary.get('state')}); see {folder}",
+                  file=sys.stderr)
+            return 1
+        fb = [m for m in summary["fit"]["modes"] if m.get("whirl")]
+        print(f"{head}: done in {walls[rpm]:.1f} s; modes "
+              + ", ".join(f"{m['freq_hz']:.1f} Hz {m['whirl'][0]}" for m in fb[:8]), file=sys.stderr)
+        runs.append((rpm, summary))
+
+    camp = campbell_summary(base, runs, tuple(args.band))
+    camp["wall_time_s"] = time.perf_counter() - t0
+    camp["session_wall_time_s"] = {f"{k:.0f}": v for k, v in walls.items()}
+    tmp = out / "campbell.json.tmp"
+    tmp.write_text(json.dumps(to_jsonable(camp), indent=1))
+    tmp.replace(out / "campbell.json")
+    index = write_campbell_report(camp, out / "report")
+    print(campbell_table(camp))
+    err = camp["first_bending_max_error"]
+    crit = ", ".join(f"{c['label']} {c['speed_rpm']:.0f} rpm" for c in camp["critical_speeds"]) or "none in range"
+    print(f"first bending mode: worst error vs true {'-' if err is None else f'{100 * err:.3f} %'}, whirl "
+          f"{'right' if camp['first_bending_whirl_right'] else 'WRONG'} at every speed" if err is not None else
+          "first bending mode: no true rig to compare with")
+    print(f"critical speeds (analytical model): {crit}")
+    print(f"campaign: {n} speed{'s' if n != 1 else ''}, {camp['wall_time_s']:.1f} s wall ({len(walls)} run now)")
+    print(f"campbell: {out / 'campbell.json'}\nreport:   {index}")
+    return 0
