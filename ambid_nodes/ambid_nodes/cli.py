@@ -21,6 +21,7 @@ COMMANDS = {
     "fit": "fit",
     "compare": "compare",
     "bench": "bench",
+    "validate": "validate",
 }
 
 

@@ -127,3 +127,23 @@ def refine(data: WeightedData, lin: np.ndarray, quad: np.ndarray, max_nfev: int 
     lin_r, quad_r = fb.unpack(theta, n_lin)
     return Refined(lin_r.copy(), quad_r.copy(), sol, n_eval, message)
 
+
+
+def factor_covariance(data: WeightedData, lin: np.ndarray, quad: np.ndarray, sol: LinearSolution,
+                      n_parameters: int) -> np.ndarray:
+    """Covariance of the factor parameters theta = [lin, quad] at a fit, (P, P) in scaled units.
+
+    The variable-projection Gauss-Newton information J^T J (Kaufman's J, the
+    numerators profiled out, :func:`_normal_equations`) with the residual's
+    scale: cov = s^2 (J^T J)^-1, s^2 = V / (N - p), which is 1/2 when the
+    weights are the FRF's true variances (each real residual component then
+    has variance 1/2) and grows with any misfit the variances do not explain.
+    ``n_parameters`` is p, all real parameters of the fit.
+    """
+    theta = fb.pack(lin, quad)
+    nc = data.n_constraints
+    dep = dependent_columns(lin, quad, nc) if nc else None
+    jtj, _ = _normal_equations(data, theta, lin.size, sol, dep)
+    n_res = 2 * data.g.shape[0] * data.g.shape[1]
+    s2 = sol.cost / max(n_res - n_parameters, 1)
+    return s2 * linalg.pinvh(jtj)

@@ -179,7 +179,8 @@ def _relative_error(g: np.ndarray, ref: np.ndarray) -> np.ndarray:
 def write_report(report_dir: str | Path, summary: Mapping[str, Any], *, frf: FrfResult, design: ExcitationDesign,
                  diagram: StabilisationDiagram, order: int, curves: Mapping[str, tuple[np.ndarray, np.ndarray]],
                  levels: LineLevels | None = None, window: Mapping[str, Any] | None = None,
-                 true_frf: np.ndarray | None = None, line_models: Mapping[str, np.ndarray] | None = None) -> Path:
+                 true_frf: np.ndarray | None = None, line_models: Mapping[str, np.ndarray] | None = None,
+                 band_variance: np.ndarray | None = None, band_kind: str = "") -> Path:
     """Draw every figure into ``report_dir`` and write ``report_dir/index.html``.
 
     Args:
@@ -200,8 +201,10 @@ def write_report(report_dir: str | Path, summary: Mapping[str, Any], *, frf: Frf
     out = Path(report_dir)
     out.mkdir(parents=True, exist_ok=True)
     var = frf.var_total if np.all(np.isfinite(frf.var_total)) else frf.var_noise
+    sigma_kind = "total (noise + nonlinear)" if var is frf.var_total else "noise only"
+    if band_variance is not None:
+        var, sigma_kind = np.asarray(band_variance), band_kind or sigma_kind
     std = np.sqrt(var) if np.all(np.isfinite(var)) else None
-    sigma_kind = "total (noise + nonlinear)" if var is frf.var_total else "noise"
     names = dict(input_names=frf.input_names, output_names=frf.output_names)
     shown: list[tuple[str, str]] = []
 
