@@ -99,6 +99,7 @@ RIG_COMMANDS = {
     "identify": lambda rig, d: ["identify", "--rig", rig, "--out", str(d / "identify_out")],
     "design": lambda rig, d: ["design", "--rig", rig, "--out", str(d / "design_out"), "--no-figure"],
     "compare": lambda rig, d: ["compare", "--rig", rig, "--out", str(d / "compare_out")],
+    "validate": lambda rig, d: ["validate", "--rig", rig, "--out", str(d / "validate_out")],
     "fit": None,  # filled in the test: it needs the good session
 }
 RIG_REFUSAL = {"missing": "does not exist", "folder": "is a folder", "empty": "is empty", "random": "is not text",
@@ -133,6 +134,8 @@ OPTION_VALUES = [  # argv, the option the error names
     (["graph", "--hardware", "nonsense"], "--hardware"),
     (["compare", "--preset", "huge"], "--preset"),
     (["bench", "--repeats", "0"], "--repeats"),
+    (["validate", "--seeds", "0"], "--seeds"),
+    (["validate", "--preset", "huge"], "--preset"),
 ]
 
 
@@ -155,6 +158,7 @@ RANGE_REFUSALS = [  # values argparse cannot judge alone: the command's one line
     (["design", "--out", "{good}"], "--out"),
     (["identify", "--out", "{good}"], "--out"),
     (["compare", "--out", "{good}"], "--out"),
+    (["validate", "--out", "{good}"], "--out"),
     (["bench", "--json", "{dir}/no_such_folder/b.json"], "--json"),
     (["bench", "--json", "{dir}"], "--json"),
 ]

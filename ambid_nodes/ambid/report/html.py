@@ -106,8 +106,15 @@ def _headline(s: Mapping[str, Any]) -> list[list[str]]:
     return rows
 
 
+def _pm(m: Mapping[str, Any], key: str, spec: str) -> str:
+    """'+- half width' of a 95 % interval m[key + '_ci95'], or '-'."""
+    ci = m.get(f"{key}_ci95")
+    return "-" if ci is None else f"+- {_fmt((ci[1] - ci[0]) / 2, spec)}"
+
+
 def _modes_rows(s: Mapping[str, Any]) -> list[list[str]]:
-    return [[_fmt(m["freq_hz"], ".5g"), _fmt(m["damping"], ".4g"), _fmt(m["stable"])] for m in s["fit"]["modes"]]
+    return [[_fmt(m["freq_hz"], ".5g"), _pm(m, "freq_hz", ".2g"), _fmt(m["damping"], ".4g"), _pm(m, "damping", ".2g"),
+             _fmt(m["stable"])] for m in s["fit"]["modes"]]
 
 
 def _true_mode_rows(s: Mapping[str, Any]) -> list[list[str]]:
@@ -142,7 +149,9 @@ def render_index(summary: Mapping[str, Any], figure_list: list[tuple[str, str]])
     for note in summary.get("notes") or []:
         parts.append(f"<p class='note'>Note: {html.escape(str(note))}</p>")
     parts += ["<h2>Fitted modes</h2>",
-              _table(["frequency [Hz]", "damping ratio [-]", "stable in diagram"], _modes_rows(summary))]
+              _table(["frequency [Hz]", "95 % CI", "damping ratio [-]", "95 % CI", "stable in diagram"],
+                     _modes_rows(summary)),
+              "<p>" + html.escape(str((summary.get("intervals") or {}).get("modes", ""))) + "</p>"]
     if summary.get("modes_vs_true"):
         parts += ["<h3>Modes against the true rig</h3>",
                   _table(["true frequency [Hz]", "true damping [-]", "true modes", "fitted frequency [Hz]",
@@ -160,8 +169,8 @@ def render_index(summary: Mapping[str, Any], figure_list: list[tuple[str, str]])
                   _table(["parameter", "unit", "nominal", "start", "updated", "95 % CI", "true", "error vs true"],
                          _parameter_rows(summary)),
                   f"<p>Updating chi2/dof {_fmt(upd.get('chi2_per_dof'), '.3g')}, "
-                  f"{html.escape(str(upd.get('message')).rstrip('.'))}."
-                  " True ki, ks are the small-signal slopes at the levitated operating point.</p>"]
+                  f"{html.escape(str(upd.get('message')).rstrip('.'))}. "
+                  + html.escape(str((summary.get("intervals") or {}).get("parameters", ""))) + "</p>"]
     elif upd and "error" in upd:
         parts.append(f"<p class='note'>Model updating failed: {html.escape(upd['error'])}</p>")
     parts.append("<h2>Figures</h2>")
@@ -236,8 +245,10 @@ def write_report(report_dir: str | Path, summary: Mapping[str, Any], *, frf: Frf
                                                None if dist is None else dist.even_db))
     add("stabilisation.png", f"Stabilisation diagram (poles of the fits of each order; filled green squares are "
         f"stable in frequency and damping) over the CMIF (singular values of the measured FRF, grey); the dashed "
-        f"line marks the chosen order {order}.",
-        lambda p: figures.stabilisation(diagram, frf.freq_hz, frf.frf, order, p))
+        f"line marks the chosen order {order}; the chosen order's modes carry their 95 % frequency intervals.",
+        lambda p: figures.stabilisation(diagram, frf.freq_hz, frf.frf, order, p,
+                                        mode_ci95=[m["freq_hz_ci95"] for m in summary["fit"]["modes"]
+                                                   if m.get("freq_hz_ci95")]))
     add("excitation.png", "Excitation design: line amplitudes of one period per input with its crest factor, "
         "the unexcited detection lines, and the period in time.",
         lambda p: figures.excitation(design, p))

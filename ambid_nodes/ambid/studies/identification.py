@@ -505,6 +505,18 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         fit=dict(order=int(order), order_rule=rule, chi2_per_dof=fit.chi2_per_dof, delay_s=fit_delay,
                  weights=var_kind, orders_tried=diagram.orders, chi2_per_dof_by_order=diagram.chi2_per_dof,
                  modes=mode_rows, real_poles=real_rows, refine_message=fit.message),
+        intervals=dict(
+            noise_only=[] if var is not None and var_kind.startswith("var_total") else
+            ["frf band", "parameters", "modes"],
+            frf_band=f"+-2 sigma with sigma^2 = {var_kind} (total: noise and the stochastic nonlinear "
+                     "distortion, from the realisation-to-realisation scatter; noise only with one realisation)",
+            parameters="95 % intervals (Student t) from the Jacobian, weighted by the fit variance "
+                       f"({var_kind}) and scaled by the residual's chi2/dof, so they hold the misfit too. ki and ks "
+                       "are compared with the true magnets' slopes at this excitation level (true_small_signal: at "
+                       "rest); the sensor bandwidth, amplifier bandwidth and delay are strongly correlated",
+            modes="95 % intervals (1.96 sigma) of the fitted modes from the variable-projection covariance of "
+                  "the common denominator's factors, scaled by the fit's chi2/dof; a cluster of true modes closer "
+                  "than the resolution has none"),
         modes_vs_true=modes_vs_true,
         max_mode_freq_error=max((abs(r["freq_error"]) for r in modes_vs_true), default=None),
         max_mode_damping_error=max((abs(r["damping_error"]) for r in modes_vs_true), default=None),

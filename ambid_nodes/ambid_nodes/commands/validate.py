@@ -135,9 +135,11 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     if todo:
         ctx = mp.get_context("spawn")
-        base = 100 + (os.getpid() % 40) * 3
+        # domain ids 215-230: outside the 100-199 that identify and graph derive from their pid, so that a
+        # session on this machine does not hear (and reject) ours; one id per worker
+        base = 215 + (os.getpid() % 8) * 2
         failed = []
-        with ProcessPoolExecutor(max_workers=min(jobs, len(todo)), mp_context=ctx, initializer=_init_worker,
+        with ProcessPoolExecutor(max_workers=min(jobs, len(todo), 2), mp_context=ctx, initializer=_init_worker,
                                  initargs=(ctx.Value("i", 0), base)) as pool:
             futures = {pool.submit(run_seed, s, args.rig, str(out / "seeds" / f"seed_{s:03d}"), fp,
                                    args.linear_magnets): s

@@ -1,0 +1,82 @@
+"""Coverage bookkeeping of ``ambid validate`` (ambid.studies.coverage) and the excitation-level truth
+of the magnets (ambid.fit.model_update.excitation_slopes)."""
+
+import numpy as np
+import pytest
+from ambid.control.pid import PidParameters, pid_controller
+from ambid.excitation.spec import build_design
+from ambid.fit.model_update import excitation_slopes
+from ambid.plant.rig import make_rig
+from ambid.plant.true_rig import levitated_plant
+from ambid.studies.coverage import FRF_NOMINAL, clopper_pearson, coverage_table, frf_record
+from scipy import stats
+
+
+def test_clopper_pearson_against_closed_forms():
+    # k = 0: upper = 1 - (alpha/2)^(1/n); k = n: lower = (alpha/2)^(1/n)
+    n = 20
+    assert clopper_pearson(0, n) == (0.0, pytest.approx(1 - 0.025 ** (1 / n)))
+    assert clopper_pearson(n, n) == (pytest.approx(0.025 ** (1 / n)), 1.0)
+    lo, hi = clopper_pearson(17, 20)
+    # the exact interval holds the binomial tails at 2.5 % each
+    assert stats.binom.sf(16, 20, lo) == pytest.approx(0.025, rel=1e-6)
+    assert stats.binom.cdf(17, 20, hi) == pytest.approx(0.025, rel=1e-6)
+
+
+def test_right_claims_give_nominal_coverage_and_unit_ratio():
+    rng = np.random.default_rng(21)
+    n_seeds, true = 400, 3.0
+    records = []
+    for _ in range(n_seeds):
+        std = 0.1 * (1 + 0.2 * rng.uniform())             # each seed claims its own (right) sigma
+        v = true + std * rng.standard_normal()
+        g_true = np.ones((50, 2, 2), complex)
+        var = np.full(g_true.shape, 1e-4)
+        g = g_true + np.sqrt(var / 2) * (rng.standard_normal(g_true.shape) + 1j * rng.standard_normal(g_true.shape))
+        records.append(dict(frf={"k": frf_record(g, g_true, {"v": var})["v"]},
+                            intervals={"p": dict(value=v, std=std, ci95=[v - 1.96 * std, v + 1.96 * std], true=true,
+                                                 noise_only=True)}, noise=None))
+    t = coverage_table(records)
+    assert t["frf:k"]["nominal"] == pytest.approx(1 - np.exp(-4))
+    assert t["frf:k"]["ci95"][0] < FRF_NOMINAL < t["frf:k"]["ci95"][1]
+    assert abs(t["frf:k"]["std_ratio"] - 1) < 0.02
+    assert t["p"]["ci95"][0] < 0.95 < t["p"]["ci95"][1] and abs(t["p"]["std_ratio"] - 1) < 0.1
+    # a claim half as wide as the truth shows as a ratio near 2 and a coverage far below 0.95
+    for r in records:
+        x = r["intervals"]["p"]
+        s = x["std"] / 2
+        x.update(std=s, ci95=[x["value"] - 1.96 * s, x["value"] + 1.96 * s])
+    t2 = coverage_table(records)
+    assert abs(t2["p"]["std_ratio"] - 2) < 0.2 and t2["p"]["ci95"][1] < 0.8
+
+
+@pytest.fixture(scope="module")
+def loop():
+    rig = make_rig()
+    pid = PidParameters()
+    return rig, pid_controller(pid, rig.dt)
+
+
+def _design(peak):
+    return build_design("multisine", (10.0, 1000.0), 5.0, 10_000.0, peak_current_a=peak, n_periods=2,
+                        n_realisations=1, n_transient_periods=1, grid="random_odd", mimo="orthogonal",
+                        phases="random", seed=3)
+
+
+def test_excitation_slopes_follow_the_quadratic_magnet_law(loop):
+    # ks = dF/dg grows with the square of the current excursion (ks (1 + i^2 / ib^2) at the centre):
+    # the shift over the small-signal slope scales with the excitation's power, ki barely moves
+    rig, k = loop
+    op = levitated_plant(rig)[1]
+    ki1, ks1 = excitation_slopes(rig, k, _design(0.2))
+    ki2, ks2 = excitation_slopes(rig, k, _design(0.4))
+    ki0, ks0 = excitation_slopes(rig, k, _design(1e-4))   # the sensor noise alone
+    np.testing.assert_allclose(ks0, op.ks_n_per_m, rtol=2e-4)
+    np.testing.assert_allclose(ki0, op.ki_n_per_a, rtol=2e-4)
+    d1, d2 = ks1 - ks0, ks2 - ks0
+    assert np.all(d1 > 0)
+    np.testing.assert_allclose(d2 / d1, 4.0, rtol=0.02)
+    # size: 2 kc sigma_i^2 / s0^3 with kc 2 k cos(alpha) -> ks0 sigma_i^2 / (ib^2 + i0^2); sigma_i of order the rms
+    mag = rig.true_magnet
+    assert np.all(d2 / ks0 < 0.4**2 / mag.bias_current_a**2)
+    assert np.all(np.abs(ki2 / ki0 - 1) < 0.01)
