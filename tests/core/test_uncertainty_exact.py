@@ -9,7 +9,7 @@ intervals built from it.
 import numpy as np
 from ambid.fit import update_parameters
 from ambid.fit.blas_threads import single_threaded_blas
-from ambid.frf import frf_noise_variance, period_mean_variance
+from ambid.frf import frf_noise_variance, period_mean_variance, row_covariance
 from scipy import stats
 
 
@@ -102,3 +102,54 @@ def test_linear_least_squares_parameter_covariance_is_exact():
     lo = stats.beta.ppf(0.0005, hits, n_draws - hits + 1)
     hi = stats.beta.ppf(0.9995, hits + 1, n_draws - hits)
     assert np.all((lo <= 0.95) & (0.95 <= hi)), hits / n_draws
+
+
+def test_row_covariance_of_the_closed_loop_indirect_frf():
+    # the within-row covariance conj((S S^H)^-1) (scaled) against the per-period errors of a simulated loop
+    p, n_lines, s2 = 400, 3, 1e-6
+    rng = np.random.default_rng(14)
+    g = _cn(rng, n_lines, 2, 2) + 2 * np.eye(2)
+    k = 0.8 * _cn(rng, n_lines, 2, 2)
+    r = np.array([[1, 1], [1, -1]])[None] * np.ones((n_lines, 1, 1))
+    sens = np.linalg.inv(np.eye(2) - k @ g)
+    v = np.sqrt(s2) * _cn(rng, p, n_lines, 2, 2)
+    u = sens @ (r + k @ v)
+    y = g @ u + v
+    err = (y @ np.linalg.inv(u)) - g                                   # per-period indirect solutions' errors
+    emp = np.einsum("plij,plik->lijk", err, err.conj()) / p            # (L, Ny, Nu, Nu), E[e_j e_k*]
+    var = np.real(np.diagonal(emp, axis1=2, axis2=3))
+    pred = row_covariance(np.broadcast_to(var.mean(axis=2, keepdims=True), var.shape), sens)
+    scale = np.sqrt(np.abs(np.diagonal(pred, axis1=2, axis2=3)))
+    corr = lambda c: c / (scale[..., :, None] * scale[..., None, :])
+    assert np.max(np.abs(corr(emp) - corr(pred))) < 0.15        # 400 periods: sampling error ~0.05
+    assert np.max(np.abs(corr(pred)[..., 0, 1])) > 0.3          # and the correlation is not small here
+
+
+def test_sandwich_with_correlated_rows_claims_the_right_spread():
+    # linear model, errors correlated within each row: the row sandwich's std matches the scatter,
+    # the independent-residual covariance does not
+    f = np.linspace(10.0, 500.0, 40)
+    s = 2j * np.pi * f / 500.0
+    basis = np.stack([np.ones_like(s), s, 1 / (1 + s)])
+    mix = np.array([[[1.0, 0.9], [0.2, -1.0]], [[0.3, 1.0], [1.0, 0.1]], [[1.0, 0.8], [0.7, 1.0]]])
+    b = np.einsum("kl,kij->klij", basis, mix)
+    theta = np.array([1.0, -0.5, 2.0])
+    g0 = np.einsum("k,klij->lij", theta, b)
+    c_row = np.array([[1.0, 0.95], [0.95, 1.0]]) * 1e-4                # (Nu, Nu), the same for every row and line
+    row_cov = np.broadcast_to(c_row, (f.size, 2, 2, 2)).astype(complex)
+    var = np.full(g0.shape, 1e-4)
+    chol = np.linalg.cholesky(c_row)
+    model = lambda th: np.einsum("k,klij->lij", th, b)
+    rng = np.random.default_rng(15)
+    est, s_rows, s_jac = [], [], []
+    with single_threaded_blas():
+        for _ in range(120):
+            e = np.einsum("jk,lik->lij", chol, _cn(rng, f.size, 2, 2))
+            res_r = update_parameters(model, theta * 1.1, f, g0 + e, var, covariance="rows", row_covariance=row_cov)
+            res_j = update_parameters(model, theta * 1.1, f, g0 + e, var)
+            est.append(res_r.theta)
+            s_rows.append(res_r.std)
+            s_jac.append(res_j.std)
+    spread = np.std(est, axis=0, ddof=1)
+    assert np.all(np.abs(spread / np.sqrt(np.mean(np.square(s_rows), axis=0)) - 1) < 0.2)
+    assert np.any(np.abs(spread / np.sqrt(np.mean(np.square(s_jac), axis=0)) - 1) > 0.3)

@@ -403,7 +403,8 @@ class PhysicalUpdate:
 
 def update_physical_model(rotor: RotorModel, freq_hz: np.ndarray, G: np.ndarray, var: np.ndarray | None,
                           start: Mapping[str, float], free: Sequence[str] | None = None, dt_s: float = 0.0,
-                          max_evaluations: int = 300) -> PhysicalUpdate:
+                          max_evaluations: int = 300, covariance: str = "sandwich",
+                          row_covariance: np.ndarray | None = None) -> PhysicalUpdate:
     """Fit the free physical parameters to a measured FRF (weighted least squares, CIs from the Jacobian).
 
     Args:
@@ -417,6 +418,11 @@ def update_physical_model(rotor: RotorModel, freq_hz: np.ndarray, G: np.ndarray,
             ``start``) plus the support ones when ``start`` has them.
         dt_s: sample period of the measurement [s] (0: continuous model).
         max_evaluations: most model evaluations of the optimiser.
+        covariance: ``"sandwich"`` (default), ``"jacobian"`` or ``"rows"``
+            (:func:`ambid.fit.update_parameters`); ``row_covariance`` given
+            selects ``"rows"``.
+        row_covariance: (L, 4, 4, 4) covariance of the entries of each row of G
+            (:func:`ambid.frf.uncertainty.row_covariance`).
 
     Returns:
         :class:`PhysicalUpdate`.
@@ -453,8 +459,10 @@ def update_physical_model(rotor: RotorModel, freq_hz: np.ndarray, G: np.ndarray,
     scales = np.array([abs(st[k]) if st[k] != 0 else (dt_s or PARAMETERS[k].typical) for k in free])
     lower = [PARAMETERS[k].low for k in free]
     upper = [PARAMETERS[k].high for k in free]
+    # sandwich: in closed loop the entries of a line share their noise, and the model may miss some of the data
     res = update_parameters(model, theta0, f, g, var, names=free, scales=scales, bounds=(lower, upper),
-                            max_evaluations=max_evaluations)
+                            covariance="rows" if row_covariance is not None else covariance,
+                            row_covariance=row_covariance, max_evaluations=max_evaluations)
     final = dict(st)
     final.update(zip(free, (float(v) for v in res.theta)))
     return PhysicalUpdate(result=res, start=st, parameters=final, free=free, dt_s=float(dt_s))

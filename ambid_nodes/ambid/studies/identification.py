@@ -59,6 +59,7 @@ from ambid.fit.model_update import (PhysicalUpdate, excitation_slopes, nominal_p
 from ambid.frf.levels import LineLevels, line_levels
 from ambid.frf.offline import frf_from_session, session_designs
 from ambid.frf.sensitivity import iso14839_zone
+from ambid.frf.uncertainty import row_covariance
 from ambid.frf.streaming import FrfResult
 from ambid.jsonable import to_jsonable
 from ambid.plant.analytical import analytical_model
@@ -267,8 +268,8 @@ def _load_rig(rig: Rig | str | os.PathLike | Mapping | None, facts: dict | None)
     return make_rig(facts) if facts else None
 
 
-def _update(rig: Rig, frf: FrfResult, var, band, modes, dt_s, start_overrides, free) -> tuple[PhysicalUpdate | None,
-                                                                                             str | None]:
+def _update(rig: Rig, frf: FrfResult, var, band, modes, dt_s, start_overrides, free,
+            row_cov=None) -> tuple[PhysicalUpdate | None, str | None]:
     """Model updating from the nominal rig; the support mode started at the fitted mode the rig lacks."""
 
     start = nominal_parameters(rig)
@@ -293,7 +294,8 @@ def _update(rig: Rig, frf: FrfResult, var, band, modes, dt_s, start_overrides, f
         if "bending_freq_hz" in start and not band[0] <= start["bending_freq_hz"] <= band[1]:
             free = [k for k in free if not k.startswith("bending_")]
     try:
-        return update_physical_model(rig.rotor_model(), frf.freq_hz, frf.frf, var, start, free, dt_s), None
+        return update_physical_model(rig.rotor_model(), frf.freq_hz, frf.frf, var, start, free, dt_s,
+                                     row_covariance=row_cov), None
     except ValueError as exc:
         return None, str(exc)
 
@@ -373,6 +375,10 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     # noise and distortion reach every input's column alike): 2 (M - 1) Nu degrees of freedom instead of
     # 2 (M - 1), so that with M = 3 the band covers 96 % of the lines, not 89 %
     band_var = frf.var_total if var is None else var
+    # the indirect estimator's errors are correlated along a row (U^-1 mixes the experiments); the
+    # intervals of the modes and parameters take that in (a sandwich with this covariance)
+    row_cov = (row_covariance(var, frf.sensitivity) if var is not None and frf.estimator == "indirect"
+               and np.all(np.isfinite(frf.sensitivity)) else None)
     if frf.gaps:
         notes.append(f"{len(frf.gaps)} gap(s) in the measurement; the periods they touch were left out")
 
@@ -391,7 +397,8 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
                              order_penalty)
     else:
         rule = "given"
-    fit: FitResult = fit_common_denominator(f, frf.frf, var, order=int(order), delay_s=fit_delay, **labels)
+    fit: FitResult = fit_common_denominator(f, frf.frf, var, order=int(order), delay_s=fit_delay,
+                                            row_covariance=row_cov, **labels)
     summary_modes = modal_summary(fit.model)
     prev = diagram.orders[diagram.orders < order]
     prev_poles = diagram.poles_of(int(prev[-1])) if prev.size else np.zeros(0, complex)
@@ -442,7 +449,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     update_error = None
     if update and the_rig is not None:
         stable = [m for m, row in zip(modes, mode_rows) if row["stable"]]
-        upd, update_error = _update(the_rig, frf, var, band, stable, dt_s, update_start, update_free)
+        upd, update_error = _update(the_rig, frf, var, band, stable, dt_s, update_start, update_free, row_cov)
         if update_error:
             notes.append(f"model updating failed: {update_error}")
 
@@ -510,13 +517,15 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
             ["frf band", "parameters", "modes"],
             frf_band=f"+-2 sigma with sigma^2 = {var_kind} (total: noise and the stochastic nonlinear "
                      "distortion, from the realisation-to-realisation scatter; noise only with one realisation)",
-            parameters="95 % intervals (Student t) from the Jacobian, weighted by the fit variance "
-                       f"({var_kind}) and scaled by the residual's chi2/dof, so they hold the misfit too. ki and ks "
+            parameters="95 % intervals (Student t) from a sandwich covariance: the Jacobian of the fit weighted "
+                       f"by {var_kind}, the errors of a line correlated (within a row through U^-1, between rows "
+                       "as the residuals show), scaled by the generalised chi2/dof, so they hold the misfit too. "
+                       "ki and ks "
                        "are compared with the true magnets' slopes at this excitation level (true_small_signal: at "
                        "rest); the sensor bandwidth, amplifier bandwidth and delay are strongly correlated",
-            modes="95 % intervals (1.96 sigma) of the fitted modes from the variable-projection covariance of "
-                  "the common denominator's factors, scaled by the fit's chi2/dof; a cluster of true modes closer "
-                  "than the resolution has none"),
+            modes="95 % intervals (1.96 sigma) of the fitted modes from the variable-projection sandwich "
+                  "covariance of the common denominator's factors (the same line covariance as the parameters); "
+                  "a cluster of true modes closer than the resolution has none"),
         modes_vs_true=modes_vs_true,
         max_mode_freq_error=max((abs(r["freq_error"]) for r in modes_vs_true), default=None),
         max_mode_damping_error=max((abs(r["damping_error"]) for r in modes_vs_true), default=None),
