@@ -230,7 +230,8 @@ def fit_common_denominator(freq_hz: np.ndarray, G: np.ndarray, var: np.ndarray |
                            refine: bool = True, max_refine_evaluations: int = 100,
                            input_names: tuple[str, ...] = (), output_names: tuple[str, ...] = (),
                            input_units: tuple[str, ...] = (), output_units: tuple[str, ...] = (),
-                           row_covariance: np.ndarray | None = None) -> FitResult:
+                           row_covariance: np.ndarray | None = None,
+                           realisations: np.ndarray | None = None) -> FitResult:
     """Fit a common-denominator model of ``order`` poles to a measured FRF matrix.
 
     Args:
@@ -254,6 +255,8 @@ def fit_common_denominator(freq_hz: np.ndarray, G: np.ndarray, var: np.ndarray |
             each row of G (:func:`ambid.frf.uncertainty.row_covariance`) for
             the modes' intervals; None takes the residuals' line sums
             (:func:`ambid.fit.refine.factor_covariance`).
+        realisations: (M, L, Ny, Nu) the realisations' FRFs whose mean G is;
+            their scatter may widen the modes' intervals (with ``row_covariance``).
 
     Returns:
         :class:`FitResult`.
@@ -262,11 +265,11 @@ def fit_common_denominator(freq_hz: np.ndarray, G: np.ndarray, var: np.ndarray |
         return _fit(freq_hz, G, var, order, relative_degree, delay_s, initial_poles, n_vf_iterations,
                     refine, max_refine_evaluations,
                     (tuple(input_names), tuple(output_names), tuple(input_units), tuple(output_units)),
-                    row_covariance)
+                    row_covariance, realisations)
 
 
 def _fit(freq_hz, G, var, order, relative_degree, delay_s, initial_poles, n_vf_iterations, refine,
-         max_refine_evaluations, labels, row_covariance=None) -> FitResult:
+         max_refine_evaluations, labels, row_covariance=None, realisations=None) -> FitResult:
     if int(order) != order or order < 1:
         raise ValueError(f"order must be a positive integer, got {order}")
     order = int(order)
@@ -305,20 +308,26 @@ def _fit(freq_hz, G, var, order, relative_degree, delay_s, initial_poles, n_vf_i
                           input_names=labels[0], output_names=labels[1],
                           input_units=labels[2], output_units=labels[3])
     n_par = order + e * (order - data.n_constraints + int(data.has_feedthrough))
-    mode_std = _mode_std(data, lin, quad, sol, n_par, w_scale, row_covariance)
+    deviations = None
+    if realisations is not None:
+        gm = np.asarray(realisations)
+        dev = (gm - gm.mean(axis=0)) * np.exp(2j * np.pi * f * delay_s)[None, :, None, None]
+        deviations = dev.reshape(gm.shape[0], f.size, e).transpose(0, 2, 1)            # (M, E, L)
+    mode_std = _mode_std(data, lin, quad, sol, n_par, w_scale, row_covariance, deviations)
     return FitResult(mode_std=mode_std, model=model, cost=sol.cost, cost_linear=cost_linear, n_residuals=2 * n_lines * e,
                      n_parameters=n_par, n_vf_iterations=n_vf, n_refine_evaluations=n_eval,
                      message=str(message), weighted=var is not None)
 
 
 def _mode_std(data: WeightedData, lin: np.ndarray, quad: np.ndarray, sol, n_par: int,
-              w_scale: float, row_covariance: np.ndarray | None = None) -> np.ndarray:
+              w_scale: float, row_covariance: np.ndarray | None = None,
+              deviations: np.ndarray | None = None) -> np.ndarray:
     """FitResult.mode_std: delta method on q(s) = s^2 + a1 s + a0 (scaled s), omega = sqrt(a0),
     zeta = a1 / (2 sqrt(a0))."""
     if quad.shape[0] == 0:
         return np.zeros((0, 4))
     try:
-        cov = factor_covariance(data, lin, quad, sol, n_par, row_covariance=row_covariance)
+        cov = factor_covariance(data, lin, quad, sol, n_par, row_covariance=row_covariance, deviations=deviations)
     except (np.linalg.LinAlgError, ValueError):
         return np.zeros((0, 4))
     rows = []

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["row_sandwich", "line_sandwich"]
+__all__ = ["row_sandwich", "line_sandwich", "realisation_inflation"]
 
 
 def row_sandwich(j_re: np.ndarray, j_im: np.ndarray, residual: np.ndarray, w: np.ndarray,
@@ -81,3 +81,33 @@ def line_sandwich(j_re: np.ndarray, j_im: np.ndarray, residual: np.ndarray, w: n
     chi2 = 2 * float(np.real(np.sum(np.conj(e) * np.linalg.solve(c, e))))
     n_res = 2 * residual.size
     return bread @ meat @ bread * chi2 / max(n_res - n_parameters, 1)
+
+
+def realisation_inflation(scores: np.ndarray, cov: np.ndarray) -> float:
+    """How much wider the realisation-to-realisation scatter says a covariance should be, >= 1.
+
+    The stochastic nonlinear distortion of one realisation is partly
+    coherent over the lines (the magnets' effective stiffness differs a
+    little from one random-phase realisation to the next), which no
+    line-by-line covariance holds. The M realisations' own FRFs G_m show it:
+    their deviations from the mean, mapped through the fit's linearisation
+    (``scores``: delta theta_m = (J^T J)^-1 J^T w (G_m - mean G_m)), scatter
+    with the covariance M cov if ``cov`` is right. The pooled ratio
+
+        kappa = sum_m d_m^T cov^-1 d_m / (p M (M - 1))
+
+    (about 1 with (M - 1) p degrees of freedom when ``cov`` is right) scales
+    ``cov`` when it exceeds 1.
+
+    Args:
+        scores: (M, p) linearised deviations d_m of the parameters, M >= 2.
+        cov: (p, p) covariance of the parameters of the mean.
+
+    Returns:
+        max(kappa, 1).
+    """
+    m, p = scores.shape
+    if m < 2:
+        return 1.0
+    q = np.einsum("mp,mp->", scores, np.linalg.solve(cov, scores.T).T)
+    return max(float(q) / (p * m * (m - 1)), 1.0)

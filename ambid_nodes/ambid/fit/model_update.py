@@ -397,6 +397,7 @@ class PhysicalUpdate:
                              ci95=[float(c) for c in ci[name]] if name in ci else None)
                   for name, v in self.parameters.items()}
         return dict(parameters=params, chi2_per_dof=r.chi2_per_dof, dof=r.dof, success=r.success,
+                    covariance_inflation=r.inflation,
                     message=r.message, n_evaluations=r.n_evaluations, correlation=r.correlation.tolist(),
                     free=list(self.free))
 
@@ -404,7 +405,8 @@ class PhysicalUpdate:
 def update_physical_model(rotor: RotorModel, freq_hz: np.ndarray, G: np.ndarray, var: np.ndarray | None,
                           start: Mapping[str, float], free: Sequence[str] | None = None, dt_s: float = 0.0,
                           max_evaluations: int = 300, covariance: str = "sandwich",
-                          row_covariance: np.ndarray | None = None) -> PhysicalUpdate:
+                          row_covariance: np.ndarray | None = None,
+                          realisations: np.ndarray | None = None) -> PhysicalUpdate:
     """Fit the free physical parameters to a measured FRF (weighted least squares, CIs from the Jacobian).
 
     Args:
@@ -423,6 +425,7 @@ def update_physical_model(rotor: RotorModel, freq_hz: np.ndarray, G: np.ndarray,
             selects ``"rows"``.
         row_covariance: (L, 4, 4, 4) covariance of the entries of each row of G
             (:func:`ambid.frf.uncertainty.row_covariance`).
+        realisations: (M, L, 4, 4) the realisations' FRFs (their scatter may widen the intervals).
 
     Returns:
         :class:`PhysicalUpdate`.
@@ -462,7 +465,8 @@ def update_physical_model(rotor: RotorModel, freq_hz: np.ndarray, G: np.ndarray,
     # sandwich: in closed loop the entries of a line share their noise, and the model may miss some of the data
     res = update_parameters(model, theta0, f, g, var, names=free, scales=scales, bounds=(lower, upper),
                             covariance="rows" if row_covariance is not None else covariance,
-                            row_covariance=row_covariance, max_evaluations=max_evaluations)
+                            row_covariance=row_covariance, realisations=realisations,
+                            max_evaluations=max_evaluations)
     final = dict(st)
     final.update(zip(free, (float(v) for v in res.theta)))
     return PhysicalUpdate(result=res, start=st, parameters=final, free=free, dt_s=float(dt_s))

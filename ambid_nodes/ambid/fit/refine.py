@@ -23,7 +23,7 @@ import numpy as np
 from scipy import linalg
 
 from ambid.fit import basis as fb
-from ambid.fit.correlated import line_sandwich
+from ambid.fit.correlated import line_sandwich, realisation_inflation
 from ambid.fit.vector_fitting import (LinearSolution, WeightedData, dependent_columns, null_map, solve_coefficients,
                                       stack_real)
 
@@ -140,7 +140,8 @@ def refine(data: WeightedData, lin: np.ndarray, quad: np.ndarray, max_nfev: int 
 
 def factor_covariance(data: WeightedData, lin: np.ndarray, quad: np.ndarray, sol: LinearSolution,
                       n_parameters: int, sandwich: bool = True,
-                      row_covariance: np.ndarray | None = None) -> np.ndarray:
+                      row_covariance: np.ndarray | None = None,
+                      deviations: np.ndarray | None = None) -> np.ndarray:
     """Covariance of the factor parameters theta = [lin, quad] at a fit, (P, P) in scaled units.
 
     J is the variable-projection Jacobian (Kaufman's, the numerators
@@ -156,7 +157,10 @@ def factor_covariance(data: WeightedData, lin: np.ndarray, quad: np.ndarray, sol
 
     With ``row_covariance`` (L, Ny, Nu, Nu), the known covariance of the
     entries of each row of G, the sandwich takes it instead of the residuals
-    (:func:`ambid.fit.correlated.line_sandwich`).
+    (:func:`ambid.fit.correlated.line_sandwich`). ``deviations`` (M, E, L),
+    the realisations' G_m minus their mean in the data's layout (delay
+    removed), widen it where their scatter exceeds it
+    (:func:`ambid.fit.correlated.realisation_inflation`).
     """
     theta = fb.pack(lin, quad)
     nc = data.n_constraints
@@ -174,8 +178,13 @@ def factor_covariance(data: WeightedData, lin: np.ndarray, quad: np.ndarray, sol
         def lines_first(x: np.ndarray) -> np.ndarray:   # (E, L, ...) -> (L, Ny, Nu, ...)
             return np.moveaxis(x, 0, 1).reshape((n_lines, ny, nu) + x.shape[2:])
 
-        return line_sandwich(lines_first(j[:, :n_lines]), lines_first(j[:, n_lines:]), lines_first(sol.residual),
+        cov = line_sandwich(lines_first(j[:, :n_lines]), lines_first(j[:, n_lines:]), lines_first(sol.residual),
                             lines_first(data.w), rc, bread, n_parameters)
+        if deviations is not None:
+            dw = data.w[None] * deviations
+            d = np.concatenate([dw.real, dw.imag], axis=2)                               # (M, E, 2L)
+            cov = cov * realisation_inflation(np.einsum("mei,eip->mp", d, j) @ bread, cov)
+        return cov
     if not sandwich:
         return sol.cost / max(n_res - n_parameters, 1) * bread
     res = sol.residual

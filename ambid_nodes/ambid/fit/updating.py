@@ -25,7 +25,7 @@ import numpy as np
 from scipy import optimize, stats
 
 from ambid.fit.blas_threads import single_threaded_blas
-from ambid.fit.correlated import line_sandwich
+from ambid.fit.correlated import line_sandwich, realisation_inflation
 from ambid.statespace import StateSpace
 
 __all__ = ["UpdateResult", "update_parameters"]
@@ -50,6 +50,7 @@ class UpdateResult:
         success: the optimiser reported convergence.
         message: the optimiser's stop reason.
         n_evaluations: model evaluations in the optimisation.
+        inflation: factor the realisations' scatter widened the covariance by (1: none).
     """
 
     names: tuple[str, ...]
@@ -65,6 +66,7 @@ class UpdateResult:
     success: bool
     message: str
     n_evaluations: int
+    inflation: float = 1.0
 
     @property
     def dof(self) -> int:
@@ -130,7 +132,8 @@ def update_parameters(model: Callable[[np.ndarray], StateSpace | np.ndarray], th
                       names: Sequence[str] | None = None, scales: Sequence[float] | None = None,
                       bounds: tuple[Sequence[float], Sequence[float]] | None = None,
                       rcond: float = 1e-6, scale_covariance: bool = True, covariance: str = "jacobian",
-                      row_covariance: np.ndarray | None = None, max_evaluations: int = 200) -> UpdateResult:
+                      row_covariance: np.ndarray | None = None, realisations: np.ndarray | None = None,
+                      max_evaluations: int = 200) -> UpdateResult:
     """Fit the parameters of a physical model to a measured FRF matrix.
 
     Args:
@@ -159,6 +162,9 @@ def update_parameters(model: Callable[[np.ndarray], StateSpace | np.ndarray], th
             (:func:`ambid.fit.correlated.line_sandwich`).
         row_covariance: (L, Ny, Nu, Nu) complex covariance of the entries of
             each row of G, for ``covariance="rows"``.
+        realisations: (M, L, Ny, Nu) the FRFs of the M realisations whose
+            mean G is; their scatter widens the covariance where it exceeds
+            it (:func:`ambid.fit.correlated.realisation_inflation`).
         max_evaluations: most model evaluations in the optimisation.
 
     Returns:
@@ -241,6 +247,13 @@ def update_parameters(model: Callable[[np.ndarray], StateSpace | np.ndarray], th
     else:
         cov_x = bread * (cost / max(dof, 1) if scale_covariance else 0.5)
         t_dof = max(dof, 1)
+    inflation = 1.0
+    if realisations is not None:
+        gm = np.asarray(realisations)
+        dev = w * (gm - gm.mean(axis=0))
+        d = np.concatenate([dev.real.reshape(len(gm), -1), dev.imag.reshape(len(gm), -1)], axis=1)
+        inflation = realisation_inflation(d @ jac @ bread, cov_x)
+        cov_x = cov_x * inflation
     cov = cov_x * sc[:, None] * sc[None, :]
     std = np.sqrt(np.diag(cov))
     corr = cov / np.outer(std, std)
@@ -249,4 +262,4 @@ def update_parameters(model: Callable[[np.ndarray], StateSpace | np.ndarray], th
     return UpdateResult(names=nm, theta=theta, theta0=th0, std=std,
                         ci95=np.column_stack([theta - half, theta + half]), covariance=cov, correlation=corr,
                         cost=cost, n_residuals=n_res, jacobian_singular_values=sv, success=bool(res.success),
-                        message=str(res.message), n_evaluations=int(res.nfev))
+                        message=str(res.message), n_evaluations=int(res.nfev), inflation=inflation)

@@ -269,7 +269,7 @@ def _load_rig(rig: Rig | str | os.PathLike | Mapping | None, facts: dict | None)
 
 
 def _update(rig: Rig, frf: FrfResult, var, band, modes, dt_s, start_overrides, free,
-            row_cov=None) -> tuple[PhysicalUpdate | None, str | None]:
+            row_cov=None, realisations=None) -> tuple[PhysicalUpdate | None, str | None]:
     """Model updating from the nominal rig; the support mode started at the fitted mode the rig lacks."""
 
     start = nominal_parameters(rig)
@@ -295,7 +295,7 @@ def _update(rig: Rig, frf: FrfResult, var, band, modes, dt_s, start_overrides, f
             free = [k for k in free if not k.startswith("bending_")]
     try:
         return update_physical_model(rig.rotor_model(), frf.freq_hz, frf.frf, var, start, free, dt_s,
-                                     row_covariance=row_cov), None
+                                     row_covariance=row_cov, realisations=realisations), None
     except ValueError as exc:
         return None, str(exc)
 
@@ -379,6 +379,9 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     # intervals of the modes and parameters take that in (a sandwich with this covariance)
     row_cov = (row_covariance(var, frf.sensitivity) if var is not None and frf.estimator == "indirect"
                and np.all(np.isfinite(frf.sensitivity)) else None)
+    # and the realisations' own scatter, where it is wider (distortion coherent over the lines)
+    realisations = (frf.frf_realisations if row_cov is not None and frf.frf_realisations is not None
+                    and len(frf.frf_realisations) >= 2 else None)
     if frf.gaps:
         notes.append(f"{len(frf.gaps)} gap(s) in the measurement; the periods they touch were left out")
 
@@ -398,7 +401,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     else:
         rule = "given"
     fit: FitResult = fit_common_denominator(f, frf.frf, var, order=int(order), delay_s=fit_delay,
-                                            row_covariance=row_cov, **labels)
+                                            row_covariance=row_cov, realisations=realisations, **labels)
     summary_modes = modal_summary(fit.model)
     prev = diagram.orders[diagram.orders < order]
     prev_poles = diagram.poles_of(int(prev[-1])) if prev.size else np.zeros(0, complex)
@@ -449,7 +452,8 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     update_error = None
     if update and the_rig is not None:
         stable = [m for m, row in zip(modes, mode_rows) if row["stable"]]
-        upd, update_error = _update(the_rig, frf, var, band, stable, dt_s, update_start, update_free, row_cov)
+        upd, update_error = _update(the_rig, frf, var, band, stable, dt_s, update_start, update_free, row_cov,
+                                    realisations)
         if update_error:
             notes.append(f"model updating failed: {update_error}")
 
