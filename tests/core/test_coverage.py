@@ -80,3 +80,24 @@ def test_excitation_slopes_follow_the_quadratic_magnet_law(loop):
     mag = rig.true_magnet
     assert np.all(d2 / ks0 < 0.4**2 / mag.bias_current_a**2)
     assert np.all(np.abs(ki2 / ki0 - 1) < 0.01)
+
+
+def test_realisation_inflation_reads_the_scatter_against_the_claim():
+    from ambid.fit.correlated import realisation_inflation
+
+    rng = np.random.default_rng(22)
+    p, m = 6, 3
+    a = rng.standard_normal((p, p))
+    cov = a @ a.T + p * np.eye(p)
+    chol = np.linalg.cholesky(cov)
+    # deviations of M realisations from their mean scatter with M cov (the mean's covariance is cov):
+    # kappa is ~1 on average, and ~4 when the scatter is twice as wide as claimed
+    def draw(scale):
+        x = scale * np.sqrt(m) * (rng.standard_normal((m, p)) @ chol.T)     # one realisation: m cov
+        return x - x.mean(axis=0)                                           # deviations from their mean
+
+    right = [realisation_inflation(draw(1.0), cov) for _ in range(400)]
+    wide = [realisation_inflation(draw(2.0), cov) for _ in range(400)]
+    assert 1.0 <= np.mean(right) < 1.35           # clipped at 1: E max(chi2_18 / 18 ..., 1)
+    assert abs(np.median(wide) / 4 - 1) < 0.15
+    assert realisation_inflation(np.zeros((1, p)), cov) == 1.0
