@@ -83,31 +83,37 @@ def line_sandwich(j_re: np.ndarray, j_im: np.ndarray, residual: np.ndarray, w: n
     return bread @ meat @ bread * chi2 / max(n_res - n_parameters, 1)
 
 
-def realisation_inflation(scores: np.ndarray, cov: np.ndarray) -> float:
-    """How much wider the realisation-to-realisation scatter says a covariance should be, >= 1.
+def realisation_inflation(scores: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """How much wider the realisation-to-realisation scatter says each variance should be, >= 1.
 
     The stochastic nonlinear distortion of one realisation is partly
     coherent over the lines (the magnets' effective stiffness differs a
     little from one random-phase realisation to the next), which no
     line-by-line covariance holds. The M realisations' own FRFs G_m show it:
     their deviations from the mean, mapped through the fit's linearisation
-    (``scores``: delta theta_m = (J^T J)^-1 J^T w (G_m - mean G_m)), scatter
-    with the covariance M cov if ``cov`` is right. The pooled ratio
+    (``scores``: d_m = (J^T J)^-1 J^T w (G_m - mean G_m)), scatter with the
+    covariance M cov if ``cov`` is right. Two ratios read that scatter:
 
-        kappa = sum_m d_m^T cov^-1 d_m / (p M (M - 1))
+        kappa = sum_m d_m^T cov^-1 d_m / (p M (M - 1))       pooled, (M - 1) p degrees of freedom
+        kappa_k = sum_m d_mk^2 / (M (M - 1) cov_kk)          parameter k alone, M - 1 degrees of freedom
 
-    (about 1 with (M - 1) p degrees of freedom when ``cov`` is right) scales
-    ``cov`` when it exceeds 1.
+    (each about 1 when ``cov`` is right). The coherent distortion reaches
+    some parameters (the magnets' stiffness, a mode the lines straddle) far
+    more than others, which the pooled ratio dilutes; the single ratio is
+    noisy. Each variance is scaled by the larger, and never shrunk.
 
     Args:
         scores: (M, p) linearised deviations d_m of the parameters, M >= 2.
         cov: (p, p) covariance of the parameters of the mean.
 
     Returns:
-        max(kappa, 1).
+        (p,) factors max(1, kappa, kappa_k) for the variances; scale cov by
+        sqrt(f_i f_j).
     """
     m, p = scores.shape
     if m < 2:
-        return 1.0
+        return np.ones(p)
     q = np.einsum("mp,mp->", scores, np.linalg.solve(cov, scores.T).T)
-    return max(float(q) / (p * m * (m - 1)), 1.0)
+    pooled = float(q) / (p * m * (m - 1))
+    single = np.sum(scores**2, axis=0) / (m * (m - 1) * np.diag(cov))
+    return np.maximum(np.maximum(single, pooled), 1.0)

@@ -183,7 +183,8 @@ def factor_covariance(data: WeightedData, lin: np.ndarray, quad: np.ndarray, sol
         if deviations is not None:
             dw = data.w[None] * deviations
             d = np.concatenate([dw.real, dw.imag], axis=2)                               # (M, E, 2L)
-            cov = cov * realisation_inflation(np.einsum("mei,eip->mp", d, j) @ bread, cov)
+            factors = realisation_inflation(np.einsum("mei,eip->mp", d, j) @ bread, cov)
+            cov = cov * np.sqrt(np.outer(factors, factors))
         return cov
     if not sandwich:
         return sol.cost / max(n_res - n_parameters, 1) * bread

@@ -50,7 +50,7 @@ class UpdateResult:
         success: the optimiser reported convergence.
         message: the optimiser's stop reason.
         n_evaluations: model evaluations in the optimisation.
-        inflation: factor the realisations' scatter widened the covariance by (1: none).
+        inflation: the largest factor the realisations' scatter widened a standard deviation by (1: none).
     """
 
     names: tuple[str, ...]
@@ -252,8 +252,9 @@ def update_parameters(model: Callable[[np.ndarray], StateSpace | np.ndarray], th
         gm = np.asarray(realisations)
         dev = w * (gm - gm.mean(axis=0))
         d = np.concatenate([dev.real.reshape(len(gm), -1), dev.imag.reshape(len(gm), -1)], axis=1)
-        inflation = realisation_inflation(d @ jac @ bread, cov_x)
-        cov_x = cov_x * inflation
+        factors = realisation_inflation(d @ jac @ bread, cov_x)
+        cov_x = cov_x * np.sqrt(np.outer(factors, factors))
+        inflation = float(np.sqrt(factors.max()))
     cov = cov_x * sc[:, None] * sc[None, :]
     std = np.sqrt(np.diag(cov))
     corr = cov / np.outer(std, std)
