@@ -96,15 +96,20 @@ def test_realisation_inflation_reads_the_scatter_against_the_claim():
         x = scale * np.sqrt(m) * (rng.standard_normal((m, p)) @ chol.T)     # one realisation: m cov
         return x - x.mean(axis=0)                                           # deviations from their mean
 
-    right = np.array([realisation_inflation(draw(1.0), cov) for _ in range(400)])
-    wide = np.array([realisation_inflation(draw(2.0), cov) for _ in range(400)])
+    right = np.array([realisation_inflation(draw(1.0), cov)[0] for _ in range(400)])
+    wide = np.array([realisation_inflation(draw(2.0), cov)[0] for _ in range(400)])
     assert np.all(right >= 1.0) and np.mean(right) < 1.6       # never shrunk; the max of noisy ratios ~1
     assert 3.8 < np.median(wide) < 6.0                          # at least the pooled ratio, ~4
     # one parameter twice as wide alone: its own factor finds it, the others stay near 1
     def one_wide():
         x = draw(1.0)
         x[:, 0] *= 2
-        return realisation_inflation(x, cov)
+        return realisation_inflation(x, cov)[0]
     f = np.median([one_wide() for _ in range(400)], axis=0)
     assert f[0] > 2.5 and np.all(f[1:] < 2.0)
-    np.testing.assert_array_equal(realisation_inflation(np.zeros((1, p)), cov), np.ones(p))
+    # the degrees of freedom of what set each factor: M - 1 for a parameter's own ratio
+    fac, dof = realisation_inflation(draw(1.0) * np.array([3.0] + [1.0] * (p - 1)), cov)
+    assert dof[0] == m - 1 and fac[0] > 1
+    ones, none = realisation_inflation(np.zeros((1, p)), cov)
+    np.testing.assert_array_equal(ones, np.ones(p))
+    assert np.all(np.isinf(none))

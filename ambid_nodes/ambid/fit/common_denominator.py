@@ -128,9 +128,10 @@ class FitResult:
         weighted: True when ``var`` was given (cost then ~ chi-square / 2).
         mode_std: one row per second-order factor of the denominator with a
             complex pole pair: (natural frequency [Hz], its std [Hz], damping
-            ratio [-], its std [-]), from the factors' covariance
+            ratio [-], its std [-], degrees of freedom of those variances
+            (inf: many)), from the factors' covariance
             (:func:`ambid.fit.refine.factor_covariance`) by the delta method;
-            (K, 4), empty when the covariance is not available.
+            (K, 5), empty when the covariance is not available.
     """
 
     model: RationalModel
@@ -142,17 +143,18 @@ class FitResult:
     n_refine_evaluations: int
     message: str
     weighted: bool
-    mode_std: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    mode_std: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)))
 
-    def mode_interval(self, freq_hz: float, damping: float) -> tuple[float, float] | None:
-        """(freq std [Hz], damping std [-]) of the fitted mode nearest (freq_hz, damping), or None."""
+    def mode_interval(self, freq_hz: float, damping: float) -> tuple[float, float, float] | None:
+        """(freq std [Hz], damping std [-], their degrees of freedom) of the fitted mode at
+        (freq_hz, damping), or None."""
         if self.mode_std.shape[0] == 0:
             return None
         d = np.abs(self.mode_std[:, 0] - freq_hz) / max(freq_hz, 1e-12) + np.abs(self.mode_std[:, 2] - damping)
         k = int(np.argmin(d))
         if d[k] > 1e-6:
             return None
-        return float(self.mode_std[k, 1]), float(self.mode_std[k, 3])
+        return float(self.mode_std[k, 1]), float(self.mode_std[k, 3]), float(self.mode_std[k, 4])
 
     @property
     def dof(self) -> int:
@@ -325,11 +327,12 @@ def _mode_std(data: WeightedData, lin: np.ndarray, quad: np.ndarray, sol, n_par:
     """FitResult.mode_std: delta method on q(s) = s^2 + a1 s + a0 (scaled s), omega = sqrt(a0),
     zeta = a1 / (2 sqrt(a0))."""
     if quad.shape[0] == 0:
-        return np.zeros((0, 4))
+        return np.zeros((0, 5))
     try:
-        cov = factor_covariance(data, lin, quad, sol, n_par, row_covariance=row_covariance, deviations=deviations)
+        cov, dof = factor_covariance(data, lin, quad, sol, n_par, row_covariance=row_covariance,
+                                     deviations=deviations)
     except (np.linalg.LinAlgError, ValueError):
-        return np.zeros((0, 4))
+        return np.zeros((0, 5))
     rows = []
     for k, (a1, a0) in enumerate(quad):
         if not (a0 > 0 and a1 * a1 < 4 * a0):
@@ -341,5 +344,5 @@ def _mode_std(data: WeightedData, lin: np.ndarray, quad: np.ndarray, sol, n_par:
         g_z = np.array([1 / (2 * r), -a1 / (4 * r**3)])
         to_hz = w_scale / (2 * np.pi)
         rows.append((r * to_hz, np.sqrt(max(g_w @ c @ g_w, 0.0)) * to_hz, a1 / (2 * r),
-                     np.sqrt(max(g_z @ c @ g_z, 0.0))))
-    return np.array(rows).reshape(-1, 4)
+                     np.sqrt(max(g_z @ c @ g_z, 0.0)), float(min(dof[i], dof[i + 1]))))
+    return np.array(rows).reshape(-1, 5)

@@ -83,7 +83,7 @@ def line_sandwich(j_re: np.ndarray, j_im: np.ndarray, residual: np.ndarray, w: n
     return bread @ meat @ bread * chi2 / max(n_res - n_parameters, 1)
 
 
-def realisation_inflation(scores: np.ndarray, cov: np.ndarray) -> np.ndarray:
+def realisation_inflation(scores: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """How much wider the realisation-to-realisation scatter says each variance should be, >= 1.
 
     The stochastic nonlinear distortion of one realisation is partly
@@ -107,13 +107,18 @@ def realisation_inflation(scores: np.ndarray, cov: np.ndarray) -> np.ndarray:
         cov: (p, p) covariance of the parameters of the mean.
 
     Returns:
-        (p,) factors max(1, kappa, kappa_k) for the variances; scale cov by
-        sqrt(f_i f_j).
+        (factors, dof): (p,) factors max(1, kappa, kappa_k) for the variances
+        (scale cov by sqrt(f_i f_j)), and (p,) the degrees of freedom of the
+        variance that set each one (M - 1 for kappa_k, (M - 1) p for kappa,
+        inf where none widened it): a variance read from M - 1 degrees of
+        freedom needs Student's t with as many for its interval.
     """
     m, p = scores.shape
     if m < 2:
-        return np.ones(p)
+        return np.ones(p), np.full(p, np.inf)
     q = np.einsum("mp,mp->", scores, np.linalg.solve(cov, scores.T).T)
     pooled = float(q) / (p * m * (m - 1))
     single = np.sum(scores**2, axis=0) / (m * (m - 1) * np.diag(cov))
-    return np.maximum(np.maximum(single, pooled), 1.0)
+    factors = np.maximum(np.maximum(single, pooled), 1.0)
+    dof = np.where(single >= max(pooled, 1.0), m - 1.0, np.where(pooled > 1.0, (m - 1.0) * p, np.inf))
+    return factors, dof

@@ -141,7 +141,7 @@ def refine(data: WeightedData, lin: np.ndarray, quad: np.ndarray, max_nfev: int 
 def factor_covariance(data: WeightedData, lin: np.ndarray, quad: np.ndarray, sol: LinearSolution,
                       n_parameters: int, sandwich: bool = True,
                       row_covariance: np.ndarray | None = None,
-                      deviations: np.ndarray | None = None) -> np.ndarray:
+                      deviations: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Covariance of the factor parameters theta = [lin, quad] at a fit, (P, P) in scaled units.
 
     J is the variable-projection Jacobian (Kaufman's, the numerators
@@ -161,6 +161,10 @@ def factor_covariance(data: WeightedData, lin: np.ndarray, quad: np.ndarray, sol
     the realisations' G_m minus their mean in the data's layout (delay
     removed), widen it where their scatter exceeds it
     (:func:`ambid.fit.correlated.realisation_inflation`).
+
+    Returns:
+        (cov (P, P), dof (P,)): the degrees of freedom of each variance (inf:
+        many, use the normal quantile).
     """
     theta = fb.pack(lin, quad)
     nc = data.n_constraints
@@ -180,17 +184,19 @@ def factor_covariance(data: WeightedData, lin: np.ndarray, quad: np.ndarray, sol
 
         cov = line_sandwich(lines_first(j[:, :n_lines]), lines_first(j[:, n_lines:]), lines_first(sol.residual),
                             lines_first(data.w), rc, bread, n_parameters)
+        dof = np.full(cov.shape[0], np.inf)
         if deviations is not None:
             dw = data.w[None] * deviations
             d = np.concatenate([dw.real, dw.imag], axis=2)                               # (M, E, 2L)
-            factors = realisation_inflation(np.einsum("mei,eip->mp", d, j) @ bread, cov)
+            factors, dof = realisation_inflation(np.einsum("mei,eip->mp", d, j) @ bread, cov)
             cov = cov * np.sqrt(np.outer(factors, factors))
-        return cov
+        return cov, dof
+    many = np.full(bread.shape[0], np.inf)
     if not sandwich:
-        return sol.cost / max(n_res - n_parameters, 1) * bread
+        return sol.cost / max(n_res - n_parameters, 1) * bread, many
     res = sol.residual
     r = np.concatenate([res.real, res.imag], axis=1)                                       # (E, 2L)
     n_lines = res.shape[1]
     contrib = (j * r[:, :, None]).sum(axis=0)                                              # (2L, P)
     score = contrib[:n_lines] + contrib[n_lines:]                                          # per line
-    return bread @ (score.T @ score) @ bread * n_res / max(n_res - n_parameters, 1)
+    return bread @ (score.T @ score) @ bread * n_res / max(n_res - n_parameters, 1), many

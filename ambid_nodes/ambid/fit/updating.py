@@ -247,19 +247,20 @@ def update_parameters(model: Callable[[np.ndarray], StateSpace | np.ndarray], th
     else:
         cov_x = bread * (cost / max(dof, 1) if scale_covariance else 0.5)
         t_dof = max(dof, 1)
-    inflation = 1.0
+    inflation, t_dofs = 1.0, np.full(p, float(t_dof))
     if realisations is not None:
         gm = np.asarray(realisations)
         dev = w * (gm - gm.mean(axis=0))
         d = np.concatenate([dev.real.reshape(len(gm), -1), dev.imag.reshape(len(gm), -1)], axis=1)
-        factors = realisation_inflation(d @ jac @ bread, cov_x)
+        factors, dofs = realisation_inflation(d @ jac @ bread, cov_x)
         cov_x = cov_x * np.sqrt(np.outer(factors, factors))
+        t_dofs = np.minimum(t_dofs, dofs)
         inflation = float(np.sqrt(factors.max()))
     cov = cov_x * sc[:, None] * sc[None, :]
     std = np.sqrt(np.diag(cov))
     corr = cov / np.outer(std, std)
     theta = x * sc
-    half = stats.t.ppf(0.975, t_dof) * std
+    half = stats.t.ppf(0.975, t_dofs) * std
     return UpdateResult(names=nm, theta=theta, theta0=th0, std=std,
                         ci95=np.column_stack([theta - half, theta + half]), covariance=cov, correlation=corr,
                         cost=cost, n_residuals=n_res, jacobian_singular_values=sv, success=bool(res.success),

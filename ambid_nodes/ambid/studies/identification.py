@@ -49,6 +49,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy import stats
 
 from ambid.control.closed_loop import loop_robustness
 from ambid.excitation.design import ExcitationDesign
@@ -244,13 +245,15 @@ def _fit_variance(frf: FrfResult, pool: bool = True) -> tuple[np.ndarray | None,
 
 
 def _mode_interval(fit: FitResult, freq_hz: float, damping: float) -> dict:
-    """freq_hz_std, freq_hz_ci95, damping_std, damping_ci95 of a fitted mode (normal, 1.96 sigma) or {}."""
+    """freq_hz_std, freq_hz_ci95, damping_std, damping_ci95 of a fitted mode, or {}: normal (1.96 sigma), or
+    Student's t where the variance came from the realisations' scatter (few degrees of freedom)."""
     sd = fit.mode_interval(freq_hz, damping)
     if sd is None:
         return {}
-    return dict(freq_hz_std=sd[0], freq_hz_ci95=[freq_hz - 1.96 * sd[0], freq_hz + 1.96 * sd[0]],
-                damping_std=sd[1], damping_ci95=[damping - 1.96 * sd[1], damping + 1.96 * sd[1]],
-                noise_only=False)
+    q = float(stats.t.ppf(0.975, sd[2])) if np.isfinite(sd[2]) else 1.96
+    return dict(freq_hz_std=sd[0], freq_hz_ci95=[freq_hz - q * sd[0], freq_hz + q * sd[0]],
+                damping_std=sd[1], damping_ci95=[damping - q * sd[1], damping + q * sd[1]],
+                ci_dof=sd[2] if np.isfinite(sd[2]) else None, noise_only=False)
 
 
 def _band_kind(var_kind: str) -> str:
@@ -527,7 +530,8 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
                        "ki and ks "
                        "are compared with the true magnets' slopes at this excitation level (true_small_signal: at "
                        "rest); the sensor bandwidth, amplifier bandwidth and delay are strongly correlated",
-            modes="95 % intervals (1.96 sigma) of the fitted modes from the variable-projection sandwich "
+            modes="95 % intervals (1.96 sigma; Student t where the realisations' scatter set the variance) of the "
+                  "fitted modes from the variable-projection sandwich "
                   "covariance of the common denominator's factors (the same line covariance as the parameters); "
                   "a cluster of true modes closer than the resolution has none"),
         modes_vs_true=modes_vs_true,
