@@ -5,7 +5,8 @@ with its physical parameters exposed, plus the two things a real rig adds
 most often, each switched on by giving its parameters:
 
 * magnets: ``ki_n_per_a`` [N/A], ``ks_n_per_m`` [N/m], one value for all four
-  axes (F = ki i + ks g, eq. 2.18);
+  axes (F = ki i + ks g, eq. 2.18), optionally ``ks_b_over_a`` [-], bearing
+  B's ks over bearing A's (their mean stays ks_n_per_m);
 * amplifiers: first-order current loops of ``amplifier_bandwidth_hz`` [Hz]
   (eq. 2.21);
 * sensors: gains ``sensor_gain_<axis>`` [m/m], and optionally a first-order
@@ -49,12 +50,11 @@ from ambid.fit.updating import UpdateResult, update_parameters
 from ambid.plant.rig import Rig
 from ambid.plant.rotor_model import RotorModel
 from ambid.excitation.design import ExcitationDesign
-from ambid.plant.true_rig import TruePlant, delayed_zoh, levitated_plant, true_linear_model, true_plant
+from ambid.plant.true_rig import delayed_zoh, levitated_plant, true_linear_model
 from ambid.statespace import StateSpace
 
 __all__ = ["ParameterInfo", "PARAMETERS", "DEFAULT_FREE", "PhysicalUpdate", "bending_coordinates",
-           "nominal_parameters", "true_parameters", "excitation_slopes", "true_plant_at_excitation",
-           "physical_statespace", "physical_frf",
+           "nominal_parameters", "true_parameters", "excitation_slopes", "physical_statespace", "physical_frf",
            "update_physical_model", "unmodelled_mode"]
 
 
@@ -71,7 +71,9 @@ class ParameterInfo:
 
 PARAMETERS: dict[str, ParameterInfo] = {
     "ki_n_per_a": ParameterInfo("N/A", 1e-6, 1e6, 100.0, "current gain of each magnet pair"),
-    "ks_n_per_m": ParameterInfo("N/m", 0.0, 1e10, 1e5, "negative stiffness of each magnet pair"),
+    "ks_n_per_m": ParameterInfo("N/m", 0.0, 1e10, 1e5, "negative stiffness of each magnet pair (mean of A and B)"),
+    "ks_b_over_a": ParameterInfo("-", 0.5, 2.0, 1.0, "ks of bearing B over bearing A (an excitation stiffens "
+                                 "the two bearings' magnets unequally)"),
     "amplifier_bandwidth_hz": ParameterInfo("Hz", 1.0, 1e6, 1e3, "closed current-loop bandwidth"),
     **{f"sensor_gain_{a}": ParameterInfo("m/m", 0.01, 100.0, 1.0, f"gain of sensor {a}") for a in AXES},
     "sensor_bandwidth_hz": ParameterInfo("Hz", 1.0, 1e7, 1e4, "first-order sensor low-pass (optional)"),
@@ -116,7 +118,7 @@ def nominal_parameters(rig: Rig) -> dict[str, float]:
 
     With these, :func:`physical_statespace` equals :func:`ambid.plant.analytical.analytical_model`.
     """
-    p = {"ki_n_per_a": float(rig.magnet.ki), "ks_n_per_m": float(rig.magnet.ks),
+    p = {"ki_n_per_a": float(rig.magnet.ki), "ks_n_per_m": float(rig.magnet.ks), "ks_b_over_a": 1.0,
          "amplifier_bandwidth_hz": float(rig.current_loop_bandwidth_hz),
          **{f"sensor_gain_{a}": 1.0 for a in AXES}, "delay_s": 0.0}
     rotor = rig.rotor_model()
@@ -138,6 +140,7 @@ def true_parameters(rig: Rig) -> dict[str, float]:
     v = rig.values
     p = nominal_parameters(rig)
     p.update({"ki_n_per_a": float(np.mean(op.ki_n_per_a)), "ks_n_per_m": float(np.mean(op.ks_n_per_m)),
+              "ks_b_over_a": float(np.mean(op.ks_n_per_m[[1, 3]]) / np.mean(op.ks_n_per_m[[0, 2]])),
               **{f"sensor_gain_{a}": float(v["sensor_gain"]) for a in AXES},
               "sensor_bandwidth_hz": float(v["sensor_bandwidth_hz"]),
               "support_freq_hz": float(v["housing_freq_hz"]),
@@ -226,13 +229,6 @@ def excitation_slopes(rig: Rig, controller: StateSpace, design: ExcitationDesign
     return ki, ks
 
 
-def true_plant_at_excitation(rig: Rig, controller: StateSpace, design: ExcitationDesign) -> TruePlant:
-    """The true rig's affine model with the magnets' slopes as the excitation sees them
-    (:func:`excitation_slopes`): the linear system whose FRF a measurement with it estimates."""
-    ki, ks = excitation_slopes(rig, controller, design)
-    return true_plant(rig, ki, ks)
-
-
 def _check_params(params: Mapping[str, float]) -> dict[str, float]:
     p = {k: float(v) for k, v in params.items() if k in PARAMETERS}
     missing = [k for k in _REQUIRED if k not in p]
@@ -301,7 +297,9 @@ def physical_statespace(rotor: RotorModel, params: Mapping[str, float]) -> State
     if has_support:
         c_gap[:, sl["h"]] = -eye
         c_rel[:, sl["h"]] = -eye
-    force = ks * c_gap
+    rho = p.get("ks_b_over_a", 1.0)
+    ks_a = 2 * ks / (1 + rho)
+    force = np.array([ks_a, rho * ks_a, ks_a, rho * ks_a])[:, None] * c_gap     # AXES order a_x, b_x, a_y, b_y
     force[:, sl["i"]] += ki * eye
     a = np.zeros((n, n))
     a[sl["r"], sl["r"]] = a_r

@@ -285,8 +285,8 @@ def true_linear_model(rig: Rig, discrete: bool = False, pade_order: int = 2, pla
     if outputs is None:
         names.update(output_names=DISPLACEMENT_NAMES, output_units=("m",) * 4)
     if not discrete:
-        plant = StateSpace(p.a, p.b_u, c_out, np.zeros((c_out.shape[0], 4)))
-        return series(pade_delay(4, p.delay_s, pade_order), plant)._replace(**names)
+        cont = StateSpace(p.a, p.b_u, c_out, np.zeros((c_out.shape[0], 4)))
+        return series(pade_delay(4, p.delay_s, pade_order), cont)._replace(**names)
     phi, g1, g0 = delayed_zoh(p.a, p.b_u, rig.dt, p.delay_s)
     n = p.n_states
     a = np.block([[phi, g0], [np.zeros((4, n + 4))]])

@@ -290,7 +290,7 @@ def _update(rig: Rig, frf: FrfResult, var, band, modes, dt_s, start_overrides, f
     start["sensor_bandwidth_hz"] = float(rig.values["sensor_bandwidth_hz"])
     start.update({k: float(v) for k, v in (start_overrides or {}).items()})
     if free is None:
-        free = [k for k in ("ki_n_per_a", "ks_n_per_m", "amplifier_bandwidth_hz", "sensor_bandwidth_hz",
+        free = [k for k in ("ki_n_per_a", "ks_n_per_m", "ks_b_over_a", "amplifier_bandwidth_hz", "sensor_bandwidth_hz",
                             "bending_freq_hz", "bending_damping_ratio", "support_freq_hz", "support_damping_ratio",
                             "support_gain_per_kg", "delay_s") if k in start]
         # a bending mode outside the measured band cannot be identified from it
@@ -435,7 +435,8 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         if recorded is not None and design.is_periodic:
             # what this excitation measures: the magnets' slopes averaged over the excursions it causes
             ki_x, ks_x = excitation_slopes(true_rig, recorded[0], design)
-            true_params.update(ki_at_excitation=float(np.mean(ki_x)), ks_at_excitation=float(np.mean(ks_x)))
+            true_params.update(ki_at_excitation=float(np.mean(ki_x)), ks_at_excitation=float(np.mean(ks_x)),
+                               ks_b_over_a_at_excitation=float(np.mean(ks_x[[1, 3]]) / np.mean(ks_x[[0, 2]])))
             true_g_x = true_linear_model(true_rig, discrete=True, plant=true_plant(true_rig, ki_x, ks_x)).freqresp(f)
         # physical-looking fitted modes: positively damped and found again at the next lower order
         physical = [(m.freq_hz, m.damping) for m, row in zip(modes, mode_rows) if row["stable"] and m.damping > 0]
