@@ -244,6 +244,18 @@ def _fit_variance(frf: FrfResult, pool: bool = True) -> tuple[np.ndarray | None,
     return None, "none (equal weights)"
 
 
+def _nonlinear_magnets(path: str, recover: bool) -> bool:
+    """Whether the simulated session ran the nonlinear magnets (the session config identify records; the
+    plant node's default, linear, when the session does not say)."""
+    config = read_metadata(path, recover=recover).get("ambid.session", {}).get("config")
+    if isinstance(config, str):
+        try:
+            config = json.loads(config)
+        except json.JSONDecodeError:
+            config = None
+    return bool(config.get("nonlinear_magnets", False)) if isinstance(config, dict) else False
+
+
 def _mode_interval(fit: FitResult, freq_hz: float, damping: float) -> dict:
     """freq_hz_std, freq_hz_ci95, damping_std, damping_ci95 of a fitted mode, or {}: normal (1.96 sigma), or
     Student's t where the variance came from the realisations' scatter (few degrees of freedom)."""
@@ -432,7 +444,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         true_g = true_linear_model(true_rig, discrete=True).freqresp(f)
         true_params = true_parameters(true_rig)
         recorded = recorded_controller(path, recover)
-        if recorded is not None and design.is_periodic:
+        if recorded is not None and design.is_periodic and _nonlinear_magnets(path, recover):
             # what this excitation measures: the magnets' slopes averaged over the excursions it causes
             ki_x, ks_x = excitation_slopes(true_rig, recorded[0], design)
             true_params.update(ki_at_excitation=float(np.mean(ki_x)), ks_at_excitation=float(np.mean(ks_x)),
