@@ -116,14 +116,14 @@ def test_realisation_inflation_reads_the_scatter_against_the_claim():
 
 
 def test_validate_reuses_only_a_finished_seed_of_the_same_run(tmp_path):
-    from ambid_nodes.commands.validate import _fingerprint, _reusable
+    from ambid_nodes.commands.validate import run_fingerprint, reusable_record
 
-    fp = _fingerprint("", False)
-    assert fp != _fingerprint("", True)                       # the magnet law is part of what a seed ran
+    fp = run_fingerprint("", False)
+    assert fp != run_fingerprint("", True)                       # the magnet law is part of what a seed ran
     rec = tmp_path / "record.json"
-    assert _reusable(rec, fp) is None                         # not finished
+    assert reusable_record(rec, fp) is None                         # not finished
     rec.write_text('{"fingerprint": "%s", "frf": {}}' % fp)
-    assert _reusable(rec, fp) == {"fingerprint": fp, "frf": {}}
-    assert _reusable(rec, "other") is None                    # another rig or code
+    assert reusable_record(rec, fp) == {"fingerprint": fp, "frf": {}}
+    assert reusable_record(rec, "other") is None                    # another rig or code
     rec.write_text('{"fingerprint": "%s", "fr' % fp)          # cut short
-    assert _reusable(rec, fp) is None
+    assert reusable_record(rec, fp) is None

@@ -44,7 +44,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-figure", action="store_true", help="skip coverage.png")
 
 
-def _fingerprint(rig_path: str, linear_magnets: bool) -> str:
+def run_fingerprint(rig_path: str, linear_magnets: bool) -> str:
     """What a reused seed must share with this run: the rig file's content and the magnet law."""
     h = hashlib.sha256(b"linear" if linear_magnets else b"nonlinear")
     h.update(_code_version().encode())
@@ -104,7 +104,7 @@ def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_m
     return rec
 
 
-def _reusable(path: Path, fingerprint: str) -> dict | None:
+def reusable_record(path: Path, fingerprint: str) -> dict | None:
     try:
         rec = json.loads(path.read_text())
     except (OSError, ValueError):
@@ -121,11 +121,11 @@ def run(args: argparse.Namespace) -> int:
     out = output_dir(args.out)
     n = args.seeds or PRESET_SEEDS[args.preset]
     seeds = list(range(args.first_seed, args.first_seed + n))
-    fp = _fingerprint(args.rig, args.linear_magnets)
+    fp = run_fingerprint(args.rig, args.linear_magnets)
     (out / "seeds").mkdir(parents=True, exist_ok=True)
     records, todo = {}, []
     for s in seeds:
-        rec = _reusable(out / "seeds" / f"seed_{s:03d}" / "record.json", fp)
+        rec = reusable_record(out / "seeds" / f"seed_{s:03d}" / "record.json", fp)
         if rec is not None:
             records[s] = rec
         else:
