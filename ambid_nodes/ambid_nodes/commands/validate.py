@@ -45,7 +45,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_fingerprint(rig_path: str, linear_magnets: bool) -> str:
-    """What a reused seed must share with this run: the rig file's content and the magnet law."""
+    """What a reused seed must share with this run: the rig file's content, the magnet law and the git commit."""
     h = hashlib.sha256(b"linear" if linear_magnets else b"nonlinear")
     h.update(_code_version().encode())
     if rig_path:
@@ -105,6 +105,7 @@ def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_m
 
 
 def reusable_record(path: Path, fingerprint: str) -> dict | None:
+    """A finished seed's record.json if it holds this run's fingerprint, else None (missing, cut short, other run)."""
     try:
         rec = json.loads(path.read_text())
     except (OSError, ValueError):
