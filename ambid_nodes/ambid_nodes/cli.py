@@ -25,6 +25,7 @@ COMMANDS = {
     "import": "import_record",
     "export": "export_record",
     "campaign": "campaign",
+    "validate": "validate",
 }
 
 

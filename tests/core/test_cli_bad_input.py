@@ -101,6 +101,7 @@ RIG_COMMANDS = {
     "design": lambda rig, d: ["design", "--rig", rig, "--out", str(d / "design_out"), "--no-figure"],
     "compare": lambda rig, d: ["compare", "--rig", rig, "--out", str(d / "compare_out")],
     "campaign": lambda rig, d: ["campaign", "--speeds-rpm", "0", "--rig", rig, "--out", str(d / "campaign_out")],
+    "validate": lambda rig, d: ["validate", "--rig", rig, "--out", str(d / "validate_out")],
     "fit": None,  # filled in the test: it needs the good session
     "target-model": lambda rig, d: ["target-model", "--rig", rig, "--out", str(d / "target-model_out")],
 }
@@ -140,6 +141,8 @@ OPTION_VALUES = [  # argv, the option the error names
     (["identify", "--hardware", "nonsense"], "--hardware"),
     (["compare", "--preset", "huge"], "--preset"),
     (["bench", "--repeats", "0"], "--repeats"),
+    (["validate", "--seeds", "0"], "--seeds"),
+    (["validate", "--preset", "huge"], "--preset"),
 ]
 
 
@@ -165,6 +168,7 @@ RANGE_REFUSALS = [  # values argparse cannot judge alone: the command's one line
     (["design", "--out", "{good}"], "--out"),
     (["identify", "--out", "{good}"], "--out"),
     (["compare", "--out", "{good}"], "--out"),
+    (["validate", "--out", "{good}"], "--out"),
     (["bench", "--json", "{dir}/no_such_folder/b.json"], "--json"),
     (["bench", "--json", "{dir}"], "--json"),
     (["target-model", "--out", "{dir}"], "--out"),

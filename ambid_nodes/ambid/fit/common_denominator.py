@@ -29,6 +29,7 @@ import numpy as np
 
 from ambid.fit import basis as fb
 from ambid.fit.blas_threads import single_threaded_blas
+from ambid.fit.refine import factor_covariance
 from ambid.fit.refine import refine as ml_refine
 from ambid.fit.vector_fitting import WeightedData, starting_poles, vector_fit
 
@@ -125,6 +126,12 @@ class FitResult:
         n_refine_evaluations: cost evaluations of the ML refinement (0 if off).
         message: the refinement's stop reason.
         weighted: True when ``var`` was given (cost then ~ chi-square / 2).
+        mode_std: one row per second-order factor of the denominator with a
+            complex pole pair: (natural frequency [Hz], its std [Hz], damping
+            ratio [-], its std [-], degrees of freedom of those variances
+            (inf: many)), from the factors' covariance
+            (:func:`ambid.fit.refine.factor_covariance`) by the delta method;
+            (K, 5), empty when the covariance is not available.
     """
 
     model: RationalModel
@@ -136,6 +143,18 @@ class FitResult:
     n_refine_evaluations: int
     message: str
     weighted: bool
+    mode_std: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)))
+
+    def mode_interval(self, freq_hz: float, damping: float) -> tuple[float, float, float] | None:
+        """(freq std [Hz], damping std [-], their degrees of freedom) of the fitted mode at
+        (freq_hz, damping), or None."""
+        if self.mode_std.shape[0] == 0:
+            return None
+        d = np.abs(self.mode_std[:, 0] - freq_hz) / max(freq_hz, 1e-12) + np.abs(self.mode_std[:, 2] - damping)
+        k = int(np.argmin(d))
+        if d[k] > 1e-6:
+            return None
+        return float(self.mode_std[k, 1]), float(self.mode_std[k, 3]), float(self.mode_std[k, 4])
 
     @property
     def dof(self) -> int:
@@ -212,8 +231,9 @@ def fit_common_denominator(freq_hz: np.ndarray, G: np.ndarray, var: np.ndarray |
                            initial_poles: np.ndarray | None = None, n_vf_iterations: int = 30,
                            refine: bool = True, max_refine_evaluations: int = 100,
                            input_names: tuple[str, ...] = (), output_names: tuple[str, ...] = (),
-                           input_units: tuple[str, ...] = (), output_units: tuple[str, ...] = ()
-                           ) -> FitResult:
+                           input_units: tuple[str, ...] = (), output_units: tuple[str, ...] = (),
+                           row_covariance: np.ndarray | None = None,
+                           realisations: np.ndarray | None = None) -> FitResult:
     """Fit a common-denominator model of ``order`` poles to a measured FRF matrix.
 
     Args:
@@ -233,6 +253,12 @@ def fit_common_denominator(freq_hz: np.ndarray, G: np.ndarray, var: np.ndarray |
         max_refine_evaluations: most cost evaluations in the refinement.
         input_names, output_names, input_units, output_units: labels kept
             on the model.
+        row_covariance: (L, Ny, Nu, Nu) complex covariance of the entries of
+            each row of G (:func:`ambid.frf.uncertainty.row_covariance`) for
+            the modes' intervals; None takes the residuals' line sums
+            (:func:`ambid.fit.refine.factor_covariance`).
+        realisations: (M, L, Ny, Nu) the realisations' FRFs whose mean G is;
+            their scatter may widen the modes' intervals (with ``row_covariance``).
 
     Returns:
         :class:`FitResult`.
@@ -240,11 +266,12 @@ def fit_common_denominator(freq_hz: np.ndarray, G: np.ndarray, var: np.ndarray |
     with single_threaded_blas():
         return _fit(freq_hz, G, var, order, relative_degree, delay_s, initial_poles, n_vf_iterations,
                     refine, max_refine_evaluations,
-                    (tuple(input_names), tuple(output_names), tuple(input_units), tuple(output_units)))
+                    (tuple(input_names), tuple(output_names), tuple(input_units), tuple(output_units)),
+                    row_covariance, realisations)
 
 
 def _fit(freq_hz, G, var, order, relative_degree, delay_s, initial_poles, n_vf_iterations, refine,
-         max_refine_evaluations, labels) -> FitResult:
+         max_refine_evaluations, labels, row_covariance=None, realisations=None) -> FitResult:
     if int(order) != order or order < 1:
         raise ValueError(f"order must be a positive integer, got {order}")
     order = int(order)
@@ -283,6 +310,39 @@ def _fit(freq_hz, G, var, order, relative_degree, delay_s, initial_poles, n_vf_i
                           input_names=labels[0], output_names=labels[1],
                           input_units=labels[2], output_units=labels[3])
     n_par = order + e * (order - data.n_constraints + int(data.has_feedthrough))
-    return FitResult(model=model, cost=sol.cost, cost_linear=cost_linear, n_residuals=2 * n_lines * e,
+    deviations = None
+    if realisations is not None:
+        gm = np.asarray(realisations)
+        dev = (gm - gm.mean(axis=0)) * np.exp(2j * np.pi * f * delay_s)[None, :, None, None]
+        deviations = dev.reshape(gm.shape[0], f.size, e).transpose(0, 2, 1)            # (M, E, L)
+    mode_std = _mode_std(data, lin, quad, sol, n_par, w_scale, row_covariance, deviations)
+    return FitResult(mode_std=mode_std, model=model, cost=sol.cost, cost_linear=cost_linear, n_residuals=2 * n_lines * e,
                      n_parameters=n_par, n_vf_iterations=n_vf, n_refine_evaluations=n_eval,
                      message=str(message), weighted=var is not None)
+
+
+def _mode_std(data: WeightedData, lin: np.ndarray, quad: np.ndarray, sol, n_par: int,
+              w_scale: float, row_covariance: np.ndarray | None = None,
+              deviations: np.ndarray | None = None) -> np.ndarray:
+    """FitResult.mode_std: delta method on q(s) = s^2 + a1 s + a0 (scaled s), omega = sqrt(a0),
+    zeta = a1 / (2 sqrt(a0))."""
+    if quad.shape[0] == 0:
+        return np.zeros((0, 5))
+    try:
+        cov, dof = factor_covariance(data, lin, quad, sol, n_par, row_covariance=row_covariance,
+                                     deviations=deviations)
+    except (np.linalg.LinAlgError, ValueError):
+        return np.zeros((0, 5))
+    rows = []
+    for k, (a1, a0) in enumerate(quad):
+        if not (a0 > 0 and a1 * a1 < 4 * a0):
+            continue   # two real poles
+        i = lin.size + 2 * k
+        c = cov[i:i + 2, i:i + 2]   # [a1, a0]
+        r = np.sqrt(a0)
+        g_w = np.array([0.0, 1 / (2 * r)])
+        g_z = np.array([1 / (2 * r), -a1 / (4 * r**3)])
+        to_hz = w_scale / (2 * np.pi)
+        rows.append((r * to_hz, np.sqrt(max(g_w @ c @ g_w, 0.0)) * to_hz, a1 / (2 * r),
+                     np.sqrt(max(g_z @ c @ g_z, 0.0)), float(min(dof[i], dof[i + 1]))))
+    return np.array(rows).reshape(-1, 5)

@@ -23,6 +23,7 @@ import numpy as np
 from scipy import linalg
 
 from ambid.fit import basis as fb
+from ambid.fit.correlated import line_sandwich, realisation_inflation
 from ambid.fit.vector_fitting import (LinearSolution, WeightedData, dependent_columns, null_map, solve_coefficients,
                                       stack_real)
 
@@ -49,6 +50,18 @@ def _normal_equations(data: WeightedData, theta: np.ndarray, n_lin: int, sol: Li
     H_e = Q0^T rho_e^2 Q0, and J_e^T r_e = U_e^T r_e because r_e is
     orthogonal to the columns.
     """
+    u, z = _weighted_derivative(data, theta, n_lin, sol, dep)
+    utu = np.matmul(u.transpose(0, 2, 1), u)
+    jtj = (utu - np.matmul(z.transpose(0, 2, 1), np.linalg.solve(sol.normal, z))).sum(axis=0)
+    res = sol.residual
+    jtr = np.einsum("eip,ei->p", u, np.concatenate([res.real, res.imag], axis=1))
+    return jtj, jtr
+
+
+def _weighted_derivative(data: WeightedData, theta: np.ndarray, n_lin: int, sol: LinearSolution,
+                         dep: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """U (E, 2L, P), the weighted real-stacked model derivative at fixed coefficients, and
+    Z = Q0^T rho U (E, k, P), its coordinates on the entries' weighted columns."""
     lin, quad = fb.unpack(theta, n_lin)
     dm = fb.basis_derivative(data.s, lin, quad, sol.coef)
     nc = data.n_constraints
@@ -61,13 +74,9 @@ def _normal_equations(data: WeightedData, theta: np.ndarray, n_lin: int, sol: Li
         dc = np.matmul(dn[None], sol.free[:, None, :, None])[..., 0]  # (E, P, n)
         dm = dm + np.matmul(phi[None], dc.transpose(0, 2, 1))
     u = stack_real(data.w[:, :, None] * dm)  # (E, 2L, P)
-    utu = np.matmul(u.transpose(0, 2, 1), u)
     rho2 = np.concatenate([sol.rho, sol.rho], axis=1)
     z = np.matmul(sol.q0.T[None], rho2[:, :, None] * u)  # (E, k, P)
-    jtj = (utu - np.matmul(z.transpose(0, 2, 1), np.linalg.solve(sol.normal, z))).sum(axis=0)
-    res = sol.residual
-    jtr = np.einsum("eip,ei->p", u, np.concatenate([res.real, res.imag], axis=1))
-    return jtj, jtr
+    return u, z
 
 
 def refine(data: WeightedData, lin: np.ndarray, quad: np.ndarray, max_nfev: int = 100,
@@ -127,3 +136,67 @@ def refine(data: WeightedData, lin: np.ndarray, quad: np.ndarray, max_nfev: int 
     lin_r, quad_r = fb.unpack(theta, n_lin)
     return Refined(lin_r.copy(), quad_r.copy(), sol, n_eval, message)
 
+
+
+def factor_covariance(data: WeightedData, lin: np.ndarray, quad: np.ndarray, sol: LinearSolution,
+                      n_parameters: int, sandwich: bool = True,
+                      row_covariance: np.ndarray | None = None,
+                      deviations: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Covariance of the factor parameters theta = [lin, quad] at a fit, (P, P) in scaled units.
+
+    J is the variable-projection Jacobian (Kaufman's, the numerators
+    profiled out: P_perp U of :func:`_normal_equations`), r the weighted
+    residual, N its length, p = ``n_parameters`` all real parameters.
+
+    * ``sandwich`` (default): (J^T J)^-1 (sum_l s_l s_l^T) (J^T J)^-1 N / (N - p)
+      with s_l = J_l^T r_l the score of line l (its 2 Ny Nu residuals): the
+      lines are independent, but a line's entries are not (in closed loop
+      the output noise reaches every entry through the same U^-1) and the
+      model may miss some of the data; the line sums carry both.
+    * else: s^2 (J^T J)^-1 with s^2 = V / (N - p) (independent residuals).
+
+    With ``row_covariance`` (L, Ny, Nu, Nu), the known covariance of the
+    entries of each row of G, the sandwich takes it instead of the residuals
+    (:func:`ambid.fit.correlated.line_sandwich`). ``deviations`` (M, E, L),
+    the realisations' G_m minus their mean in the data's layout (delay
+    removed), widen it where their scatter exceeds it
+    (:func:`ambid.fit.correlated.realisation_inflation`).
+
+    Returns:
+        (cov (P, P), dof (P,)): the degrees of freedom of each variance (inf:
+        many, use the normal quantile).
+    """
+    theta = fb.pack(lin, quad)
+    nc = data.n_constraints
+    dep = dependent_columns(lin, quad, nc) if nc else None
+    u, z = _weighted_derivative(data, theta, lin.size, sol, dep)
+    rho2 = np.concatenate([sol.rho, sol.rho], axis=1)
+    j = u - rho2[:, :, None] * np.matmul(sol.q0[None], np.linalg.solve(sol.normal, z))   # P_perp U, (E, 2L, P)
+    jtj = np.einsum("eip,eiq->pq", j, j)
+    bread = linalg.pinvh(jtj)
+    n_res = j.shape[0] * j.shape[1]
+    if row_covariance is not None:
+        rc = np.asarray(row_covariance)
+        n_lines, ny, nu = rc.shape[:3]
+
+        def lines_first(x: np.ndarray) -> np.ndarray:   # (E, L, ...) -> (L, Ny, Nu, ...)
+            return np.moveaxis(x, 0, 1).reshape((n_lines, ny, nu) + x.shape[2:])
+
+        cov = line_sandwich(lines_first(j[:, :n_lines]), lines_first(j[:, n_lines:]), lines_first(sol.residual),
+                            lines_first(data.w), rc, bread, n_parameters)
+        dof = np.full(cov.shape[0], np.inf)
+        if deviations is not None:
+            dw = data.w[None] * deviations
+            d = np.concatenate([dw.real, dw.imag], axis=2)                               # (M, E, 2L)
+            factors, dof = realisation_inflation(np.einsum("mei,eip->mp", d, j) @ bread, cov)
+            cov = cov * np.sqrt(np.outer(factors, factors))
+        return cov, dof
+    many = np.full(bread.shape[0], np.inf)
+    if not sandwich:
+        return sol.cost / max(n_res - n_parameters, 1) * bread, many
+    res = sol.residual
+    r = np.concatenate([res.real, res.imag], axis=1)                                       # (E, 2L)
+    n_lines = res.shape[1]
+    contrib = (j * r[:, :, None]).sum(axis=0)                                              # (2L, P)
+    score = contrib[:n_lines] + contrib[n_lines:]                                          # per line
+    return bread @ (score.T @ score) @ bread * n_res / max(n_res - n_parameters, 1), many

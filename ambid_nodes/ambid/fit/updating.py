@@ -25,6 +25,7 @@ import numpy as np
 from scipy import optimize, stats
 
 from ambid.fit.blas_threads import single_threaded_blas
+from ambid.fit.correlated import line_sandwich, realisation_inflation
 from ambid.statespace import StateSpace
 
 __all__ = ["UpdateResult", "update_parameters"]
@@ -49,6 +50,7 @@ class UpdateResult:
         success: the optimiser reported convergence.
         message: the optimiser's stop reason.
         n_evaluations: model evaluations in the optimisation.
+        inflation: the largest factor the realisations' scatter widened a standard deviation by (1: none).
     """
 
     names: tuple[str, ...]
@@ -64,6 +66,7 @@ class UpdateResult:
     success: bool
     message: str
     n_evaluations: int
+    inflation: float = 1.0
 
     @property
     def dof(self) -> int:
@@ -128,7 +131,8 @@ def update_parameters(model: Callable[[np.ndarray], StateSpace | np.ndarray], th
                       freq_hz: np.ndarray, G: np.ndarray, var: np.ndarray | None = None, *,
                       names: Sequence[str] | None = None, scales: Sequence[float] | None = None,
                       bounds: tuple[Sequence[float], Sequence[float]] | None = None,
-                      rcond: float = 1e-6, scale_covariance: bool = True,
+                      rcond: float = 1e-6, scale_covariance: bool = True, covariance: str = "jacobian",
+                      row_covariance: np.ndarray | None = None, realisations: np.ndarray | None = None,
                       max_evaluations: int = 200) -> UpdateResult:
     """Fit the parameters of a physical model to a measured FRF matrix.
 
@@ -146,7 +150,21 @@ def update_parameters(model: Callable[[np.ndarray], StateSpace | np.ndarray], th
         rcond: smallest singular-value ratio of the scaled Jacobian accepted
             as identifiable.
         scale_covariance: estimate s^2 from the residual (True) or trust
-            ``var`` (False).
+            ``var`` (False); for ``covariance="jacobian"``.
+        covariance: ``"jacobian"``: s^2 (J^T J)^-1, residuals independent
+            with the variances ``var`` (up to s^2); ``"sandwich"``:
+            (J^T J)^-1 (sum_l s_l s_l^T) (J^T J)^-1 N / (N - p), s_l = J_l^T r_l
+            the score of line l: lines independent, but the entries of one
+            line may be correlated (closed loop) and the model may miss part
+            of the data; intervals then use Student's t with L - p degrees of
+            freedom; ``"rows"``: the sandwich with the known covariance of
+            the entries of each row, ``row_covariance``
+            (:func:`ambid.fit.correlated.line_sandwich`).
+        row_covariance: (L, Ny, Nu, Nu) complex covariance of the entries of
+            each row of G, for ``covariance="rows"``.
+        realisations: (M, L, Ny, Nu) the FRFs of the M realisations whose
+            mean G is; their scatter widens the covariance where it exceeds
+            it (:func:`ambid.fit.correlated.realisation_inflation`).
         max_evaluations: most model evaluations in the optimisation.
 
     Returns:
@@ -185,6 +203,10 @@ def update_parameters(model: Callable[[np.ndarray], StateSpace | np.ndarray], th
         lb, ub = (np.broadcast_to(np.asarray(b, dtype=float), (p,)) for b in bounds)
         if np.any(lb >= ub) or np.any(th0 < lb) or np.any(th0 > ub):
             raise ValueError("bounds must satisfy lower < upper with theta0 inside")
+    if covariance not in ("jacobian", "sandwich", "rows"):
+        raise ValueError(f"covariance must be 'jacobian', 'sandwich' or 'rows', got {covariance!r}")
+    if covariance == "rows" and (row_covariance is None or np.shape(row_covariance) != g.shape + g.shape[-1:]):
+        raise ValueError(f"covariance='rows' needs row_covariance of shape {g.shape + g.shape[-1:]}")
     if not (0 < rcond < 1):
         raise ValueError(f"rcond must be in (0, 1), got {rcond}")
 
@@ -208,14 +230,38 @@ def update_parameters(model: Callable[[np.ndarray], StateSpace | np.ndarray], th
     n_res = r.size
     dof = n_res - p
     cost = float(r @ r)
-    s2 = cost / max(dof, 1) if scale_covariance else 0.5
-    cov_x = (vt.T / sv**2) @ vt * s2
+    bread = (vt.T / sv**2) @ vt
+    if covariance == "rows":
+        half_n = n_res // 2
+        jr, ji = (x.reshape(g.shape + (p,)) for x in (jac[:half_n], jac[half_n:]))
+        cov_x = line_sandwich(jr, ji, (r[:half_n] + 1j * r[half_n:]).reshape(g.shape), w,
+                             np.asarray(row_covariance), bread, p)
+        t_dof = max(dof, 1)
+    elif covariance == "sandwich":
+        n_lines = f.size
+        contrib = jac * r[:, None]
+        half_n = n_res // 2
+        score = (contrib[:half_n] + contrib[half_n:]).reshape(n_lines, -1, p).sum(axis=1)   # (L, p)
+        cov_x = bread @ (score.T @ score) @ bread * n_res / max(dof, 1)
+        t_dof = max(n_lines - p, 1)
+    else:
+        cov_x = bread * (cost / max(dof, 1) if scale_covariance else 0.5)
+        t_dof = max(dof, 1)
+    inflation, t_dofs = 1.0, np.full(p, float(t_dof))
+    if realisations is not None:
+        gm = np.asarray(realisations)
+        dev = w * (gm - gm.mean(axis=0))
+        d = np.concatenate([dev.real.reshape(len(gm), -1), dev.imag.reshape(len(gm), -1)], axis=1)
+        factors, dofs = realisation_inflation(d @ jac @ bread, cov_x)
+        cov_x = cov_x * np.sqrt(np.outer(factors, factors))
+        t_dofs = np.minimum(t_dofs, dofs)
+        inflation = float(np.sqrt(factors.max()))
     cov = cov_x * sc[:, None] * sc[None, :]
     std = np.sqrt(np.diag(cov))
     corr = cov / np.outer(std, std)
     theta = x * sc
-    half = stats.t.ppf(0.975, max(dof, 1)) * std
+    half = stats.t.ppf(0.975, t_dofs) * std
     return UpdateResult(names=nm, theta=theta, theta0=th0, std=std,
                         ci95=np.column_stack([theta - half, theta + half]), covariance=cov, correlation=corr,
                         cost=cost, n_residuals=n_res, jacobian_singular_values=sv, success=bool(res.success),
-                        message=str(res.message), n_evaluations=int(res.nfev))
+                        message=str(res.message), n_evaluations=int(res.nfev), inflation=inflation)

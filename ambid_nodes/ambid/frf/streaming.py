@@ -184,6 +184,9 @@ class FrfResult:
         synchronous: the synchronous response at the disturbance lines of a design steered clear of a
             spinning rotor's harmonics, or None (no such lines); those lines are in neither the FRF,
             its noise estimate nor the distortion levels.
+        frf_realisations: (M, L, Ny, Nu) G_m of each realisation (periodic
+            multi-line designs), else None: the realisation-to-realisation
+            scatter of anything computed from G.
     """
 
     estimator: str
@@ -207,6 +210,7 @@ class FrfResult:
     gaps: tuple[Gap, ...]
     complete: bool
     synchronous: SynchronousResponse | None = None
+    frf_realisations: np.ndarray | None = None
 
     def directional(self) -> DirectionalFrf | None:
         """Forward and backward whirl FRFs (:mod:`ambid.frf.directional`) of a rotor's 4 x 4 x/y matrix in
@@ -640,8 +644,9 @@ class FrfStream:
         groups = [self._records(m)[None] for m in used]          # each (1, Ne, K_m, L, ch)
         if self._stepped:   # one line per realisation: estimate line by line
             parts = [self._figures(estimator, [g], [m]) for g, m in zip(groups, used)]
-            fig = {k: np.concatenate([p[k] for p in parts]) for k in parts[0] if k != "distortion"}
-            fig["distortion"] = None
+            fig = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]
+                   if k not in ("distortion", "frf_realisations")}
+            fig["distortion"] = fig["frf_realisations"] = None
             lines = self.design.excited_lines[used]
         else:
             fig = self._figures(estimator, groups, used)
@@ -658,7 +663,7 @@ class FrfStream:
             distortion=fig["distortion"], noise_std=noise_std, output_names=self.output_names,
             input_names=self.input_names, n_realisations=len(used),
             n_periods=int(sum(g.shape[2] for g in groups)), n_experiments=self.design.n_experiments,
-            gaps=self.gaps, complete=self.finished,
+            gaps=self.gaps, complete=self.finished, frf_realisations=fig["frf_realisations"],
             synchronous=None if self._sync is None else self._synchronous(groups))
 
     def _synchronous(self, groups: list[np.ndarray]) -> SynchronousResponse | None:
@@ -697,7 +702,7 @@ class FrfStream:
         shape = frf.shape
         var_noise = np.full(shape, np.nan)
         var_total = np.full(shape, np.nan)
-        distortion = None
+        distortion = g_m = None
         if self._periodic:
             # G_m per realisation; the noise variance of one record's solution, s2_m = K_m var_n(G_m),
             # is pooled over the realisations (weights K_m - 1), so that a realisation a gap left
@@ -726,7 +731,7 @@ class FrfStream:
                 distortion = _mean_levels(levels)
         return {"frf": frf, "var_noise": var_noise, "var_total": var_total,
                 "coherence": multiple_coherence(y, r), "sensitivity": input_sensitivity(u, r),
-                "distortion": distortion}
+                "distortion": distortion, "frf_realisations": g_m}
 
 
 def _mean_levels(levels: list[DistortionLevels]) -> DistortionLevels:

@@ -37,7 +37,7 @@ from ambid.frf.estimators import _matched, _records, _right_divide, per_period_f
 
 __all__ = [
     "period_mean_variance", "frf_noise_variance", "BlaEstimate", "bla_robust",
-    "DistortionLevels", "distortion_levels", "output_noise_std",
+    "DistortionLevels", "distortion_levels", "output_noise_std", "row_covariance",
 ]
 
 
@@ -219,3 +219,35 @@ def output_noise_std(periods: np.ndarray) -> np.ndarray:
     if not np.all(np.isfinite(periods)):
         raise ValueError("periods contain NaN or inf; clean the time data first")
     return np.sqrt(periods.var(axis=2, ddof=1).mean(axis=(0, 1, 2)))
+
+
+def row_covariance(var: np.ndarray, sensitivity: np.ndarray) -> np.ndarray:
+    """Covariance of the entries of each row of a closed-loop FRF estimated with orthogonal excitations.
+
+    With the indirect estimator ``G = (Y R^H)(U R^H)^-1`` (Ne = Nu) the error
+    of output row i is ``n_i U^-1``, n_i that output's noise (or stochastic
+    distortion) over the experiments, so within a row
+    ``E[e_j e_k*] = sigma_i^2 ((U U^H)^-1)_kj``; the rows are independent.
+    An orthogonal design has ``R R^H = c I``, and ``U = S R`` with S the
+    input sensitivity, so the shape is ``conj((S S^H)^-1)``: where the loop
+    couples the inputs (S far from diagonal, near a lightly damped mode) the
+    entries of a row are strongly correlated, and a fit that takes them as
+    independent misjudges its own uncertainty.
+
+    Args:
+        var: (L, Ny, Nu) variance of each entry (e.g. pooled over the inputs);
+            each row's covariance is scaled so that its mean diagonal is the
+            mean of ``var`` over that row.
+        sensitivity: (L, Nu, Nu) input sensitivity S (r -> u).
+
+    Returns:
+        (L, Ny, Nu, Nu) complex Hermitian row covariances [unit of G squared].
+    """
+    v = np.asarray(var, dtype=float)
+    s = np.asarray(sensitivity, dtype=complex)
+    if v.ndim != 3 or s.shape != (v.shape[0], v.shape[2], v.shape[2]):
+        raise ValueError(f"var must be (L, Ny, Nu) and sensitivity (L, Nu, Nu); got {v.shape}, {s.shape}")
+    shape = np.conj(np.linalg.inv(s @ np.conj(np.swapaxes(s, -1, -2))))
+    shape = (shape + np.conj(np.swapaxes(shape, -1, -2))) / 2
+    shape = shape / np.real(np.trace(shape, axis1=-2, axis2=-1))[:, None, None] * v.shape[2]
+    return v.mean(axis=2)[:, :, None, None] * shape[:, None]

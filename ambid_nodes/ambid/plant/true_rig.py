@@ -280,7 +280,8 @@ def delayed_zoh(a: np.ndarray, b: np.ndarray, dt: float, delay_s: float) -> tupl
     return phi, g1, e_rest @ g_tau
 
 
-def true_linear_model(rig: Rig, discrete: bool = False, pade_order: int = 2) -> StateSpace:
+def true_linear_model(rig: Rig, discrete: bool = False, pade_order: int = 2, plant: TruePlant | None = None,
+                      outputs: np.ndarray | None = None) -> StateSpace:
     """Small-signal model of the true rig at the levitated operating point: u [A] -> y [m].
 
     The reference every identification accuracy figure is measured against.
@@ -292,19 +293,26 @@ def true_linear_model(rig: Rig, discrete: bool = False, pade_order: int = 2) -> 
             zero-order-hold model at rig.dt (the delay exact, 4 extra states
             u[k-1]) -- what a sampled measurement of the simulator sees.
         pade_order: order of the delay approximation (continuous only).
+        plant: the affine model to linearise (default :func:`levitated_plant`'s),
+            e.g. one with the magnets' slopes at an excitation level.
+        outputs: (q, n) output rows over the plant's states (default ``c_y``,
+            the sensors), e.g. ``c_current`` or ``c_gap``.
 
     Returns:
-        StateSpace with 4 inputs (CURRENT_NAMES), 4 outputs (DISPLACEMENT_NAMES), D = 0.
+        StateSpace with 4 inputs (CURRENT_NAMES), 4 outputs (DISPLACEMENT_NAMES; q unnamed ones with
+        ``outputs``), D = 0.
     """
-    p, _ = levitated_plant(rig)
-    names = dict(input_names=CURRENT_NAMES, output_names=DISPLACEMENT_NAMES, input_units=("A",) * 4,
-                 output_units=("m",) * 4)
+    p = levitated_plant(rig)[0] if plant is None else plant
+    c_out = p.c_y if outputs is None else np.asarray(outputs, dtype=float)
+    names = dict(input_names=CURRENT_NAMES, input_units=("A",) * 4)
+    if outputs is None:
+        names.update(output_names=DISPLACEMENT_NAMES, output_units=("m",) * 4)
     if not discrete:
-        plant = StateSpace(p.a, p.b_u, p.c_y, np.zeros((4, 4)))
-        return series(pade_delay(4, p.delay_s, pade_order), plant)._replace(**names)
+        cont = StateSpace(p.a, p.b_u, c_out, np.zeros((c_out.shape[0], 4)))
+        return series(pade_delay(4, p.delay_s, pade_order), cont)._replace(**names)
     phi, g1, g0 = delayed_zoh(p.a, p.b_u, rig.dt, p.delay_s)
     n = p.n_states
     a = np.block([[phi, g0], [np.zeros((4, n + 4))]])
     b = np.vstack([g1, np.eye(4)])
-    c = np.hstack([p.c_y, np.zeros((4, 4))])
-    return StateSpace(a, b, c, np.zeros((4, 4)), rig.dt, **names)
+    c = np.hstack([c_out, np.zeros((c_out.shape[0], 4))])
+    return StateSpace(a, b, c, np.zeros((c_out.shape[0], 4)), rig.dt, **names)

@@ -196,7 +196,7 @@ def noise_distortion(levels: LineLevels, output_names: Sequence[str] = (), path:
 
 
 def stabilisation(diagram: StabilisationDiagram, freq_hz: np.ndarray, G: np.ndarray, order: int,
-                  path: str | Path | None = None) -> Figure:
+                  path: str | Path | None = None, mode_ci95: Sequence[Sequence[float]] = ()) -> Figure:
     """Stabilisation diagram over the CMIF of the measured FRF, the chosen order marked.
 
     Args:
@@ -204,6 +204,7 @@ def stabilisation(diagram: StabilisationDiagram, freq_hz: np.ndarray, G: np.ndar
         freq_hz: (L,) lines [Hz]; G: (L, Ny, Nu) measured FRF [m/A].
         order: the chosen model order.
         path: PNG to write.
+        mode_ci95: [(low, high)] 95 % frequency intervals of the chosen order's modes [Hz], drawn as bars.
     """
     from ambid.fit.order_selection import plot_stabilisation
 
@@ -213,6 +214,11 @@ def stabilisation(diagram: StabilisationDiagram, freq_hz: np.ndarray, G: np.ndar
                                    f"(chi2/dof {chi.get(order, float('nan')):.3g})")
     ax = fig.axes[0]
     ax.axhline(order, color="tab:purple", lw=1.0, ls="--", label=f"chosen order {order}")
+    for k, (lo, hi) in enumerate(mode_ci95):
+        # widened to stay visible: a 95 % interval of a lightly damped mode is often < 0.1 Hz
+        mid, half = (lo + hi) / 2, max((hi - lo) / 2, 0.002 * (lo + hi) / 2)
+        ax.errorbar([mid], [order], xerr=[[half], [half]], fmt="none", ecolor="tab:red", elinewidth=2, capsize=4,
+                    label="95 % frequency interval (at least +-0.2 %)" if k == 0 else None)
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=3, fontsize="small")
     return _save(fig, path, tight=True)
 

@@ -106,9 +106,15 @@ def _headline(s: Mapping[str, Any]) -> list[list[str]]:
     return rows
 
 
+def _pm(m: Mapping[str, Any], key: str, spec: str) -> str:
+    """'+- half width' of a 95 % interval m[key + '_ci95'], or '-'."""
+    ci = m.get(f"{key}_ci95")
+    return "-" if ci is None else f"+- {_fmt((ci[1] - ci[0]) / 2, spec)}"
+
+
 def _modes_rows(s: Mapping[str, Any]) -> list[list[str]]:
-    return [[_fmt(m["freq_hz"], ".5g"), _fmt(m["damping"], ".4g"), _fmt(m["stable"])]
-            + ([f"{m['whirl']} ({_pct(m['forward_share'])} forward)"] if "whirl" in m else [])
+    return [[_fmt(m["freq_hz"], ".5g"), _pm(m, "freq_hz", ".2g"), _fmt(m["damping"], ".4g"), _pm(m, "damping", ".2g"),
+             _fmt(m["stable"])] + ([f"{m['whirl']} ({_pct(m['forward_share'])} forward)"] if "whirl" in m else [])
             for m in s["fit"]["modes"]]
 
 
@@ -155,7 +161,9 @@ def render_index(summary: Mapping[str, Any], figure_list: list[tuple[str, str]])
         parts.append(f"<p class='note'>Note: {html.escape(str(note))}</p>")
     whirl_col = ["whirl"] if any("whirl" in m for m in summary["fit"]["modes"]) else []
     parts += ["<h2>Fitted modes</h2>",
-              _table(["frequency [Hz]", "damping ratio [-]", "stable in diagram"] + whirl_col, _modes_rows(summary))]
+              _table(["frequency [Hz]", "95 % CI", "damping ratio [-]", "95 % CI", "stable in diagram"] + whirl_col,
+                     _modes_rows(summary)),
+              "<p>" + html.escape(str((summary.get("intervals") or {}).get("modes", ""))) + "</p>"]
     if summary.get("synchronous"):
         parts += ["<h3>Synchronous response (disturbance lines at k x the rotation)</h3>",
                   _table(["harmonic", "frequency [Hz]"] + list(summary.get("outputs") or []),
@@ -180,8 +188,8 @@ def render_index(summary: Mapping[str, Any], figure_list: list[tuple[str, str]])
                   _table(["parameter", "unit", "nominal", "start", "updated", "95 % CI", "true", "error vs true"],
                          _parameter_rows(summary)),
                   f"<p>Updating chi2/dof {_fmt(upd.get('chi2_per_dof'), '.3g')}, "
-                  f"{html.escape(str(upd.get('message')).rstrip('.'))}."
-                  " True ki, ks are the small-signal slopes at the levitated operating point.</p>"]
+                  f"{html.escape(str(upd.get('message')).rstrip('.'))}. "
+                  + html.escape(str((summary.get("intervals") or {}).get("parameters", ""))) + "</p>"]
     elif upd and "error" in upd:
         parts.append(f"<p class='note'>Model updating failed: {html.escape(upd['error'])}</p>")
     parts.append("<h2>Figures</h2>")
@@ -200,7 +208,8 @@ def write_report(report_dir: str | Path, summary: Mapping[str, Any], *, frf: Frf
                  diagram: StabilisationDiagram, order: int, curves: Mapping[str, tuple[np.ndarray, np.ndarray]],
                  levels: LineLevels | None = None, window: Mapping[str, Any] | None = None,
                  true_frf: np.ndarray | None = None, line_models: Mapping[str, np.ndarray] | None = None,
-                 extra_figures: Sequence[tuple[str, str, Callable[[Path], Any]]] = ()) -> Path:
+                 extra_figures: Sequence[tuple[str, str, Callable[[Path], Any]]] = (),
+                 band_variance: np.ndarray | None = None, band_kind: str = "") -> Path:
     """Draw every figure into ``report_dir`` and write ``report_dir/index.html``.
 
     Args:
@@ -222,8 +231,10 @@ def write_report(report_dir: str | Path, summary: Mapping[str, Any], *, frf: Frf
     out = Path(report_dir)
     out.mkdir(parents=True, exist_ok=True)
     var = frf.var_total if np.all(np.isfinite(frf.var_total)) else frf.var_noise
+    sigma_kind = "total (noise + nonlinear)" if var is frf.var_total else "noise only"
+    if band_variance is not None:
+        var, sigma_kind = np.asarray(band_variance), band_kind or sigma_kind
     std = np.sqrt(var) if np.all(np.isfinite(var)) else None
-    sigma_kind = "total (noise + nonlinear)" if var is frf.var_total else "noise"
     names = dict(input_names=frf.input_names, output_names=frf.output_names)
     shown: list[tuple[str, str]] = []
 
@@ -257,8 +268,10 @@ def write_report(report_dir: str | Path, summary: Mapping[str, Any], *, frf: Frf
                                                None if dist is None else dist.even_db))
     add("stabilisation.png", f"Stabilisation diagram (poles of the fits of each order; filled green squares are "
         f"stable in frequency and damping) over the CMIF (singular values of the measured FRF, grey); the dashed "
-        f"line marks the chosen order {order}.",
-        lambda p: figures.stabilisation(diagram, frf.freq_hz, frf.frf, order, p))
+        f"line marks the chosen order {order}; the chosen order's modes carry their 95 % frequency intervals.",
+        lambda p: figures.stabilisation(diagram, frf.freq_hz, frf.frf, order, p,
+                                        mode_ci95=[m["freq_hz_ci95"] for m in summary["fit"]["modes"]
+                                                   if m.get("freq_hz_ci95")]))
     add("excitation.png", "Excitation design: line amplitudes of one period per input with its crest factor, "
         "the unexcited detection lines, and the period in time.",
         lambda p: figures.excitation(design, p))

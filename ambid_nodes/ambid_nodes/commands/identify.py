@@ -107,9 +107,10 @@ def format_headlines(s: dict, out: Path) -> str:
     for name in ("ki_n_per_a", "ks_n_per_m"):
         if name in upd:
             p = upd[name]
-            true = p.get("true")
+            true, rest = p.get("true"), p.get("true_small_signal")
             lines.append(f"  updated {name}: {p['value']:.5g} {p['unit']} (95 % CI {p['ci95'][0]:.5g}..{p['ci95'][1]:.5g})"
-                         + (f", true {true:.5g}" if true is not None else ""))
+                         + (f", true {true:.5g}" if true is not None else "")
+                         + (f" at this excitation ({rest:.5g} at rest)" if rest is not None else ""))
     sync = s.get("synchronous")
     if sync and sync.get("harmonics"):
         h1 = sync["harmonics"][0]

@@ -1,0 +1,193 @@
+"""How honest ambid's intervals are: their empirical coverage over repeated sessions.
+
+One *record* per session (:func:`seed_record`) holds, for every kind of
+interval ambid prints, the estimate, the claimed standard deviation or
+interval, and the truth the simulated rig knows. :func:`coverage_table`
+pools the records of many seeds (different noise and random phases) into
+one row per kind:
+
+* ``nominal``: the level the interval claims. A +-2 sigma band of a complex
+  FRF value with ``sigma^2 = E|G_hat - G|^2`` is a disc; for a circular
+  complex Gaussian error ``P(|e| <= 2 sigma) = 1 - exp(-4) = 0.982``. The
+  parameter and mode intervals claim 0.95.
+* ``coverage``: the fraction of (seed, item) cases whose interval holds the
+  truth, with its Clopper-Pearson 95 % interval (``ci95``, the exact
+  binomial interval; for the FRF the lines of one seed are taken as
+  independent trials).
+* ``std_ratio``: empirical over claimed standard deviation,
+  ``sqrt(sum (x_hat - x)^2 / sum sigma_claimed^2)`` over the cases: the
+  root-mean-square error (bias included) against the root-mean-square
+  claimed sigma; 1 when the claims are right, > 1 when they are too narrow.
+
+The FRF truth is the true rig's small-signal model sampled with the
+zero-order hold (:func:`ambid.plant.true_rig.true_linear_model`); the
+parameters' truth :func:`ambid.fit.model_update.true_parameters`; the modes'
+the true rig's poles (:func:`ambid.studies.identification.compare_modes`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+__all__ = ["FRF_NOMINAL", "clopper_pearson", "frf_record", "seed_record", "coverage_table", "coverage_figure"]
+
+#: P(|e| <= 2 sigma) for a circular complex Gaussian error e with E|e|^2 = sigma^2.
+FRF_NOMINAL = float(1 - np.exp(-4.0))
+
+
+def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
+    """Exact (Clopper-Pearson) binomial interval of a proportion k / n at ``level``."""
+    if n <= 0:
+        return float("nan"), float("nan")
+    a = (1 - level) / 2
+    lo = 0.0 if k == 0 else float(stats.beta.ppf(a, k, n - k + 1))
+    hi = 1.0 if k == n else float(stats.beta.ppf(1 - a, k + 1, n - k))
+    return lo, hi
+
+
+def frf_record(G: np.ndarray, G_true: np.ndarray, variances: Mapping[str, np.ndarray]) -> dict:
+    """One session's FRF against the truth, per kind of variance.
+
+    Args:
+        G, G_true: (L, Ny, Nu) measured and true FRF.
+        variances: kind name -> (L, Ny, Nu) claimed variance E|G - G_true|^2.
+
+    Returns:
+        kind -> {n, covered (cases with |G - G_true| <= 2 sigma), sum_err2,
+        sum_var}: sums over the L Ny Nu cases with a finite, positive variance.
+    """
+    e2 = np.abs(np.asarray(G) - np.asarray(G_true)) ** 2
+    out = {}
+    for kind, v in variances.items():
+        v = np.asarray(v, dtype=float)
+        ok = np.isfinite(v) & (v > 0)
+        out[kind] = dict(n=int(ok.sum()), covered=int(np.sum(e2[ok] <= 4 * v[ok])),
+                         sum_err2=float(e2[ok].sum()), sum_var=float(v[ok].sum()))
+    return out
+
+
+def _interval_rows(prefix: str, items: Sequence[Mapping[str, Any]]) -> dict:
+    out = {}
+    for it in items:
+        if it.get("std") is None or it.get("true") is None or it.get("ci95") is None:
+            continue
+        out[f"{prefix}{it['name']}"] = dict(value=float(it["value"]), std=float(it["std"]),
+                                            ci95=[float(c) for c in it["ci95"]], true=float(it["true"]),
+                                            noise_only=bool(it.get("noise_only", False)))
+    return out
+
+
+def seed_record(summary: Mapping[str, Any], G: np.ndarray, truths: Mapping[str, np.ndarray],
+                variances: Mapping[str, np.ndarray]) -> dict:
+    """Everything one session claims, beside the truth, in a JSON-safe dict.
+
+    Args:
+        summary: ``identify_session``'s summary of the session.
+        G: (L, Ny, Nu) measured FRF.
+        truths: truth name -> (L, Ny, Nu) true FRF (e.g. the small-signal
+            model and the one at the excitation level).
+        variances: as for :func:`frf_record`.
+
+    Returns:
+        dict with ``frf`` (:func:`frf_record`), ``intervals`` (name -> value,
+        std, ci95, true, noise_only) for the updated parameters reported as
+        identified (``parameter:<name>``) and the fitted modes with an
+        interval (``mode_freq:<k>``, ``mode_damping:<k>``), and ``noise``
+        (the estimated output noise std per channel).
+    """
+    items = []
+    upd = summary.get("update") or {}
+    for name, row in (upd.get("parameters") or {}).items():
+        if row.get("free") and row.get("identified", True):
+            items.append(dict(name=f"parameter:{name}", value=row["value"], std=row.get("std"),
+                              ci95=row.get("ci95"), true=row.get("true"), noise_only=row.get("noise_only")))
+    for k, m in enumerate(summary.get("modes_vs_true") or []):
+        for q, tq in (("freq_hz", "true_freq_hz"), ("damping", "true_damping")):
+            if m.get(f"{q}_std") is not None:
+                items.append(dict(name=f"mode_{q}:{m['true_freq_hz']:.0f}Hz", value=m[q], std=m[f"{q}_std"], ci95=m[f"{q}_ci95"], true=m[tq],
+                                  noise_only=m.get("noise_only")))
+    noise = (summary.get("noise") or {}).get("output_noise_std_m")
+    frf = {f"{kind} vs {truth}": row for truth, gt in truths.items()
+           for kind, row in frf_record(G, gt, variances).items()}
+    return dict(frf=frf, intervals=_interval_rows("", items),
+                noise=None if noise is None else [float(x) for x in noise])
+
+
+def _row(nominal: float, covered: int, n: int, err2: float, var: float, **extra) -> dict:
+    lo, hi = clopper_pearson(covered, n)
+    return dict(nominal=nominal, coverage=covered / n if n else float("nan"), ci95=[lo, hi], covered=covered,
+                n=n, std_ratio=float(np.sqrt(err2 / var)) if var > 0 else float("nan"), **extra)
+
+
+def coverage_table(records: Sequence[Mapping[str, Any]]) -> dict:
+    """Pool the records of many seeds into one row per kind of interval (module docstring).
+
+    Returns:
+        kind -> {nominal, coverage, ci95 [lo, hi], covered, n, std_ratio, ...}:
+        ``frf:<variance kind>`` for the FRF bands, ``<item name>`` for each
+        parameter and mode interval (with bias and scatter relative to the
+        claimed std), ``noise_std`` for the noise level (its scatter over the
+        seeds; ambid prints no interval on it).
+    """
+    table: dict[str, dict] = {}
+    kinds = sorted({k for r in records for k in r["frf"]})
+    for kind in kinds:
+        rows = [r["frf"][kind] for r in records if kind in r["frf"]]
+        table[f"frf:{kind}"] = _row(FRF_NOMINAL, sum(x["covered"] for x in rows), sum(x["n"] for x in rows),
+                                    sum(x["sum_err2"] for x in rows), sum(x["sum_var"] for x in rows),
+                                    claim="|G - G_true| <= 2 sigma at each excited line and entry")
+    names = sorted({k for r in records for k in r["intervals"]})
+    for name in names:
+        rows = [r["intervals"][name] for r in records if name in r["intervals"]]
+        v = np.array([x["value"] for x in rows])
+        t = np.array([x["true"] for x in rows])
+        s = np.array([x["std"] for x in rows])
+        cov = int(sum(x["ci95"][0] <= x["true"] <= x["ci95"][1] for x in rows))
+        rms_s = float(np.sqrt(np.mean(s**2)))
+        table[name] = _row(0.95, cov, len(rows), float(np.sum((v - t) ** 2)), float(np.sum(s**2)),
+                           true=float(np.mean(t)), bias_over_std=float(np.mean(v - t) / rms_s),
+                           scatter_over_std=float(np.std(v, ddof=1) / rms_s) if len(v) > 1 else float("nan"),
+                           noise_only=bool(rows[0]["noise_only"]), claim="95 % interval holds the truth")
+    noise = [r["noise"] for r in records if r.get("noise") is not None]
+    if noise:
+        x = np.array(noise)
+        table["noise_std"] = dict(nominal=None, coverage=None, n=int(x.shape[0]), mean_m=x.mean(axis=0).tolist(),
+                                  relative_scatter=float(np.mean(x.std(axis=0, ddof=1) / x.mean(axis=0)))
+                                  if x.shape[0] > 1 else None,
+                                  claim="no interval printed; the estimate's scatter over the seeds")
+    return table
+
+
+def coverage_figure(table: Mapping[str, Mapping[str, Any]], path: str | Path | None = None):
+    """Empirical coverage with its binomial interval beside the nominal level, and the std ratio, per kind."""
+    from matplotlib.figure import Figure
+
+    rows = [(k, r) for k, r in table.items() if r.get("coverage") is not None]
+    fig = Figure(figsize=(10, 0.32 * len(rows) + 1.6))
+    ax1, ax2 = fig.subplots(1, 2, sharey=True, gridspec_kw=dict(width_ratios=[3, 2]))
+    y = np.arange(len(rows))
+    for i, (k, r) in enumerate(rows):
+        lo, hi = r["ci95"]
+        ax1.plot([lo, hi], [i, i], color="0.4", lw=2)
+        ax1.plot(r["coverage"], i, "o", color="C3" if r["ci95"][1] < r["nominal"] else "C0")
+        ax1.plot(r["nominal"], i, "|", color="k", ms=12)
+        ax2.plot(r["std_ratio"], i, "o", color="C3" if not 0.7 <= r["std_ratio"] <= 1.5 else "C0")
+    ax1.set_yticks(y, [k for k, _ in rows], fontsize=7)
+    ax1.set_xlabel("coverage (dot), Clopper-Pearson 95 % (bar), nominal (|)")
+    ax1.set_xlim(-0.02, 1.02)
+    ax2.axvspan(0.7, 1.5, color="C2", alpha=0.15)
+    ax2.axvline(1.0, color="k", lw=0.8)
+    ax2.set_xscale("log")
+    ax2.set_xlabel("empirical / claimed std")
+    ax1.invert_yaxis()
+    ax1.grid(alpha=0.3)
+    ax2.grid(alpha=0.3)
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=110)
+    return fig

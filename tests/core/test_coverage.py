@@ -1,0 +1,129 @@
+"""Coverage bookkeeping of ``ambid validate`` (ambid.studies.coverage) and the excitation-level truth
+of the magnets (ambid.fit.model_update.excitation_slopes)."""
+
+import numpy as np
+import pytest
+from ambid.control.pid import PidParameters, pid_controller
+from ambid.excitation.spec import build_design
+from ambid.fit.model_update import excitation_slopes
+from ambid.plant.rig import make_rig
+from ambid.plant.true_rig import levitated_plant
+from ambid.studies.coverage import FRF_NOMINAL, clopper_pearson, coverage_table, frf_record
+from scipy import stats
+
+
+def test_clopper_pearson_against_closed_forms():
+    # k = 0: upper = 1 - (alpha/2)^(1/n); k = n: lower = (alpha/2)^(1/n)
+    n = 20
+    assert clopper_pearson(0, n) == (0.0, pytest.approx(1 - 0.025 ** (1 / n)))
+    assert clopper_pearson(n, n) == (pytest.approx(0.025 ** (1 / n)), 1.0)
+    lo, hi = clopper_pearson(17, 20)
+    # the exact interval holds the binomial tails at 2.5 % each
+    assert stats.binom.sf(16, 20, lo) == pytest.approx(0.025, rel=1e-6)
+    assert stats.binom.cdf(17, 20, hi) == pytest.approx(0.025, rel=1e-6)
+
+
+def test_right_claims_give_nominal_coverage_and_unit_ratio():
+    rng = np.random.default_rng(21)
+    n_seeds, true = 400, 3.0
+    records = []
+    for _ in range(n_seeds):
+        std = 0.1 * (1 + 0.2 * rng.uniform())             # each seed claims its own (right) sigma
+        v = true + std * rng.standard_normal()
+        g_true = np.ones((50, 2, 2), complex)
+        var = np.full(g_true.shape, 1e-4)
+        g = g_true + np.sqrt(var / 2) * (rng.standard_normal(g_true.shape) + 1j * rng.standard_normal(g_true.shape))
+        records.append(dict(frf={"k": frf_record(g, g_true, {"v": var})["v"]},
+                            intervals={"p": dict(value=v, std=std, ci95=[v - 1.96 * std, v + 1.96 * std], true=true,
+                                                 noise_only=True)}, noise=None))
+    t = coverage_table(records)
+    assert t["frf:k"]["nominal"] == pytest.approx(1 - np.exp(-4))
+    assert t["frf:k"]["ci95"][0] < FRF_NOMINAL < t["frf:k"]["ci95"][1]
+    assert abs(t["frf:k"]["std_ratio"] - 1) < 0.02
+    assert t["p"]["ci95"][0] < 0.95 < t["p"]["ci95"][1] and abs(t["p"]["std_ratio"] - 1) < 0.1
+    # a claim half as wide as the truth shows as a ratio near 2 and a coverage far below 0.95
+    for r in records:
+        x = r["intervals"]["p"]
+        s = x["std"] / 2
+        x.update(std=s, ci95=[x["value"] - 1.96 * s, x["value"] + 1.96 * s])
+    t2 = coverage_table(records)
+    assert abs(t2["p"]["std_ratio"] - 2) < 0.2 and t2["p"]["ci95"][1] < 0.8
+
+
+@pytest.fixture(scope="module")
+def loop():
+    rig = make_rig()
+    pid = PidParameters()
+    return rig, pid_controller(pid, rig.dt)
+
+
+def _design(peak):
+    return build_design("multisine", (10.0, 1000.0), 5.0, 10_000.0, peak_current_a=peak, n_periods=2,
+                        n_realisations=1, n_transient_periods=1, grid="random_odd", mimo="orthogonal",
+                        phases="random", seed=3)
+
+
+def test_excitation_slopes_follow_the_quadratic_magnet_law(loop):
+    # ks = dF/dg grows with the square of the current excursion (ks (1 + i^2 / ib^2) at the centre):
+    # the shift over the small-signal slope scales with the excitation's power, ki barely moves
+    rig, k = loop
+    op = levitated_plant(rig)[1]
+    ki1, ks1 = excitation_slopes(rig, k, _design(0.2))
+    ki2, ks2 = excitation_slopes(rig, k, _design(0.4))
+    ki0, ks0 = excitation_slopes(rig, k, _design(1e-4))   # the sensor noise alone
+    np.testing.assert_allclose(ks0, op.ks_n_per_m, rtol=2e-4)
+    np.testing.assert_allclose(ki0, op.ki_n_per_a, rtol=2e-4)
+    d1, d2 = ks1 - ks0, ks2 - ks0
+    assert np.all(d1 > 0)
+    np.testing.assert_allclose(d2 / d1, 4.0, rtol=0.02)
+    # size: 2 kc sigma_i^2 / s0^3 with kc 2 k cos(alpha) -> ks0 sigma_i^2 / (ib^2 + i0^2); sigma_i of order the rms
+    mag = rig.true_magnet
+    assert np.all(d2 / ks0 < 0.4**2 / mag.bias_current_a**2)
+    assert np.all(np.abs(ki2 / ki0 - 1) < 0.01)
+
+
+def test_realisation_inflation_reads_the_scatter_against_the_claim():
+    from ambid.fit.correlated import realisation_inflation
+
+    rng = np.random.default_rng(22)
+    p, m = 6, 3
+    a = rng.standard_normal((p, p))
+    cov = a @ a.T + p * np.eye(p)
+    chol = np.linalg.cholesky(cov)
+    # deviations of M realisations from their mean scatter with M cov (the mean's covariance is cov):
+    # kappa is ~1 on average, and ~4 when the scatter is twice as wide as claimed
+    def draw(scale):
+        x = scale * np.sqrt(m) * (rng.standard_normal((m, p)) @ chol.T)     # one realisation: m cov
+        return x - x.mean(axis=0)                                           # deviations from their mean
+
+    right = np.array([realisation_inflation(draw(1.0), cov)[0] for _ in range(400)])
+    wide = np.array([realisation_inflation(draw(2.0), cov)[0] for _ in range(400)])
+    assert np.all(right >= 1.0) and np.mean(right) < 1.6       # never shrunk; the max of noisy ratios ~1
+    assert 3.8 < np.median(wide) < 6.0                          # at least the pooled ratio, ~4
+    # one parameter twice as wide alone: its own factor finds it, the others stay near 1
+    def one_wide():
+        x = draw(1.0)
+        x[:, 0] *= 2
+        return realisation_inflation(x, cov)[0]
+    f = np.median([one_wide() for _ in range(400)], axis=0)
+    assert f[0] > 2.5 and np.all(f[1:] < 2.0)
+    # the degrees of freedom of what set each factor: M - 1 for a parameter's own ratio
+    fac, dof = realisation_inflation(draw(1.0) * np.array([3.0] + [1.0] * (p - 1)), cov)
+    assert dof[0] == m - 1 and fac[0] > 1
+    ones, none = realisation_inflation(np.zeros((1, p)), cov)
+    np.testing.assert_array_equal(ones, np.ones(p))
+    assert np.all(np.isinf(none))
+
+
+def test_validate_reuses_only_a_finished_seed_of_the_same_run(tmp_path):
+    from ambid_nodes.commands.validate import run_fingerprint, reusable_record
+
+    fp = run_fingerprint("", False)
+    assert fp != run_fingerprint("", True)                       # the magnet law is part of what a seed ran
+    rec = tmp_path / "record.json"
+    assert reusable_record(rec, fp) is None                         # not finished
+    rec.write_text('{"fingerprint": "%s", "frf": {}}' % fp)
+    assert reusable_record(rec, fp) == {"fingerprint": fp, "frf": {}}
+    assert reusable_record(rec, "other") is None                    # another rig or code
+    rec.write_text('{"fingerprint": "%s", "fr' % fp)          # cut short
+    assert reusable_record(rec, fp) is None

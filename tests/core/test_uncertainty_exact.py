@@ -1,0 +1,155 @@
+"""The uncertainty formulas against exact covariances of known linear systems.
+
+Each test builds data from a linear system whose covariance is written here
+in closed form (not by ambid), then checks ambid's estimate of it: its
+mean, its own scatter (the degrees of freedom) and the coverage of the
+intervals built from it.
+"""
+
+import numpy as np
+from ambid.fit import update_parameters
+from ambid.fit.blas_threads import single_threaded_blas
+from ambid.frf import frf_noise_variance, period_mean_variance, row_covariance
+from scipy import stats
+
+
+def _cn(rng, *shape):
+    """Circular complex Gaussian, E|x|^2 = 1."""
+    return (rng.standard_normal(shape) + 1j * rng.standard_normal(shape)) / np.sqrt(2)
+
+
+def test_variance_of_a_period_mean_and_its_degrees_of_freedom():
+    # x_p = mu + sigma e_p: var(mean) = sigma^2 / P; the estimate is sigma^2 / P chi2(2 (P - 1)) / (2 (P - 1))
+    p, sigma, cells = 5, 0.7, 4000
+    rng = np.random.default_rng(11)
+    mu = _cn(rng, 1, 1, 1, cells, 1) * 3
+    x = mu + sigma * _cn(rng, 1, 1, p, cells, 1)
+    mean, var = period_mean_variance(x)
+    ratio = var.real.ravel() / (sigma**2 / p)
+    assert abs(ratio.mean() - 1) < 4 * np.sqrt(1 / (p - 1) / cells)
+    # the estimate's own relative variance is 1 / (P - 1): 2 (P - 1) real degrees of freedom
+    assert abs(ratio.var() * (p - 1) - 1) < 0.1
+    # and the mean really scatters by sigma^2 / P
+    emp = np.mean(np.abs(mean - mu[:, :, 0]) ** 2)
+    assert abs(emp / (sigma**2 / p) - 1) < 0.06
+
+
+def test_closed_loop_indirect_frf_noise_variance_is_exact_to_first_order():
+    # 2 x 2 plant G in a loop u = r + K y, output noise v (variance s2 per channel): Y = G U + V exactly,
+    # so G_p - G = V_p R_p^H (U_p R_p^H)^-1 and, to first order, var(G_ij) = s2 sum_e |U0^-1_ej|^2 / P
+    p, n_lines, s2 = 6, 3000, 1e-6
+    rng = np.random.default_rng(12)
+    g = _cn(rng, n_lines, 2, 2) + 2 * np.eye(2)
+    k = 0.3 * _cn(rng, n_lines, 2, 2)
+    phase = np.exp(2j * np.pi * rng.uniform(size=(n_lines, 1)))
+    r = phase[:, :, None] * np.array([[1, 1], [1, -1]])            # (L, Nu, Ne), orthogonal experiments
+    sens = np.linalg.inv(np.eye(2) - k @ g)
+    v = np.sqrt(s2) * _cn(rng, p, n_lines, 2, 2)                   # (P, L, Ny, Ne)
+    u = sens @ (r + k @ v)
+    y = g @ u + v
+    u0 = sens @ r
+    # to ambid's layout (M, Ne, P, L, ch)
+    lay = lambda a: np.moveaxis(a, -1, 0)[None]                  # (1, Ne, P, L, ch)
+    y5, u5 = lay(y), lay(u)
+    r5 = np.moveaxis(r, -1, 0)[None, :, None]                    # (1, Ne, 1, L, Nu)
+    g_m, var_n = frf_noise_variance(y5, u5, r5)
+    u0_inv = np.linalg.inv(u0)                                     # (L, Ne, Nu)
+    exact = s2 * np.sum(np.abs(u0_inv) ** 2, axis=1)[:, None, :] / p   # (L, 1, Nu) -> same for each output
+    exact = np.broadcast_to(exact, (n_lines, 2, 2))
+    ratio = var_n[0] / exact
+    assert abs(ratio.mean() - 1) < 0.03
+    assert abs(ratio.var() * (p - 1) - 1) < 0.1                  # 2 (P - 1) degrees of freedom
+    err = np.abs(g_m[0] - g) ** 2 / exact
+    assert abs(err.mean() - 1) < 0.05
+    # a +-2 sigma band with the estimated variance: P(|e|^2 < 4 s^2_hat) = 1 - (1 + 4 / (P - 1))^-(P - 1)
+    cover = np.mean(np.abs(g_m[0] - g) ** 2 <= 4 * var_n[0])
+    assert abs(cover - (1 - (1 + 4 / (p - 1)) ** -(p - 1))) < 0.01
+
+
+def test_linear_least_squares_parameter_covariance_is_exact():
+    # G(theta) = sum_k theta_k B_k(f): cov = (J^T J)^-1 / 2 with J the real-stacked weighted basis
+    f = np.linspace(10.0, 500.0, 80)
+    s = 2j * np.pi * f / 500.0
+    basis = np.stack([np.ones_like(s), s, 1 / (1 + s), s**2 / (1 + s)])        # (p, L)
+    mix = np.array([[[1.0, 0.5], [0.2, -1.0]], [[0.3, 1.0], [1.0, 0.1]], [[2.0, 0], [0, 2.0]],
+                    [[0.5, 0.5], [-0.5, 0.5]]])                               # (p, 2, 2)
+    b = np.einsum("kl,kij->klij", basis, mix)                                 # (p, L, 2, 2)
+    theta = np.array([1.0, -0.5, 2.0, 0.3])
+    g0 = np.einsum("k,klij->lij", theta, b)
+    var = (0.02 * (1 + np.abs(g0))) ** 2
+    w = 1 / np.sqrt(var)
+    jc = (w[None] * b).reshape(4, -1).T
+    jr = np.vstack([jc.real, jc.imag])
+    exact = np.linalg.inv(jr.T @ jr) / 2
+    model = lambda th: np.einsum("k,klij->lij", th, b)
+    rng = np.random.default_rng(13)
+    n_draws, hits, est, claimed = 150, np.zeros(4), [], []
+    with single_threaded_blas():
+        for i in range(n_draws):
+            g = g0 + np.sqrt(var) * _cn(rng, *g0.shape)
+            res = update_parameters(model, theta * 1.1, f, g, var, scale_covariance=i % 2 == 0)
+            if i % 2:
+                np.testing.assert_allclose(res.covariance, exact, rtol=1e-5)
+            est.append(res.theta)
+            claimed.append(res.std)
+            hits += (res.ci95[:, 0] <= theta) & (theta <= res.ci95[:, 1])
+    est = np.array(est)
+    d = np.sqrt(np.diag(exact))
+    # the sample covariance of 150 draws, normalised by the exact standard deviations: within ~0.3
+    assert np.max(np.abs(np.cov(est.T) / np.outer(d, d) - exact / np.outer(d, d))) < 0.3
+    assert np.all(np.abs(est.std(axis=0, ddof=1) / np.mean(claimed, axis=0) - 1) < 0.2)
+    # Clopper-Pearson 99.9 % interval of the coverage holds 0.95
+    lo = stats.beta.ppf(0.0005, hits, n_draws - hits + 1)
+    hi = stats.beta.ppf(0.9995, hits + 1, n_draws - hits)
+    assert np.all((lo <= 0.95) & (0.95 <= hi)), hits / n_draws
+
+
+def test_row_covariance_of_the_closed_loop_indirect_frf():
+    # the within-row covariance conj((S S^H)^-1) (scaled) against the per-period errors of a simulated loop
+    p, n_lines, s2 = 400, 3, 1e-6
+    rng = np.random.default_rng(14)
+    g = _cn(rng, n_lines, 2, 2) + 2 * np.eye(2)
+    k = 0.8 * _cn(rng, n_lines, 2, 2)
+    r = np.array([[1, 1], [1, -1]])[None] * np.ones((n_lines, 1, 1))
+    sens = np.linalg.inv(np.eye(2) - k @ g)
+    v = np.sqrt(s2) * _cn(rng, p, n_lines, 2, 2)
+    u = sens @ (r + k @ v)
+    y = g @ u + v
+    err = (y @ np.linalg.inv(u)) - g                                   # per-period indirect solutions' errors
+    emp = np.einsum("plij,plik->lijk", err, err.conj()) / p            # (L, Ny, Nu, Nu), E[e_j e_k*]
+    var = np.real(np.diagonal(emp, axis1=2, axis2=3))
+    pred = row_covariance(np.broadcast_to(var.mean(axis=2, keepdims=True), var.shape), sens)
+    scale = np.sqrt(np.abs(np.diagonal(pred, axis1=2, axis2=3)))
+    corr = lambda c: c / (scale[..., :, None] * scale[..., None, :])
+    assert np.max(np.abs(corr(emp) - corr(pred))) < 0.15        # 400 periods: sampling error ~0.05
+    assert np.max(np.abs(corr(pred)[..., 0, 1])) > 0.3          # and the correlation is not small here
+
+
+def test_sandwich_with_correlated_rows_claims_the_right_spread():
+    # linear model, errors correlated within each row: the row sandwich's std matches the scatter,
+    # the independent-residual covariance does not
+    f = np.linspace(10.0, 500.0, 40)
+    s = 2j * np.pi * f / 500.0
+    basis = np.stack([np.ones_like(s), s, 1 / (1 + s)])
+    mix = np.array([[[1.0, 0.9], [0.2, -1.0]], [[0.3, 1.0], [1.0, 0.1]], [[1.0, 0.8], [0.7, 1.0]]])
+    b = np.einsum("kl,kij->klij", basis, mix)
+    theta = np.array([1.0, -0.5, 2.0])
+    g0 = np.einsum("k,klij->lij", theta, b)
+    c_row = np.array([[1.0, 0.95], [0.95, 1.0]]) * 1e-4                # (Nu, Nu), the same for every row and line
+    row_cov = np.broadcast_to(c_row, (f.size, 2, 2, 2)).astype(complex)
+    var = np.full(g0.shape, 1e-4)
+    chol = np.linalg.cholesky(c_row)
+    model = lambda th: np.einsum("k,klij->lij", th, b)
+    rng = np.random.default_rng(15)
+    est, s_rows, s_jac = [], [], []
+    with single_threaded_blas():
+        for _ in range(120):
+            e = np.einsum("jk,lik->lij", chol, _cn(rng, f.size, 2, 2))
+            res_r = update_parameters(model, theta * 1.1, f, g0 + e, var, covariance="rows", row_covariance=row_cov)
+            res_j = update_parameters(model, theta * 1.1, f, g0 + e, var)
+            est.append(res_r.theta)
+            s_rows.append(res_r.std)
+            s_jac.append(res_j.std)
+    spread = np.std(est, axis=0, ddof=1)
+    assert np.all(np.abs(spread / np.sqrt(np.mean(np.square(s_rows), axis=0)) - 1) < 0.2)
+    assert np.any(np.abs(spread / np.sqrt(np.mean(np.square(s_jac), axis=0)) - 1) > 0.3)
