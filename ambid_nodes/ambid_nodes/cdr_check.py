@@ -1,4 +1,4 @@
-"""Whether serialized bytes walk as a message type's CDR, checked before rosidl deserializes them.
+"""Whether serialized bytes would make rosidl's deserializer write to stderr, checked before it runs.
 
 rosidl's Fast DDS typesupport writes a line to the process's stderr for some
 bytes it cannot deserialize ("sequence size exceeds remaining buffer", "string
@@ -9,8 +9,11 @@ and counted per topic like any other bad message, and rosidl only sees bytes
 that fit the type. The walk follows the XCDR1 layout rosidl uses: a 4-byte
 encapsulation header (00 00 big endian, 00 01 little endian), then the fields
 in order, each aligned to its size relative to the body (strings and sequence
-lengths as uint32, a string's bytes ending in its NUL). Trailing bytes are
-allowed, as rosidl allows them. Cost: a few microseconds per field walked; a
+lengths as uint32, a string's bytes ending in its NUL). It refuses what rosidl
+would print about (a sequence length beyond the bytes left, a bound
+exceeded, a wrong header); where the bytes end early otherwise, rosidl's Fast
+CDR raises quietly and ``decode_message`` reports its error. Trailing bytes
+are allowed, as rosidl allows them. Cost: a few microseconds per field walked; a
 sequence of numbers is one length check, whatever its size.
 """
 
@@ -32,6 +35,10 @@ __all__ = ["cdr_problem"]
 
 class _Bad(Exception):
     pass
+
+
+class _Stop(Exception):
+    """The walk cannot go on, but rosidl refuses these bytes quietly (Fast CDR raises, rmw reports it)."""
 
 
 @lru_cache(maxsize=None)
@@ -57,7 +64,7 @@ class _Walk:
         pos = 4 + (self.pos - 4 + align - 1) // align * align if count else self.pos
         end = pos + size * count
         if end > self.end:
-            raise _Bad(f"{what} runs past the end ({count} x {size} bytes from byte {pos} of {self.end})")
+            raise _Stop(f"{what} runs past the end ({count} x {size} bytes from byte {pos} of {self.end})")
         self.pos = end
 
     def count(self, what: str) -> int:
@@ -66,14 +73,7 @@ class _Walk:
 
     def string(self, what: str, bound: int | None = None, wide: bool = False) -> None:
         n = self.count(what)
-        if wide:
-            self.skip(2, n, what)
-            return
-        if n == 0:
-            return
-        self.skip(1, n, f"{what} ({n} bytes)")
-        if self.data[self.pos - 1] != 0:
-            raise _Bad(f"{what} is not NUL-terminated")
+        self.skip(2 if wide else 1, n, f"{what} ({n} characters)")
         if bound is not None and n - 1 > bound:
             raise _Bad(f"{what} has {n - 1} characters, at most {bound} allowed")
 
@@ -93,6 +93,8 @@ class _Walk:
         elif isinstance(t, AbstractSequence):
             for _ in range(times):
                 n = self.count(what)
+                if n > self.end - self.pos:  # what rosidl checks, and prints about
+                    raise _Bad(f"{what} says {n} elements, more than the {self.end - self.pos} bytes left")
                 if isinstance(t, BoundedSequence) and n > t.maximum_size:
                     raise _Bad(f"{what} has {n} elements, at most {t.maximum_size} allowed")
                 self.value(t.value_type, what, n)
@@ -114,4 +116,6 @@ def cdr_problem(data: bytes, msg_type) -> str | None:
         _Walk(data).message(_fields(msg_type))
     except _Bad as exc:
         return str(exc)
+    except _Stop:
+        return None  # rosidl refuses it without a word on stderr: its error names the rest
     return None

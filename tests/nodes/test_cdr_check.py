@@ -56,13 +56,15 @@ def test_valid_messages_walk_and_malformed_ones_are_refused_quietly(topic):
                     pass
     assert decoded + refused == len(payloads) and refused > 0
     assert err.text.strip() == "", err.text[:300]
-    # the walk is no stricter than rosidl: what rosidl reads on its own, it lets through
-    with CapturedStderr():
-        for p in payloads:
+    # the walk is no stricter than rosidl: what rosidl reads on its own without a word, it lets
+    # through (rosidl ignores a nested message's failure: it prints, and returns the message half read)
+    for p in payloads:
+        with CapturedStderr() as one:
             try:
                 deserialize_message(p, msg_type)
             except Exception:  # noqa: BLE001
                 continue
+        if not one.text.strip():
             assert cdr_problem(p, msg_type) is None
 
 
