@@ -98,3 +98,47 @@ def test_lost_loop_messages_are_recovered_with_the_same_samples(ros, pipeline):
     assert lossy["resends"] >= lost and repeated >= 1
     print(f"lead {int(pipeline)}: {lost} loop messages dropped, {lossy['resends']} resends, {repeated} answers "
           f"repeated, {lossy['duplicate_answers']} duplicates; records identical ({rec.shape[0]} samples)")
+
+
+class Flood(Node):
+    """Publishes, unpaced, a few thousand malformed and foreign messages on each subscribed topic."""
+
+    def __init__(self, context, ns: str):
+        super().__init__("flood", namespace=ns, context=context)
+        from test_fuzz import QOS, TYPES
+        self.topics = ("control_current", "displacement", "excitation", "excitation/design", "status")
+        self.pubs = {t: self.create_publisher(TYPES[t], t, QOS[t]) for t in self.topics}
+
+    def send(self, n: int) -> int:
+        from test_fuzz import Fuzzer
+        f, sent = Fuzzer(7), 0
+        for t in self.topics:
+            # indices in the past (near = 1): a valid design or block for a passed sample is refused
+            for p in f.payloads(t, n, 1):
+                self.pubs[t].publish(p)
+                sent += 1
+        return sent
+
+
+def test_a_flood_on_every_subscribed_topic_changes_no_sample(ros):
+    """Composed, the pump's layout: 5 x 1000 unpaced messages mid-session, the records bit-identical."""
+    clean, _, (ref, ref_flags), _ = run_loop(ros, True)
+    ns = "/clean"
+    flood = ros.add(Flood(ros.context, ns))
+    blocks = ros.add(Blocks(ros.context, ns))
+    plant = ros.add(PlantSim(namespace=ns, context=ros.context, parameter_overrides=[
+        Parameter("sim_seconds", value=SIM_S), Parameter("seed", value=3)]))
+    ctrl = ros.add(PositionController(namespace=ns, context=ros.context))
+    assert ros.spin_until(lambda: plant.k >= 2000, 60)
+    sent = flood.send(1000)
+    assert ros.spin_until(plant.finished.done, timeout_s=120)
+    assert ros.spin_until(lambda: sum(deserialize_message(b, SampleBlock).n_samples for b in blocks.raw) == ref.shape[0],
+                          10)
+    s = plant.finished.result()
+    rec, flags = blocks.records()
+    assert s["state"] == "done" and s["levitated"], s
+    assert np.array_equal(rec.view(np.uint64), ref.view(np.uint64)) and np.array_equal(flags, ref_flags)
+    rejected = plant.intake.total_rejected + ctrl.intake.total_rejected
+    print(f"flood of {sent} messages during the session: {rejected} rejected by plant and controller, "
+          f"{s['resends']} resends; records identical")
+    assert sent == 5000 and rejected > 0
