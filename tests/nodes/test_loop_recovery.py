@@ -16,7 +16,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
 
-from ambid_msgs.msg import Sample, SampleBlock
+from ambid_msgs.msg import Sample, SampleBlock, SessionStatus
 from ambid_nodes import qos
 
 SIM_S = 0.6  # 6000 samples: lift-off and settling
@@ -108,13 +108,15 @@ class Flood(Node):
         from test_fuzz import QOS, TYPES
         self.topics = ("control_current", "displacement", "excitation", "excitation/design", "status")
         self.pubs = {t: self.create_publisher(TYPES[t], t, QOS[t]) for t in self.topics}
-
-    def send(self, n: int) -> int:
         from test_fuzz import Fuzzer
-        f, sent = Fuzzer(7), 0
+        f = Fuzzer(7)
+        # made before the session: indices in the past (near = 1), where a valid design or block is refused
+        self.payloads = {t: f.payloads(t, 1000, 1) for t in self.topics}
+
+    def send(self) -> int:
+        sent = 0
         for t in self.topics:
-            # indices in the past (near = 1): a valid design or block for a passed sample is refused
-            for p in f.payloads(t, n, 1):
+            for p in self.payloads[t]:
                 self.pubs[t].publish(p)
                 sent += 1
         return sent
@@ -130,7 +132,7 @@ def test_a_flood_on_every_subscribed_topic_changes_no_sample(ros):
         Parameter("sim_seconds", value=SIM_S), Parameter("seed", value=3)]))
     ctrl = ros.add(PositionController(namespace=ns, context=ros.context))
     assert ros.spin_until(lambda: plant.k >= 2000, 60)
-    sent = flood.send(1000)
+    sent = flood.send()
     assert ros.spin_until(plant.finished.done, timeout_s=120)
     assert ros.spin_until(lambda: sum(deserialize_message(b, SampleBlock).n_samples for b in blocks.raw) == ref.shape[0],
                           10)
@@ -142,3 +144,68 @@ def test_a_flood_on_every_subscribed_topic_changes_no_sample(ros):
     print(f"flood of {sent} messages during the session: {rejected} rejected by plant and controller, "
           f"{s['resends']} resends; records identical")
     assert sent == 5000 and rejected > 0
+
+
+def test_a_flood_between_processes_changes_no_sample(ros, ros_env):
+    """plant_sim and position_controller as processes (graph --processes), flooded from a third
+    process mid-session: levitated, and the samples of the composed run without a flood."""
+    import os
+    import subprocess
+    import sys
+
+    from ambid_nodes.graph import ros_args
+    _, _, (ref, ref_flags), _ = run_loop(ros, True)
+    ns = "/procs"
+    blocks = ros.add(Blocks(ros.context, ns))
+    flood = ros.add(Flood(ros.context, ns))
+    env = dict(ros_env)
+    cwd = os.path.join(os.path.dirname(__file__), "..", "..", "ambid_nodes")
+
+    def start(mod: str, params: dict) -> subprocess.Popen:
+        return subprocess.Popen([sys.executable, "-m", f"ambid_nodes.{mod}", *ros_args(ns, params)], env=env,
+                                cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+
+    # the plant first, and the controller once this process hears the plant: the loop cannot start
+    # (and its first blocks go out) before the recording listener is matched
+    procs = [start("plant_sim", {"sim_seconds": SIM_S, "seed": 3})]
+    topic = blocks.resolve_topic_name("measurement")
+    try:
+        assert ros.spin_until(lambda: blocks.count_publishers(topic) >= 1, 30)
+        procs.insert(0, start("position_controller", {}))
+        n = ref.shape[0]
+        got = lambda: sum(deserialize_message(b, SampleBlock).n_samples for b in blocks.raw)  # noqa: E731
+        statuses = []
+        blocks.create_subscription(SessionStatus, "status", lambda m: statuses.append(
+            (m.node, m.state, m.text, dict(zip(m.keys, m.values)))), qos.subscription(qos.STATUS))
+
+        def wait(predicate, timeout_s: float, what: str) -> None:
+            if not ros.spin_until(predicate, timeout_s):
+                for p in procs:
+                    p.kill()
+                tails = [p.communicate()[1][-1500:] for p in procs]
+                raise AssertionError(f"{what}: {got()} samples recorded; status {statuses[-4:]}; stderr: {tails}")
+
+        wait(lambda: got() >= 2000, 60, "the loop levitates")
+        sent = flood.send()
+        wait(lambda: got() == n, 120, "the loop runs to its end under the flood")
+        errs = [procs[1].communicate(timeout=30)[1]]  # the plant exits by itself once its run is done
+        assert procs[1].returncode == 0, errs[0][-2000:]
+        procs[0].terminate()
+        errs.append(procs[0].communicate(timeout=20)[1])
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+                p.communicate()
+    rec, flags = blocks.records()
+    assert np.array_equal(rec.view(np.uint64), ref.view(np.uint64)) and np.array_equal(flags, ref_flags)
+    assert sent == 5000
+    assert ros.spin_until(lambda: any(st[0].endswith("plant_sim") and st[1] == SessionStatus.STATE_DONE
+                                      for st in statuses), 5)
+    final = next(st[3] for st in statuses[::-1] if st[0].endswith("plant_sim"))
+    assert int(final["rejected:control_current"]) > 0 and int(final["rejected:excitation"]) > 0, final
+    print(f"processes: flood of {sent}, the plant rejected {final['rejected:control_current']} control_current, "
+          f"{final['rejected:excitation']} excitation, asked again {final['resends']} times; records identical")
+    # nothing unattributed on stderr: every line a node's log line (rosidl's refusals are walked first)
+    stray = [line for e in errs for line in e.splitlines() if line.strip() and not line.startswith("[")]
+    assert not stray, "\n".join(stray[:40])
