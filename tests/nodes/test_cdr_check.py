@@ -4,6 +4,7 @@ so nothing unattributed reaches stderr ("sequence size exceeds remaining buffer"
 from __future__ import annotations
 
 import os
+import re
 import tempfile
 
 import pytest
@@ -55,7 +56,9 @@ def test_valid_messages_walk_and_malformed_ones_are_refused_quietly(topic):
                 except Exception:  # noqa: BLE001
                     pass
     assert decoded + refused == len(payloads) and refused > 0
-    assert err.text.strip() == "", err.text[:300]
+    # (rcutils warns when an earlier test left an error state that a quiet refusal overwrites: not rosidl's)
+    text = re.sub(r">>> \[rcutils\|error_handling.*?<<<", "", err.text, flags=re.S)
+    assert text.strip() == "", text[:300]
     # the walk is no stricter than rosidl: what rosidl reads on its own without a word, it lets
     # through (rosidl ignores a nested message's failure: it prints, and returns the message half read)
     for p in payloads:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from ambid_nodes.conversions import block_data
+from ambid_nodes.conversions import BadMessage, block_data, decode_message
 from ambid_nodes.plant_sim import MEASUREMENT_NAMES, PlantSim
 from ambid_nodes.position_controller import PositionController
 from rclpy.node import Node
@@ -175,8 +175,15 @@ def test_a_flood_between_processes_changes_no_sample(ros, ros_env):
         n = ref.shape[0]
         got = lambda: sum(deserialize_message(b, SampleBlock).n_samples for b in blocks.raw)  # noqa: E731
         statuses = []
-        blocks.create_subscription(SessionStatus, "status", lambda m: statuses.append(
-            (m.node, m.state, m.text, dict(zip(m.keys, m.values)))), qos.subscription(qos.STATUS))
+
+        def on_status(data: bytes) -> None:  # raw: the flood's malformed status must not reach rosidl here
+            try:
+                m = decode_message(data, SessionStatus, "status")
+            except BadMessage:
+                return
+            statuses.append((m.node, m.state, m.text, dict(zip(m.keys, m.values))))
+
+        blocks.create_subscription(SessionStatus, "status", on_status, qos.subscription(qos.STATUS), raw=True)
 
         def wait(predicate, timeout_s: float, what: str) -> None:
             if not ros.spin_until(predicate, timeout_s):
