@@ -17,6 +17,7 @@ from rclpy.serialization import deserialize_message
 
 from ambid_msgs.msg import SampleBlock, SessionStatus
 from ambid_msgs.msg import StateSpace as StateSpaceMsg
+from ambid_nodes.cdr_check import cdr_problem
 
 
 class BadMessage(ValueError):
@@ -42,7 +43,12 @@ def decode_message(data: bytes, msg_type, what: str):
 
     A typed rclpy subscription drops a message that fails to deserialize without
     telling the node; subscribing raw and decoding here lets the node count it.
+    The bytes are walked first (:func:`ambid_nodes.cdr_check.cdr_problem`): rosidl's
+    deserializer writes some of its refusals to stderr, unattributed.
     """
+    problem = cdr_problem(data, msg_type)
+    if problem is not None:
+        raise BadMessage(f"{what}: {len(data)} bytes that do not decode as {msg_type.__name__} ({problem})")
     try:
         return deserialize_message(data, msg_type)
     except Exception as exc:  # noqa: BLE001 - rclpy raises RMWError and others for undecodable bytes

@@ -30,6 +30,7 @@ from typing import Callable
 import numpy as np
 from rclpy.node import Node
 
+from ambid_nodes import qos
 from ambid_nodes.conversions import BadMessage, decode_message
 
 EVENT_BURST = 50       # rejection events reported back to back
@@ -109,7 +110,7 @@ class Intake:
                 return
             tally.accepted += 1
 
-        return self.node.create_subscription(msg_type, topic, on_raw, qos_profile, raw=True)
+        return self.node.create_subscription(msg_type, topic, on_raw, qos.subscription(qos_profile), raw=True)
 
     # for hand-written raw handlers (the lock-step loop): accept or reject each message exactly once
     def tally(self, topic: str) -> Tally:

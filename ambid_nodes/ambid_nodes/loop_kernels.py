@@ -225,7 +225,10 @@ CK_MAT = 9  # step-matrix offset in the work vector
 CK_LIMIT = 10  # output saturation [A], the bits of a float64
 CK_LEAD = 11  # the answer to y[k] is ic[k + lead]
 CK_STATUS_EVERY = 12  # answering y[k] with k % status_every == 0 returns CONTROLLER_STATUS (0: never)
-N_CK = 13
+# the answers to the last two displacements: the answer to y[k] is packed into slot k % 2 (uint8, 52
+# bytes each), which LOOP_OUT then names; a plant that asks again for y[k] or y[k - 1] gets it re-sent
+CK_SLOTS = 13  # slot 0 (address, length), then slot 1 at CK_SLOTS + 2
+N_CK = 17
 CONTROLLER_ANSWERED = LOOP_DONE
 CONTROLLER_STATUS = 2  # answered, and the node has a status to publish
 
@@ -276,7 +279,11 @@ def plant_kernel(data, size, k, c):
 @numba.cfunc(LOOP_KERNEL, cache=True)
 def controller_kernel(data, size, k, c):
     """answer_sample4 on the buffers of context c (CK_*), for the Sample y[k] in data[:size];
-    CONTROLLER_STATUS instead of CONTROLLER_ANSWERED where a status is due."""
+    CONTROLLER_STATUS instead of CONTROLLER_ANSWERED where a status is due. The answer goes to
+    answer slot k % 2 (CK_SLOTS), which LOOP_OUT names from then on."""
+    slot = CK_SLOTS + 2 * (k & 1)
+    c[LOOP_OUT] = c[slot]
+    c[LOOP_OUT + 1] = c[slot + 1]
     code = answer_sample4(_f8(c, CK_WORK), c[CK_N], c[CK_MAT], _float_bits(c[CK_LIMIT]), numba.carray(data, size),
                           k, c[CK_LEAD], _u8(c, LOOP_OUT))
     every = c[CK_STATUS_EVERY]

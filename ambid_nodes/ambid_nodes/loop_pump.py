@@ -21,6 +21,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.serialization import serialize_message
 from rclpy.type_support import check_for_type_support
 
+from ambid_nodes import qos
 from ambid_nodes.loop_call import BoundKernel
 
 try:
@@ -88,7 +89,8 @@ class LoopEntry:
                  kernel: BoundKernel, handler: Callable[[bytes, int], None]) -> None:
         check_for_type_support(msg_type)
         with node.handle:  # as Node.create_subscription does, without handing it to the executor
-            self.subscription = _rclpy.Subscription(node.handle, msg_type, topic, qos_profile.get_c_qos_profile())
+            self.subscription = _rclpy.Subscription(node.handle, msg_type, topic,
+                                                     qos.subscription(qos_profile).get_c_qos_profile())
         self._kick_pub = node.create_publisher(msg_type, KICK_TOPIC, KICK_QOS)
         self._kick_sub = node.create_subscription(msg_type, KICK_TOPIC, self._resume, KICK_QOS, raw=True)
         # entering an rclpy handle defers its destruction until the matching exit: the pump's

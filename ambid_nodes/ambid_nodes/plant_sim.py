@@ -22,6 +22,13 @@ ahead, or has the wrong channels, sample period or non-finite values; a design
 if it is inconsistent, at another sample rate, starts in the past or overlaps
 another experiment.
 
+Recovery. Where the loop stands still for ``resend_after`` (20 ms) of wall
+time waiting for the controller, the plant sends y[k - 1] and y[k] again;
+the controller answers the one it missed and repeats the answers it gave,
+so a lost displacement or current costs milliseconds and the samples are
+the same as without the loss (``resends`` and ``duplicate_answers`` in
+``status`` and the summary).
+
 Controller supervision. In lock-step the plant cannot advance past a sample
 whose answer has not arrived, so a dead or stalled controller is detected at
 that very sample: the detection latency is 0 samples of simulated time, and
@@ -122,6 +129,10 @@ class PlantSim(Node):
         self.exc_timeout = declare(self, "excitation_timeout", 5.0,
                                    "wall time waiting for an excitation block a design says is due before the "
                                    "session fails", 0.01, 3600.0, "s")
+        self.resend_after = declare(self, "resend_after", 0.02,
+                                    "wall time the loop may stand still before the plant sends y[k - 1] and y[k] "
+                                    "again (a lost message is recovered; the controller answers them again)",
+                                    0.001, 60.0, "s")
         self.horizon = declare(self, "excitation_horizon", 1_000_000,
                                "most samples an excitation block may lie ahead of the plant (memory bound)",
                                1, 1_000_000_000)
@@ -199,6 +210,12 @@ class PlantSim(Node):
         self.publish_description()
         self.start_timer = self.create_timer(0.05, self.try_start)
         self.watchdog = self.create_timer(min(0.1, self.timeout / 2), self.check_controller)
+        # recovery of a lost loop message: no clock is read per sample; this timer sees the loop stand still
+        self.resends = 0  # times the plant asked again
+        self.duplicate_answers = 0  # answers that came twice because it asked again
+        self.resent_k = 2**62  # the sample k it last asked again at (none yet)
+        self.resend_watch_k = -1
+        self.resend_timer = self.create_timer(self.resend_after, self.resend_if_stalled)
         self.status_received = -1
         self.create_timer(STATUS_PERIOD_S, self.status_when_idle)
 
@@ -309,6 +326,10 @@ class PlantSim(Node):
         intake = self.intake
         if self.state == DONE and index == self.k and not self.ic_ready:
             intake.accept("control_current")  # a pipelined controller's current for the sample after the run
+            return
+        if running and self.resent_k - 1 <= index < nxt:
+            intake.accept("control_current")  # the second answer to a sample asked for again: already applied
+            self.duplicate_answers += 1
             return
         if not running:
             why = "the plant has not started" if self.state == IDLE else "the session has ended"
@@ -462,6 +483,26 @@ class PlantSim(Node):
         self.run_ready()
 
     # --- supervision ------------------------------------------------------
+    def resend_if_stalled(self) -> None:
+        """Ask again where the loop stood still for a whole ``resend_after`` period waiting for the
+        controller: send y[k - 1] and y[k] again, as first sent. Whichever of them, or of the answers,
+        was lost, the controller answers the one it has not seen and repeats the answers it gave
+        (ic[k] answers y[k] or, pipelined, y[k - 1]), so the loop goes on with the very numbers it
+        would have had: a lost message costs one to two ``resend_after`` periods, nothing else."""
+        k = self.k
+        if self.state != RUNNING or self.ic_ready or k == 0:  # not waiting for the controller (k = 0: the start)
+            self.resend_watch_k = -1
+            return
+        if k != self.resend_watch_k:
+            self.resend_watch_k = k
+            return
+        self.resends += 1
+        self.resent_k = k
+        row = k - 1 - self.buf_start
+        prev = self.rec[row if row >= 0 else self.block_size - 1]  # y[k - 1]: the previous block's last row
+        self.publish_y_raw(encode_sample4(k - 1, *prev[0:4]))
+        self.publish_y_raw(encode_sample4(k, *self.cur[0:4]))
+
     def check_controller(self) -> None:
         if self.state != RUNNING or self.last_answer_wall is None:
             return
@@ -544,6 +585,7 @@ class PlantSim(Node):
                 "samples_per_wall_s": self.k / wall if wall > 0 else 0.0,
                 "messages_received": self.intake.total_received, "messages_rejected": self.intake.total_rejected,
                 "clipped_samples": self.clipped_samples, "controller_lost_after_s": self.controller_lost_after_s,
+                "resends": self.resends, "duplicate_answers": self.duplicate_answers,
                 **self.intake.figures()}
 
     def status_when_idle(self) -> None:
@@ -571,6 +613,7 @@ class PlantSim(Node):
         self.event(SessionEvent.INFO, "finished", json.dumps(self.summary))
         self.start_timer.cancel()
         self.watchdog.cancel()
+        self.resend_timer.cancel()
         self.finished.set_result(self.summary)
 
 

@@ -20,7 +20,10 @@ A displacement message with the wrong channel count or a NaN is rejected
 leaves its state untouched, so one bad sample cannot destabilise the loop. A
 displacement for any index but the awaited one (stale, repeated, ahead, out of
 range) is rejected and changes nothing; a session starts at index 0 (a plant
-that re-sends y[0] before the loop moved on gets the same answer again). Every
+that re-sends y[0] before the loop moved on gets the same answer again). A plant
+that asks again for one of the last two displacements (its ``resend_after`` wait
+passed: an answer or a displacement was lost) gets the answer already given,
+byte for byte, without a second step (``answers_repeated`` in ``status``). Every
 received message is counted per topic in ``status`` (``ambid_nodes.intake``).
 
 Plant supervision. Once the loop runs, a plant silent for ``plant_timeout``
@@ -54,7 +57,8 @@ from ambid_nodes import qos
 from ambid_nodes.conversions import BadMessage, statespace_to_msg, status_msg, time_msg
 from ambid_nodes.intake import Intake
 from ambid_nodes.loop_call import BoundKernel, ContextWord
-from ambid_nodes.loop_kernels import (CK_LEAD, CK_LIMIT, CK_MAT, CK_N, CK_STATUS_EVERY, CK_WORK, CONTROLLER_STATUS,
+from ambid_nodes.loop_kernels import (CK_LEAD, CK_LIMIT, CK_MAT, CK_N, CK_SLOTS, CK_STATUS_EVERY, CK_WORK,
+                                      CONTROLLER_STATUS,
                                       LOOP_COUNT, LOOP_GATE, LOOP_K, LOOP_LIMIT, LOOP_NO_LIMIT, LOOP_OUT, N_CK,
                                       controller_kernel, sample4_buffer)
 from ambid_nodes.loop_pump import GatingState, LoopEntry
@@ -116,8 +120,13 @@ class PositionController(Node):
         # the compiled path: loop_kernels.controller_kernel on the stepper's work vector (bound again
         # with each session's stepper), run on each displacement by the loop pump while a session runs
         self.fast = BoundKernel(controller_kernel, N_CK)
-        self.out = sample4_buffer()  # the compiled path's answer, published as it is
-        self.fast.bind(LOOP_OUT, self.out, np.uint8)
+        # the answers to the last two displacements, y[k]'s in slot k % 2, published as they are; both
+        # paths write them, so a plant asking again for y[k] gets the very bytes it missed
+        self.slots = (sample4_buffer(), sample4_buffer())
+        self.fast.bind(CK_SLOTS, self.slots[0], np.uint8)
+        self.fast.bind(CK_SLOTS + 2, self.slots[1], np.uint8)
+        self.fast.bind(LOOP_OUT, self.slots[0], np.uint8)  # the kernel names the slot of each answer
+        self.answers_repeated = 0  # displacements the plant sent again, answered again without a step
         self.fast.set(LOOP_LIMIT, LOOP_NO_LIMIT)
         self.fast.set(CK_LEAD, self.lead)
         self.fast.set(CK_STATUS_EVERY, STATUS_EVERY)
@@ -165,8 +174,9 @@ class PositionController(Node):
         while no session runs."""
         if code == CONTROLLER_STATUS:  # answered, and a status is due
             self.y_tally.accepted += 1
-            self.expected += 1
-            self.publish_ic(self.out)
+            k = self.expected
+            self.expected = k + 1
+            self.publish_ic(self.slots[k & 1])
             self.publish_status()
             return
         self.on_displacement_checked(data)
@@ -191,6 +201,7 @@ class PositionController(Node):
             ic = self.step(*y)
         self.expected = k + 1
         answer = encode_sample4(k + self.lead, *ic)
+        self.slots[k & 1][:] = answer
         self.publish_ic(answer)
         if k == 0:
             self.first_answers.append(answer)
@@ -207,9 +218,19 @@ class PositionController(Node):
         intake = self.intake
         if k == 0 and running and self.expected == 1 and y is not None:
             intake.accept("displacement")  # the plant did not hear our answer yet: the same again
+            self.answers_repeated += 1
             for answer in self.first_answers:
                 self.publish_ic(answer)
             return False
+        if running and y is not None and self.expected - 2 <= k < self.expected:
+            # the plant asks again (its answer, or a displacement, was lost): the answer already given,
+            # from its slot, without stepping twice
+            slot = self.slots[k & 1]
+            if int.from_bytes(slot[4:12], "little") == k + self.lead:
+                intake.accept("displacement")
+                self.answers_repeated += 1
+                self.publish_ic(slot)
+                return False
         if k == 0 and not running:
             self.start_session()
             return True
@@ -309,7 +330,8 @@ class PositionController(Node):
     def publish_status(self) -> None:
         self.status_received = self.status_signature()
         k = max((self.expected or 1) - 1, 0)
-        f = {"plant_timeout_s": self.timeout, "lost_at": self.lost_at, **self.intake.figures()}
+        f = {"plant_timeout_s": self.timeout, "lost_at": self.lost_at, "answers_repeated": self.answers_repeated,
+             **self.intake.figures()}
         states = {SessionStatus.STATE_IDLE: "idle", SessionStatus.STATE_RUNNING: "running",
                   SessionStatus.STATE_DONE: "done", SessionStatus.STATE_FAILED: "failed: plant lost"}
         self.pub_status.publish(status_msg(

@@ -19,3 +19,18 @@ EVENTS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=Rel
 # /clock as ROS publishes it
 CLOCK = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT,
                    durability=DurabilityPolicy.VOLATILE)
+
+
+def subscription(profile: QoSProfile) -> QoSProfile:
+    """The profile an ambid node subscribes with: ``profile``'s reliability and durability, KEEP_ALL.
+
+    A KEEP_LAST reader history drops its oldest unread message when a burst
+    overflows it: a flood of foreign messages on a loop topic pushed the
+    genuine y[k] or ic[k] out of a depth of 100 before the node took it, and the
+    lock-step loop waited for it until its 2 s timeout. KEEP_ALL keeps every
+    message until the node takes it; a full history (Fast DDS's resource limits)
+    makes a reliable writer wait and send again, so a flood slows the node down
+    and loses nothing of a reliable publisher.
+    """
+    return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=profile.reliability,
+                      durability=profile.durability)

@@ -315,6 +315,9 @@ def run_identify(cfg: SessionConfig) -> dict:
         "layout": run["layout"],
         "state": run["plant"]["state"],
         "levitated": run["plant"]["levitated"],
+        # lost loop messages the plant asked for again, and the answers that then came twice
+        "loop_recovery": {"resends": run["plant"].get("resends", 0),
+                          "duplicate_answers": run["plant"].get("duplicate_answers", 0)},
         "live_frf": run["live_frf"],
         **offline,
         "recording": {"path": run["mcap_path"], "messages": rec.get("messages", rec.get("message_count")),

@@ -126,7 +126,10 @@ def gap_ranges(spy):
             for e in spy.codes("sample_gap")]
 
 
-def test_lossless_session_over_udp_records_the_plant_sim_rows(ros, tmp_path):
+@pytest.mark.parametrize("flood", [False, True], ids=["quiet", "flooded"])
+def test_lossless_session_over_udp_records_the_plant_sim_rows(ros, tmp_path, flood):
+    """flooded (issue 21): right behind the genuine design and blocks, 2 x 2000 malformed and foreign
+    messages on excitation and excitation/design, unpaced: the same rows, bit for bit."""
     assert MEASUREMENT_NAMES == PLANT_SIM_NAMES and EXCITATION_NAMES == ("r_a_x", "r_b_x", "r_a_y", "r_b_y")
     spy = ros.add(Spy(ros.context))
     bridge, target, local = start_bridge(ros)
@@ -145,6 +148,13 @@ def test_lossless_session_over_udp_records_the_plant_sim_rows(ros, tmp_path):
                         channel_units=["A"] * 4)
         m.data = r[off:off + 500].ravel()
         spy.pub_exc.publish(m)
+    if flood:
+        from test_fuzz import Fuzzer
+        f = Fuzzer(21)
+        for topic, pub in (("excitation", spy.pub_exc), ("excitation/design", spy.pub_design)):
+            for p in f.payloads(topic, 2000, 2**39):  # indices far beyond the session, or malformed
+                pub.publish(p)
+        assert ros.spin_until(lambda: bridge.intake.received["excitation"] >= 1000, timeout_s=30)
     assert ros.spin_until(lambda: sum(len(c[0]) for c in bridge.exc_chunks.values()) == length, timeout_s=10)
     proc = subprocess.Popen([sys.executable, "-m", "ambid.hardware.rt_target", "--bind", target, "--bridge", local,
                              "--seed", str(seed), "--pace", "1", "--samples", str(n), "--linger", "0.3"],

@@ -13,7 +13,7 @@ from ambid.control.pid import PidParameters, pid_controller
 from ambid.control.stepper import ControllerStepper
 from ambid.plant.rig import make_rig
 from ambid_nodes.loop_call import BoundKernel
-from ambid_nodes.loop_kernels import (CK_LEAD, CK_LIMIT, CK_MAT, CK_N, CK_WORK, LOOP_OUT, N_CK, N_PK, PK_BLOCK_START,
+from ambid_nodes.loop_kernels import (CK_LEAD, CK_LIMIT, CK_MAT, CK_N, CK_SLOTS, CK_WORK, LOOP_OUT, N_CK, N_PK, PK_BLOCK_START,
                                       PK_CLOCK_EVERY, PK_FREE_UNTIL, PK_LOOP, PK_R, PK_R_FIRST, PK_WORK,
                                       controller_kernel, plant_kernel, sample4_buffer)
 from ambid_nodes.sample_codec import encode_sample, encode_sample4
@@ -30,7 +30,8 @@ def controller_call(stepper: ControllerStepper, ahead: bool, out: bytearray):
     w, n, mat, limit = stepper.kernel_args(ahead)
     fast = BoundKernel(controller_kernel, N_CK)
     fast.bind(CK_WORK, w, np.float64)
-    fast.bind(LOOP_OUT, out, np.uint8)
+    fast.bind(CK_SLOTS, out, np.uint8)  # both answer slots: every answer lands in out
+    fast.bind(CK_SLOTS + 2, out, np.uint8)
     fast.set(CK_N, n)
     fast.set(CK_MAT, mat)
     fast.set_float(CK_LIMIT, limit)

@@ -59,6 +59,8 @@ def run(args: argparse.Namespace) -> int:
           f"(max {summary['max_abs_displacement_m'] * 1e6:.2f} um after lift-off, "
           f"lift-off at sample {summary['lift_off_index']})")
     print(f"rejected messages: {summary['messages_rejected']}")
+    if summary.get("resends"):
+        print(f"lost loop messages recovered: the plant asked again {summary['resends']} times")
     ok = summary["state"] == "done" and summary["levitated"]
     print("rotor levitated" if ok else "rotor NOT levitated: the session failed")
     return 0 if ok else 1
