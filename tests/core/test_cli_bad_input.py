@@ -234,3 +234,47 @@ def test_import_and_export_options(files, capsys):
     assert code == 2 and "--out" in _one_line(res.err, "import", files["good"])
     code, res = _run(["export", files["good"], "--format", "csv", "--out", str(d)], capsys)
     assert code == 2 and "is a folder" in _one_line(res.err, "export", str(d))
+
+
+# a rig file's rotor_file: and controller: entries, and --controller FILE, naming a file that cannot be read:
+# the command's one line names that file (the rig is loaded before anything starts)
+ENTRY_REFUSAL = {"missing": "does not exist", "folder": "is a folder", "empty": "is empty",
+                 "random": r"is not an \.npz file|is not a MATLAB \.mat file",
+                 "truncated": r"is not an \.npz file|damaged or cut short"}
+
+
+@pytest.mark.parametrize("kind", list(ENTRY_REFUSAL))
+@pytest.mark.parametrize("entry", ["rotor_file", "controller", "--controller"])
+@pytest.mark.parametrize("ext", [".npz", ".mat"])
+def test_rotor_and_controller_files_that_cannot_be_read(files, entry, kind, ext, capsys):
+    d = files["dir"] / "entries" / f"{entry}-{kind}{ext}"
+    d.mkdir(parents=True)
+    bad = d / f"model{ext}"
+    if kind == "folder":
+        bad.mkdir()
+    elif kind != "missing":
+        good = np.random.default_rng(3).standard_normal((40, 40))
+        buf = d / f"good{ext}"
+        if ext == ".npz":
+            np.savez(buf, M=good, K=good)
+        else:
+            from scipy import io as sio
+            sio.savemat(buf, {"M": good, "K": good})
+        data = buf.read_bytes()
+        bad.write_bytes({"empty": b"", "random": np.random.default_rng(4).bytes(3000),
+                         "truncated": data[:len(data) // 2]}[kind])
+    out = d / "model.txt"
+    if entry == "--controller":
+        argv = ["target-model", "--controller", str(bad), "--out", str(out)]
+    else:
+        rig = d / "rig.yaml"
+        rig.write_text(f"{entry}: {bad.name}\n")
+        argv = ["target-model", "--rig", str(rig), "--out", str(out)]
+    code, res = _run(argv, capsys)
+    assert code == 2 and not out.exists()
+    if entry == "--controller" and kind in ("missing", "folder"):  # argparse's check of the option value
+        errors = [ln for ln in res.err.splitlines() if "error:" in ln]
+        assert len(errors) == 1 and "--controller" in errors[0] and str(bad) in errors[0]
+        return
+    line = _one_line(res.err, "target-model", str(bad))
+    assert re.search(ENTRY_REFUSAL[kind], line), line

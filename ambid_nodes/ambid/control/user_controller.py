@@ -23,10 +23,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from scipy import io as sio
 from scipy import signal
 
+from ambid.array_file import read_arrays
 from ambid.channels import CURRENT_NAMES, DISPLACEMENT_NAMES
 from ambid.statespace import StateSpace, block_diag
 
@@ -34,25 +34,7 @@ FIX = "give A, B, C, D and dt (or num, den and dt) of a discrete y [m] -> ic [A]
 
 
 def _read(path: Path) -> dict[str, Any]:
-    suffix = path.suffix.lower()
-    try:
-        if suffix == ".npz":
-            with np.load(path, allow_pickle=False) as z:
-                data = {k: z[k] for k in z.files}
-        elif suffix == ".mat":
-            data = {k: v for k, v in sio.loadmat(path, squeeze_me=False).items() if not k.startswith("__")}
-        elif suffix in (".yaml", ".yml"):
-            data = yaml.safe_load(path.read_text(encoding="utf-8"))
-            if not isinstance(data, dict):
-                raise ValueError("it holds no mapping of key: value")
-        else:
-            raise ValueError(f"'{suffix}' is not a controller file type (.npz, .mat, .yaml)")
-    except FileNotFoundError:
-        raise ValueError(f"controller file {path} does not exist; {FIX}") from None
-    except IsADirectoryError:
-        raise ValueError(f"controller file {path} is a folder; {FIX}") from None
-    except (ValueError, OSError, UnicodeDecodeError, yaml.YAMLError, NotImplementedError) as exc:
-        raise ValueError(f"controller file {path} cannot be read ({exc}); {FIX}") from None
+    data = read_arrays(path, "controller file", FIX, (".npz", ".mat", ".yaml", ".yml"))
     return {str(k).lower(): v for k, v in data.items()}
 
 
@@ -73,7 +55,10 @@ def _matrix(data: dict, key: str, path: Path, ndim: int = 2) -> np.ndarray:
 def _scalar(data: dict, keys: tuple[str, ...], path: Path) -> float:
     for k in keys:
         if k in data:
-            v = np.asarray(data[k], dtype=float).ravel()
+            try:
+                v = np.asarray(data[k], dtype=float).ravel()
+            except (TypeError, ValueError):
+                v = np.zeros(0)
             if v.size == 1 and np.isfinite(v[0]) and v[0] > 0:
                 return float(v[0])
             raise ValueError(f"controller file {path}: '{k}' must be one positive number of seconds")

@@ -132,6 +132,8 @@ def controller(text: str) -> str:
     if text == "" or text in CONTROLLER_KINDS:  # "": the rig file's controller, else pid
         return text
     if is_controller_file(text):
+        if Path(text).is_dir():
+            raise argparse.ArgumentTypeError(f"controller file {text} is a folder; give the file in it")
         if not Path(text).is_file():
             raise argparse.ArgumentTypeError(f"controller file {text} does not exist")
         return str(Path(text).resolve())
