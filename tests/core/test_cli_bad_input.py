@@ -5,6 +5,7 @@ starts ROS: a bad input stops a command before its graph does."""
 
 from __future__ import annotations
 
+import os
 import re
 
 import numpy as np
@@ -278,3 +279,23 @@ def test_rotor_and_controller_files_that_cannot_be_read(files, entry, kind, ext,
         return
     line = _one_line(res.err, "target-model", str(bad))
     assert re.search(ENTRY_REFUSAL[kind], line), line
+
+
+def test_export_keeps_what_is_there_and_names_what_import_could_not_read(files, capsys):
+    d = files["dir"] / "export_checks"
+    d.mkdir()
+    mine = d / "rig.csv"
+    mine.write_text("a rig's own record\n")
+    code, res = _run(["export", files["good"], "--format", "csv", "--out", str(mine)], capsys)
+    assert code == 2 and "--overwrite" in _one_line(res.err, "export", str(mine))
+    assert mine.read_text() == "a rig's own record\n" and sorted(p.name for p in d.iterdir()) == ["rig.csv"]
+    code, res = _run(["export", files["good"], "--format", "mat", "--out", str(d / "r.csv")], capsys)
+    assert code == 2 and "give --out ending in .mat" in _one_line(res.err, "export", "r.csv")
+    code, res = _run(["export", files["good"], "--format", "npz", "--out", str(d / "r.npz"), "--experiment", "x"],
+                     capsys)
+    assert code == 2 and re.search(r"no experiment 'x' \(it has \S+\)", _one_line(res.err, "export", "'x'"))
+    assert sorted(p.name for p in d.iterdir()) == ["rig.csv"]
+    code, _ = _run(["export", files["good"], "--format", "csv", "--out", str(mine), "--overwrite"], capsys)
+    umask = os.umask(0)
+    os.umask(umask)
+    assert code == 0 and mine.stat().st_mode & 0o777 == 0o666 & ~umask   # not mkstemp's owner-only 0600
