@@ -165,13 +165,17 @@ RANGE_REFUSALS = [  # values argparse cannot judge alone: the command's one line
     (["identify", "--true-model", "{good}"], "--true-model needs --hardware"),
     (["identify", "--hardware", "127.0.0.1:9", "--true-model", "{good}"], "--true-model"),
     (["identify", "--hardware", "127.0.0.1:9", "--true-model", "{dir}"], "--true-model"),
+    (["identify", "--hardware", "127.0.0.1:9", "--true-model", "{dir}/no_model.txt"], "no_model.txt does not exist"),
+    (["identify", "--hardware", "127.0.0.1:9", "--true-model", "{dir}/cut_model.txt"], "is cut short"),
+    (["identify", "--hardware", "127.0.0.1:9", "--true-model", "{random}"], "is not text"),
     (["target-model", "--out", "{dir}/no_such_folder/m.txt"], "--out"),
 ]
 
 
 @pytest.mark.parametrize("argv, names", RANGE_REFUSALS, ids=[" ".join(a[:2]) for a, _ in RANGE_REFUSALS])
 def test_impossible_values_get_one_line(files, argv, names, capsys):
-    argv = [a.format(good=files["good"], dir=files["dir"]) for a in argv]
+    (files["dir"] / "cut_model.txt").write_text("ambid_target_model 1\ndt 0.0001\ncurrent_limit 3\n")
+    argv = [a.format(good=files["good"], dir=files["dir"], random=files["random"]) for a in argv]
     code, out = _run(argv, capsys)
     assert code == 2
     line = [ln for ln in out.err.splitlines() if ln.strip()]

@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             read_target_model(args.true_model)
         except (OSError, ValueError, IndexError) as exc:
-            raise BadInput(f"--true-model {args.true_model}: {exc}; give the file 'ambid target-model' wrote")
+            raise BadInput(f"--true-model {exc}; give the file 'ambid target-model' wrote") from None
     cfg = SessionConfig(out_dir=args.out, kind=args.kind, band_hz=tuple(args.band), resolution_hz=args.resolution,
                         peak_current_a=args.peak_current, periods=args.periods, realisations=args.realisations,
                         transient_periods=args.transient_periods, grid=args.grid, mimo=args.mimo, phases=args.phases,
