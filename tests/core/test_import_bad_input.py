@@ -242,3 +242,11 @@ def test_tab_separated_and_quoted_csv_import_as_the_plain_one(tmp_path, style, c
                                                                        "/amb/measurement")]))
     capsys.readouterr()
     assert got[0].shape == (900, 12) and np.array_equal(got[0], got[1])
+
+
+def test_a_map_controller_at_another_sample_rate_is_named(tmp_path, capsys):
+    r, y, u = _signals()
+    np.savez(tmp_path / "k.npz", A=np.zeros((1, 1)), B=np.zeros((1, 4)), C=np.zeros((4, 1)), D=np.zeros((4, 4)),
+             dt=1e-4)   # made for a 10 kHz rig; the record is at 1 kHz
+    line = _run(tmp_path, _csv(tmp_path / "d.csv", _columns(r, y, u)), {**MAP, "controller": "k.npz"}, capsys)
+    assert "sample period 0.0001 s differs from the record's 0.001 s" in line, line

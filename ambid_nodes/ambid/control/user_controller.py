@@ -90,8 +90,10 @@ def _from_transfer_functions(data: dict, path: Path, dt: float) -> StateSpace:
     return block_diag(*axes)
 
 
-def load_controller(path: str | Path, dt_s: float) -> StateSpace:
+def load_controller(path: str | Path, dt_s: float, whose: str = "the rig's") -> StateSpace:
     """The controller in ``path`` as a discrete StateSpace at ``dt_s``, 4 inputs (y) and 4 outputs (ic).
+
+    ``whose`` names the sample period ``dt_s`` in a refusal ("the rig's", "the record's").
 
     Raises:
         ValueError: one line naming the file, what is wrong and the fix (missing, unreadable, a key
@@ -101,8 +103,8 @@ def load_controller(path: str | Path, dt_s: float) -> StateSpace:
     data = _read(path)
     dt = _scalar(data, ("dt", "ts", "sample_period_s"), path)
     if abs(dt - dt_s) > 1e-9 * dt_s:
-        raise ValueError(f"controller file {path}: sample period {dt:g} s differs from the rig's {dt_s:g} s; "
-                         "discretise the controller at the rig's sample rate")
+        raise ValueError(f"controller file {path}: sample period {dt:g} s differs from {whose} {dt_s:g} s; "
+                         f"discretise the controller at {whose} sample rate")
     if "num" in data or "den" in data:
         model = _from_transfer_functions(data, path, dt_s)
     else:

@@ -272,7 +272,7 @@ def _import(rec, m, out, cols, idx, sel, scale, offset, ny, nu, spool, chunk_row
     controller = None
     if m.controller:
         try:
-            controller = load_controller(m.controller, 1.0 / fs)
+            controller = load_controller(m.controller, 1.0 / fs, "the record's")
         except ValueError as exc:
             raise RecordError(str(exc)) from None
     # ---- pass 2: write
