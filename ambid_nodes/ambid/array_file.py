@@ -92,10 +92,13 @@ def _mat(path: Path, what: str) -> dict[str, np.ndarray]:
         head = f.read(520)
     if head.startswith(_MAT73_MAGIC) or head[:8] == _HDF5_MAGIC or head[512:520] == _HDF5_MAGIC:
         return _mat73(path, what)
-    if len(head) < 128 or head[126:128] not in (b"IM", b"MI"):
-        raise _Refused(f"{what} {path} is not a MATLAB .mat file (no MAT v5 or v7.3 header; MAT v4 is not read)")
     from scipy import io as sio
+    from scipy.io.matlab import matfile_version
 
+    try:
+        matfile_version(str(path))   # v4 (no header, MATLAB's save -v4) or v5; anything else raises
+    except Exception:  # noqa: BLE001 - scipy raises ValueError or its own MatReadError
+        raise _Refused(f"{what} {path} is not a MATLAB .mat file (no MAT v4, v5 or v7.3 layout)") from None
     try:
         raw = sio.loadmat(path, squeeze_me=False)
     except Exception as exc:  # noqa: BLE001 - scipy's MAT parser raises a zoo of types on a damaged file
