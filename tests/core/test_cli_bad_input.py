@@ -239,6 +239,11 @@ def test_import_and_export_options(files, capsys):
     assert code == 2 and "--out" in _one_line(res.err, "import", files["good"])
     code, res = _run(["export", files["good"], "--format", "csv", "--out", str(d)], capsys)
     assert code == 2 and "is a folder" in _one_line(res.err, "export", str(d))
+    record = d / "import_self.csv"
+    record.write_text("x1,i1,e1\n0,0,0\n")
+    code, res = _run(["import", str(record), "--map", str(d / "m.yaml"), "--out", str(record), "--overwrite"], capsys)
+    assert code == 2 and "is the record being imported" in _one_line(res.err, "import", str(record))
+    assert record.read_text() == "x1,i1,e1\n0,0,0\n"
 
 
 # a rig file's rotor_file: and controller: entries, and --controller FILE, naming a file that cannot be read:
