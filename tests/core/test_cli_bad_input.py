@@ -169,6 +169,8 @@ RANGE_REFUSALS = [  # values argparse cannot judge alone: the command's one line
     (["identify", "--hardware", "127.0.0.1:9", "--true-model", "{dir}/cut_model.txt"], "is cut short"),
     (["identify", "--hardware", "127.0.0.1:9", "--true-model", "{random}"], "is not text"),
     (["target-model", "--out", "{dir}/no_such_folder/m.txt"], "--out"),
+    (["identify", "--hardware", "127.0.0.1:9", "--controller", "lqg"], "--controller with --hardware"),
+    (["graph", "--hardware", "127.0.0.1:9", "--controller", "lqg"], "--controller with --hardware"),
 ]
 
 

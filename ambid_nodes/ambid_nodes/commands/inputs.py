@@ -142,6 +142,15 @@ def controller(text: str) -> str:
                                      f"({', '.join(FILE_SUFFIXES)})")
 
 
+def no_controller_on_hardware(args: argparse.Namespace) -> None:
+    """:class:`BadInput` for ``--controller`` beside ``--hardware``: the target closes the loop with its own
+    controller, so the option would be ignored while the summary seems to say it ran."""
+    if getattr(args, "hardware", None) and getattr(args, "controller", ""):
+        raise BadInput("--controller with --hardware: the real-time target runs its own controller (for the C "
+                       "target, 'ambid target-model --controller ...' writes it into the model file); leave "
+                       "--controller out")
+
+
 def check_band(band: tuple[float, float], option: str = "--band") -> tuple[float, float]:
     """(low, high) with 0 <= low < high, else :class:`BadInput`."""
     lo, hi = band
