@@ -41,6 +41,7 @@ from ambid.channels import AXES, CURRENT_NAMES
 from ambid.excitation import ExcitationDesign, check_headroom
 from ambid.excitation.spec import DEFAULT_INPUTS, KINDS, build_design
 from ambid.plant.rig import load_rig, make_rig
+from ambid.session.facts import design_fields
 from rclpy.node import Node
 
 from ambid_msgs.msg import ExcitationDesign as DesignMsg
@@ -256,16 +257,7 @@ class ExcitationGenerator(Node):
                           design.total_samples, columns)
 
     def design_msg(self, exp_id: str, d: ExcitationDesign, start: int, total: int) -> DesignMsg:
-        return DesignMsg(
-            stamp=time_msg(start * self.dt), experiment_id=exp_id, kind=d.kind,
-            multi_input=str(d.options.get("mimo", "one_at_a_time")), start_index=start, total_samples=total,
-            sample_rate=d.fs_hz, samples_per_period=d.n_per_period, n_periods=d.n_periods,
-            n_transient_periods=d.n_transient_periods, n_realisations=d.n_realisations,
-            n_experiments=d.n_experiments, input_names=list(d.input_names),
-            excited_lines=d.excited_lines.tolist(), detection_lines_odd=d.detection_lines_odd.tolist(),
-            detection_lines_even=d.detection_lines_even.tolist(), rms=d.rms_a.tolist(), peak=d.peak_a.tolist(),
-            crest_factor=d.crest_factor.tolist(), measurement_time=total / d.fs_hz,
-            seed=int(d.seed or 0), design_json=json.dumps(d.to_dict()))
+        return DesignMsg(stamp=time_msg(start * self.dt), **design_fields(d, exp_id, start, total))
 
     def on_stop(self, req: StopExperiment.Request, resp: StopExperiment.Response) -> StopExperiment.Response:
         exp = self.exp

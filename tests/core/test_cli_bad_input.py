@@ -5,6 +5,7 @@ starts ROS: a bad input stops a command before its graph does."""
 
 from __future__ import annotations
 
+import os
 import re
 
 import numpy as np
@@ -175,13 +176,19 @@ RANGE_REFUSALS = [  # values argparse cannot judge alone: the command's one line
     (["identify", "--true-model", "{good}"], "--true-model needs --hardware"),
     (["identify", "--hardware", "127.0.0.1:9", "--true-model", "{good}"], "--true-model"),
     (["identify", "--hardware", "127.0.0.1:9", "--true-model", "{dir}"], "--true-model"),
+    (["identify", "--hardware", "127.0.0.1:9", "--true-model", "{dir}/no_model.txt"], "no_model.txt does not exist"),
+    (["identify", "--hardware", "127.0.0.1:9", "--true-model", "{dir}/cut_model.txt"], "is cut short"),
+    (["identify", "--hardware", "127.0.0.1:9", "--true-model", "{random}"], "is not text"),
     (["target-model", "--out", "{dir}/no_such_folder/m.txt"], "--out"),
+    (["identify", "--hardware", "127.0.0.1:9", "--controller", "lqg"], "--controller with --hardware"),
+    (["graph", "--hardware", "127.0.0.1:9", "--controller", "lqg"], "--controller with --hardware"),
 ]
 
 
 @pytest.mark.parametrize("argv, names", RANGE_REFUSALS, ids=[" ".join(a[:2]) for a, _ in RANGE_REFUSALS])
 def test_impossible_values_get_one_line(files, argv, names, capsys):
-    argv = [a.format(good=files["good"], dir=files["dir"]) for a in argv]
+    (files["dir"] / "cut_model.txt").write_text("ambid_target_model 1\ndt 0.0001\ncurrent_limit 3\n")
+    argv = [a.format(good=files["good"], dir=files["dir"], random=files["random"]) for a in argv]
     code, out = _run(argv, capsys)
     assert code == 2
     line = [ln for ln in out.err.splitlines() if ln.strip()]
@@ -245,3 +252,72 @@ def test_import_and_export_options(files, capsys):
     assert code == 2 and "--out" in _one_line(res.err, "import", files["good"])
     code, res = _run(["export", files["good"], "--format", "csv", "--out", str(d)], capsys)
     assert code == 2 and "is a folder" in _one_line(res.err, "export", str(d))
+    record = d / "import_self.csv"
+    record.write_text("x1,i1,e1\n0,0,0\n")
+    code, res = _run(["import", str(record), "--map", str(d / "m.yaml"), "--out", str(record), "--overwrite"], capsys)
+    assert code == 2 and "is the record being imported" in _one_line(res.err, "import", str(record))
+    assert record.read_text() == "x1,i1,e1\n0,0,0\n"
+
+
+# a rig file's rotor_file: and controller: entries, and --controller FILE, naming a file that cannot be read:
+# the command's one line names that file (the rig is loaded before anything starts)
+ENTRY_REFUSAL = {"missing": "does not exist", "folder": "is a folder", "empty": "is empty",
+                 "random": r"is not an \.npz file|is not a MATLAB \.mat file",
+                 "truncated": r"is not an \.npz file|damaged or cut short"}
+
+
+@pytest.mark.parametrize("kind", list(ENTRY_REFUSAL))
+@pytest.mark.parametrize("entry", ["rotor_file", "controller", "--controller"])
+@pytest.mark.parametrize("ext", [".npz", ".mat"])
+def test_rotor_and_controller_files_that_cannot_be_read(files, entry, kind, ext, capsys):
+    d = files["dir"] / "entries" / f"{entry}-{kind}{ext}"
+    d.mkdir(parents=True)
+    bad = d / f"model{ext}"
+    if kind == "folder":
+        bad.mkdir()
+    elif kind != "missing":
+        good = np.random.default_rng(3).standard_normal((40, 40))
+        buf = d / f"good{ext}"
+        if ext == ".npz":
+            np.savez(buf, M=good, K=good)
+        else:
+            from scipy import io as sio
+            sio.savemat(buf, {"M": good, "K": good})
+        data = buf.read_bytes()
+        bad.write_bytes({"empty": b"", "random": np.random.default_rng(4).bytes(3000),
+                         "truncated": data[:len(data) // 2]}[kind])
+    out = d / "model.txt"
+    if entry == "--controller":
+        argv = ["target-model", "--controller", str(bad), "--out", str(out)]
+    else:
+        rig = d / "rig.yaml"
+        rig.write_text(f"{entry}: {bad.name}\n")
+        argv = ["target-model", "--rig", str(rig), "--out", str(out)]
+    code, res = _run(argv, capsys)
+    assert code == 2 and not out.exists()
+    if entry == "--controller" and kind in ("missing", "folder"):  # argparse's check of the option value
+        errors = [ln for ln in res.err.splitlines() if "error:" in ln]
+        assert len(errors) == 1 and "--controller" in errors[0] and str(bad) in errors[0]
+        return
+    line = _one_line(res.err, "target-model", str(bad))
+    assert re.search(ENTRY_REFUSAL[kind], line), line
+
+
+def test_export_keeps_what_is_there_and_names_what_import_could_not_read(files, capsys):
+    d = files["dir"] / "export_checks"
+    d.mkdir()
+    mine = d / "rig.csv"
+    mine.write_text("a rig's own record\n")
+    code, res = _run(["export", files["good"], "--format", "csv", "--out", str(mine)], capsys)
+    assert code == 2 and "--overwrite" in _one_line(res.err, "export", str(mine))
+    assert mine.read_text() == "a rig's own record\n" and sorted(p.name for p in d.iterdir()) == ["rig.csv"]
+    code, res = _run(["export", files["good"], "--format", "mat", "--out", str(d / "r.csv")], capsys)
+    assert code == 2 and "give --out ending in .mat" in _one_line(res.err, "export", "r.csv")
+    code, res = _run(["export", files["good"], "--format", "npz", "--out", str(d / "r.npz"), "--experiment", "x"],
+                     capsys)
+    assert code == 2 and re.search(r"no experiment 'x' \(it has \S+\)", _one_line(res.err, "export", "'x'"))
+    assert sorted(p.name for p in d.iterdir()) == ["rig.csv"]
+    code, _ = _run(["export", files["good"], "--format", "csv", "--out", str(mine), "--overwrite"], capsys)
+    umask = os.umask(0)
+    os.umask(umask)
+    assert code == 0 and mine.stat().st_mode & 0o777 == 0o666 & ~umask   # not mkstemp's owner-only 0600

@@ -162,3 +162,91 @@ def test_damaged_mat_files(tmp_path, capsys):
 def test_bad_map_files(tmp_path, text, expect, capsys):
     r, y, u = _signals()
     assert expect in _run(tmp_path, _csv(tmp_path / "d.csv", _columns(r, y, u)), text, capsys)
+
+
+def _csv_text(name):
+    r, y, u = _signals()
+    cols = _columns(r, y, u)
+    lines = [",".join(cols)] + [",".join(repr(float(v)) for v in row) for row in np.column_stack(list(cols.values()))]
+    if name == "not utf-8":
+        lines[300] = lines[300].replace(",", ",\xe9", 1)   # written as latin-1 below
+    elif name == "no header":
+        lines = lines[1:]
+    elif name == "pipes":
+        lines = [ln.replace(",", "|") for ln in lines]
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize("name, expect", [
+    ("not utf-8", r"line 301 \(row 300\), column 'x1': '\ufffd.*' is not a number"),
+    ("no header", r"line 1 holds numbers, not channel names; give the file a header row"),
+    ("pipes", r"line 1 is one column .* separated by commas, semicolons or tabs"),
+])
+def test_csv_text_problems_are_named(tmp_path, name, expect, capsys):
+    data = tmp_path / "d.csv"
+    data.write_bytes(_csv_text(name).encode("latin-1" if name == "not utf-8" else "utf-8"))
+    assert re.search(expect, _run(tmp_path, data, MAP, capsys))
+
+
+def test_a_folder_is_named_as_a_folder(tmp_path, capsys):
+    (tmp_path / "records").mkdir()
+    assert "is a folder; give the record file in it" in _run(tmp_path, tmp_path / "records", MAP, capsys)
+
+
+@pytest.mark.parametrize("change, expect", [
+    ({"band_hz": [1000, 10]}, r"band_hz is \[1000.0, 10.0\]; give \[f_lo, f_hi\] in Hz with 0 <= f_lo < f_hi"),
+    ({"outputs": {**MAP["outputs"], "y_a_x": {"column": "x1", "scale": 0}}}, r"outputs.y_a_x.scale is 0"),
+    ({"experiment_id": {"a": 1}}, r"experiment_id is \{'a': 1\}; give a name"),
+])
+def test_map_values_that_would_fail_later_are_named(tmp_path, change, expect, capsys):
+    r, y, u = _signals()
+    assert re.search(expect, _run(tmp_path, _csv(tmp_path / "d.csv", _columns(r, y, u)), {**MAP, **change}, capsys))
+
+
+def test_a_damaged_npz_is_refused_by_its_crc(tmp_path, capsys):
+    """One flipped bit in a sample leaves a plausible number: only the zip member's CRC can tell."""
+    r, y, u = _signals()
+    cols = _columns(r, y, u)
+    np.savez(tmp_path / "d.npz", data=np.column_stack(list(cols.values())), names=np.array(list(cols)))
+    b = bytearray((tmp_path / "d.npz").read_bytes())
+    at = b.index(b"\x93NUMPY", b.index(b"data.npy")) + 128 + 8 * 13 * 400 + 8 * 5   # row 400, column i1
+    b[at] ^= 0x01   # the lowest mantissa bit
+    (tmp_path / "d.npz").write_bytes(bytes(b))
+    assert re.search(r"ends or breaks at row \d+ \(Bad CRC-32", _run(tmp_path, tmp_path / "d.npz", MAP, capsys))
+
+
+def test_a_complex_mat_channel_is_refused(tmp_path, capsys):
+    r, y, u = _signals()
+    cols = _columns(r, y, u)
+    cols["i2"] = cols["i2"] + 1e-3j
+    sio.savemat(tmp_path / "d.mat", cols)
+    assert re.search(r"'i2' \(named in MAP.yaml .*\) is complex; .* give the real signal",
+                     _run(tmp_path, tmp_path / "d.mat", MAP, capsys))
+
+
+@pytest.mark.parametrize("style", ["tabs, decimal comma", "quoted"])
+def test_tab_separated_and_quoted_csv_import_as_the_plain_one(tmp_path, style, capsys):
+    from ambid.session.blocks import iter_sample_blocks
+
+    r, y, u = _signals()
+    plain = _csv(tmp_path / "plain.csv", _columns(r, y, u)).read_text()
+    text = (plain.replace(",", "\t").replace(".", ",") if style.startswith("tabs") else
+            "".join('"' + ln.replace(",", '","') + '"\n' for ln in plain.splitlines()))
+    (tmp_path / "other.csv").write_text(text)
+    (tmp_path / "MAP.yaml").write_text(yaml.safe_dump(MAP))
+    got = []
+    for name in ("plain", "other"):
+        assert cli.main(["import", str(tmp_path / f"{name}.csv"), "--map", str(tmp_path / "MAP.yaml"), "--out",
+                         str(tmp_path / f"{name}.mcap")]) == 0
+        got.append(np.vstack([b.data for _, b in iter_sample_blocks(str(tmp_path / f"{name}.mcap"),
+                                                                       "/amb/measurement")]))
+    capsys.readouterr()
+    assert got[0].shape == (900, 12) and np.array_equal(got[0], got[1])
+
+
+def test_a_map_controller_at_another_sample_rate_is_named(tmp_path, capsys):
+    r, y, u = _signals()
+    np.savez(tmp_path / "k.npz", A=np.zeros((1, 1)), B=np.zeros((1, 4)), C=np.zeros((4, 1)), D=np.zeros((4, 4)),
+             dt=1e-4)   # made for a 10 kHz rig; the record is at 1 kHz
+    line = _run(tmp_path, _csv(tmp_path / "d.csv", _columns(r, y, u)), {**MAP, "controller": "k.npz"}, capsys)
+    assert "sample period 0.0001 s differs from the record's 0.001 s" in line, line

@@ -168,3 +168,85 @@ def test_the_commands_say_what_the_import_dropped(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert rig.rotor_import is not None
     assert len(err) == 1 and err[0].startswith("ambid: rotor file: dropped 18 of 54 DOFs")
+
+
+def _damaged(tmp_path, kind: str, ext: str):
+    """A rotor file that cannot be read: the kinds a user's disk and tools produce."""
+    from scipy import io as sio
+    from six_dof_rotor import six_dof_rotor
+
+    p = tmp_path / f"{kind}{ext}"
+    good = tmp_path / f"good{ext}"
+    (np.savez if ext == ".npz" else sio.savemat)(good, six_dof_rotor())
+    data = good.read_bytes()
+    if kind == "folder":
+        p.mkdir()
+    elif kind == "empty":
+        p.write_bytes(b"")
+    elif kind == "random":
+        p.write_bytes(np.random.default_rng(2).bytes(3000))
+    elif kind == "truncated":
+        p.write_bytes(data[:len(data) // 2])
+    return p
+
+
+@pytest.mark.parametrize("ext", [".npz", ".mat"])
+@pytest.mark.parametrize("kind, message", [
+    ("missing", "does not exist"), ("folder", "is a folder"), ("empty", "is empty"),
+    ("random", r"is not an \.npz file|is not a MATLAB \.mat file"),
+    ("truncated", r"is not an \.npz file|damaged or cut short"),
+])
+def test_rotor_files_that_cannot_be_read_are_named_with_the_fix(tmp_path, kind, ext, message):
+    path = _damaged(tmp_path, kind, ext)
+    with pytest.raises(ValueError, match=message) as err:
+        load_rotor(path)
+    assert str(path) in str(err.value) and "give M, K" in str(err.value) and "\n" not in str(err.value)
+
+
+def test_a_rotor_file_of_pickled_objects_is_refused(tmp_path):
+    path = tmp_path / "objects.npz"
+    np.savez(path, M=np.array([{"m": 1}], dtype=object))
+    with pytest.raises(ValueError, match="holds object \\(pickled\\) arrays"):
+        load_rotor(path)
+
+
+@pytest.mark.parametrize("key", ["M", "K"])
+def test_a_non_symmetric_mass_or_stiffness_matrix_is_named(tmp_path, key):
+    from six_dof_rotor import six_dof_rotor
+
+    bad = six_dof_rotor()[key].copy()
+    bad[6, 7] += 0.01 * np.abs(bad).max()  # a one-sided entry: a transcription slip, or G put into K
+    path, _ = _six_dof_file(tmp_path, **{key: bad})
+    with pytest.raises(ValueError, match=rf"{key} \(\w+ matrix\) is not symmetric: {key}\[6, 7\]"):
+        load_rotor(path)
+
+
+@pytest.mark.parametrize("dofs, message", [
+    ([6, 6, 7, 43], "names a DOF twice"),
+    ([6 + 5, 42, 7, 43], "DOF 11 is not in x_dofs"),   # the torsion DOF of node 1 where its ux belongs
+    ([6, 42, 6 + 2, 43], "DOF 8 is not in y_dofs"),    # the axial DOF
+])
+def test_bearing_dofs_must_be_four_lateral_translations(tmp_path, dofs, message):
+    path, _ = _six_dof_file(tmp_path, bearing_dofs=np.array(dofs))
+    with pytest.raises(ValueError, match=message):
+        load_rotor(path)
+
+
+def test_a_mat_v73_rotor_file_reads_as_its_npz(tmp_path):
+    """MATLAB's -v7.3 is HDF5 behind a 512-byte header, column-major: written here as MATLAB lays it out."""
+    import h5py
+    from six_dof_rotor import six_dof_rotor
+
+    rotor = six_dof_rotor()
+    path = tmp_path / "rotor73.mat"
+    with h5py.File(path, "w", userblock_size=512) as f:
+        for key, value in rotor.items():
+            value = np.atleast_2d(np.asarray(value, dtype=float))
+            if value.shape[0] == 1:
+                value = value.T   # MATLAB saves a vector as a column, n x 1
+            f.create_dataset(key, data=value.T).attrs["MATLAB_class"] = np.bytes_("double")
+    with open(path, "r+b") as f:
+        f.write(b"MATLAB 7.3 MAT-file, Platform: GLNXA64".ljust(116) + b"\x00" * 8 + b"\x00\x02IM")
+    npz, _ = _six_dof_file(tmp_path)
+    got, want = load_rotor(path), load_rotor(npz)
+    assert np.array_equal(got.a, want.a) and np.array_equal(got.c_sensor, want.c_sensor)

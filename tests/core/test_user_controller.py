@@ -127,3 +127,76 @@ def test_a_controller_that_cannot_hold_the_rig_is_refused_with_the_alternatives(
     np.savez(tmp_path / "weak.npz", A=weak.a, B=weak.b, C=weak.c, D=weak.d, dt=RIG.dt)
     with pytest.raises(ValueError, match="the file controller cannot hold this rig: .*unstable.*Try 'pid' or 'lqg'"):
         checked_design(str(tmp_path / "weak.npz"), RIG)
+
+
+def _own_arrays():
+    own = _own_controller(RIG.dt)
+    return {"A": own.a, "B": own.b, "C": own.c, "D": own.d, "dt": RIG.dt}
+
+
+@pytest.mark.parametrize("ext", [".npz", ".mat"])
+@pytest.mark.parametrize("kind, message", [
+    ("empty", "is empty"), ("random", r"is not an \.npz file|is not a MATLAB \.mat file"),
+    ("truncated", r"is not an \.npz file|damaged or cut short"), ("folder", "is a folder"),
+])
+def test_controller_files_that_cannot_be_read_are_named_with_the_fix(tmp_path, kind, ext, message):
+    good = tmp_path / f"good{ext}"
+    (np.savez if ext == ".npz" else sio.savemat)(good, _own_arrays())
+    path = tmp_path / f"{kind}{ext}"
+    if kind == "folder":
+        path.mkdir()
+    else:
+        data = good.read_bytes()
+        path.write_bytes({"empty": b"", "random": np.random.default_rng(5).bytes(2000),
+                          "truncated": data[:len(data) // 2]}[kind])
+    with pytest.raises(ValueError, match=message) as err:
+        load_controller(path, RIG.dt)
+    assert str(path) in str(err.value) and "give A, B, C, D and dt" in str(err.value)
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"A": "complex"}, "'A' is complex; give real values"),
+    ({"dt": "fast"}, "'dt' must be one positive number of seconds"),
+])
+def test_complex_or_non_numeric_entries_are_named(tmp_path, change, message):
+    arrays = _own_arrays()
+    if change.get("A") == "complex":
+        arrays["A"] = arrays["A"] + 1e-3j
+    else:
+        arrays.update(change)
+    np.savez(tmp_path / "c.npz", **arrays)
+    with pytest.raises(ValueError, match=message):
+        load_controller(tmp_path / "c.npz", RIG.dt)
+
+
+def test_a_mat_v73_controller_reads_as_its_npz(tmp_path):
+    """MATLAB's save -v7.3: HDF5 behind a 512-byte header, matrices stored column-major."""
+    import h5py
+
+    arrays = _own_arrays()
+    path = tmp_path / "k73.mat"
+    with h5py.File(path, "w", userblock_size=512) as f:
+        for key, value in arrays.items():
+            f.create_dataset(key, data=np.atleast_2d(value).T).attrs["MATLAB_class"] = np.bytes_("double")
+    with open(path, "r+b") as f:
+        f.write(b"MATLAB 7.3 MAT-file, Platform: GLNXA64".ljust(116) + b"\x00" * 8 + b"\x00\x02IM")
+    np.savez(tmp_path / "k.npz", **arrays)
+    got, want = load_controller(path, RIG.dt), load_controller(tmp_path / "k.npz", RIG.dt)
+    assert all(np.array_equal(getattr(got, m), getattr(want, m)) for m in "abcd")
+
+
+@pytest.mark.parametrize("params, message", [
+    ({"kind": "pid", "kp_a_per_m": "high"}, r"controller pid: kp_a_per_m is 'high'; give a number"),
+    ({"kind": "pid", "td_s": [1e-3, 2e-3]}, r"controller pid: td_s is \[0.001, 0.002\]; give a number"),
+    ({"kind": "lqg", "regulate": 3}, r"controller lqg: regulate is 3; give a word"),
+])
+def test_rig_file_controller_parameters_of_the_wrong_type_are_named(params, message):
+    with pytest.raises(ValueError, match=message):
+        design_controller(params, RIG)
+
+
+def test_the_refusal_keeps_the_option_spelling():
+    weak = {"kind": "pid", "kp_a_per_m": 100.0}   # far below the magnets' negative stiffness
+    with pytest.raises(ValueError, match=r"Try 'lqg' \(--controller\), or your own controller file "
+                                         r"\(--controller FILE\)\.$"):
+        checked_design(weak, RIG)

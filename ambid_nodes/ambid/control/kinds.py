@@ -84,14 +84,21 @@ def is_controller_file(text: str) -> bool:
 
 def _alternatives(kind: str) -> str:
     others = [f"'{k}'" for k in CONTROLLER_KINDS if k != kind]
-    return f"try {' or '.join(others)} (--controller), or your own controller file (--controller FILE)"
+    return f"Try {' or '.join(others)} (--controller), or your own controller file (--controller FILE)"
 
 
 def _with_parameters(cls, params: Mapping, what: str):
-    known = {f.name for f in fields(cls)}
-    unknown = sorted(set(params) - known)
+    known = {f.name: f for f in fields(cls)}
+    unknown = sorted(set(params) - set(known))
     if unknown:
         raise ValueError(f"{what}: unknown parameter(s) {unknown}; known are {', '.join(sorted(known))}")
+    for name, value in params.items():  # a rig file's YAML can hold any type: the ranges below want numbers
+        default = known[name].default
+        number = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if isinstance(default, str) and not isinstance(value, str):
+            raise ValueError(f"{what}: {name} is {value!r}; give a word, e.g. {default!r}")
+        if not isinstance(default, str) and not number and not (default is None and value is None):
+            raise ValueError(f"{what}: {name} is {value!r}; give a number, e.g. {default!r}")
     return cls(**params)
 
 
@@ -156,7 +163,7 @@ def checked_design(spec: str | Mapping | None, rig: Rig, pid: PidParameters | No
         check_controller_on_rig(rig, design.model)
     except ValueError as exc:
         raise ValueError(f"the {design.kind} controller cannot hold this rig: {exc} "
-                         f"{_alternatives(design.kind).capitalize()}.") from None
+                         f"{_alternatives(design.kind)}.") from None
     return design
 
 

@@ -23,10 +23,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from scipy import io as sio
 from scipy import signal
 
+from ambid.array_file import read_arrays
 from ambid.channels import CURRENT_NAMES, DISPLACEMENT_NAMES
 from ambid.statespace import StateSpace, block_diag
 
@@ -34,25 +34,7 @@ FIX = "give A, B, C, D and dt (or num, den and dt) of a discrete y [m] -> ic [A]
 
 
 def _read(path: Path) -> dict[str, Any]:
-    suffix = path.suffix.lower()
-    try:
-        if suffix == ".npz":
-            with np.load(path, allow_pickle=False) as z:
-                data = {k: z[k] for k in z.files}
-        elif suffix == ".mat":
-            data = {k: v for k, v in sio.loadmat(path, squeeze_me=False).items() if not k.startswith("__")}
-        elif suffix in (".yaml", ".yml"):
-            data = yaml.safe_load(path.read_text(encoding="utf-8"))
-            if not isinstance(data, dict):
-                raise ValueError("it holds no mapping of key: value")
-        else:
-            raise ValueError(f"'{suffix}' is not a controller file type (.npz, .mat, .yaml)")
-    except FileNotFoundError:
-        raise ValueError(f"controller file {path} does not exist; {FIX}") from None
-    except IsADirectoryError:
-        raise ValueError(f"controller file {path} is a folder; {FIX}") from None
-    except (ValueError, OSError, UnicodeDecodeError, yaml.YAMLError, NotImplementedError) as exc:
-        raise ValueError(f"controller file {path} cannot be read ({exc}); {FIX}") from None
+    data = read_arrays(path, "controller file", FIX, (".npz", ".mat", ".yaml", ".yml"))
     return {str(k).lower(): v for k, v in data.items()}
 
 
@@ -73,7 +55,10 @@ def _matrix(data: dict, key: str, path: Path, ndim: int = 2) -> np.ndarray:
 def _scalar(data: dict, keys: tuple[str, ...], path: Path) -> float:
     for k in keys:
         if k in data:
-            v = np.asarray(data[k], dtype=float).ravel()
+            try:
+                v = np.asarray(data[k], dtype=float).ravel()
+            except (TypeError, ValueError):
+                v = np.zeros(0)
             if v.size == 1 and np.isfinite(v[0]) and v[0] > 0:
                 return float(v[0])
             raise ValueError(f"controller file {path}: '{k}' must be one positive number of seconds")
@@ -105,8 +90,10 @@ def _from_transfer_functions(data: dict, path: Path, dt: float) -> StateSpace:
     return block_diag(*axes)
 
 
-def load_controller(path: str | Path, dt_s: float) -> StateSpace:
+def load_controller(path: str | Path, dt_s: float, whose: str = "the rig's") -> StateSpace:
     """The controller in ``path`` as a discrete StateSpace at ``dt_s``, 4 inputs (y) and 4 outputs (ic).
+
+    ``whose`` names the sample period ``dt_s`` in a refusal ("the rig's", "the record's").
 
     Raises:
         ValueError: one line naming the file, what is wrong and the fix (missing, unreadable, a key
@@ -116,8 +103,8 @@ def load_controller(path: str | Path, dt_s: float) -> StateSpace:
     data = _read(path)
     dt = _scalar(data, ("dt", "ts", "sample_period_s"), path)
     if abs(dt - dt_s) > 1e-9 * dt_s:
-        raise ValueError(f"controller file {path}: sample period {dt:g} s differs from the rig's {dt_s:g} s; "
-                         "discretise the controller at the rig's sample rate")
+        raise ValueError(f"controller file {path}: sample period {dt:g} s differs from {whose} {dt_s:g} s; "
+                         f"discretise the controller at {whose} sample rate")
     if "num" in data or "den" in data:
         model = _from_transfer_functions(data, path, dt_s)
     else:

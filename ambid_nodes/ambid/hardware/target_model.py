@@ -107,11 +107,26 @@ def write_target_model(path: str | os.PathLike, model: TargetModel) -> None:
 
 
 def read_target_model(path: str | os.PathLike) -> TargetModel:
-    """The model in a file :func:`write_target_model` wrote (the C program is the strict reader; this one
-    trusts the file)."""
-    toks = [t for line in open(path) for t in line.split("#", 1)[0].split()]
+    """The model in a file :func:`write_target_model` wrote (the C program is the strict reader of what it
+    runs; this one refuses a file it cannot read: ValueError naming the file and what is wrong)."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            toks = [t for line in f for t in line.split("#", 1)[0].split()]
+    except FileNotFoundError:
+        raise ValueError(f"{path} does not exist") from None
+    except IsADirectoryError:
+        raise ValueError(f"{path} is a folder") from None
+    except UnicodeDecodeError:
+        raise ValueError(f"{path} is not text (binary data)") from None
     if toks[:2] != [FORMAT, str(VERSION)]:
         raise ValueError(f"{path} is not an {FORMAT} {VERSION} file")
+    try:
+        return _parse(path, toks)
+    except IndexError:
+        raise ValueError(f"{path} ends early, after {len(toks)} words: it is cut short") from None
+
+
+def _parse(path, toks: list[str]) -> TargetModel:
     pos = 2
 
     def word(w: str) -> None:
@@ -122,7 +137,13 @@ def read_target_model(path: str | os.PathLike) -> TargetModel:
 
     def nums(n: int) -> np.ndarray:
         nonlocal pos
-        out = np.array(toks[pos:pos + n], dtype=float)
+        if pos + n > len(toks):
+            raise IndexError
+        try:
+            out = np.array(toks[pos:pos + n], dtype=float)
+        except ValueError:
+            at = pos + next(i for i, t in enumerate(toks[pos:pos + n]) if not _is_float(t))
+            raise ValueError(f"{path}: word {at + 1} is '{toks[at]}' where a number belongs") from None
         pos += n
         return out
 
@@ -145,3 +166,11 @@ def read_target_model(path: str | os.PathLike) -> TargetModel:
         models.append(StateSpace(*mats, dt))
     word("end")
     return TargetModel(models[0], models[1], limit, climit, noise)
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True

@@ -52,29 +52,21 @@ from scipy import io as sio
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
+from ambid.array_file import read_arrays
 from ambid.plant.modal import undamped_modes
 from ambid.plant.rotor_model import GRAVITY_PER_AXIS, RotorModel, rigid_inverse_mass
 
 DEFAULT_MAX_FREQ_HZ = 5000.0
+_FIX = ("give M, K (+ G, bearing_dofs, sensor_dofs, x_dofs, y_dofs) or A, B, C, mass_kg as "
+        "ambid.plant.rotor_import describes, saved by numpy.savez or MATLAB save")
 _VECTOR_KEYS = {"b_gravity", "mass_kg", "bearing_dofs", "sensor_dofs", "x_dofs", "y_dofs", "max_freq_hz"}
 
 
 def _read(path: Path) -> dict[str, np.ndarray]:
-    if not path.exists():
-        raise ValueError(f"rotor file {path} does not exist")
-    if path.suffix == ".npz":
-        with np.load(path, allow_pickle=False) as data:
-            return {k: np.asarray(data[k]) for k in data.files}
-    if path.suffix == ".mat":
-        try:
-            raw = sio.loadmat(path, squeeze_me=False)
-        except NotImplementedError as exc:
-            raise ValueError(f"{path}: MAT v7.3 files are not supported; re-save with save(..., '-v7')") from exc
-        out = {k: np.asarray(v) for k, v in raw.items() if not k.startswith("__")}
-        for key in _VECTOR_KEYS & set(out):  # MATLAB stores vectors and scalars as 2-D
-            out[key] = out[key].ravel()
-        return out
-    raise ValueError(f"rotor file {path}: unknown extension {path.suffix!r}; use .npz or .mat")
+    out = {k: np.asarray(v) for k, v in read_arrays(path, "rotor file", _FIX).items()}
+    for key in _VECTOR_KEYS & set(out):  # MATLAB stores vectors and scalars as 2-D
+        out[key] = out[key].ravel()
+    return out
 
 
 def _matrix(data: dict, key: str, shape: tuple, what: str) -> np.ndarray:
@@ -89,10 +81,27 @@ def _matrix(data: dict, key: str, shape: tuple, what: str) -> np.ndarray:
     return arr
 
 
+def _symmetric(arr: np.ndarray, key: str, what: str) -> np.ndarray:
+    """``arr`` if it is symmetric to round-off, else a ValueError naming the worst entry."""
+    asym = np.abs(arr - arr.T)
+    if asym.max() > 1e-9 * max(np.abs(arr).max(), np.finfo(float).tiny):
+        i, j = np.unravel_index(np.argmax(asym), asym.shape)
+        raise ValueError(f"rotor file: {key} ({what}) is not symmetric: {key}[{i}, {j}] = {arr[i, j]:.6g} but "
+                         f"{key}[{j}, {i}] = {arr[j, i]:.6g}; give the symmetric {what} the rotordynamics code "
+                         "assembled (gyroscopic terms go to G)")
+    return arr
+
+
 def _scalar(data: dict, key: str, what: str) -> float:
     if key not in data:
         raise ValueError(f"rotor file: key {key!r} ({what}) is missing; see ambid.plant.rotor_import for the layout")
-    value = float(np.asarray(data[key], dtype=float).ravel()[0])
+    try:
+        value = np.asarray(data[key], dtype=float).ravel()
+    except (TypeError, ValueError):
+        value = np.zeros(0)
+    if value.size != 1:
+        raise ValueError(f"rotor file: {key} ({what}) must be one number, got {np.asarray(data[key]).tolist()!r}")
+    value = float(value[0])
     if not (np.isfinite(value) and value > 0):
         raise ValueError(f"rotor file: {key} must be a positive number, got {value}")
     return value
@@ -108,6 +117,23 @@ def _indices(data: dict, key: str, n_dof: int, count: int | None = 4) -> np.ndar
         need = f"{count} " if count is not None else ""
         raise ValueError(f"rotor file: {key} must hold {need}integer DOF indices in [0, {n_dof}), got {idx.tolist()}")
     return idx.astype(int)
+
+
+def _lateral(data: dict, idx: np.ndarray, key: str, n_dof: int) -> None:
+    """Four distinct DOFs, and (when x_dofs and y_dofs say which DOFs translate along the bearing axes) the
+    first two x translations, the last two y translations: an axial or a tilt DOF here cannot be held or seen
+    by a radial bearing or sensor, and the loop built on it would fail far from the cause."""
+    if np.unique(idx).size != idx.size:
+        raise ValueError(f"rotor file: {key} {idx.tolist()} names a DOF twice; give the DOFs of A x, B x, A y, "
+                         "B y: four different ones")
+    for axis, part in (("x_dofs", idx[:2]), ("y_dofs", idx[2:])):
+        if axis in data:
+            translations = _indices(data, axis, n_dof, None)
+            wrong = [int(i) for i in part if i not in translations]
+            if wrong:
+                raise ValueError(f"rotor file: {key} {idx.tolist()}: DOF {wrong[0]} is not in {axis}; give A x, "
+                                 f"B x (from x_dofs), A y, B y (from y_dofs): translations along the bearing axes, "
+                                 "not axial, tilt or torsion DOFs")
 
 
 def _gravity_from_rigid_body(a: np.ndarray, b: np.ndarray, c_bearing: np.ndarray) -> np.ndarray:
@@ -180,13 +206,15 @@ def rotor_from_second_order(data: dict, speed_rad_s: float = 0.0, damping_ratio:
     """
     m = np.asarray(data["M"], dtype=float)
     n_dof = m.shape[0] if m.ndim == 2 else 0
-    m = _matrix(data, "M", (n_dof, n_dof), "mass matrix")
-    k = _matrix(data, "K", (n_dof, n_dof), "stiffness matrix")
+    m = _symmetric(_matrix(data, "M", (n_dof, n_dof), "mass matrix"), "M", "mass matrix")
+    k = _symmetric(_matrix(data, "K", (n_dof, n_dof), "stiffness matrix"), "K", "stiffness matrix")
     d = _matrix(data, "D", (n_dof, n_dof), "damping matrix") if "D" in data else None
     g = _matrix(data, "G", (n_dof, n_dof), "gyroscopic matrix") if "G" in data else None
     i_b = _indices(data, "bearing_dofs", n_dof)
     i_s = _indices(data, "sensor_dofs", n_dof)
-    f_max = float(np.asarray(data.get("max_freq_hz", DEFAULT_MAX_FREQ_HZ)).ravel()[0])
+    _lateral(data, i_b, "bearing_dofs", n_dof)
+    _lateral(data, i_s, "sensor_dofs", n_dof)
+    f_max = _scalar(data, "max_freq_hz", "highest mode kept [Hz]") if "max_freq_hz" in data else DEFAULT_MAX_FREQ_HZ
     notes = []
     held = _coupled_to(np.concatenate([i_b, i_s]), [x for x in (m, k, d, g) if x is not None])
     if not held.all():

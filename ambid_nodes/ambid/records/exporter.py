@@ -27,9 +27,9 @@ from ambid.statespace import StateSpace
 
 from .mapping import MapChannel, RecordMap, map_yaml
 from .readers import RecordError
-from .writers import atomic_path, write_record
+from .writers import FORMAT_SUFFIX, atomic_path, write_record
 
-__all__ = ["ExportResult", "export_session"]
+__all__ = ["ExportResult", "export_paths", "export_session"]
 
 _DESIGN = "excitation/design"
 
@@ -51,6 +51,13 @@ def _controller(path: str, namespace: str) -> StateSpace | None:
     return None
 
 
+def export_paths(out: str | os.PathLike) -> tuple[Path, Path, Path]:
+    """(record, its MAP.yaml, its controller file): the files an export to ``out`` may write."""
+    out = Path(out)
+    stem = out.with_suffix("")
+    return out, Path(f"{stem}.MAP.yaml"), Path(f"{stem}.controller.npz")
+
+
 def export_session(session: str | os.PathLike, out: str | os.PathLike, fmt: str,
                    experiment_id: str | None = None) -> ExportResult:
     """Write the session's measurement rows to ``out`` as ``fmt`` ('csv', 'mat', 'mat73', 'npz') and a MAP.yaml.
@@ -59,6 +66,10 @@ def export_session(session: str | os.PathLike, out: str | os.PathLike, fmt: str,
         RecordError: no experiment, no measurement blocks, or gaps in them.
     """
     path = os.fspath(session)
+    suffix = FORMAT_SUFFIX.get(fmt, "")
+    if Path(out).suffix.lower() != suffix:
+        raise RecordError(f"{out}: --format {fmt} writes a {suffix} file, and the import tells a record's format "
+                          f"by its name; give --out ending in {suffix}")
     try:
         designs = session_designs(path)
     except ValueError as exc:
@@ -66,9 +77,13 @@ def export_session(session: str | os.PathLike, out: str | os.PathLike, fmt: str,
     every = designs
     if experiment_id is not None:
         designs = [d for d in designs if d["experiment_id"] == experiment_id]
+    if not designs and every:
+        ids = ", ".join(dict.fromkeys(d["experiment_id"] for d in every))
+        raise RecordError(f"{path} has no experiment '{experiment_id}' (it has {ids}); give one of these to "
+                          "--experiment")
     if not designs:
-        raise RecordError(f"{path} holds no excitation/design message{' of ' + experiment_id if experiment_id else ''}"
-                          "; give a session 'ambid identify' or the recorder wrote")
+        raise RecordError(f"{path} holds no excitation/design message; give a session 'ambid identify' or the "
+                          "recorder wrote")
     chosen = designs[-1]
     design = chosen["design"]
     ns = chosen["topic"].rstrip("/")[:-len(_DESIGN)]
@@ -106,11 +121,9 @@ def export_session(session: str | os.PathLike, out: str | os.PathLike, fmt: str,
                 t = np.arange(a, z) * dt
                 yield a - lo, np.column_stack([t, b.data[a - b.first_index:z - b.first_index]])
 
-    out = Path(out)
-    stem = out.with_suffix("")
-    map_path = Path(f"{stem}.MAP.yaml")
+    out, map_path, ctrl_path = export_paths(out)
     ctrl = _controller(path, ns)
-    ctrl_path = Path(f"{stem}.controller.npz") if ctrl is not None else None
+    ctrl_path = ctrl_path if ctrl is not None else None
     write_record(out, fmt, columns, n_rows, _in_order(chunks(), n_rows))
     tags = [n.split("_", 1)[-1] for n in design.input_names]
     rmap = RecordMap(

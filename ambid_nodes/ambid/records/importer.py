@@ -35,7 +35,7 @@ from ambid.excitation.design import ExcitationDesign
 from ambid.excitation.reconstruct import DesignFinder, DesignNotFound
 from ambid.session.blocks import encode_sample_block
 from ambid.session.cdr import encode_message
-from ambid.session.facts import controller_facts, design_facts
+from ambid.session.facts import controller_facts, design_facts, design_fields
 from ambid.session.writer import QosProfile, SessionWriter
 from ambid.statespace import StateSpace
 
@@ -132,17 +132,7 @@ def _controller_message(model: StateSpace, name: str) -> dict:
 
 
 def _design_message(d: ExcitationDesign, start: int, experiment_id: str) -> dict:
-    return {"stamp": {"sec": 0, "nanosec": 0}, "experiment_id": experiment_id, "kind": d.kind,
-            "multi_input": str(d.options.get("mimo", "")), "start_index": int(start),
-            "total_samples": int(d.total_samples), "sample_rate": d.fs_hz, "samples_per_period": d.n_per_period,
-            "n_periods": d.n_periods, "n_transient_periods": d.n_transient_periods,
-            "n_realisations": d.n_realisations, "n_experiments": d.n_experiments,
-            "input_names": list(d.input_names), "excited_lines": d.excited_lines.tolist(),
-            "detection_lines_odd": d.detection_lines_odd.tolist(),
-            "detection_lines_even": d.detection_lines_even.tolist(), "rms": d.rms_a.tolist(),
-            "peak": d.peak_a.tolist(), "crest_factor": d.crest_factor.tolist(),
-            "measurement_time": d.total_samples / d.fs_hz, "seed": int(d.seed or 0),
-            "design_json": json.dumps(d.to_dict())}
+    return {"stamp": {"sec": 0, "nanosec": 0}, **design_fields(d, experiment_id, start, d.total_samples)}
 
 
 def _given_design(m: RecordMap, fs: float) -> ExcitationDesign:
@@ -272,7 +262,7 @@ def _import(rec, m, out, cols, idx, sel, scale, offset, ny, nu, spool, chunk_row
     controller = None
     if m.controller:
         try:
-            controller = load_controller(m.controller, 1.0 / fs)
+            controller = load_controller(m.controller, 1.0 / fs, "the record's")
         except ValueError as exc:
             raise RecordError(str(exc)) from None
     # ---- pass 2: write

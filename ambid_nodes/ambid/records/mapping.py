@@ -109,8 +109,11 @@ def _channels(path: str, raw: dict, group: str, allowed: tuple[str, ...]) -> tup
         if unit != _UNITS[group]:
             raise _bad(path, f"{group}.{name}: unit '{unit}' after scaling must be {_UNITS[group]}; give the scale "
                              f"that turns the column into {_UNITS[group]} and unit: {_UNITS[group]}")
-        out.append(MapChannel(name, str(spec["column"]), _number(path, f"{group}.{name}.scale",
-                                                                 spec.get("scale", 1.0)),
+        scale = _number(path, f"{group}.{name}.scale", spec.get("scale", 1.0))
+        if scale == 0:   # every value the same: the channel would be a constant, its FRF zero
+            raise _bad(path, f"{group}.{name}.scale is 0; give the factor that turns the column into "
+                             f"{_UNITS[group]} (negative if the sensor points the other way)")
+        out.append(MapChannel(name, str(spec["column"]), scale,
                               _number(path, f"{group}.{name}.offset", spec.get("offset", 0.0)), unit))
     return tuple(out)
 
@@ -166,13 +169,18 @@ def load_map(path: str | os.PathLike) -> RecordMap:
         if not isinstance(band, list) or len(band) != 2:
             raise _bad(path, f"band_hz is {band!r}; give [f_lo, f_hi] in Hz")
         band = (_number(path, "band_hz[0]", band[0]), _number(path, "band_hz[1]", band[1]))
+        if not 0 <= band[0] < band[1]:
+            raise _bad(path, f"band_hz is {list(band)}; give [f_lo, f_hi] in Hz with 0 <= f_lo < f_hi")
+    exp_id = raw.get("experiment_id", "import")
+    if not isinstance(exp_id, (str, int)) or isinstance(exp_id, bool) or not str(exp_id).strip():
+        raise _bad(path, f"experiment_id is {exp_id!r}; give a name, e.g. import")
     base = Path(path).resolve().parent
     return RecordMap(path=path, sample_rate_hz=rate, time_column=None if tcol is None else str(tcol),
                      time_scale=_number(path, "time_scale", raw.get("time_scale", 1.0), positive=True),
                      outputs=outputs, currents=currents, excitation=excitation,
                      controller=_file(base, path, "controller", raw.get("controller")),
                      design=_file(base, path, "design", raw.get("design")), transient_periods=pt, band_hz=band,
-                     experiment_id=str(raw.get("experiment_id", "import")))
+                     experiment_id=str(exp_id))
 
 
 def map_yaml(m: RecordMap, comment: str = "") -> str:

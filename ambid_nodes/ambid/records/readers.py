@@ -2,9 +2,10 @@
 
 Formats (chosen by extension; the content is checked, not trusted):
 
-* ``.csv``: a header row of channel names, then one row per sample; comma
-  or semicolon separated (a semicolon file may use the decimal comma, as
-  European loggers write it); a time column is just another column.
+* ``.csv``: a header row of channel names, then one row per sample; comma,
+  semicolon or tab separated (a semicolon or tab file may use the decimal
+  comma, as European loggers write it), numbers quoted or not; a time column
+  is just another column.
 * ``.mat`` v5 (MATLAB ``save -v7`` and older; compressed or not) and v7.3
   (HDF5 with MATLAB's 512-byte user block): one vector per channel, or one
   numeric matrix (rows = samples) beside a cell array or char matrix of its
@@ -29,7 +30,7 @@ import struct
 import zipfile
 import zlib
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +41,8 @@ __all__ = ["CHUNK_ROWS", "FORMATS", "Record", "RecordError", "open_record", "rec
 CHUNK_ROWS = 8192
 FORMATS = ("csv", "mat", "npz")
 _MAT73_MAGIC = b"MATLAB 7.3 MAT-file"
+_DELIMITERS = (",", ";", "\t")
+_COMPLEX = "is complex; a rig's record holds real samples: give the real signal"
 _NUMERIC_CLASSES = ("double", "single", "int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64",
                     "logical")
 
@@ -66,6 +69,9 @@ class _Source:
     def read(self, n: int) -> np.ndarray:  # pragma: no cover - interface
         raise NotImplementedError
 
+    def verify(self) -> None:
+        """After the last row: raise if the container's own check (a zip member's CRC) fails."""
+
     def close(self) -> None:
         pass
 
@@ -85,6 +91,10 @@ class _ByteColumns(_Source):
             out[:, j] = np.frombuffer(raw, self.dtype)
         return out
 
+    def verify(self) -> None:
+        # the last column's reader has read the member from its start (the others by skipping)
+        getattr(self.readers[-1], "verify", lambda: None)()
+
     def close(self) -> None:
         for r in self.readers:
             r.close()
@@ -102,6 +112,9 @@ class _ByteRows(_Source):
         if len(raw) != size:
             raise EOFError
         return np.frombuffer(raw, self.dtype).reshape(n, len(self.names)).astype(float)
+
+    def verify(self) -> None:
+        getattr(self.reader, "verify", lambda: None)()
 
     def close(self) -> None:
         self.reader.close()
@@ -169,10 +182,13 @@ class Record:
     n_rows: int | None
     _sources: list
     _csv: dict | None = None
+    unusable: dict[str, str] = field(default_factory=dict)   # variables that cannot be a channel: why
 
     def require(self, names: Sequence[str], what: str = "MAP.yaml") -> None:
         """:class:`RecordError` naming the first of ``names`` the file lacks."""
         for n in names:
+            if n in self.unusable:
+                raise RecordError(f"{self.path}: '{n}' (named in {what}) {self.unusable[n]}")
             if n not in self.names:
                 raise RecordError(f"{self.path}: no channel '{n}' (named in {what}); the file has "
                                   f"{', '.join(self.names) or 'none'}; use one of these names")
@@ -214,12 +230,18 @@ class Record:
                 for src, cols, dest in picks:
                     try:
                         block = src.read(n)
-                    except (EOFError, zlib.error, OSError) as exc:
+                    except (EOFError, zlib.error, OSError, zipfile.BadZipFile) as exc:   # BadZipFile: a CRC
                         raise RecordError(f"{self.path}: channel '{src.names[cols[0]]}' ends or breaks at row "
                                           f"{first + 1} ({exc or 'truncated'}); the file is truncated or damaged, "
                                           "give the complete file") from None
                     out[:, dest] = block[:, cols]
                 yield first, out
+            for src, cols, _ in picks:
+                try:
+                    src.verify()
+                except (zipfile.BadZipFile, zlib.error, OSError, EOFError) as exc:
+                    raise RecordError(f"{self.path}: channel '{src.names[cols[0]]}' is damaged ({exc}); the file "
+                                      "was changed after it was written, give an intact copy") from None
         finally:
             for s in opened:
                 s.close()
@@ -232,11 +254,11 @@ def open_record(path: str | os.PathLike) -> Record:
         RecordError: missing, a folder, empty, not of its format, no numeric channels.
     """
     path = os.fspath(path)
+    if os.path.isdir(path):
+        raise RecordError(f"{path} is a folder; give the record file in it")
     fmt = record_format(path)
     if not os.path.exists(path):
         raise RecordError(f"{path}: no such file; give the path of the rig's record")
-    if os.path.isdir(path):
-        raise RecordError(f"{path} is a folder; give the record file in it")
     if os.path.getsize(path) == 0:
         raise RecordError(f"{path} is empty; give a record with a header (CSV) or channels (MAT, NPZ)")
     with open(path, "rb") as f:
@@ -272,19 +294,22 @@ def _open_csv(path: str, head: bytes) -> Record:
     except UnicodeDecodeError:
         raise RecordError(f"{path} is not a CSV text file (not UTF-8 text); give the logger's CSV export with "
                           "a header row") from None
-    delim = ";" if header.count(";") > header.count(",") else ","
+    delim = max(_DELIMITERS, key=header.count)   # ties: the comma
     fields = header.rstrip("\r\n").split(delim)
+    if len(fields) == 1:
+        raise RecordError(f"{path}: line 1 is one column ('{header.strip()[:60]}'); ambid reads a CSV whose columns "
+                          "are separated by commas, semicolons or tabs: export the record with one of these")
     trailing = len(fields) > 1 and not fields[-1].strip()   # a logger that ends every line with the delimiter
     names = [h.strip().strip('"').strip() for h in (fields[:-1] if trailing else fields)]
     if not header.strip() or any(not n for n in names):
         raise RecordError(f"{path}: line 1 must be a header of channel names, one per column, none empty; "
                           "make the logger write its header row")
+    if all(_is_number(n) for n in names):
+        raise RecordError(f"{path}: line 1 holds numbers, not channel names; give the file a header row")
     if len(set(names)) != len(names):
         dup = next(n for n in names if names.count(n) > 1)
         raise RecordError(f"{path}: column name '{dup}' appears twice in the header; give every column its "
                           "own name")
-    if all(_is_number(n) for n in names):
-        raise RecordError(f"{path}: line 1 holds numbers, not channel names; give the file a header row")
     with open(path, encoding="utf-8-sig", newline="", errors="replace") as f:
         f.readline()
         second = f.readline().rstrip("\r\n").split(delim)
@@ -307,7 +332,8 @@ def _csv_chunks(rec: Record, names: Sequence[str], chunk_rows: int) -> Iterator[
     cols = [rec.names.index(n) for n in names]
     k = len(rec.names)
     row = 0
-    with open(rec.path, encoding="utf-8-sig", newline="") as f:
+    # errors="replace": a byte that is not UTF-8 becomes U+FFFD, refused below by its line and column
+    with open(rec.path, encoding="utf-8-sig", newline="", errors="replace") as f:
         for _ in range(skip):
             f.readline()
         line_no = skip
@@ -318,11 +344,11 @@ def _csv_chunks(rec: Record, names: Sequence[str], chunk_rows: int) -> Iterator[
             if rec._csv["trailing"]:
                 raw = [ln.rstrip("\r\n").removesuffix(delim) + "\n" for ln in raw]
             lines = [ln for ln in raw if ln.strip()]
-            if delim == ";":
+            if delim != ",":
                 lines = [ln.replace(",", ".") for ln in lines]
             try:
-                values = np.loadtxt(lines, delimiter=delim, ndmin=2, dtype=float, comments=None) if lines \
-                    else np.zeros((0, k))
+                values = np.loadtxt(lines, delimiter=delim, ndmin=2, dtype=float, comments=None,
+                                    quotechar='"') if lines else np.zeros((0, k))
             except ValueError:
                 values = None
             if values is None or values.shape[1] != k:
@@ -341,7 +367,7 @@ def _csv_bad_line(rec: Record, lines: list[str], line_no: int, row: int, k: int,
             continue
         i += 1
         fields = ln.rstrip("\r\n").split(delim)
-        if delim == ";":
+        if delim != ",":
             fields = [v.replace(",", ".") for v in fields]
         where = f"{rec.path}: line {line_no + n + 1} (row {row + i + 1})"
         if len(fields) != k:
@@ -350,7 +376,7 @@ def _csv_bad_line(rec: Record, lines: list[str], line_no: int, row: int, k: int,
                               "complete file")
         for j, v in enumerate(fields):
             try:
-                float(v)
+                float(v.strip().strip('"'))
             except ValueError:
                 raise RecordError(f"{where}, column '{rec.names[j]}': '{v.strip()}' is not a number; give "
                                   "numbers only (clean the logger's export)") from None
@@ -377,6 +403,11 @@ class _ZipReader:
 
     def read(self, n: int) -> bytes:
         return self.fp.read(n)
+
+    def verify(self) -> None:
+        """Read to the member's end: zipfile checks its CRC there (BadZipFile if the bytes were damaged)."""
+        while self.fp.read(1 << 20):
+            pass
 
     def close(self) -> None:
         self.fp.close()
@@ -424,7 +455,10 @@ def _open_npz(path: str) -> Record:
     return _record(path, "npz", sources)
 
 
-def _record(path: str, kind: str, sources: list) -> Record:
+def _record(path: str, kind: str, sources: list, unusable: dict[str, str] | None = None) -> Record:
+    if not sources and unusable:
+        name, why = next(iter(unusable.items()))
+        raise RecordError(f"{path}: '{name}' {why}")
     if not sources:
         raise RecordError(f"{path}: no channel found (vectors, or one matrix beside a list of its column names); "
                           "give one vector per channel")
@@ -433,7 +467,7 @@ def _record(path: str, kind: str, sources: list) -> Record:
     if dup:
         raise RecordError(f"{path}: channel '{dup[0]}' is stored twice; give every channel once")
     rows = [r for _, _, r in sources]
-    return Record(path, kind, tuple(names), max(rows), [f for f, _, _ in sources])
+    return Record(path, kind, tuple(names), max(rows), [f for f, _, _ in sources], unusable=unusable or {})
 
 
 # ---------------------------------------------------------------- MAT v7.3 (HDF5)
@@ -483,13 +517,16 @@ def _open_mat73(path: str) -> Record:
     except OSError as exc:
         raise RecordError(f"{path}: a MAT v7.3 header but no readable HDF5 inside ({exc}); give the complete "
                           "file MATLAB saved") from None
-    numeric, names_lists = {}, {}
+    numeric, names_lists, unusable = {}, {}, {}
     with f:
         for var, ds in f.items():
             if not isinstance(ds, h5py.Dataset) or var.startswith("#"):
                 continue
             cls = ds.attrs.get("MATLAB_class", b"")
             cls = cls.decode() if isinstance(cls, bytes) else str(cls)
+            if cls in _NUMERIC_CLASSES and ds.dtype.names:
+                unusable[var] = _COMPLEX
+                continue
             if cls in _NUMERIC_CLASSES and ds.ndim == 2 and not ds.attrs.get("MATLAB_empty", 0):
                 k, rows = ds.shape
                 if rows == 1 and k > 1:   # a MATLAB row vector 1 x n
@@ -509,7 +546,7 @@ def _open_mat73(path: str) -> Record:
         cols = [var] if k == 1 else matrices.get(var)
         if cols is not None:
             sources.append((lambda v=var, c=cols, r=rows: _H5Source(path, v, c, r), cols, rows))
-    return _record(path, "mat73", sources)
+    return _record(path, "mat73", sources, unusable)
 
 
 # ---------------------------------------------------------------- MAT v5
@@ -544,7 +581,7 @@ def _sub(read) -> tuple[int, bytes]:
 def _matrix_header(read) -> tuple[int, tuple[int, ...], str, int, int]:
     """(class, dims, name, data type, data bytes) of a miMATRIX, leaving ``read`` at its real data."""
     t, flags = _sub(read)
-    cls = flags[0]
+    cls = flags[0] | (0x100 if flags[1] & 0x08 else 0)   # 0x100: MATLAB's complex flag, kept beside the class
     _, dims = _sub(read)
     dims = struct.unpack(f"<{len(dims) // 4}i", dims)
     _, name = _sub(read)
@@ -585,7 +622,7 @@ def _open_mat5(path: str, head: bytes) -> Record:
                           "saved (save -v7 or -v7.3)")
     from scipy.io import loadmat
 
-    numeric, texts = {}, {}
+    numeric, texts, unusable = {}, {}, {}
     for off, n, compressed in _mat5_elements(path):
         r = _mat5_reader(path, off, n, compressed)
         try:
@@ -602,6 +639,9 @@ def _open_mat5(path: str, head: bytes) -> Record:
                               "give the complete file MATLAB saved") from None
         finally:
             r.close()
+        if cls & 0x100:
+            unusable[name] = _COMPLEX
+            continue
         if cls in _MX_NUMERIC and len(dims) == 2 and dtype in _MI and nbytes >= 0:
             rows, k = dims
             if rows == 1 and k > 1:
@@ -639,7 +679,7 @@ def _open_mat5(path: str, head: bytes) -> Record:
                 return _ByteColumns(c, r, d, _inflated_columns(path, o, nb, head, kk, r * size))
             return _ByteColumns(c, r, d, [_mat5_reader(path, o, nb, z, head + j * r * size) for j in range(kk)])
         sources.append((make, cols, rows))
-    return _record(path, "mat5", sources)
+    return _record(path, "mat5", sources, unusable)
 
 
 class _PRead:

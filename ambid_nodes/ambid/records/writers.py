@@ -27,10 +27,11 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["WRITE_FORMATS", "write_record", "atomic_path"]
+__all__ = ["FORMAT_SUFFIX", "WRITE_FORMATS", "write_record", "atomic_path"]
 
 WRITE_FORMATS = ("csv", "mat", "mat73", "npz")
-_EXT = {"csv": ".csv", "mat": ".mat", "mat73": ".mat", "npz": ".npz"}
+#: the file name ending of each format: the import tells a record's format by it
+FORMAT_SUFFIX = {"csv": ".csv", "mat": ".mat", "mat73": ".mat", "npz": ".npz"}
 
 
 class atomic_path:
@@ -47,6 +48,10 @@ class atomic_path:
 
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is None:
+            # mkstemp made it owner-only (0600); the finished file gets the mode any new file gets here
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(self.tmp, 0o666 & ~umask)
             os.replace(self.tmp, self.path)
         else:
             self.tmp.unlink(missing_ok=True)

@@ -25,6 +25,7 @@ __all__ = [
     "controller_facts",
     "controller_model",
     "design_facts",
+    "design_fields",
     "rig_summary",
     "design_summary",
 ]
@@ -102,6 +103,22 @@ def controller_model(msg: Any) -> StateSpace:
     n, nu, ny = int(m.n_states), int(m.n_inputs), int(m.n_outputs)
     return StateSpace(np.reshape(m.a, (n, n)), np.reshape(m.b, (n, nu)), np.reshape(m.c, (ny, n)),
                       np.reshape(m.d, (ny, nu)), float(m.sample_period))
+
+
+def design_fields(design: Any, experiment_id: str, start_index: int, total_samples: int) -> dict[str, Any]:
+    """The fields of an ``ambid_msgs/ExcitationDesign`` message (all but ``stamp``) for an
+    :class:`ambid.excitation.ExcitationDesign` placed at ``start_index`` and cut at ``total_samples``:
+    the excitation generator's message and the import's are one layout."""
+    d = design
+    return dict(experiment_id=experiment_id, kind=d.kind, multi_input=str(d.options.get("mimo", "one_at_a_time")),
+                start_index=int(start_index), total_samples=int(total_samples), sample_rate=float(d.fs_hz),
+                samples_per_period=int(d.n_per_period), n_periods=int(d.n_periods),
+                n_transient_periods=int(d.n_transient_periods), n_realisations=int(d.n_realisations),
+                n_experiments=int(d.n_experiments), input_names=list(d.input_names),
+                excited_lines=d.excited_lines.tolist(), detection_lines_odd=d.detection_lines_odd.tolist(),
+                detection_lines_even=d.detection_lines_even.tolist(), rms=d.rms_a.tolist(), peak=d.peak_a.tolist(),
+                crest_factor=d.crest_factor.tolist(), measurement_time=total_samples / d.fs_hz,
+                seed=int(d.seed or 0), design_json=json.dumps(d.to_dict()))
 
 
 def design_facts(msg: Any) -> dict[str, Any]:

@@ -19,16 +19,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="csv, mat (MAT v5), mat73 (MAT v7.3, HDF5) or npz")
     p.add_argument("--out", required=True, help="record file to write; <stem>.MAP.yaml is written beside it")
     p.add_argument("--experiment", help="experiment id (default: the last one recorded)")
+    p.add_argument("--overwrite", action="store_true", help="replace --out (and its MAP.yaml) if they exist")
 
 
 def run(args: argparse.Namespace) -> int:
     from ambid.records import RecordError
-    from ambid.records.exporter import export_session
+    from ambid.records.exporter import export_paths, export_session
 
     from ambid_nodes.commands.inputs import BadInput, output_file, session_file
 
     path = session_file(args.file)
     output_file(args.out, "--out")
+    if not args.overwrite:   # a rig's own record of the same name is not replaced unasked
+        there = [str(p) for p in export_paths(args.out) if p.exists()]
+        if there:
+            raise BadInput(f"--out: {there[0]} exists; give a new file name or add --overwrite")
     try:
         res = export_session(path, args.out, args.format, args.experiment)
     except (RecordError, ValueError) as exc:

@@ -6,7 +6,8 @@ import argparse
 import sys
 
 from ambid.control.kinds import describe_kinds
-from ambid_nodes.commands.inputs import address, checked_controller, controller, count, positive_float, rig_file
+from ambid_nodes.commands.inputs import (address, checked_controller, controller, count, no_controller_on_hardware,
+                                         positive_float, rig_file)
 
 from ambid_nodes.graph import (DEFAULT_NAMESPACE, GraphConfig, run_composed, run_hardware, run_processes,
                                session_domain_id)
@@ -32,6 +33,7 @@ def add_arguments(g: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     rig = rig_file(args.rig)  # a bad rig file stops here, before any node starts
+    no_controller_on_hardware(args)
     if args.hardware:
         return run_on_hardware(args)
     ctrl = checked_controller(args.controller, rig)  # and an unknown or unstable controller

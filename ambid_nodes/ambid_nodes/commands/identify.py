@@ -10,7 +10,8 @@ from pathlib import Path
 from ambid.control.kinds import describe_kinds
 
 from ambid_nodes.commands.inputs import (BadInput, address, check_band, checked_controller, controller, count,
-                                        output_dir, positive_float, positive_int, rig_file)
+                                        no_controller_on_hardware, output_dir, positive_float, positive_int,
+                                        rig_file)
 
 HELP = "identify the simulated rig end to end (graph, experiment, recording, FRF, fit, report)"
 
@@ -55,6 +56,7 @@ def run(args: argparse.Namespace) -> int:
 
     check_band(tuple(args.band))
     output_dir(args.out)
+    no_controller_on_hardware(args)
     rig = rig_file(args.rig)  # a bad rig file stops here, before any node starts
     checked_controller(args.controller, rig)  # and an unknown or unstable controller
     if args.true_model:
@@ -65,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             read_target_model(args.true_model)
         except (OSError, ValueError, IndexError) as exc:
-            raise BadInput(f"--true-model {args.true_model}: {exc}; give the file 'ambid target-model' wrote")
+            raise BadInput(f"--true-model {exc}; give the file 'ambid target-model' wrote") from None
     cfg = SessionConfig(out_dir=args.out, kind=args.kind, band_hz=tuple(args.band), resolution_hz=args.resolution,
                         peak_current_a=args.peak_current, periods=args.periods, realisations=args.realisations,
                         transient_periods=args.transient_periods, grid=args.grid, mimo=args.mimo, phases=args.phases,

@@ -31,6 +31,9 @@ def run(args: argparse.Namespace) -> int:
     from ambid_nodes.commands.inputs import BadInput, output_file
 
     out = output_file(args.out, "--out")
+    for given, what in ((args.data, "the record"), (args.map, "MAP.yaml")):   # --overwrite would replace it
+        if out.exists() and os.path.exists(given) and os.path.samefile(out, given):
+            raise BadInput(f"--out {out} is {what} being imported; give a new .mcap file name")
     if out.exists() and not args.overwrite:
         raise BadInput(f"--out {out} exists; give a new file name or add --overwrite")
     try:

@@ -132,12 +132,23 @@ def controller(text: str) -> str:
     if text == "" or text in CONTROLLER_KINDS:  # "": the rig file's controller, else pid
         return text
     if is_controller_file(text):
+        if Path(text).is_dir():
+            raise argparse.ArgumentTypeError(f"controller file {text} is a folder; give the file in it")
         if not Path(text).is_file():
             raise argparse.ArgumentTypeError(f"controller file {text} does not exist")
         return str(Path(text).resolve())
     kinds = ", ".join(CONTROLLER_KINDS)
     raise argparse.ArgumentTypeError(f"'{text}' is neither a controller kind ({kinds}) nor a controller file "
                                      f"({', '.join(FILE_SUFFIXES)})")
+
+
+def no_controller_on_hardware(args: argparse.Namespace) -> None:
+    """:class:`BadInput` for ``--controller`` beside ``--hardware``: the target closes the loop with its own
+    controller, so the option would be ignored while the summary seems to say it ran."""
+    if getattr(args, "hardware", None) and getattr(args, "controller", ""):
+        raise BadInput("--controller with --hardware: the real-time target runs its own controller (for the C "
+                       "target, 'ambid target-model --controller ...' writes it into the model file); leave "
+                       "--controller out")
 
 
 def check_band(band: tuple[float, float], option: str = "--band") -> tuple[float, float]:
