@@ -254,7 +254,9 @@ def write_report(report_dir: str | Path, summary: Mapping[str, Any], *, frf: Frf
 
     models = ", ".join(curves)
     add("bode_magnitude.png", f"FRF matrix magnitude [dB re 1 m/A], measured ({frf.estimator} estimator, dots) "
-        f"with its +-2 sigma {sigma_kind} band, and {models}.",
+        f"with its +-2 sigma {sigma_kind} band, and {models}. The band covers the best linear approximation "
+        "at this excitation level; the small-signal model at rest differs from it by the magnets' nonlinearity "
+        "(the excitation stiffens them), a bias the band does not hold.",
         lambda p: figures.bode_matrix(frf.freq_hz, frf.frf, std, curves, "magnitude", p, **names))
     add("bode_phase.png", f"FRF matrix phase [deg], measured (dots) and {models}.",
         lambda p: figures.bode_matrix(frf.freq_hz, frf.frf, std, curves, "phase", p, **names))

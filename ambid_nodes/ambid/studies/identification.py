@@ -564,7 +564,10 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
             noise_only=[] if var is not None and var_kind.startswith("var_total") else
             ["frf band", "parameters", "modes"],
             frf_band=f"+-2 sigma with sigma^2 = {var_kind} (total: noise and the stochastic nonlinear "
-                     "distortion, from the realisation-to-realisation scatter; noise only with one realisation)",
+                     "distortion, from the realisation-to-realisation scatter; noise only with one realisation). "
+                     "It covers the best linear approximation at this excitation level (the magnets' slopes "
+                     "averaged over the excursions the excitation causes), not the small-signal model at rest: "
+                     "the magnets' nonlinearity shifts the low lines by about 0.5-1 %, a bias no variance holds",
             noise_std="95 % interval (Student t) of each output's noise std from the scatter of the segments' "
                       "period-to-period variances (the noise is coloured by the loop, so the samples' chi2 "
                       "degrees of freedom would be too many); the truth is the sensor noise through the loop",
