@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 from ambid.control.pid import PidParameters, pid_controller
 from ambid.excitation.spec import build_design
-from ambid.fit.model_update import excitation_slopes
+from ambid.fit.model_update import closed_loop_noise_std, excitation_slopes
 from ambid.plant.rig import make_rig
-from ambid.plant.true_rig import levitated_plant
+from ambid.plant.true_rig import levitated_plant, true_linear_model
 from ambid.studies.coverage import FRF_NOMINAL, clopper_pearson, coverage_table, frf_record
-from scipy import stats
+from scipy import linalg, stats
 
 
 def test_clopper_pearson_against_closed_forms():
@@ -127,3 +127,33 @@ def test_validate_reuses_only_a_finished_seed_of_the_same_run(tmp_path):
     assert reusable_record(rec, "other") is None                    # another rig or code
     rec.write_text('{"fingerprint": "%s", "fr' % fp)          # cut short
     assert reusable_record(rec, fp) is None
+
+
+def test_closed_loop_noise_std_against_the_closed_loop_lyapunov_equation(loop):
+    # y = C x + v, u = K y: the closed loop's state covariance P = Acl P Acl^T + sigma^2 Bv Bv^T (written here),
+    # var(y) = C P C^T + sigma^2 (v is white, x holds only past noise)
+    rig, k = loop
+    g = true_linear_model(rig, discrete=True)
+    n, nk = g.a.shape[0], k.a.shape[0]
+    acl = np.block([[g.a + g.b @ k.d @ g.c, g.b @ k.c], [k.b @ g.c, k.a]])
+    bv = np.vstack([g.b @ k.d, k.b])
+    sigma = float(rig.values["sensor_noise_m"])
+    p = linalg.solve_discrete_lyapunov(acl, sigma**2 * bv @ bv.T)
+    c = np.hstack([g.c, np.zeros((4, nk))])
+    expected = np.sqrt(np.diag(c @ p @ c.T) + sigma**2)
+    np.testing.assert_allclose(closed_loop_noise_std(rig, k), expected, rtol=1e-4)
+    assert n > 0 and np.all(expected > sigma)   # the loop colours and amplifies the sensor noise
+
+
+def test_noise_interval_row_pools_the_outputs():
+    rng = np.random.default_rng(4)
+    records = []
+    for _ in range(200):
+        true, sd = np.full(4, 2e-7), np.full(4, 1e-9)
+        v = true + sd * rng.standard_normal(4)
+        ci = np.stack([v - 1.96 * sd, v + 1.96 * sd], axis=1)
+        records.append(dict(frf={}, intervals={}, noise=v.tolist(),
+                            noise_interval=dict(value=v.tolist(), std=sd.tolist(), ci95=ci.tolist(),
+                                                true=true.tolist())))
+    row = coverage_table(records)["noise_std (outputs pooled)"]
+    assert row["n"] == 800 and row["ci95"][0] < 0.95 < row["ci95"][1] and abs(row["std_ratio"] - 1) < 0.08

@@ -111,6 +111,14 @@ def test_frf_error_noise_and_sensitivity_figures(identified, session):
     s_out = np.linalg.inv(np.eye(4) - g @ k)
     expected = RIG.sensor_noise_m * np.sqrt((np.abs(s_out) ** 2).sum(axis=2).mean(axis=0))
     np.testing.assert_allclose(s["noise"]["output_noise_std_m"], expected, rtol=0.1)
+    # a 95 % interval about the estimate (no recorded controller in this session: no true noise level)
+    assert s["noise"]["true_output_noise_std_m"] is None
+    # what the band claims to cover is written beside it
+    assert "best linear approximation at this excitation level" in s["intervals"]["frf_band"]
+    assert "noise std" in s["intervals"]["noise_std"]
+    ci = np.array(s["noise"]["output_noise_std_ci95_m"])
+    assert ci.shape == (4, 2) and np.all((ci[:, 0] < s["noise"]["output_noise_std_m"])
+                                         & (s["noise"]["output_noise_std_m"] < ci[:, 1]))
     # linear simulation: the detection lines hold noise only (about 0 dB above the noise floor)
     assert np.all(np.abs(s["noise"]["distortion_odd_db"]) < 3) and np.all(np.abs(s["noise"]["distortion_even_db"]) < 3)
     sens = s["sensitivity"]

@@ -9,7 +9,7 @@ intervals built from it.
 import numpy as np
 from ambid.fit import update_parameters
 from ambid.fit.blas_threads import single_threaded_blas
-from ambid.frf import frf_noise_variance, period_mean_variance, row_covariance
+from ambid.frf import frf_noise_variance, noise_std_interval, period_mean_variance, row_covariance
 from scipy import stats
 
 
@@ -153,3 +153,29 @@ def test_sandwich_with_correlated_rows_claims_the_right_spread():
     spread = np.std(est, axis=0, ddof=1)
     assert np.all(np.abs(spread / np.sqrt(np.mean(np.square(s_rows), axis=0)) - 1) < 0.2)
     assert np.any(np.abs(spread / np.sqrt(np.mean(np.square(s_jac), axis=0)) - 1) > 0.3)
+
+
+def test_noise_std_interval_of_a_coloured_noise_covers_its_std():
+    # AR(1) noise x[n] = a x[n-1] + e[n]: var = s^2 / (1 - a^2) in closed form. Its samples are correlated, so
+    # the interval must come from the segments' scatter: 95 % of the trials' intervals hold the true std, and
+    # the claimed sd matches the estimates' scatter. Chi2 with the samples' N (P - 1) degrees of freedom
+    # claims a sd sqrt((1 + a^2) / (1 - a^2)) = 4.4 times too small here (a = 0.9).
+    a, s, trials, segs, p, n = 0.9, 0.3, 400, 8, 3, 256
+    rng = np.random.default_rng(5)
+    e = rng.standard_normal((trials, segs, p * n + 200)) * s
+    from scipy.signal import lfilter
+
+    x = lfilter([1.0], [1.0, -a], e, axis=-1)[..., 200:].reshape(trials, segs, p, n)
+    seg_var = x.var(axis=2, ddof=1).mean(axis=-1)                       # (trials, segs), as the stream keeps
+    true_std = s / np.sqrt(1 - a**2)
+    est = np.sqrt(seg_var.mean(axis=1))
+    sd, ci = zip(*(noise_std_interval(v[:, None]) for v in seg_var))
+    sd, ci = np.array(sd)[:, 0], np.array(ci)[:, 0]
+    covered = np.mean((ci[:, 0] <= true_std) & (true_std <= ci[:, 1]))
+    assert 0.92 <= covered <= 0.98
+    ratio = np.sqrt(np.mean((est - true_std) ** 2) / np.mean(sd**2))
+    assert 0.85 < ratio < 1.15
+    naive_sd = true_std / np.sqrt(2 * segs * n * (p - 1))
+    assert np.sqrt(np.mean((est - true_std) ** 2)) > 3 * naive_sd
+    # one segment: no scatter, no interval
+    assert np.all(np.isnan(noise_std_interval(seg_var[:1, :1])[1]))

@@ -50,12 +50,12 @@ from ambid.fit.updating import UpdateResult, update_parameters
 from ambid.plant.rig import Rig
 from ambid.plant.rotor_model import RotorModel
 from ambid.excitation.design import ExcitationDesign
-from ambid.plant.true_rig import delayed_zoh, levitated_plant, true_linear_model
+from ambid.plant.true_rig import TruePlant, delayed_zoh, levitated_plant, true_linear_model
 from ambid.statespace import StateSpace
 
 __all__ = ["ParameterInfo", "PARAMETERS", "DEFAULT_FREE", "PhysicalUpdate", "bending_coordinates",
-           "nominal_parameters", "true_parameters", "excitation_slopes", "physical_statespace", "physical_frf",
-           "update_physical_model", "unmodelled_mode"]
+           "nominal_parameters", "true_parameters", "excitation_slopes", "closed_loop_noise_std", "physical_statespace",
+           "physical_frf", "update_physical_model", "unmodelled_mode"]
 
 
 @dataclass(frozen=True)
@@ -187,6 +187,32 @@ def _loop_moments(rig: Rig, controller: StateSpace, design: ExcitationDesign,
         xn = np.stack([ni @ k, ng @ k], axis=1)                                    # (L, 2, 4 axes, 4 noises)
         cov += sigma**2 * np.einsum("liaj,lkaj->aik", xn, xn.conj()).real / n_noise_lines
     return cov, p
+
+
+def closed_loop_noise_std(rig: Rig, controller: StateSpace, plant: TruePlant | None = None,
+                          n_lines: int = 1 << 15) -> np.ndarray:
+    """Standard deviation of the measured outputs' noise in the true linear closed loop [m], (4,).
+
+    The sensors' white noise v (std ``sensor_noise_m`` per sample) reaches
+    the outputs as y = (I - G K)^-1 v (positive feedback u = K y + r), so
+    var(y_i) = sigma^2 mean over the unit circle of sum_j |S_ij|^2
+    (Parseval, midpoint rule over ``n_lines`` lines of 0..fs/2: fine enough
+    for the lightly damped closed-loop modes). What the period-to-period
+    scatter of a periodic measurement estimates.
+
+    Args:
+        rig: the true rig.
+        controller: the discrete controller y -> ic that ran (dt = rig.dt).
+        plant: the affine model to linearise (default the levitated one), e.g.
+            the magnets' slopes at the excitation level.
+
+    Returns:
+        (4,) std per sensor, DISPLACEMENT_NAMES order [m].
+    """
+    g = true_linear_model(rig, discrete=True, plant=plant)
+    f = (np.arange(n_lines) + 0.5) / n_lines / (2 * rig.dt)
+    s_out = np.linalg.inv(np.eye(4) - g.freqresp(f) @ controller.freqresp(f))
+    return float(rig.values["sensor_noise_m"]) * np.sqrt((np.abs(s_out) ** 2).sum(axis=2).mean(axis=0))
 
 
 def excitation_slopes(rig: Rig, controller: StateSpace, design: ExcitationDesign,

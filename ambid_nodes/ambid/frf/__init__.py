@@ -16,7 +16,7 @@ from ambid.frf.periods import layout_length, period_spectra, split_periods
 from ambid.frf.sensitivity import (ZONE_LIMITS, input_sensitivity, input_sensitivity_from_models, iso14839_zone,
                                    sensitivity_diagonal, sensitivity_peak)
 from ambid.frf.uncertainty import (BlaEstimate, DistortionLevels, bla_robust, distortion_levels, frf_noise_variance,
-                                   output_noise_std, period_mean_variance, row_covariance)
+                                   noise_std_interval, output_noise_std, period_mean_variance, row_covariance)
 
 __all__ = [
     "load_arrays", "stack_channels",
@@ -26,5 +26,5 @@ __all__ = [
     "ZONE_LIMITS", "input_sensitivity", "input_sensitivity_from_models", "iso14839_zone",
     "sensitivity_diagonal", "sensitivity_peak",
     "BlaEstimate", "DistortionLevels", "bla_robust", "distortion_levels", "frf_noise_variance",
-    "output_noise_std", "period_mean_variance", "row_covariance",
+    "noise_std_interval", "output_noise_std", "period_mean_variance", "row_covariance",
 ]

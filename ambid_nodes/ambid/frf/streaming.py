@@ -48,7 +48,7 @@ from ambid.frf.directional import DirectionalFrf, directional_frf
 from ambid.frf.estimators import (arithmetic_mean, errors_in_variables, h1, h2, indirect, log_mean,
                                   multiple_coherence, per_period_frf)
 from ambid.frf.sensitivity import input_sensitivity, iso14839_zone, sensitivity_peak
-from ambid.frf.uncertainty import DistortionLevels, distortion_levels, frf_noise_variance
+from ambid.frf.uncertainty import DistortionLevels, distortion_levels, frf_noise_variance, noise_std_interval
 
 __all__ = ["ESTIMATORS", "Gap", "BlockReport", "StreamProgress", "SynchronousResponse", "FrfResult", "FrfStream",
            "match_inputs", "loop_consistency"]
@@ -175,6 +175,10 @@ class FrfResult:
         noise_std: (Ny,) output noise standard deviation from the
             period-to-period scatter of the time samples [unit of y]; NaN
             when not defined.
+        noise_std_ci95: (Ny, 2) its 95 % interval [unit of y], NaN with
+            fewer than 2 segments (:func:`ambid.frf.uncertainty.noise_std_interval`).
+        noise_std_sd: (Ny,) the estimate's standard deviation [unit of y], NaN
+            with fewer than 2 segments.
         output_names, input_names: (Ny,), (Nu,) channel names.
         n_realisations: realisations used.
         n_periods: records (m, p) used, summed over realisations.
@@ -211,6 +215,8 @@ class FrfResult:
     complete: bool
     synchronous: SynchronousResponse | None = None
     frf_realisations: np.ndarray | None = None
+    noise_std_ci95: np.ndarray | None = None
+    noise_std_sd: np.ndarray | None = None
 
     def directional(self) -> DirectionalFrf | None:
         """Forward and backward whirl FRFs (:mod:`ambid.frf.directional`) of a rotor's 4 x 4 x/y matrix in
@@ -412,6 +418,7 @@ class FrfStream:
         self._w_m2 = np.zeros((ny, p_max))
         self._noise_var_sum = np.zeros(ny)
         self._noise_segments = 0
+        self._noise_seg_vars: list[np.ndarray] = []   # (ny,) per segment: the interval's scatter
         self._next: int | None = None
         self._pos = 0  # experiment offset passed (received or lost)
         self._seg_done = 0
@@ -604,6 +611,7 @@ class FrfStream:
                 var = np.ascontiguousarray((self._w_m2[:, :pm] / (self._w_count - 1)).T)
                 self._noise_var_sum += var.mean(axis=0)   # (N, ny) as before: the same summation order
                 self._noise_segments += 1
+                self._noise_seg_vars.append(var.mean(axis=0))
             self._seg_done += 1
         real_end = self._real_end_l
         while self._real_done < len(real_end) and real_end[self._real_done] <= reached:
@@ -655,6 +663,7 @@ class FrfStream:
         freq = lines * (self.design.fs_hz / self.design.n_per_period)
         noise_std = (np.sqrt(self._noise_var_sum / self._noise_segments) if self._noise_segments
                      else np.full(ny, np.nan))
+        noise_sd, noise_ci = noise_std_interval(np.array(self._noise_seg_vars).reshape(-1, ny))
         return FrfResult(
             estimator=estimator, freq_hz=freq, lines=np.asarray(lines, dtype=np.int64),
             frf=fig["frf"], var_noise=fig["var_noise"], var_total=fig["var_total"],
@@ -664,7 +673,8 @@ class FrfStream:
             input_names=self.input_names, n_realisations=len(used),
             n_periods=int(sum(g.shape[2] for g in groups)), n_experiments=self.design.n_experiments,
             gaps=self.gaps, complete=self.finished, frf_realisations=fig["frf_realisations"],
-            synchronous=None if self._sync is None else self._synchronous(groups))
+            synchronous=None if self._sync is None else self._synchronous(groups),
+            noise_std_ci95=noise_ci, noise_std_sd=noise_sd)
 
     def _synchronous(self, groups: list[np.ndarray]) -> SynchronousResponse | None:
         """Mean and scatter of the disturbance lines over all records (y and u channels)."""

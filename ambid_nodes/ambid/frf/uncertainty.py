@@ -32,12 +32,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import stats
 
 from ambid.frf.estimators import _matched, _records, _right_divide, per_period_frf
 
 __all__ = [
     "period_mean_variance", "frf_noise_variance", "BlaEstimate", "bla_robust",
-    "DistortionLevels", "distortion_levels", "output_noise_std", "row_covariance",
+    "DistortionLevels", "distortion_levels", "noise_std_interval", "output_noise_std", "row_covariance",
 ]
 
 
@@ -219,6 +220,38 @@ def output_noise_std(periods: np.ndarray) -> np.ndarray:
     if not np.all(np.isfinite(periods)):
         raise ValueError("periods contain NaN or inf; clean the time data first")
     return np.sqrt(periods.var(axis=2, ddof=1).mean(axis=(0, 1, 2)))
+
+
+def noise_std_interval(segment_variances: np.ndarray, level: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
+    """Standard deviation and interval of the noise std sqrt(mean over segments of v_s).
+
+    Each segment's period-to-period variance v_s averages N (P - 1) squared
+    deviations, but of a coloured process (the sensor noise through the
+    closed loop), so the chi^2 law with N (P - 1) degrees of freedom would
+    be too narrow by the noise's correlation length. The segments are
+    independent records: the scatter of the S values v_s gives the variance
+    of their mean, and Student's t with S - 1 degrees of freedom the
+    interval, which the square root carries to the std (its standard
+    deviation by the delta method, sd(v_mean) / (2 sqrt(v_mean))).
+
+    Args:
+        segment_variances: (S, n_ch) each segment's mean period-to-period
+            variance [unit^2].
+        level: the interval's level.
+
+    Returns:
+        (sd (n_ch,), interval (n_ch, 2)) in the unit of the samples; NaN
+        with S < 2.
+    """
+    v = np.asarray(segment_variances, dtype=float)
+    s, n_ch = v.shape
+    if s < 2:
+        return np.full(n_ch, np.nan), np.full((n_ch, 2), np.nan)
+    mean = v.mean(axis=0)
+    sd_mean = v.std(axis=0, ddof=1) / np.sqrt(s)
+    half = stats.t.ppf(0.5 + level / 2, s - 1) * sd_mean
+    ci = np.sqrt(np.clip(np.stack([mean - half, mean + half], axis=1), 0.0, None))
+    return sd_mean / (2 * np.sqrt(mean)), ci
 
 
 def row_covariance(var: np.ndarray, sensitivity: np.ndarray) -> np.ndarray:

@@ -89,7 +89,7 @@ def _headline(s: Mapping[str, Any]) -> list[list[str]]:
                          f"{_pct(err['updated_median'])} / {_pct(err['updated_worst'])}"])
     std = noise.get("output_noise_std_m")
     rows += [
-        ["output noise std [um]", _fmt([v * 1e6 if v is not None else None for v in std] if std else None, ".3g")],
+        ["output noise std [um] (95 % interval)", _noise_text(std, noise.get("output_noise_std_ci95_m"))],
         ["relative FRF noise (median sigma/|G|)", _pct(noise.get("relative_frf_noise_std"))],
         ["var_total / var_noise (median; ~1 if linear)", _fmt(noise.get("nonlinear_variance_ratio"), ".3g")],
         ["odd / even detection lines above noise [dB]",
@@ -104,6 +104,16 @@ def _headline(s: Mapping[str, Any]) -> list[list[str]]:
         rows.append(["worst mode frequency / damping error vs true",
                      f"{_pct(s['max_mode_freq_error'])} / {_pct(s['max_mode_damping_error'])}"])
     return rows
+
+
+def _noise_text(std: Sequence[float | None] | None, ci: Sequence[Sequence[float | None]] | None) -> str:
+    """Each output's noise std [um] with its 95 % interval where there is one."""
+    if not std:
+        return "-"
+    ci = ci or [None] * len(std)
+    return ", ".join("-" if v is None else f"{v * 1e6:.4g}" + ("" if c is None or None in c else
+                                                             f" ({c[0] * 1e6:.4g}..{c[1] * 1e6:.4g})")
+                     for v, c in zip(std, ci))
 
 
 def _pm(m: Mapping[str, Any], key: str, spec: str) -> str:
@@ -244,7 +254,9 @@ def write_report(report_dir: str | Path, summary: Mapping[str, Any], *, frf: Frf
 
     models = ", ".join(curves)
     add("bode_magnitude.png", f"FRF matrix magnitude [dB re 1 m/A], measured ({frf.estimator} estimator, dots) "
-        f"with its +-2 sigma {sigma_kind} band, and {models}.",
+        f"with its +-2 sigma {sigma_kind} band, and {models}. The band covers the best linear approximation "
+        "at this excitation level; the small-signal model at rest differs from it by the magnets' nonlinearity "
+        "(the excitation stiffens them), a bias the band does not hold.",
         lambda p: figures.bode_matrix(frf.freq_hz, frf.frf, std, curves, "magnitude", p, **names))
     add("bode_phase.png", f"FRF matrix phase [deg], measured (dots) and {models}.",
         lambda p: figures.bode_matrix(frf.freq_hz, frf.frf, std, curves, "phase", p, **names))

@@ -22,7 +22,9 @@ one row per kind:
 The FRF truth is the true rig's small-signal model sampled with the
 zero-order hold (:func:`ambid.plant.true_rig.true_linear_model`); the
 parameters' truth :func:`ambid.fit.model_update.true_parameters`; the modes'
-the true rig's poles (:func:`ambid.studies.identification.compare_modes`).
+the true rig's poles (:func:`ambid.studies.identification.compare_modes`); the
+noise level's the sensor noise through the true closed loop
+(:func:`ambid.fit.model_update.closed_loop_noise_std`).
 """
 
 from __future__ import annotations
@@ -97,8 +99,10 @@ def seed_record(summary: Mapping[str, Any], G: np.ndarray, truths: Mapping[str, 
         dict with ``frf`` (:func:`frf_record`), ``intervals`` (name -> value,
         std, ci95, true, noise_only) for the updated parameters reported as
         identified (``parameter:<name>``) and the fitted modes with an
-        interval (``mode_freq:<k>``, ``mode_damping:<k>``), and ``noise``
-        (the estimated output noise std per channel).
+        interval (``mode_freq:<k>``, ``mode_damping:<k>``), ``noise``
+        (the estimated output noise std per channel) and ``noise_interval``
+        (its value, std, ci95 and true closed-loop noise std per channel, or
+        None where the session has no truth).
     """
     items = []
     upd = summary.get("update") or {}
@@ -111,11 +115,18 @@ def seed_record(summary: Mapping[str, Any], G: np.ndarray, truths: Mapping[str, 
             if m.get(f"{q}_std") is not None:
                 items.append(dict(name=f"mode_{q}:{m['true_freq_hz']:.0f}Hz", value=m[q], std=m[f"{q}_std"], ci95=m[f"{q}_ci95"], true=m[tq],
                                   noise_only=m.get("noise_only")))
-    noise = (summary.get("noise") or {}).get("output_noise_std_m")
+    nz = summary.get("noise") or {}
+    noise = nz.get("output_noise_std_m")
     frf = {f"{kind} vs {truth}": row for truth, gt in truths.items()
            for kind, row in frf_record(G, gt, variances).items()}
+    noise_interval = None
+    if all(nz.get(k) is not None for k in ("output_noise_std_sd_m", "output_noise_std_ci95_m",
+                                          "true_output_noise_std_m")):
+        noise_interval = dict(value=[float(x) for x in noise], std=[float(x) for x in nz["output_noise_std_sd_m"]],
+                              ci95=[[float(c) for c in ci] for ci in nz["output_noise_std_ci95_m"]],
+                              true=[float(x) for x in nz["true_output_noise_std_m"]])
     return dict(frf=frf, intervals=_interval_rows("", items),
-                noise=None if noise is None else [float(x) for x in noise])
+                noise=None if noise is None else [float(x) for x in noise], noise_interval=noise_interval)
 
 
 def _row(nominal: float, covered: int, n: int, err2: float, var: float, **extra) -> dict:
@@ -131,8 +142,9 @@ def coverage_table(records: Sequence[Mapping[str, Any]]) -> dict:
         kind -> {nominal, coverage, ci95 [lo, hi], covered, n, std_ratio, ...}:
         ``frf:<variance kind>`` for the FRF bands, ``<item name>`` for each
         parameter and mode interval (with bias and scatter relative to the
-        claimed std), ``noise_std`` for the noise level (its scatter over the
-        seeds; ambid prints no interval on it).
+        claimed std), ``noise_std (outputs pooled)`` for the noise level's
+        interval (each seed's outputs are cases) and ``noise_std`` for its
+        scatter over the seeds.
     """
     table: dict[str, dict] = {}
     kinds = sorted({k for r in records for k in r["frf"]})
@@ -153,13 +165,26 @@ def coverage_table(records: Sequence[Mapping[str, Any]]) -> dict:
                            true=float(np.mean(t)), bias_over_std=float(np.mean(v - t) / rms_s),
                            scatter_over_std=float(np.std(v, ddof=1) / rms_s) if len(v) > 1 else float("nan"),
                            noise_only=bool(rows[0]["noise_only"]), claim="95 % interval holds the truth")
+    noise_iv = [r["noise_interval"] for r in records if r.get("noise_interval")]
+    if noise_iv:
+        # the outputs of all seeds pooled: one claim, the same formula for each sensor
+        v, s, t = (np.concatenate([x[k] for x in noise_iv]) for k in ("value", "std", "true"))
+        ci = np.concatenate([np.asarray(x["ci95"], dtype=float).reshape(-1, 2) for x in noise_iv])
+        ok = np.isfinite(s) & np.isfinite(t) & np.all(np.isfinite(ci), axis=1)
+        v, s, t, ci = v[ok], s[ok], t[ok], ci[ok]
+        if v.size:
+            rms_s = float(np.sqrt(np.mean(s**2)))
+            table["noise_std (outputs pooled)"] = _row(
+                0.95, int(np.sum((ci[:, 0] <= t) & (t <= ci[:, 1]))), int(v.size), float(np.sum((v - t) ** 2)),
+                float(np.sum(s**2)), bias_over_std=float(np.mean(v - t) / rms_s), noise_only=True,
+                claim="95 % interval of each output's noise std holds the true closed-loop noise std")
     noise = [r["noise"] for r in records if r.get("noise") is not None]
     if noise:
         x = np.array(noise)
         table["noise_std"] = dict(nominal=None, coverage=None, n=int(x.shape[0]), mean_m=x.mean(axis=0).tolist(),
                                   relative_scatter=float(np.mean(x.std(axis=0, ddof=1) / x.mean(axis=0)))
                                   if x.shape[0] > 1 else None,
-                                  claim="no interval printed; the estimate's scatter over the seeds")
+                                  claim="the estimate's scatter over the seeds")
     return table
 
 

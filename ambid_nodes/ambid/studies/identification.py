@@ -55,8 +55,8 @@ from ambid.control.closed_loop import loop_robustness
 from ambid.excitation.design import ExcitationDesign
 from ambid.fit import (FitResult, StabilisationDiagram, fit_common_denominator, modal_summary, save_model_json,
                        save_model_npz, stabilisation_diagram)
-from ambid.fit.model_update import (PhysicalUpdate, excitation_slopes, nominal_parameters, physical_frf,
-                                    true_parameters, unmodelled_mode, update_physical_model)
+from ambid.fit.model_update import (PhysicalUpdate, closed_loop_noise_std, excitation_slopes, nominal_parameters,
+                                    physical_frf, true_parameters, unmodelled_mode, update_physical_model)
 from ambid.frf.directional import directional_frf, whirl_of_residue
 from ambid.frf.levels import LineLevels, line_levels
 from ambid.frf.offline import frf_from_session, session_designs
@@ -447,7 +447,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     facts, source = session_rig(path, namespace + _PLANT_TOPIC, recover=recover)
     the_rig = _load_rig(rig, facts)
     simulated = facts is not None and source == "sim"
-    true_g = true_params = true_g_x = None
+    true_g = true_params = true_g_x = true_noise = None
     modes_vs_true: list[dict] = []
     if the_rig is None:
         notes.append("no rig in the session and none given: no nominal model, no updating")
@@ -467,6 +467,9 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         physical = [(m.freq_hz, m.damping) for m, row in zip(modes, mode_rows) if row["stable"] and m.damping > 0]
         # the modes of the linear system this excitation measures (the magnets' stiffness moves them)
         true_plant_x = None if true_g_x is None else true_plant(true_rig, ki_x, ks_x)
+        if recorded is not None and frf.noise_std.shape == (4,):
+            # the sensor noise through the loop this excitation linearises
+            true_noise = closed_loop_noise_std(true_rig, recorded[0], true_plant_x)
         modes_vs_true = compare_modes(physical or [(m.freq_hz, m.damping) for m in modes],
                                       true_modes(true_linear_model(true_rig, plant=true_plant_x).poles(), band),
                                       design.fs_hz / design.n_per_period)
@@ -515,7 +518,9 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
             e_upd = frf_relative_error(physical_frf(the_rig.rotor_model(), upd.parameters, f, dt_s), true_g)
             frf_error.update(updated_median=float(np.median(e_upd)), updated_worst=float(np.max(e_upd)))
     dist = frf.distortion
-    noise = dict(output_noise_std_m=frf.noise_std, relative_frf_noise_std=frf.relative_noise_std,
+    noise = dict(output_noise_std_m=frf.noise_std, output_noise_std_ci95_m=frf.noise_std_ci95,
+                 output_noise_std_sd_m=frf.noise_std_sd, true_output_noise_std_m=true_noise,
+                 relative_frf_noise_std=frf.relative_noise_std,
                  nonlinear_variance_ratio=frf.nonlinear_ratio,
                  distortion_odd_db=None if dist is None else dist.odd_db,
                  distortion_even_db=None if dist is None else dist.even_db, fit_weights=var_kind)
@@ -559,7 +564,13 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
             noise_only=[] if var is not None and var_kind.startswith("var_total") else
             ["frf band", "parameters", "modes"],
             frf_band=f"+-2 sigma with sigma^2 = {var_kind} (total: noise and the stochastic nonlinear "
-                     "distortion, from the realisation-to-realisation scatter; noise only with one realisation)",
+                     "distortion, from the realisation-to-realisation scatter; noise only with one realisation). "
+                     "It covers the best linear approximation at this excitation level (the magnets' slopes "
+                     "averaged over the excursions the excitation causes), not the small-signal model at rest: "
+                     "the magnets' nonlinearity shifts the low lines by about 0.5-1 %, a bias no variance holds",
+            noise_std="95 % interval (Student t) of each output's noise std from the scatter of the segments' "
+                      "period-to-period variances (the noise is coloured by the loop, so the samples' chi2 "
+                      "degrees of freedom would be too many); the truth is the sensor noise through the loop",
             parameters="95 % intervals (Student t) from a sandwich covariance: the Jacobian of the fit weighted "
                        f"by {var_kind}, the errors of a line correlated (within a row through U^-1, between rows "
                        "as the residuals show), scaled by the generalised chi2/dof, so they hold the misfit too. "

@@ -54,8 +54,12 @@ def format_summary(s: dict) -> str:
         lines.append(f"FRF error vs true rig: median {_pct(err['median'])}, worst {_pct(err['worst'])} at "
                      f"{err['worst_at_hz']:g} Hz (fitted model: median {_pct(err['fitted_median'])})")
     std = noise.get("output_noise_std_m") or []
+    ci = noise.get("output_noise_std_ci95_m") or [None] * len(std)
     odd, even = noise.get("distortion_odd_db"), noise.get("distortion_even_db")
-    lines.append("output noise std [um]: " + ", ".join("-" if v is None else f"{v * 1e6:.3g}" for v in std)
+    lines.append("output noise std [um] (95 % interval): "
+                 + ", ".join("-" if v is None else f"{v * 1e6:.4g}" + ("" if c is None or None in c else
+                                                                       f" ({c[0] * 1e6:.4g}..{c[1] * 1e6:.4g})")
+                             for v, c in zip(std, ci))
                  + (f"; detection lines above noise: odd {max(odd):+.1f} dB, even {max(even):+.1f} dB (worst output)"
                     if odd and even and None not in odd + even else ""))
     lines.append(f"model order {fit['order']} (chi2/dof {fit['chi2_per_dof']:.3g}); modes: "
