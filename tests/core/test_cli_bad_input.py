@@ -144,6 +144,7 @@ OPTION_VALUES = [  # argv, the option the error names
     (["bench", "--repeats", "0"], "--repeats"),
     (["validate", "--seeds", "0"], "--seeds"),
     (["validate", "--preset", "huge"], "--preset"),
+    (["validate", "--controller", "bogus"], "--controller"),
 ]
 
 

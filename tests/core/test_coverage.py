@@ -157,3 +157,14 @@ def test_noise_interval_row_pools_the_outputs():
                                                 true=true.tolist())))
     row = coverage_table(records)["noise_std (outputs pooled)"]
     assert row["n"] == 800 and row["ci95"][0] < 0.95 < row["ci95"][1] and abs(row["std_ratio"] - 1) < 0.08
+
+
+def test_validate_does_not_reuse_a_seed_run_under_another_controller(tmp_path):
+    from ambid_nodes.commands.validate import run_fingerprint
+
+    ctrl = tmp_path / "site.npz"
+    ctrl.write_bytes(b"one")
+    fp = run_fingerprint("", False, str(ctrl))
+    assert fp != run_fingerprint("", False) and fp != run_fingerprint("", False, "lqg")
+    ctrl.write_bytes(b"two")  # the same file name with another controller in it
+    assert fp != run_fingerprint("", False, str(ctrl))

@@ -22,7 +22,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
-from ambid_nodes.commands.inputs import output_dir, positive_int, rig_file
+from ambid_nodes.commands.inputs import checked_controller, controller, output_dir, positive_int, rig_file
 
 HELP = "measure the coverage of every printed interval over many seeds of the identify session"
 PRESET_SEEDS = {"quick": 6, "full": 20}
@@ -36,6 +36,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="quick (6 seeds) or full (20 seeds); the session is identify's default either way")
     p.add_argument("--first-seed", type=int, default=1, help="first seed (default 1); seeds are consecutive")
     p.add_argument("--rig", default="", help="rig parameter YAML file (default: the built-in rig)")
+    p.add_argument("--controller", type=controller, default="",
+                   help="position controller: a kind or a controller file (default: the rig file's, else pid)")
     p.add_argument("--jobs", type=positive_int, default=None,
                    help="sessions run at once (default: the cores, at most 2)")
     p.add_argument("--out", type=Path, default=Path("validate"), help="output folder (default ./validate)")
@@ -44,12 +46,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-figure", action="store_true", help="skip coverage.png")
 
 
-def run_fingerprint(rig_path: str, linear_magnets: bool) -> str:
-    """What a reused seed must share with this run: the rig file's content, the magnet law and the git commit."""
+def run_fingerprint(rig_path: str, linear_magnets: bool, controller_spec: str = "") -> str:
+    """What a reused seed must share with this run: the rig file's content, the magnet law, the controller
+    (its name and, for a file, its content) and the git commit."""
     h = hashlib.sha256(b"linear" if linear_magnets else b"nonlinear")
     h.update(_code_version().encode())
     if rig_path:
         h.update(Path(rig_path).read_bytes())
+    if controller_spec:
+        h.update(controller_spec.encode())
+        if Path(controller_spec).is_file():
+            h.update(Path(controller_spec).read_bytes())
     return h.hexdigest()[:16]
 
 
@@ -73,7 +80,8 @@ def _init_worker(counter, base: int) -> None:
     os.environ["ROS_DOMAIN_ID"] = str(_DOMAIN)   # two sessions at once must not hear each other
 
 
-def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_magnets: bool = False) -> dict:
+def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_magnets: bool = False,
+             controller_spec: str = "") -> dict:
     """One identify session and its record; writes seed_dir/record.json last (atomically)."""
     import numpy as np
 
@@ -85,7 +93,7 @@ def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_m
     t0 = time.perf_counter()
     out = Path(seed_dir)
     cfg = SessionConfig(out_dir=out, seed=seed, rig_file=rig_path, progress=False,
-                        nonlinear_magnets=not linear_magnets)
+                        nonlinear_magnets=not linear_magnets, controller=controller_spec)
     run = run_session_composed(cfg)
     summary = identify_session(run["mcap_path"], out, estimator=cfg.estimator, report=False)
     frf = np.load(out / "frf.npz")
@@ -118,11 +126,12 @@ def run(args: argparse.Namespace) -> int:
 
     from ambid.studies.coverage import coverage_figure, coverage_table
 
-    rig_file(args.rig)   # a bad rig file stops here, before any session starts
+    # a bad rig or controller file, or a controller that cannot hold the rig, stops here before any session
+    checked_controller(args.controller, rig_file(args.rig))
     out = output_dir(args.out)
     n = args.seeds or PRESET_SEEDS[args.preset]
     seeds = list(range(args.first_seed, args.first_seed + n))
-    fp = run_fingerprint(args.rig, args.linear_magnets)
+    fp = run_fingerprint(args.rig, args.linear_magnets, args.controller)
     (out / "seeds").mkdir(parents=True, exist_ok=True)
     records, todo = {}, []
     for s in seeds:
@@ -143,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
         with ProcessPoolExecutor(max_workers=min(jobs, len(todo), 2), mp_context=ctx, initializer=_init_worker,
                                  initargs=(ctx.Value("i", 0), base)) as pool:
             futures = {pool.submit(run_seed, s, args.rig, str(out / "seeds" / f"seed_{s:03d}"), fp,
-                                   args.linear_magnets): s
+                                   args.linear_magnets, args.controller): s
                        for s in todo}
             for fut in as_completed(futures):
                 s = futures[fut]
