@@ -58,9 +58,15 @@ def check_stability(plant: StateSpace, controller: StateSpace, label: str) -> np
     bad = poles[np.abs(poles) >= 1.0]
     if bad.size:
         bad = bad[np.argsort(-np.abs(bad))]
-        s = np.log(bad.astype(complex)) / controller.dt
-        desc = ", ".join(f"z={z:.4f} (s={v.real:+.1f}{v.imag:+.1f}j rad/s, {abs(v.imag) / (2 * np.pi):.1f} Hz)"
-                         for z, v in zip(bad, s))
+        # an axisymmetric rotor repeats each pole in x and y, and a conjugate pair is one mode: name each once
+        # (with its count) so the message stays one readable line
+        seen: dict[str, int] = {}
+        for z in bad:
+            v = np.log(complex(z)) / controller.dt
+            key = (f"z={z.real:.4f}{abs(z.imag):+.4f}j (s={v.real:+.1f}{abs(v.imag):+.1f}j rad/s, "
+                   f"{abs(v.imag) / (2 * np.pi):.1f} Hz)")
+            seen[key] = seen.get(key, 0) + 1
+        desc = ", ".join(k if n == 1 else f"{k} x{n}" for k, n in seen.items())
         raise ValueError(f"{label}: the closed loop is unstable; unstable poles: {desc}. "
                          "Retune the controller or check the rig parameters.")
     return poles
