@@ -141,7 +141,9 @@ def test_experiment_streams_blocks_the_plant_applies_at_their_index(ros):
 
 def test_stop_cuts_the_design_at_a_block_boundary(ros):
     # 80,000 samples, far longer than the test runs; lookahead 2000 >= block 500 + measurement block 1000
-    rig = Rig(ros, {**GEN, "periods": 40, "lookahead": 2000, "start_margin": 1000})
+    # a start 20,000 samples ahead: the free-running plant does ~10^5 samples/s, so a margin of 1000 (10 ms)
+    # was sometimes passed before the design arrived (seen in CI and in stop 14's review)
+    rig = Rig(ros, {**GEN, "periods": 40, "lookahead": 2000, "start_margin": 20_000})
     assert rig.call(rig.stop, StopExperiment.Request()).accepted is False  # nothing runs yet
     resp = rig.call(rig.start, StartExperiment.Request())
     assert resp.accepted and resp.total_samples == 80_000
