@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ambid.statespace import StateSpace
+from ambid.text_file import read_text
 
 FORMAT = "ambid_target_model"
 VERSION = 1
@@ -109,15 +110,7 @@ def write_target_model(path: str | os.PathLike, model: TargetModel) -> None:
 def read_target_model(path: str | os.PathLike) -> TargetModel:
     """The model in a file :func:`write_target_model` wrote (the C program is the strict reader of what it
     runs; this one refuses a file it cannot read: ValueError naming the file and what is wrong)."""
-    try:
-        with open(path, encoding="utf-8") as f:
-            toks = [t for line in f for t in line.split("#", 1)[0].split()]
-    except FileNotFoundError:
-        raise ValueError(f"{path} does not exist") from None
-    except IsADirectoryError:
-        raise ValueError(f"{path} is a folder") from None
-    except UnicodeDecodeError:
-        raise ValueError(f"{path} is not text (binary data)") from None
+    toks = [t for line in read_text(path).splitlines() for t in line.split("#", 1)[0].split()]
     if toks[:2] != [FORMAT, str(VERSION)]:
         raise ValueError(f"{path} is not an {FORMAT} {VERSION} file")
     try:

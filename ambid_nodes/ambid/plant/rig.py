@@ -38,6 +38,7 @@ from ambid.plant.magnet import MU0, MagnetPair
 from ambid.plant.rigid_rotor import RigidRotor
 from ambid.plant.rotor_import import load_rotor
 from ambid.plant.rotor_model import RotorModel, fem_rotor_model, rigid_inverse_mass
+from ambid.text_file import read_text
 
 
 @dataclass(frozen=True)
@@ -439,14 +440,7 @@ def load_rig(path: str | Path) -> Rig:
     """
     path = Path(path)
     fix = "give a YAML file of parameter: value lines like rigs/ideal.yaml, or leave out the rig file for the default"
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ValueError(f"rig file {path} does not exist; {fix}") from None
-    except IsADirectoryError:
-        raise ValueError(f"rig file {path} is a folder; {fix}") from None
-    except UnicodeDecodeError:
-        raise ValueError(f"rig file {path} is not text (binary data); {fix}") from None
+    text = read_text(path, "rig file", fix)
     if not text.strip():
         raise ValueError(f"rig file {path} is empty; {fix}")
     try:
