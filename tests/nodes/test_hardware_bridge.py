@@ -29,17 +29,10 @@ from rosgraph_msgs.msg import Clock
 
 from ambid_msgs.msg import ExcitationDesign, PlantDescription, SampleBlock, SessionEvent, SessionStatus
 from ambid_nodes import qos
+from udp_port import free_port
 
 NS = "/amb"
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-
-def free_port() -> int:
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
 
 
 class Spy(Node):

@@ -5,7 +5,6 @@ simulated rig at the same noise."""
 from __future__ import annotations
 
 import json
-import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -15,18 +14,11 @@ from ambid.hardware.target_model import rig_target_model, write_target_model
 from ambid.plant.rig import make_rig
 
 from ambid_nodes.session import SessionConfig, session_samples
+from udp_port import free_port
 
 ROOT = Path(__file__).resolve().parents[2]
 BIN = ROOT / "ros_ws" / "install" / "target_c" / "ambp_udp_target"
 SMALL = ["--resolution", "10", "--periods", "2", "--realisations", "1", "--transient-periods", "1", "--no-progress"]
-
-
-def free_port() -> int:
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
 
 
 def start_target(model: Path, *args: str) -> tuple[subprocess.Popen, str, int]:
