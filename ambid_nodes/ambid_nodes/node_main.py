@@ -90,8 +90,11 @@ def run_single(node_class, args=None) -> int:
                 print(SUMMARY_PREFIX + json.dumps(summary), flush=True)
                 code = 0 if summary.get("state") == "done" else 1
     except ParameterError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        code = 2
+        if rclpy.ok():
+            print(f"error: {exc}", file=sys.stderr)
+            code = 2
+        else:  # SIGINT/SIGTERM shut the context down while a parameter was declared: rcl refused its event
+            code = 130
     except (KeyboardInterrupt, ExternalShutdownException):
         code = 130
     except Exception:
