@@ -168,3 +168,27 @@ def test_validate_does_not_reuse_a_seed_run_under_another_controller(tmp_path):
     assert fp != run_fingerprint("", False) and fp != run_fingerprint("", False, "lqg")
     ctrl.write_bytes(b"two")  # the same file name with another controller in it
     assert fp != run_fingerprint("", False, str(ctrl))
+
+
+def test_noise_free_twin_rig_keeps_the_rig_and_its_files_but_not_the_noise(tmp_path, monkeypatch):
+    from ambid.plant.rig import load_rig
+    from ambid.plant.rotor_import import save_rotor
+    from ambid_nodes.commands.validate import noise_free_rig_file
+
+    user = tmp_path / "user"
+    user.mkdir()
+    save_rotor(user / "rotor.npz", make_rig().rotor_model())
+    (user / "rig.yaml").write_text("rotor_file: rotor.npz\nhousing_freq_hz: 150\nsensor_noise_m: 5.0e-7\n"
+                                   "controller: lqg\n")
+    monkeypatch.chdir(user)                       # the rig named relative to where the user stands
+    (tmp_path / "seed").mkdir()
+    twin_path = noise_free_rig_file("rig.yaml", tmp_path / "seed" / "twin.yaml")
+    monkeypatch.chdir(tmp_path)                   # the twin read from elsewhere names the same rotor
+    rig, twin = load_rig(user / "rig.yaml"), load_rig(twin_path)
+    assert twin.values["sensor_noise_m"] == 0.0 and rig.values["sensor_noise_m"] == 5.0e-7
+    assert {k: v for k, v in twin.values.items() if k != "sensor_noise_m"} == \
+        {k: v for k, v in rig.values.items() if k != "sensor_noise_m"}
+    assert np.array_equal(twin.rotor_model().a, rig.rotor_model().a)
+    assert twin.controller == rig.controller == "lqg"
+    assert load_rig(noise_free_rig_file("", tmp_path / "default.yaml")).values == \
+        {**make_rig().values, "sensor_noise_m": 0.0}

@@ -179,3 +179,51 @@ def test_noise_std_interval_of_a_coloured_noise_covers_its_std():
     assert np.sqrt(np.mean((est - true_std) ** 2)) > 3 * naive_sd
     # one segment: no scatter, no interval
     assert np.all(np.isnan(noise_std_interval(seg_var[:1, :1])[1]))
+
+
+def test_weights_not_read_from_the_realisations_scatter_keep_that_scatter_honest():
+    # G_mpl = theta h_l + d_ml + n_mpl: M realisations (distortion d, fixed within one) of P periods (noise n).
+    # var(mean G) = (sd^2 + sn^2 / P) / M. A weighted mean theta_hat's variance is read from the realisations'
+    # scatter mapped through the fit (as ambid.fit.correlated does). Weights from that same scatter (var_total)
+    # make it read small (a line whose realisations happen to disagree gets a small weight); those of
+    # fit_weight_variance (the noise x the distortion share of the neighbouring lines) do not.
+    from ambid.frf import fit_weight_variance
+
+    m, p, n_lines, trials = 3, 4, 60, 3000
+    rng = np.random.default_rng(19)
+    f = np.linspace(0.0, 1.0, n_lines)
+    h = (1 + 2 * f) * np.exp(2j * np.pi * f)
+    sn2 = (0.05 * (1 + 3 * f**2)) ** 2                       # noise variance per period, smooth over the lines
+    sd2 = 1.5 * sn2 / p                                      # distortion 1.5 x the noise of a period mean
+    g = (h + np.sqrt(sd2) * _cn(rng, trials, m, 1, n_lines)) + np.sqrt(sn2) * _cn(rng, trials, m, p, n_lines)
+    # (trials, M, P, L)
+    gm = g.mean(axis=2)                                      # realisation means (trials, M, L)
+    gbar = gm.mean(axis=1)
+    var_noise = np.sum(np.abs(g - gm[:, :, None]) ** 2, axis=2).mean(axis=1) / (p * (p - 1)) / m
+    var_total = np.sum(np.abs(gm - gbar[:, None]) ** 2, axis=1) / (m * (m - 1))
+    exact = (sd2 + sn2 / p) / m
+
+    def claimed_and_actual(v):
+        w = np.abs(h) ** 2 / v                                 # (trials, L)
+        theta = np.sum(np.conj(h) * gbar / v, axis=1) / w.sum(axis=1)
+        d = np.sum(np.conj(h)[None, None] * (gm - gbar[:, None]) / v[:, None], axis=2) / w.sum(axis=1)[:, None]
+        claimed = np.sum(np.abs(d) ** 2, axis=1) / (m * (m - 1))
+        return claimed.mean(), np.mean(np.abs(theta - 1) ** 2)
+
+    own = claimed_and_actual(var_total)
+    fwv = np.stack([fit_weight_variance(var_noise[t][:, None, None], var_total[t][:, None, None])[:, 0, 0]
+                    for t in range(trials)])
+    ours = claimed_and_actual(fwv)
+    best = 1 / np.sum(np.abs(h) ** 2 / exact)                 # the variance with the exact weights
+    assert own[0] / own[1] < 0.5                              # the scatter reads far too small with its own weights
+    assert abs(ours[0] / ours[1] - 1) < 0.1                   # and right with weights it did not set
+    assert ours[1] < 1.4 * best < 2 * best < own[1]           # and the estimate is far closer to the best one
+    # the weight: the noise pooled over the inputs x the share averaged over the +-3 neighbours (the line
+    # itself left out), floored at 1
+    vn = np.array([1.0, 2.0, 4.0, 1.0, 1.0, 1.0, 1.0, 1.0])[:, None, None] * np.array([[[1.0, 3.0]]])
+    vt = vn * np.array([3.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.2])[:, None, None]
+    out = fit_weight_variance(vn, vt)
+    share = np.array([3.0, 1, 1, 1, 1, 1, 1, 0.2])
+    mean_share = [np.delete(share[max(0, i - 3):i + 4], min(i, 3)).mean() for i in range(8)]
+    np.testing.assert_allclose(out[:, 0, 0], vn.mean(axis=2)[:, 0] * np.maximum(mean_share, 1.0))
+    np.testing.assert_array_equal(out[:, 0, :], out[:, 0, :1] * np.ones((1, 2)))

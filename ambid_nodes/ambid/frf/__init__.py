@@ -15,8 +15,8 @@ from ambid.frf.estimators import (SpectralFrf, arithmetic_mean, errors_in_variab
 from ambid.frf.periods import layout_length, period_spectra, split_periods
 from ambid.frf.sensitivity import (ZONE_LIMITS, input_sensitivity, input_sensitivity_from_models, iso14839_zone,
                                    sensitivity_diagonal, sensitivity_peak)
-from ambid.frf.uncertainty import (BlaEstimate, DistortionLevels, bla_robust, distortion_levels, frf_noise_variance,
-                                   noise_std_interval, output_noise_std, period_mean_variance, row_covariance)
+from ambid.frf.uncertainty import (BlaEstimate, DistortionLevels, bla_robust, distortion_levels, fit_weight_variance,
+                                   frf_noise_variance, noise_std_interval, output_noise_std, period_mean_variance, row_covariance)
 
 __all__ = [
     "load_arrays", "stack_channels",
@@ -25,6 +25,6 @@ __all__ = [
     "layout_length", "period_spectra", "split_periods",
     "ZONE_LIMITS", "input_sensitivity", "input_sensitivity_from_models", "iso14839_zone",
     "sensitivity_diagonal", "sensitivity_peak",
-    "BlaEstimate", "DistortionLevels", "bla_robust", "distortion_levels", "frf_noise_variance",
+    "BlaEstimate", "DistortionLevels", "bla_robust", "distortion_levels", "fit_weight_variance", "frf_noise_variance",
     "noise_std_interval", "output_noise_std", "period_mean_variance", "row_covariance",
 ]

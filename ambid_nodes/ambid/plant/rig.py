@@ -439,6 +439,17 @@ def load_rig(path: str | Path) -> Rig:
     beside the YAML, or a mapping, see :class:`Rig`).
     """
     path = Path(path)
+    data = read_rig_file(path)
+    try:
+        return make_rig(data, name=path.stem)
+    except ValueError as exc:
+        raise ValueError(f"rig file {path}: {exc}") from None
+
+
+def read_rig_file(path: str | Path) -> dict[str, Any]:
+    """A rig file's mapping, the files it names (``rotor_file``, a controller file) made absolute, so that
+    the mapping written elsewhere (e.g. with one value changed) names the same rig."""
+    path = Path(path)
     fix = "give a YAML file of parameter: value lines like rigs/ideal.yaml, or leave out the rig file for the default"
     text = read_text(path, "rig file", fix)
     if not text.strip():
@@ -462,7 +473,4 @@ def load_rig(path: str | Path) -> Rig:
         data["controller"] = {**ctrl, "file": str(_beside(path, ctrl["file"]))}
     elif isinstance(ctrl, str) and Path(ctrl).suffix.lower() in (".npz", ".mat", ".yaml", ".yml"):
         data["controller"] = str(_beside(path, ctrl))
-    try:
-        return make_rig(data, name=path.stem)
-    except ValueError as exc:
-        raise ValueError(f"rig file {path}: {exc}") from None
+    return data

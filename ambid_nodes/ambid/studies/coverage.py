@@ -161,10 +161,16 @@ def coverage_table(records: Sequence[Mapping[str, Any]]) -> dict:
         s = np.array([x["std"] for x in rows])
         cov = int(sum(x["ci95"][0] <= x["true"] <= x["ci95"][1] for x in rows))
         rms_s = float(np.sqrt(np.mean(s**2)))
+        extra = {}
+        if all("noise_free" in x for x in rows):
+            # the noise-free twins' estimates: what the excitation alone does (validate's run_seed)
+            e0 = np.array([x["noise_free"] for x in rows]) - t
+            extra = dict(noise_free_bias_over_std=float(np.mean(e0) / rms_s),
+                         noise_free_rms_over_std=float(np.sqrt(np.mean(e0**2)) / rms_s))
         table[name] = _row(0.95, cov, len(rows), float(np.sum((v - t) ** 2)), float(np.sum(s**2)),
                            true=float(np.mean(t)), bias_over_std=float(np.mean(v - t) / rms_s),
                            scatter_over_std=float(np.std(v, ddof=1) / rms_s) if len(v) > 1 else float("nan"),
-                           noise_only=bool(rows[0]["noise_only"]), claim="95 % interval holds the truth")
+                           noise_only=bool(rows[0]["noise_only"]), claim="95 % interval holds the truth", **extra)
     noise_iv = [r["noise_interval"] for r in records if r.get("noise_interval")]
     if noise_iv:
         # the outputs of all seeds pooled: one claim, the same formula for each sensor

@@ -61,7 +61,7 @@ from ambid.frf.directional import directional_frf, whirl_of_residue
 from ambid.frf.levels import LineLevels, line_levels
 from ambid.frf.offline import frf_from_session, session_designs
 from ambid.frf.sensitivity import iso14839_zone
-from ambid.frf.uncertainty import row_covariance
+from ambid.frf.uncertainty import fit_weight_variance, row_covariance
 from ambid.frf.streaming import FrfResult
 from ambid.jsonable import to_jsonable
 from ambid.plant.analytical import analytical_model
@@ -246,6 +246,17 @@ def _fit_variance(frf: FrfResult, pool: bool = True) -> tuple[np.ndarray | None,
     return None, "none (equal weights)"
 
 
+def _weight_variance(frf: FrfResult, var: np.ndarray | None, var_kind: str) -> tuple[np.ndarray | None, str]:
+    """The variance the fits weight by: the noise scaled by the distortion's share averaged over the
+    neighbouring lines (:func:`ambid.frf.uncertainty.fit_weight_variance`), where both are known; else ``var``."""
+    vn, vt = (np.asarray(getattr(frf, k), dtype=float) for k in ("var_noise", "var_total"))
+    if var is None or not (np.all(np.isfinite(vn)) and np.all(np.isfinite(vt)) and np.any(vn > 0)):
+        return var, var_kind
+    w = fit_weight_variance(vn, vt)
+    return (np.maximum(w, 1e-6 * np.median(w[w > 0])),
+            "var_noise x (var_total / var_noise averaged over +-3 lines), pooled over the inputs")
+
+
 def _nonlinear_magnets(path: str, recover: bool) -> bool:
     """Whether the simulated session ran the nonlinear magnets (the session config identify records; the
     plant node's default, linear, when the session does not say)."""
@@ -315,6 +326,32 @@ def _update(rig: Rig, frf: FrfResult, var, band, modes, dt_s, start_overrides, f
                                      row_covariance=row_cov, realisations=realisations), None
     except ValueError as exc:
         return None, str(exc)
+
+
+def refit_parameters(summary: Mapping[str, Any], rig: Rig, freq_hz: np.ndarray, G: np.ndarray,
+                     var: np.ndarray | None) -> dict[str, float]:
+    """The updated parameters of ``summary`` fitted again to another FRF at the same lines.
+
+    E.g. a noise-free twin of the session (:mod:`ambid_nodes.commands.validate`): started at the summary's
+    estimates, the same parameters free, the same weights ``var``.
+
+    Args:
+        summary: :func:`identify_session`'s summary, with ``update.parameters``.
+        rig: the rig the session updated.
+        freq_hz: (L,) lines [Hz].
+        G: (L, 4, 4) FRF u -> y [m/A].
+        var: (L, 4, 4) the session's fit variance [(m/A)^2], or None.
+
+    Returns:
+        free parameter name -> estimate; {} without an update in the summary.
+    """
+    params = ((summary.get("update") or {}).get("parameters")) or {}
+    start = {k: float(v["value"]) for k, v in params.items()}
+    free = [k for k, v in params.items() if v.get("free")]
+    if not free:
+        return {}
+    upd = update_physical_model(rig.rotor_model(), freq_hz, G, var, start, free, rig.dt)
+    return {k: float(upd.parameters[k]) for k in free}
 
 
 def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, estimator: str = "indirect",
@@ -403,6 +440,8 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     # and the realisations' own scatter, where it is wider (distortion coherent over the lines)
     realisations = (frf.frf_realisations if row_cov is not None and frf.frf_realisations is not None
                     and len(frf.frf_realisations) >= 2 else None)
+    # the fits weight by a variance that does not follow the realisations' scatter their intervals are read from
+    w_var, w_kind = _weight_variance(frf, var, var_kind)
     if frf.gaps:
         notes.append(f"{len(frf.gaps)} gap(s) in the measurement; the periods they touch were left out")
 
@@ -414,14 +453,14 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     orders = list(range(2, top + 1, 2))
     if not orders:
         raise ValueError(f"{f.size} lines are too few for a parametric fit; excite more lines")
-    diagram = stabilisation_diagram(f, frf.frf, var, orders=orders, delay_s=fit_delay)
+    diagram = stabilisation_diagram(f, frf.frf, w_var, orders=orders, delay_s=fit_delay)
     rule = (f"smallest chi2 + {order_penalty:g} p among orders with stable, positively damped in-band modes")
     if order is None:
-        order = select_order(diagram, band, f.size, frf.frf.shape[1] * frf.frf.shape[2], var is not None,
+        order = select_order(diagram, band, f.size, frf.frf.shape[1] * frf.frf.shape[2], w_var is not None,
                              order_penalty)
     else:
         rule = "given"
-    fit: FitResult = fit_common_denominator(f, frf.frf, var, order=int(order), delay_s=fit_delay,
+    fit: FitResult = fit_common_denominator(f, frf.frf, w_var, order=int(order), delay_s=fit_delay,
                                             row_covariance=row_cov, realisations=realisations, **labels)
     summary_modes = modal_summary(fit.model)
     prev = diagram.orders[diagram.orders < order]
@@ -491,7 +530,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     update_error = None
     if update and the_rig is not None:
         stable = [m for m, row in zip(modes, mode_rows) if row["stable"]]
-        upd, update_error = _update(the_rig, frf, var, band, stable, dt_s, update_start, update_free, row_cov,
+        upd, update_error = _update(the_rig, frf, w_var, band, stable, dt_s, update_start, update_free, row_cov,
                                     realisations)
         if update_error:
             notes.append(f"model updating failed: {update_error}")
@@ -500,7 +539,8 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     if true_g_x is not None:
         truths["true_frf_at_excitation"] = true_g_x
     np.savez(out / "frf.npz", freq_hz=f, frf=frf.frf, var_noise=frf.var_noise, var_total=frf.var_total,
-             var_band=band_var, coherence=frf.coherence, sensitivity=frf.sensitivity,
+             var_band=band_var, **({} if w_var is None else dict(var_fit=w_var)),
+             coherence=frf.coherence, sensitivity=frf.sensitivity,
              input_names=np.array(frf.input_names), output_names=np.array(frf.output_names), **truths,
              **({} if dfrf is None else dict(forward=dfrf.forward, backward=dfrf.backward)))
 
@@ -523,7 +563,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
                  relative_frf_noise_std=frf.relative_noise_std,
                  nonlinear_variance_ratio=frf.nonlinear_ratio,
                  distortion_odd_db=None if dist is None else dist.odd_db,
-                 distortion_even_db=None if dist is None else dist.even_db, fit_weights=var_kind)
+                 distortion_even_db=None if dist is None else dist.even_db, fit_weights=w_kind)
     update_dict = None
     if upd is not None:
         update_dict = upd.to_dict()
@@ -558,7 +598,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         controller=(recorded_controller(path, recover) or (None, None))[1],
         simulated=simulated, frf_error=frf_error, noise=noise,
         fit=dict(order=int(order), order_rule=rule, chi2_per_dof=fit.chi2_per_dof, delay_s=fit_delay,
-                 weights=var_kind, orders_tried=diagram.orders, chi2_per_dof_by_order=diagram.chi2_per_dof,
+                 weights=w_kind, orders_tried=diagram.orders, chi2_per_dof_by_order=diagram.chi2_per_dof,
                  modes=mode_rows, real_poles=real_rows, refine_message=fit.message),
         intervals=dict(
             noise_only=[] if var is not None and var_kind.startswith("var_total") else
@@ -572,7 +612,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
                       "period-to-period variances (the noise is coloured by the loop, so the samples' chi2 "
                       "degrees of freedom would be too many); the truth is the sensor noise through the loop",
             parameters="95 % intervals (Student t) from a sandwich covariance: the Jacobian of the fit weighted "
-                       f"by {var_kind}, the errors of a line correlated (within a row through U^-1, between rows "
+                       f"by {w_kind}, the line covariance {var_kind}, the errors of a line correlated (within a row through U^-1, between rows "
                        "as the residuals show), scaled by the generalised chi2/dof, so they hold the misfit too. "
                        "ki and ks "
                        "are compared with the true magnets' slopes at this excitation level (true_small_signal: at "
