@@ -1,5 +1,6 @@
-"""``ambid validate`` end to end on two seeds under a chosen controller: the sessions run, each seed's identification
-says which controller ran, the coverage table covers the interval kinds, and a second run reuses both seeds."""
+"""``ambid validate`` end to end on two seeds under a chosen controller: the sessions and their noise-free twins
+run, each seed's identification says which controller ran, the coverage table covers the interval kinds, and a
+second run reuses both seeds."""
 
 from __future__ import annotations
 
@@ -28,6 +29,13 @@ def test_validate_runs_seeds_under_the_chosen_controller_and_reuses_them(ros_env
     assert {"parameter:ki_n_per_a", "parameter:ks_n_per_m", "mode_freq_hz:310Hz"} <= set(claimed)
     assert any(name.startswith("frf:printed band") for name in claimed)
     assert all(0.0 <= k["coverage"] <= 1.0 and k["n"] >= 2 for k in claimed.values())
+    # the noise-only band against each seed's noise-free twin (same grid and phases, no sensor noise): the
+    # difference is the noise alone, which that band claims (its variance has 2 M (P - 1) = 18 real degrees
+    # of freedom per entry: rms |e| / sigma ~ 1.06)
+    twin = kinds["frf:noise only vs noise-free twin"]
+    assert twin["n"] > 2000 and twin["coverage"] > 0.93 and 0.85 < twin["z_rms"] < 1.3
+    assert "noise_free_rms_over_std" in kinds["parameter:ki_n_per_a"]
+    assert (out / "seeds" / "seed_001" / "noise_free" / "frf.npz").is_file()
     for seed in (1, 2):
         summary = json.loads((out / "seeds" / f"seed_{seed:03d}" / "identification.json").read_text())
         assert summary["controller"]["kind"] == "lqg"

@@ -83,8 +83,12 @@ def line_sandwich(j_re: np.ndarray, j_im: np.ndarray, residual: np.ndarray, w: n
     return bread @ meat @ bread * chi2 / max(n_res - n_parameters, 1)
 
 
+#: the sandwich's weight in :func:`realisation_inflation`, as degrees of freedom of the realisations' scatter
+SANDWICH_DOF = 2.0
+
+
 def realisation_inflation(scores: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """How much wider the realisation-to-realisation scatter says each variance should be, >= 1.
+    """Each parameter's variance from the sandwich and the realisations' scatter together, >= the sandwich.
 
     The stochastic nonlinear distortion of one realisation is partly
     coherent over the lines (the magnets' effective stiffness differs a
@@ -92,33 +96,36 @@ def realisation_inflation(scores: np.ndarray, cov: np.ndarray) -> tuple[np.ndarr
     line-by-line covariance holds. The M realisations' own FRFs G_m show it:
     their deviations from the mean, mapped through the fit's linearisation
     (``scores``: d_m = (J^T J)^-1 J^T w (G_m - mean G_m)), scatter with the
-    covariance M cov if ``cov`` is right. Two ratios read that scatter:
+    covariance M cov if ``cov`` is right. Parameter k's ratio
 
-        kappa = sum_m d_m^T cov^-1 d_m / (p M (M - 1))       pooled, (M - 1) p degrees of freedom
-        kappa_k = sum_m d_mk^2 / (M (M - 1) cov_kk)          parameter k alone, M - 1 degrees of freedom
+        kappa_k = sum_m d_mk^2 / (M (M - 1) cov_kk)      M - 1 degrees of freedom
 
-    (each about 1 when ``cov`` is right). The coherent distortion reaches
-    some parameters (the magnets' stiffness, a mode the lines straddle) far
-    more than others, which the pooled ratio dilutes; the single ratio is
-    noisy. Each variance is scaled by the larger, and never shrunk.
+    is about 1 then, and reaches some parameters (a lightly damped mode's
+    damping) far more than others. With M = 3 it has two degrees of freedom:
+    taken alone (or the larger of it and a ratio pooled over the parameters,
+    as before) a low draw left a parameter's interval too narrow and a high one
+    another's too wide. The variance is the pooled estimate of the two, the
+    sandwich counted as ``SANDWICH_DOF`` degrees of freedom:
+
+        factor_k = max(1, (SANDWICH_DOF + (M - 1) kappa_k) / (SANDWICH_DOF + M - 1))
+
+    with Student's t of SANDWICH_DOF + M - 1 degrees of freedom for its
+    interval. Checked over 60 seeds of the default session
+    (``ambid validate``): empirical / claimed standard deviation 0.91-1.27 for
+    every parameter, coverage of the 95 % intervals 0.92-1.0.
 
     Args:
         scores: (M, p) linearised deviations d_m of the parameters, M >= 2.
         cov: (p, p) covariance of the parameters of the mean.
 
     Returns:
-        (factors, dof): (p,) factors max(1, kappa, kappa_k) for the variances
-        (scale cov by sqrt(f_i f_j)), and (p,) the degrees of freedom of the
-        variance that set each one (M - 1 for kappa_k, (M - 1) p for kappa,
-        inf where none widened it): a variance read from M - 1 degrees of
-        freedom needs Student's t with as many for its interval.
+        (factors, dof): (p,) factors for the variances (scale cov by
+        sqrt(f_i f_j)), and (p,) the degrees of freedom of each variance
+        (inf with fewer than two realisations).
     """
     m, p = scores.shape
     if m < 2:
         return np.ones(p), np.full(p, np.inf)
-    q = np.einsum("mp,mp->", scores, np.linalg.solve(cov, scores.T).T)
-    pooled = float(q) / (p * m * (m - 1))
     single = np.sum(scores**2, axis=0) / (m * (m - 1) * np.diag(cov))
-    factors = np.maximum(np.maximum(single, pooled), 1.0)
-    dof = np.where(single >= max(pooled, 1.0), m - 1.0, np.where(pooled > 1.0, (m - 1.0) * p, np.inf))
-    return factors, dof
+    factors = np.maximum((SANDWICH_DOF + (m - 1) * single) / (SANDWICH_DOF + m - 1), 1.0)
+    return factors, np.full(p, SANDWICH_DOF + m - 1.0)

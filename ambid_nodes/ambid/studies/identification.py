@@ -611,13 +611,15 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
             noise_std="95 % interval (Student t) of each output's noise std from the scatter of the segments' "
                       "period-to-period variances (the noise is coloured by the loop, so the samples' chi2 "
                       "degrees of freedom would be too many); the truth is the sensor noise through the loop",
-            parameters="95 % intervals (Student t) from a sandwich covariance: the Jacobian of the fit weighted "
-                       f"by {w_kind}, the line covariance {var_kind}, the errors of a line correlated (within a row through U^-1, between rows "
-                       "as the residuals show), scaled by the generalised chi2/dof, so they hold the misfit too. "
-                       "ki and ks "
-                       "are compared with the true magnets' slopes at this excitation level (true_small_signal: at "
-                       "rest); the sensor bandwidth, amplifier bandwidth and delay are strongly correlated",
-            modes="95 % intervals (1.96 sigma; Student t where the realisations' scatter set the variance) of the "
+            parameters="95 % intervals (Student t) from a sandwich covariance pooled with the realisations' scatter "
+                       "(ambid.fit.correlated.realisation_inflation): the Jacobian of the fit weighted "
+                       f"by {w_kind}, the line covariance {var_kind}, the errors of a line correlated (within a "
+                       "row through U^-1, between rows as the residuals show), scaled by the generalised "
+                       "chi2/dof, so they hold the misfit too. ki and ks are compared with the true magnets' "
+                       "slopes at this excitation level (true_small_signal: at rest); the sensor bandwidth, "
+                       "amplifier bandwidth and delay are strongly correlated",
+            modes="95 % intervals (Student t of 2 + M - 1 degrees of freedom where M >= 2 realisations' scatter "
+                  "joins the sandwich in the variance; else 1.96 sigma) of the "
                   "fitted modes from the variable-projection sandwich "
                   "covariance of the common denominator's factors (the same line covariance as the parameters); "
                   "a cluster of true modes closer than the resolution has none"),

@@ -116,6 +116,7 @@ def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_m
                              nonlinear_magnets=not linear_magnets, controller=controller_spec)
     twin_run = run_session_composed(twin_cfg)
     twin = frf_from_session(twin_run["mcap_path"])
+    np.savez(out / "noise_free" / "frf.npz", freq_hz=twin.freq_hz, frf=twin.frf)
     if twin.frf.shape == frf["frf"].shape and np.allclose(twin.freq_hz, frf["freq_hz"]):
         rec["frf"]["noise only vs noise-free twin"] = frf_record(frf["frf"], twin.frf,
                                                                {"noise only": frf["var_noise"]})["noise only"]
@@ -217,11 +218,12 @@ def run(args: argparse.Namespace) -> int:
 
 def format_table(table: dict) -> str:
     lines = [f"{'interval':62s} {'nominal':>7s} {'coverage':>8s} {'95 % binomial':>15s} {'n':>6s} "
-             f"{'emp/claimed std':>15s}"]
+             f"{'emp/claimed std':>15s} {'rms |e|/sigma':>13s}"]
     for k, r in table.items():
         if r.get("coverage") is None:
             continue
+        z = f"{r['z_rms']:13.2f}" if r.get("z_rms") is not None else f"{'':13s}"
         lines.append(f"{k:62s} {r['nominal']:7.3f} {r['coverage']:8.3f} "
-                     f"{r['ci95'][0]:7.3f}..{r['ci95'][1]:5.3f} {r['n']:6d} {r['std_ratio']:15.2f}"
+                     f"{r['ci95'][0]:7.3f}..{r['ci95'][1]:5.3f} {r['n']:6d} {r['std_ratio']:15.2f} {z}"
                      + ("  (noise only)" if r.get("noise_only") else ""))
     return "\n".join(lines)
