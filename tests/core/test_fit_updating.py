@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 from ambid.fit import update_parameters
+from ambid.fit.updating import NotIdentifiable
 from ambid.fit.blas_threads import single_threaded_blas
 from ambid.statespace import StateSpace
 
@@ -117,6 +118,7 @@ def test_non_identifiable_parameters_are_named(measured):
                           [TRUE[0], TRUE[1], MASS, INERTIA], F_HZ, g, var, names=("ki", "ks", "mass", "inertia"))
     for name in ("ki", "ks", "mass", "inertia"):
         assert name in str(err.value)
+    assert isinstance(err.value, NotIdentifiable) and set(err.value.parameters) == {"ki", "ks", "mass", "inertia"}
 
 
 @pytest.mark.parametrize("kwargs,msg", [

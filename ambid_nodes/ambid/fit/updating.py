@@ -28,7 +28,7 @@ from ambid.fit.blas_threads import single_threaded_blas
 from ambid.fit.correlated import line_sandwich, realisation_inflation
 from ambid.statespace import StateSpace
 
-__all__ = ["UpdateResult", "update_parameters"]
+__all__ = ["NotIdentifiable", "UpdateResult", "update_parameters"]
 
 
 @dataclass(frozen=True)
@@ -113,17 +113,27 @@ def _central_jacobian(resid: Callable[[np.ndarray], np.ndarray], x: np.ndarray) 
     return np.column_stack(cols)
 
 
+class NotIdentifiable(ValueError):
+    """The data cannot tell some parameters apart; ``parameters`` are those in the direction that leaves
+    the FRF unchanged, the largest share first."""
+
+    def __init__(self, message: str, parameters: tuple[str, ...]) -> None:
+        super().__init__(message)
+        self.parameters = parameters
+
+
 def _check_rank(jac: np.ndarray, names: tuple[str, ...], rcond: float,
                 where: str) -> tuple[np.ndarray, np.ndarray]:
     _, sv, vt = np.linalg.svd(jac, full_matrices=False)
     if sv[0] == 0 or sv[-1] < rcond * sv[0]:
         null = vt[-1] / np.abs(vt[-1]).max()
         combo = " ".join(f"{c:+.2f}*{n}" for c, n in zip(null, names) if abs(c) > 0.05)
-        raise ValueError(
+        involved = tuple(names[k] for k in np.argsort(-np.abs(null)) if abs(null[k]) > 0.05)
+        raise NotIdentifiable(
             f"parameters not identifiable from these data ({where}): the Jacobian w.r.t. the relative-scaled "
             f"parameters has singular-value ratio {sv[-1] / max(sv[0], 1e-300):.1e} < rcond = {rcond:.0e}; "
             f"changing ({combo}) (relative steps) leaves the FRF unchanged. Fix one of those parameters "
-            "at a known value, or add data that separates them")
+            "at a known value, or add data that separates them", involved)
     return sv, vt
 
 

@@ -57,6 +57,7 @@ from ambid.fit import (FitResult, StabilisationDiagram, fit_common_denominator, 
                        save_model_npz, stabilisation_diagram)
 from ambid.fit.model_update import (PhysicalUpdate, closed_loop_noise_std, excitation_slopes, nominal_parameters,
                                     physical_frf, true_parameters, unmodelled_mode, update_physical_model)
+from ambid.fit.updating import NotIdentifiable
 from ambid.frf.directional import directional_frf, whirl_of_residue
 from ambid.frf.levels import LineLevels, line_levels
 from ambid.frf.offline import frf_from_session, session_designs
@@ -296,9 +297,14 @@ def _load_rig(rig: Rig | str | os.PathLike | Mapping | None, facts: dict | None)
     return make_rig(facts) if facts else None
 
 
-def _update(rig: Rig, frf: FrfResult, var, band, modes, dt_s, start_overrides, free,
-            row_cov=None, realisations=None) -> tuple[PhysicalUpdate | None, str | None]:
-    """Model updating from the nominal rig; the support mode started at the fitted mode the rig lacks."""
+def _update(rig: Rig, frf: FrfResult, var, band, modes, dt_s, start_overrides, free, row_cov=None,
+            realisations=None) -> tuple[PhysicalUpdate | None, str | None, list[str]]:
+    """Model updating from the nominal rig; the support mode started at the fitted mode the rig lacks.
+
+    Returns (update or None, error or None, notes). With the default free parameters, one the data cannot
+    tell (a sensor bandwidth far above the band leaves the FRF unchanged) is fixed at its start value and
+    the update run again, with a note; parameters the caller chose are kept, and the error says why.
+    """
 
     start = nominal_parameters(rig)
     # resonance peak height of R / (s - p) is |R| / (zeta omega)
@@ -314,6 +320,7 @@ def _update(rig: Rig, frf: FrfResult, var, band, modes, dt_s, start_overrides, f
     # the three are strongly correlated, and their intervals say so)
     start["sensor_bandwidth_hz"] = float(rig.values["sensor_bandwidth_hz"])
     start.update({k: float(v) for k, v in (start_overrides or {}).items()})
+    chosen = free is not None
     if free is None:
         free = [k for k in ("ki_n_per_a", "ks_n_per_m", "ks_b_over_a", "amplifier_bandwidth_hz", "sensor_bandwidth_hz",
                             "bending_freq_hz", "bending_damping_ratio", "support_freq_hz", "support_damping_ratio",
@@ -321,11 +328,22 @@ def _update(rig: Rig, frf: FrfResult, var, band, modes, dt_s, start_overrides, f
         # a bending mode outside the measured band cannot be identified from it
         if "bending_freq_hz" in start and not band[0] <= start["bending_freq_hz"] <= band[1]:
             free = [k for k in free if not k.startswith("bending_")]
-    try:
-        return update_physical_model(rig.rotor_model(), frf.freq_hz, frf.frf, var, start, free, dt_s,
-                                     row_covariance=row_cov, realisations=realisations), None
-    except ValueError as exc:
-        return None, str(exc)
+    notes: list[str] = []
+    free = list(free)
+    while True:
+        try:
+            return update_physical_model(rig.rotor_model(), frf.freq_hz, frf.frf, var, start, free, dt_s,
+                                         row_covariance=row_cov, realisations=realisations), None, notes
+        except NotIdentifiable as exc:
+            if chosen or len(free) <= 1 or exc.parameters[0] not in free:
+                return None, str(exc), notes
+            fixed = exc.parameters[0]
+            free.remove(fixed)
+            others = f" together with {', '.join(exc.parameters[1:])}" if len(exc.parameters) > 1 else ""
+            notes.append(f"{fixed} fixed at its start value {start[fixed]:.6g}: these data cannot tell it "
+                         f"(changing it{others} leaves the FRF unchanged)")
+        except ValueError as exc:
+            return None, str(exc), notes
 
 
 def refit_parameters(summary: Mapping[str, Any], rig: Rig, freq_hz: np.ndarray, G: np.ndarray,
@@ -530,8 +548,9 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     update_error = None
     if update and the_rig is not None:
         stable = [m for m, row in zip(modes, mode_rows) if row["stable"]]
-        upd, update_error = _update(the_rig, frf, w_var, band, stable, dt_s, update_start, update_free, row_cov,
-                                    realisations)
+        upd, update_error, update_notes = _update(the_rig, frf, w_var, band, stable, dt_s, update_start,
+                                                  update_free, row_cov, realisations)
+        notes.extend(update_notes)
         if update_error:
             notes.append(f"model updating failed: {update_error}")
 
