@@ -56,3 +56,7 @@ def test_first_bending_takes_a_standing_mode_for_both_whirls():
     fb = first_bending(modes, 310.0)
     assert (fb["backward_hz"], fb["forward_hz"], fb["whirl"]) == (306.0, 315.0, "split")
     assert first_bending(modes[:1], 310.0)["forward_hz"] is None
+    # a mode's 95 % interval travels with it
+    modes[3]["freq_hz_ci95"] = [314.5, 315.5]
+    fb = first_bending(modes, 310.0)
+    assert fb["forward_hz_ci95"] == [314.5, 315.5] and fb["backward_hz_ci95"] is None

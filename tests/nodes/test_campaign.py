@@ -40,6 +40,14 @@ def test_campaign_identifies_the_whirl_and_continues_where_it_stopped(ros_env, t
     assert spin["true"]["forward_hz"] - spin["true"]["backward_hz"] > 5.0
     assert spin["identified"]["forward_hz"] - spin["identified"]["backward_hz"] > 5.0
     assert camp["first_bending_whirl_right"] is True and camp["first_bending_max_error"] < 0.005
+    # every identified first-bending frequency carries identify's 95 % interval, and the campaign counts how
+    # often those hold the true rig's (2 speeds x 2 whirls)
+    for fb in (still, spin):
+        for side in ("backward", "forward"):
+            lo, hi = fb["identified"][f"{side}_hz_ci95"]
+            assert lo < fb["identified"][f"{side}_hz"] < hi and fb[f"{side}_covered"] in (True, False)
+    held, n = camp["first_bending_ci_covered"]
+    assert n == 4 and f"hold the true frequency {held} of 4 times" in proc.stdout
     # the critical speeds lie where the predicted branches cross 1X
     for c in camp["critical_speeds"]:
         assert abs(c["freq_hz"] - c["speed_rpm"] / 60.0) < 1e-9

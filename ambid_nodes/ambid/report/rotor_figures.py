@@ -66,7 +66,8 @@ def campbell_figure(speeds_rpm: np.ndarray, identified: Sequence[Mapping], predi
 
     Args:
         speeds_rpm: (S,) measured speeds [rpm].
-        identified: dicts with speed_rpm, freq_hz, freq_std_hz (or None), damping, whirl.
+        identified: dicts with speed_rpm, freq_hz, damping, whirl and, where known, freq_hz_ci95
+            [lo, hi] (95 % interval, drawn as a bar).
         predicted_rpm: (K,) dense speeds of the predicted curves [rpm].
         predicted: label -> (K,) frequency [Hz] of each predicted branch; labels ending in
             'forward' / 'backward' take the whirl colours.
@@ -85,8 +86,10 @@ def campbell_figure(speeds_rpm: np.ndarray, identified: Sequence[Mapping], predi
     for kind, marker in (("forward", "^"), ("backward", "v"), ("standing", "o")):
         rows = [r for r in identified if r["whirl"] == kind]
         if rows:
+            ci = [r.get("freq_hz_ci95") or (r["freq_hz"], r["freq_hz"]) for r in rows]
             ax_f.errorbar([r["speed_rpm"] for r in rows], [r["freq_hz"] for r in rows],
-                          yerr=[r.get("freq_std_hz") or 0.0 for r in rows], fmt=marker, ms=6,
+                          yerr=[[r["freq_hz"] - c[0] for r, c in zip(rows, ci)],
+                                [c[1] - r["freq_hz"] for r, c in zip(rows, ci)]], fmt=marker, ms=6,
                           color=_WHIRL_COLOUR[kind], label=f"identified, {kind} whirl")
             ax_z.plot([r["speed_rpm"] for r in rows], [100 * r["damping"] for r in rows], marker, ms=6,
                       color=_WHIRL_COLOUR[kind], label=kind)

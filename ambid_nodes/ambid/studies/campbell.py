@@ -3,7 +3,7 @@
 One identification per speed (:func:`ambid.studies.identification.identify_session` summaries) is
 gathered here into ``campbell.json``: per speed the identified modes with their whirl direction, the
 true rig's (simulated sessions), the first bending mode's forward and backward frequencies identified
-against true; over a dense speed grid the analytical model's whirl branches and the critical speeds
+against true, with identify's 95 % intervals and whether they hold the truth; over a dense speed grid the analytical model's whirl branches and the critical speeds
 where a branch crosses the 1X line.
 
 Whirl of a model's modes: from the residue of each eigenvalue (:func:`ambid.frf.directional.whirl_of_residue`),
@@ -30,6 +30,8 @@ __all__ = ["model_modes", "predicted_branches", "critical_speeds", "first_bendin
 _MERGE_REL = 1e-4
 # the first bending pair is sought within this fraction of the rotor's free-free first bending frequency
 _BENDING_WINDOW = 0.08
+# a fitted mode's intervals in identify's summary, carried into campbell.json
+_INTERVAL_KEYS = ("freq_hz_std", "freq_hz_ci95", "damping_std", "damping_ci95")
 
 
 def model_modes(model: StateSpace, band_hz: tuple[float, float], max_damping: float = 0.3) -> list[dict]:
@@ -114,19 +116,34 @@ def first_bending(modes: Sequence[Mapping], reference_hz: float) -> dict:
     there, else the one direction found.
 
     Returns:
-        {backward_hz, forward_hz, backward_damping, forward_damping, whirl} (None where missing).
+        {backward_hz, forward_hz, backward_damping, forward_damping, whirl} (None where missing), and
+        ``<side>_hz_ci95`` / ``<side>_damping_ci95`` (95 % intervals, None where the mode has none).
     """
     near = [m for m in modes if abs(m["freq_hz"] / reference_hz - 1) <= _BENDING_WINDOW]
-    out: dict[str, Any] = dict(backward_hz=None, forward_hz=None, backward_damping=None, forward_damping=None)
+    out: dict[str, Any] = {f"{side}_{q}": None for side in ("backward", "forward")
+                           for q in ("hz", "damping", "hz_ci95", "damping_ci95")}
     for side in ("backward", "forward"):
         cand = [m for m in near if m["whirl"] in (side, "standing")]
         if cand:
             best = max(cand, key=lambda m: abs(m["forward_share"] - 0.5))  # the clearest of its kind
             out[f"{side}_hz"], out[f"{side}_damping"] = best["freq_hz"], best["damping"]
+            out[f"{side}_hz_ci95"] = best.get("freq_hz_ci95")
+            out[f"{side}_damping_ci95"] = best.get("damping_ci95")
     kinds = {m["whirl"] for m in near}
     out["whirl"] = "split" if {"forward", "backward"} <= kinds else ("standing" if "standing" in kinds else
                                                                        "/".join(sorted(kinds)) or None)
     return out
+
+
+def _truth_at_excitation(summary: Mapping[str, Any], freq_hz: float | None) -> float | None:
+    """The true frequency at the excitation level of the fitted mode at ``freq_hz`` (identify's
+    ``modes_vs_true``, one true and one fitted mode), or None."""
+    if freq_hz is None:
+        return None
+    for row in summary.get("modes_vs_true") or []:
+        if row.get("n_true") == 1 and row.get("n_fitted") == 1 and abs(row["freq_hz"] - freq_hz) <= 1e-9 * freq_hz:
+            return float(row["true_freq_hz"])
+    return None
 
 
 def campbell_summary(rig: Rig, runs: Sequence[tuple[float, Mapping[str, Any]]], band_hz: tuple[float, float],
@@ -147,8 +164,10 @@ def campbell_summary(rig: Rig, runs: Sequence[tuple[float, Mapping[str, Any]]], 
     ref_hz = min((m["freq_hz"] for m in standstill), key=lambda f: abs(f - ref_hz), default=ref_hz)
     per_speed = []
     for rpm, s in runs:
+        # each mode with the 95 % intervals the identification gives it (fit.modes[*].freq_hz_ci95, ...)
         identified = [dict(freq_hz=m["freq_hz"], damping=m["damping"], whirl=m.get("whirl", "standing"),
-                           forward_share=m.get("forward_share", 0.5), stable=m.get("stable", True))
+                           forward_share=m.get("forward_share", 0.5), stable=m.get("stable", True),
+                           **{k: m[k] for k in _INTERVAL_KEYS if m.get(k) is not None})
                       for m in (s.get("fit") or {}).get("modes", [])]
         physical = [m for m in identified if m["stable"] and m["damping"] > 0]
         true = model_modes(true_linear_model(_at_speed(rig, rpm)), band_hz) if s.get("simulated") else []
@@ -162,6 +181,12 @@ def campbell_summary(rig: Rig, runs: Sequence[tuple[float, Mapping[str, Any]]], 
             for side in ("backward", "forward"):
                 a, b = fb_id[f"{side}_hz"], fb_true[f"{side}_hz"]
                 err[f"{side}_error"] = None if a is None or b is None else a / b - 1
+                # an interval claims the loop this excitation linearises (the magnets' slopes averaged over
+                # its excursions): identify's modes_vs_true has that truth for a mode it matched alone
+                bx = _truth_at_excitation(s, a)
+                err[f"{side}_true_at_excitation_hz"] = bx
+                ci, t = fb_id[f"{side}_hz_ci95"], b if bx is None else bx
+                err[f"{side}_covered"] = None if ci is None or t is None else bool(ci[0] <= t <= ci[1])
             row["first_bending"].update(true=fb_true, **err, whirl_right=fb_id["whirl"] == fb_true["whirl"])
         per_speed.append(row)
     # far enough to show where the first bending mode meets 1X (its critical speed)
@@ -170,22 +195,26 @@ def campbell_summary(rig: Rig, runs: Sequence[tuple[float, Mapping[str, Any]]], 
     branches = predicted_branches(rig, grid, band_hz)
     fb = [r["first_bending"] for r in per_speed if "true" in r["first_bending"]]
     errors = [abs(e) for r in fb for e in (r["backward_error"], r["forward_error"]) if e is not None]
+    covered = [c for r in fb for c in (r["backward_covered"], r["forward_covered"]) if c is not None]
     return dict(rig=rig.name, band_hz=list(band_hz), first_bending_reference_hz=ref_hz, speeds=per_speed,
                 predicted=dict(model="analytical (nominal) model", speeds_rpm=grid.tolist(),
                                branches={k: v.tolist() for k, v in branches.items()}),
                 critical_speeds=critical_speeds(grid, branches),
                 first_bending_max_error=max(errors) if errors else None,
+                # how many of the first bending frequencies' 95 % intervals hold the true rig's (at the
+                # excitation level where identify matched the mode alone, else the small-signal model's)
+                first_bending_ci_covered=[sum(covered), len(covered)] if covered else None,
                 first_bending_whirl_right=all(r["whirl_right"] for r in fb) if fb else None)
 
 
 def campbell_table(summary: Mapping[str, Any]) -> str:
     """The first bending mode identified against true per speed, as a Markdown table."""
-    lines = ["| speed [rpm] | backward true [Hz] | backward identified [Hz] | error | forward true [Hz] | "
-             "forward identified [Hz] | error | whirl (true / identified) |",
+    lines = ["| speed [rpm] | backward true [Hz] | backward identified [Hz] (95 % CI) | error | forward true [Hz] | "
+             "forward identified [Hz] (95 % CI) | error | whirl (true / identified) |",
              "| --- | --- | --- | --- | --- | --- | --- | --- |"]
 
-    def hz(x: float | None) -> str:
-        return "-" if x is None else f"{x:.3f}"
+    def hz(x: float | None, ci: Sequence[float] | None = None) -> str:
+        return "-" if x is None else f"{x:.3f}" + ("" if ci is None else f" ({ci[0]:.3f}..{ci[1]:.3f})")
 
     def pct(x: float | None) -> str:
         return "-" if x is None else f"{100 * x:+.3f} %"
@@ -193,8 +222,10 @@ def campbell_table(summary: Mapping[str, Any]) -> str:
     for r in summary["speeds"]:
         fb = r["first_bending"]
         t, i = fb.get("true") or {}, fb["identified"]
-        lines.append(f"| {r['speed_rpm']:.0f} | {hz(t.get('backward_hz'))} | {hz(i['backward_hz'])} | "
-                     f"{pct(fb.get('backward_error'))} | {hz(t.get('forward_hz'))} | {hz(i['forward_hz'])} | "
+        lines.append(f"| {r['speed_rpm']:.0f} | {hz(t.get('backward_hz'))} | "
+                     f"{hz(i['backward_hz'], i.get('backward_hz_ci95'))} | "
+                     f"{pct(fb.get('backward_error'))} | {hz(t.get('forward_hz'))} | "
+                     f"{hz(i['forward_hz'], i.get('forward_hz_ci95'))} | "
                      f"{pct(fb.get('forward_error'))} | {t.get('whirl', '-')} / {i['whirl']} |")
     return "\n".join(lines)
 
@@ -235,7 +266,8 @@ def write_campbell_report(summary: Mapping[str, Any], report_dir: str | Path) ->
         "<!DOCTYPE html><html><head><meta charset='utf-8'><title>ambid Campbell diagram</title></head><body>"
         f"<h1>Campbell diagram: {html.escape(str(summary['rig']))}</h1>"
         "<figure><img src='campbell.png' alt='Campbell diagram'><figcaption>Identified modes per speed (triangles "
-        "up: forward whirl, down: backward, circles: standing) beside the analytical model's whirl branches "
+        "up: forward whirl, down: backward, circles: standing; bars: their 95 % intervals) beside the "
+        "analytical model's whirl branches "
         "(dashed), the 1X line and the critical speeds (x) where a branch crosses it; right: identified "
         "damping.</figcaption></figure>"
         f"<h2>First bending mode, identified against the true rig</h2>{t}"

@@ -152,9 +152,11 @@ def run(args: argparse.Namespace) -> int:
     print(campbell_table(camp))
     err = camp["first_bending_max_error"]
     crit = ", ".join(f"{c['label']} {c['speed_rpm']:.0f} rpm" for c in camp["critical_speeds"]) or "none in range"
+    cov = camp.get("first_bending_ci_covered")
+    held = "" if not cov else f"; its 95 % intervals hold the true frequency {cov[0]} of {cov[1]} times"
     print(f"first bending mode: worst error vs true {'-' if err is None else f'{100 * err:.3f} %'}, whirl "
-          f"{'right' if camp['first_bending_whirl_right'] else 'WRONG'} at every speed" if err is not None else
-          "first bending mode: no true rig to compare with")
+          f"{'right' if camp['first_bending_whirl_right'] else 'WRONG'} at every speed{held}" if err is not None
+          else "first bending mode: no true rig to compare with")
     print(f"critical speeds (analytical model): {crit}")
     print(f"campaign: {n} speed{'s' if n != 1 else ''}, {camp['wall_time_s']:.1f} s wall ({len(walls)} run now)")
     print(f"campbell: {out / 'campbell.json'}\nreport:   {index}")
