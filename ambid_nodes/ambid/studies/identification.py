@@ -231,19 +231,19 @@ def compare_modes(fitted: Sequence[tuple[float, float]], true: Sequence[tuple[fl
 
 
 def _fit_variance(frf: FrfResult, pool: bool = True) -> tuple[np.ndarray | None, str]:
-    """The variance to weight the fits with: total (BLA) where known, else noise; floored.
+    """The FRF's variance, for the printed band and the fits' line covariance (the fits weight by
+    :func:`_weight_variance`): total (BLA) where known, else noise; floored.
 
     With ``pool``, each output's variances are averaged over the inputs (one
     row of G carries the same output noise): an estimate from P periods has
-    only 2 (P - 1) degrees of freedom, and weighting by such noisy variances
-    lets a fit of too high an order chase the weights.
+    only 2 (P - 1) degrees of freedom.
     """
     for name in ("var_total", "var_noise"):
         v = np.asarray(getattr(frf, name), dtype=float)
         if np.all(np.isfinite(v)) and np.any(v > 0):
             if pool:
                 v = np.broadcast_to(v.mean(axis=2, keepdims=True), v.shape)
-            return np.maximum(v, 1e-6 * np.median(v[v > 0])), name + (", pooled over the inputs" if pool else "")
+            return _floored(v), name + (", pooled over the inputs" if pool else "")
     return None, "none (equal weights)"
 
 
@@ -253,9 +253,13 @@ def _weight_variance(frf: FrfResult, var: np.ndarray | None, var_kind: str) -> t
     vn, vt = (np.asarray(getattr(frf, k), dtype=float) for k in ("var_noise", "var_total"))
     if var is None or not (np.all(np.isfinite(vn)) and np.all(np.isfinite(vt)) and np.any(vn > 0)):
         return var, var_kind
-    w = fit_weight_variance(vn, vt)
-    return (np.maximum(w, 1e-6 * np.median(w[w > 0])),
+    return (_floored(fit_weight_variance(vn, vt)),
             "var_noise x (var_total / var_noise averaged over +-3 lines), pooled over the inputs")
+
+
+def _floored(v: np.ndarray) -> np.ndarray:
+    """A weighting variance floored at 1e-6 of its median positive value (no line weighs without bound)."""
+    return np.maximum(v, 1e-6 * np.median(v[v > 0]))
 
 
 def _nonlinear_magnets(path: str, recover: bool) -> bool:
