@@ -18,8 +18,8 @@ from pathlib import Path
 
 HELP = "identify at several rotor speeds (one session each, resumable) and draw the measured Campbell diagram"
 
-from ambid_nodes.commands.inputs import (BadInput, check_band, checked_controller, controller, output_dir,
-                                         positive_float, positive_int, rig_file)
+from ambid_nodes.commands.inputs import (BadInput, add_session_options, check_band, checked_controller, controller,
+                                         output_dir, rig_file)
 
 _FORMAT = "ambid.campaign/1"
 
@@ -32,11 +32,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                                              "replaced by each of --speeds-rpm")
     p.add_argument("--controller", type=controller, default="",
                    help="position controller: a kind or a controller file (default: the rig file's, else pid)")
-    p.add_argument("--band", nargs=2, type=float, metavar=("LO", "HI"), default=(10.0, 1000.0),
-                   help="band of interest [Hz] (default 10 1000)")
-    p.add_argument("--resolution", type=positive_float, default=5.0, help="frequency resolution [Hz] (default 5)")
-    p.add_argument("--realisations", type=positive_int, default=3, help="random-phase realisations (default 3)")
-    p.add_argument("--seed", type=int, default=1, help="seed of the noise and the random phases (default 1)")
+    add_session_options(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar per session")
 
 

@@ -9,9 +9,9 @@ from pathlib import Path
 
 from ambid.control.kinds import describe_kinds
 
-from ambid_nodes.commands.inputs import (BadInput, address, check_band, checked_controller, controller, count,
-                                        no_controller_on_hardware, output_dir, positive_float, positive_int,
-                                        rig_file)
+from ambid_nodes.commands.inputs import (BadInput, add_session_options, address, check_band, checked_controller,
+                                        controller, count, no_controller_on_hardware, output_dir, positive_float,
+                                        positive_int, rig_file)
 
 HELP = "identify the simulated rig end to end (graph, experiment, recording, FRF, fit, report)"
 
@@ -21,12 +21,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--kind", default="multisine",
                    choices=["multisine", "stepped_sine", "swept_sine", "noise", "prbs", "dibs"],
                    help="excitation kind (default: orthogonal random-odd multisine)")
-    p.add_argument("--band", nargs=2, type=float, metavar=("LO", "HI"), default=(10.0, 1000.0),
-                   help="band of interest [Hz] (default 10 1000)")
-    p.add_argument("--resolution", type=positive_float, default=5.0, help="frequency resolution [Hz] (default 5)")
+    add_session_options(p)
     p.add_argument("--peak-current", type=positive_float, default=0.4, help="excitation peak per input [A] (default 0.4)")
     p.add_argument("--periods", type=positive_int, default=4, help="steady-state periods per experiment (default 4)")
-    p.add_argument("--realisations", type=positive_int, default=3, help="random-phase realisations (default 3)")
     p.add_argument("--transient-periods", type=count, default=3, help="periods discarded per experiment (default 3)")
     p.add_argument("--mimo", default="orthogonal", choices=["orthogonal", "one_at_a_time"],
                    help="multisine over the 4 inputs (default orthogonal)")
@@ -40,7 +37,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--linear-magnets", action="store_true", help="linearised magnets instead of eq. 2.14")
     p.add_argument("--estimator", default="indirect",
                    choices=["indirect", "h1", "h2", "arithmetic_mean", "log_mean", "eiv"])
-    p.add_argument("--seed", type=int, default=1, help="seed of the noise and the random phases (default 1)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--hardware", metavar="HOST:PORT", type=address,
                    help="identify a real-time target over the UDP bridge instead of the simulated rig (the target "

@@ -157,3 +157,13 @@ def check_band(band: tuple[float, float], option: str = "--band") -> tuple[float
     if not (0 <= lo < hi):
         raise BadInput(f"{option} {lo:g} {hi:g}: give LOW HIGH with 0 <= LOW < HIGH [Hz]")
     return lo, hi
+
+
+def add_session_options(p: argparse.ArgumentParser) -> None:
+    """--band, --resolution, --realisations and --seed of an identify session, as identify and campaign take
+    them (identify's defaults)."""
+    p.add_argument("--band", nargs=2, type=float, metavar=("LO", "HI"), default=(10.0, 1000.0),
+                   help="band of interest [Hz] (default 10 1000)")
+    p.add_argument("--resolution", type=positive_float, default=5.0, help="frequency resolution [Hz] (default 5)")
+    p.add_argument("--realisations", type=positive_int, default=3, help="random-phase realisations (default 3)")
+    p.add_argument("--seed", type=int, default=1, help="seed of the noise and the random phases (default 1)")
