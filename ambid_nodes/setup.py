@@ -28,7 +28,7 @@ ROS_INCLUDES = sorted(d for r in ROS for d in glob(os.path.join(r, "include", "*
 setup(
     name=package_name,
     version="0.1.0",
-    packages=find_packages(include=["ambid", "ambid.*", "ambid_nodes", "ambid_nodes.*"]),
+    packages=find_packages(include=["ambid_nodes", "ambid_nodes.*"]),
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
@@ -42,11 +42,12 @@ setup(
                   include_dirs=ROS_INCLUDES, libraries=["rcl", "rmw", "rcutils"],
                   library_dirs=[os.path.join(r, "lib") for r in ROS]),
     ],
-    install_requires=["setuptools"],
+    # the numerical core is its own distribution (../ambid_core, pip install ./ambid_core)
+    install_requires=["setuptools", "ambid"],
     zip_safe=False,
     maintainer="ambid maintainers",
     maintainer_email="maintainers@ambid.dev",
-    description="rclpy nodes and numerical core of the ambid AMB identification toolkit",
+    description="rclpy nodes of the ambid AMB identification toolkit",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [f"{n} = ambid_nodes.{n}:main" for n in NODES],

@@ -81,6 +81,9 @@ ambid_install_packages() {
     local reqs=(-r "$AMBID_SETUP_DIR/requirements.txt")
     [ "$mode" = wheels ] && reqs+=(-r "$AMBID_SETUP_DIR/requirements-ros-wheels.txt")
     ambid_pip_install "$AMBID_VENV/log/pip-install.log" "${reqs[@]}"
+    # the numerical core, its own distribution (ambid_core/pyproject.toml), editable so that the
+    # checkout is what runs; its dependencies came pinned with requirements.txt
+    ambid_pip_install "$AMBID_VENV/log/pip-install-core.log" --no-deps --no-build-isolation -e "$AMBID_ROOT/ambid_core"
     if [ "$mode" = wheels ]; then ambid_fix_wheel_cmake; fi
 }
 
@@ -88,7 +91,7 @@ ambid_setup_venv() {
     local want stamp="$AMBID_VENV/.ambid-venv-stamp" mode py
     if ambid_system_ros; then mode=system-ros; else mode=wheels; fi
     want="$mode $(ambid_hash_files "$AMBID_SETUP_DIR/constraints.txt" "$AMBID_SETUP_DIR/requirements.txt" \
-        "$AMBID_SETUP_DIR/requirements-ros-wheels.txt" "$AMBID_SETUP_DIR/setup.sh")"
+        "$AMBID_SETUP_DIR/requirements-ros-wheels.txt" "$AMBID_SETUP_DIR/setup.sh" "$AMBID_ROOT/ambid_core/pyproject.toml")"
     if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ] && [ -x "$AMBID_VENV/bin/python" ]; then
         return 0
     fi
@@ -117,12 +120,13 @@ ambid_setup_venv() {
 }
 
 ambid_ws_inputs() {
-    find "$AMBID_ROOT/ambid_msgs" "$AMBID_ROOT/ambid_nodes/config" "$AMBID_ROOT/ambid_nodes/resource" \
+    find "$AMBID_ROOT/ambid_msgs" "$AMBID_ROOT/ambid_nodes/config" "$AMBID_ROOT/ambid_nodes/resource" "$AMBID_ROOT/ambid_cli/resource" \
         -type f 2>/dev/null | sort
     find "$AMBID_ROOT/ambid_nodes/ambid_nodes" -name '*.c' | sort  # the C extensions' sources
-    find "$AMBID_ROOT/ambid_nodes/target_c" -name '*.[ch]' | sort  # the C reference target's sources
+    find "$AMBID_ROOT/ambid_core/target_c" -name '*.[ch]' | sort  # the C reference target's sources
     printf '%s\n' "$AMBID_ROOT/ambid_nodes/package.xml" "$AMBID_ROOT/ambid_nodes/setup.py" \
-        "$AMBID_ROOT/ambid_nodes/setup.cfg" "$AMBID_VENV/.ambid-venv-stamp"
+        "$AMBID_ROOT/ambid_nodes/setup.cfg" "$AMBID_ROOT/ambid_cli/package.xml" "$AMBID_ROOT/ambid_cli/setup.py" \
+        "$AMBID_ROOT/ambid_cli/setup.cfg" "$AMBID_VENV/.ambid-venv-stamp"
 }
 
 ambid_build_ws() {
@@ -133,10 +137,11 @@ ambid_build_ws() {
     if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
         return 0
     fi
-    ambid_say "building ros_ws with colcon (ambid_msgs, ambid_nodes)"
+    ambid_say "building ros_ws with colcon (ambid_msgs, ambid_nodes, ambid_cli)"
     mkdir -p "$AMBID_WS/src"
     ln -sfn ../../ambid_msgs "$AMBID_WS/src/ambid_msgs"
     ln -sfn ../../ambid_nodes "$AMBID_WS/src/ambid_nodes"
+    ln -sfn ../../ambid_cli "$AMBID_WS/src/ambid_cli"
     local -a cmake_args=()
     ambid_system_ros || cmake_args=(--cmake-args "-DPython3_EXECUTABLE=$AMBID_VENV/bin/python" -DBUILD_TESTING=OFF)
     if ! (cd "$AMBID_WS" && colcon build --symlink-install --event-handlers console_direct- \
@@ -153,7 +158,7 @@ $(grep -iE 'error|failed' "$log" | tail -n 12)"
 ambid_build_target_c() {
     # the C reference target (docs/target_c.md): the UDP example program and the protocol core as a
     # shared library (the golden-datagram tests load it with ctypes); strict C99, warnings are errors
-    local src="$AMBID_ROOT/ambid_nodes/target_c" out="$AMBID_WS/install/target_c" log="$AMBID_WS/target_c-build.log"
+    local src="$AMBID_ROOT/ambid_core/target_c" out="$AMBID_WS/install/target_c" log="$AMBID_WS/target_c-build.log"
     local -a flags=(-std=c99 -O2 -Wall -Wextra -Wpedantic -Werror)
     command -v "${CC:-gcc}" >/dev/null 2>&1 || ambid_die "no C compiler (${CC:-gcc}) found; install gcc (e.g. 'apt-get install gcc'), then run './launch_scripts/ambid setup' again."
     mkdir -p "$out"
@@ -178,7 +183,7 @@ ambid_activate() {
     # cache directory per version of the kernel sources (a user's NUMBA_CACHE_DIR is kept).
     if [ -z "${NUMBA_CACHE_DIR:-}" ]; then
         local kernels
-        kernels="$(cat "$AMBID_ROOT"/ambid_nodes/ambid/compiled.py "$AMBID_ROOT"/ambid_nodes/ambid/*/step_kernel.py \
+        kernels="$(cat "$AMBID_ROOT"/ambid_core/ambid/compiled.py "$AMBID_ROOT"/ambid_core/ambid/*/step_kernel.py \
             "$AMBID_ROOT/ambid_nodes/ambid_nodes/loop_kernels.py" \
             2>/dev/null | sha256sum | cut -c1-16)"
         export NUMBA_CACHE_DIR="$AMBID_ROOT/.numba_cache/$kernels"
@@ -191,7 +196,8 @@ ambid_activate() {
         # shellcheck disable=SC1091
         set +u; source "$AMBID_WS/install/local_setup.bash"; set -u
     fi
-    export PYTHONPATH="$AMBID_ROOT/ambid_nodes${PYTHONPATH:+:$PYTHONPATH}"
+    # this checkout's sources first, also where a venv is shared between checkouts (AMBID_VENV)
+    export PYTHONPATH="$AMBID_ROOT/ambid_core:$AMBID_ROOT/ambid_nodes:$AMBID_ROOT/ambid_cli${PYTHONPATH:+:$PYTHONPATH}"
 }
 
 ambid_setup() {

@@ -16,8 +16,9 @@ from ambid.plant.rig import make_rig
 from ambid.plant.simulator import PlantSimulator
 
 ROOT = Path(__file__).resolve().parents[2]
-CORE = ROOT / "ambid_nodes" / "ambid"
+CORE = ROOT / "ambid_core" / "ambid"
 NODES = ROOT / "ambid_nodes" / "ambid_nodes"
+CLI = ROOT / "ambid_cli" / "ambid_cli"
 DOC = (ROOT / "docs" / "architecture.md").read_text()
 
 
@@ -50,6 +51,7 @@ def _imports(mod: str, path: Path, known: dict[str, Path]) -> list[tuple[str, st
 
 CORE_MODULES = _modules(CORE)
 NODE_MODULES = _modules(NODES)
+CLI_MODULES = _modules(CLI)
 
 
 def _folder(mod: str) -> str:
@@ -124,11 +126,18 @@ def test_core_never_imports_ros_or_the_nodes():
     for m, p in CORE_MODULES.items():
         for target, _ in _imports(m, p, CORE_MODULES):
             top = target.split(".")[0]
-            assert top not in ("rclpy", "rosidl_runtime_py", "ambid_msgs", "ambid_nodes"), (m, target)
+            assert top not in ("rclpy", "rosidl_runtime_py", "ambid_msgs", "ambid_nodes", "ambid_cli"), (m, target)
+
+
+def test_the_nodes_never_import_the_command_line():
+    # imports point one way: command line -> nodes -> core
+    for m, p in NODE_MODULES.items():
+        for target, _ in _imports(m, p, NODE_MODULES):
+            assert target.split(".")[0] != "ambid_cli", (m, target)
 
 
 def test_no_private_name_crosses_a_folder():
-    known = {**CORE_MODULES, **NODE_MODULES}
+    known = {**CORE_MODULES, **NODE_MODULES, **CLI_MODULES}
     bad = []
     for m, p in known.items():
         for target, name in _imports(m, p, known):
@@ -142,7 +151,7 @@ def test_no_private_name_crosses_a_folder():
                 bad.append((m, target, name))
     for p in (ROOT / "tests").rglob("*.py"):  # the tests use the public names too
         for target, name in _imports("tests." + p.stem, p, known):
-            if target.split(".")[0] in ("ambid", "ambid_nodes") and (
+            if target.split(".")[0] in ("ambid", "ambid_nodes", "ambid_cli") and (
                     (name.startswith("_") and not name.endswith("__"))
                     or any(part.startswith("_") and part != "__init__" for part in target.split(".")[1:])):
                 bad.append((str(p.relative_to(ROOT)), target, name))
@@ -158,7 +167,7 @@ def _section(title: str) -> str:
 @pytest.mark.parametrize("title", ["Adding a plant state", "Adding a controller kind"])
 def test_the_documents_places_to_change_exist(title):
     text = _section(title)
-    places = re.findall(r"`((?:ambid_nodes|docs|tests|launch_scripts)/[\w/.-]+)`(?:[^`\n]*?`(\w+)\(?\)?`)?", text)
+    places = re.findall(r"`((?:ambid_core|ambid_nodes|docs|tests|launch_scripts)/[\w/.-]+)`(?:[^`\n]*?`(\w+)\(?\)?`)?", text)
     assert places, f"'{title}' names no files"
     for path, name in places:
         f = ROOT / path

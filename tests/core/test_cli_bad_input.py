@@ -1,6 +1,6 @@
 """Every CLI command meets bad input with one line naming the problem and the fix, and exit code 2:
 a table of commands x inputs (missing file, folder, empty file, random bytes, truncated session, an MCAP of
-unrelated topics, wrong option values), run in-process through ``ambid_nodes.cli.main``. None of these
+unrelated topics, wrong option values), run in-process through ``ambid_cli.cli.main``. None of these
 starts ROS: a bad input stops a command before its graph does."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import pytest
 from ambid.channels import AXES
 from ambid.excitation import design_multisine
 from ambid.plant.rig import make_rig
-from ambid_nodes import cli
+from ambid_cli import cli
 from mcap.writer import Writer
 from session_testbench import design_message, plant_message, simulate_closed_loop, write_session
 

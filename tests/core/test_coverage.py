@@ -119,7 +119,7 @@ def test_realisation_inflation_reads_the_scatter_against_the_claim():
 
 
 def test_validate_reuses_only_a_finished_seed_of_the_same_run(tmp_path):
-    from ambid_nodes.commands.validate import run_fingerprint, reusable_record
+    from ambid_cli.commands.validate import run_fingerprint, reusable_record
 
     fp = run_fingerprint("", False)
     assert fp != run_fingerprint("", True)                       # the magnet law is part of what a seed ran
@@ -163,7 +163,7 @@ def test_noise_interval_row_pools_the_outputs():
 
 
 def test_validate_does_not_reuse_a_seed_run_under_another_controller(tmp_path):
-    from ambid_nodes.commands.validate import run_fingerprint
+    from ambid_cli.commands.validate import run_fingerprint
 
     ctrl = tmp_path / "site.npz"
     ctrl.write_bytes(b"one")
@@ -176,7 +176,7 @@ def test_validate_does_not_reuse_a_seed_run_under_another_controller(tmp_path):
 def test_noise_free_twin_rig_keeps_the_rig_and_its_files_but_not_the_noise(tmp_path, monkeypatch):
     from ambid.plant.rig import load_rig
     from ambid.plant.rotor_import import save_rotor
-    from ambid_nodes.commands.validate import noise_free_rig_file
+    from ambid_cli.commands.validate import noise_free_rig_file
 
     user = tmp_path / "user"
     user.mkdir()

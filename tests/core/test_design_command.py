@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from ambid.excitation import ExcitationDesign, check_headroom
-from ambid_nodes.commands import design as cmd
+from ambid_cli.commands import design as cmd
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -26,10 +26,10 @@ def parse(argv: list[str]) -> argparse.Namespace:
 
 def test_preview_runs_without_rclpy_and_writes_what_it_reports(tmp_path):
     argv = ["design", "--band", "20", "800", "--resolution", "10", "--periods", "3", "--out", str(tmp_path), "--json"]
-    code = ("import json, sys\nfrom ambid_nodes.cli import main\n"
+    code = ("import json, sys\nfrom ambid_cli.cli import main\n"
             f"rc = main({argv!r})\nprint(json.dumps({{'rc': rc, 'rclpy': 'rclpy' in sys.modules}}))")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
-                         cwd=tmp_path, env=dict(os.environ, PYTHONPATH=str(ROOT / "ambid_nodes")))
+                         cwd=tmp_path, env=dict(os.environ, PYTHONPATH=os.pathsep.join(str(ROOT / d) for d in ("ambid_core", "ambid_nodes", "ambid_cli"))))
     assert run.returncode == 0, run.stderr
     summary, status = (json.loads(line) for line in run.stdout.strip().splitlines()[-2:])
     assert status == {"rc": 0, "rclpy": False}

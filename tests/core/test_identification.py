@@ -23,8 +23,8 @@ from ambid.plant.rig import make_rig
 from ambid.plant.true_rig import true_linear_model
 from ambid.studies.identification import (compare_modes, frf_relative_error, identify_session, select_order,
                                           session_rig, true_modes)
-from ambid_nodes.commands import fit as fit_command
-from ambid_nodes.commands.inputs import BadInput
+from ambid_cli.commands import fit as fit_command
+from ambid_cli.commands.inputs import BadInput
 from session_testbench import design_message, plant_message, simulate_closed_loop, write_session
 
 RIG = make_rig()
@@ -251,5 +251,5 @@ def test_fit_command_prints_headline_figures(session, tmp_path, capsys):
     assert "model order 12" in text and "h1 estimator" in text and "ISO 14839-3 zone" in text
     assert (tmp_path / "cli" / "model.npz").is_file() and not (tmp_path / "cli" / "report").exists()
     args.file = str(tmp_path / "missing.mcap")
-    with pytest.raises(BadInput, match="missing.mcap: no such file"):  # ambid_nodes.cli prints it, exit code 2
+    with pytest.raises(BadInput, match="missing.mcap: no such file"):  # ambid_cli.cli prints it, exit code 2
         fit_command.run(args)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import scipy.io as sio
 import yaml
-from ambid_nodes import cli
+from ambid_cli import cli
 
 FS, N = 1000.0, 100
 FIX = re.compile(r"\b(give|run|record|check|create|leave out|make|use|cut|add)\b")

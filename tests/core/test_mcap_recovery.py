@@ -14,7 +14,7 @@ from ambid.session import (IncompleteSessionError, SessionWriteError, SessionWri
                            scan_session)
 from mcap.reader import make_reader
 
-AMBID_NODES = Path(__file__).resolve().parents[2] / "ambid_nodes"
+AMBID_CORE = Path(__file__).resolve().parents[2] / "ambid_core"
 STEP_NS = 1_000_000
 
 
@@ -92,7 +92,7 @@ CHILD = textwrap.dedent(
 
 def test_sigkilled_writer_loses_at_most_its_open_chunk(tmp_path):
     path = tmp_path / "killed.mcap"
-    env = dict(os.environ, PYTHONPATH=str(AMBID_NODES), AMENT_PREFIX_PATH=sys.prefix)
+    env = dict(os.environ, PYTHONPATH=str(AMBID_CORE), AMENT_PREFIX_PATH=sys.prefix)
     proc = subprocess.Popen([sys.executable, "-c", CHILD, str(path)], stdout=subprocess.PIPE, env=env, text=True)
     try:
         flushed = chunks = 0

@@ -161,7 +161,7 @@ def _rig_yaml(tmp_path, rotor_path, extra=""):
 
 
 def test_the_commands_say_what_the_import_dropped(tmp_path, capsys):
-    from ambid_nodes.commands.inputs import rig_file
+    from ambid_cli.commands.inputs import rig_file
 
     path, _ = _six_dof_file(tmp_path)
     rig = rig_file(_rig_yaml(tmp_path, path))

@@ -1,4 +1,4 @@
-"""The C protocol core (ambid_nodes/target_c/ambp.c) against the Python reference module: golden datagrams
+"""The C protocol core (ambid_core/target_c/ambp.c) against the Python reference module: golden datagrams
 byte-identical both ways, and the same refusal reason for every malformed datagram. The core is loaded
 with ctypes from the shared library `ambid setup` builds."""
 

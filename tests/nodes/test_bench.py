@@ -6,7 +6,7 @@ import argparse
 import json
 import math
 
-from ambid_nodes.commands import bench
+from ambid_cli.commands import bench
 
 
 def test_quick_bench_reports_every_figure_as_a_positive_number(ros, tmp_path, capfd, monkeypatch):

@@ -13,7 +13,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def _campaign(env, out, *speeds, extra=()):
-    return subprocess.run([sys.executable, "-m", "ambid_nodes.cli", "campaign", "--speeds-rpm", *speeds,
+    return subprocess.run([sys.executable, "-m", "ambid_cli.cli", "campaign", "--speeds-rpm", *speeds,
                            "--rig", str(REPO / "rigs" / "spinning.yaml"), "--out", str(out), "--realisations", "1",
                            "--no-progress", *(extra or ("--resolution", "10"))],
                           env=env, cwd=REPO, capture_output=True, text=True, timeout=300)

@@ -11,7 +11,7 @@ from ambid.control import kinds
 from ambid.control.kinds import ControllerDesign, ControllerKind
 from ambid.control.pid import PidParameters, pid_controller
 from ambid.plant.rig import Rig
-from ambid_nodes.commands import graph as graph_command
+from ambid_cli.commands import graph as graph_command
 from ambid_nodes.parameters import ParameterError
 from ambid_nodes.plant_sim import PlantSim
 from ambid_nodes.position_controller import PositionController

@@ -152,7 +152,7 @@ def test_lossless_session_over_udp_records_the_plant_sim_rows(ros, tmp_path, flo
     proc = subprocess.Popen([sys.executable, "-m", "ambid.hardware.rt_target", "--bind", target, "--bridge", local,
                              "--seed", str(seed), "--pace", "1", "--samples", str(n), "--linger", "0.3"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            cwd=os.path.join(REPO, "ambid_nodes"))
+                            cwd=os.path.join(REPO, "ambid_core"))
     try:
         assert ros.spin_until(bridge.finished.done, timeout_s=60), bridge.figures()
         out, err = proc.communicate(timeout=20)

@@ -26,7 +26,7 @@ def test_identify_runs_the_rig_files_controller(ros_env, tmp_path):
                                                     "Ts": rig.dt})
     (tmp_path / "rig.yaml").write_text("name: site\ncontroller: site_controller.mat\n")
     out = tmp_path / "run"
-    proc = subprocess.run([sys.executable, "-m", "ambid_nodes.cli", "identify", "--rig", str(tmp_path / "rig.yaml"),
+    proc = subprocess.run([sys.executable, "-m", "ambid_cli.cli", "identify", "--rig", str(tmp_path / "rig.yaml"),
                            "--out", str(out), "--band", "20", "400", "--resolution", "20", "--periods", "2",
                            "--realisations", "1", "--transient-periods", "1", "--no-progress"],
                           env=ros_env, cwd=REPO, capture_output=True, text=True, timeout=240)

@@ -14,7 +14,7 @@ REPO = Path(__file__).resolve().parents[2]
 def test_identify_on_the_ideal_rig_fixes_what_the_data_cannot_tell(ros_env, tmp_path):
     out = tmp_path / "run"
     rig = str(REPO / "rigs" / "ideal.yaml")
-    proc = subprocess.run([sys.executable, "-m", "ambid_nodes.cli", "identify", "--rig", rig, "--out", str(out),
+    proc = subprocess.run([sys.executable, "-m", "ambid_cli.cli", "identify", "--rig", rig, "--out", str(out),
                            "--resolution", "10", "--periods", "2", "--realisations", "2", "--transient-periods", "2",
                            "--no-progress"],
                           env=ros_env, cwd=REPO, capture_output=True, text=True, timeout=240)

@@ -228,7 +228,7 @@ def _children_of(pid: int) -> list[int]:
 def test_processes_layout_runs_and_ctrl_c_leaves_nothing(ros_env):
     env = dict(ros_env)
     root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    cmd = [sys.executable, "-m", "ambid_nodes.cli", "graph", "--processes", "--sim-seconds", "0.3"]
+    cmd = [sys.executable, "-m", "ambid_cli.cli", "graph", "--processes", "--sim-seconds", "0.3"]
     done = subprocess.run(cmd, env=env, cwd=root, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stdout + done.stderr
     assert "simulated samples per wall second" in done.stdout and "rotor levitated" in done.stdout
@@ -280,7 +280,7 @@ def test_every_node_installed_with_entry_point_and_parameter_file(ros_env):
 
 def _cli(args, env, timeout=120):
     root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    return subprocess.run([sys.executable, "-m", "ambid_nodes.cli", *args], env=env, cwd=root, capture_output=True,
+    return subprocess.run([sys.executable, "-m", "ambid_cli.cli", *args], env=env, cwd=root, capture_output=True,
                           text=True, timeout=timeout)
 
 

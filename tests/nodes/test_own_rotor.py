@@ -64,7 +64,7 @@ def test_own_rotor_identified_under_its_controller(rig_dir, ros_env, controller)
     expected = np.unique(np.round(lateral_modes_with_magnets(rotor, operating_point_ks(mass)), 6))[:2]
     spec = controller if controller == "lqg" else str(d / controller)
     out = d / f"run_{controller}"
-    proc = subprocess.run([sys.executable, "-m", "ambid_nodes.cli", "identify", "--rig", str(d / "rig.yaml"),
+    proc = subprocess.run([sys.executable, "-m", "ambid_cli.cli", "identify", "--rig", str(d / "rig.yaml"),
                            "--controller", spec, "--out", str(out), "--band", "20", "800", "--resolution", "5",
                            "--periods", "2", "--realisations", "1", "--transient-periods", "1", "--no-progress"],
                           env=ros_env, cwd=REPO, capture_output=True, text=True, timeout=240)

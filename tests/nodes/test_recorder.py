@@ -22,8 +22,8 @@ import yaml
 from ambid.session import SessionWriter, iter_decoded, iter_messages, read_metadata, scan_session
 from ambid.session.blocks import decode_sample_block
 from ambid.session.writer import parse_qos_profiles
-from ambid_nodes import cli
-from ambid_nodes.commands import inspect as inspect_cmd
+from ambid_cli import cli
+from ambid_cli.commands import inspect as inspect_cmd
 from ambid_nodes.conversions import block_msg
 from ambid_nodes.node_main import SUMMARY_PREFIX
 from ambid_nodes.plant_sim import MEASUREMENT_NAMES, PlantSim

@@ -15,7 +15,7 @@ REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 def test_bad_rig_file_through_ambid_graph_names_the_field_and_range(ros_env, tmp_path):
     rig = tmp_path / "bad_rig.yaml"
     rig.write_text("name: bad\nbias_current_a: -3.0\n")
-    out = subprocess.run([sys.executable, "-m", "ambid_nodes.cli", "graph", "--processes", "--rig", str(rig),
+    out = subprocess.run([sys.executable, "-m", "ambid_cli.cli", "graph", "--processes", "--rig", str(rig),
                           "--sim-seconds", "0.1"], env=ros_env, cwd=REPO, capture_output=True, text=True, timeout=120)
     text = out.stdout + out.stderr
     assert out.returncode == 2  # refused before any node starts
@@ -48,7 +48,7 @@ def _environ(pid: int) -> dict[str, str]:
 def test_nodes_keep_discovery_on_localhost_unless_opened(ros_env):
     base = {k: v for k, v in ros_env.items() if k != "ROS_AUTOMATIC_DISCOVERY_RANGE"}
     via_ambid = ["bash", "-c", f"source '{REPO}/launch_scripts/setup/setup.sh' && ambid_activate && "
-                 "exec python -m ambid_nodes.cli node position_controller --ros-args -r __ns:=/net_{0}"]
+                 "exec python -m ambid_cli.cli node position_controller --ros-args -r __ns:=/net_{0}"]
     runs = {
         # what `ambid node ...` does after its set-up: the environment of ambid_activate
         "ambid": (via_ambid[:2] + [via_ambid[2].format("ambid")], base, "LOCALHOST"),

@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from ambid_nodes.commands import inspect as inspect_cmd
+from ambid_cli.commands import inspect as inspect_cmd
 from ambid_nodes.excitation_generator import ExcitationGenerator
 from ambid_nodes.frf_consumer import FrfConsumer
 from ambid_nodes.plant_sim import PlantSim

@@ -38,7 +38,7 @@ def target_summary(proc: subprocess.Popen) -> dict:
 
 
 def cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "ambid_nodes.cli", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "ambid_cli.cli", *args], capture_output=True, text=True,
                           timeout=240, cwd=ROOT)
 
 
@@ -94,7 +94,7 @@ def test_identify_hardware_gives_the_c_target_the_accuracy_of_the_simulated_rig(
     py_target = subprocess.Popen([sys.executable, "-m", "ambid.hardware.rt_target", "--bind", f"127.0.0.1:{tp}",
                                   "--bridge", f"127.0.0.1:{lp}", "--pace", "0", "--hold-for-excitation",
                                   "--samples", str(total), "--seed", "1", "--linger", "0.3"],
-                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT / "ambid_nodes")
+                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT / "ambid_core")
     try:
         py = cli("identify", "--hardware", f"127.0.0.1:{tp}", "--local-port", str(lp), "--true-model", str(model),
                  "--out", str(tmp_path / "py"), *SMALL)

@@ -13,7 +13,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def _validate(out: Path, env: dict) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "ambid_nodes.cli", "validate", "--seeds", "2", "--controller", "lqg",
+    return subprocess.run([sys.executable, "-m", "ambid_cli.cli", "validate", "--seeds", "2", "--controller", "lqg",
                            "--no-figure", "--out", str(out)], env=env, cwd=REPO, capture_output=True, text=True,
                           timeout=600)
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from ambid.control.kinds import describe_kinds
 
-from ambid_nodes.commands.inputs import (BadInput, add_session_options, address, check_band, checked_controller,
+from ambid_cli.commands.inputs import (BadInput, add_session_options, address, check_band, checked_controller,
                                         controller, count, no_controller_on_hardware, output_dir, positive_float,
                                         positive_int, rig_file)
 

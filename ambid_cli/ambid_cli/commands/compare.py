@@ -17,7 +17,7 @@ import math
 import sys
 from pathlib import Path
 
-from ambid_nodes.commands.inputs import output_dir, rig_file
+from ambid_cli.commands.inputs import output_dir, rig_file
 
 HELP = "compare excitation methods, FRF estimators and odd/full multisines on the simulated rig"
 PARTS = ("methods", "estimators", "odd_full")

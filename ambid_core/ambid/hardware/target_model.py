@@ -1,4 +1,4 @@
-"""The model file of the C reference target (``ambid_nodes/target_c/``, docs/target_c.md).
+"""The model file of the C reference target (``ambid_core/target_c/``, docs/target_c.md).
 
 A plain text file the C program reads without a library: the true rig's
 small-signal model sampled with zero-order hold (:func:`ambid.plant.true_rig.true_linear_model`,

@@ -354,7 +354,7 @@ def refit_parameters(summary: Mapping[str, Any], rig: Rig, freq_hz: np.ndarray, 
                      var: np.ndarray | None) -> dict[str, float]:
     """The updated parameters of ``summary`` fitted again to another FRF at the same lines.
 
-    E.g. a noise-free twin of the session (:mod:`ambid_nodes.commands.validate`): started at the summary's
+    E.g. a noise-free twin of the session (:mod:`ambid_cli.commands.validate`): started at the summary's
     estimates, the same parameters free, the same weights ``var``.
 
     Args:

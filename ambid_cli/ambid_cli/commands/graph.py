@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from ambid.control.kinds import describe_kinds
-from ambid_nodes.commands.inputs import (address, checked_controller, controller, count, no_controller_on_hardware,
+from ambid_cli.commands.inputs import (address, checked_controller, controller, count, no_controller_on_hardware,
                                          positive_float, rig_file)
 
 from ambid_nodes.graph import (DEFAULT_NAMESPACE, GraphConfig, run_composed, run_hardware, run_processes,

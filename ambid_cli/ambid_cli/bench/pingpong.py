@@ -10,7 +10,7 @@ real nodes. One message in flight: the pinger sends the next ping when the
 pong is in.
 Its rate is the practical limit of the loop on this machine.
 
-As a process: ``python -m ambid_nodes.bench.pingpong ping|pong --ros-args -p samples:=N``;
+As a process: ``python -m ambid_cli.bench.pingpong ping|pong --ros-args -p samples:=N``;
 the pinger prints ``AMBID_SUMMARY {json}`` when done, the ponger runs until SIGINT.
 """
 
@@ -121,7 +121,7 @@ def run_pingpong_processes(n_samples: int, domain_id: int, timeout_s: float = 30
     from ambid_nodes.graph import stop_processes
 
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
-    base = [sys.executable, "-m", "ambid_nodes.bench.pingpong"]
+    base = [sys.executable, "-m", "ambid_cli.bench.pingpong"]
     ros = ["--ros-args", "-r", f"__ns:={NAMESPACE}"]
     procs = []
     try:
@@ -145,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     roles = {"ping": Pinger, "pong": Ponger}
     if not argv or argv[0] not in roles:
-        print("usage: python -m ambid_nodes.bench.pingpong ping|pong [--ros-args ...]", file=sys.stderr)
+        print("usage: python -m ambid_cli.bench.pingpong ping|pong [--ros-args ...]", file=sys.stderr)
         return 2
     return run_single(roles[argv[0]], [sys.argv[0], *argv[1:]])
 

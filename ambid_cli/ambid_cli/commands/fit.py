@@ -18,7 +18,7 @@ HELP = "identify a recorded session: FRF, fitted model and modes, updated physic
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ambid.frf.streaming import ESTIMATORS
 
-    from ambid_nodes.commands.inputs import positive_int
+    from ambid_cli.commands.inputs import positive_int
 
     p.add_argument("file", help="session .mcap file")
     p.add_argument("--out", required=True, help="output folder (model.npz, model.json, frf.npz, "
@@ -90,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
     from ambid.session import IncompleteSessionError
     from ambid.studies.identification import identify_session
 
-    from ambid_nodes.commands.inputs import BadInput, output_dir, rig_file, session_file
+    from ambid_cli.commands.inputs import BadInput, output_dir, rig_file, session_file
 
     path = session_file(args.file, args.recover)  # checked before --out is touched: nothing is overwritten
     output_dir(args.out)

@@ -18,7 +18,7 @@ from pathlib import Path
 
 HELP = "identify at several rotor speeds (one session each, resumable) and draw the measured Campbell diagram"
 
-from ambid_nodes.commands.inputs import (BadInput, add_session_options, check_band, checked_controller, controller,
+from ambid_cli.commands.inputs import (BadInput, add_session_options, check_band, checked_controller, controller,
                                          output_dir, rig_file)
 
 _FORMAT = "ambid.campaign/1"

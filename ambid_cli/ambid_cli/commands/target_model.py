@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ambid.control.kinds import describe_kinds
 
-from ambid_nodes.commands.inputs import BadInput, checked_controller, controller, output_file, rig_file
+from ambid_cli.commands.inputs import BadInput, checked_controller, controller, output_file, rig_file
 
 HELP = "write the plant and controller model file of the C reference target (ambp_udp_target --model)"
 

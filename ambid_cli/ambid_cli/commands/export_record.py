@@ -26,7 +26,7 @@ def run(args: argparse.Namespace) -> int:
     from ambid.records import RecordError
     from ambid.records.exporter import export_paths, export_session
 
-    from ambid_nodes.commands.inputs import BadInput, output_file, session_file
+    from ambid_cli.commands.inputs import BadInput, output_file, session_file
 
     path = session_file(args.file)
     output_file(args.out, "--out")

@@ -19,7 +19,7 @@ from pathlib import Path
 HELP = "preview an excitation design: figures, headroom, measurement times, spectrum plot"
 
 from ambid.excitation.spec import DEFAULT_INPUTS, GRIDS, KINDS, MIMOS, PHASES, SPACINGS, build_design, prbs_clock  # noqa: F401 - re-exported
-from ambid_nodes.commands.inputs import check_band, count, output_dir, positive_float, positive_int
+from ambid_cli.commands.inputs import check_band, count, output_dir, positive_float, positive_int
 
 
 # ---- the command ------------------------------------------------------------

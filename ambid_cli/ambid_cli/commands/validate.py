@@ -22,7 +22,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
-from ambid_nodes.commands.inputs import checked_controller, controller, output_dir, positive_int, rig_file
+from ambid_cli.commands.inputs import checked_controller, controller, output_dir, positive_int, rig_file
 
 HELP = "measure the coverage of every printed interval over many seeds of the identify session"
 PRESET_SEEDS = {"quick": 6, "full": 20}

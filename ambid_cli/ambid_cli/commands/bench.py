@@ -4,14 +4,14 @@ Sections (each can be skipped):
 
 * loop: plant + controller lock-step, composed and as processes, each beside a
   bare rclpy ping-pong of the same message size, QoS, executor and layout,
-  interleaved (:mod:`ambid_nodes.bench.loop`);
+  interleaved (:mod:`ambid_cli.bench.loop`);
 * identify: a full default ``identify`` session composed, recorder and
-  consumer included (:mod:`ambid_nodes.bench.identify`);
+  consumer included (:mod:`ambid_cli.bench.identify`);
 * offline: FRF of a session beside bare reads of the same MCAP file
-  (:mod:`ambid_nodes.bench.offline`);
+  (:mod:`ambid_cli.bench.offline`);
 * fit: the common-denominator fit of a 4x4 FRF of 2,000 lines;
 * memory: peak memory of sessions of one kind, one six times longer
-  (:mod:`ambid_nodes.bench.memory`).
+  (:mod:`ambid_cli.bench.memory`).
 
 The machine may be shared: the ratios (ours over bare, measured back to
 back) are the robust figures; the load average is recorded with them.
@@ -31,7 +31,7 @@ import time
 import traceback
 from pathlib import Path
 
-from ambid_nodes.commands.inputs import output_dir, output_file, positive_float, positive_int
+from ambid_cli.commands.inputs import output_dir, output_file, positive_float, positive_int
 
 from ambid.jsonable import to_jsonable
 
@@ -83,7 +83,7 @@ def _at_most(name: str, value: float | None, unit: str, high: float, label: str)
 
 
 def _loop_section(sizes: dict, figures: list) -> dict:
-    from ambid_nodes.bench.loop import loop_figures
+    from ambid_cli.bench.loop import loop_figures
 
     import numpy as np
     from ambid.control.lqg import lqg_controller
@@ -114,7 +114,7 @@ def _loop_section(sizes: dict, figures: list) -> dict:
 
 
 def _identify_section(sizes: dict, work: Path, figures: list) -> dict:
-    from ambid_nodes.bench.identify import identify_figures
+    from ambid_cli.bench.identify import identify_figures
 
     res = identify_figures(work / "identify", sizes["identify"])
     if not res["available"]:
@@ -128,7 +128,7 @@ def _identify_section(sizes: dict, work: Path, figures: list) -> dict:
 
 
 def _offline_section(sizes: dict, work: Path, figures: list) -> dict:
-    from ambid_nodes.bench.offline import make_design, offline_figures, write_simulated_session
+    from ambid_cli.bench.offline import make_design, offline_figures, write_simulated_session
 
     path = work / "offline.mcap"
     t0 = time.perf_counter()
@@ -148,7 +148,7 @@ def _offline_section(sizes: dict, work: Path, figures: list) -> dict:
 
 
 def _fit_section(sizes: dict, figures: list) -> dict:
-    from ambid_nodes.bench.offline import fit_figures
+    from ambid_cli.bench.offline import fit_figures
 
     res = fit_figures(sizes["fit_lines"], sizes["fit_order"])
     figures.append(_at_most(f"4x4 fit of {res['n_lines']} lines, order {res['order']}: wall time",
@@ -158,7 +158,7 @@ def _fit_section(sizes: dict, figures: list) -> dict:
 
 
 def _memory_section(sizes: dict, work: Path, figures: list) -> dict:
-    from ambid_nodes.bench.memory import memory_figures
+    from ambid_cli.bench.memory import memory_figures
 
     res = memory_figures(work, {**sizes["offline_design"], **sizes.get("offline_memory_design", {})},
                          sizes["live_memory"], FACTOR)

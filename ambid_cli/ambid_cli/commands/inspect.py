@@ -140,7 +140,7 @@ def format_report(report: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ambid_nodes.commands.inputs import BadInput, ambid_topics, session_file
+    from ambid_cli.commands.inputs import BadInput, ambid_topics, session_file
 
     path = session_file(args.file, args.recover)
     try:

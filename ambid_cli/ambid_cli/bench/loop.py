@@ -15,7 +15,7 @@ import time
 
 from ambid.plant.rig import make_rig
 
-from ambid_nodes.bench.pingpong import run_pingpong_composed, run_pingpong_processes
+from ambid_cli.bench.pingpong import run_pingpong_composed, run_pingpong_processes
 from ambid_nodes.graph import GraphConfig, run_composed, run_processes, session_domain_id
 
 LAYOUTS = ("composed", "processes")

@@ -3,7 +3,7 @@
 Two kinds of session:
 
 * offline: :func:`ambid.frf.offline.frf_from_session` on a simulated session
-  file (:func:`ambid_nodes.bench.offline.write_simulated_session`) of the
+  file (:func:`ambid_cli.bench.offline.write_simulated_session`) of the
   experiment alone with M and 6 M realisations: exactly six times longer;
 * live: the composed ``identify`` session (every node in one process,
   recorder and FRF consumer included) with M and 6 M realisations; the
@@ -12,8 +12,8 @@ Two kinds of session:
 
 The peak is the child's high-water resident size (``VmHWM``); ``baseline_mb`` is its resident size
 after the imports, before the work, so ``growth_mb`` is what the session added.
-As a child: ``python -m ambid_nodes.bench.memory offline FILE`` or
-``python -m ambid_nodes.bench.memory live OUT_DIR '{SessionConfig overrides}'``,
+As a child: ``python -m ambid_cli.bench.memory offline FILE`` or
+``python -m ambid_cli.bench.memory live OUT_DIR '{SessionConfig overrides}'``,
 printing one JSON line.
 """
 
@@ -67,7 +67,7 @@ def _child(argv: list[str]) -> dict:
 
 
 def _start_child(args: tuple[str, ...], domain_id: int) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "ambid_nodes.bench.memory", *args], stdout=subprocess.PIPE,
+    return subprocess.Popen([sys.executable, "-m", "ambid_cli.bench.memory", *args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=dict(os.environ, ROS_DOMAIN_ID=str(domain_id)))
 
 
@@ -100,7 +100,7 @@ def memory_figures(work_dir: str | os.PathLike, design_kwargs: dict, live_overri
 
     Args:
         work_dir: directory for the session files (the offline ones are deleted after use).
-        design_kwargs: :func:`ambid_nodes.bench.offline.make_design` overrides of the short offline session.
+        design_kwargs: :func:`ambid_cli.bench.offline.make_design` overrides of the short offline session.
         live_overrides: ``SessionConfig`` overrides of the short live session.
         factor: length factor of the long sessions (their realisations M x factor).
 
@@ -109,7 +109,7 @@ def memory_figures(work_dir: str | os.PathLike, design_kwargs: dict, live_overri
         ``growth_mb``, ``simulated_s``, ...), ``peak_ratio``, ``growth_ratio``, ``length_ratio``};
         ``live`` is {``available``: False, ``reason``} when the session runner is missing.
     """
-    from ambid_nodes.bench.offline import make_design, write_simulated_session
+    from ambid_cli.bench.offline import make_design, write_simulated_session
     from ambid_nodes.graph import session_domain_id
 
     work_dir = Path(work_dir)

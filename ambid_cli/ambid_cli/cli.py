@@ -1,6 +1,6 @@
 """The ``ambid`` command line (called by launch_scripts/ambid after set-up).
 
-Each subcommand is a module of ``ambid_nodes.commands`` with ``HELP``,
+Each subcommand is a module of ``ambid_cli.commands`` with ``HELP``,
 ``add_arguments(parser)`` and ``run(args) -> int``; it is imported only when
 it runs, so ``ambid design`` never loads rclpy.
 """
@@ -11,7 +11,7 @@ import argparse
 import importlib
 import sys
 
-# subcommand -> module in ambid_nodes.commands
+# subcommand -> module in ambid_cli.commands
 COMMANDS = {
     "graph": "graph",
     "identify": "identify",
@@ -36,14 +36,14 @@ def main(argv: list[str] | None = None) -> int:
     name = argv[0] if argv else None
     for cmd, module in COMMANDS.items():
         if cmd == name:
-            mod = importlib.import_module(f"ambid_nodes.commands.{module}")
+            mod = importlib.import_module(f"ambid_cli.commands.{module}")
             p = sub.add_parser(cmd, help=mod.HELP)
             mod.add_arguments(p)
             p.set_defaults(func=mod.run)
         else:
             sub.add_parser(cmd)
     args = parser.parse_args(argv)  # a bad option value: argparse's usage and one line, exit code 2
-    from ambid_nodes.commands.inputs import BadInput
+    from ambid_cli.commands.inputs import BadInput
 
     try:
         return args.func(args)

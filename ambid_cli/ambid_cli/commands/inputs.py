@@ -1,7 +1,7 @@
 """What the commands take from the user, checked before any work starts.
 
 A problem with the input is a :class:`BadInput`: one line naming the
-problem and the fix, which :func:`ambid_nodes.cli.main` prints after the
+problem and the fix, which :func:`ambid_cli.cli.main` prints after the
 command's name and turns into exit code 2. Option values are checked by
 argparse through the ``type=`` functions here, so they fail in argparse's
 own format (usage, then one line naming the option), also with exit code 2.

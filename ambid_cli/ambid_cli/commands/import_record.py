@@ -28,7 +28,7 @@ def run(args: argparse.Namespace) -> int:
     from ambid.records import RecordError
     from ambid.records.importer import import_record
 
-    from ambid_nodes.commands.inputs import BadInput, output_file
+    from ambid_cli.commands.inputs import BadInput, output_file
 
     out = output_file(args.out, "--out")
     for given, what in ((args.data, "the record"), (args.map, "MAP.yaml")):   # --overwrite would replace it
