@@ -7,8 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from ambid.session import SessionWriter, inspect_session, iter_messages
-from ambid.session.blocks import (SAMPLE_BLOCK_TYPE, block_spans, decode_sample_block, iter_sample_blocks,
-                                  read_samples, sample_block_span, sample_block_topics, sample_index_report)
+from ambid.session.blocks import (SAMPLE_BLOCK_TYPE, block_spans, decode_sample_block, encode_sample_block,
+                                  iter_sample_blocks, read_samples, sample_block_session, sample_block_span,
+                                  sample_block_topics, sample_index_report)
 from mcap_ros2._dynamic import serialize_dynamic
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -23,9 +24,9 @@ ENCODE = serialize_dynamic(SAMPLE_BLOCK_TYPE, DEFINITION)[SAMPLE_BLOCK_TYPE]
 NAMES = ["y_a_x", "y_b_x", "u_a_x"]
 
 
-def block(first, data, experiment_id="", flags=None, stamp=(0, 0), names=NAMES):
+def block(first, data, experiment_id="", flags=None, stamp=(0, 0), names=NAMES, session_id=""):
     data = np.asarray(data, dtype=float)
-    return ENCODE({
+    return ENCODE({"session_id": session_id,
         "stamp": {"sec": stamp[0], "nanosec": stamp[1]}, "experiment_id": experiment_id,
         "first_index": first, "sample_period": 1e-4, "n_samples": data.shape[0],
         "channel_names": list(names), "channel_units": ["m"] * len(names),
@@ -51,6 +52,22 @@ def test_decode_matches_what_mcap_ros2_encoded(experiment_id, with_flags):
     assert sample_block_span(cdr) == (2**40 + 5, 7)
 
 
+@pytest.mark.parametrize("session_id", ["", "s", "3fa9c01b", "lab-rig-2.run_17"])
+@pytest.mark.parametrize("with_flags", [False, True])
+def test_the_session_id_is_read_after_the_data_and_written_as_mcap_ros2_does(session_id, with_flags):
+    data = np.arange(21.0).reshape(7, 3)
+    flags = np.arange(7, dtype=np.uint8) if with_flags else None
+    theirs = block(40, data, "exp", flags, session_id=session_id)
+    assert decode_sample_block(theirs).session_id == session_id == sample_block_session(theirs)
+    mine = encode_sample_block(40, 1e-4, NAMES, ["m"] * 3, data, "exp", session_id=session_id)
+    assert decode_sample_block(mine).session_id == session_id == sample_block_session(mine)
+    # a block recorded before sessions had ids ends after its flags: no session
+    old = theirs[:len(theirs) - 4 - len(session_id) - 1] if session_id else theirs[:-5]
+    assert decode_sample_block(old).session_id == "" == sample_block_session(old)
+    with pytest.raises(ValueError, match="truncated"):
+        sample_block_session(theirs[:30])
+
+
 @pytest.mark.parametrize("experiment_id", ["", "e", "exp", "abcd"])
 def test_an_empty_block_has_no_padding_before_its_missing_values(experiment_id):
     for names in (NAMES, NAMES[:1], []):
@@ -68,7 +85,7 @@ def test_bad_bytes_are_rejected_with_the_reason():
         decode_sample_block(b"\x00\x00" + cdr[2:])
     with pytest.raises(ValueError, match="too short"):
         sample_block_span(b"\x00")
-    wrong = ENCODE({"first_index": 3, "n_samples": 5, "channel_names": NAMES, "data": [1.0] * 12,
+    wrong = ENCODE({"session_id": "", "first_index": 3, "n_samples": 5, "channel_names": NAMES, "data": [1.0] * 12,
                     "stamp": {"sec": 0, "nanosec": 0}, "experiment_id": "", "sample_period": 1.0,
                     "channel_units": [], "sample_flags": [], "flags": 0})
     with pytest.raises(ValueError, match="12 values, expected n_samples x channels = 5 x 3"):

@@ -1,9 +1,22 @@
-"""Fixtures of the rclpy node tests: each test gets its own ROS context and DDS domain id."""
+"""Fixtures of the rclpy node tests: each test gets its own ROS context and DDS domain id, waits for the graph
+instead of racing it, and leaves no process behind.
+
+Waiting for the graph. DDS discovery and matching take from milliseconds to seconds on a loaded machine, so a
+test never assumes them: it builds the listening side first, waits with :func:`matched` (or ``ros.matched``)
+until every publisher and subscription it relies on has its peers, and only then starts what it observes (the
+controller, whose arrival starts the lock-step loop; an experiment; a flood).
+
+Processes. Every subprocess a test starts goes through the ``procs`` fixture (or :func:`kill_tree` in a
+``finally``): it runs in its own process group, and at the end of the test, passed or failed, the whole tree it
+started (its children live in sessions of their own) is stopped: SIGCONT, SIGTERM, then SIGKILL.
+"""
 
 from __future__ import annotations
 
 import itertools
 import os
+import signal
+import subprocess
 import time
 from types import SimpleNamespace
 
@@ -12,13 +25,133 @@ import pytest
 rclpy = pytest.importorskip("rclpy", reason="rclpy missing: run the suite with ./launch_scripts/ambid test")
 from rclpy._rclpy_pybind11 import InvalidHandle  # noqa: E402
 from rclpy.experimental import EventsExecutor  # noqa: E402
+from rclpy.publisher import Publisher  # noqa: E402
+from rclpy.subscription import Subscription  # noqa: E402
 
 # domain ids 1..200, spread by process so concurrent test runs don't meet
 _counter = itertools.count()
+MATCH_TIMEOUT_S = 60.0  # discovery on a loaded 2-core machine: seconds at worst, never this long
 
 
 def next_domain_id() -> int:
     return 1 + (os.getpid() * 37 + next(_counter)) % 200
+
+
+def peers(entity) -> int:
+    """Matched peers of a Publisher (subscriptions) or Subscription (publishers); anything with either count."""
+    if isinstance(entity, Publisher) or hasattr(entity, "get_subscription_count"):
+        return entity.get_subscription_count()
+    return entity.get_publisher_count()
+
+
+def _expand(wanted) -> list[tuple[object, int, str]]:
+    """(entity, at least n peers, label) from entities, (entity, n) pairs and nodes (each of its topic ends)."""
+    out = []
+    for w in wanted:
+        entity, n = w if isinstance(w, tuple) else (w, 1)
+        if isinstance(entity, (Publisher, Subscription)) or not hasattr(entity, "publishers"):
+            out.append((entity, n, getattr(entity, "topic_name", repr(entity))))
+            continue
+        # a node: every publisher and subscription it made on a topic of its own namespace (not the
+        # parameter services' or rosout's, which nothing of a test waits for)
+        ns = entity.get_namespace().rstrip("/") + "/"
+        for e in [*entity.publishers, *entity.subscriptions]:
+            topic = e.topic_name
+            if topic.startswith(ns) and "/_" not in topic and not topic.endswith("parameter_events"):
+                out.append((e, n, f"{entity.get_name()}: {topic}"))
+    return out
+
+
+def matched(ros, *wanted, timeout_s: float = MATCH_TIMEOUT_S) -> None:
+    """Spin ``ros``'s executor until each wanted end has its peers; fail naming the ends still waiting.
+
+    ``wanted``: publishers and subscriptions (at least one peer), ``(entity, n)`` pairs (at least n), or nodes
+    (each of the node's publishers and subscriptions in its namespace at least one peer). Works for peers in
+    other processes too: the counts are DDS matches.
+    """
+    ends = _expand(wanted)
+
+    def missing() -> list[str]:
+        return [f"{label} ({peers(e)} of {n})" for e, n, label in ends if peers(e) < n]
+
+    if not ros.spin_until(lambda: not missing(), timeout_s):
+        pytest.fail(f"the graph did not match within {timeout_s:g} s: " + ", ".join(missing()))
+
+
+def descendants(pid: int) -> list[int]:
+    """Every live process below ``pid`` (children first), read from /proc: children that started sessions of
+    their own are found too, as long as their parent is alive."""
+    children: dict[int, list[int]] = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as f:
+                stat = f.read()
+        except OSError:
+            continue
+        ppid = int(stat.rsplit(")", 1)[1].split()[1])
+        children.setdefault(ppid, []).append(int(entry))
+    out, todo = [], [pid]
+    while todo:
+        for c in children.get(todo.pop(), []):
+            out.append(c)
+            todo.append(c)
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] not in ("Z", "X")
+    except OSError:
+        return False
+
+
+def kill_tree(proc: subprocess.Popen, grace_s: float = 5.0) -> None:
+    """Stop ``proc`` and every process below it, whatever state they are in (stopped ones too): SIGCONT and
+    SIGTERM to all (a node closes its files), SIGKILL to what is left after ``grace_s``; reaps ``proc``."""
+    pids = [proc.pid, *descendants(proc.pid)] if proc.poll() is None else descendants(proc.pid)
+    for sig in (signal.SIGCONT, signal.SIGTERM):
+        for pid in pids:
+            try:
+                os.kill(pid, sig)
+            except ProcessLookupError:
+                pass
+    end = time.monotonic() + grace_s
+    while time.monotonic() < end and any(_alive(p) for p in pids):
+        time.sleep(0.05)
+    for pid in pids:
+        if _alive(pid):
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+    try:
+        proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:  # pragma: no cover - SIGKILL cannot be refused
+        pass
+    for stream in (proc.stdout, proc.stderr, proc.stdin):
+        if stream is not None:
+            stream.close()
+
+
+@pytest.fixture
+def procs():
+    """``procs(args, **popen_kwargs)`` starts a subprocess in its own process group; at the end of the test,
+    passed or failed, it and everything it started are stopped (:func:`kill_tree`)."""
+    started: list[subprocess.Popen] = []
+
+    def start(args, **kwargs) -> subprocess.Popen:
+        kwargs.setdefault("start_new_session", True)
+        p = subprocess.Popen(args, **kwargs)
+        started.append(p)
+        return p
+
+    start.all = started
+    yield start
+    for p in reversed(started):
+        kill_tree(p)
 
 
 @pytest.fixture
@@ -54,7 +187,9 @@ def ros():
             executor.spin_once(timeout_sec=0.05)
         return True
 
-    yield SimpleNamespace(context=context, executor=executor, domain_id=domain, add=add, spin_until=spin_until)
+    ns = SimpleNamespace(context=context, executor=executor, domain_id=domain, add=add, spin_until=spin_until)
+    ns.matched = lambda *wanted, timeout_s=MATCH_TIMEOUT_S: matched(ns, *wanted, timeout_s=timeout_s)
+    yield ns
     if nodes:
         # let DDS finish with peers that just left (a subprocess node the test stopped) before our
         # entities go: their unmatch events racing the destruction can crash the EventsExecutor

@@ -24,6 +24,8 @@ of the 4-byte encapsulation header)::
     float64[] data                  uint32 count, values aligned to 8
     uint8[] sample_flags            uint32 count, bytes
     uint32 flags
+    string session_id               the session that published it (absent in recordings made before
+                                    sessions had ids: read as "")
 
 Pure Python (numpy, mcap); nothing here imports rclpy.
 """
@@ -48,6 +50,7 @@ __all__ = [
     "decode_sample_block",
     "encode_sample_block",
     "SampleBlockReader",
+    "sample_block_session",
     "sample_block_span",
     "iter_sample_blocks",
     "sample_block_topics",
@@ -75,6 +78,7 @@ class SampleBlockData:
             view of the message bytes (copy it to modify).
         sample_flags: (n_samples,) uint8 ``FLAG_*`` bits, or shape (0,).
         flags: OR of the rows' flags.
+        session_id: the session that published the block, or ``""``.
     """
 
     stamp_ns: int
@@ -86,6 +90,7 @@ class SampleBlockData:
     data: np.ndarray
     sample_flags: np.ndarray
     flags: int
+    session_id: str = ""
 
     @property
     def n_samples(self) -> int:
@@ -197,6 +202,7 @@ def decode_sample_block(cdr: bytes | memoryview) -> SampleBlockData:
         pos += n_flags
         pos += -pos & 3
         (flags,) = _U32(cdr, pos)
+        session_id = _string(cdr, pos + 4, end)[0] if pos + 8 <= end else ""
     except struct.error:
         raise _truncated(end, end) from None
     n_ch = len(names)
@@ -217,7 +223,47 @@ def decode_sample_block(cdr: bytes | memoryview) -> SampleBlockData:
         data=data.reshape(n_samples, n_ch),
         sample_flags=sample_flags,
         flags=flags,
+        session_id=session_id,
     )
+
+
+def sample_block_session(cdr: bytes | memoryview) -> str:
+    """The ``session_id`` of a serialized SampleBlock (``""`` if it has none), walking past its data unread.
+
+    Raises:
+        ValueError: on truncated bytes or an unsupported encapsulation.
+    """
+    end = len(cdr)
+    try:
+        *_, pos = _header(cdr)
+        for _ in range(2):  # channel_names, channel_units
+            pos += -pos & 3
+            (count,) = _U32(cdr, pos)
+            pos += 4
+            for _ in range(count):
+                pos += -pos & 3
+                (n,) = _U32(cdr, pos)
+                pos += 4 + n
+        pos += -pos & 3
+        (n_values,) = _U32(cdr, pos)
+        pos += 4
+        if n_values:
+            pos += (4 - pos) & 7
+        pos += 8 * n_values
+        pos += -pos & 3
+        (n_flags,) = _U32(cdr, pos)
+        pos += 4 + n_flags
+        pos += -pos & 3
+        pos += 4  # flags
+        if pos + 4 > end:
+            if pos > end:
+                raise _truncated(pos, end)
+            return ""
+        return _string(cdr, pos, end)[0]
+    except struct.error:
+        raise _truncated(end, end) from None
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"SampleBlock CDR: session_id is not UTF-8 ({exc})") from None
 
 
 class SampleBlockReader:
@@ -462,7 +508,7 @@ def read_samples(
 
 def encode_sample_block(first_index: int, sample_period_s: float, channel_names: Sequence[str],
                         channel_units: Sequence[str], data: np.ndarray, experiment_id: str = "",
-                        stamp_ns: int = 0, flags: int = 0) -> bytes:
+                        stamp_ns: int = 0, flags: int = 0, session_id: str = "") -> bytes:
     """CDR bytes of a SampleBlock (the layout in the module docstring), as rclpy serialises it.
 
     Args:
@@ -473,6 +519,7 @@ def encode_sample_block(first_index: int, sample_period_s: float, channel_names:
         experiment_id: the experiment, or "".
         stamp_ns: time of the first sample [ns].
         flags: OR of the rows' flags (no per-row flags are written).
+        session_id: the session the block belongs to, or "".
     """
     data = np.ascontiguousarray(data, dtype="<f8")
     n, k = data.shape
@@ -504,4 +551,5 @@ def encode_sample_block(first_index: int, sample_period_s: float, channel_names:
     align(4)
     out.extend(struct.pack("<I", 0))
     out.extend(struct.pack("<I", int(flags)))
+    string(session_id)
     return bytes(out)
