@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import itertools
 import os
-import signal
 import subprocess
 import time
 from types import SimpleNamespace
@@ -27,6 +26,8 @@ from rclpy._rclpy_pybind11 import InvalidHandle  # noqa: E402
 from rclpy.experimental import EventsExecutor  # noqa: E402
 from rclpy.publisher import Publisher  # noqa: E402
 from rclpy.subscription import Subscription  # noqa: E402
+
+from proc_tree import kill_tree  # noqa: E402
 
 # domain ids 1..200, spread by process so concurrent test runs don't meet
 _counter = itertools.count()
@@ -44,8 +45,13 @@ def peers(entity) -> int:
     return entity.get_publisher_count()
 
 
-def _expand(wanted) -> list[tuple[object, int, str]]:
-    """(entity, at least n peers, label) from entities, (entity, n) pairs and nodes (each of its topic ends)."""
+def _topics(node, kind: str) -> set[str]:
+    return {e.topic_name for e in getattr(node, kind)}
+
+
+def _expand(wanted, to=None) -> list[tuple[object, int, str]]:
+    """(entity, at least n peers, label) from entities, (entity, n) pairs and nodes (each of its topic ends;
+    with ``to``, only those meeting one of that node's)."""
     out = []
     for w in wanted:
         entity, n = w if isinstance(w, tuple) else (w, 1)
@@ -55,85 +61,36 @@ def _expand(wanted) -> list[tuple[object, int, str]]:
         # a node: every publisher and subscription it made on a topic of its own namespace (not the
         # parameter services' or rosout's, which nothing of a test waits for)
         ns = entity.get_namespace().rstrip("/") + "/"
-        for e in [*entity.publishers, *entity.subscriptions]:
-            topic = e.topic_name
-            if topic.startswith(ns) and "/_" not in topic and not topic.endswith("parameter_events"):
+        published = _topics(to, "publishers") if to is not None else None
+        subscribed = _topics(to, "subscriptions") if to is not None else None
+        for kind in ("publishers", "subscriptions"):
+            for e in getattr(entity, kind):
+                topic = e.topic_name
+                if not topic.startswith(ns) or "/_" in topic or topic.endswith("parameter_events"):
+                    continue
+                if to is not None and topic not in (subscribed if kind == "publishers" else published):
+                    continue
                 out.append((e, n, f"{entity.get_name()}: {topic}"))
     return out
 
 
-def matched(ros, *wanted, timeout_s: float = MATCH_TIMEOUT_S) -> None:
+def matched(ros, *wanted, to=None, timeout_s: float = MATCH_TIMEOUT_S) -> None:
     """Spin ``ros``'s executor until each wanted end has its peers; fail naming the ends still waiting.
 
     ``wanted``: publishers and subscriptions (at least one peer), ``(entity, n)`` pairs (at least n), or nodes
-    (each of the node's publishers and subscriptions in its namespace at least one peer). Works for peers in
-    other processes too: the counts are DDS matches.
+    (each of the node's publishers and subscriptions in its namespace at least one peer; with ``to=node``
+    only those on a topic that node publishes or subscribes: ``matched(ros, spy, to=plant)`` waits until the
+    spy hears every topic the plant publishes). Peers in other processes count too: these are DDS matches.
     """
-    ends = _expand(wanted)
+    ends = _expand(wanted, to)
+    if not ends:
+        pytest.fail("matched(): nothing to wait for (no topic in common)")
 
     def missing() -> list[str]:
         return [f"{label} ({peers(e)} of {n})" for e, n, label in ends if peers(e) < n]
 
     if not ros.spin_until(lambda: not missing(), timeout_s):
         pytest.fail(f"the graph did not match within {timeout_s:g} s: " + ", ".join(missing()))
-
-
-def descendants(pid: int) -> list[int]:
-    """Every live process below ``pid`` (children first), read from /proc: children that started sessions of
-    their own are found too, as long as their parent is alive."""
-    children: dict[int, list[int]] = {}
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit():
-            continue
-        try:
-            with open(f"/proc/{entry}/stat") as f:
-                stat = f.read()
-        except OSError:
-            continue
-        ppid = int(stat.rsplit(")", 1)[1].split()[1])
-        children.setdefault(ppid, []).append(int(entry))
-    out, todo = [], [pid]
-    while todo:
-        for c in children.get(todo.pop(), []):
-            out.append(c)
-            todo.append(c)
-    return out
-
-
-def _alive(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] not in ("Z", "X")
-    except OSError:
-        return False
-
-
-def kill_tree(proc: subprocess.Popen, grace_s: float = 5.0) -> None:
-    """Stop ``proc`` and every process below it, whatever state they are in (stopped ones too): SIGCONT and
-    SIGTERM to all (a node closes its files), SIGKILL to what is left after ``grace_s``; reaps ``proc``."""
-    pids = [proc.pid, *descendants(proc.pid)] if proc.poll() is None else descendants(proc.pid)
-    for sig in (signal.SIGCONT, signal.SIGTERM):
-        for pid in pids:
-            try:
-                os.kill(pid, sig)
-            except ProcessLookupError:
-                pass
-    end = time.monotonic() + grace_s
-    while time.monotonic() < end and any(_alive(p) for p in pids):
-        time.sleep(0.05)
-    for pid in pids:
-        if _alive(pid):
-            try:
-                os.kill(pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
-    try:
-        proc.wait(timeout=10)
-    except subprocess.TimeoutExpired:  # pragma: no cover - SIGKILL cannot be refused
-        pass
-    for stream in (proc.stdout, proc.stderr, proc.stdin):
-        if stream is not None:
-            stream.close()
 
 
 @pytest.fixture
@@ -188,7 +145,8 @@ def ros():
         return True
 
     ns = SimpleNamespace(context=context, executor=executor, domain_id=domain, add=add, spin_until=spin_until)
-    ns.matched = lambda *wanted, timeout_s=MATCH_TIMEOUT_S: matched(ns, *wanted, timeout_s=timeout_s)
+    ns.matched = lambda *wanted, to=None, timeout_s=MATCH_TIMEOUT_S: matched(ns, *wanted, to=to,
+                                                                             timeout_s=timeout_s)
     yield ns
     if nodes:
         # let DDS finish with peers that just left (a subprocess node the test stopped) before our
