@@ -21,18 +21,25 @@ DEFINITION = (
     + (Path(sys.prefix) / "share" / "builtin_interfaces" / "msg" / "Time.msg").read_text()
 )
 ENCODE = serialize_dynamic(SAMPLE_BLOCK_TYPE, DEFINITION)[SAMPLE_BLOCK_TYPE]
+# the layout before sessions had ids: the same fields without the last one
+OLD_ENCODE = serialize_dynamic(SAMPLE_BLOCK_TYPE, DEFINITION.replace(
+    next(line for line in MSG_TEXT.splitlines() if line.startswith("uint64 session_id")) + "\n", ""))[SAMPLE_BLOCK_TYPE]
 NAMES = ["y_a_x", "y_b_x", "u_a_x"]
 
 
-def block(first, data, experiment_id="", flags=None, stamp=(0, 0), names=NAMES, session_id=""):
+def _fields(first, data, experiment_id="", flags=None, stamp=(0, 0), names=NAMES, session_id=0):
     data = np.asarray(data, dtype=float)
-    return ENCODE({"session_id": session_id,
+    return {
         "stamp": {"sec": stamp[0], "nanosec": stamp[1]}, "experiment_id": experiment_id,
         "first_index": first, "sample_period": 1e-4, "n_samples": data.shape[0],
         "channel_names": list(names), "channel_units": ["m"] * len(names),
         "data": data.ravel().tolist(), "sample_flags": [] if flags is None else list(flags),
-        "flags": 0 if flags is None else int(np.bitwise_or.reduce(flags)),
-    })
+        "flags": 0 if flags is None else int(np.bitwise_or.reduce(flags)), "session_id": session_id,
+    }
+
+
+def block(first, data, experiment_id="", flags=None, stamp=(0, 0), names=NAMES, session_id=0):
+    return ENCODE(_fields(first, data, experiment_id, flags, stamp, names, session_id))
 
 
 @pytest.mark.parametrize("experiment_id", ["", "e", "exp", "abcd", "experiment-7"])
@@ -52,18 +59,22 @@ def test_decode_matches_what_mcap_ros2_encoded(experiment_id, with_flags):
     assert sample_block_span(cdr) == (2**40 + 5, 7)
 
 
-@pytest.mark.parametrize("session_id", ["", "s", "3fa9c01b", "lab-rig-2.run_17"])
+@pytest.mark.parametrize("session_id", [0, 1, 0x3FA9C01B, 2**64 - 1])
 @pytest.mark.parametrize("with_flags", [False, True])
-def test_the_session_id_is_read_after_the_data_and_written_as_mcap_ros2_does(session_id, with_flags):
+@pytest.mark.parametrize("experiment_id", ["", "exp"])
+def test_the_session_id_ends_every_block_as_mcap_ros2_writes_it(session_id, with_flags, experiment_id):
     data = np.arange(21.0).reshape(7, 3)
     flags = np.arange(7, dtype=np.uint8) if with_flags else None
-    theirs = block(40, data, "exp", flags, session_id=session_id)
+    theirs = block(40, data, experiment_id, flags, session_id=session_id)
+    # 8-aligned and last: the message is 4 + 8n bytes, its last 8 the id
+    assert (len(theirs) - 4) % 8 == 0 and int.from_bytes(theirs[-8:], "little") == session_id
     assert decode_sample_block(theirs).session_id == session_id == sample_block_session(theirs)
-    mine = encode_sample_block(40, 1e-4, NAMES, ["m"] * 3, data, "exp", session_id=session_id)
-    assert decode_sample_block(mine).session_id == session_id == sample_block_session(mine)
+    mine = encode_sample_block(40, 1e-4, NAMES, ["m"] * 3, data, experiment_id, session_id=session_id)
+    assert (mine == theirs or with_flags) and decode_sample_block(mine).session_id == session_id  # (rows flags: none)
     # a block recorded before sessions had ids ends after its flags: no session
-    old = theirs[:len(theirs) - 4 - len(session_id) - 1] if session_id else theirs[:-5]
-    assert decode_sample_block(old).session_id == "" == sample_block_session(old)
+    old = OLD_ENCODE({k: v for k, v in _fields(40, data, experiment_id, flags).items() if k != "session_id"})
+    assert decode_sample_block(old).session_id == 0 == sample_block_session(old)
+    assert decode_sample_block(old).first_index == 40 and np.array_equal(decode_sample_block(old).data, data)
     with pytest.raises(ValueError, match="truncated"):
         sample_block_session(theirs[:30])
 
@@ -85,7 +96,7 @@ def test_bad_bytes_are_rejected_with_the_reason():
         decode_sample_block(b"\x00\x00" + cdr[2:])
     with pytest.raises(ValueError, match="too short"):
         sample_block_span(b"\x00")
-    wrong = ENCODE({"session_id": "", "first_index": 3, "n_samples": 5, "channel_names": NAMES, "data": [1.0] * 12,
+    wrong = ENCODE({"session_id": 0, "first_index": 3, "n_samples": 5, "channel_names": NAMES, "data": [1.0] * 12,
                     "stamp": {"sec": 0, "nanosec": 0}, "experiment_id": "", "sample_period": 1.0,
                     "channel_units": [], "sample_flags": [], "flags": 0})
     with pytest.raises(ValueError, match="12 values, expected n_samples x channels = 5 x 3"):

@@ -267,7 +267,7 @@ def fuzz_topics(ros, node, fuzzer: FuzzNode, plan: dict, near=lambda: 0, counted
     sent = {}
     for topic, n in plan.items():
         pub = fuzzer.pubs[topic]
-        wait(ros, lambda: pub.get_subscription_count() >= 2, 20, f"{topic}: subscribers")
+        wait(ros, lambda: pub.get_subscription_count() >= 2, 60, f"{topic}: subscribers")
         t0 = time.perf_counter()
         payloads = f.payloads(topic, n, near())
         t1 = time.perf_counter()

@@ -18,6 +18,7 @@ from rclpy.serialization import deserialize_message
 
 from ambid_msgs.msg import Sample, SampleBlock, SessionStatus
 from ambid_nodes import qos
+from proc_tree import kill_tree
 
 SIM_S = 0.6  # 6000 samples: lift-off and settling
 
@@ -28,7 +29,7 @@ class LossyRelay(Node):
     def __init__(self, context, ns: str, name: str, src: str, dst: str, drop: set[int]):
         super().__init__(name, namespace=ns, context=context)
         self.drop, self.dropped = set(drop), []
-        pub = self.create_publisher(Sample, dst, qos.LOOP)
+        self.pub = pub = self.create_publisher(Sample, dst, qos.LOOP)
         self.forward = pub.publish
 
         def relay(data: bytes) -> None:
@@ -69,6 +70,10 @@ def run_loop(ros, pipeline: bool, drop_ic: set[int] = frozenset(), drop_y: set[i
     blocks = ros.add(Blocks(ros.context, ns))
     plant = ros.add(PlantSim(namespace=ns, context=ros.context, cli_args=plant_args, parameter_overrides=[
         Parameter("sim_seconds", value=SIM_S), Parameter("seed", value=3)]))
+    ros.matched(blocks, to=plant)  # every block heard
+    if relays:  # the plant's side of each relay matched before the controller starts the loop
+        ros.matched(relays[1].pub)
+        ros.matched(relays[0], to=plant)
     ctrl = ros.add(PositionController(namespace=ns, context=ros.context, cli_args=ctrl_args, parameter_overrides=[
         Parameter("pipeline", value=pipeline)]))
     assert ros.spin_until(plant.finished.done, timeout_s=120)
@@ -130,7 +135,10 @@ def test_a_flood_on_every_subscribed_topic_changes_no_sample(ros):
     blocks = ros.add(Blocks(ros.context, ns))
     plant = ros.add(PlantSim(namespace=ns, context=ros.context, parameter_overrides=[
         Parameter("sim_seconds", value=SIM_S), Parameter("seed", value=3)]))
+    ros.matched(blocks, to=plant)
+    ros.matched(flood, to=plant)  # the flood reaches the plant (its loop subscription is counted below)
     ctrl = ros.add(PositionController(namespace=ns, context=ros.context))
+    ros.matched(*flood.pubs.values())
     assert ros.spin_until(lambda: plant.k >= 2000, 60)
     sent = flood.send()
     assert ros.spin_until(plant.finished.done, timeout_s=120)
@@ -163,27 +171,27 @@ def test_a_flood_between_processes_changes_no_sample(ros, ros_env):
 
     def start(mod: str, params: dict) -> subprocess.Popen:
         return subprocess.Popen([sys.executable, "-m", f"ambid_nodes.{mod}", *ros_args(ns, params)], env=env,
-                                cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                                cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                                start_new_session=True)
 
-    # the plant first, and the controller once this process hears the plant: the loop cannot start
-    # (and its first blocks go out) before the recording listener is matched
+    statuses = []
+
+    def on_status(data: bytes) -> None:  # raw: the flood's malformed status must not reach rosidl here
+        try:
+            m = decode_message(data, SessionStatus, "status")
+        except BadMessage:
+            return
+        statuses.append((m.node, m.state, m.text, dict(zip(m.keys, m.values))))
+
+    blocks.create_subscription(SessionStatus, "status", on_status, qos.subscription(qos.STATUS), raw=True)
+    # the plant first, and the controller once this process is matched to it: the loop cannot start
+    # (and its first blocks go out) before the recording listener hears them
     procs = [start("plant_sim", {"sim_seconds": SIM_S, "seed": 3})]
-    topic = blocks.resolve_topic_name("measurement")
     try:
-        assert ros.spin_until(lambda: blocks.count_publishers(topic) >= 1, 30)
+        ros.matched(blocks)
         procs.insert(0, start("position_controller", {}))
         n = ref.shape[0]
         got = lambda: sum(deserialize_message(b, SampleBlock).n_samples for b in blocks.raw)  # noqa: E731
-        statuses = []
-
-        def on_status(data: bytes) -> None:  # raw: the flood's malformed status must not reach rosidl here
-            try:
-                m = decode_message(data, SessionStatus, "status")
-            except BadMessage:
-                return
-            statuses.append((m.node, m.state, m.text, dict(zip(m.keys, m.values))))
-
-        blocks.create_subscription(SessionStatus, "status", on_status, qos.subscription(qos.STATUS), raw=True)
 
         def wait(predicate, timeout_s: float, what: str) -> None:
             if not ros.spin_until(predicate, timeout_s):
@@ -192,7 +200,8 @@ def test_a_flood_between_processes_changes_no_sample(ros, ros_env):
                 tails = [p.communicate()[1][-1500:] for p in procs]
                 raise AssertionError(f"{what}: {got()} samples recorded; status {statuses[-4:]}; stderr: {tails}")
 
-        wait(lambda: got() >= 2000, 60, "the loop levitates")
+        wait(lambda: got() >= 2000, 120, "the loop levitates")
+        ros.matched(flood)  # every flooded topic reaches its node (the controller's displacement too)
         sent = flood.send()
         wait(lambda: got() == n, 120, "the loop runs to its end under the flood")
         errs = [procs[1].communicate(timeout=30)[1]]  # the plant exits by itself once its run is done
@@ -201,9 +210,7 @@ def test_a_flood_between_processes_changes_no_sample(ros, ros_env):
         errs.append(procs[0].communicate(timeout=20)[1])
     finally:
         for p in procs:
-            if p.poll() is None:
-                p.kill()
-                p.communicate()
+            kill_tree(p)
     rec, flags = blocks.records()
     assert np.array_equal(rec.view(np.uint64), ref.view(np.uint64)) and np.array_equal(flags, ref_flags)
     assert sent == 5000

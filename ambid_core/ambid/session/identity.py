@@ -1,10 +1,14 @@
 """A session's identity: the id every message of one session carries, so a session keeps to itself.
 
 Several sessions can share a DDS domain and even a namespace (a rig next door, a replayed recording, a
-script left running). Every ambid message but the lock-step ``Sample`` carries a ``session_id``; the nodes
-of a session act only on messages with their own id, and the recorder records only those. The loop's
+script left running). Every ambid message but the lock-step ``Sample`` ends with ``uint64 session_id``; the
+nodes of a session act only on messages with their own id, and the recorder records only those. The loop's
 ``Sample`` and ``/clock`` carry none: their publishers are known by GID from the session's roster
 (``ambid_msgs/SessionMember`` on ``session``). See docs/sessions.md.
+
+The id is the last field of every ambid message and 8-aligned, so a message as rmw serializes it is a
+multiple of 4 bytes long: the copies a subscriber in the same process and one in another process receive
+are the same bytes (RTPS pads a payload to 4 bytes).
 
 Pure Python; nothing here imports rclpy.
 """
@@ -14,24 +18,31 @@ from __future__ import annotations
 import re
 import secrets
 
-__all__ = ["GID_BYTES", "check_session_id", "format_gid", "new_session_id"]
+__all__ = ["GID_BYTES", "NO_SESSION", "check_session_id", "format_gid", "format_session", "new_session_id"]
 
 GID_BYTES = 16  # rmw's RMW_GID_STORAGE_SIZE in ROS 2 Jazzy
-_VALID = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
+NO_SESSION = 0  # the id of a message published outside any session (a node started without one, a script)
+_HEX = re.compile(r"[0-9a-fA-F]{1,16}")
 
 
-def new_session_id() -> str:
-    """A fresh session id: 8 random hex digits (two sessions on one domain collide once in 4e9)."""
-    return secrets.token_hex(4)
+def new_session_id() -> int:
+    """A fresh session id: 32 random bits, never 0 (two sessions on one domain collide once in 4e9)."""
+    return secrets.randbits(32) or 1
 
 
-def check_session_id(text: str) -> str:
-    """``text`` if it is a valid session id (1-64 of letters, digits, ``_ . -``, not starting with a
-    punctuation mark); ValueError with the fix otherwise."""
-    if not isinstance(text, str) or not _VALID.fullmatch(text):
-        raise ValueError(f"session id {text!r} is not valid: use 1-64 letters, digits, '_', '.' or '-', "
-                         "starting with a letter or digit (or leave it out for a fresh one)")
-    return text
+def format_session(session_id: int) -> str:
+    """A session id as it is printed and given back to ``--session``: hex, at least 8 digits (``3fa9c01b``)."""
+    return f"{int(session_id):08x}" if session_id else "none"
+
+
+def check_session_id(text: str | int) -> int:
+    """The session id ``text`` names (1-16 hex digits as printed, or an int), not 0; ValueError with the fix."""
+    if isinstance(text, int) and not isinstance(text, bool) and 0 < text < 2**64:
+        return text
+    if isinstance(text, str) and _HEX.fullmatch(text) and int(text, 16) != 0:
+        return int(text, 16)
+    raise ValueError(f"session id {text!r} is not valid: give 1-16 hex digits, not all zero, as ambid prints them "
+                     "(e.g. 3fa9c01b), or leave it out for a fresh one")
 
 
 def format_gid(gid: bytes | bytearray | list[int] | tuple[int, ...]) -> str:
