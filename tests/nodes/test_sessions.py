@@ -1,0 +1,168 @@
+"""Issue 30: sessions keep to themselves. A foreign source of well-formed blocks and designs on the same domain
+and namespace changes neither what identify estimates nor one recorded byte of the session's own messages,
+and is counted and named; two rigs in two namespaces on one domain run side by side unaffected."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+from ambid.frf.offline import frf_from_session
+from ambid.session import iter_messages, scan_session
+from ambid.session.blocks import decode_sample_block
+from ambid_nodes.conversions import block_msg
+from ambid_nodes.plant_sim import MEASUREMENT_NAMES, MEASUREMENT_UNITS
+from rclpy.node import Node
+from rclpy.serialization import deserialize_message
+
+from ambid_msgs.msg import ExcitationDesign, SampleBlock, SessionEvent, SessionStatus
+from ambid_nodes import qos
+from ambid_nodes.recorder import message_class
+
+REPO = Path(__file__).resolve().parents[2]
+SMALL = ["--band", "20", "400", "--resolution", "20", "--periods", "2", "--realisations", "1",
+         "--transient-periods", "1", "--no-progress", "--seed", "3"]
+SESSION = "00c0ffee"
+EXC_NAMES = ["r_a_x", "r_b_x", "r_a_y", "r_b_y"]
+
+
+class ForeignSource(Node):
+    """A rig next door, a replayed recording, a script left running: well-formed measurement and excitation
+    blocks (the genuine channel names, units and plausible sample indices) and designs, on the session's own
+    namespace, of no session (0) and of another (7)."""
+
+    def __init__(self, context, ns: str = "/amb") -> None:
+        super().__init__("foreign_source", namespace=ns, context=context)
+        self.pub_meas = self.create_publisher(SampleBlock, "measurement", qos.BLOCKS)
+        self.pub_exc = self.create_publisher(SampleBlock, "excitation", qos.BLOCKS)
+        self.pub_design = self.create_publisher(ExcitationDesign, "excitation/design", qos.LATCHED)
+        self.k = 0
+        self.sent = 0
+        self.rng = np.random.default_rng(1)
+        self.create_timer(0.02, self.send)
+
+    def send(self) -> None:
+        session = 7 if self.sent % 2 else 0
+        k = self.k
+        meas = block_msg(k, 1e-4, MEASUREMENT_NAMES, MEASUREMENT_UNITS, self.rng.normal(0, 1e-6, (1000, 16)))
+        meas.session_id = session
+        exc = block_msg(k + 5000, 1e-4, EXC_NAMES, ["A"] * 4, self.rng.normal(0, 0.1, (1000, 4)),
+                        experiment_id="exp-0001")
+        exc.session_id = session
+        design = ExcitationDesign(experiment_id="exp-0001", kind="noise", start_index=k + 5000, total_samples=1000,
+                                  sample_rate=10_000.0, input_names=["u_a_x"], session_id=session)
+        self.pub_meas.publish(meas)
+        self.pub_exc.publish(exc)
+        self.pub_design.publish(design)
+        self.k += 1000
+        self.sent += 3
+
+
+def identify(out: Path, env: dict, procs, *extra: str) -> subprocess.Popen:
+    return procs([sys.executable, "-m", "ambid_cli.cli", "identify", "--out", str(out), "--session", SESSION, *SMALL,
+                  *extra], env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def own_messages(path: Path) -> dict[str, list[bytes]]:
+    """The recorded bytes of the session's deterministic messages, per topic, in order (status and events carry
+    wall-clock figures; /clock is compared by count)."""
+    topics = ["/amb/measurement", "/amb/excitation", "/amb/excitation/design", "/amb/plant/description",
+              "/amb/controller/description", "/amb/frf"]
+    out: dict[str, list[bytes]] = {t: [] for t in topics}
+    for m in iter_messages(path, topics):
+        out[m.topic].append(m.data)
+    return out
+
+
+def test_a_foreign_source_changes_no_estimate_and_no_recorded_byte_and_is_named(ros, ros_env, procs, tmp_path):
+    clean = identify(tmp_path / "clean", ros_env, procs)
+    out, err = clean.communicate(timeout=600)
+    assert clean.returncode == 0, err[-3000:]
+    assert f"session {SESSION}" in out + err
+
+    # the foreign source runs before identify starts (identify names it) and all through the session
+    foreign = ros.add(ForeignSource(ros.context))
+    run = identify(tmp_path / "flooded", ros_env, procs)
+    assert ros.spin_until(lambda: run.poll() is not None, 600)
+    out_f, err_f = run.communicate()
+    assert run.returncode == 0, err_f[-3000:]
+    assert foreign.sent > 100, foreign.sent
+    said = out_f + err_f
+    line = next(ln for ln in said.splitlines() if "foreign publishers" in ln)
+    assert "/amb/foreign_source" in line and "/amb/measurement" in line and "/amb/excitation" in line, line
+    print(f"\n{line}\nforeign messages sent during the session: {foreign.sent}")
+
+    # the same estimate, live and offline, as the clean run of the same seed
+    a, b = (json.loads((tmp_path / d / "summary.json").read_text()) for d in ("clean", "flooded"))
+    assert a["live_frf"] == b["live_frf"] and a["frf_error"] == b["frf_error"]
+    fa, fb = (frf_from_session(tmp_path / d / "session.mcap") for d in ("clean", "flooded"))
+    for k in ("freq_hz", "frf", "var_noise", "sensitivity"):
+        np.testing.assert_array_equal(getattr(fa, k), getattr(fb, k), err_msg=k)
+
+    # not one recorded byte of the session's own messages changed, and nothing foreign was recorded
+    ra, rb = (own_messages(tmp_path / d / "session.mcap") for d in ("clean", "flooded"))
+    for topic in ra:
+        assert ra[topic] == rb[topic], f"{topic}: {len(ra[topic])} vs {len(rb[topic])} messages"
+    path = tmp_path / "flooded" / "session.mcap"
+    scan = scan_session(path)
+    assert scan.topic_message_counts["/clock"] == scan_session(tmp_path / "clean" / "session.mcap").topic_message_counts[
+        "/clock"]
+    for m in iter_messages(path):  # every message that carries a session id carries this session's
+        cls = message_class(m.type_name)
+        if "session_id" in cls.get_fields_and_field_types():
+            assert deserialize_message(m.data, cls).session_id == int(SESSION, 16), m.topic
+
+    # counted and named: in the nodes' status and events, as recorded
+    statuses = [deserialize_message(m.data, SessionStatus) for m in iter_messages(path, "/amb/status")]
+    named = {}
+    for s in statuses:
+        f = dict(zip(s.keys, s.values))
+        for topic in ("/amb/measurement", "/amb/excitation", "/amb/excitation/design"):
+            if int(json.loads(f.get(f"foreign:{topic}", "0"))) > 0:
+                named.setdefault((s.node, topic), json.loads(f[f"foreign_from:{topic}"]))
+    nodes = {n for n, _ in named}
+    assert {"/amb/plant_sim", "/amb/excitation_generator", "/amb/frf_consumer", "/amb/recorder"} <= nodes, named
+    assert all(any("/amb/foreign_source" in who for who in names) for names in named.values()), named
+    events = [deserialize_message(m.data, SessionEvent) for m in iter_messages(path, "/amb/events")]
+    foreign_events = [e for e in events if e.code == "foreign_message"]
+    assert foreign_events and all("/amb/foreign_source" in e.text for e in foreign_events[:3]), foreign_events[:3]
+    print(f"foreign messages counted and named by {len(nodes)} nodes, e.g. {foreign_events[0].text}")
+
+
+def test_two_rigs_in_two_namespaces_on_one_domain_run_side_by_side(ros_env, procs, tmp_path):
+    """identify on /rig_a and a graph on /rig_b, at once, one domain: the same figures as alone; the one topic
+    they share, /clock, recorded from rig a only, rig b's counted and named as foreign."""
+    cmd = [sys.executable, "-m", "ambid_cli.cli"]
+    alone = procs([*cmd, "graph", "--namespace", "/rig_b", "--sim-seconds", "1.5", "--seed", "4"], env=ros_env,
+                  cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    ref = alone.communicate(timeout=300)[0]
+    assert alone.returncode == 0, ref
+    b = procs([*cmd, "graph", "--processes", "--namespace", "/rig_b", "--sim-seconds", "1.5", "--seed", "4"],
+              env=ros_env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    a = procs([*cmd, "identify", "--namespace", "/rig_a", "--out", str(tmp_path / "a"), *SMALL], env=ros_env,
+              cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    out_b = b.communicate(timeout=600)[0]
+    out_a, err_a = a.communicate(timeout=600)
+    assert b.returncode == 0, out_b
+    assert a.returncode == 0, err_a[-3000:]
+
+    def rms(text: str) -> str:
+        return next(ln for ln in text.splitlines() if ln.startswith("displacement RMS"))
+
+    assert rms(out_b) == rms(ref) and "rotor levitated" in out_b  # rig b as alone (same seed)
+    path = tmp_path / "a" / "session.mcap"
+    scan = scan_session(path)
+    samples = max(decode_sample_block(m.data).first_index + decode_sample_block(m.data).n_samples
+                  for m in iter_messages(path, "/rig_a/measurement"))
+    assert scan.topic_message_counts["/clock"] == samples // 100  # one /clock per 100 samples of rig a, no more
+    assert not any(t.startswith("/rig_b") for t in scan.topic_types)
+    last = [deserialize_message(m.data, SessionStatus) for m in iter_messages(path, "/rig_a/status")]
+    rec = next(s for s in reversed(last) if s.node == "/rig_a/recorder")
+    f = {k: json.loads(v) for k, v in zip(rec.keys, rec.values)}
+    if f.get("foreign:/clock"):  # rig b ran while rig a recorded (it may have been done before)
+        assert any("/rig_b/plant_sim" in who for who in f["foreign_from:/clock"]), f
+    print(f"\nrig a recorded {scan.topic_message_counts['/clock']} /clock messages for {samples} samples; "
+          f"rig b's ignored: {f.get('foreign:/clock', 0)}; rig b as alone: {rms(out_b)}")
