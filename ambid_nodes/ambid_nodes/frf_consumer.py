@@ -43,6 +43,7 @@ from ambid_msgs.msg import (ControllerDescription, ExcitationDesign, FrfEstimate
 from ambid_nodes import qos
 from ambid_nodes.conversions import (BadMessage, block_data, check_controller_description, check_design, float_array,
                                      statespace_from_msg, status_msg, time_msg)
+from ambid_nodes.identity import SESSION_PARAMETER, SessionIdentity
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 
@@ -56,7 +57,9 @@ class FrfConsumer(Node):
                                    "applied-current channels u; those of the design's inputs are used [A]"))
         self.references = list(declare(self, "references", list(DEFAULT_REFERENCES),
                                        "excitation channels r, one per entry of inputs, same order [A]"))
+        session = declare(self, *SESSION_PARAMETER)
         refuse_unknown(self)
+        self.identity = SessionIdentity(self, session)
         if self.estimator not in ESTIMATORS:
             raise ParameterError(f"frf_consumer: estimator '{self.estimator}' is not one of {list(ESTIMATORS)}")
         for name, names in (("outputs", self.outputs), ("inputs", self.inputs), ("references", self.references)):
@@ -66,10 +69,11 @@ class FrfConsumer(Node):
             raise ParameterError(f"frf_consumer: inputs {self.inputs} and references {self.references} must pair "
                                  "up one to one (u_i is the current r_i is added to)")
 
-        self.pub_frf = self.create_publisher(FrfEstimate, "frf", qos.LATCHED)
-        self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
-        self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
-        self.intake = Intake(self, self.on_reject, self.on_handler_error)
+        self.pub_frf = self.identity.publisher(FrfEstimate, "frf", qos.LATCHED)
+        self.pub_status = self.identity.publisher(SessionStatus, "status", qos.STATUS)
+        self.pub_event = self.identity.publisher(SessionEvent, "events", qos.EVENTS)
+        self.intake = Intake(self, self.on_reject, self.on_handler_error, self.identity, self.on_foreign)
+        self.identity.announce([self.pub_frf, self.pub_status, self.pub_event])
         self.intake.subscribe(SampleBlock, "measurement", self.on_measurement, qos.BLOCKS)
         self.intake.subscribe(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
         self.intake.subscribe(ControllerDescription, "controller/description", self.on_controller, qos.LATCHED)
@@ -297,6 +301,9 @@ class FrfConsumer(Node):
 
     def on_reject(self, topic: str, why: str) -> None:
         self.event(SessionEvent.WARN, "rejected_message", why)
+
+    def on_foreign(self, topic: str, why: str) -> None:
+        self.event(SessionEvent.WARN, "foreign_message", why)
 
     def on_handler_error(self, topic: str, why: str) -> None:
         self.event(SessionEvent.ERROR, "handler_error", why)

@@ -10,6 +10,10 @@ sample index, ``status`` and ``events``; forwards ``excitation`` blocks and
 them until the target is heard and re-sending blocks its heartbeat says are
 missing.
 
+Session (parameter ``session``, docs/sessions.md): the bridge obeys only its session's designs and
+excitation blocks (anyone else's are foreign: counted, named, never forwarded to the target) and stamps
+the id on all it publishes.
+
 Datagrams from any address but ``target_host:target_port`` are dropped and
 counted; malformed ones (magic, version, CRC, length, and ``content``: enum
 fields out of range, indices beyond 2**40, a zero sample rate) are refused and
@@ -50,6 +54,7 @@ from ambid_msgs.msg import ExcitationDesign, PlantDescription, SampleBlock, Sess
 from ambid_nodes import qos
 from ambid_nodes.conversions import (block_msg, check_design, check_excitation_block, statespace_to_msg, status_msg,
                                      time_msg)
+from ambid_nodes.identity import SESSION_PARAMETER, SessionIdentity
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, node_rig, refuse_unknown
 
@@ -91,7 +96,9 @@ class HardwareBridge(Node):
                                1, 1_000_000_000)
         rcvbuf = declare(self, "receive_buffer", 4 * 1024 * 1024, "UDP receive buffer (capped by "
                          "net.core.rmem_max)", 65536, 1 << 30, "bytes")
+        session = declare(self, *SESSION_PARAMETER)
         refuse_unknown(self)
+        self.identity = SessionIdentity(self, session)
         if self.version not in bp.SUPPORTED_VERSIONS:
             raise ParameterError(f"hardware_bridge: protocol_version {self.version} is not implemented; "
                                  f"this build speaks {list(bp.SUPPORTED_VERSIONS)}")
@@ -103,12 +110,13 @@ class HardwareBridge(Node):
         self.rig = node_rig(self, rig_file, rig)
         self.dt = self.rig.dt
 
-        self.pub_block = self.create_publisher(SampleBlock, "measurement", qos.BLOCKS)
-        self.pub_desc = self.create_publisher(PlantDescription, "plant/description", qos.LATCHED)
-        self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
-        self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
+        self.pub_block = self.identity.publisher(SampleBlock, "measurement", qos.BLOCKS)
+        self.pub_desc = self.identity.publisher(PlantDescription, "plant/description", qos.LATCHED)
+        self.pub_status = self.identity.publisher(SessionStatus, "status", qos.STATUS)
+        self.pub_event = self.identity.publisher(SessionEvent, "events", qos.EVENTS)
         self.pub_clock = self.create_publisher(Clock, "/clock", qos.CLOCK)
-        self.intake = Intake(self, self.on_reject, self.on_handler_error)
+        self.intake = Intake(self, self.on_reject, self.on_handler_error, self.identity, self.on_foreign)
+        self.identity.announce([self.pub_block, self.pub_desc, self.pub_status, self.pub_event, self.pub_clock])
         self.intake.subscribe(SampleBlock, "excitation", self.on_excitation, qos.BLOCKS)
         self.intake.subscribe(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
 
@@ -441,6 +449,9 @@ class HardwareBridge(Node):
     # --- reporting --------------------------------------------------------
     def on_reject(self, topic: str, why: str) -> None:
         self.event(SessionEvent.WARN, "rejected_message", why)
+
+    def on_foreign(self, topic: str, why: str) -> None:
+        self.event(SessionEvent.WARN, "foreign_message", why)
 
     def on_handler_error(self, topic: str, why: str) -> None:
         self.event(SessionEvent.ERROR, "handler_error", why)

@@ -26,8 +26,10 @@ from dataclasses import dataclass, field
 
 from ambid_nodes.node_main import DIE_WITH_PARENT_ENV, SUMMARY_PREFIX
 
-POLL_S = 0.1        # how often the children are looked at
-STOP_GRACE_S = 5.0  # SIGTERM to SIGKILL
+POLL_S = 0.1         # how often the children are looked at
+DEATH_GRACE_S = 3.0  # after a death, the plant's time to end its run itself (its controller_timeout is 2 s)
+SETTLE_S = 0.5       # then the time for what is on its way (the last blocks and events)
+STOP_GRACE_S = 5.0   # SIGTERM to SIGKILL
 
 
 @dataclass
@@ -99,6 +101,29 @@ def ros_args(namespace: str, params: dict) -> list[str]:
     return args
 
 
+def stop_processes(procs: list[subprocess.Popen], grace_s: float = STOP_GRACE_S) -> None:
+    """SIGCONT and SIGTERM every process, SIGKILL what is left after ``grace_s``.
+
+    A running node shuts down cleanly on SIGTERM (rclpy handles it as SIGINT; the recorder closes its
+    file); a stopped one must run again to handle it; a process still importing ends quietly, where SIGINT
+    would print a KeyboardInterrupt traceback from the middle of an import.
+    """
+    for p in procs:
+        if p.poll() is None:
+            for sig in (signal.SIGCONT, signal.SIGTERM):
+                try:
+                    p.send_signal(sig)
+                except ProcessLookupError:
+                    pass
+    end = time.monotonic() + grace_s
+    for p in procs:
+        try:
+            p.wait(timeout=max(end - time.monotonic(), 0.01))
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
 class Supervisor:
     """The node processes of one session.
 
@@ -146,24 +171,45 @@ class Supervisor:
         return self.nodes[name].proc.poll() is not None
 
     def stop(self, names: list[str] | None = None, grace_s: float = STOP_GRACE_S) -> None:
-        """End the named nodes (default: all, in reverse start order): SIGCONT (a stopped node must run to
-        handle what follows), SIGTERM (a node shuts down cleanly, the recorder closes its file), SIGKILL after
-        ``grace_s``."""
-        nodes = [self.nodes[n] for n in (names or list(self.nodes)[::-1])]
-        for node in nodes:
-            if node.proc.poll() is None:
-                for sig in (signal.SIGCONT, signal.SIGTERM):
-                    try:
-                        node.proc.send_signal(sig)
-                    except ProcessLookupError:
-                        pass
-        end = time.monotonic() + grace_s
-        for node in nodes:
-            try:
-                node.proc.wait(timeout=max(end - time.monotonic(), 0.01))
-            except subprocess.TimeoutExpired:
-                node.proc.kill()
-                node.proc.wait()
+        """End the named nodes (default: all, in reverse start order): :func:`stop_processes`."""
+        stop_processes([self.nodes[n].proc for n in (names or list(self.nodes)[::-1])], grace_s)
 
     def stop_all(self, grace_s: float = STOP_GRACE_S) -> None:
         self.stop(None, grace_s)
+
+
+def supervise(executor, sup: Supervisor, watch, done, grace_s: float = DEATH_GRACE_S) -> Death | None:
+    """Spin ``executor`` (the watch's) until ``done()`` or a node died; after a death, give the plant up to
+    ``grace_s`` to end its run by itself (it names the exact sample where the loop stopped), then return the
+    death. None: the run ended as it should."""
+    death = None
+    while not done():
+        executor.spin_once(timeout_sec=POLL_S)
+        death = sup.check()
+        if death is not None:
+            break
+    if death is None:
+        return None
+    plant = next((n for n in ("plant_sim", "hardware_bridge") if n in sup.nodes), None)
+    if plant is not None and death.node != plant:
+        end = time.monotonic() + grace_s
+        while time.monotonic() < end and not sup.exited(plant):
+            executor.spin_once(timeout_sec=POLL_S)
+    end = time.monotonic() + SETTLE_S  # the blocks and events already on their way
+    while time.monotonic() < end:
+        executor.spin_once(timeout_sec=POLL_S)
+    return death
+
+
+def consequence(node: str, failure: dict | None) -> str:
+    """What a node's death did to the session, for the one line."""
+    code = (failure or {}).get("code")
+    if code == "controller_lost":
+        return "the plant went to its safe state there, the rotor landed"
+    if code == "excitation_lost":
+        return "the plant waited there for excitation that never came"
+    return {"plant_sim": "the loop stopped with it", "hardware_bridge": "the target's samples stopped reaching ROS",
+            "position_controller": "the loop stopped there",
+            "excitation_generator": "no more excitation: the session was ended there",
+            "frf_consumer": "no live estimate: the session was ended there",
+            "recorder": "nothing more was recorded: the session was ended there"}.get(node, "the session was ended there")

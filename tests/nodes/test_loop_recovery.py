@@ -161,7 +161,7 @@ def test_a_flood_between_processes_changes_no_sample(ros, ros_env):
     import subprocess
     import sys
 
-    from ambid_nodes.graph import ros_args
+    from ambid_nodes.supervisor import ros_args
     _, _, (ref, ref_flags), _ = run_loop(ros, True)
     ns = "/procs"
     blocks = ros.add(Blocks(ros.context, ns))

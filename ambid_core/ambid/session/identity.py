@@ -36,13 +36,14 @@ def format_session(session_id: int) -> str:
 
 
 def check_session_id(text: str | int) -> int:
-    """The session id ``text`` names (1-16 hex digits as printed, or an int), not 0; ValueError with the fix."""
-    if isinstance(text, int) and not isinstance(text, bool) and 0 < text < 2**64:
+    """The session id ``text`` names (1-16 hex digits as printed, or an int), in (0, 2**63) (a ROS integer
+    parameter is int64); ValueError with the fix."""
+    if isinstance(text, int) and not isinstance(text, bool) and 0 < text < 2**63:
         return text
-    if isinstance(text, str) and _HEX.fullmatch(text) and int(text, 16) != 0:
+    if isinstance(text, str) and _HEX.fullmatch(text) and 0 < int(text, 16) < 2**63:
         return int(text, 16)
-    raise ValueError(f"session id {text!r} is not valid: give 1-16 hex digits, not all zero, as ambid prints them "
-                     "(e.g. 3fa9c01b), or leave it out for a fresh one")
+    raise ValueError(f"session id {text!r} is not valid: give 1-16 hex digits (below 8000000000000000), not all "
+                     "zero, as ambid prints them (e.g. 3fa9c01b), or leave it out for a fresh one")
 
 
 def format_gid(gid: bytes | bytearray | list[int] | tuple[int, ...]) -> str:
