@@ -59,7 +59,6 @@ def run_composed(cfg: GraphConfig) -> dict:
     executor = EventsExecutor(context=context)
     nodes = []
     try:
-        foreign = preflight(executor, cfg.namespace, context)
         session = {"session": cfg.session}
         plant = PlantSim(namespace=cfg.namespace, context=context, rig=cfg.rig, parameter_overrides=overrides(
             {"sim_seconds": float(cfg.sim_seconds), **cfg.plant, **session}))
@@ -70,7 +69,7 @@ def run_composed(cfg: GraphConfig) -> dict:
         for n in nodes:
             executor.add_node(n)
         spin_until_done(executor, plant.finished, context)
-        return {**plant.finished.result(), "layout": "composed", "foreign_publishers": foreign}
+        return {**plant.finished.result(), "layout": "composed"}
     finally:
         executor.shutdown()
         for n in nodes:
@@ -78,14 +77,19 @@ def run_composed(cfg: GraphConfig) -> dict:
         rclpy.shutdown(context=context)
 
 
-def preflight(executor, namespace: str, context) -> dict[str, list[str]]:
+def foreign_publishers(namespace: str) -> dict[str, list[str]]:
     """{topic: [publishers named]} already on the rig's topics before its session starts (a rig next door, a
-    replayed recording, a script left running): found by a listener that waits for discovery to settle
-    (``PREFLIGHT_S`` at most). The session runs unaffected by them; the command names them."""
+    replayed recording, a script left running), on this process's domain: a listener waits for discovery to
+    settle (1 s at most). The session runs unaffected by them (every node acts only on its session's
+    messages); the command names them before it starts anything."""
     import rclpy
+    from rclpy.experimental import EventsExecutor
 
     from ambid_nodes.watch import SESSION_TOPICS
 
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=session_domain_id())
+    executor = EventsExecutor(context=context)
     probe = rclpy.create_node("session_preflight", namespace=namespace, context=context)
     executor.add_node(probe)
     try:
@@ -99,8 +103,9 @@ def preflight(executor, namespace: str, context) -> dict[str, list[str]]:
                 found[topic] = names
         return found
     finally:
-        executor.remove_node(probe)
+        executor.shutdown()
         probe.destroy_node()
+        rclpy.shutdown(context=context)
 
 
 def wait_for_discovery(executor, node, most_s: float = 1.0, still_s: float = 0.3) -> None:
@@ -139,7 +144,6 @@ def run_processes(cfg: GraphConfig) -> dict:
     sup = Supervisor(cfg.namespace, env)
     watch = None
     try:
-        foreign = preflight(executor, cfg.namespace, context)
         watch = SessionWatch(cfg.session, rig.backup_clearance_m, n_total // 2, int(round(0.5 / rig.dt)),
                              namespace=cfg.namespace, context=context)
         executor.add_node(watch)
@@ -154,7 +158,7 @@ def run_processes(cfg: GraphConfig) -> dict:
             raise RuntimeError(f"plant_sim exited with code {plant.proc.returncode} without a summary")
         if death is not None:
             summary = died_summary(death, summary, watch, rig.dt, time.perf_counter() - wall0)
-        return {**summary, "layout": "processes", "foreign_publishers": foreign}
+        return {**summary, "layout": "processes"}
     finally:
         sup.stop_all()
         executor.shutdown()
@@ -206,7 +210,6 @@ def run_hardware(cfg: GraphConfig, target: str, local_port: int = 0) -> dict:
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=session_domain_id())
     executor = EventsExecutor(context=context)
-    foreign = preflight(executor, cfg.namespace, context)
     params = {"target_host": host, "target_port": port, "local_port": local_port, **cfg.plant, "session": cfg.session}
     bridge = HardwareBridge(namespace=cfg.namespace, context=context, rig=cfg.rig,
                             parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
@@ -224,8 +227,7 @@ def run_hardware(cfg: GraphConfig, target: str, local_port: int = 0) -> dict:
             executor.spin_until_future_complete(bridge.finished, timeout_sec=2.0)
         figures = bridge.figures()
         return {**figures, **watch.monitor.figures(), "layout": f"hardware bridge to {target}",
-                "samples_per_wall_s": figures["samples_published"] / max(figures["wall_s"], 1e-9),
-                "foreign_publishers": foreign}
+                "samples_per_wall_s": figures["samples_published"] / max(figures["wall_s"], 1e-9)}
     finally:
         executor.shutdown()
         watch.destroy_node()

@@ -91,6 +91,13 @@ class HardwareBridge(Node):
                                0.001, 60.0, "s")
         self.retries = declare(self, "command_retries", 20, "sends of a command before it is given up", 1, 1000)
         self.autostart = declare(self, "autostart", True, "send START when an idle target is first heard")
+        self.start_with_experiment = declare(
+            self, "start_with_experiment", False,
+            "send START once the target acknowledged the first experiment (a session in the processes layout: "
+            "the experiment is placed before the target's clock runs)")
+        self.stop_after = declare(self, "stop_after_samples", 0,
+                                  "send STOP once this many samples are published (the session's length); 0: never",
+                                  0, 2**40)
         self.horizon = declare(self, "excitation_horizon", 1_000_000,
                                "most samples an excitation block may lie ahead of the target (memory bound)",
                                1, 1_000_000_000)
@@ -140,6 +147,8 @@ class HardwareBridge(Node):
         self.next_hb = self.next_status = 0.0
         self.summary: dict | None = None
         self.finished = Future()
+        self.start_state = "waiting"  # start_with_experiment: waiting -> experiment (queued) -> sent
+        self.stop_sent = False
 
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
@@ -224,6 +233,12 @@ class HardwareBridge(Node):
         self.check_halted()
         self.check_silence(now)
         self.send_commands(now)
+        if self.start_state == "experiment" and self.connected and not self.commands.pending:
+            self.start_state = "sent"
+            self.queue_command(bp.CommandCode.START)
+        if self.stop_after and not self.stop_sent and self.c["samples_published"] >= self.stop_after:
+            self.stop_sent = True  # the session's samples are in: the target's clock may stop
+            self.queue_command(bp.CommandCode.STOP)
         if now >= self.next_hb:
             self.next_hb = now + self.hb_period
             self.send(bp.Heartbeat(self.next_seq(bp.Kind.HEARTBEAT), bp.TargetState.RUNNING if self.connected
@@ -430,6 +445,8 @@ class HardwareBridge(Node):
         check_design(msg, self.dt)
         slot = self.slots.setdefault(msg.experiment_id, len(self.slots) + 1)
         self.queue_command(bp.CommandCode.EXPERIMENT, msg.start_index, msg.total_samples, slot)
+        if self.start_with_experiment and self.start_state == "waiting":
+            self.start_state = "experiment"  # START once the target acknowledged it (tick)
 
     def queue_command(self, code: int, arg0: int = 0, arg1: int = 0, arg2: int = 0) -> None:
         self.commands.queue(code, arg0, arg1, arg2)

@@ -7,6 +7,13 @@ through its ``start_experiment`` service before the loop starts, and placed
 at a fixed sample index after lift-off, so a session is reproducible for a
 seed. The loop starts when the controller joins, after the recorder and the
 consumer are subscribed, so nothing of the experiment is missed.
+
+Processes layout (``processes``): every node its own process, supervised
+(``ambid_nodes.session_processes``): a node's death ends the run with one line
+naming the node and the sample (:class:`NodeDied`).
+
+Either way every node belongs to the session ``session`` (docs/sessions.md):
+it acts only on that session's messages, and the recording holds only them.
 """
 
 from __future__ import annotations
@@ -23,6 +30,7 @@ from ambid.excitation.spec import DesignSpec
 from ambid.hardware.bridge_protocol import CommandCode
 from ambid.jsonable import to_jsonable
 from ambid.plant.rig import Rig, load_rig, make_rig
+from ambid.session.identity import format_session
 
 from ambid_nodes.graph import DEFAULT_NAMESPACE, session_domain_id
 from ambid_nodes.node_main import gc_frozen
@@ -50,6 +58,9 @@ class SessionConfig:
     hardware: str = ""      # HOST:PORT of a real-time target: hardware_bridge replaces plant_sim and the controller
     local_port: int = 0     # with hardware: the bridge's UDP port (0: any)
     true_model: str = ""    # with hardware: the C target's model file, the truth the FRF is compared with
+    session: int = 0        # the session's id (docs/sessions.md); 0: open nodes
+    foreign_publishers: dict = field(default_factory=dict)  # found on the rig's topics before it started
+    processes: bool = False  # every node its own process, supervised
     extra: dict = field(default_factory=dict)
 
     @property
@@ -78,6 +89,23 @@ class SessionPlan:
     rig: Rig
     controller: ControllerDesign | None
     design: ExcitationDesign
+
+
+class NodeDied(RuntimeError):
+    """A node of a processes-layout session died before its run was over (ambid_nodes.supervisor).
+
+    Attributes:
+        death: {node, how, sample_index, simulated_s, consequence}.
+        mcap_path: the recording.
+        complete: the recording was closed completely (else ``ambid inspect --recover`` reads it).
+        messages: messages recorded (as the recorder or the file says).
+        figures: the levitation figures up to there (``ambid.plant.levitation``).
+    """
+
+    def __init__(self, death: dict, mcap_path: str, complete: bool, messages: int | None, figures: dict) -> None:
+        super().__init__(f"{death['node']} {death['how']} at sample {death['sample_index']}")
+        self.death, self.mcap_path, self.complete, self.messages, self.figures = (death, mcap_path, complete,
+                                                                                   messages, figures)
 
 
 def plan_session(cfg: SessionConfig, rig: Rig | None = None, controller: ControllerDesign | None = None
@@ -170,6 +198,7 @@ def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None) ->
             executor.spin_once(timeout_sec=0.05)
 
     try:
+        session = {"session": cfg.session}
         ns = dict(namespace=cfg.namespace, context=context)
         if cfg.hardware:
             # the target runs plant and controller; it starts only once it knows the experiment (below)
@@ -178,21 +207,21 @@ def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None) ->
             host, port = parse_address(cfg.hardware)
             plant = add(HardwareBridge(**ns, rig=plan.rig, parameter_overrides=params({
                 "target_host": host, "target_port": port, "local_port": cfg.local_port, "autostart": False,
-                **rig_param})))
+                **rig_param, **session})))
             # the target must answer before anything is written: a wrong address leaves no recording behind
             spin_until(lambda: plant.connected, 15, f"the real-time target at {cfg.hardware} (is it running and "
                                                     "sending to this bridge's port?); nothing was recorded")
         cfg.out_dir.mkdir(parents=True, exist_ok=True)
         recorder = add(Recorder(**ns, parameter_overrides=params({
             "output": str(mcap_path), "overwrite": True,
-            "session_facts": json.dumps({"session": "identify", "config": _jsonable(cfg)})})))
+            "session_facts": json.dumps({"session": "identify", "config": _jsonable(cfg)}), **session})))
         if not cfg.hardware:
             plant = add(PlantSim(**ns, rig=plan.rig, parameter_overrides=params({
                 "sim_seconds": total / fs, "seed": cfg.seed, "nonlinear_magnets": cfg.nonlinear_magnets,
-                **rig_param})))
+                **rig_param, **session})))
         generator = add(ExcitationGenerator(**ns, rig=plan.rig, parameter_overrides=params({
-            "start_margin": start_index, **rig_param})))
-        consumer = add(FrfConsumer(**ns, parameter_overrides=params({"estimator": cfg.estimator})))
+            "start_margin": start_index, **rig_param, **session})))
+        consumer = add(FrfConsumer(**ns, parameter_overrides=params({"estimator": cfg.estimator, **session})))
         # the recorder and the consumer must hear the first measurement block
         spin_until(lambda: plant.pub_block.get_subscription_count() >= 3, 30, "recorder, consumer and generator")
         spin_until(lambda: generator.plant_known, 30, "the plant description at the generator")
@@ -212,7 +241,7 @@ def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None) ->
             plant.queue_command(CommandCode.START)
         else:
             add(PositionController(**ns, rig=plan.rig, design=plan.controller, parameter_overrides=params({
-                **rig_param, "controller": cfg.controller})))
+                **rig_param, "controller": cfg.controller, **session})))
         stop_sent = False
         with gc_frozen():
             while not plant.finished.done():
@@ -307,7 +336,12 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None) -> dict:
     """
     from ambid.studies.identification import identify_session
 
-    run = run_session_composed(cfg, plan)
+    if cfg.processes:
+        from ambid_nodes.session_processes import run_session_processes
+
+        run = run_session_processes(cfg, plan)
+    else:
+        run = run_session_composed(cfg, plan)
     design: ExcitationDesign = run.pop("design")
     true_model = None
     if cfg.true_model:
@@ -345,6 +379,7 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None) -> dict:
         **offline,
         "recording": {"path": run["mcap_path"], "messages": rec.get("messages", rec.get("message_count")),
                       "complete": rec.get("complete", True)},
+        "session": {"id": format_session(cfg.session), "foreign_publishers": cfg.foreign_publishers},
     }
     (cfg.out_dir / "summary.json").write_text(json.dumps(to_jsonable(summary), indent=2))
     return summary

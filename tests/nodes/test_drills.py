@@ -15,8 +15,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from ambid.control.pid import PidParameters, pid_controller
+from ambid.control.stepper import ControllerStepper
 from ambid.plant.levitation import LevitationMonitor
 from ambid.plant.rig import make_rig
+from ambid.plant.simulator import PlantSimulator
 from ambid.session import iter_messages, scan_session
 from ambid.session.blocks import decode_sample_block
 from ambid_cli import cli
@@ -89,17 +92,22 @@ def drill(ros, procs, ros_env, args: list[str], node: str, sig: int, at_sample: 
     return out, err, m, blocks
 
 
-def levitation_of(blocks: list[bytes], end: int, settle: int) -> dict:
-    """The figures plant_sim's monitor gives for the blocks before ``end`` (the test's own computation)."""
-    mon = LevitationMonitor(make_rig().backup_clearance_m, settle, 5000)
-    for b in sorted((decode_sample_block(r) for r in blocks), key=lambda b: b.first_index):
-        n = min(b.n_samples, end - b.first_index)
-        if n > 0:
-            flags = b.sample_flags if len(b.sample_flags) else np.zeros(b.n_samples, np.uint8)
-            keep = (flags[:n] & SampleBlock.FLAG_CONTROLLER_LOST) == 0
-            if keep.any():
-                last = int(np.flatnonzero(keep)[-1]) + 1
-                mon.add_block(b.first_index, b.data[:last, :4], (flags[:last] & SampleBlock.FLAG_LANDED) != 0)
+def levitation_of(end: int, seed: int = 2, settle: int = 150_000) -> dict:
+    """The figures of the first ``end`` samples of the graph's run, computed here: the simulated rig and the PID
+    stepped directly, no ROS (the graph's very numbers: test_hardware_bridge's direct reference), judged as
+    plant_sim judges them (the second half of the 30 s run, or from 0.5 s after lift-off)."""
+    rig = make_rig()
+    sim = PlantSimulator(rig, seed=seed, nonlinear_magnets=False)
+    pid = PidParameters()
+    ctl = ControllerStepper(pid_controller(pid, rig.dt), pid.current_limit_a)
+    y = np.zeros((end, 4))
+    contact = np.zeros(end, bool)
+    for k in range(end):
+        y[k] = sim.output()
+        contact[k] = sim.step(ctl.step(y[k]))[1]
+    mon = LevitationMonitor(rig.backup_clearance_m, settle, int(round(0.5 / rig.dt)))
+    for first in range(0, end, 1000):
+        mon.add_block(first, y[first:first + 1000], contact[first:first + 1000])
     return mon.figures()
 
 
@@ -117,8 +125,8 @@ def test_plant_killed_the_run_ends_naming_it_with_the_levitation_up_to_there(ros
     k = int(m.group(5))
     assert blocks.progress - 1000 <= k <= blocks.progress  # the last block the session holds
     rms, lo, hi = rms_line(out)
-    ref = levitation_of(blocks.raw, k, 150_000)
-    assert (lo, hi) == (ref["evaluated_from_index"], ref["evaluated_to_index"]) == (lo, k)
+    ref = levitation_of(k)
+    assert (lo, hi) == (ref["evaluated_from_index"], ref["evaluated_to_index"]) and hi == k
     assert rms == pytest.approx(ref["displacement_rms_m"] * 1e6, abs=0.0005)
     assert "rotor levitated until" in out
 
@@ -135,7 +143,7 @@ def test_controller_killed_8_s_in_the_plant_lands_the_rotor_and_the_figures_stay
             for b in data if len(b.sample_flags) and (b.sample_flags & SampleBlock.FLAG_CONTROLLER_LOST).any()]
     assert lost and min(lost) == k
     rms, lo, hi = rms_line(out)
-    ref = levitation_of(blocks.raw, k, 150_000)
+    ref = levitation_of(k)
     assert hi == k and rms == pytest.approx(ref["displacement_rms_m"] * 1e6, abs=0.0005) and rms > 0.1
     assert "rotor levitated until" in out and "NOT levitated" not in out
 

@@ -8,10 +8,10 @@ import sys
 from ambid.control.kinds import describe_kinds
 from ambid_cli.commands.inputs import (add_run_options, address, checked_controller, controller, count,
                                          no_controller_on_hardware, positive_float, rig_file)
-from ambid_cli.commands.session_report import death_line, print_foreign, session_of, session_words
+from ambid_cli.commands.session_report import death_line, levitation_lines, print_foreign, session_of, session_words
 
-from ambid_nodes.graph import (DEFAULT_NAMESPACE, GraphConfig, run_composed, run_hardware, run_processes,
-                               session_domain_id)
+from ambid_nodes.graph import (DEFAULT_NAMESPACE, GraphConfig, foreign_publishers, run_composed, run_hardware,
+                               run_processes, session_domain_id)
 
 HELP = "run the plant and controller graph on the simulated rig"
 
@@ -51,6 +51,7 @@ def run(args: argparse.Namespace) -> int:
     layout += f", {ctrl.kind.upper()} controller"
     print(f"ambid graph: {session_words(session)}, plant_sim + position_controller in {layout}, namespace "
           f"{args.namespace}, ROS_DOMAIN_ID {session_domain_id()}, {args.sim_seconds:g} s simulated", flush=True)
+    print_foreign("graph", foreign_publishers(args.namespace))
     try:
         summary = run_processes(cfg) if args.processes else run_composed(cfg)
     except KeyboardInterrupt:
@@ -59,7 +60,6 @@ def run(args: argparse.Namespace) -> int:
     except (RuntimeError, ValueError) as exc:
         print(f"ambid graph: {exc}", file=sys.stderr)
         return 1
-    print_foreign("graph", summary.get("foreign_publishers"))
     death = summary.get("death")
     if death:  # one line naming the node and the sample; the figures below are true up to there
         print(death_line("graph", death), file=sys.stderr, flush=True)
@@ -80,16 +80,6 @@ def run(args: argparse.Namespace) -> int:
     return 0 if ok else 1
 
 
-def levitation_lines(f: dict) -> str:
-    """The displacement figures and the samples they were judged over."""
-    if not f.get("samples_evaluated"):
-        return (f"displacement RMS: no samples to judge (the run ended at sample {f.get('samples')}, before its "
-                f"judged window; lift-off at sample {f.get('lift_off_index')})")
-    return (f"displacement RMS: {f['displacement_rms_m'] * 1e6:.3f} um over samples [{f['evaluated_from_index']}, "
-            f"{f['evaluated_to_index']}) (max {f['max_abs_displacement_m'] * 1e6:.2f} um, lift-off at sample "
-            f"{f['lift_off_index']})")
-
-
 def run_on_hardware(args: argparse.Namespace, rig) -> int:
     plant = {"rig_file": args.rig} if args.rig else {}
     session = session_of(args)
@@ -97,6 +87,7 @@ def run_on_hardware(args: argparse.Namespace, rig) -> int:
     print(f"ambid graph: {session_words(session)}, hardware_bridge to the real-time target at {args.hardware}, "
           f"namespace {args.namespace}, ROS_DOMAIN_ID {session_domain_id()}, {args.sim_seconds:g} s of samples",
           flush=True)
+    print_foreign("graph", foreign_publishers(args.namespace))
     try:
         f = run_hardware(cfg, args.hardware, args.local_port)
     except KeyboardInterrupt:
@@ -108,7 +99,6 @@ def run_on_hardware(args: argparse.Namespace, rig) -> int:
     print(f"samples published per wall second: {f['samples_per_wall_s']:.0f} ({f['samples_published']} samples)")
     print(f"target state {f['target_state']}; lost {f['missing_samples']} samples in {f['gaps']} gaps, "
           f"{f['datagrams_malformed']} malformed and {f['datagrams_foreign']} foreign datagrams")
-    print_foreign("graph", f.get("foreign_publishers"))
     print(levitation_lines(f) + f", {f['contact_samples']} samples landed")
     ok = f["samples_published"] > 0 and not f["silent"] and f["target_state"] != "safe"
     print("target running normally" if ok else "target NOT running normally")

@@ -42,3 +42,13 @@ def death_line(command: str, death: dict) -> str:
 
 def session_words(session: int) -> str:
     return f"session {format_session(session)}"
+
+
+def levitation_lines(f: dict) -> str:
+    """The displacement figures and the samples they were judged over."""
+    if not f.get("samples_evaluated"):
+        return (f"displacement RMS: no samples to judge (the run ended at sample {f.get('samples')}, before its "
+                f"judged window; lift-off at sample {f.get('lift_off_index')})")
+    return (f"displacement RMS: {f['displacement_rms_m'] * 1e6:.3f} um over samples [{f['evaluated_from_index']}, "
+            f"{f['evaluated_to_index']}) (max {f['max_abs_displacement_m'] * 1e6:.2f} um, lift-off at sample "
+            f"{f['lift_off_index']})")
