@@ -180,10 +180,11 @@ def died_summary(death, summary: dict | None, watch, dt: float, wall_s: float) -
                    "messages_rejected": figures.get("messages_rejected", 0),
                    "messages_received": figures.get("messages_received", 0)}
     failure = summary.get("failure") or {}
+    finished = summary.get("state") == "done"
     k = failure.get("sample_index", summary.get("samples", watch.progress))
     summary = {**summary, "state": "failed"}
     summary["death"] = {"node": death.node, "how": death.how, "sample_index": int(k), "simulated_s": k * dt,
-                        "consequence": consequence(death.node, failure)}
+                        "consequence": consequence(death.node, failure, finished)}
     return summary
 
 

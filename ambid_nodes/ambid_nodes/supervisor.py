@@ -201,13 +201,16 @@ def supervise(executor, sup: Supervisor, watch, done, grace_s: float = DEATH_GRA
     return death
 
 
-def consequence(node: str, failure: dict | None) -> str:
-    """What a node's death did to the session, for the one line."""
+def consequence(node: str, failure: dict | None, finished: bool = False) -> str:
+    """What a node's death did to the session, for the one line (``finished``: the plant ended its run
+    meanwhile, as it should)."""
     code = (failure or {}).get("code")
     if code == "controller_lost":
         return "the plant went to its safe state there, the rotor landed"
     if code == "excitation_lost":
         return "the plant waited there for excitation that never came"
+    if finished:
+        return f"the plant had finished its run; the session was ended without {node}"
     return {"plant_sim": "the loop stopped with it", "hardware_bridge": "the target's samples stopped reaching ROS",
             "position_controller": "the loop stopped there",
             "excitation_generator": "no more excitation: the session was ended there",

@@ -86,7 +86,7 @@ def drill(ros, procs, ros_env, args: list[str], node: str, sig: int, at_sample: 
     assert m is not None, err[-3000:]
     assert m.group(2) == node, m.group(0)
     line = next(ln for ln in err.splitlines() if LINE.search(ln))
-    print(f"\n{node} {signal.Signals(sig).name}: {took:.1f} s to the end: {line}")
+    print(f"\n{node} {signal.Signals(sig).name}: {took:.1f} s to the end: {line}", file=sys.__stderr__)
     assert "Traceback" not in err, err[-3000:]
     assert run.returncode == 2, (run.returncode, err[-2000:])
     return out, err, m, blocks
@@ -167,9 +167,12 @@ def assert_tiles(blocks: list, end: int) -> None:
 
 
 def test_excitation_generator_killed_mid_experiment(ros, ros_env, procs, tmp_path):
+    """8 periods: the experiment reaches past the generator's lookahead (20,000 samples ahead of the plant) from
+    the first block, so the plant runs out of excitation after the kill and waits."""
     path, out, err, k, blocks = identify_drill(ros, ros_env, procs, tmp_path, "excitation_generator",
-                                               signal.SIGKILL, 7000)
+                                               signal.SIGKILL, 1000, "--periods", "8")
     assert f"the recording so far is in {path}" in err
+    assert "no more excitation" in err and k < 5000 + 4 * 9 * 500  # stopped before the experiment's end
     scan = scan_session(path)
     assert scan.complete  # the recorder closed it on SIGTERM
     rec = recorded_blocks(path)
@@ -186,7 +189,9 @@ def test_frf_consumer_stopped(ros, ros_env, procs, tmp_path):
 def test_recorder_killed_its_file_reads_with_recover(ros, ros_env, procs, tmp_path, capsys):
     path, out, err, k, blocks = identify_drill(ros, ros_env, procs, tmp_path, "recorder", signal.SIGKILL, 7000)
     assert "--recover" in err
+    capsys.readouterr()
     assert cli.main(["inspect", str(path)]) == 2  # incomplete: inspect says to recover
+    assert "--recover" in capsys.readouterr().err
     assert cli.main(["inspect", str(path), "--recover", "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
     meas = report["sample_index"]["/amb/measurement"]

@@ -120,9 +120,10 @@ def test_a_foreign_source_changes_no_estimate_and_no_recorded_byte_and_is_named(
     named = {}
     for s in statuses:
         f = dict(zip(s.keys, s.values))
-        for topic in ("/amb/measurement", "/amb/excitation", "/amb/excitation/design"):
-            if int(json.loads(f.get(f"foreign:{topic}", "0"))) > 0:
-                named.setdefault((s.node, topic), json.loads(f[f"foreign_from:{topic}"]))
+        for topic in ("measurement", "excitation", "excitation/design"):
+            for key in (topic, f"/amb/{topic}"):  # the nodes count per topic as they subscribe it, the recorder
+                if int(json.loads(f.get(f"foreign:{key}", "0"))) > 0:  # per resolved topic
+                    named.setdefault((s.node, topic), json.loads(f[f"foreign_from:{key}"]))
     nodes = {n for n, _ in named}
     assert {"/amb/plant_sim", "/amb/excitation_generator", "/amb/frf_consumer", "/amb/recorder"} <= nodes, named
     assert all(any("/amb/foreign_source" in who for who in names) for names in named.values()), named
