@@ -80,7 +80,7 @@ def run_composed(cfg: GraphConfig) -> dict:
 def foreign_publishers(namespace: str) -> dict[str, list[str]]:
     """{topic: [publishers named]} already on the rig's topics before its session starts (a rig next door, a
     replayed recording, a script left running), on this process's domain: a listener waits for discovery to
-    settle (1 s at most). The session runs unaffected by them (every node acts only on its session's
+    settle (:func:`wait_for_discovery`, 1-3 s). The session runs unaffected by them (every node acts only on its session's
     messages); the command names them before it starts anything."""
     import rclpy
     from rclpy.experimental import EventsExecutor
@@ -108,16 +108,18 @@ def foreign_publishers(namespace: str) -> dict[str, list[str]]:
         rclpy.shutdown(context=context)
 
 
-def wait_for_discovery(executor, node, most_s: float = 1.0, still_s: float = 0.3) -> None:
-    """Spin until the graph ``node`` sees has not changed for ``still_s`` (at most ``most_s``)."""
-    end = time.monotonic() + most_s
-    seen, since = None, time.monotonic()
-    while time.monotonic() < end:
+def wait_for_discovery(executor, node, least_s: float = 1.0, most_s: float = 3.0, still_s: float = 0.5) -> None:
+    """Spin at least ``least_s``, then until the graph ``node`` sees has not changed for ``still_s`` (at most
+    ``most_s`` in all): participants already on the domain are discovered within a fraction of a second on
+    one host, later on a loaded one."""
+    start = time.monotonic()
+    seen, since = None, start
+    while time.monotonic() - start < most_s:
         executor.spin_once(timeout_sec=0.05)
         now = set(node.get_node_names_and_namespaces())
         if now != seen:
             seen, since = now, time.monotonic()
-        elif time.monotonic() - since >= still_s:
+        elif time.monotonic() - start >= least_s and time.monotonic() - since >= still_s:
             return
 
 

@@ -35,6 +35,9 @@ SESSION_PARAMETER = ("session", 0, "the session this node belongs to: it acts on
                      "and stamps its id on all it publishes (ambid identify and graph give it); 0: open, acts on "
                      "every source", 0, 2**63 - 1)
 NAMES_REFRESH_S = 1.0  # a topic's foreign publishers are looked up in the graph at most this often
+# the graph knows a publisher before it knows its node (rmw's node info travels apart): named by GID meanwhile
+UNNAMED = "its node not yet known to the graph"
+_UNKNOWN_NODE = "_NODE_NAME_UNKNOWN_"
 HOLD_S = 5.0           # a loop message of a publisher the roster does not know yet waits this long for it
 HOLD_MAX = 256         # and at most this many wait
 
@@ -43,6 +46,13 @@ def publisher_gid(publisher) -> bytes:
     """The GID rmw gives every message of ``publisher`` (an rclpy Publisher), 16 bytes."""
     with publisher.handle:
         return _publisher_gid(publisher.handle.pointer)
+
+
+def _endpoint_name(info, gid: bytes) -> str:
+    """A foreign publisher the graph shows, named by its node (by its GID while the graph has no node for it)."""
+    if info.node_name == _UNKNOWN_NODE:
+        return f"publisher {format_gid(gid)} ({UNNAMED})"
+    return f"{info.node_namespace.rstrip('/')}/{info.node_name} (not of this session)"
 
 
 def stamped(publisher, session_id: int):
@@ -144,7 +154,7 @@ class SessionIdentity:
         try:
             for info in self.node.get_publishers_info_by_topic(topic):
                 if bytes(info.endpoint_gid[:GID_BYTES]) == bytes(gid):
-                    return f"{info.node_namespace.rstrip('/')}/{info.node_name} (not of this session)"
+                    return _endpoint_name(info, gid)
         except Exception:  # noqa: BLE001 - the graph may be gone while the context shuts down
             pass
         return f"publisher {format_gid(gid)} (gone from the graph)"
@@ -168,7 +178,8 @@ class SessionIdentity:
                 continue
             names.add(self.name_gid(gid, topic))
         out = sorted(names)
-        self._names[topic] = (now, out)
+        if not any(UNNAMED in n for n in out):  # a node the graph does not name yet is looked up again
+            self._names[topic] = (now, out)
         return out
 
 

@@ -173,9 +173,12 @@ class Intake:
             names = self.session.foreign_publishers(name)
         if not names:
             names = [f"{who or 'a publisher gone from the graph'} (session {format_session(session_id or 0)})"]
-        for n in names:
-            if len(t.names) < MAX_NAMES:
-                t.names.add(n)
+        if gid is None:  # the topic's foreign publishers as the graph shows them now
+            t.names = set(names[:MAX_NAMES])
+        else:  # one more publisher of a loop topic
+            for n in names:
+                if len(t.names) < MAX_NAMES:
+                    t.names.add(n)
         sid = f" of session {format_session(session_id)}" if session_id is not None else ""
         ours = format_session(self.session.id) if self.session is not None else "none"
         why = f"{name}: a message{sid} from {', '.join(names)}, not of this session ({ours}): counted, not acted on"

@@ -108,6 +108,7 @@ CONVENTIONAL_QOS = {"displacement": qos.LOOP, "control_current": qos.LOOP, "meas
 #: the topics without a session id of their own whose session publishers the roster names: taken by GID
 BY_GID = ("displacement", "control_current", "/clock")
 FOREIGN_EVENT_S = 1.0  # foreign_message events per topic: the first, then at most one this often
+MAX_NAMES = 8  # foreign publishers named per topic
 LOG_TIME_CONVENTION = ("receive time on the recorder's ROS clock (system time, or /clock with use_sim_time), "
                        "held non-decreasing; publish time = log time")
 
@@ -375,13 +376,16 @@ class Recorder(Node):
         topic, counted by its tap): not recorded; counted, named, reported (throttled)."""
         if count:
             self.foreign[topic] = self.foreign.get(topic, 0) + 1
-        names = self.foreign_names.setdefault(topic, set())
         who = ([self.identity.name_gid(gid, topic)] if gid is not None else self.identity.foreign_publishers(topic))
         if not who:
             who = [f"a publisher gone from the graph (session {format_session(session or 0)})"]
-        for name in who:
-            if len(names) < 8:
-                names.add(name)
+        if gid is None:  # the topic's foreign publishers as the graph shows them now
+            self.foreign_names[topic] = set(who[:MAX_NAMES])
+        else:
+            names = self.foreign_names.setdefault(topic, set())
+            for name in who:
+                if len(names) < MAX_NAMES:
+                    names.add(name)
         now = time.monotonic()
         last, then = self.foreign_reported.get(topic, (-1e9, 0))
         n = self.foreign_count(topic)
@@ -396,6 +400,15 @@ class Recorder(Node):
 
     def on_foreign_gid(self, topic: str, gid: bytes) -> None:
         self.on_foreign(topic, gid=gid, count=False)
+
+    def foreign_figures(self) -> dict:
+        """{topic: {"messages": n, "from": [publishers named]}} of the foreign messages kept out so far."""
+        out = {}
+        for topic in sorted(set(self.foreign) | set(self.taps)):
+            n = self.foreign_count(topic)
+            if n:
+                out[topic] = {"messages": n, "from": sorted(self.foreign_names.get(topic, ()))}
+        return out
 
     def foreign_count(self, topic: str) -> int:
         tap = self.taps.get(topic)
@@ -447,7 +460,7 @@ class Recorder(Node):
         self.event(SessionEvent.ERROR, "write_failed", text)
         self.discovery_timer.cancel()  # the subscriptions stay (destroying one inside its callback is unsafe)
         self.flush_timer.cancel()
-        self.summary = self.rec.figures()
+        self.summary = {**self.rec.figures(), "foreign": self.foreign_figures()}
         self.publish_status()
         if not self.finished.done():
             self.finished.set_result(self.summary)
@@ -462,11 +475,9 @@ class Recorder(Node):
                  "last_flush_age_s": round(time.monotonic() - rec.last_flush_wall, 3)}
         shown.update((f"messages:{topic}", n) for topic, n in sorted(rec.counts.items()))
         shown.update((f"end_index:{topic}", end) for topic, end in sorted(rec.block_end.items()))
-        for topic in sorted(set(self.foreign) | set(self.taps)):
-            n = self.foreign_count(topic)
-            if n:
-                shown[f"foreign:{topic}"] = n
-                shown[f"foreign_from:{topic}"] = sorted(self.foreign_names.get(topic, ()))
+        for topic, kept_out in self.foreign_figures().items():
+            shown[f"foreign:{topic}"] = kept_out["messages"]
+            shown[f"foreign_from:{topic}"] = kept_out["from"]
         measurement = self.resolve_topic_name("measurement")
         text = (f"{state}: {f['messages']} messages ({f['messages_per_wall_s']:.0f}/s), "
                 f"{f['file_bytes'] / 1e6:.2f} MB in {self.path}" + (f"; {rec.failed}" if rec.failed else ""))
@@ -497,11 +508,14 @@ class Recorder(Node):
             timer.cancel()
         if not self.rec.failed:
             try:
+                foreign = self.foreign_figures()
+                if foreign:  # what was kept out, in the file's facts (the last status comes after the file)
+                    self.rec.write_facts({"foreign": foreign})
                 self.rec.close()
             except SessionWriteError as exc:
                 self.get_logger().error(f"closing {self.path} failed: {exc}")
                 self.event(SessionEvent.ERROR, "write_failed", f"closing {self.path} failed: {exc}")
-            self.summary = self.rec.figures()
+            self.summary = {**self.rec.figures(), "foreign": self.foreign_figures()}
         self.rec.closed = True
         line = (f"closed {self.path}: {self.summary['messages']} messages, {self.summary['file_bytes']} bytes, "
                 f"{self.summary['state']}")
