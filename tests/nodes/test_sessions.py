@@ -177,3 +177,63 @@ def test_two_rigs_in_two_namespaces_on_one_domain_run_side_by_side(ros, ros_env,
     assert kept_out["messages"] > 0 and any("/rig_b/plant_sim" in who for who in kept_out["from"]), kept_out
     print(f"\nrig a recorded {scan.topic_message_counts['/clock']} /clock messages for {samples} samples; "
           f"rig b's {kept_out['messages']} kept out, from {kept_out['from']}; rig b as alone: {rms(out_b)}")
+
+
+class LoopIntruder(Node):
+    """A controller and a plant of no session on the loop topics: it answers every displacement with a current
+    of the awaited index, and sends displacements of plausible indices (a second rig's loop, crossed)."""
+
+    def __init__(self, context, ns: str) -> None:
+        super().__init__("intruder", namespace=ns, context=context)
+        from ambid_msgs.msg import Sample
+
+        self.pub_ic = self.create_publisher(Sample, "control_current", qos.LOOP)
+        self.pub_y = self.create_publisher(Sample, "displacement", qos.LOOP)
+        self.sent = 0
+
+        def answer(m) -> None:  # the right index, the wrong current: a plant obeying it would drop the rotor
+            self.pub_ic.publish(Sample(index=m.index + 1, values=[2.0, -2.0, 2.0, -2.0]))
+            if m.index % 7 == 0:
+                self.pub_y.publish(Sample(index=m.index + 1, values=[1e-4] * 4))
+                self.sent += 1
+            self.sent += 1
+
+        self.create_subscription(Sample, "displacement", answer, qos.subscription(qos.LOOP))
+
+
+def test_the_loop_takes_its_partners_messages_only(ros):
+    """Composed plant and controller of one session, and an intruder answering on both loop topics with the
+    right indices: the samples of a clean run, bit for bit; the intruder counted and named by both."""
+    from ambid_nodes.conversions import block_data
+    from ambid_nodes.plant_sim import PlantSim
+    from ambid_nodes.position_controller import PositionController
+    from rclpy.parameter import Parameter
+
+    def run(ns: str, intruder: bool):
+        session = [Parameter("session", value=0x5E55)]
+        blocks = []
+        listener = ros.add(Node("blocks", namespace=ns, context=ros.context))
+        listener.create_subscription(SampleBlock, "measurement", blocks.append, qos.subscription(qos.BLOCKS))
+        plant = ros.add(PlantSim(namespace=ns, context=ros.context, parameter_overrides=[
+            Parameter("sim_seconds", value=0.4), Parameter("seed", value=9), *session]))
+        other = ros.add(LoopIntruder(ros.context, ns)) if intruder else None
+        ros.matched(listener, to=plant)
+        ctrl = ros.add(PositionController(namespace=ns, context=ros.context, parameter_overrides=session))
+        assert ros.spin_until(plant.finished.done, 120)
+        assert ros.spin_until(lambda: sum(b.n_samples for b in blocks) == 4000, 30)
+        data = np.vstack([block_data(b, MEASUREMENT_NAMES) for b in sorted(blocks, key=lambda b: b.first_index)])
+        return data, plant, ctrl, other
+
+    clean, *_ = run("/clean", False)
+    data, plant, ctrl, intruder = run("/crossed", True)
+    assert np.array_equal(data.view(np.uint64), clean.view(np.uint64))
+    s = plant.finished.result()
+    assert s["state"] == "done" and s["levitated"] and s["rejected:control_current"] == 0
+    assert intruder.sent > 1000
+    for node, topic in ((plant, "control_current"), (ctrl, "displacement")):
+        f = node.intake.figures()
+        assert f[f"foreign:{topic}"] > 0 and f[f"received:{topic}"] == f[f"accepted:{topic}"] + f[
+            f"rejected:{topic}"] + f[f"foreign:{topic}"], f
+        assert any("/crossed/intruder" in who for who in f[f"foreign_from:{topic}"]), f
+    print(f"\nintruder sent {intruder.sent}: the plant kept out {plant.intake.foreign_counts['control_current']} "
+          f"currents, the controller {ctrl.intake.foreign_counts['displacement']} displacements; samples identical")
