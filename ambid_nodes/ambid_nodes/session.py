@@ -30,7 +30,7 @@ from ambid.excitation.spec import DesignSpec
 from ambid.hardware.bridge_protocol import CommandCode
 from ambid.jsonable import to_jsonable
 from ambid.plant.rig import Rig, load_rig, make_rig
-from ambid.session.identity import format_session
+from ambid.session.identity import format_session, new_session_id
 
 from ambid_nodes.graph import DEFAULT_NAMESPACE, session_domain_id
 from ambid_nodes.node_main import gc_frozen
@@ -198,7 +198,7 @@ def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None) ->
             executor.spin_once(timeout_sec=0.05)
 
     try:
-        session = {"session": cfg.session}
+        session = {"session": cfg.session or new_session_id()}  # every session has an id, given or fresh
         ns = dict(namespace=cfg.namespace, context=context)
         if cfg.hardware:
             # the target runs plant and controller; it starts only once it knows the experiment (below)

@@ -17,6 +17,7 @@ import os
 import time
 
 from ambid.session import scan_session
+from ambid.session.identity import new_session_id
 
 from ambid_nodes.graph import died_summary, session_domain_id
 from ambid_nodes.session import (NodeDied, ProgressBar, SessionConfig, SessionPlan, _jsonable, plan_session,
@@ -62,10 +63,11 @@ def run_session_processes(cfg: SessionConfig, plan: SessionPlan | None = None) -
             executor.spin_once(timeout_sec=0.05)
 
     try:
-        watch = SessionWatch(cfg.session, rig.backup_clearance_m, total // 2, int(round(0.5 * fs)),
+        session_id = cfg.session or new_session_id()  # every session has an id, given or fresh
+        watch = SessionWatch(session_id, rig.backup_clearance_m, total // 2, int(round(0.5 * fs)),
                              namespace=cfg.namespace, context=context)
         executor.add_node(watch)
-        session = {"session": cfg.session}
+        session = {"session": session_id}
         rig_param = {"rig_file": cfg.rig_file} if cfg.rig_file else {}
         try:
             sup.start("recorder", {"output": str(mcap_path), "overwrite": True, **session,
