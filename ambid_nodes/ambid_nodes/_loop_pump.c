@@ -176,6 +176,25 @@ on_new_message(const void *user_data, size_t number_of_events)
     }
 }
 
+/* fn(*args), e kept alive meanwhile (fn may close it and drop its last other reference); steals args;
+ * 0, or -1 with an exception set (also where building args failed: args NULL). */
+static int
+call_python(Entry *e, PyObject *fn, PyObject *args)
+{
+    if (args == NULL) {
+        return -1;
+    }
+    Py_INCREF(e);
+    PyObject *result = PyObject_CallObject(fn, args);
+    Py_DECREF(e);
+    Py_DECREF(args);
+    if (result == NULL) {
+        return -1;
+    }
+    Py_DECREF(result);
+    return 0;
+}
+
 /* A message of a publisher e does not accept: counted, dropped; its first one named through on_foreign.
  * 0, or -1 with an exception set. */
 static int
@@ -194,14 +213,7 @@ foreign_message(Entry *e, const uint8_t *gid)
     if (e->on_foreign == NULL) {
         return 0;
     }
-    Py_INCREF(e);
-    PyObject *result = PyObject_CallFunction(e->on_foreign, "y#", (const char *)gid, (Py_ssize_t)GID_SIZE);
-    Py_DECREF(e);
-    if (result == NULL) {
-        return -1;
-    }
-    Py_DECREF(result);
-    return 0;
+    return call_python(e, e->on_foreign, Py_BuildValue("(y#)", (const char *)gid, (Py_ssize_t)GID_SIZE));
 }
 
 /* Run e's kernel on one message of publisher gid, publish where it completed; 0, or -1 with an exception set. */
@@ -212,20 +224,8 @@ step_entry(Entry *e, const uint8_t *data, size_t size, const uint8_t *gid)
         if (e->filter == FILTER_GID || e->on_unknown == NULL) {
             return foreign_message(e, gid);
         }
-        PyObject *message = PyBytes_FromStringAndSize((const char *)data, (Py_ssize_t)size);
-        if (message == NULL) {
-            return -1;
-        }
-        Py_INCREF(e);
-        PyObject *result = PyObject_CallFunction(e->on_unknown, "Oy#", message, (const char *)gid,
-                                                 (Py_ssize_t)GID_SIZE);
-        Py_DECREF(e);
-        Py_DECREF(message);
-        if (result == NULL) {
-            return -1;
-        }
-        Py_DECREF(result);
-        return 0;
+        return call_python(e, e->on_unknown, Py_BuildValue("(y#y#)", (const char *)data, (Py_ssize_t)size,
+                                                           (const char *)gid, (Py_ssize_t)GID_SIZE));
     }
     int64_t *c = (int64_t *)e->context.buf;
     int64_t k = c[LOOP_K];
@@ -245,19 +245,7 @@ step_entry(Entry *e, const uint8_t *data, size_t size, const uint8_t *gid)
         }
         return 0;
     }
-    PyObject *message = PyBytes_FromStringAndSize((const char *)data, (Py_ssize_t)size);
-    if (message == NULL) {
-        return -1;
-    }
-    Py_INCREF(e);  /* the handler may close the entry and drop the last other reference */
-    PyObject *result = PyObject_CallFunction(e->handler, "OL", message, (long long)code);
-    Py_DECREF(e);
-    Py_DECREF(message);
-    if (result == NULL) {
-        return -1;
-    }
-    Py_DECREF(result);
-    return 0;
+    return call_python(e, e->handler, Py_BuildValue("(y#L)", (const char *)data, (Py_ssize_t)size, (long long)code));
 }
 
 /* Take the next waiting message of any entry into `into`, its publisher's GID into `gid`; the entry's

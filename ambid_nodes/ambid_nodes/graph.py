@@ -130,25 +130,14 @@ def run_processes(cfg: GraphConfig) -> dict:
     the plant's summary if it ended its run, else from the measurement blocks this process heard) and
     ``death``: {node, how, sample_index, consequence}.
     """
-    import rclpy
     from ambid.plant.rig import load_rig, make_rig
-    from rclpy.experimental import EventsExecutor
 
-    from ambid_nodes.supervisor import Supervisor, supervise
-    from ambid_nodes.watch import SessionWatch
+    from ambid_nodes.supervisor import supervise, supervised
 
     rig = cfg.rig or (load_rig(cfg.plant["rig_file"]) if cfg.plant.get("rig_file") else make_rig())
     n_total = int(round(cfg.sim_seconds / rig.dt))
-    env = dict(os.environ, ROS_DOMAIN_ID=str(session_domain_id()))
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=session_domain_id())
-    executor = EventsExecutor(context=context)
-    sup = Supervisor(cfg.namespace, env)
-    watch = None
-    try:
-        watch = SessionWatch(cfg.session, rig.backup_clearance_m, n_total // 2, int(round(0.5 / rig.dt)),
-                             namespace=cfg.namespace, context=context)
-        executor.add_node(watch)
+    with supervised(cfg.namespace, cfg.session, rig.backup_clearance_m, n_total // 2,
+                    int(round(0.5 / rig.dt))) as (executor, sup, watch):
         session = {"session": cfg.session}
         sup.start("position_controller", {**cfg.controller, **session})
         plant = sup.start("plant_sim", {"sim_seconds": float(cfg.sim_seconds), **cfg.plant, **session},
@@ -161,12 +150,6 @@ def run_processes(cfg: GraphConfig) -> dict:
         if death is not None:
             summary = died_summary(death, summary, watch, rig.dt, time.perf_counter() - wall0)
         return {**summary, "layout": "processes"}
-    finally:
-        sup.stop_all()
-        executor.shutdown()
-        if watch is not None:
-            watch.destroy_node()
-        rclpy.shutdown(context=context)
 
 
 def died_summary(death, summary: dict | None, watch, dt: float, wall_s: float) -> dict:

@@ -275,26 +275,33 @@ def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None) ->
         while time.monotonic() < end:
             executor.spin_once(timeout_sec=0.02)
         rec = recorder.close()
-        wall = time.perf_counter() - wall0
-        return {
-            "experiment_id": answer.experiment_id,
-            "start_index": answer.start_index,
-            "plant": plant_summary,
-            "recorder": rec,
-            "live_frf": _live_figures(consumer.results[answer.experiment_id]),
-            "wall_s": wall,
-            "simulated_s": plant_summary["simulated_s"],
-            "samples_per_wall_s": plant_summary["samples"] / wall,
-            "loop_samples_per_wall_s": plant_summary["samples_per_wall_s"],
-            "layout": f"hardware bridge to {cfg.hardware}" if cfg.hardware else "composed",
-            "design": design,
-            "mcap_path": str(mcap_path),
-        }
+        return run_facts(answer, plant_summary, rec, _live_figures(consumer.results[answer.experiment_id]),
+                         time.perf_counter() - wall0, f"hardware bridge to {cfg.hardware}" if cfg.hardware
+                         else "composed", design, mcap_path)
     finally:
         executor.shutdown()
         for n in nodes:
             n.destroy_node()
         rclpy.shutdown(context=context)
+
+
+def run_facts(answer, plant_summary: dict, recorder: dict, live_frf: dict, wall_s: float, layout: str,
+              design: ExcitationDesign, mcap_path) -> dict:
+    """What a session's run returns for its offline identification (either layout)."""
+    return {
+        "experiment_id": answer.experiment_id,
+        "start_index": answer.start_index,
+        "plant": plant_summary,
+        "recorder": recorder,
+        "live_frf": live_frf,
+        "wall_s": wall_s,
+        "simulated_s": plant_summary["simulated_s"],
+        "samples_per_wall_s": plant_summary["samples"] / wall_s,
+        "loop_samples_per_wall_s": plant_summary["samples_per_wall_s"],
+        "layout": layout,
+        "design": design,
+        "mcap_path": str(mcap_path),
+    }
 
 
 def _hardware_summary(bridge: dict, total: int, fs: float, wall_s: float) -> dict:

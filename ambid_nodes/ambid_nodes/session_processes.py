@@ -13,16 +13,15 @@ figures up to there and where the recording is.
 from __future__ import annotations
 
 import json
-import os
 import time
 
 from ambid.session import scan_session
 from ambid.session.identity import new_session_id
 
-from ambid_nodes.graph import died_summary, session_domain_id
-from ambid_nodes.session import (NodeDied, ProgressBar, SessionConfig, SessionPlan, _jsonable, plan_session,
-                                 session_samples)
-from ambid_nodes.supervisor import SETTLE_S, Supervisor, supervise
+from ambid_nodes.graph import died_summary
+from ambid_nodes.session import (NodeDied, ProgressBar, SessionConfig, SessionPlan, _hardware_summary, _jsonable,
+                                 plan_session, run_facts, session_samples)
+from ambid_nodes.supervisor import SETTLE_S, Supervisor, supervise, supervised
 
 START_TIMEOUT_S = 120  # processes start in seconds; on a loaded machine in tens of them
 
@@ -30,11 +29,7 @@ START_TIMEOUT_S = 120  # processes start in seconds; on a loaded machine in tens
 def run_session_processes(cfg: SessionConfig, plan: SessionPlan | None = None) -> dict:
     """Run the session's nodes as processes; returns the run's facts (no offline analysis), as the composed
     run does. NodeDied if a node died before the run was over; RuntimeError/ValueError as the composed run."""
-    import rclpy
-    from rclpy.experimental import EventsExecutor
-
     from ambid_msgs.srv import StartExperiment
-    from ambid_nodes.watch import SessionWatch
 
     plan = plan_session(cfg) if plan is None else plan
     design, rig = plan.design, plan.rig
@@ -42,31 +37,23 @@ def run_session_processes(cfg: SessionConfig, plan: SessionPlan | None = None) -
     start_index, total = session_samples(design, fs)
     cfg.out_dir.mkdir(parents=True, exist_ok=True)
     mcap_path = cfg.out_dir / "session.mcap"
-    env = dict(os.environ, ROS_DOMAIN_ID=str(session_domain_id()))
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=session_domain_id())
-    executor = EventsExecutor(context=context)
-    sup = Supervisor(cfg.namespace, env)
-    watch = None
     bar = ProgressBar(cfg.progress)
     wall0 = time.perf_counter()
     plant_name = "hardware_bridge" if cfg.hardware else "plant_sim"
+    session_id = cfg.session or new_session_id()  # every session has an id, given or fresh
+    with supervised(cfg.namespace, session_id, rig.backup_clearance_m, total // 2,
+                    int(round(0.5 * fs))) as (executor, sup, watch):
 
-    def spin_until(pred, timeout_s: float, what: str) -> None:
-        end = time.monotonic() + timeout_s
-        while not pred():
-            died = sup.check()
-            if died is not None:
-                raise _Died(died)
-            if time.monotonic() > end:
-                raise RuntimeError(f"identify: timed out after {timeout_s:g} s waiting for {what}")
-            executor.spin_once(timeout_sec=0.05)
+        def spin_until(pred, timeout_s: float, what: str) -> None:
+            end = time.monotonic() + timeout_s
+            while not pred():
+                died = sup.check()
+                if died is not None:
+                    raise _Died(died)
+                if time.monotonic() > end:
+                    raise RuntimeError(f"identify: timed out after {timeout_s:g} s waiting for {what}")
+                executor.spin_once(timeout_sec=0.05)
 
-    try:
-        session_id = cfg.session or new_session_id()  # every session has an id, given or fresh
-        watch = SessionWatch(session_id, rig.backup_clearance_m, total // 2, int(round(0.5 * fs)),
-                             namespace=cfg.namespace, context=context)
-        executor.add_node(watch)
         session = {"session": session_id}
         rig_param = {"rig_file": cfg.rig_file} if cfg.rig_file else {}
         try:
@@ -113,8 +100,6 @@ def run_session_processes(cfg: SessionConfig, plan: SessionPlan | None = None) -
                 raise RuntimeError(f"{plant_name} exited with code {sup.nodes[plant_name].proc.returncode} without a "
                                    "summary")
             if cfg.hardware:
-                from ambid_nodes.session import _hardware_summary
-
                 plant_summary = _hardware_summary(plant_summary, total, fs, time.perf_counter() - wall0)
             failure = plant_summary.get("failure")
             if not failure:
@@ -128,31 +113,13 @@ def run_session_processes(cfg: SessionConfig, plan: SessionPlan | None = None) -
             if frf is None:
                 raise RuntimeError(f"the FRF consumer ended without an estimate ({watch.event('no_estimate').text}); "
                                    f"the recording is in {mcap_path}")
-            wall = time.perf_counter() - wall0
-            return {
-                "experiment_id": answer.experiment_id,
-                "start_index": answer.start_index,
-                "plant": plant_summary,
-                "recorder": rec,
-                "live_frf": _live_figures(json.loads(frf.text)),
-                "wall_s": wall,
-                "simulated_s": plant_summary["simulated_s"],
-                "samples_per_wall_s": plant_summary["samples"] / wall,
-                "loop_samples_per_wall_s": plant_summary["samples_per_wall_s"],
-                "layout": f"processes, hardware bridge to {cfg.hardware}" if cfg.hardware else "processes",
-                "design": design,
-                "mcap_path": str(mcap_path),
-            }
+            layout = f"processes, hardware bridge to {cfg.hardware}" if cfg.hardware else "processes"
+            return run_facts(answer, plant_summary, rec, _live_figures(json.loads(frf.text)),
+                             time.perf_counter() - wall0, layout, design, mcap_path)
         except _Died as died:
             bar.close()
             raise _node_died(died.death, sup, executor, watch, mcap_path, plant_name, rig.dt,
                              time.perf_counter() - wall0) from None
-    finally:
-        sup.stop_all()
-        executor.shutdown()
-        if watch is not None:
-            watch.destroy_node()
-        rclpy.shutdown(context=context)
 
 
 class _Died(Exception):

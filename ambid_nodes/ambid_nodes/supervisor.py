@@ -15,6 +15,7 @@ recorder then closes its file completely), SIGKILL after :data:`STOP_GRACE_S`.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -176,6 +177,35 @@ class Supervisor:
 
     def stop_all(self, grace_s: float = STOP_GRACE_S) -> None:
         self.stop(None, grace_s)
+
+
+@contextlib.contextmanager
+def supervised(namespace: str, session: int, clearance_m: float, settle_samples: int, after_lift_off: int):
+    """``(executor, supervisor, watch)``: a supervisor of a session's node processes on this process's domain and
+    the session's watch (``ambid_nodes.watch.SessionWatch``: the levitation judged as plant_sim judges it), spun
+    by one executor; at the end every node is stopped and ROS shut down, whatever happened."""
+    import rclpy
+    from rclpy.experimental import EventsExecutor
+
+    from ambid_nodes.graph import session_domain_id
+    from ambid_nodes.watch import SessionWatch
+
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=session_domain_id())
+    executor = EventsExecutor(context=context)
+    sup = Supervisor(namespace, dict(os.environ, ROS_DOMAIN_ID=str(session_domain_id())))
+    watch = None
+    try:
+        watch = SessionWatch(session, clearance_m, settle_samples, after_lift_off, namespace=namespace,
+                             context=context)
+        executor.add_node(watch)
+        yield executor, sup, watch
+    finally:
+        sup.stop_all()
+        executor.shutdown()
+        if watch is not None:
+            watch.destroy_node()
+        rclpy.shutdown(context=context)
 
 
 def supervise(executor, sup: Supervisor, watch, done, grace_s: float = DEATH_GRACE_S) -> Death | None:
