@@ -132,18 +132,22 @@ def run_processes(cfg: GraphConfig) -> dict:
     """
     from ambid.plant.rig import load_rig, make_rig
 
-    from ambid_nodes.supervisor import supervise, supervised
+    from ambid_nodes.supervisor import NodeGone, supervise, supervised, wait_for
 
     rig = cfg.rig or (load_rig(cfg.plant["rig_file"]) if cfg.plant.get("rig_file") else make_rig())
     n_total = int(round(cfg.sim_seconds / rig.dt))
     with supervised(cfg.namespace, cfg.session, rig.backup_clearance_m, n_total // 2,
                     int(round(0.5 / rig.dt))) as (executor, sup, watch):
         session = {"session": cfg.session}
-        sup.start("position_controller", {**cfg.controller, **session})
         plant = sup.start("plant_sim", {"sim_seconds": float(cfg.sim_seconds), **cfg.plant, **session},
                           finishes=True)
         wall0 = time.perf_counter()
-        death = supervise(executor, sup, watch, lambda: sup.exited("plant_sim"))
+        try:  # the watch hears every block from the first before the controller joins and the loop starts
+            wait_for(executor, sup, watch, watch.hears_the_plant, 120, "plant_sim's measurement")
+            sup.start("position_controller", {**cfg.controller, **session})
+            death = supervise(executor, sup, watch, lambda: sup.exited("plant_sim"))
+        except NodeGone as gone:
+            death = gone.death
         summary = plant.summary
         if death is None and summary is None:
             raise RuntimeError(f"plant_sim exited with code {plant.proc.returncode} without a summary")

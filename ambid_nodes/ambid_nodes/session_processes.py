@@ -21,7 +21,7 @@ from ambid.session.identity import new_session_id
 from ambid_nodes.graph import died_summary
 from ambid_nodes.session import (NodeDied, ProgressBar, SessionConfig, SessionPlan, _hardware_summary, _jsonable,
                                  plan_session, run_facts, session_samples)
-from ambid_nodes.supervisor import SETTLE_S, Supervisor, supervise, supervised
+from ambid_nodes.supervisor import SETTLE_S, NodeGone, Supervisor, spin, supervise, supervised, wait_for
 
 START_TIMEOUT_S = 120  # processes start in seconds; on a loaded machine in tens of them
 
@@ -45,14 +45,7 @@ def run_session_processes(cfg: SessionConfig, plan: SessionPlan | None = None) -
                     int(round(0.5 * fs))) as (executor, sup, watch):
 
         def spin_until(pred, timeout_s: float, what: str) -> None:
-            end = time.monotonic() + timeout_s
-            while not pred():
-                died = sup.check()
-                if died is not None:
-                    raise _Died(died)
-                if time.monotonic() > end:
-                    raise RuntimeError(f"identify: timed out after {timeout_s:g} s waiting for {what}")
-                executor.spin_once(timeout_sec=0.05)
+            wait_for(executor, sup, watch, pred, timeout_s, what)
 
         session = {"session": session_id}
         rig_param = {"rig_file": cfg.rig_file} if cfg.rig_file else {}
@@ -74,7 +67,7 @@ def run_session_processes(cfg: SessionConfig, plan: SessionPlan | None = None) -
             sup.start("frf_consumer", {"estimator": cfg.estimator, **session})
             # the recorder, the consumer and the generator listen to the measurement before the loop starts
             meas = watch.measurement
-            spin_until(lambda: watch.count_subscribers(meas) >= 4 and watch.count_publishers(meas) >= 1,
+            spin_until(lambda: watch.count_subscribers(meas) >= 4 and watch.hears_the_plant(),
                        START_TIMEOUT_S, "the recorder, the consumer and the generator to subscribe")
             answer = _start_experiment(watch, executor, spin_until, StartExperiment, start_index, design)
             if not cfg.hardware:
@@ -92,7 +85,7 @@ def run_session_processes(cfg: SessionConfig, plan: SessionPlan | None = None) -
 
             death = supervise(executor, sup, watch, done)
             if death is not None:
-                raise _Died(death)
+                raise NodeGone(death)
             bar.show(1.0, "simulation done, closing the recording", force=True)
             bar.close()
             plant_summary = sup.nodes[plant_name].summary
@@ -116,16 +109,10 @@ def run_session_processes(cfg: SessionConfig, plan: SessionPlan | None = None) -
             layout = f"processes, hardware bridge to {cfg.hardware}" if cfg.hardware else "processes"
             return run_facts(answer, plant_summary, rec, _live_figures(json.loads(frf.text)),
                              time.perf_counter() - wall0, layout, design, mcap_path)
-        except _Died as died:
+        except NodeGone as died:
             bar.close()
             raise _node_died(died.death, sup, executor, watch, mcap_path, plant_name, rig.dt,
                              time.perf_counter() - wall0) from None
-
-
-class _Died(Exception):
-    def __init__(self, death) -> None:
-        super().__init__(death.node)
-        self.death = death
 
 
 def _start_experiment(watch, executor, spin_until, StartExperiment, start_index: int, design):
@@ -145,7 +132,7 @@ def _start_experiment(watch, executor, spin_until, StartExperiment, start_index:
             raise ValueError(f"identify: the excitation generator refused the experiment: {answer.message}")
         pause = time.monotonic() + 0.2
         while time.monotonic() < pause:
-            executor.spin_once(timeout_sec=0.05)
+            spin(executor, watch, 0.05)
 
 
 def _close_recording(sup: Supervisor, executor, watch, mcap_path) -> dict:

@@ -214,7 +214,7 @@ def supervise(executor, sup: Supervisor, watch, done, grace_s: float = DEATH_GRA
     death. None: the run ended as it should."""
     death = None
     while not done():
-        executor.spin_once(timeout_sec=POLL_S)
+        spin(executor, watch)
         death = sup.check()
         if death is not None:
             break
@@ -224,11 +224,40 @@ def supervise(executor, sup: Supervisor, watch, done, grace_s: float = DEATH_GRA
     if plant is not None and death.node != plant:
         end = time.monotonic() + grace_s
         while time.monotonic() < end and not sup.exited(plant):
-            executor.spin_once(timeout_sec=POLL_S)
+            spin(executor, watch)
     end = time.monotonic() + SETTLE_S  # the blocks and events already on their way
     while time.monotonic() < end:
-        executor.spin_once(timeout_sec=POLL_S)
+        spin(executor, watch)
     return death
+
+
+def wait_for(executor, sup: Supervisor, node, predicate, timeout_s: float, what: str) -> None:
+    """Spin until ``predicate()``; RuntimeError naming ``what`` after ``timeout_s``, NodeGone if a node died
+    meanwhile, KeyboardInterrupt if the context was shut down."""
+    end = time.monotonic() + timeout_s
+    while not predicate():
+        death = sup.check()
+        if death is not None:
+            raise NodeGone(death)
+        if time.monotonic() > end:
+            raise RuntimeError(f"timed out after {timeout_s:g} s waiting for {what}")
+        spin(executor, node, 0.05)
+
+
+class NodeGone(Exception):
+    """A node died while the run was being set up (``death``: :class:`Death`)."""
+
+    def __init__(self, death: Death) -> None:
+        super().__init__(f"{death.node} {death.how}")
+        self.death = death
+
+
+def spin(executor, node, timeout_s: float = POLL_S) -> None:
+    """One turn of ``executor``; KeyboardInterrupt once ``node``'s context is shut down (rclpy's SIGINT and
+    SIGTERM handlers do that instead of raising), so ^C ends a supervised run, its nodes stopped in order."""
+    if not node.context.ok():
+        raise KeyboardInterrupt
+    executor.spin_once(timeout_sec=timeout_s)
 
 
 def consequence(node: str, failure: dict | None, finished: bool = False) -> str:

@@ -54,7 +54,8 @@ class SessionWatch(Node):
         self.foreign_names: dict[str, set[str]] = collections.defaultdict(set)
         self.measurement = self.resolve_topic_name("measurement")
         sub = qos.subscription
-        self.create_subscription(SampleBlock, "measurement", self.on_measurement, sub(qos.BLOCKS), raw=True)
+        self.sub_measurement = self.create_subscription(SampleBlock, "measurement", self.on_measurement,
+                                                        sub(qos.BLOCKS), raw=True)
         self.create_subscription(SessionStatus, "status", self.on_status, sub(qos.STATUS), raw=True)
         self.create_subscription(SessionEvent, "events", self.on_event, sub(qos.EVENTS), raw=True)
 
@@ -105,6 +106,11 @@ class SessionWatch(Node):
             self._foreign(self.resolve_topic_name("events"), msg.session_id, msg.node)
             return
         self.events.append(msg)
+
+    def hears_the_plant(self) -> bool:
+        """Its measurement subscription is matched to a publisher (the plant's): it hears every block from the
+        first, so the figures it keeps are true from sample 0 (start the loop after this)."""
+        return self.sub_measurement.get_publisher_count() >= 1
 
     # --- what it tells -----------------------------------------------------------------------------------
     def figures(self, node: str) -> dict:

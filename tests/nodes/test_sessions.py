@@ -115,27 +115,36 @@ def test_a_foreign_source_changes_no_estimate_and_no_recorded_byte_and_is_named(
         if "session_id" in cls.get_fields_and_field_types():
             assert deserialize_message(m.data, cls).session_id == int(SESSION, 16), m.topic
 
-    # counted and named: in the nodes' last status and their events, as recorded, and in the recorder's facts
-    statuses = [deserialize_message(m.data, SessionStatus) for m in iter_messages(path, "/amb/status")]
-    named = {}
-    for s in statuses:  # the last word of each node on each topic
-        f = dict(zip(s.keys, s.values))
-        for topic in ("measurement", "excitation", "excitation/design"):
-            if int(json.loads(f.get(f"foreign:{topic}", "0"))) > 0:
-                named[(s.node, topic)] = json.loads(f[f"foreign_from:{topic}"])
-    facts = read_metadata(path)["ambid.session"]
-    for topic, f in json.loads(facts["foreign"]).items():
-        named[("/amb/recorder", topic)] = f["from"]
-        assert f["messages"] > 0
-    assert facts["session_id"] == SESSION
-    nodes = {n for n, _ in named}
-    assert {"/amb/plant_sim", "/amb/excitation_generator", "/amb/frf_consumer", "/amb/recorder"} <= nodes, named
-    assert all(any("/amb/foreign_source" in who for who in names) for names in named.values()), named
+    # counted and named: in every node's events, in each status a node published after its first foreign
+    # message, and in the recorder's facts (its last status comes after the file)
     events = [deserialize_message(m.data, SessionEvent) for m in iter_messages(path, "/amb/events")]
     foreign_events = [e for e in events if e.code == "foreign_message"]
-    assert {e.node for e in foreign_events} >= nodes, {e.node for e in foreign_events}
+    nodes = {e.node for e in foreign_events}
+    assert {"/amb/plant_sim", "/amb/excitation_generator", "/amb/frf_consumer", "/amb/recorder"} <= nodes, nodes
     assert any("/amb/foreign_source" in e.text for e in foreign_events), [e.text for e in foreign_events[:5]]
-    print(f"foreign messages counted and named by {sorted(nodes)}: {named}")
+    first = {}
+    for m in iter_messages(path, "/amb/events"):
+        e = deserialize_message(m.data, SessionEvent)
+        if e.code == "foreign_message":
+            first.setdefault(e.node, m.log_time_ns)
+    counted = 0
+    for m in iter_messages(path, "/amb/status"):
+        s = deserialize_message(m.data, SessionStatus)
+        if s.node in first and m.log_time_ns > first[s.node] and s.node != "/amb/recorder":
+            f = {k: json.loads(v) for k, v in zip(s.keys, s.values)}
+            n = sum(v for k, v in f.items() if k.startswith("foreign:"))
+            assert n > 0, (s.node, f)
+            assert all(f[k] == f[k.replace("received:", "accepted:")] + f[k.replace("received:", "rejected:")]
+                       + f.get(k.replace("received:", "foreign:"), 0) for k in f if k.startswith("received:"))
+            counted += 1
+    facts = read_metadata(path)["ambid.session"]
+    kept_out = json.loads(facts["foreign"])
+    assert all(f["messages"] > 0 and any("/amb/foreign_source" in who for who in f["from"])
+               for f in kept_out.values()), kept_out
+    assert {"/amb/measurement", "/amb/excitation", "/amb/excitation/design"} <= set(kept_out)
+    assert facts["session_id"] == SESSION
+    print(f"foreign messages counted and named by {sorted(nodes)} ({counted} statuses after the first); "
+          f"the recorder kept out {kept_out}")
 
 
 def test_two_rigs_in_two_namespaces_on_one_domain_run_side_by_side(ros, ros_env, procs, tmp_path):
@@ -237,3 +246,36 @@ def test_the_loop_takes_its_partners_messages_only(ros):
         assert any("/crossed/intruder" in who for who in f[f"foreign_from:{topic}"]), f
     print(f"\nintruder sent {intruder.sent}: the plant kept out {plant.intake.foreign_counts['control_current']} "
           f"currents, the controller {ctrl.intake.foreign_counts['displacement']} displacements; samples identical")
+
+
+def test_the_bridge_obeys_its_sessions_designs_only(ros):
+    """A design and an excitation block of another session reach the hardware bridge: counted and named, never
+    forwarded to the target (no experiment slot, no chunk held); its own session's are."""
+    from ambid_nodes.hardware_bridge import HardwareBridge
+    from rclpy.parameter import Parameter
+    from udp_port import free_port
+
+    bridge = ros.add(HardwareBridge(namespace="/amb", context=ros.context, parameter_overrides=[
+        Parameter("target_port", value=free_port()), Parameter("local_port", value=free_port()),
+        Parameter("session", value=0x5E55)]))
+    other = ros.add(Node("next_door", namespace="/amb", context=ros.context))
+    pub_design = other.create_publisher(ExcitationDesign, "excitation/design", qos.LATCHED)
+    pub_exc = other.create_publisher(SampleBlock, "excitation", qos.BLOCKS)
+    ros.matched(pub_design, pub_exc)
+
+    def design(exp: str, session: int) -> ExcitationDesign:
+        return ExcitationDesign(experiment_id=exp, kind="noise", start_index=5000, total_samples=1000,
+                                sample_rate=10_000.0, input_names=["u_a_x"], session_id=session)
+
+    block = block_msg(5000, 1e-4, EXC_NAMES, ["A"] * 4, np.full((500, 4), 0.1), experiment_id="theirs")
+    block.session_id = 7
+    pub_design.publish(design("theirs", 7))
+    pub_exc.publish(block)
+    assert ros.spin_until(lambda: bridge.intake.foreign_counts["excitation/design"] == 1
+                          and bridge.intake.foreign_counts["excitation"] == 1, 30)
+    assert "theirs" not in bridge.slots and not bridge.chunks.firsts
+    pub_design.publish(design("ours", 0x5E55))
+    assert ros.spin_until(lambda: "ours" in bridge.slots, 30)
+    f = bridge.intake.figures()
+    assert any("/amb/next_door" in who for who in f["foreign_from:excitation/design"]), f
+    assert f["received:excitation/design"] == 2 and f["accepted:excitation/design"] == 1
