@@ -21,9 +21,12 @@ from ambid.session.identity import new_session_id
 from ambid_nodes.graph import died_summary
 from ambid_nodes.session import (NodeDied, ProgressBar, SessionConfig, SessionPlan, _hardware_summary, _jsonable,
                                  plan_session, run_facts, session_samples)
-from ambid_nodes.supervisor import SETTLE_S, NodeGone, Supervisor, spin, supervise, supervised, wait_for
+from ambid_nodes.supervisor import (SETTLE_S, NodeGone, Supervisor, spin, stopped_words, supervise, supervised,
+                                    wait_for)
 
 START_TIMEOUT_S = 120  # processes start in seconds; on a loaded machine in tens of them
+RECORDER_CATCH_UP_S = 10.0  # at the end, the recorder's time to record the last blocks (its status says)
+RECORDER_STATUS_S = 0.25  # its status period here: how soon it says so
 
 
 def run_session_processes(cfg: SessionConfig, plan: SessionPlan | None = None) -> dict:
@@ -50,7 +53,8 @@ def run_session_processes(cfg: SessionConfig, plan: SessionPlan | None = None) -
         session = {"session": session_id}
         rig_param = {"rig_file": cfg.rig_file} if cfg.rig_file else {}
         try:
-            sup.start("recorder", {"output": str(mcap_path), "overwrite": True, **session,
+            sup.start("recorder", {"output": str(mcap_path), "overwrite": True, "status_period": RECORDER_STATUS_S,
+                                   **session,
                                    "session_facts": json.dumps({"session": "identify", "config": _jsonable(cfg)})})
             if cfg.hardware:
                 from ambid.hardware.rt_target import parse_address
@@ -145,6 +149,12 @@ def _close_recording(sup: Supervisor, executor, watch, mcap_path) -> dict:
     while time.monotonic() < end:
         executor.spin_once(timeout_sec=0.05)
     recorder = sup.nodes.get("recorder")
+    if recorder is not None and recorder.proc.poll() is None and stopped_words(recorder.proc.pid) is None:
+        # a SIGTERM drops what waits in its queue: first it records every block the session published
+        end = time.monotonic() + RECORDER_CATCH_UP_S
+        meas = f"end_index:{watch.measurement}"
+        while time.monotonic() < end and watch.figures("recorder").get(meas, -1) < watch.progress:
+            executor.spin_once(timeout_sec=0.05)
     if recorder is not None and recorder.proc.poll() is None:
         sup.stop(["recorder"])
         end = time.monotonic() + SETTLE_S

@@ -33,9 +33,10 @@ from udp_port import free_port
 REPO = Path(__file__).resolve().parents[2]
 SMALL = ["--band", "20", "400", "--resolution", "20", "--periods", "2", "--realisations", "1",
          "--transient-periods", "1", "--no-progress", "--seed", "3"]
-# a death is seen at once, the plant then has DEATH_GRACE_S (3 s) to end its run, the nodes 5 s to stop:
-# docs/sessions.md promises about 8.5 s; a loaded machine gets slack on top (a bound, not a timing figure)
-ENDS_WITHIN_S = 8.5 + 20
+# a death is seen at once; the plant then has 3 s to end its run, the loop's nodes 5 s to stop, the recorder 10 s
+# to record the last blocks and 5 s to close: docs/sessions.md promises about 24 s at most (typically 2-8 s); a
+# loaded machine gets slack on top (a bound for liveness, not a timing figure: the drills print the times)
+ENDS_WITHIN_S = 24 + 20
 LINE = re.compile(r"ambid (graph|identify): (\w+) (was killed \(SIGKILL\)|was stopped \(SIGSTOP\))(.*) at sample "
                   r"(\d+) \(([\d.]+) s simulated\)")
 
