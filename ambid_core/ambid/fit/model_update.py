@@ -52,7 +52,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+from scipy import linalg, stats
 
 from ambid.channels import AXES, CURRENT_NAMES, DISPLACEMENT_NAMES
 from ambid.fit.updating import Prior, UpdateResult, update_parameters
@@ -261,16 +261,17 @@ def _loop_moments(rig: Rig, controller: StateSpace, design: ExcitationDesign,
     return cov, p
 
 
-def closed_loop_noise_std(rig: Rig, controller: StateSpace, plant: TruePlant | None = None,
-                          n_lines: int = 1 << 15) -> np.ndarray:
+def closed_loop_noise_std(rig: Rig, controller: StateSpace, plant: TruePlant | None = None) -> np.ndarray:
     """Standard deviation of the measured outputs' noise in the true linear closed loop [m], (4,).
 
     The sensors' white noise v (std ``sensor_noise_m`` per sample) reaches
-    the outputs as y = (I - G K)^-1 v (positive feedback u = K y + r), so
-    var(y_i) = sigma^2 mean over the unit circle of sum_j |S_ij|^2
-    (Parseval, midpoint rule over ``n_lines`` lines of 0..fs/2: fine enough
-    for the lightly damped closed-loop modes). What the period-to-period
-    scatter of a periodic measurement estimates.
+    the outputs as y = (I - G K)^-1 v (positive feedback u = K y + r): with
+    the loop's states x (plant, then controller), x[k+1] = A_cl x[k] + B_v v[k]
+    and y = C x + v, so var(y) = diag(C P C^T) + sigma^2 with P the state
+    covariance, P = A_cl P A_cl^T + sigma^2 B_v B_v^T (the discrete Lyapunov
+    equation: exact, and milliseconds where a Parseval sum over the unit
+    circle fine enough for the lightly damped modes took seconds). What the
+    period-to-period scatter of a periodic measurement estimates.
 
     Args:
         rig: the true rig.
@@ -282,9 +283,12 @@ def closed_loop_noise_std(rig: Rig, controller: StateSpace, plant: TruePlant | N
         (4,) std per sensor, DISPLACEMENT_NAMES order [m].
     """
     g = true_linear_model(rig, discrete=True, plant=plant)
-    f = (np.arange(n_lines) + 0.5) / n_lines / (2 * rig.dt)
-    s_out = np.linalg.inv(np.eye(4) - g.freqresp(f) @ controller.freqresp(f))
-    return float(rig.values["sensor_noise_m"]) * np.sqrt((np.abs(s_out) ** 2).sum(axis=2).mean(axis=0))
+    k = controller
+    acl = np.block([[g.a + g.b @ k.d @ g.c, g.b @ k.c], [k.b @ g.c, k.a]])
+    bv = np.vstack([g.b @ k.d, k.b])
+    p = linalg.solve_discrete_lyapunov(acl, bv @ bv.T)
+    c = np.hstack([g.c, np.zeros((g.c.shape[0], k.a.shape[0]))])
+    return float(rig.values["sensor_noise_m"]) * np.sqrt(np.diag(c @ p @ c.T) + 1.0)
 
 
 def excitation_slopes(rig: Rig, controller: StateSpace, design: ExcitationDesign,
