@@ -211,3 +211,39 @@ def test_noise_free_twin_rig_keeps_the_rig_and_its_files_but_not_the_noise(tmp_p
     assert twin.controller == rig.controller == "lqg"
     assert load_rig(noise_free_rig_file("", tmp_path / "default.yaml")).values == \
         {**make_rig().values, "sensor_noise_m": 0.0}
+
+
+def test_drawn_nominal_rig_states_the_drawn_values_and_never_the_truth():
+    # validate's nominal model: the true rig missed by one draw from each tolerance, written as a rig file
+    from ambid.fit.model_update import nominal_update_parameters
+    from ambid.plant.tolerances import Z95
+    from ambid.studies.coverage import draw_nominal_rig
+
+    rig = make_rig()
+    for seed in range(3):
+        over, drawn = draw_nominal_rig(rig, np.random.default_rng([seed, 26]))
+        nominal = make_rig(over)
+        values = nominal_update_parameters(nominal)
+        for name in ("ki_n_per_a", "ks_n_per_m", "amplifier_bandwidth_hz", "sensor_bandwidth_hz", "bending_freq_hz",
+                     "bending_damping_ratio"):
+            assert values[name] == pytest.approx(drawn[name]["nominal"], rel=1e-9), name
+            assert values[name] != pytest.approx(drawn[name]["true"], rel=1e-6), name
+        # ki's draw: 5 % is 1.96 prior standard deviations
+        d = drawn["ki_n_per_a"]
+        assert d["nominal"] == pytest.approx(d["true"] * (1 + 0.05 / Z95 * d["z"]))
+        # the delay's range 0..1 sample moved with its draw, as a range in seconds
+        lo, hi = (float(x) for x in over["tolerances"]["delay_s"].split(".."))
+        assert hi - lo == pytest.approx(rig.dt) and (lo + hi) / 2 == pytest.approx(drawn["delay_s"]["nominal"])
+        assert nominal.values["sensor_noise_m"] == rig.values["sensor_noise_m"]       # the rest as it was
+
+
+def test_pooled_row_counts_every_parameter_and_mode_interval():
+    rec = lambda v: dict(frf={}, intervals={
+        "parameter:a": dict(value=v, std=1.0, ci95=[v - 1.96, v + 1.96], true=0.0, noise_only=False),
+        "mode_freq_hz:300Hz": dict(value=-v, std=2.0, ci95=[-v - 3.92, -v + 3.92], true=0.0, noise_only=False),
+        "derived:total_lag_s": dict(value=5.0, std=1.0, ci95=[3.0, 7.0], true=0.0, noise_only=False)}, noise=None)
+    t = coverage_table([rec(0.5), rec(3.0)])
+    pooled = t["pooled: parameters and modes"]
+    assert pooled["n"] == 4 and pooled["covered"] == 2                  # the total lag is its own row
+    assert pooled["std_ratio"] == pytest.approx(np.sqrt((0.25 + 0.0625 + 9 + 2.25) / 4))
+    assert t["derived:total_lag_s"]["coverage"] == 0.0

@@ -11,9 +11,11 @@
    output;
 3. modes (frequency, damping) and real poles, the state-space export
    (``model.npz``, ``model.json``) and the FRF (``frf.npz``) in ``out_dir``;
-4. physical-model updating (:mod:`ambid.fit.model_update`) started from the
-   analytical (nominal) rig, with an extra support mode when the fit shows a
-   mode the analytical model lacks;
+4. physical-model updating (:mod:`ambid.fit.model_update`): the MAP estimate
+   with the nominal rig's values and tolerances as priors, started from the
+   data (the fitted modes, the FRF's level and phase), with an extra support
+   mode when the fit shows a mode the nominal model lacks; the nominal and the
+   updated model's loop with the recorded controller are checked and said;
 5. when the session is simulated (rig facts recorded, plant source 'sim'):
    the comparison against the true rig's sampled linear model
    (:func:`ambid.plant.true_rig.true_linear_model`) and its parameters;
