@@ -244,6 +244,6 @@ def test_pooled_row_counts_every_parameter_and_mode_interval():
         "derived:total_lag_s": dict(value=5.0, std=1.0, ci95=[3.0, 7.0], true=0.0, noise_only=False)}, noise=None)
     t = coverage_table([rec(0.5), rec(3.0)])
     pooled = t["pooled: parameters and modes"]
-    assert pooled["n"] == 4 and pooled["covered"] == 2                  # the total lag is its own row
+    assert pooled["n"] == 4 and pooled["covered"] == 3                  # the total lag is its own row
     assert pooled["std_ratio"] == pytest.approx(np.sqrt((0.25 + 0.0625 + 9 + 2.25) / 4))
     assert t["derived:total_lag_s"]["coverage"] == 0.0
