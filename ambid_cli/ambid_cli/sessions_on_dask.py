@@ -18,14 +18,14 @@ from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
-__all__ = ["DOMAIN_SLOTS", "add_scheduler_option", "session_client", "run_in_domain", "as_finished"]
+__all__ = ["DOMAIN_SLOTS", "add_scheduler_option", "domain_base", "session_client", "run_in_domain", "as_finished"]
 
 #: ROS domain ids one command's sessions may take, from its base (one per worker at once)
 DOMAIN_SLOTS = 8
 
 
 def add_scheduler_option(p) -> None:
-    """``--scheduler ADDRESS`` and ``--jobs N`` on an argparse parser."""
+    """``--scheduler ADDRESS``, ``--jobs N`` and ``--domain-base ID`` on an argparse parser."""
     from ambid_cli.commands.inputs import positive_int
 
     p.add_argument("--scheduler", default="", metavar="ADDRESS",
@@ -33,6 +33,16 @@ def add_scheduler_option(p) -> None:
                         "this machine's cores")
     p.add_argument("--jobs", type=positive_int, default=None,
                    help="sessions at once on the local cluster (default: the cores)")
+    p.add_argument("--domain-base", type=int, default=None, metavar="ID",
+                   help=f"first ROS domain id of the sessions (they take ID .. ID + {DOMAIN_SLOTS - 1}; default 215 "
+                        "or 223, from this process): keep it clear of other users of this machine")
+
+
+def domain_base(args) -> int:
+    """The first ROS domain id of a command's sessions: ``--domain-base``, else 215 or 223 (from the process id),
+    outside the 100-199 that identify and graph derive from their pid, so a session on this machine does not
+    hear (and reject) ours."""
+    return args.domain_base if args.domain_base is not None else 215 + (os.getpid() % 2) * DOMAIN_SLOTS
 
 
 @contextmanager

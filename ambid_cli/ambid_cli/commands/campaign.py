@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -25,7 +24,7 @@ from ambid.plant.rig import make_rig
 
 from ambid_cli.commands.inputs import (BadInput, add_session_options, checked_controller, controller,
                                          experiment_spec, output_dir, rig_file)
-from ambid_cli.sessions_on_dask import DOMAIN_SLOTS, add_scheduler_option, as_finished, session_client
+from ambid_cli.sessions_on_dask import add_scheduler_option, as_finished, domain_base, session_client
 
 _FORMAT = "ambid.campaign/1"
 
@@ -40,9 +39,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="position controller: a kind or a controller file (default: the rig file's, else pid)")
     add_session_options(p)
     add_scheduler_option(p)
-    p.add_argument("--domain-base", type=int, default=None, metavar="ID",
-                   help=f"first ROS domain id of the sessions (they take ID .. ID + {DOMAIN_SLOTS - 1}; default 215 "
-                        "or 223, from this process)")
     p.add_argument("--no-progress", action="store_true", help="(kept for scripts: the sessions run as tasks and "
                                                                "each speed is reported when it is done)")
 
@@ -142,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
     if pending:
         where = args.scheduler or "a local Dask cluster"
         print(f"ambid campaign: identifying at {len(pending)} speed(s) on {where} ...", file=sys.stderr)
-        base_id = args.domain_base if args.domain_base is not None else 215 + (os.getpid() % 2) * DOMAIN_SLOTS
+        base_id = domain_base(args)     # one ROS domain per worker
         try:
             with session_client(args.scheduler, args.jobs, len(pending)) as client:
                 for rpm, result, exc in as_finished(client, base_id, _identify_speed, pending):

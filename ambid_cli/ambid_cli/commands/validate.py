@@ -27,7 +27,7 @@ import time
 from pathlib import Path
 
 from ambid_cli.commands.inputs import checked_controller, controller, output_dir, positive_int, rig_file
-from ambid_cli.sessions_on_dask import DOMAIN_SLOTS, add_scheduler_option, as_finished, session_client
+from ambid_cli.sessions_on_dask import add_scheduler_option, as_finished, domain_base, session_client
 
 HELP = "measure the coverage of every printed interval over many seeds of the identify session"
 PRESET_SEEDS = {"quick": 6, "full": 20}
@@ -43,9 +43,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--controller", type=controller, default="",
                    help="position controller: a kind or a controller file (default: the rig file's, else pid)")
     add_scheduler_option(p)
-    p.add_argument("--domain-base", type=int, default=None, metavar="ID",
-                   help=f"first ROS domain id of the sessions (they take ID .. ID + {DOMAIN_SLOTS - 1}; default 215 "
-                        "or 223, from this process): keep it clear of other users of this machine")
     p.add_argument("--out", type=Path, default=Path("validate"), help="output folder (default ./validate)")
     p.add_argument("--linear-magnets", action="store_true",
                    help="linearised magnets instead of eq. 2.14 (separates the magnets' nonlinearity from the rest)")
@@ -188,9 +185,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"ambid validate: {n} seeds ({len(records)} reused), on {where}, out {out}", flush=True)
     t0 = time.perf_counter()
     if todo:
-        # domain ids 215-230: outside the 100-199 that identify and graph derive from their pid, so that a
-        # session on this machine does not hear (and reject) ours; one id per worker
-        base = args.domain_base if args.domain_base is not None else 215 + (os.getpid() % 2) * DOMAIN_SLOTS
+        base = domain_base(args)     # one ROS domain per worker
         failed = []
         items = [(s, (s, args.rig, str((out / "seeds" / f"seed_{s:03d}").resolve()), fp, args.linear_magnets,
                       args.controller)) for s in todo]
