@@ -65,7 +65,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-__all__ = ["METHODS", "LocalFrf", "TransientFree", "local_frf", "periodic_transient_removal", "periodic_window",
+__all__ = ["METHODS", "LocalFrf", "TransientFree", "SegmentTransients", "local_frf", "window_centres", "periodic_transient_removal", "periodic_window",
            "f_quantile", "dof_of", "half_width_for"]
 
 #: 'lpm': local polynomials; 'lrm': local rational models; 'auto': the LRM at the lines where its smaller
@@ -92,6 +92,9 @@ class LocalFrf:
             E[V V^H] [(unit of z)^2, DFT scaled by n^-1/2].
         transient: (Ne, L, Nz) the transient T at the centre bin, per
             experiment [unit of z, same DFT scaling].
+        power: (L, Nz) mean of |Z|^2 over the window and the experiments
+            [(unit of z)^2, same scaling]: ``1 - noise / power`` is the
+            share of z the references explain (a coherence).
         dof: (L,) q, residual degrees of freedom of ``noise_cov`` at each line.
         rational: (L,) bool, the LRM was used at that line.
         method: one of :data:`METHODS`.
@@ -110,6 +113,7 @@ class LocalFrf:
     frf_zr: np.ndarray
     noise_cov: np.ndarray
     transient: np.ndarray
+    power: np.ndarray
     dof: np.ndarray
     rational: np.ndarray
     method: str
@@ -198,6 +202,24 @@ def _projector(k_t: np.ndarray) -> np.ndarray:
 
 # ------------------------------------------------------------------ arbitrary excitation
 
+def window_centres(n_samples: int, fs_hz: float, band_hz: tuple[float, float] | None, half_width: int) -> np.ndarray:
+    """(L,) DFT bins (of n samples) at the centres of the non-overlapping windows of 2 h + 1 bins tiling the band.
+
+    Raises:
+        ValueError: the band holds fewer bins than one window.
+    """
+    n, h = int(n_samples), int(half_width)
+    w = 2 * h + 1
+    k_lo, k_hi = 1, (n - 1) // 2
+    if band_hz is not None:
+        k_lo = max(k_lo, int(np.ceil(band_hz[0] * n / fs_hz - 1e-9)))
+        k_hi = min(k_hi, int(np.floor(band_hz[1] * n / fs_hz + 1e-9)))
+    if k_hi - k_lo + 1 < w:
+        raise ValueError(f"the band holds {max(k_hi - k_lo + 1, 0)} bins of the {n}-sample record, fewer than one "
+                         f"window of {w}; record longer or widen the band")
+    return np.arange(k_lo + h, k_hi - h + 1, w, dtype=np.int64)
+
+
 def local_frf(y: np.ndarray, u: np.ndarray, r: np.ndarray | None = None, *, fs_hz: float,
               band_hz: tuple[float, float] | None = None, degree: int = 2, half_width: int | None = None,
               method: str = "lpm", dof: int = DEFAULT_DOF, output_names=(), input_names=()) -> LocalFrf:
@@ -246,14 +268,7 @@ def local_frf(y: np.ndarray, u: np.ndarray, r: np.ndarray | None = None, *, fs_h
         raise ValueError(f"a window of {2 * h + 1} bins with degree {degree} leaves {q} degrees of freedom for "
                          f"{nx} references and {ne} experiment(s); widen half_width")
     w = 2 * h + 1
-    k_lo, k_hi = 1, (n - 1) // 2
-    if band_hz is not None:
-        k_lo = max(k_lo, int(np.ceil(band_hz[0] * n / fs_hz - 1e-9)))
-        k_hi = min(k_hi, int(np.floor(band_hz[1] * n / fs_hz + 1e-9)))
-    centres = np.arange(k_lo + h, k_hi - h + 1, w) if k_hi - k_lo + 1 >= w else np.zeros(0, dtype=np.int64)
-    if centres.size == 0:
-        raise ValueError(f"the band holds {max(k_hi - k_lo + 1, 0)} bins of the {n}-sample record, fewer than one "
-                         f"window of {w}; record longer or widen the band")
+    centres = window_centres(n, fs_hz, band_hz, h)
     zf = np.fft.fft(z, axis=1) / np.sqrt(n)
     xf = np.fft.fft(x, axis=1) / np.sqrt(n)
     offsets = np.arange(-h, h + 1)
@@ -264,8 +279,8 @@ def local_frf(y: np.ndarray, u: np.ndarray, r: np.ndarray | None = None, *, fs_h
     proj = _projector(k_t)
     # regressors: x(k+s) (s/h)^j, j = 0..R, the s^0 block first (it is G at the centre)
     xr = np.concatenate([xw * k_t[None, None, :, j, None] for j in range(degree + 1)], axis=3)
-    xt = np.einsum("vw,elwp->elvp", proj, xr)                               # transient projected out
-    zt = np.einsum("vw,elwp->elvp", proj, zw)
+    xt = proj @ xr                                                          # transient projected out
+    zt = proj @ zw
     n_lines = centres.size
     xs = np.moveaxis(xt, 0, 1).reshape(n_lines, ne * w, -1)                # experiments stacked
     zs = np.moveaxis(zt, 0, 1).reshape(n_lines, ne * w, z.shape[2])
@@ -276,12 +291,13 @@ def local_frf(y: np.ndarray, u: np.ndarray, r: np.ndarray | None = None, *, fs_h
     d2 = np.ones((n_lines, ne * w))                                         # |D(s)|^2 at each stacked bin
     d_poly = np.ones((n_lines, w), complex)
     if method != "lpm":
-        psi = np.einsum("vw,elwai->elvai", proj, zw[..., None] * k_t[None, None, :, None, 1:])
-        psi = np.moveaxis(psi, 0, 1).reshape(n_lines, ne * w, z.shape[2], degree)
+        nz = z.shape[2]
+        psi = proj @ (zw[..., None] * k_t[None, None, :, None, 1:]).reshape(ne, n_lines, w, nz * degree)
+        psi = np.moveaxis(psi, 0, 1).reshape(n_lines, ne * w, nz, degree)
         scale = np.sqrt(np.maximum(np.mean(np.abs(resid) ** 2, axis=1), 1e-300))     # (L, Nz)
         p_x = np.eye(ne * w)[None] - xs @ xp
-        d = _denominator(resid, np.einsum("lvk,lkai->lvai", p_x, psi), scale)
-        zd = zs + np.einsum("lvai,li->lva", psi, d)                         # D(s) Z, transient projected out
+        d = _denominator(resid, (p_x @ psi.reshape(n_lines, ne * w, nz * degree)).reshape(psi.shape), scale)
+        zd = zs + (psi @ d[:, None, :, None])[..., 0]                       # D(s) Z, transient projected out
         theta_r = xp @ zd
         dp = 1.0 + k_t[:, 1:] @ d[..., None]                                # (L, w, 1)
         dp = dp[..., 0]
@@ -297,14 +313,14 @@ def local_frf(y: np.ndarray, u: np.ndarray, r: np.ndarray | None = None, *, fs_h
         d2 = np.where(use[:, None], d2_r, d2)
         d_poly = np.where(use[:, None], dp, d_poly)
         q_line = np.where(use, q - degree, q)
-    c_v = np.einsum("lka,lkb->lab", resid, resid.conj()) / q_line[:, None, None]
+    c_v = (np.swapaxes(resid, 1, 2) @ resid.conj()) / q_line[:, None, None]
     # the errors of theta are xp (D V): its covariance is xp diag|D|^2 xp^H times C_V
     q_full = (xp * d2[:, None, :]) @ np.swapaxes(xp.conj(), -1, -2)
     q_g = q_full[:, :nx, :nx]
     g_zr = np.swapaxes(theta[:, :nx, :], 1, 2)                              # (L, Nz, Nx)
     # transient at the centre, per experiment: M(0) of D Z = N X + M (D = 1 for the LPM)
-    rest = d_poly[None, :, :, None] * zw - np.einsum("elwp,lpa->elwa", xr, theta)
-    transient = np.einsum("w,elwa->ela", np.linalg.pinv(k_t)[0], rest)
+    rest = d_poly[None, :, :, None] * zw - xr @ theta[None]
+    transient = np.tensordot(rest, np.linalg.pinv(k_t)[0], axes=([2], [0]))
     if r is not None:
         g, m = _right_solve(g_zr[:, :ny, :], g_zr[:, ny:, :])
         a = np.concatenate([np.broadcast_to(np.eye(ny), (n_lines, ny, ny)), -g], axis=2)   # (L, Ny, Nz)
@@ -316,7 +332,8 @@ def local_frf(y: np.ndarray, u: np.ndarray, r: np.ndarray | None = None, *, fs_h
     row_cov = out_var[:, :, None, None] * in_cov[:, None, :, :]
     var = np.real(np.diagonal(row_cov, axis1=2, axis2=3)).copy()
     return LocalFrf(freq_hz=centres * fs_hz / n, bins=centres.astype(np.int64), frf=g, var=var, row_cov=row_cov,
-                    frf_zr=g_zr, noise_cov=c_v, transient=transient, dof=q_line.astype(np.int64),
+                    frf_zr=g_zr, noise_cov=c_v, transient=transient,
+                    power=np.mean(np.abs(zw) ** 2, axis=(0, 2)), dof=q_line.astype(np.int64),
                     rational=q_line < q, method=method, degree=int(degree),
                     half_width=h, n_samples=n, n_experiments=ne, output_names=tuple(output_names),
                     input_names=tuple(input_names))
@@ -341,7 +358,7 @@ def _denominator(zbar: np.ndarray, psibar: np.ndarray, scale: np.ndarray) -> np.
     psi_h = np.conj(np.swapaxes(psi, 1, 2))
     a_mat = psi_h @ psi
     b_vec = (psi_h @ zb)[..., 0]
-    ridge = 1e-12 * np.real(np.trace(a_mat, axis1=1, axis2=2))[:, None, None] * np.eye(a_mat.shape[-1])
+    ridge = (1e-12 * np.real(np.trace(a_mat, axis1=1, axis2=2))[:, None, None] + 1e-300) * np.eye(a_mat.shape[-1])
     return -np.linalg.solve(a_mat + ridge, b_vec[..., None])[..., 0]
 
 
