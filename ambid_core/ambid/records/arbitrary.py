@@ -65,19 +65,25 @@ class RecordedExcitation:
         self._carry = x[k * SEGMENT:]
 
     def spectrum(self) -> np.ndarray:
-        """(SEGMENT/2+1, Nu) mean power per bin, scaled so that white noise of variance s^2 gives s^2 [A^2]."""
+        """(L/2+1, Nu) mean power per bin of L-sample segments (L = :data:`SEGMENT`, or the whole excitation
+        when it is shorter), scaled so that white noise of variance s^2 gives s^2 [A^2]."""
         if self._segments == 0:
-            return np.zeros_like(self._psd)
+            x = self._carry - self._carry.mean(axis=0)
+            win = np.hanning(len(x) + 1)[:-1]
+            return np.abs(np.fft.rfft(x * win[:, None], axis=0)) ** 2 / max(np.sum(win ** 2), 1e-300)
         return self._psd / (self._segments * np.sum(self._win ** 2))
+
+    def _segment_length(self) -> int:
+        return SEGMENT if self._segments else len(self._carry)
 
     def band(self, fs_hz: float, path: str, names) -> tuple[float, float]:
         """The band where every input's spectrum is within :data:`BAND_LEVEL` of its own peak [Hz]."""
-        if self._segments == 0:
-            raise RecordError(f"{path}: the excitation lasts {self.rows} rows, fewer than {SEGMENT}: too short to "
-                              "find its band; give a longer record, or band_hz: and design: in MAP.yaml")
+        if self._segment_length() < 64:
+            raise RecordError(f"{path}: the excitation lasts {self.rows} rows: too short to find its band; give a "
+                              "longer record, or band_hz: and design: in MAP.yaml")
         psd = self.spectrum()[1:]                                          # DC left out
         on = psd >= BAND_LEVEL * psd.max(axis=0, keepdims=True)
-        step = fs_hz / SEGMENT
+        step = fs_hz / self._segment_length()
         lo = np.array([np.flatnonzero(on[:, i])[0] + 1 for i in range(self.nu)]) * step
         hi = np.array([np.flatnonzero(on[:, i])[-1] + 1 for i in range(self.nu)]) * step
         if lo.max() >= hi.min():
@@ -105,7 +111,7 @@ class RecordedExcitation:
             raise RecordError(f"{path}: excitation of {dead} is zero in every row; excite every input the MAP.yaml "
                               "maps, or map only the excited ones")
         # the line amplitude of the whole record in the 2/N scaling, from the spectrum at each line
-        step = fs_hz / SEGMENT
+        step = fs_hz / max(self._segment_length(), 1)
         psd = self.spectrum()
         at = np.clip(np.rint(lines * fs_hz / self.rows / step).astype(int), 0, psd.shape[0] - 1)
         amps = 2.0 * np.sqrt(psd[at].T / self.rows)
