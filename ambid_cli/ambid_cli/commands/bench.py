@@ -10,6 +10,9 @@ Sections (each can be skipped):
 * offline: FRF of a session beside bare reads of the same MCAP file
   (:mod:`ambid_cli.bench.offline`);
 * fit: the common-denominator fit of a 4x4 FRF of 2,000 lines;
+* settling: measurement time at equal FRF error with and without settling
+  periods (the transient removed by the local polynomial method), on the
+  core loop (:mod:`ambid_cli.bench.settling`);
 * memory: peak memory of sessions of one kind, one six times longer
   (:mod:`ambid_cli.bench.memory`).
 
@@ -36,18 +39,19 @@ from ambid_cli.commands.inputs import output_dir, output_file, positive_float, p
 from ambid.jsonable import to_jsonable
 
 HELP = "measure loop throughput, identify real-time factor, offline rates and memory against the targets"
-SECTIONS = ("loop", "identify", "offline", "fit", "memory")
+SECTIONS = ("loop", "identify", "offline", "fit", "settling", "memory")
 FACTOR = 6  # the long session of the memory figure is this many times longer
 
 # the sizes of a --quick run (the smoke test): every section, seconds each
 QUICK = {
     "loop_seconds": 0.2, "repeats": 1, "fit_lines": 200, "fit_order": 12,
-    "identify": {"band_hz": (50.0, 1000.0), "resolution_hz": 50.0, "periods": 1, "realisations": 1,
-                 "transient_periods": 1},
+    "identify": {"band_hz": (50.0, 1000.0), "resolution_hz": 50.0, "n_periods": 1, "n_realisations": 1,
+                 "n_transient_periods": 1},
     "offline_design": {"band_hz": (50.0, 1000.0), "resolution_hz": 50.0, "n_periods": 1, "n_realisations": 1,
                        "n_transient_periods": 1},
-    "live_memory": {"band_hz": (50.0, 1000.0), "resolution_hz": 50.0, "periods": 1, "realisations": 1,
-                    "transient_periods": 1},
+    "live_memory": {"band_hz": (50.0, 1000.0), "resolution_hz": 50.0, "n_periods": 1, "n_realisations": 1,
+                    "n_transient_periods": 1},
+    "settling": {"band_hz": (50.0, 1000.0), "resolution_hz": 50.0, "n_realisations": 1},
 }
 # the default sizes: the identify session and the offline file are the default identify experiment
 FULL = {
@@ -56,7 +60,8 @@ FULL = {
     "identify": {},
     "offline_design": {},
     "offline_memory_design": {"n_realisations": 1},
-    "live_memory": {"resolution_hz": 10.0, "periods": 2, "realisations": 1, "transient_periods": 1},
+    "live_memory": {"resolution_hz": 10.0, "n_periods": 2, "n_realisations": 1, "n_transient_periods": 1},
+    "settling": {},
 }
 
 
@@ -157,6 +162,22 @@ def _fit_section(sizes: dict, figures: list) -> dict:
     return res
 
 
+def _settling_section(sizes: dict, figures: list) -> dict:
+    from ambid_cli.bench.settling import settling_figures
+
+    res = settling_figures(sizes["settling"])
+    b, a = res["before"], res["after"]
+    figures += [
+        _figure(f"time at the default's FRF error ({100 * b['median_error']:.2f} %), {b['transient_periods']} settling "
+                "periods (before)", b["time_s"], "s"),
+        _figure("time at that error, no settling periods, transient removed, by error = c / sqrt(time) fitted to "
+                "each run's realisations (after)", res["time_at_equal_error_by_law_s"], "s"),
+        _at_most(f"FRF error, no settling periods ({a['time_at_default_realisations_s']:.3g} s) / default "
+                 f"({b['time_s']:.3g} s)", res["ratio_at_default_realisations"], "", 1.15, "1.15"),
+    ]
+    return res
+
+
 def _memory_section(sizes: dict, work: Path, figures: list) -> dict:
     from ambid_cli.bench.memory import memory_figures
 
@@ -234,6 +255,7 @@ def run(args: argparse.Namespace) -> int:
         "identify": lambda: _identify_section(sizes, work, figures),
         "offline": lambda: _offline_section(sizes, work, figures),
         "fit": lambda: _fit_section(sizes, figures),
+        "settling": lambda: _settling_section(sizes, figures),
         "memory": lambda: _memory_section(sizes, work, figures),
     }
     t_start = time.perf_counter()
