@@ -21,7 +21,6 @@ import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
 
 from ambid.excitation.design import ExcitationDesign
 from ambid.excitation.spec import DesignSpec
