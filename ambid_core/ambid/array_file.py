@@ -93,6 +93,7 @@ def _mat(path: Path, what: str) -> dict[str, np.ndarray]:
         head = f.read(520)
     if head.startswith(_MAT73_MAGIC) or head[:8] == _HDF5_MAGIC or head[512:520] == _HDF5_MAGIC:
         return _mat73(path, what)
+    # scipy.io and h5py are loaded only when a .mat file is read (rare; h5py alone costs ~0.2 s to import)
     from scipy import io as sio
     from scipy.io.matlab import matfile_version
 

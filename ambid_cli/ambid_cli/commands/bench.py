@@ -35,6 +35,7 @@ import traceback
 from pathlib import Path
 
 from ambid_cli.commands.inputs import output_dir, output_file, positive_float, positive_int
+from ambid_cli.results_page import measured_on, write_section
 
 from ambid.jsonable import to_jsonable
 
@@ -67,6 +68,8 @@ FULL = {
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", metavar="FILE", help="write every figure and its details to FILE")
+    p.add_argument("--results", metavar="FILE",
+                   help="write the figures as the bench section of a results page, e.g. docs/results.md")
     p.add_argument("--loop-seconds", type=positive_float, help="simulated time per loop run [s], >= 0.05 (default 2)")
     p.add_argument("--repeats", type=positive_int, help="interleaved rounds of the loop and offline timings (default 5)")
     p.add_argument("--fit-lines", type=positive_int, help="lines of the 4x4 FRF to fit (default 2000)")
@@ -220,9 +223,20 @@ def print_table(figures: list, out=None) -> None:
         out.write(f"{f['name']:<{w}}  {_format(f['value'], f['unit']):>14}  {f['target'] or '':<22}  {result}\n")
 
 
+def results_markdown(figures: list) -> str:
+    """The figures as a markdown table: figure, value, target, result."""
+    rows = ["| figure | value | target | result |", "| --- | --- | --- | --- |"]
+    for f in figures:
+        result = {True: "pass", False: "FAIL", None: "" if f["target"] is None else "n/a"}[f["pass"]]
+        rows.append(f"| {f['name']} | {_format(f['value'], f['unit'])} | {f['target'] or ''} | {result} |")
+    return "\n".join(rows)
+
+
 def run(args: argparse.Namespace) -> int:
     if args.json:
         output_file(args.json, "--json")
+    if args.results:
+        output_file(args.results, "--results")
     if args.work_dir:
         output_dir(args.work_dir, "--work-dir")
     skip = {s.strip() for s in args.skip.split(",") if s.strip()}
@@ -296,6 +310,13 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         Path(args.json).write_text(json.dumps(to_jsonable(report), indent=2))
         print(f"figures written to {args.json}")
+    if args.results and figures:
+        errors = "".join(f"\n\nSection {name} failed: {err}" for name, err in report["errors"].items())
+        write_section(args.results, "bench", "Performance (`ambid bench`)",
+                      f"{measured_on()} Sections: {', '.join(n for n in SECTIONS if n not in skip)}"
+                      f"{' (--quick sizes: a smoke test, not a measurement)' if args.quick else ''}.\n\n"
+                      + results_markdown(figures) + errors)
+        print(f"results written to {args.results}")
     if report["errors"]:
         return 2
     return 1 if any(f["pass"] is False or (f["target"] and f["pass"] is None) for f in figures) else 0
