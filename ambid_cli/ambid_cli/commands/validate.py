@@ -26,7 +26,9 @@ import sys
 import time
 from pathlib import Path
 
-from ambid_cli.commands.inputs import checked_controller, controller, output_dir, positive_int, rig_file
+from ambid_cli.commands.inputs import (checked_controller, controller, output_dir, output_file, positive_int,
+                                       rig_file)
+from ambid_cli.results_page import measured_on, write_section
 from ambid_cli.sessions_on_dask import add_scheduler_option, as_finished, domain_base, session_client
 
 HELP = "measure the coverage of every printed interval over many seeds of the identify session"
@@ -47,6 +49,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--linear-magnets", action="store_true",
                    help="linearised magnets instead of eq. 2.14 (separates the magnets' nonlinearity from the rest)")
     p.add_argument("--no-figure", action="store_true", help="skip coverage.png")
+    p.add_argument("--results", metavar="FILE",
+                   help="write the coverage table as the validate section of a results page, e.g. docs/results.md")
 
 
 def run_fingerprint(rig_path: str, linear_magnets: bool, controller_spec: str = "") -> str:
@@ -170,6 +174,8 @@ def run(args: argparse.Namespace) -> int:
     # a bad rig or controller file, or a controller that cannot hold the rig, stops here before any session
     checked_controller(args.controller, rig_file(args.rig))
     out = output_dir(args.out)
+    if args.results:
+        output_file(args.results, "--results")
     n = args.seeds or PRESET_SEEDS[args.preset]
     seeds = list(range(args.first_seed, args.first_seed + n))
     fp = run_fingerprint(args.rig, args.linear_magnets, args.controller)
@@ -216,7 +222,24 @@ def run(args: argparse.Namespace) -> int:
         coverage_figure(table, out / "coverage.png")
     print(format_table(table))
     print(f"written: {out / 'coverage.json'}" + ("" if args.no_figure else f", {out / 'coverage.png'}"))
+    if args.results:
+        write_section(args.results, "validate", "Coverage of the printed intervals (`ambid validate`)",
+                      f"{measured_on()} {len(recs)} seeds ({', '.join(map(str, sorted(records)))}) of identify's "
+                      f"session on the {args.rig or 'built-in'} rig.\n\n" + coverage_markdown(table))
+        print(f"results written to {args.results}")
     return 0
+
+
+def coverage_markdown(table: dict) -> str:
+    """The coverage table in markdown: per interval its nominal level, coverage and binomial interval."""
+    rows = ["| interval | nominal | coverage | 95 % binomial | n | empirical / claimed std |",
+            "| --- | --- | --- | --- | --- | --- |"]
+    for k, r in table.items():
+        if r.get("coverage") is not None:
+            rows.append(f"| {k}{' (noise only)' if r.get('noise_only') else ''} | {r['nominal']:.3f} | "
+                        f"{r['coverage']:.3f} | {r['ci95'][0]:.3f}..{r['ci95'][1]:.3f} | {r['n']} | "
+                        f"{r['std_ratio']:.2f} |")
+    return "\n".join(rows)
 
 
 def format_table(table: dict) -> str:

@@ -292,9 +292,10 @@ def write_report(report_dir: str | Path, summary: Mapping[str, Any], *, frf: Frf
         lambda p: figures.stabilisation(diagram, frf.freq_hz, frf.frf, order, p,
                                         mode_ci95=[m["freq_hz_ci95"] for m in summary["fit"]["modes"]
                                                    if m.get("freq_hz_ci95")]))
-    add("excitation.png", "Excitation design: line amplitudes of one period per input with its crest factor, "
-        "the unexcited detection lines, and the period in time.",
-        lambda p: figures.excitation(design, p))
+    if design.kind != "recorded":   # a recorded excitation has no design to draw: the time window shows it
+        add("excitation.png", "Excitation design: line amplitudes of one period per input with its crest factor, "
+            "the unexcited detection lines, and the period in time.",
+            lambda p: figures.excitation(design, p))
     add("input_sensitivity.png", "Input sensitivity |S_ii| (r -> u) per axis, measured; ISO 14839-3 zones A (< 3), "
         "B (< 4), C (< 5) and D shaded.",
         lambda p: figures.input_sensitivity(frf.freq_hz, frf.sensitivity, frf.input_names, p))

@@ -232,7 +232,7 @@ def coverage_table(records: Sequence[Mapping[str, Any]]) -> dict:
 
 def coverage_figure(table: Mapping[str, Mapping[str, Any]], path: str | Path | None = None):
     """Empirical coverage with its binomial interval beside the nominal level, and the std ratio, per kind."""
-    from matplotlib.figure import Figure
+    from matplotlib.figure import Figure  # optional (ambid[report]): only the figure needs it
 
     rows = [(k, r) for k, r in table.items() if r.get("coverage") is not None]
     fig = Figure(figsize=(10, 0.32 * len(rows) + 1.6))

@@ -47,6 +47,7 @@ import json
 import os
 import time
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -80,7 +81,7 @@ from ambid.session.facts import controller_facts, controller_model, plant_facts
 from ambid.statespace import StateSpace
 
 __all__ = ["select_order", "frf_relative_error", "recorded_controller", "session_rig", "true_modes",
-           "compare_modes", "identify_session"]
+           "compare_modes", "FrfFit", "fit_frf", "update_rig", "identify_session"]
 
 _PLANT_TOPIC = "plant/description"
 _DESIGN_TOPIC = "excitation/design"
@@ -410,6 +411,129 @@ def refit_parameters(summary: Mapping[str, Any], rig: Rig, freq_hz: np.ndarray, 
     return {k: float(upd.parameters[k]) for k in free}
 
 
+@dataclass(frozen=True)
+class FrfFit:
+    """The common-denominator model of an FRF as identify fits it, and what the fit was weighted by.
+
+    Attributes:
+        fit: the fit at the chosen order (:class:`ambid.fit.FitResult`).
+        order, order_rule: the order and how it was chosen.
+        diagram: the stabilisation diagram the order was chosen on.
+        band_hz: (low, high) of the FRF's lines [Hz].
+        delay_s: the known delay fitted with the model: half a sample (the zero-order hold) [s].
+        modes: the in-band complex pole pairs (:class:`ambid.fit.Mode`), by frequency.
+        mode_rows: per mode, what identify prints and records: freq_hz, damping, stable (found again
+            within 1 % at the next lower order), their 95 % intervals (freq_hz_ci95, damping_ci95, ...),
+            and for a rotor's 4 x 4 x/y matrix whirl and forward_share.
+        real_rows: the real poles: pole_hz (signed, > 0 unstable), unstable.
+        var, var_kind: the line variance the intervals are read from, and what it is (None: no variance).
+        band_var: the variance of the printed +-2 sigma band.
+        weights, weights_kind: the variance the fit is weighted by, and what it is.
+        row_cov: the covariance of a row's entries (the indirect estimator), or None.
+        realisations: (M, L, Ny, Nu) the realisations' FRFs whose scatter joins the intervals, or None.
+    """
+
+    fit: FitResult
+    order: int
+    order_rule: str
+    diagram: StabilisationDiagram
+    band_hz: tuple[float, float]
+    delay_s: float
+    modes: list
+    mode_rows: list[dict]
+    real_rows: list[dict]
+    var: np.ndarray | None
+    var_kind: str
+    band_var: np.ndarray
+    weights: np.ndarray | None
+    weights_kind: str
+    row_cov: np.ndarray | None
+    realisations: np.ndarray | None
+
+
+def fit_frf(frf: FrfResult, sample_rate_hz: float, order: int | None = None, *, max_order: int = 32,
+            order_penalty: float = 2.0) -> FrfFit:
+    """The common-denominator fit of an FRF, as :func:`identify_session` makes it (steps 2-3 of the module
+    docstring): order selection on the stabilisation diagram unless ``order`` is given, a known delay of
+    half a sample, the weights and interval covariance of the FRF's variance.
+
+    Args:
+        frf: the estimate (:func:`ambid.frf.offline.frf_from_session`).
+        sample_rate_hz: the measurement's sample rate [Hz].
+        order: model order; None selects it (:func:`select_order`).
+        max_order: highest order in the stabilisation diagram.
+        order_penalty: criterion weight per parameter of the order rule (2: Akaike).
+
+    Raises:
+        ValueError: too few lines for a parametric fit.
+    """
+    f = frf.freq_hz
+    band = (float(f.min()), float(f.max()))
+    var, var_kind = _fit_variance(frf)
+    # the printed +-2 sigma band: the same variance, pooled over the inputs of an output (one output's
+    # noise and distortion reach every input's column alike): 2 (M - 1) Nu degrees of freedom instead of
+    # 2 (M - 1), so that with M = 3 the band covers 96 % of the lines, not 89 %
+    band_var = frf.var_total if var is None else var
+    # the indirect estimator's errors are correlated along a row (U^-1 mixes the experiments); the
+    # intervals of the modes and parameters take that in (a sandwich with this covariance)
+    row_cov = (row_covariance(var, frf.sensitivity) if var is not None and frf.estimator == "indirect"
+               and np.all(np.isfinite(frf.sensitivity)) else None)
+    # and the realisations' own scatter, where it is wider (distortion coherent over the lines)
+    realisations = (frf.frf_realisations if row_cov is not None and frf.frf_realisations is not None
+                    and len(frf.frf_realisations) >= 2 else None)
+    # the fits weight by a variance that does not follow the realisations' scatter their intervals are read from
+    w_var, w_kind = _weight_variance(frf, var, var_kind)
+
+    # --- parametric fit ---------------------------------------------------------------
+    fit_delay = (1.0 / sample_rate_hz) / 2  # the zero-order hold: half a sample
+    labels = dict(input_names=frf.input_names, output_names=frf.output_names,
+                  input_units=("A",) * len(frf.input_names), output_units=("m",) * len(frf.output_names))
+    top = min(max_order, f.size - 1)
+    orders = list(range(2, top + 1, 2))
+    if not orders:
+        raise ValueError(f"{f.size} lines are too few for a parametric fit; excite more lines")
+    diagram = stabilisation_diagram(f, frf.frf, w_var, orders=orders, delay_s=fit_delay)
+    rule = (f"smallest chi2 + {order_penalty:g} p among orders with stable, positively damped in-band modes")
+    if order is None:
+        order = select_order(diagram, band, f.size, frf.frf.shape[1] * frf.frf.shape[2], w_var is not None,
+                             order_penalty)
+    else:
+        rule = "given"
+    fit: FitResult = fit_common_denominator(f, frf.frf, w_var, order=int(order), delay_s=fit_delay,
+                                            row_covariance=row_cov, realisations=realisations, **labels)
+    summary_modes = modal_summary(fit.model)
+    prev = diagram.orders[diagram.orders < order]
+    prev_poles = diagram.poles_of(int(prev[-1])) if prev.size else np.zeros(0, complex)
+    modes = [m for m in summary_modes.modes if band[0] <= m.freq_hz <= band[1]]
+    mode_rows = [dict(freq_hz=m.freq_hz, damping=m.damping,
+                      stable=bool(prev_poles.size and np.min(np.abs(np.abs(prev_poles) / (2 * np.pi) - m.freq_hz))
+                                  <= 0.01 * m.freq_hz), **_mode_interval(fit, m.freq_hz, m.damping))
+                 for m in modes]
+    real_rows = [dict(pole_hz=r.pole_rad_s / (2 * np.pi), unstable=r.unstable) for r in summary_modes.real_poles]
+    # a rotor's x/y matrix (4 x 4, AXES order): forward and backward whirl told apart
+    if frf.frf.shape[1:] == (4, 4):
+        for m, row in zip(modes, mode_rows):
+            k = int(np.argmin(np.abs(fit.model.poles - m.pole_rad_s)))
+            row["whirl"], row["forward_share"] = whirl_of_residue(fit.model.residues[k])
+    return FrfFit(fit, int(order), rule, diagram, band, fit_delay, modes, mode_rows, real_rows, var, var_kind,
+                  band_var, w_var, w_kind, row_cov, realisations)
+
+
+def update_rig(rig: Rig, frf: FrfResult, fitted: FrfFit, dt_s: float, nominal: Mapping[str, float] | None = None,
+               free: Sequence[str] | None = None) -> tuple[PhysicalUpdate | None, str | None, list[str]]:
+    """The physical-model update of ``rig`` to an FRF (step 4 of the module docstring), weighted as the fit
+    ``fitted`` was: the MAP estimate with ``rig``'s values (``nominal`` replacing some) and tolerances as
+    priors, started from the data and ``fitted``'s stable modes, a support mode at a stable fitted mode the
+    rig lacks.
+
+    Returns:
+        (the update or None, why not or None, notes).
+    """
+    stable = [m for m, row in zip(fitted.modes, fitted.mode_rows) if row["stable"]]
+    return _update(rig, frf, fitted.weights, fitted.band_hz, stable, dt_s, nominal, free, fitted.row_cov,
+                   fitted.realisations)
+
+
 def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, estimator: str = "indirect",
                      order: int | None = None, *, experiment_id: str | None = None,
                      rig: Rig | str | os.PathLike | Mapping | None = None, max_order: int = 32,
@@ -484,57 +608,13 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     design: ExcitationDesign = chosen["design"]
     dt_s = 1.0 / design.fs_hz
     f = frf.freq_hz
-    band = (float(f.min()), float(f.max()))
-    var, var_kind = _fit_variance(frf)
-    # the printed +-2 sigma band: the same variance, pooled over the inputs of an output (one output's
-    # noise and distortion reach every input's column alike): 2 (M - 1) Nu degrees of freedom instead of
-    # 2 (M - 1), so that with M = 3 the band covers 96 % of the lines, not 89 %
-    band_var = frf.var_total if var is None else var
-    # the indirect estimator's errors are correlated along a row (U^-1 mixes the experiments); the
-    # intervals of the modes and parameters take that in (a sandwich with this covariance)
-    row_cov = (row_covariance(var, frf.sensitivity) if var is not None and frf.estimator == "indirect"
-               and np.all(np.isfinite(frf.sensitivity)) else None)
-    # and the realisations' own scatter, where it is wider (distortion coherent over the lines)
-    realisations = (frf.frf_realisations if row_cov is not None and frf.frf_realisations is not None
-                    and len(frf.frf_realisations) >= 2 else None)
-    # the fits weight by a variance that does not follow the realisations' scatter their intervals are read from
-    w_var, w_kind = _weight_variance(frf, var, var_kind)
     if frf.gaps:
         notes.append(f"{len(frf.gaps)} gap(s) in the measurement; the periods they touch were left out")
-
-    # --- parametric fit ---------------------------------------------------------------
-    fit_delay = dt_s / 2
-    labels = dict(input_names=frf.input_names, output_names=frf.output_names,
-                  input_units=("A",) * len(frf.input_names), output_units=("m",) * len(frf.output_names))
-    top = min(max_order, f.size - 1)
-    orders = list(range(2, top + 1, 2))
-    if not orders:
-        raise ValueError(f"{f.size} lines are too few for a parametric fit; excite more lines")
-    diagram = stabilisation_diagram(f, frf.frf, w_var, orders=orders, delay_s=fit_delay)
-    rule = (f"smallest chi2 + {order_penalty:g} p among orders with stable, positively damped in-band modes")
-    if order is None:
-        order = select_order(diagram, band, f.size, frf.frf.shape[1] * frf.frf.shape[2], w_var is not None,
-                             order_penalty)
-    else:
-        rule = "given"
-    fit: FitResult = fit_common_denominator(f, frf.frf, w_var, order=int(order), delay_s=fit_delay,
-                                            row_covariance=row_cov, realisations=realisations, **labels)
-    summary_modes = modal_summary(fit.model)
-    prev = diagram.orders[diagram.orders < order]
-    prev_poles = diagram.poles_of(int(prev[-1])) if prev.size else np.zeros(0, complex)
-    modes = [m for m in summary_modes.modes if band[0] <= m.freq_hz <= band[1]]
-    mode_rows = [dict(freq_hz=m.freq_hz, damping=m.damping,
-                      stable=bool(prev_poles.size and np.min(np.abs(np.abs(prev_poles) / (2 * np.pi) - m.freq_hz))
-                                  <= 0.01 * m.freq_hz), **_mode_interval(fit, m.freq_hz, m.damping))
-                 for m in modes]
-    real_rows = [dict(pole_hz=r.pole_rad_s / (2 * np.pi), unstable=r.unstable) for r in summary_modes.real_poles]
+    mf = fit_frf(frf, design.fs_hz, order, max_order=max_order, order_penalty=order_penalty)
+    var, var_kind, band_var, w_var, w_kind = mf.var, mf.var_kind, mf.band_var, mf.weights, mf.weights_kind
+    order, fit, modes, mode_rows, band, diagram = mf.order, mf.fit, mf.modes, mf.mode_rows, mf.band_hz, mf.diagram
     # a rotor's x/y matrix (4 x 4, AXES order): forward and backward whirl told apart
-    rotor_axes = frf.frf.shape[1:] == (4, 4)
-    dfrf = directional_frf(f, frf.frf, var) if rotor_axes else None
-    if rotor_axes:
-        for m, row in zip(modes, mode_rows):
-            k = int(np.argmin(np.abs(fit.model.poles - m.pole_rad_s)))
-            row["whirl"], row["forward_share"] = whirl_of_residue(fit.model.residues[k])
+    dfrf = directional_frf(f, frf.frf, var) if frf.frf.shape[1:] == (4, 4) else None
     save_model_npz(out / "model.npz", fit.model)
     save_model_json(out / "model.json", fit.model)
 
@@ -585,9 +665,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     upd: PhysicalUpdate | None = None
     update_error = None
     if update and the_rig is not None:
-        stable = [m for m, row in zip(modes, mode_rows) if row["stable"]]
-        upd, update_error, update_notes = _update(the_rig, frf, w_var, band, stable, dt_s, nominal,
-                                                  update_free, row_cov, realisations)
+        upd, update_error, update_notes = update_rig(the_rig, frf, mf, dt_s, nominal, update_free)
         notes.extend(update_notes)
         if update_error:
             notes.append(f"model updating failed: {update_error}")
@@ -666,9 +744,9 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         band_hz=list(band), inputs=list(frf.input_names), outputs=list(frf.output_names),
         controller=(recorded or (None, None))[1],
         simulated=simulated, frf_error=frf_error, noise=noise,
-        fit=dict(order=int(order), order_rule=rule, chi2_per_dof=fit.chi2_per_dof, delay_s=fit_delay,
+        fit=dict(order=int(order), order_rule=mf.order_rule, chi2_per_dof=fit.chi2_per_dof, delay_s=mf.delay_s,
                  weights=w_kind, orders_tried=diagram.orders, chi2_per_dof_by_order=diagram.chi2_per_dof,
-                 modes=mode_rows, real_poles=real_rows, refine_message=fit.message),
+                 modes=mode_rows, real_poles=mf.real_rows, refine_message=fit.message),
         intervals=dict(
             noise_only=[] if var is not None and var_kind.startswith("var_total") else
             ["frf band", "parameters", "modes"],
