@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import time
 from dataclasses import dataclass, field
+from typing import Callable
 
 from ambid.control.kinds import ControllerDesign
 from ambid.plant.rig import Rig
@@ -32,6 +33,7 @@ class GraphConfig:
     rig: Rig | None = None
     controller_design: ControllerDesign | None = None
     session: int = 0  # the session's id (docs/sessions.md); 0: open nodes
+    report_foreign: Callable[[dict], None] | None = None  # told the foreign publishers found before the start
 
 
 def session_domain_id() -> int:
@@ -59,6 +61,7 @@ def run_composed(cfg: GraphConfig) -> dict:
     executor = EventsExecutor(context=context)
     nodes = []
     try:
+        foreign = preflight(executor, cfg.namespace, context, cfg.report_foreign)
         session = {"session": cfg.session}
         plant = PlantSim(namespace=cfg.namespace, context=context, rig=cfg.rig, parameter_overrides=overrides(
             {"sim_seconds": float(cfg.sim_seconds), **cfg.plant, **session}))
@@ -69,7 +72,7 @@ def run_composed(cfg: GraphConfig) -> dict:
         for n in nodes:
             executor.add_node(n)
         spin_until_done(executor, plant.finished, context)
-        return {**plant.finished.result(), "layout": "composed"}
+        return {**plant.finished.result(), "layout": "composed", "foreign_publishers": foreign}
     finally:
         executor.shutdown()
         for n in nodes:
@@ -77,35 +80,36 @@ def run_composed(cfg: GraphConfig) -> dict:
         rclpy.shutdown(context=context)
 
 
-def foreign_publishers(namespace: str) -> dict[str, list[str]]:
+def preflight(executor, namespace: str, context, report: Callable[[dict], None] | None = None) -> dict[str, list[str]]:
     """{topic: [publishers named]} already on the rig's topics before its session starts (a rig next door, a
-    replayed recording, a script left running), on this process's domain: a listener waits for discovery to
-    settle (:func:`wait_for_discovery`, 1-3 s). The session runs unaffected by them (every node acts only on its session's
-    messages); the command names them before it starts anything."""
+    replayed recording, a script left running), found in the session's own ``context`` before any of its nodes
+    exists: a listener waits for discovery to settle (:func:`wait_for_discovery`, 1-3 s), so the session's
+    participant knows them from then on and its nodes hear them from their first message. The session runs
+    unaffected by them (every node acts only on its session's messages); ``report(found)`` names them at
+    once (the command's one line). Without ``report`` (a study's sessions: campaign, validate, bench) nobody
+    asks: no wait, {}."""
+    if report is None:
+        return {}
     import rclpy
-    from rclpy.experimental import EventsExecutor
 
     from ambid_nodes.watch import SESSION_TOPICS
 
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=session_domain_id())
-    executor = EventsExecutor(context=context)
     probe = rclpy.create_node("session_preflight", namespace=namespace, context=context)
     executor.add_node(probe)
     try:
         wait_for_discovery(executor, probe)
         found = {}
-        for t in SESSION_TOPICS:  # nothing of the session exists yet: every publisher there is foreign
+        for t in SESSION_TOPICS:  # nothing of the session publishes yet: every publisher there is foreign
             topic = probe.resolve_topic_name(t)
             names = sorted({f"{i.node_namespace.rstrip('/')}/{i.node_name}"
                             for i in probe.get_publishers_info_by_topic(topic)})
             if names:
                 found[topic] = names
-        return found
     finally:
-        executor.shutdown()
+        executor.remove_node(probe)
         probe.destroy_node()
-        rclpy.shutdown(context=context)
+    report(found)
+    return found
 
 
 def wait_for_discovery(executor, node, least_s: float = 1.0, most_s: float = 3.0, still_s: float = 0.5) -> None:
@@ -138,6 +142,7 @@ def run_processes(cfg: GraphConfig) -> dict:
     n_total = int(round(cfg.sim_seconds / rig.dt))
     with supervised(cfg.namespace, cfg.session, rig.backup_clearance_m, n_total // 2,
                     int(round(0.5 / rig.dt))) as (executor, sup, watch):
+        foreign = preflight(executor, cfg.namespace, watch.context, cfg.report_foreign)
         session = {"session": cfg.session}
         plant = sup.start("plant_sim", {"sim_seconds": float(cfg.sim_seconds), **cfg.plant, **session},
                           finishes=True)
@@ -153,7 +158,7 @@ def run_processes(cfg: GraphConfig) -> dict:
             raise RuntimeError(f"plant_sim exited with code {plant.proc.returncode} without a summary")
         if death is not None:
             summary = died_summary(death, summary, watch, rig.dt, time.perf_counter() - wall0)
-        return {**summary, "layout": "processes"}
+        return {**summary, "layout": "processes", "foreign_publishers": foreign}
 
 
 def died_summary(death, summary: dict | None, watch, dt: float, wall_s: float) -> dict:
@@ -200,6 +205,7 @@ def run_hardware(cfg: GraphConfig, target: str, local_port: int = 0) -> dict:
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=session_domain_id())
     executor = EventsExecutor(context=context)
+    foreign = preflight(executor, cfg.namespace, context, cfg.report_foreign)
     params = {"target_host": host, "target_port": port, "local_port": local_port, **cfg.plant, "session": cfg.session}
     bridge = HardwareBridge(namespace=cfg.namespace, context=context, rig=cfg.rig,
                             parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
@@ -217,7 +223,8 @@ def run_hardware(cfg: GraphConfig, target: str, local_port: int = 0) -> dict:
             executor.spin_until_future_complete(bridge.finished, timeout_sec=2.0)
         figures = bridge.figures()
         return {**figures, **watch.monitor.figures(), "layout": f"hardware bridge to {target}",
-                "samples_per_wall_s": figures["samples_published"] / max(figures["wall_s"], 1e-9)}
+                "samples_per_wall_s": figures["samples_published"] / max(figures["wall_s"], 1e-9),
+                "foreign_publishers": foreign}
     finally:
         executor.shutdown()
         watch.destroy_node()

@@ -23,6 +23,7 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Callable
 
 from ambid.control.kinds import ControllerDesign, checked_design
 from ambid.excitation import ExcitationDesign
@@ -32,7 +33,7 @@ from ambid.jsonable import to_jsonable
 from ambid.plant.rig import Rig, load_rig, make_rig
 from ambid.session.identity import format_session, new_session_id
 
-from ambid_nodes.graph import DEFAULT_NAMESPACE, session_domain_id
+from ambid_nodes.graph import DEFAULT_NAMESPACE, preflight, session_domain_id
 from ambid_nodes.node_main import gc_frozen
 
 LIFT_OFF_S = 0.5  # levitate and settle before the experiment starts
@@ -59,7 +60,6 @@ class SessionConfig:
     local_port: int = 0     # with hardware: the bridge's UDP port (0: any)
     true_model: str = ""    # with hardware: the C target's model file, the truth the FRF is compared with
     session: int = 0        # the session's id (docs/sessions.md); 0: open nodes
-    foreign_publishers: dict = field(default_factory=dict)  # found on the rig's topics before it started
     processes: bool = False  # every node its own process, supervised
     extra: dict = field(default_factory=dict)
 
@@ -151,10 +151,12 @@ def session_samples(design: ExcitationDesign, fs: float) -> tuple[int, int]:
     return start_index, start_index + design.total_samples + 1000
 
 
-def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None) -> dict:
+def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None,
+                         report_foreign: Callable[[dict], None] | None = None) -> dict:
     """Run the whole graph in this process; returns the run's facts (no offline analysis).
 
     ``plan`` (default :func:`plan_session`) is what the nodes run: one rig, one controller, one design.
+    ``report_foreign`` is told the foreign publishers found on the rig's topics before anything starts.
     """
     import rclpy
     from rclpy.experimental import EventsExecutor
@@ -198,6 +200,7 @@ def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None) ->
             executor.spin_once(timeout_sec=0.05)
 
     try:
+        foreign = preflight(executor, cfg.namespace, context, report_foreign)
         session = {"session": cfg.session or new_session_id()}  # every session has an id, given or fresh
         ns = dict(namespace=cfg.namespace, context=context)
         if cfg.hardware:
@@ -277,7 +280,7 @@ def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None) ->
         rec = recorder.close()
         return run_facts(answer, plant_summary, rec, _live_figures(consumer.results[answer.experiment_id]),
                          time.perf_counter() - wall0, f"hardware bridge to {cfg.hardware}" if cfg.hardware
-                         else "composed", design, mcap_path)
+                         else "composed", design, mcap_path, foreign)
     finally:
         executor.shutdown()
         for n in nodes:
@@ -286,7 +289,7 @@ def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None) ->
 
 
 def run_facts(answer, plant_summary: dict, recorder: dict, live_frf: dict, wall_s: float, layout: str,
-              design: ExcitationDesign, mcap_path) -> dict:
+              design: ExcitationDesign, mcap_path, foreign: dict) -> dict:
     """What a session's run returns for its offline identification (either layout)."""
     return {
         "experiment_id": answer.experiment_id,
@@ -301,6 +304,7 @@ def run_facts(answer, plant_summary: dict, recorder: dict, live_frf: dict, wall_
         "layout": layout,
         "design": design,
         "mcap_path": str(mcap_path),
+        "foreign_publishers": foreign,
     }
 
 
@@ -336,7 +340,8 @@ def _jsonable(cfg: SessionConfig) -> dict:
     return d
 
 
-def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None) -> dict:
+def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None,
+                 report_foreign: Callable[[dict], None] | None = None) -> dict:
     """The whole job: the recorded session on the graph, then the offline identification of it.
 
     Writes ``out_dir/session.mcap``, ``out_dir/summary.json`` and ``out_dir/report/``.
@@ -346,9 +351,9 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None) -> dict:
     if cfg.processes:
         from ambid_nodes.session_processes import run_session_processes
 
-        run = run_session_processes(cfg, plan)
+        run = run_session_processes(cfg, plan, report_foreign)
     else:
-        run = run_session_composed(cfg, plan)
+        run = run_session_composed(cfg, plan, report_foreign)
     design: ExcitationDesign = run.pop("design")
     true_model = None
     if cfg.true_model:
@@ -386,7 +391,7 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None) -> dict:
         **offline,
         "recording": {"path": run["mcap_path"], "messages": rec.get("messages", rec.get("message_count")),
                       "complete": rec.get("complete", True)},
-        "session": {"id": format_session(cfg.session), "foreign_publishers": cfg.foreign_publishers},
+        "session": {"id": format_session(cfg.session), "foreign_publishers": run["foreign_publishers"]},
     }
     (cfg.out_dir / "summary.json").write_text(json.dumps(to_jsonable(summary), indent=2))
     return summary

@@ -18,7 +18,7 @@ import time
 from ambid.session import scan_session
 from ambid.session.identity import new_session_id
 
-from ambid_nodes.graph import died_summary
+from ambid_nodes.graph import died_summary, preflight
 from ambid_nodes.session import (NodeDied, ProgressBar, SessionConfig, SessionPlan, _hardware_summary, _jsonable,
                                  plan_session, run_facts, session_samples)
 from ambid_nodes.supervisor import (SETTLE_S, NodeGone, Supervisor, spin, stopped_words, supervise, supervised,
@@ -29,7 +29,7 @@ RECORDER_CATCH_UP_S = 10.0  # at the end, the recorder's time to record the last
 RECORDER_STATUS_S = 0.25  # its status period here: how soon it says so
 
 
-def run_session_processes(cfg: SessionConfig, plan: SessionPlan | None = None) -> dict:
+def run_session_processes(cfg: SessionConfig, plan: SessionPlan | None = None, report_foreign=None) -> dict:
     """Run the session's nodes as processes; returns the run's facts (no offline analysis), as the composed
     run does. NodeDied if a node died before the run was over; RuntimeError/ValueError as the composed run."""
     from ambid_msgs.srv import StartExperiment
@@ -50,6 +50,7 @@ def run_session_processes(cfg: SessionConfig, plan: SessionPlan | None = None) -
         def spin_until(pred, timeout_s: float, what: str) -> None:
             wait_for(executor, sup, watch, pred, timeout_s, what)
 
+        foreign = preflight(executor, cfg.namespace, watch.context, report_foreign)
         session = {"session": session_id}
         rig_param = {"rig_file": cfg.rig_file} if cfg.rig_file else {}
         try:
@@ -112,7 +113,7 @@ def run_session_processes(cfg: SessionConfig, plan: SessionPlan | None = None) -
                                    f"the recording is in {mcap_path}")
             layout = f"processes, hardware bridge to {cfg.hardware}" if cfg.hardware else "processes"
             return run_facts(answer, plant_summary, rec, _live_figures(json.loads(frf.text)),
-                             time.perf_counter() - wall0, layout, design, mcap_path)
+                             time.perf_counter() - wall0, layout, design, mcap_path, foreign)
         except NodeGone as died:
             bar.close()
             raise _node_died(died.death, sup, executor, watch, mcap_path, plant_name, rig.dt,

@@ -10,8 +10,8 @@ from ambid_cli.commands.inputs import (add_run_options, address, checked_control
                                          no_controller_on_hardware, positive_float, rig_file)
 from ambid_cli.commands.session_report import death_line, levitation_lines, print_foreign, session_of, session_words
 
-from ambid_nodes.graph import (DEFAULT_NAMESPACE, GraphConfig, foreign_publishers, run_composed, run_hardware,
-                               run_processes, session_domain_id)
+from ambid_nodes.graph import (DEFAULT_NAMESPACE, GraphConfig, run_composed, run_hardware, run_processes,
+                               session_domain_id)
 
 HELP = "run the plant and controller graph on the simulated rig"
 
@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     layout += f", {ctrl.kind.upper()} controller"
     print(f"ambid graph: {session_words(session)}, plant_sim + position_controller in {layout}, namespace "
           f"{args.namespace}, ROS_DOMAIN_ID {session_domain_id()}, {args.sim_seconds:g} s simulated", flush=True)
-    print_foreign("graph", foreign_publishers(args.namespace))
+    cfg.report_foreign = lambda found: print_foreign("graph", found)  # before anything starts
     try:
         summary = run_processes(cfg) if args.processes else run_composed(cfg)
     except KeyboardInterrupt:
@@ -87,7 +87,7 @@ def run_on_hardware(args: argparse.Namespace, rig) -> int:
     print(f"ambid graph: {session_words(session)}, hardware_bridge to the real-time target at {args.hardware}, "
           f"namespace {args.namespace}, ROS_DOMAIN_ID {session_domain_id()}, {args.sim_seconds:g} s of samples",
           flush=True)
-    print_foreign("graph", foreign_publishers(args.namespace))
+    cfg.report_foreign = lambda found: print_foreign("graph", found)
     try:
         f = run_hardware(cfg, args.hardware, args.local_port)
     except KeyboardInterrupt:

@@ -45,7 +45,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ambid_nodes.graph import foreign_publishers, session_domain_id
+    from ambid_nodes.graph import session_domain_id
     from ambid_nodes.session import NodeDied, SessionConfig, plan_session, run_identify
 
     spec = experiment_spec(args)
@@ -77,10 +77,8 @@ def run(args: argparse.Namespace) -> int:
     layout = "separate processes" if args.processes else "one process"
     print(f"ambid identify: {session_words(session)}, {layout}, namespace {args.namespace}, ROS_DOMAIN_ID "
           f"{session_domain_id()}", file=sys.stderr, flush=True)
-    cfg.foreign_publishers = foreign_publishers(args.namespace)  # looked for before anything starts
-    print_foreign("identify", cfg.foreign_publishers)
-    try:
-        summary = run_identify(cfg, plan)
+    try:  # the foreign publishers named before anything starts
+        summary = run_identify(cfg, plan, lambda found: print_foreign("identify", found))
     except KeyboardInterrupt:
         print("ambid identify: interrupted; the recording so far is in", args.out / "session.mcap", file=sys.stderr)
         return 130
