@@ -17,10 +17,9 @@ offsets from :func:`plant_offsets`)::
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
-from ambid.compiled import F8, VEC, add_columns
+from ambid.compiled import F8, VEC, add_columns, njit
 from ambid.plant.sensors import RUNOUT_HARMONICS
 
 # plant parameters, s[PAR_*]
@@ -53,7 +52,7 @@ N_EXTRA = 19  # v = [x (n); u[k-1] (4); u[k] (4); f (4); r_s (4); cos theta; sin
 N_OUT = 20  # M v = [x (n); u[k] (4); aux (16)][k+1]
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def plant_offsets(n: int) -> tuple[int, int, int]:
     """Offsets (v, mat, noise) in the plant work vector for n states (module docstring); the
     scratch lies between v and mat."""
@@ -81,7 +80,7 @@ def plant_work(m: np.ndarray, noise_rows: int) -> np.ndarray:
     return s
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _residual_axis(s: np.ndarray, j: int, i: float, g: float) -> float:
     """Eq. 2.14 minus its affine linearisation on axis j [N], current i [A], gap g [m].
 
@@ -95,7 +94,7 @@ def _residual_axis(s: np.ndarray, j: int, i: float, g: float) -> float:
     return kc * (ip * ip / (a * a) - im * im / (b * b)) - fc - ki * i - ks * g
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def magnet_residual(s: np.ndarray, cur: np.ndarray, gap: np.ndarray, out: np.ndarray) -> None:
     """The magnets' residual force per axis [N] into out (4,), for the currents cur (4,) [A] and
     gaps gap (4,) [m], with the parameters of the plant work vector s."""
@@ -103,7 +102,7 @@ def magnet_residual(s: np.ndarray, cur: np.ndarray, gap: np.ndarray, out: np.nda
         out[j] = _residual_axis(s, j, cur[j], gap[j])
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def add_runout(s: np.ndarray, c1: float, s1: float, y: np.ndarray, at: int) -> None:
     """Add the probes' runout at the rotor angle (cos theta, sin theta) = (c1, s1) to y[at:at + 4] [m]
     (the table in s)."""
@@ -116,7 +115,7 @@ def add_runout(s: np.ndarray, c1: float, s1: float, y: np.ndarray, at: int) -> N
 
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def plant_step(s: np.ndarray, u0: float, u1: float, u2: float,
                u3: float) -> tuple[float, float, float, float, bool, bool]:
     """One free-flight sample of the simulated plant with the current reference u [A] held.
