@@ -8,7 +8,7 @@ the session's ``frf_consumer``, so its final estimate is the session's), and
 estimates the FRF again after every period that completes a record (a
 period measured in all Ne experiments of an orthogonal design), the running
 realisation's records included. Blocks it never got (a live view may lose
-some: it subscribes best-effort, so that it can never slow the loop) are
+some: it keeps only the latest blocks, so that it can never slow the loop) are
 counted, and the periods they touch left out, as a gap is everywhere else.
 
 Channels are data: the outputs are the block's ``y_*`` channels, the inputs
@@ -19,6 +19,7 @@ Not thread-safe: one thread feeds it.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -61,6 +62,7 @@ class SessionFollower:
         self._shown_names: tuple[str, ...] = ()
         self._orbits: list[tuple[str, int, int, str, str]] = []
         self._records = 0
+        self._announce: list[Frame] = []
         self._next: int | None = None
         self._index = 0
         self._fs = 0.0
@@ -84,7 +86,7 @@ class SessionFollower:
         self._pending = (design, int(start_index), total)
         if self._names:
             self._start_stream()
-        return [self._progress()]
+        return self._announced() + [self._progress()]
 
     def block(self, first_index: int, sample_period_s: float, names: Sequence[str],
               data: np.ndarray) -> list[Frame]:
@@ -108,12 +110,22 @@ class SessionFollower:
             frames.append(orbit_frame(bearing, xn, yn, first_index, self._fs, data[:, xi], data[:, yi],
                                       self.orbit_points))
         frames += self._feed(first_index, sample_period_s, data)
-        return frames
+        return self._announced() + frames
+
+    def _announced(self) -> list[Frame]:
+        out, self._announce = self._announce, []
+        return out
 
     def status_message(self, node: str, state: int, sample_index: int, progress: float, received: int,
                        rejected: int, text: str, figures: Mapping[str, Any], t_ns: int) -> list[Frame]:
-        """A node's SessionStatus."""
-        return [status_frame(node, state, sample_index, progress, received, rejected, text, figures, t_ns)]
+        """A node's SessionStatus; ``figures`` as the message's keys and values (JSON text each)."""
+        parsed = {}
+        for k, v in figures.items():
+            try:
+                parsed[k] = json.loads(v) if isinstance(v, str) else v
+            except ValueError:
+                parsed[k] = v
+        return [status_frame(node, state, sample_index, progress, received, rejected, text, parsed, t_ns)]
 
     def event_message(self, node: str, severity: int, code: str, text: str, sample_index: int,
                       t_ns: int) -> list[Frame]:
@@ -153,6 +165,9 @@ class SessionFollower:
             u_names, r_names = match_inputs(design.input_names, inputs, refs)
             self.stream = FrfStream(design, outputs, u_names, r_names, start_index=start, total_samples=total)
             self._pick_columns()
+            # the channels of the estimates, advertised now: a client subscribes before the first estimate
+            self._announce = ([Frame(f"frf/{o}/{i}", "ambid.live.FrfEntry", None, 0) for o in outputs for i in u_names]
+                              + [Frame(f"levels/{o}", "ambid.live.Levels", None, 0) for o in outputs])
         except ValueError as exc:
             self.problems.append(f"experiment {self.experiment_id}: no live FRF: {exc}")
             self.stream = None

@@ -54,13 +54,13 @@ class Frame:
     Attributes:
         topic: topic below the server's prefix, e.g. ``"frf/y_a_x/u_a_x"``.
         schema_name: key of :data:`SCHEMAS`.
-        message: the JSON-safe message.
+        message: the JSON-safe message; None: the channel is only advertised (its messages come later).
         t_ns: session time of what it shows [ns] (sample index / fs).
     """
 
     topic: str
     schema_name: str
-    message: dict
+    message: dict | None
     t_ns: int
 
 
@@ -118,6 +118,17 @@ def _floats(x: np.ndarray | Iterable[float]) -> list:
 def _scalar(x: Any) -> float | None:
     x = float(x)
     return x if math.isfinite(x) else None
+
+
+def _safe(x: Any) -> Any:
+    """A JSON value with every non-finite float as None (status figures come from many nodes)."""
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, Mapping):
+        return {str(k): _safe(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_safe(v) for v in x]
+    return x
 
 
 def _db(x: np.ndarray) -> np.ndarray:
@@ -241,7 +252,7 @@ def status_frame(node: str, state: int, sample_index: int, progress: float, rece
     return Frame(f"status/{base}", "ambid.live.Status",
                  dict(node=node, state=name, t_s=t_ns * 1e-9, sample_index=int(sample_index),
                       progress=_scalar(progress), received=int(received), rejected=int(rejected), text=text,
-                      figures=dict(figures)), t_ns)
+                      figures=_safe(dict(figures))), t_ns)
 
 
 def event_frame(node: str, severity: int, code: str, text: str, sample_index: int, t_ns: int) -> Frame:

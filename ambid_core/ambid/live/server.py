@@ -200,11 +200,13 @@ class LiveServer:
                 return
 
     def _log(self, frame: Frame) -> None:
-        self.counts["frames"] += 1
-        self._latest[frame.topic] = frame
         channel = self._channels.get(frame.topic)
         if channel is None:
             channel = self._channel(frame)
+        if frame.message is None:   # advertised only
+            return
+        self.counts["frames"] += 1
+        self._latest[frame.topic] = frame
         if not channel.has_sinks():   # nobody subscribes: not even encoded
             return
         message = frame.message
