@@ -136,10 +136,14 @@ class LiveProcess:
         if is_stdout:
             self._lines.put(None)
 
-    def wait_ready(self, timeout_s: float = 30.0) -> str:
+    def wait_ready(self, timeout_s: float = 120.0) -> str:
         """Wait until the server listens; its URL. RuntimeError with the process's own words if it could not."""
         import queue
+        import subprocess
         import time
+
+        if self.url:
+            return self.url
 
         end = time.monotonic() + timeout_s
         while time.monotonic() < end:
@@ -152,7 +156,12 @@ class LiveProcess:
             if line.startswith("live view: "):
                 self.url = line[len("live view: "):]
                 return self.url
-        self.proc.wait(timeout=5)
+        try:
+            self.proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+            raise RuntimeError(f"the live view did not listen within {timeout_s:g} s") from None
         why = "; ".join(e.removeprefix("error: ") for e in self.errors) or f"exit code {self.proc.returncode}"
         raise RuntimeError(f"the live view did not start: {why}")
 

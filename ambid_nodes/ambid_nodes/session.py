@@ -218,7 +218,7 @@ def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None, li
         # the recorder and the consumer (and a live view) must hear the first measurement block
         listeners = 3
         if live is not None:
-            print(f"ambid identify: live view on {live.wait_ready()} (docs/live.md)", file=sys.stderr, flush=True)
+            print(f"ambid: live view on {live.wait_ready()} (docs/live.md)", file=sys.stderr, flush=True)
             listeners += 1
         spin_until(lambda: plant.pub_block.get_subscription_count() >= listeners, 30,
                    "recorder, consumer and generator" + (" and the live view" if live is not None else ""))
