@@ -20,7 +20,12 @@ lost, ...).
 from __future__ import annotations
 
 import json
+import os
+import queue
+import subprocess
 import sys
+import threading
+import time
 
 import numpy as np
 from ambid.excitation import ExcitationDesign
@@ -109,11 +114,6 @@ class LiveProcess:
     """
 
     def __init__(self, port: int, host: str, namespace: str, estimator: str, domain_id: int) -> None:
-        import os
-        import queue
-        import subprocess
-        import threading
-
         from ambid_nodes.graph import ros_args
 
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
@@ -136,23 +136,23 @@ class LiveProcess:
         if is_stdout:
             self._lines.put(None)
 
-    def wait_ready(self, timeout_s: float = 120.0) -> str:
-        """Wait until the server listens; its URL. RuntimeError with the process's own words if it could not."""
-        import queue
-        import subprocess
-        import time
-
-        if self.url:
-            return self.url
-
+    def _stdout(self, timeout_s: float):
+        """The process's output lines, until it closes its output or ``timeout_s`` passes."""
         end = time.monotonic() + timeout_s
-        while time.monotonic() < end:
+        while (left := end - time.monotonic()) > 0:
             try:
-                line = self._lines.get(timeout=0.1)
+                line = self._lines.get(timeout=min(left, 0.1))
             except queue.Empty:
                 continue
             if line is None:
-                break
+                return
+            yield line
+
+    def wait_ready(self, timeout_s: float = 120.0) -> str:
+        """Wait until the server listens; its URL. RuntimeError with the process's own words if it could not."""
+        if self.url:
+            return self.url
+        for line in self._stdout(timeout_s):
             if line.startswith("live view: "):
                 self.url = line[len("live view: "):]
                 return self.url
@@ -170,17 +170,9 @@ class LiveProcess:
         from ambid_nodes.graph import stop_processes
         from ambid_nodes.node_main import SUMMARY_PREFIX
 
-        import queue
-
         stop_processes([self.proc], grace_s=10.0)
         figures: dict = {}
-        while True:
-            try:
-                line = self._lines.get(timeout=5)
-            except queue.Empty:
-                break
-            if line is None:
-                break
+        for line in self._stdout(5.0):
             if line.startswith(SUMMARY_PREFIX):
                 figures = json.loads(line[len(SUMMARY_PREFIX):])
         return figures

@@ -65,17 +65,23 @@ def test_reference_models_are_used_only_for_their_own_inputs(session):
           session["reference"])
 
 
-def test_the_early_analysis_gives_the_recordings_numbers(session):
-    rec = read_session_inputs(session["path"])
-    early = EarlyAnalysis(session["root"] / "early", **OPTIONS)
+def _early(out, inputs, planned=None, freq_hz=None):
+    """The worker fed as identify feeds it: (first summary, how, final summary, notes)."""
+    early = EarlyAnalysis(out, **OPTIONS)
     try:
-        early.prepare(dataclasses.replace(rec, frf=None), session["design"].freq_hz, 4)
-        early.analyse(rec)
+        if planned is not None:
+            early.prepare(planned, freq_hz, 4)
+        early.analyse(inputs)
         early.recording_closed()
-        first, how = early.summary()
-        final, notes = early.result()
+        return (*early.summary(), *early.result())
     finally:
         early.close()
+
+
+def test_the_early_analysis_gives_the_recordings_numbers(session):
+    rec = read_session_inputs(session["path"])
+    first, how, final, notes = _early(session["root"] / "early", rec, dataclasses.replace(rec, frf=None),
+                                      session["design"].freq_hz)
     assert how["references_used"] and notes == []
     _same(first, session["reference"])
     _same(final, session["reference"])
@@ -85,14 +91,7 @@ def test_the_early_analysis_gives_the_recordings_numbers(session):
 def test_inputs_unlike_the_recording_are_analysed_again_from_it(session):
     rec = read_session_inputs(session["path"])
     wrong = dataclasses.replace(rec, frf=dataclasses.replace(rec.frf, frf=rec.frf.frf * 1.01))
-    early = EarlyAnalysis(session["root"] / "wrong", **OPTIONS)
-    try:
-        early.analyse(wrong)
-        early.recording_closed()
-        first, _ = early.summary()
-        final, notes = early.result()
-    finally:
-        early.close()
+    first, _, final, notes = _early(session["root"] / "wrong", wrong)
     assert first["frf_error"] != session["reference"]["frf_error"]   # what was shown first came from them
     assert notes and "analysed again from the recording" in notes[0]
     _same(final, session["reference"])

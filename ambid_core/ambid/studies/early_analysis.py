@@ -8,13 +8,14 @@
    the analysis compares with and the measurement does not change
    (:func:`ambid.studies.identification.reference_models`: the simulated rig's
    true models, the noise through its loop, the magnets' slopes at this
-   excitation, the controller between the lines), on a thread of lower
-   priority while the measurement runs on the other core. They are used only
-   if their key matches the inputs the session then recorded;
+   excitation, the controller between the lines) on a thread of its own while
+   the measurement runs on the other core. They are used only if their key
+   matches the inputs the session then recorded;
 2. :meth:`~EarlyAnalysis.analyse`, the moment the FRF consumer has the final
-   estimate (the last period measured): the worker fits, updates and compares
-   (:func:`ambid.studies.identification.identify_session` on those inputs)
-   while the caller closes the graph and the recording; :meth:`summary`
+   estimate (the last period measured): the worker fits and updates
+   (:func:`ambid.studies.identification.identify_session` on those inputs,
+   the reference models waited for only after the update) while the caller
+   closes the graph and the recording; :meth:`summary`
    returns the summary before the report is written;
 3. :meth:`~EarlyAnalysis.recording_closed`: the worker reads the closed
    recording once (its inputs' digest must equal the early ones: else it
@@ -135,10 +136,6 @@ def _worker(conn, out_dir: str, options: dict) -> None:
     prep: threading.Thread | None = None
 
     def prepare(inputs: SessionInputs, freq_hz, n_outputs: int) -> None:
-        try:   # below the analysis and far below the loop: this thread only
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), os.getpriority(os.PRIO_PROCESS, 0) + 5)
-        except (AttributeError, OSError):
-            pass
         t0 = time.perf_counter()
         try:
             refs["models"] = reference_models(inputs, freq_hz, n_outputs)
@@ -179,14 +176,19 @@ def _analyse(conn, out_dir: str, options: dict, inputs: SessionInputs, prep: thr
         if recorded.digest() != inputs.digest():
             raise _Mismatch
 
-    t0 = time.perf_counter()
     waited = 0.0
-    try:
+
+    def references():   # asked for once the fit and the update are done: they may still be in the making
+        nonlocal waited
+        t0 = time.perf_counter()
         if prep is not None:
             prep.join()
         waited = time.perf_counter() - t0
+        return refs.get("models")
+
+    try:
         try:
-            summary = identify_session(inputs.path, out_dir, inputs=inputs, references=refs.get("models"),
+            summary = identify_session(inputs.path, out_dir, inputs=inputs, references=references,
                                        on_summary=on_summary, **options)
         except _Mismatch:
             notes.append("the session's inputs seen while it ran differ from its recording's: analysed again from "

@@ -388,7 +388,8 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
                      update_start: Mapping[str, float] | None = None,
                      update_free: Sequence[str] | None = None, report: bool = True,
                      recover: bool = False, true_model: StateSpace | None = None,
-                     inputs: SessionInputs | None = None, references: ReferenceModels | None = None,
+                     inputs: SessionInputs | None = None,
+                     references: ReferenceModels | Callable[[], ReferenceModels | None] | None = None,
                      on_summary: Callable[[dict], None] | None = None) -> dict:
     """Identify the rig from one experiment of a recorded session (module docstring).
 
@@ -419,8 +420,10 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
             modes are compared with it, as with a simulated session's true rig.
         inputs: what the session holds (:func:`read_session_inputs`), when the caller has it already (e.g.
             from the running graph, before the recording is closed); default read from ``mcap_path``.
-        references: :func:`reference_models` computed ahead (e.g. while the session ran); used when its
-            key matches these inputs (and no ``rig`` is given), else computed here: the numbers are the same.
+        references: :func:`reference_models` computed ahead (e.g. while the session ran), or a function
+            returning them, called once the fit and the update are done (so they can still be in the making
+            meanwhile); used when their key matches these inputs (and no ``rig`` is given), else computed
+            here: the numbers are the same.
         on_summary: called with the summary before the report is written, so that a caller can show the
             results without waiting for the figures.
 
@@ -525,9 +528,23 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     modes_vs_true: list[dict] = []
     if the_rig is None:
         notes.append("no rig in the session and none given: no nominal model, no updating")
+    if true_model is None and the_rig is not None and not simulated:
+        notes.append("not a simulated session: no true model to compare with")
+    upd: PhysicalUpdate | None = None
+    update_error = None
+    if update and the_rig is not None:
+        stable = [m for m, row in zip(modes, mode_rows) if row["stable"]]
+        upd, update_error, update_notes = _update(the_rig, frf, w_var, band, stable, dt_s, update_start,
+                                                  update_free, row_cov, realisations)
+        notes.extend(update_notes)
+        if update_error:
+            notes.append(f"model updating failed: {update_error}")
+
+    # the truths, after the fit and the update: reference models still in the making meanwhile are waited for
+    # only now
     ny = len(frf.output_names)
-    refs = references if (references is not None and rig is None
-                          and references.key == reference_key(inputs, f, ny)) else None
+    given = references() if callable(references) else references
+    refs = given if (given is not None and rig is None and given.key == reference_key(inputs, f, ny)) else None
     if refs is None:
         refs = reference_models(inputs, f, ny, the_rig if rig is not None and simulated else None)
     if simulated and the_rig is not None:
@@ -543,22 +560,11 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         physical = [(m.freq_hz, m.damping) for m, row in zip(modes, mode_rows) if row["stable"] and m.damping > 0]
         modes_vs_true = compare_modes(physical or [(m.freq_hz, m.damping) for m in modes], true_modes(s_poles, band),
                                       design.fs_hz / design.n_per_period)
-    elif the_rig is not None and not simulated:
-        notes.append("not a simulated session: no true model to compare with")
     for row in modes_vs_true:
         # one true and one fitted mode: the fitted mode's interval against the truth (a cluster's
         # mean has none: its members' covariance is not kept)
         if row["n_true"] == 1 and row["n_fitted"] == 1:
             row.update(_mode_interval(fit, row["freq_hz"], row["damping"]))
-    upd: PhysicalUpdate | None = None
-    update_error = None
-    if update and the_rig is not None:
-        stable = [m for m, row in zip(modes, mode_rows) if row["stable"]]
-        upd, update_error, update_notes = _update(the_rig, frf, w_var, band, stable, dt_s, update_start,
-                                                  update_free, row_cov, realisations)
-        notes.extend(update_notes)
-        if update_error:
-            notes.append(f"model updating failed: {update_error}")
 
     truths = {} if true_g is None else {"true_frf": true_g}
     if true_g_x is not None:
