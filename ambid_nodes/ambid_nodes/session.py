@@ -404,6 +404,8 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None, on_headlin
                 early.recording_closed()
                 first, how = early.summary()
                 shown.update(how, early=True)
+                if run.get("final_estimate_at") is not None:
+                    shown["analysis_started_after_last_period_s"] = early.times["analyse"] - run["final_estimate_at"]
                 show(first)
                 offline, notes = early.result()
             except EarlyAnalysisFailed as exc:
@@ -443,8 +445,8 @@ def _timing(run: dict, shown: dict) -> dict:
     t0 = run.get("final_estimate_at")
     if t0 is None:
         return {}
-    out = {k: shown[k] for k in ("early", "references_s", "references_used", "waited_for_references_s")
-           if k in shown}
+    out = {k: shown[k] for k in ("early", "references_s", "references_used", "waited_for_references_s",
+                                 "analysis_s", "analysis_cpu_s", "analysis_started_after_last_period_s") if k in shown}
     if "at" in shown:
         out["headline_after_last_period_s"] = shown["at"] - t0
     if "done" in shown:

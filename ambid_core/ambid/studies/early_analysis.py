@@ -163,12 +163,16 @@ def _analyse(conn, out_dir: str, options: dict, inputs: SessionInputs, prep: thr
     class _Mismatch(Exception):
         pass
 
+    started, cpu0 = time.perf_counter(), time.process_time()
+
     def on_summary(summary: dict) -> None:
         models = refs.get("models")
         used = models is not None and models.key == reference_key(inputs, inputs.frf.freq_hz,
                                                                     len(inputs.frf.output_names))
         conn.send(("summary", summary, {"references_s": refs.get("seconds"), "references_used": used,
-                                        "waited_for_references_s": waited}))
+                                        "waited_for_references_s": waited,
+                                        "analysis_s": time.perf_counter() - started,
+                                        "analysis_cpu_s": time.process_time() - cpu0}))
         while conn.recv()[0] != "closed":
             pass
         recorded = read_session_inputs(inputs.path, options.get("estimator", "indirect"),
