@@ -126,4 +126,4 @@ def analysis_figures(work: Path, overrides: dict) -> dict:
     same = all(before.get(k) == shown.get("summary", {}).get(k)
                for k in ("frf_error", "fit", "update", "sensitivity", "noise", "modes_vs_true"))
     return {**timing, "before_s": before_s, "before_parts_s": parts, "same_numbers": same,
-            "state": summary.get("state")}
+            "state": summary.get("state"), "session_samples_per_s": summary.get("simulated_samples_per_wall_s")}

@@ -150,6 +150,7 @@ def _analysis_section(sizes: dict, work: Path, figures: list) -> dict:
                  "2 s"),
         _figure("analysis after the last period: report written", res.get("report_after_last_period_s"), "s"),
         _figure("the same recording analysed after the session (the old path)", res["before_s"], "s"),
+        _figure("identify session beside its analysis process: samples/s", res["session_samples_per_s"], "1/s"),
     ]
     return res
 
