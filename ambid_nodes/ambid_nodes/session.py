@@ -383,7 +383,8 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None, on_headlin
         true_model = read_target_model(cfg.true_model).plant
     options = dict(estimator=cfg.estimator, true_model=true_model)
     live = start_live(cfg)
-    early = EarlyAnalysis(cfg.out_dir, **options)
+    # with a real-time target the bridge must never fall silent: the analysis yields it the CPU
+    early = EarlyAnalysis(cfg.out_dir, nice=5 if cfg.hardware else 0, **options)
     plan = plan_session(cfg) if plan is None else plan
     # what the analysis compares with and the measurement does not change, computed while the session runs
     # (from the plan: used if it is what the session then describes, see SessionMessages)

@@ -109,3 +109,22 @@ def test_results_are_identical_with_and_without_the_live_view(sessions):
     assert summary["live"]["clients"] >= 1 and summary["live"]["frames_sent"] > 0
     assert summary["live"]["dropped_frames"] == 0 and summary["live"]["lost_blocks"] == 0
     assert "live view:" in sessions["stdout"] and "results" in sessions["stdout"]
+
+
+def test_graph_live_shows_signals_orbits_and_status(tmp_path, ros_env_module):
+    port = _free_port()
+    got: dict = {"channels": [], "messages": {}}
+    client = threading.Thread(target=lambda: asyncio.run(follow(
+        f"ws://127.0.0.1:{port}", lambda topic, t, msg: got["messages"].setdefault(topic, []).append(msg), 300.0,
+        got["channels"].extend)))
+    client.start()
+    run = subprocess.run([sys.executable, "-m", "ambid_cli.cli", "graph", "--sim-seconds", "30", "--live", str(port)],
+                         env=ros_env_module, cwd=REPO, capture_output=True, text=True, timeout=600)
+    client.join(60)
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "live view:" in run.stdout and "blocks lost" in run.stdout
+    for topic in ("/amb/live/signals", "/amb/live/orbit/a", "/amb/live/orbit/b"):
+        assert got["messages"].get(topic), f"no message on {topic}"
+    assert not any("/frf/" in c["topic"] for c in got["channels"])   # no experiment, no FRF
+    t = [m["t_s"] for m in got["messages"]["/amb/live/signals"]]
+    assert t == sorted(t) and t[-1] > 20.0   # the session's own clock, 200 samples a second of it

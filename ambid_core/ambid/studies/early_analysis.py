@@ -50,14 +50,16 @@ class EarlyAnalysis:
 
     Args:
         out_dir: the identification's output folder (``identify_session``'s ``out_dir``).
+        nice: added to the worker's niceness: > 0 where the session has a real-time partner (a hardware
+            target whose bridge must never fall silent), so that the analysis never takes its CPU.
         **options: further arguments of ``identify_session`` (estimator, true_model, ...).
     """
 
-    def __init__(self, out_dir: str | os.PathLike, **options: Any) -> None:
+    def __init__(self, out_dir: str | os.PathLike, nice: int = 0, **options: Any) -> None:
         ctx = multiprocessing.get_context("spawn")
         self._conn, child = ctx.Pipe()
-        self._proc = ctx.Process(target=_worker, args=(child, os.fspath(out_dir), options), name="ambid-analysis",
-                                 daemon=True)
+        self._proc = ctx.Process(target=_worker, args=(child, os.fspath(out_dir), options, nice),
+                                 name="ambid-analysis", daemon=True)
         self._proc.start()
         child.close()
         self.analysing = False
@@ -130,8 +132,10 @@ class EarlyAnalysis:
                 return payload[0] if len(payload) == 1 else tuple(payload)
 
 
-def _worker(conn, out_dir: str, options: dict) -> None:
+def _worker(conn, out_dir: str, options: dict, nice: int = 0) -> None:
     """The worker process: references while the session runs, then the analysis, then the report."""
+    if nice > 0:
+        os.nice(nice)
     refs: dict[str, Any] = {}
     prep: threading.Thread | None = None
 
