@@ -27,6 +27,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ambid.control.kinds import checked_design
+from ambid.plant.rig import make_rig
+from ambid.plant.sensors import Sensors
+from ambid.plant.true_rig import true_linear_model
 from ambid.statespace import StateSpace
 from ambid.text_file import read_text
 
@@ -64,11 +68,6 @@ def rig_target_model(rig=None, controller: str = "") -> TargetModel:
     Raises:
         ValueError: the controller cannot be designed or does not hold the rig.
     """
-    from ambid.control.kinds import checked_design
-    from ambid.plant.rig import make_rig
-    from ambid.plant.sensors import Sensors
-    from ambid.plant.true_rig import true_linear_model
-
     rig = rig if rig is not None else make_rig()
     design = checked_design(controller or None, rig)
     noise = Sensors.from_rig(rig.values).noise_std_m
