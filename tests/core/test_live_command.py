@@ -10,19 +10,9 @@ from pathlib import Path
 import pytest
 from ambid.channels import RADIAL
 from ambid.live.layout import foxglove_layout
-from ambid_cli import cli
+from test_cli_bad_input import _run   # in-process through ambid_cli.cli.main, no traceback allowed
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
-
-
-def _run(argv, capsys):
-    try:
-        code = cli.main(argv)
-    except SystemExit as exc:   # argparse's own refusal of an option value
-        code = exc.code
-    out = capsys.readouterr()
-    assert "Traceback" not in out.err + out.out
-    return code, out
 
 
 @pytest.mark.parametrize("argv, option", [(["identify", "--live", "70000"], "--live"),
