@@ -108,6 +108,18 @@ def test_lost_blocks_are_counted_and_their_periods_left_out(session):
     f, _ = _follow(d, x, skip=(1400,))   # samples 1400..2099: the first experiment's steady state
     assert f.counts["lost_blocks"] == 1 and f.counts["lost_samples"] == 700
     assert f.result.gaps and f.result.n_periods < d.n_realisations * d.n_periods
+    assert f.figures()["frf_gaps"] == 1 and f.figures()["frf_gap_samples"] == 700
+
+
+def test_a_live_view_that_joins_late_says_what_its_frf_misses(session):
+    d, x = session
+    f = SessionFollower()
+    f.design_message("exp1", d, PRE, d.total_samples)
+    for k in range(2000, len(x), 500):   # the first 2000 samples never came: 1700 of the experiment's
+        f.block(k, 1 / FS, NAMES, x[k:k + 500])
+    fig = f.figures()
+    assert fig["lost_blocks"] == 0 and fig["frf_gaps"] == 1 and fig["frf_gap_samples"] == 2000 - PRE
+    assert fig["finished"] and fig["periods_done"] < fig["periods"]
 
 
 def test_server_streams_to_a_foxglove_client_and_a_late_one_gets_the_latest(session):

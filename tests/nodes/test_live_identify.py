@@ -78,6 +78,7 @@ def test_the_client_gets_every_channel_of_the_live_view(sessions):
     assert any(e["level"] == 2 and "frf_done" in e["message"] for e in got["messages"]["/amb/live/events"])
     progress = got["messages"]["/amb/live/progress"][-1]
     assert progress["finished"] and progress["lost_blocks"] == 0 and progress["dropped_frames"] == 0, progress
+    assert progress["frf_gaps"] == 0 and progress["periods_done"] == progress["periods"], progress
 
 
 def test_the_live_frf_ends_as_the_sessions_frf(sessions):

@@ -9,7 +9,9 @@ estimates the FRF again after every period that completes a record (a
 period measured in all Ne experiments of an orthogonal design), the running
 realisation's records included. Blocks it never got (a live view may lose
 some: it keeps only the latest blocks, so that it can never slow the loop) are
-counted, and the periods they touch left out, as a gap is everywhere else.
+counted (``lost_blocks``), and the periods they touch left out of its FRF, as
+a gap is everywhere else (``frf_gaps``: also the experiment's samples that
+came before the live view did).
 
 Channels are data: the outputs are the block's ``y_*`` channels, the inputs
 the ``u_*`` (and ``r_*``) channels of the design's inputs, the orbits the
@@ -232,10 +234,11 @@ class SessionFollower:
             f.update(fraction=p.samples_done / p.total_samples if p.total_samples else 1.0,
                      periods_done=p.periods_done, periods=p.periods_total, records=s.records_done,
                      realisations_done=p.realisations_done, realisations=p.n_realisations,
-                     time_left_s=p.time_left_s, finished=p.finished)
+                     time_left_s=p.time_left_s, finished=p.finished, frf_gaps=len(s.gaps),
+                     frf_gap_samples=sum(g.n_samples for g in s.gaps))
         else:
             f.update(fraction=0.0, periods_done=0, periods=0, records=0, realisations_done=0, realisations=0,
-                     time_left_s=0.0, finished=False)
+                     time_left_s=0.0, finished=False, frf_gaps=0, frf_gap_samples=0)
         r = self.result
         rel = r.relative_noise_std if r is not None else float("nan")
         f["relative_frf_noise_std"] = rel if np.isfinite(rel) else None

@@ -90,7 +90,8 @@ SCHEMAS: dict[str, dict] = {
         "experiment_id": _STR, "t_s": _NUM, "fraction": _NUM, "periods_done": _INT, "periods": _INT,
         "records": _INT, "realisations_done": _INT, "realisations": _INT, "time_left_s": _NUM,
         "relative_frf_noise_std": _OPT_NUM, "blocks": _INT, "lost_blocks": _INT, "lost_samples": _INT,
-        "rejected_blocks": _INT, "estimates": _INT, "dropped_frames": _INT, "finished": _BOOL}},
+        "rejected_blocks": _INT, "estimates": _INT, "dropped_frames": _INT, "finished": _BOOL, "frf_gaps": _INT,
+        "frf_gap_samples": _INT}},
     "ambid.live.Status": {"type": "object", "properties": {
         "node": _STR, "state": _STR, "t_s": _NUM, "sample_index": _INT, "progress": _NUM, "received": _INT,
         "rejected": _INT, "text": _STR, "figures": {"type": "object"}}},
