@@ -25,6 +25,15 @@ import time
 from pathlib import Path
 
 
+def _cpu_s(pid: int) -> float | None:
+    """CPU seconds (user + system) a process used so far (Linux /proc), None where unknown."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return None
+
+
 def _session(out_dir: Path, overrides: dict, live: bool) -> dict:
     from ambid.excitation.spec import DesignSpec
 
@@ -34,13 +43,21 @@ def _session(out_dir: Path, overrides: dict, live: bool) -> dict:
 
     cfg = SessionConfig(out_dir=out_dir, progress=False, experiment=DesignSpec(**overrides))
     proc = client = None
+    cpu: dict[str, float | None] = {}
     try:
         if live:
             proc = LiveProcess(0, "127.0.0.1", cfg.namespace, cfg.estimator, session_domain_id())
             url = proc.wait_ready()
             client = subprocess.Popen([sys.executable, "-m", "ambid_cli.bench.foxglove_client", url],
                                       stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+            cpu = {"live0": _cpu_s(proc.proc.pid), "client0": _cpu_s(client.pid)}
+        cpu["session0"] = time.process_time()
         run = run_session_composed(cfg, live=proc)
+        cpu["session"] = time.process_time() - cpu.pop("session0")
+        if live:
+            for who, pid in (("live", proc.proc.pid), ("client", client.pid)):
+                now, then = _cpu_s(pid), cpu.pop(f"{who}0")
+                cpu[who] = None if now is None or then is None else now - then
     finally:
         figures = proc.stop() if proc is not None else {}
         got = {}
@@ -54,7 +71,7 @@ def _session(out_dir: Path, overrides: dict, live: bool) -> dict:
     if plant.get("state") != "done":
         raise RuntimeError(f"the session ended in state {plant.get('state')!r}")
     return {"loop_samples_per_s": plant["samples_per_wall_s"], "session_samples_per_s": run["samples_per_wall_s"],
-            "wall_s": run["wall_s"], "samples": plant["samples"], "live": figures,
+            "wall_s": run["wall_s"], "samples": plant["samples"], "live": figures, "cpu_s": cpu,
             "client_messages": got.get("total"), "client_channels": len(got.get("channels", []))}
 
 
@@ -63,7 +80,9 @@ def live_figures(work: Path, overrides: dict, repeats: int) -> dict:
 
     Returns:
         dict with ``ratio`` (median over rounds of with / without, the plant's samples per wall second),
-        ``session_ratio`` (the same of the whole session's rate), medians of each rate, and the rounds.
+        ``session_ratio`` (the same of the whole session's rate), ``live_and_client_cpu_share`` (the CPU the
+        live view's and the client's processes took, over the session process's: the load they add, less
+        sensitive to the machine's other jobs than the rates), medians of each rate, and the rounds.
     """
     rounds = []
     for r in range(repeats):
@@ -74,7 +93,11 @@ def live_figures(work: Path, overrides: dict, repeats: int) -> dict:
         res["session_ratio"] = res["with"]["session_samples_per_s"] / res["without"]["session_samples_per_s"]
         rounds.append(res)
     med = statistics.median
+    shares = [(x["with"]["cpu_s"].get("live") or 0.0) + (x["with"]["cpu_s"].get("client") or 0.0)
+              for x in rounds]
+    cpu_share = med(s / x["with"]["cpu_s"]["session"] for s, x in zip(shares, rounds))
     return {"ratio": med(x["ratio"] for x in rounds), "session_ratio": med(x["session_ratio"] for x in rounds),
+            "live_and_client_cpu_share": cpu_share,
             "with_samples_per_s": med(x["with"]["loop_samples_per_s"] for x in rounds),
             "without_samples_per_s": med(x["without"]["loop_samples_per_s"] for x in rounds),
             "client_messages": med(x["with"]["client_messages"] or 0 for x in rounds),

@@ -72,7 +72,7 @@ FULL = {
     "identify": {},
     "analysis": {},
     "live": {},
-    "live_repeats": 3,   # three pairs of default identify sessions, with and without the live view
+    "live_repeats": 5,   # five pairs of default identify sessions with and without the live view (the load drifts)
     "offline_design": {},
     "offline_memory_design": {"n_realisations": 1},
     "live_memory": {"resolution_hz": 10.0, "n_periods": 2, "n_realisations": 1, "n_transient_periods": 1},
@@ -170,6 +170,7 @@ def _live_section(sizes: dict, work: Path, figures: list) -> dict:
     figures += [
         _at_least("identify loop with the live view and a client / without", res["ratio"], "", 0.95, "0.95"),
         _figure("identify session with the live view and a client / without", res["session_ratio"], ""),
+        _figure("live view and client CPU / identify session CPU", res["live_and_client_cpu_share"], ""),
         _figure("live view: messages the client received per session", res["client_messages"], ""),
     ]
     return res

@@ -12,6 +12,8 @@ prefix, e.g. ``frf/y_a_x/u_a_x``), with the name of its JSON schema
   total (noise + stochastic nonlinear distortion) levels ``noise_db`` and
   ``total_db`` (20 log10 of their standard deviations) where known. Foxglove's
   Plot panel draws it against frequency with its x axis on ``.freq_hz[:]``.
+  The dB and degree arrays are rounded to 1e-4; ``real`` and ``imag`` are
+  exact (JSON's shortest round-trip floats).
 * ``ambid.live.Levels`` (``levels/<output>``): the output's amplitude at
   the detection lines (odd and even, sorted) against its noise floor there,
   and the output's noise std and distortion figures.
@@ -41,6 +43,8 @@ from ambid.frf.streaming import FrfResult
 __all__ = ["Frame", "SCHEMAS", "frf_frames", "levels_frames", "signal_frames", "orbit_frame", "status_frame",
            "event_frame", "progress_frame", "time_ns", "STATE_NAMES", "LOG_LEVELS"]
 
+#: decimals of the dB and degree arrays: 1e-4, far below what a plot shows (``real`` and ``imag`` are exact)
+DB = 4
 #: SessionStatus.state -> name.
 STATE_NAMES = ("idle", "running", "done", "failed")
 #: SessionEvent.severity (INFO, WARN, ERROR, FATAL) -> foxglove.Log level (INFO=2 ... FATAL=5).
@@ -107,10 +111,10 @@ def time_ns(sample_index: int, fs_hz: float) -> int:
     return int(round(sample_index / fs_hz * 1e9))
 
 
-def _floats(x: np.ndarray | Iterable[float]) -> list:
-    """A float list for JSON; non-finite values as None."""
+def _floats(x: np.ndarray | Iterable[float], decimals: int | None = None) -> list:
+    """A float list for JSON, rounded to ``decimals`` if given; non-finite values as None."""
     a = np.asarray(x, dtype=float).ravel()
-    out = a.tolist()
+    out = (a if decimals is None else np.round(a, decimals)).tolist()
     if not np.all(np.isfinite(a)):
         out = [v if math.isfinite(v) else None for v in out]
     return out
@@ -166,20 +170,20 @@ def frf_frames(result: FrfResult, experiment_id: str, t_ns: int) -> list[Frame]:
     frames = []
     for i, out in enumerate(result.output_names):
         for j, inp in enumerate(result.input_names):
-            msg = dict(head, output=out, input=inp, freq_hz=f, magnitude_db=_floats(mag_db[:, i, j]),
-                       phase_deg=_floats(phase[:, i, j]), real=_floats(g[:, i, j].real),
+            msg = dict(head, output=out, input=inp, freq_hz=f, magnitude_db=_floats(mag_db[:, i, j], DB),
+                       phase_deg=_floats(phase[:, i, j], DB), real=_floats(g[:, i, j].real),
                        imag=_floats(g[:, i, j].imag))
             if std is not None:
                 s2 = 2 * std[:, i, j]
                 m = mag[:, i, j]
                 half = np.degrees(np.where(s2 < m, np.arcsin(np.minimum(s2 / np.maximum(m, 1e-300), 1.0)), np.pi))
-                msg.update(magnitude_db_lower=_floats(_db(np.maximum(m - s2, 1e-3 * m))),
-                           magnitude_db_upper=_floats(_db(m + s2)),
-                           phase_deg_lower=_floats(phase[:, i, j] - half),
-                           phase_deg_upper=_floats(phase[:, i, j] + half))
+                msg.update(magnitude_db_lower=_floats(_db(np.maximum(m - s2, 1e-3 * m)), DB),
+                           magnitude_db_upper=_floats(_db(m + s2), DB),
+                           phase_deg_lower=_floats(phase[:, i, j] - half, DB),
+                           phase_deg_upper=_floats(phase[:, i, j] + half, DB))
             for key, name in (("var_noise", "noise_db"), ("var_total", "total_db")):
                 if np.all(np.isfinite(noise[key][:, i, j])):
-                    msg[name] = _floats(_db(noise[key][:, i, j]))
+                    msg[name] = _floats(_db(noise[key][:, i, j]), DB)
             frames.append(Frame(f"frf/{out}/{inp}", "ambid.live.FrfEntry", msg, t_ns))
     return frames
 
@@ -208,7 +212,7 @@ def levels_frames(result: FrfResult, odd_freq_hz: np.ndarray, even_freq_hz: np.n
             power = np.concatenate([d.odd_power[:, i], d.even_power[:, i]])[order]
             noise = np.concatenate([d.odd_noise_power[:, i], d.even_noise_power[:, i]])[order]
             with np.errstate(divide="ignore"):
-                msg.update(level_db=_floats(10 * np.log10(power)), noise_db=_floats(10 * np.log10(noise)),
+                msg.update(level_db=_floats(10 * np.log10(power), DB), noise_db=_floats(10 * np.log10(noise), DB),
                            odd_db=_scalar(d.odd_db[i]), even_db=_scalar(d.even_db[i]))
         frames.append(Frame(f"levels/{out}", "ambid.live.Levels", msg, t_ns))
     return frames
