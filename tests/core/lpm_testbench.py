@@ -167,3 +167,24 @@ def segment_transients(r: np.ndarray, states: np.ndarray, n_per: int, n_periods:
         e = (np.eye(nx) - a_seg) @ (states[s * n_seg_samples] - x_s)
         out.append(np.array([c @ np.linalg.solve(np.eye(nx) - z * a, e) for z in zeta]))
     return np.array(out)
+
+
+def g_and_variance(spectra: np.ndarray, noise_cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """G = Y U^-1 over the four one-input segments at each line and its first-order noise variance.
+
+    ``var G_ij = sum_e (a_i C_e a_i^H) |(U^-1)_ej|^2`` with ``a_i = [e_i, -G_i]`` (the error of row i is
+    ``a_i V U^-1``, the experiments' noises independent).
+
+    Args:
+        spectra: (4, L, 8) transient-free line spectra [y; u] of the segments.
+        noise_cov: (4, L, 8, 8) their noise covariances.
+
+    Returns:
+        G (L, 4, 4) [m/A] and its variance (L, 4, 4) [(m/A)^2].
+    """
+    y, u = np.moveaxis(spectra[..., :4], 0, -1), np.moveaxis(spectra[..., 4:], 0, -1)   # (L, 4, Ne)
+    m = np.linalg.inv(u)
+    g = y @ m
+    a = np.concatenate([np.broadcast_to(np.eye(4), g.shape), -g], axis=2)
+    out_var = np.real(np.einsum("lia,leab,lib->lie", a, np.moveaxis(noise_cov, 0, 1), a.conj()))
+    return g, np.einsum("lie,lej->lij", out_var, np.abs(m) ** 2)

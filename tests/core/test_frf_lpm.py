@@ -165,12 +165,7 @@ def test_periodic_noise_variance_and_coverage(periodic_record):
     ratio = np.mean(np.abs(err) ** 2, axis=(0, 1)) / np.mean(predicted, axis=(0, 1))
     assert np.all(np.abs(ratio - 1) < 0.2), ratio
     # G's intervals: var G_ij = sum_e (a_i C_e a_i^H) |U^-1_ej|^2
-    u = np.moveaxis(tf.spectra[..., 4:], 0, -1)
-    m = np.linalg.inv(u)
-    a = np.concatenate([np.broadcast_to(np.eye(4), g.shape), -g], axis=2)
-    cov = np.moveaxis(tf.noise_cov, 0, 1)
-    out_var = np.real(np.einsum("lia,leab,lib->lie", a, cov, a.conj()))
-    var = np.einsum("lie,lej->lij", out_var, np.abs(m) ** 2)
+    g, var = tb.g_and_variance(tf.spectra, tf.noise_cov)
     dof = np.min(tf.dof, axis=0)[:, None, None]
     cover = np.mean(np.abs(g - g0) ** 2 / var <= f_quantile(0.95, dof))
     assert 0.9 < cover < 0.99, cover

@@ -85,14 +85,7 @@ def test_subtraction_adds_little_noise_and_the_line_variance_holds(record):
 def test_intervals_of_g_cover_as_they_claim(record):
     g = global_transient_removal(record["noisy"], N_PER, LINES)
     g0 = tb.frf(LINES * tb.FS / N_PER)
-    y, u = np.moveaxis(g.spectra[..., :4], 0, -1), np.moveaxis(g.spectra[..., 4:], 0, -1)   # (L, 4, Ne)
-    m = np.linalg.inv(u)
-    gh = y @ m
-    # var G_ij = sum_e (a_i C_e a_i^H) |U^-1_ej|^2, a_i = [e_i, -G_i] (the streaming estimator's, first order)
-    a = np.concatenate([np.broadcast_to(np.eye(4), gh.shape), -gh], axis=2)
-    cov = np.moveaxis(g.noise_cov, 0, 1)
-    out_var = np.real(np.einsum("lia,leab,lib->lie", a, cov, a.conj()))
-    var = np.einsum("lie,lej->lij", out_var, np.abs(m) ** 2)
+    gh, var = tb.g_and_variance(g.spectra, g.noise_cov)
     dof = np.min(g.dof, axis=0)[:, None, None]
     cover = np.mean(np.abs(gh - g0) ** 2 / var <= f_quantile(0.95, dof))
     assert 0.92 < cover < 0.98, cover

@@ -54,6 +54,9 @@ steady-state response only at every P-th bin (the period lines); the bins
 in between hold the transient and the noise alone. The LPM fits the
 transient there, around each line, and subtracts its value at the line;
 the residuals give the noise covariance of the corrected line spectrum.
+One rational model of the transient across the whole spectrum
+(:mod:`ambid.frf.transient_model`, what a streamed experiment uses) adds
+less noise; these local fits remain where its bins are too few.
 
 Pure numpy; everything is vectorised over lines.
 """
