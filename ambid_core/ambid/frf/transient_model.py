@@ -14,9 +14,9 @@ off: transient and leakage are one term). ``A(zeta) = det(I - zeta A)`` is
 the closed loop's characteristic polynomial, common to every channel,
 segment and experiment; deg I_c < deg A. X_p is zero except at the period
 lines k = P l, so the bins between the lines hold T and the noise alone,
-over the whole spectrum. (Pintelon & Schoukens, *System Identification*,
-2nd ed., 2012, sec. 6.3 and ch. 7: the transient term shares the system's
-denominator.)
+over the whole spectrum. (Pintelon & Schoukens, *System Identification: A
+Frequency Domain Approach*, 2nd ed., 2012: the transient term shares the
+system's denominator.)
 
 Estimation (:func:`global_transient_removal`):
 
