@@ -68,8 +68,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-__all__ = ["METHODS", "LocalFrf", "TransientFree", "local_frf", "window_centres", "periodic_transient_removal", "periodic_window",
-           "line_noise", "f_quantile", "dof_of", "half_width_for"]
+__all__ = ["METHODS", "LocalFrf", "TransientFree", "local_frf", "window_centres", "periodic_transient_removal",
+           "periodic_window", "line_noise", "f_quantile", "dof_of", "half_width_for"]
 
 #: 'lpm': local polynomials; 'lrm': local rational models; 'auto': the LRM at the lines where its smaller
 #: residual is significant (an F test at 0.1 %), the LPM elsewhere

@@ -32,10 +32,11 @@ Estimation (:func:`global_transient_removal`):
 2. Per segment and channel the residues r and d (real coefficients for the
    conjugate pairs: the signal is real) by weighted linear least squares on
    the same bins, and T subtracted at the lines. A few dozen parameters per
-   channel against hundreds of bins: the subtraction adds a few per cent to
-   the variance of a line, where a local polynomial fit adds ~15 %.
+   channel against hundreds of bins: the subtraction adds about 1 % to the
+   variance of the median line (more at the lowest lines and near lightly
+   damped poles), where local polynomial fits add 13 to 18 %.
 3. The noise covariance of each line, from the residuals of the bins
-   between the lines around it (:func:`ambid.lpm.periodic_window`), plus the
+   between the lines around it (:func:`ambid.frf.lpm.periodic_window`), plus the
    covariance of the subtracted transient: T_hat is linear in the noise of
    the fitted bins (not of the line), so to first order ``E[dT_a dT_b^*] =
    phi^T R_a^-1 Q_a^T S_ab Q_b R_b^-T conj(phi)`` exactly, with S_ab the
@@ -61,19 +62,21 @@ from scipy import stats
 from ambid.frf.lpm import (METHODS, TransientFree, _TransientFit, _time_noise, line_noise, periodic_transient_removal,
                            periodic_window)
 
-__all__ = ["TransientModel", "GlobalTransientFree", "SegmentTransients", "vector_fit_poles", "fit_transients",
-           "global_transient_removal", "fit_band_bins", "spectrum_top", "check_model_size", "DEFAULT_PAIRS",
-           "DEFAULT_REAL", "DEFAULT_POLY", "BAND_MARGIN", "N_ITERATIONS"]
+__all__ = ["TransientModel", "TransientFits", "GlobalTransientFree", "SegmentTransients", "vector_fit_poles",
+           "fit_transients", "global_transient_removal", "fit_band_bins", "spectrum_top", "check_model_size",
+           "DEFAULT_PAIRS", "DEFAULT_REAL", "DEFAULT_POLY", "BAND_MARGIN", "N_ITERATIONS"]
 
-#: starting poles of the vector fit: complex pairs and real poles, log-spaced over the fitted band (the loop's
-#: closed-loop poles in 10-1500 Hz are 7 pairs and 2 real; spare poles cost little, too few merge close modes)
+#: starting poles of the vector fit: complex pairs and real poles, log-spaced over the fitted band (the default
+#: rig's closed loop has 6 pole pairs and 2 real poles slower than 1 ms below 1.5 kHz; spare poles cost little,
+#: too few merge close modes)
 DEFAULT_PAIRS, DEFAULT_REAL = 16, 4
 #: degree of the polynomial part (poles faster than a few samples, poles above the fitted bins)
 DEFAULT_POLY = 2
 #: the fit covers the bins up to this multiple of the highest line (a lightly damped pole just above the band
 #: shapes the transient inside it)
 BAND_MARGIN = 1.5
-#: vector-fitting iterations: with noise weights the poles settle within ~6
+#: vector-fitting iterations (the default experiment's FRF error is the same from 3 to 12; 8 leaves a margin for
+#: loops with more poles)
 N_ITERATIONS = 8
 #: poles this fast (|p|, per sample) die within a sample or two: the polynomial part takes them
 _P_MIN = 0.3
@@ -121,7 +124,8 @@ def _stack(x: np.ndarray) -> np.ndarray:
 
 
 def _clean_poles(z: np.ndarray) -> np.ndarray:
-    """Poles from the zeros of sigma: reflected into the unit circle, the fastest dropped, one of each pair, distinct."""
+    """Poles from the zeros of sigma: reflected into the unit circle, the fastest dropped, one of each pair,
+    distinct."""
     z = np.asarray(z, complex)
     out = np.abs(z) >= 1.0
     z[out] = 1.0 / np.conj(z[out])
@@ -176,7 +180,7 @@ def vector_fit_poles(spectra: np.ndarray, weight: np.ndarray, bins: np.ndarray, 
     y = np.asarray(spectra, complex)
     w = np.asarray(weight, float)
     bins = np.asarray(bins)
-    n_rec, n_bins, n_ch = y.shape
+    _, n_bins, n_ch = y.shape
     zeta = np.exp(-2j * np.pi * bins / n_samples)
     poles = _start_poles(float(bins.min()), float(bins.max()), n_samples, n_pairs, n_real)
     wy = w[None] * y                                                           # (S, K, C)
@@ -223,18 +227,29 @@ def _sigma_zeros(poles: np.ndarray, c: np.ndarray, d: float) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class _ChannelFits:
-    """The weighted least-squares fits of one model to every record: per channel Q, R of [Re; Im](w phi)."""
+class TransientFits:
+    """The weighted least-squares fits of one model to every record (:func:`fit_transients`).
 
-    q: np.ndarray       # (C, K, nf) complex rows of Q
-    r: np.ndarray       # (C, nf, nf)
-    coef: np.ndarray    # (S, nf, C) real coefficients
-    resid: np.ndarray   # (S, K, C) residuals, unweighted [unit of each channel]
-    leverage: np.ndarray  # (K, C) share of a bin's noise power the fit takes, (h_re + h_im) / 2
+    Attributes:
+        q: (C, K, nf) per channel the rows of Q of ``[Re; Im](w phi) = Q R``, as complex numbers
+            (row k of the real part + j row k of the imaginary part) [-].
+        r: (C, nf, nf) per channel R [1 / unit of the channel].
+        coef: (S, nf, C) the real coefficients of each record and channel, :meth:`TransientModel.basis` order
+            [unit of the channel].
+        resid: (S, K, C) the residuals Y - T at the fitted bins [unit of the channel, unscaled DFT].
+        leverage: (K, C) the share of a bin's noise power the fit takes, ``(h_re + h_im) / 2`` (summing to
+            nf / 2 over the bins) [-].
+    """
+
+    q: np.ndarray
+    r: np.ndarray
+    coef: np.ndarray
+    resid: np.ndarray
+    leverage: np.ndarray
 
 
 def fit_transients(model: TransientModel, spectra: np.ndarray, weight: np.ndarray, bins: np.ndarray,
-                   n_samples: int) -> _ChannelFits:
+                   n_samples: int) -> TransientFits:
     """Each record's and channel's coefficients by weighted least squares, with its residuals and leverages.
 
     Args:
@@ -257,7 +272,7 @@ def fit_transients(model: TransientModel, spectra: np.ndarray, weight: np.ndarra
         lev.append(0.5 * np.sum(q[:n_bins] ** 2 + q[n_bins:] ** 2, axis=1))
     coef = np.stack(coefs, axis=-1)                                             # (S, nf, C)
     resid = y - np.einsum("kf,sfc->skc", phi, coef)
-    return _ChannelFits(q=np.stack(qs), r=np.stack(rs), coef=coef, resid=resid, leverage=np.stack(lev, axis=1))
+    return TransientFits(q=np.stack(qs), r=np.stack(rs), coef=coef, resid=resid, leverage=np.stack(lev, axis=1))
 
 
 def _smooth_bins(x: np.ndarray, half: int) -> np.ndarray:
@@ -269,7 +284,7 @@ def _smooth_bins(x: np.ndarray, half: int) -> np.ndarray:
     return (c[hi] - c[lo]) / (hi - lo).reshape((-1,) + (1,) * (x.ndim - 1))
 
 
-def _cross_spectrum(fits: _ChannelFits) -> np.ndarray:
+def _cross_spectrum(fits: TransientFits) -> np.ndarray:
     """(K, C, C) the noise's cross-spectrum E[V_a V_b^*] at each fitted bin, from the residuals pooled over records
     (each bin's power lost to the fit put back) and smoothed over 2 * 20 + 1 bins."""
     e = fits.resid
@@ -278,7 +293,7 @@ def _cross_spectrum(fits: _ChannelFits) -> np.ndarray:
     return _smooth_bins(raw / (keep[:, :, None] * keep[:, None, :]), _SMOOTH_BINS)
 
 
-def _subtraction_covariance(model: TransientModel, fits: _ChannelFits, weight: np.ndarray, cross: np.ndarray,
+def _subtraction_covariance(model: TransientModel, fits: TransientFits, weight: np.ndarray, cross: np.ndarray,
                             zeta_lines: np.ndarray) -> np.ndarray:
     """(L, C, C) covariance E[dT_a dT_b^*] of the transient subtracted at each line (same for every record).
 
