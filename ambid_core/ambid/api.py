@@ -278,7 +278,8 @@ def update_model(frf: Frf, rig: Rig | str | os.PathLike | None = None, model: Mo
         The fitted model (:func:`fit_model`): a mode it shows that the rig lacks starts a support
         mode. Fitted here when not given.
     start : mapping, optional
-        Start values replacing the nominal ones (parameter name -> value).
+        Nominal values replacing the rig's (parameter name -> value): the centres of the priors the
+        rig's tolerances make (docs/uncertainty.md). The update itself starts from the data.
     free : sequence of str, optional
         Parameters to update; by default those identify updates.
 

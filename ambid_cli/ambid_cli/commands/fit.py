@@ -82,10 +82,19 @@ def format_summary(s: dict) -> str:
             true = "" if p.get("true") is None else f", true {p['true']:.6g} ({_pct(p['error'])})"
             lines.append(f"updated {name}: {p['value']:.6g} (95 % CI {ci[0]:.6g} .. {ci[1]:.6g}), nominal "
                          f"{p['nominal']:.6g}{true}")
+    lag = upd.get("total_lag")
+    if lag:
+        true = "" if lag.get("true") is None else f", true {lag['true'] * 1e6:.5g}"
+        lines.append(f"total lag (amplifier + sensor + delay): {lag['value'] * 1e6:.5g} us (95 % CI "
+                     f"{lag['ci95'][0] * 1e6:.5g} .. {lag['ci95'][1] * 1e6:.5g}){true}")
+    if upd.get("prior_dominated"):
+        lines.append(f"set mostly by their tolerances (the data tell little): {', '.join(upd['prior_dominated'])}")
     if "error" in upd:
         lines.append(f"model updating failed: {upd['error']}")
     lines.append(f"peak input sensitivity {sens['worst_peak']:.3g} on {sens['worst_input']}: ISO 14839-3 zone "
-                 f"{sens['iso_zone']}")
+                 f"{sens['iso_zone']}" + ("" if sens.get("updated_peak") is None else
+                                          f"; updated model with the recorded controller {max(sens['updated_peak']):.3g},"
+                                          f" zone {sens['updated_iso_zone']}"))
     files = s["files"]
     lines.append(f"written: {files['model_npz']}, {files['model_json']}" +
                  (f", report {files['report']}" if "report" in files else ""))
