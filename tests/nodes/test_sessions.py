@@ -4,7 +4,10 @@ and is counted and named; two rigs in two namespaces on one domain run side by s
 
 from __future__ import annotations
 
+import hashlib
 import json
+import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -21,6 +24,7 @@ from rclpy.serialization import deserialize_message
 from ambid_msgs.msg import ExcitationDesign, SampleBlock, SessionEvent, SessionStatus
 from ambid_nodes import qos
 from ambid_nodes.recorder import message_class
+from proc_tree import alive, descendants
 
 REPO = Path(__file__).resolve().parents[2]
 SMALL = ["--band", "20", "400", "--resolution", "20", "--periods", "2", "--realisations", "1",
@@ -147,35 +151,57 @@ def test_a_foreign_source_changes_no_estimate_and_no_recorded_byte_and_is_named(
           f"the recorder kept out {kept_out}")
 
 
+def block_digest(msg: SampleBlock) -> tuple[int, int, bytes]:
+    """(first index, samples, a digest of the data's bytes): a long run's blocks compared in little memory."""
+    return msg.first_index, msg.n_samples, hashlib.sha1(np.asarray(msg.data, np.float64).tobytes()).digest()
+
+
 def test_two_rigs_in_two_namespaces_on_one_domain_run_side_by_side(ros, ros_env, procs, tmp_path):
-    """A graph on /rig_b runs; identify on /rig_a starts while it does, on the same domain: rig b gives the
-    figures it gives alone, rig a records the one topic they share, /clock, from rig a only (one message per
-    100 samples), rig b's counted and named as foreign."""
+    """A graph on /rig_b runs; identify on /rig_a runs while it does, on the same domain: rig b's samples are the
+    very samples of the same seed run alone, rig a records the one topic they share, /clock, from rig a only
+    (one message per 100 samples), rig b's counted and named as foreign; ^C ends rig b with every node stopped."""
+    from ambid_nodes.plant_sim import PlantSim
+    from ambid_nodes.position_controller import PositionController
+    from rclpy.parameter import Parameter
+
     cmd = [sys.executable, "-m", "ambid_cli.cli"]
-    graph_b = ["graph", "--namespace", "/rig_b", "--sim-seconds", "10", "--seed", "4"]
-    # alone (composed: the same samples as the processes layout, in a fraction of its time)
-    alone = procs([*cmd, *graph_b], env=ros_env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                  text=True)
-    ref = alone.communicate(timeout=600)[0]
-    assert alone.returncode == 0, ref
-    heard = []
+    heard: list[tuple[int, int, bytes]] = []
     listener = ros.add(Node("rig_b_listener", namespace="/rig_b", context=ros.context))
-    listener.create_subscription(SampleBlock, "measurement", heard.append, qos.subscription(qos.BLOCKS), raw=True)
-    b = procs([*cmd, *graph_b, "--processes"], env=ros_env, cwd=REPO, stdout=subprocess.PIPE,
-              stderr=subprocess.STDOUT, text=True)
+    listener.create_subscription(SampleBlock, "measurement", lambda m: heard.append(block_digest(m)),
+                                 qos.subscription(qos.BLOCKS))
+    b = procs([*cmd, "graph", "--processes", "--namespace", "/rig_b", "--sim-seconds", "1000", "--seed", "4"],
+              env=ros_env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     assert ros.spin_until(lambda: heard or b.poll() is not None, 300) and b.poll() is None, "rig b never ran"
     a = procs([*cmd, "identify", "--namespace", "/rig_a", "--out", str(tmp_path / "a"), *SMALL], env=ros_env,
               cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    assert ros.spin_until(lambda: a.poll() is not None and b.poll() is not None, 600)
-    out_b = b.communicate()[0]
+    assert ros.spin_until(lambda: a.poll() is not None or b.poll() is not None, 600)
     out_a, err_a = a.communicate()
-    assert b.returncode == 0, out_b
     assert a.returncode == 0, err_a[-3000:]
+    assert b.poll() is None, b.communicate()[0]  # rig b ran all through rig a's session
+    nodes_b = descendants(b.pid)
+    os.killpg(b.pid, signal.SIGINT)  # ^C: rig b ends, every node stopped
+    out_b = b.communicate(timeout=60)[0]
+    assert b.returncode == 130 and "every node stopped" in out_b, out_b[-2000:]
+    assert ros.spin_until(lambda: not any(alive(p) for p in nodes_b), 10), "rig b's nodes outlived its ^C"
 
-    def rms(text: str) -> str:
-        return next(ln for ln in text.splitlines() if ln.startswith("displacement RMS"))
+    # rig b, unaffected: every sample heard (from the first block after this listener matched) is the sample
+    # of the same seed run alone (composed here, no rig a)
+    ros.spin_until(lambda: False, 1.0)
+    got = sorted(heard)
+    assert all(x[0] + x[1] == y[0] for x, y in zip(got, got[1:])), "rig b's blocks have a gap"
+    n = got[-1][0] + got[-1][1]
+    alone: list[tuple[int, int, bytes]] = []
+    ref_listener = ros.add(Node("alone_listener", namespace="/rig_b_alone", context=ros.context))
+    ref_listener.create_subscription(SampleBlock, "measurement", lambda m: alone.append(block_digest(m)),
+                                     qos.subscription(qos.BLOCKS))
+    plant = ros.add(PlantSim(namespace="/rig_b_alone", context=ros.context, parameter_overrides=[
+        Parameter("sim_seconds", value=n * 1e-4), Parameter("seed", value=4)]))
+    ros.matched(ref_listener, to=plant)
+    ros.add(PositionController(namespace="/rig_b_alone", context=ros.context))
+    assert ros.spin_until(lambda: sum(m[1] for m in alone) >= n, 300)
+    assert got == [m for m in sorted(alone) if m[0] >= got[0][0]][:len(got)]
 
-    assert rms(out_b) == rms(ref) and "rotor levitated" in out_b  # rig b as alone (same seed)
+    # rig a recorded rig a's /clock only; rig b's kept out, counted, named
     path = tmp_path / "a" / "session.mcap"
     scan = scan_session(path)
     samples = max(decode_sample_block(m.data).first_index + decode_sample_block(m.data).n_samples
@@ -185,7 +211,8 @@ def test_two_rigs_in_two_namespaces_on_one_domain_run_side_by_side(ros, ros_env,
     kept_out = json.loads(read_metadata(path)["ambid.session"]["foreign"])["/clock"]
     assert kept_out["messages"] > 0 and any("/rig_b/plant_sim" in who for who in kept_out["from"]), kept_out
     print(f"\nrig a recorded {scan.topic_message_counts['/clock']} /clock messages for {samples} samples; "
-          f"rig b's {kept_out['messages']} kept out, from {kept_out['from']}; rig b as alone: {rms(out_b)}")
+          f"rig b's {kept_out['messages']} kept out, from {kept_out['from']}; rig b's samples "
+          f"[{got[0][0]}, {n}) identical to the same seed alone")
 
 
 class LoopIntruder(Node):
