@@ -87,25 +87,26 @@ class SessionWatch(Node):
             self.monitor.add_block(block.first_index, block.data[:last, ys],
                                    (flags[:last] & SampleBlock.FLAG_LANDED) != 0)
 
-    def on_status(self, data: bytes) -> None:
+    def _session_message(self, data: bytes, kind, topic: str):
+        """The message of ``data`` if it is of this session; another session's counted and named, None."""
         try:
-            msg = decode_message(data, SessionStatus, "status")
+            msg = decode_message(data, kind, topic)
         except BadMessage:
-            return
+            return None
         if not self.identity.ours(msg.session_id):
-            self._foreign(self.resolve_topic_name("status"), msg.session_id, msg.node)
-            return
-        self.statuses[msg.node] = msg
+            self._foreign(self.resolve_topic_name(topic), msg.session_id, msg.node)
+            return None
+        return msg
+
+    def on_status(self, data: bytes) -> None:
+        msg = self._session_message(data, SessionStatus, "status")
+        if msg is not None:
+            self.statuses[msg.node] = msg
 
     def on_event(self, data: bytes) -> None:
-        try:
-            msg = decode_message(data, SessionEvent, "events")
-        except BadMessage:
-            return
-        if not self.identity.ours(msg.session_id):
-            self._foreign(self.resolve_topic_name("events"), msg.session_id, msg.node)
-            return
-        self.events.append(msg)
+        msg = self._session_message(data, SessionEvent, "events")
+        if msg is not None:
+            self.events.append(msg)
 
     def hears_the_plant(self) -> bool:
         """Its measurement subscription is matched to a publisher (the plant's): it hears every block from the

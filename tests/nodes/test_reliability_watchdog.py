@@ -29,6 +29,9 @@ from ambid_nodes import qos
 from proc_tree import kill_tree
 
 TIMEOUT_S = 0.5
+# the watchdog under test is armed with TIMEOUT_S once the loop runs: until then a loaded machine may keep a
+# node that is just starting (imports, its first messages) silent for longer, which is no loss to detect
+START_TIMEOUT_S = 30.0
 WATCHDOG_S = 0.1
 
 
@@ -59,6 +62,21 @@ def start(module, ns, env, **params):
                             start_new_session=True)
 
 
+def settled(ros, count, quiet_s: float = 0.5, timeout_s: float = 30.0) -> bool:
+    """Spin until ``count()`` has not changed for ``quiet_s`` (nothing more in flight); False after
+    ``timeout_s``."""
+    end = time.monotonic() + timeout_s
+    last, since = count(), time.monotonic()
+    while time.monotonic() < end:
+        ros.executor.spin_once(timeout_sec=0.05)
+        now = count()
+        if now != last:
+            last, since = now, time.monotonic()
+        elif time.monotonic() - since >= quiet_s:
+            return True
+    return False
+
+
 def stop(proc):
     if proc.poll() is None:
         os.kill(proc.pid, signal.SIGCONT)
@@ -77,11 +95,13 @@ def test_plant_detects_a_dead_or_stalled_controller_and_lands_the_rotor(ros, ros
     ns = f"/wd_ctrl_{sig.name.lower()}"
     spy = ros.add(Spy(ros.context, ns))
     plant = ros.add(PlantSim(namespace=ns, context=ros.context, parameter_overrides=[
-        Parameter("controller_timeout", value=TIMEOUT_S), Parameter("block_size", value=500)]))
+        Parameter("controller_timeout", value=START_TIMEOUT_S), Parameter("block_size", value=500)]))
+    assert plant.watchdog.timer_period_ns == WATCHDOG_S * 1e9  # the tick TIMEOUT_S is checked at
     ros.matched(spy, to=plant)  # the spy hears every block from the first before the controller starts the loop
     ctrl = start("position_controller", ns, ros_env)
     try:
         assert ros.spin_until(lambda: plant.k >= 1000, 90), "the loop did not run across the two processes"
+        plant.timeout = TIMEOUT_S  # the loop runs: now a silent controller is lost
         os.kill(ctrl.pid, sig)
         t_fault = time.monotonic()
         assert ros.spin_until(plant.finished.done, 20)
@@ -122,12 +142,15 @@ def test_plant_detects_a_dead_or_stalled_controller_and_lands_the_rotor(ros, ros
 def test_controller_detects_a_dead_or_stalled_plant_and_idles_safely(ros, ros_env, sig):
     ns = f"/wd_plant_{sig.name.lower()}"
     spy = ros.add(Spy(ros.context, ns))
-    plant = start("plant_sim", ns, ros_env, controller_timeout=TIMEOUT_S)
+    # the plant's own watchdog matters only once it resumes (SIGSTOP): a few seconds, past a start under load
+    plant = start("plant_sim", ns, ros_env, controller_timeout=3.0)
     try:
         ros.matched(spy, to=["displacement", "measurement"])
         ctrl = ros.add(PositionController(namespace=ns, context=ros.context,
-                                          parameter_overrides=[Parameter("plant_timeout", value=TIMEOUT_S)]))
+                                          parameter_overrides=[Parameter("plant_timeout", value=START_TIMEOUT_S)]))
+        assert ctrl.watchdog.timer_period_ns == WATCHDOG_S * 1e9
         assert ros.spin_until(lambda: (ctrl.expected or 0) >= 1000, 90), "the loop did not run"
+        ctrl.timeout = TIMEOUT_S  # the loop runs: now a silent plant is lost
         os.kill(plant.pid, sig)
         t_fault = time.monotonic()
         assert ros.spin_until(lambda: ctrl.state == SessionStatus.STATE_FAILED, 20)
@@ -150,7 +173,10 @@ def test_controller_detects_a_dead_or_stalled_plant_and_idles_safely(ros, ros_en
                                  [len(SUMMARY_PREFIX):])
             assert code == 1 and summary["state"] == "failed", out[-2000:]
             assert ros.spin_until(lambda: spy.code("controller_lost"), 10)
-        # the controller idles: a displacement of the lost session is refused, a new session (sample 0) served
+        # the controller idles: a displacement of the lost session is refused, a new session (sample 0) served;
+        # first every displacement the plant sent (the resumed plant asks again until its own watchdog ends it)
+        # must have been taken, so that the one counted below is the test's
+        assert settled(ros, lambda: ctrl.intake.received["displacement"]), "the plant's last messages never ended"
         n = ctrl.intake.rejected["displacement"]
         spy.pub_y.publish(Sample(index=last_y + 5, values=[0.0] * 4))
         assert ros.spin_until(lambda: ctrl.intake.rejected["displacement"] == n + 1, 5)
