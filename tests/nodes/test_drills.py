@@ -75,7 +75,10 @@ def drill(ros, procs, ros_env, args: list[str], node: str, sig: int, at_sample: 
     run = procs([sys.executable, "-m", "ambid_cli.cli", *args], env=ros_env, cwd=REPO, stdout=subprocess.PIPE,
                 stderr=subprocess.PIPE, text=True)
     assert ros.spin_until(lambda: blocks.progress >= at_sample or run.poll() is not None, 300), "no session"
-    assert run.poll() is None, run.communicate()
+    if run.poll() is not None:
+        out, err = run.communicate()
+        pytest.fail(f"the run ended (exit code {run.returncode}) before the drill, the test heard samples up to "
+                    f"{blocks.progress} of {at_sample}: {out[-1500:]} {err[-3000:]}")
     pid = node_pid(run.pid, node)
     assert pid is not None, f"no process of {node} below {run.pid}"
     os.kill(pid, sig)
@@ -204,8 +207,10 @@ def test_recorder_killed_its_file_reads_with_recover(ros, ros_env, procs, tmp_pa
 
 def test_hardware_bridge_stopped(ros, ros_env, procs, tmp_path):
     tp, lp = free_port(), free_port()
+    # paced at a quarter of real time (a rig's target keeps its clock; free-running, the session's 12,300 samples
+    # would pass in a fraction of a second, before the drill could stop the bridge in the middle)
     procs([sys.executable, "-m", "ambid.hardware.rt_target", "--bind", f"127.0.0.1:{tp}", "--bridge",
-           f"127.0.0.1:{lp}", "--pace", "0", "--hold-for-excitation", "--samples", "100000", "--seed", "1"],
+           f"127.0.0.1:{lp}", "--pace", "4", "--samples", "100000", "--seed", "1"],
           env=ros_env, cwd=REPO / "ambid_core", stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     path, out, err, k, blocks = identify_drill(ros, ros_env, procs, tmp_path, "hardware_bridge", signal.SIGSTOP,
                                                7000, "--hardware", f"127.0.0.1:{tp}", "--local-port", str(lp))
