@@ -83,7 +83,7 @@ def run_composed(cfg: GraphConfig) -> dict:
 def preflight(executor, namespace: str, context, report: Callable[[dict], None] | None = None) -> dict[str, list[str]]:
     """{topic: [publishers named]} already on the rig's topics before its session starts (a rig next door, a
     replayed recording, a script left running), found in the session's own ``context`` before any of its nodes
-    exists: a listener waits for discovery to settle (:func:`wait_for_discovery`, 1-3 s), so the session's
+    exists: a listener waits for discovery to settle (:func:`wait_for_discovery`, 1-5 s), so the session's
     participant knows them from then on and its nodes hear them from their first message. The session runs
     unaffected by them (every node acts only on its session's messages); ``report(found)`` names them at
     once (the command's one line). Without ``report`` (a study's sessions: campaign, validate, bench) nobody
@@ -112,10 +112,10 @@ def preflight(executor, namespace: str, context, report: Callable[[dict], None] 
     return found
 
 
-def wait_for_discovery(executor, node, least_s: float = 1.0, most_s: float = 3.0, still_s: float = 0.5) -> None:
+def wait_for_discovery(executor, node, least_s: float = 1.0, most_s: float = 5.0, still_s: float = 1.0) -> None:
     """Spin at least ``least_s``, then until the graph ``node`` sees has not changed for ``still_s`` (at most
     ``most_s`` in all): participants already on the domain are discovered within a fraction of a second on
-    one host, later on a loaded one."""
+    one host, later on a loaded one (a node's name and its publishers come a while after its participant)."""
     start = time.monotonic()
     seen, since = None, start
     while time.monotonic() - start < most_s:
