@@ -106,8 +106,8 @@ RIG_COMMANDS = {
     "fit": None,  # filled in the test: it needs the good session
     "target-model": lambda rig, d: ["target-model", "--rig", rig, "--out", str(d / "target-model_out")],
 }
-RIG_REFUSAL = {"missing": "does not exist", "folder": "is a folder", "empty": "is empty", "random": "is not text",
-               "truncated": "is not text", "unrelated": "is not text"}
+RIG_REFUSAL = {"missing": "does not exist", "folder": "is a folder", "empty": "is empty", "random": "is not YAML text",
+               "truncated": "is not YAML text", "unrelated": "is not YAML text"}
 
 
 @pytest.mark.parametrize("kind", KINDS)

@@ -30,15 +30,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
-
 from ambid.plant.amplifier import Amplifier
 from ambid.plant.fem_rotor import LaminationStack, Material, RotorGeometry, ShaftSection
 from ambid.plant.magnet import MU0, MagnetPair
 from ambid.plant.rigid_rotor import RigidRotor
 from ambid.plant.rotor_import import load_rotor
 from ambid.plant.rotor_model import RotorModel, fem_rotor_model, rigid_inverse_mass
-from ambid.text_file import read_text
+from ambid.yaml_file import read_yaml
 
 
 @dataclass(frozen=True)
@@ -451,15 +449,7 @@ def read_rig_file(path: str | Path) -> dict[str, Any]:
     the mapping written elsewhere (e.g. with one value changed) names the same rig."""
     path = Path(path)
     fix = "give a YAML file of parameter: value lines like rigs/ideal.yaml, or leave out the rig file for the default"
-    text = read_text(path, "rig file", fix)
-    if not text.strip():
-        raise ValueError(f"rig file {path} is empty; {fix}")
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        where = getattr(exc, "problem_mark", None)
-        at = f" at line {where.line + 1}" if where is not None else ""
-        raise ValueError(f"rig file {path} is not valid YAML{at}; {fix}") from None
+    data = read_yaml(path, "rig file", fix, allow_empty=False)
     if data is None:
         data = {}
     if not isinstance(data, dict):

@@ -27,6 +27,7 @@ from typing import Any
 
 import yaml
 
+from ambid.yaml_file import read_yaml
 from ambid.channels import AXES, CURRENT_NAMES, DISPLACEMENT_NAMES
 
 from .readers import RecordError
@@ -138,9 +139,9 @@ def load_map(path: str | os.PathLike) -> RecordMap:
     if os.path.isdir(path):
         raise RecordError(f"{path} is a folder; give the MAP.yaml file")
     try:
-        raw = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, yaml.YAMLError):
-        raise RecordError(f"{path} is not YAML text; give a MAP.yaml as 'ambid import --help' shows") from None
+        raw = read_yaml(path, "", "give a MAP.yaml as 'ambid import --help' shows")
+    except ValueError as exc:
+        raise RecordError(str(exc)) from None
     if raw is None:
         raise RecordError(f"{path} is empty; give sample_rate_hz (or time_column), outputs, currents and "
                           "excitation")
