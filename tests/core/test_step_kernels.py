@@ -167,7 +167,9 @@ def test_simulator_copies_and_pickles():
 
 def test_plant_work_checks_the_matrix():
     with pytest.raises(ValueError, match="n \\+ 20, n \\+ 19"):
-        sk.plant_work(np.zeros((10, 20)), 4)
+        sk.plant_work(np.zeros((10, 20)), 4, 4)
+    with pytest.raises(ValueError, match="n \\+ 25, n \\+ 23"):
+        sk.plant_work(np.zeros((10, 20)), 5, 4)
 
 
 def _random_controller(rng, n=6, p=4, q=4, proper=True):
