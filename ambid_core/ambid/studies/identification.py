@@ -13,7 +13,9 @@
    (``model.npz``, ``model.json``) and the FRF (``frf.npz``) in ``out_dir``;
 4. physical-model updating (:mod:`ambid.fit.model_update`) started from the
    analytical (nominal) rig, with an extra support mode when the fit shows a
-   mode the analytical model lacks;
+   mode the analytical model lacks, where the rig model covers the FRF's
+   channels (a note says so where it does not: channels are data, a record
+   of one axis or one plane is fitted all the same);
 5. when the session is simulated (rig facts recorded, plant source 'sim'):
    the comparison against the true rig's sampled linear model
    (:func:`ambid.plant.true_rig.true_linear_model`) and its parameters;
@@ -51,14 +53,16 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from ambid.channels import Layout, bearing_of
 from ambid.control.closed_loop import loop_robustness
 from ambid.excitation.design import ExcitationDesign
 from ambid.fit import (FitResult, StabilisationDiagram, fit_common_denominator, modal_summary, save_model_json,
                        save_model_npz, stabilisation_diagram)
-from ambid.fit.model_update import (PhysicalUpdate, closed_loop_noise_std, excitation_slopes, nominal_parameters,
-                                    physical_frf, true_parameters, unmodelled_mode, update_physical_model)
+from ambid.fit.model_update import (PhysicalUpdate, closed_loop_noise_std, covers, excitation_slopes,
+                                    nominal_parameters, physical_frf, true_parameters, unmodelled_mode,
+                                    update_physical_model)
 from ambid.fit.updating import NotIdentifiable
-from ambid.frf.directional import directional_frf, whirl_of_residue
+from ambid.frf.directional import directional_frf, has_planes, whirl_of_residue
 from ambid.frf.levels import LineLevels, line_levels
 from ambid.frf.offline import frf_from_session, session_designs
 from ambid.frf.sensitivity import iso14839_zone
@@ -310,6 +314,9 @@ def _update(rig: Rig, frf: FrfResult, var, band, modes, dt_s, start_overrides, f
     the update run again, with a note; parameters the caller chose are kept, and the error says why.
     """
 
+    not_covered = covers(rig.rotor_model(), frf.output_names, frf.input_names)
+    if not_covered:
+        return None, None, [f"no physical model updating: {not_covered}"]
     start = nominal_parameters(rig)
     # resonance peak height of R / (s - p) is |R| / (zeta omega)
     strength = [m.residue_singular_values[0] / (max(m.damping, 1e-6) * 2 * np.pi * m.freq_hz) for m in modes]
@@ -328,7 +335,8 @@ def _update(rig: Rig, frf: FrfResult, var, band, modes, dt_s, start_overrides, f
     if free is None:
         free = [k for k in ("ki_n_per_a", "ks_n_per_m", "ks_b_over_a", "amplifier_bandwidth_hz", "sensor_bandwidth_hz",
                             "bending_freq_hz", "bending_damping_ratio", "support_freq_hz", "support_damping_ratio",
-                            "support_gain_per_kg", "delay_s") if k in start]
+                            "support_gain_per_kg", "delay_s", "axial_ki_n_per_a", "axial_ks_n_per_m",
+                            "axial_amplifier_bandwidth_hz") if k in start]
         # a bending mode outside the measured band cannot be identified from it
         if "bending_freq_hz" in start and not band[0] <= start["bending_freq_hz"] <= band[1]:
             free = [k for k in free if not k.startswith("bending_")]
@@ -361,8 +369,8 @@ def refit_parameters(summary: Mapping[str, Any], rig: Rig, freq_hz: np.ndarray, 
         summary: :func:`identify_session`'s summary, with ``update.parameters``.
         rig: the rig the session updated.
         freq_hz: (L,) lines [Hz].
-        G: (L, 4, 4) FRF u -> y [m/A].
-        var: (L, 4, 4) the session's fit variance [(m/A)^2], or None.
+        G: (L, na, na) FRF u -> y [m/A] on the rig's axes.
+        var: (L, na, na) the session's fit variance [(m/A)^2], or None.
 
     Returns:
         free parameter name -> estimate; {} without an update in the summary.
@@ -493,13 +501,14 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
                                   <= 0.01 * m.freq_hz), **_mode_interval(fit, m.freq_hz, m.damping))
                  for m in modes]
     real_rows = [dict(pole_hz=r.pole_rad_s / (2 * np.pi), unstable=r.unstable) for r in summary_modes.real_poles]
-    # a rotor's x/y matrix (4 x 4, AXES order): forward and backward whirl told apart
-    rotor_axes = frf.frf.shape[1:] == (4, 4)
-    dfrf = directional_frf(f, frf.frf, var) if rotor_axes else None
+    # the radial bearing planes among the channels (x and y of a bearing): forward and backward whirl told apart
+    rotor_axes = has_planes(frf.output_names, frf.input_names)
+    dfrf = directional_frf(f, frf.frf, var, frf.output_names, frf.input_names) if rotor_axes else None
     if rotor_axes:
         for m, row in zip(modes, mode_rows):
             k = int(np.argmin(np.abs(fit.model.poles - m.pole_rad_s)))
-            row["whirl"], row["forward_share"] = whirl_of_residue(fit.model.residues[k])
+            row["whirl"], row["forward_share"] = whirl_of_residue(fit.model.residues[k], frf.output_names,
+                                                                  frf.input_names)
     save_model_npz(out / "model.npz", fit.model)
     save_model_json(out / "model.json", fit.model)
 
@@ -515,20 +524,20 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     if simulated and the_rig is not None:
 
         true_rig = make_rig(facts)
-        true_g = true_linear_model(true_rig, discrete=True).freqresp(f)
+        true_g = _on_channels(true_linear_model(true_rig, discrete=True), f, frf)
         true_params = true_parameters(true_rig)
         recorded = recorded_controller(path, recover)
         if recorded is not None and design.is_periodic and _nonlinear_magnets(path, recover):
             # what this excitation measures: the magnets' slopes averaged over the excursions it causes
             ki_x, ks_x = excitation_slopes(true_rig, recorded[0], design)
-            true_params.update(ki_at_excitation=float(np.mean(ki_x)), ks_at_excitation=float(np.mean(ks_x)),
-                               ks_b_over_a_at_excitation=float(np.mean(ks_x[[1, 3]]) / np.mean(ks_x[[0, 2]])))
-            true_g_x = true_linear_model(true_rig, discrete=True, plant=true_plant(true_rig, ki_x, ks_x)).freqresp(f)
+            true_params.update(_at_excitation(true_rig.layout, ki_x, ks_x))
+            true_g_x = _on_channels(true_linear_model(true_rig, discrete=True, plant=true_plant(true_rig, ki_x, ks_x)),
+                                    f, frf)
         # physical-looking fitted modes: positively damped and found again at the next lower order
         physical = [(m.freq_hz, m.damping) for m, row in zip(modes, mode_rows) if row["stable"] and m.damping > 0]
         # the modes of the linear system this excitation measures (the magnets' stiffness moves them)
         true_plant_x = None if true_g_x is None else true_plant(true_rig, ki_x, ks_x)
-        if recorded is not None and frf.noise_std.shape == (4,):
+        if recorded is not None and tuple(frf.output_names) == true_rig.layout.outputs:
             # the sensor noise through the loop this excitation linearises
             true_noise = closed_loop_noise_std(true_rig, recorded[0], true_plant_x)
         modes_vs_true = compare_modes(physical or [(m.freq_hz, m.damping) for m in modes],
@@ -664,15 +673,15 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         levels, window = _samples_for_report(path, chosen, design, frf, recover)
         dense = np.geomspace(max(band[0] / 1.5, 1e-3), min(band[1] * 1.5, 0.499 * design.fs_hz), 400)
         curves = {"fitted model": (dense, fit.model.freqresp(dense))}
-        if the_rig is not None:
+        if the_rig is not None and not covers(the_rig.rotor_model(), frf.output_names, frf.input_names):
             curves["analytical (nominal) model"] = (dense, physical_frf(the_rig.rotor_model(),
                                                                         nominal_parameters(the_rig), dense, dt_s))
         if upd is not None:
             curves["updated physical model"] = (dense, physical_frf(the_rig.rotor_model(), upd.parameters,
                                                                      dense, dt_s))
         if simulated and the_rig is not None:
-
-            curves["true rig (simulated)"] = (dense, true_linear_model(make_rig(facts), discrete=True).freqresp(dense))
+            curves["true rig (simulated)"] = (dense, _on_channels(true_linear_model(make_rig(facts), discrete=True),
+                                                                  dense, frf))
         line_models = {"fitted model": fit.model.freqresp(f)}
         if upd is not None:
             line_models["updated physical model"] = physical_frf(the_rig.rotor_model(), upd.parameters, f, dt_s)
@@ -680,7 +689,8 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         summary["wall_s"] = time.perf_counter() - t0
         extra = []
         if dfrf is not None:
-            d_curves = {label: directional_frf(fc, gc) for label, (fc, gc) in curves.items()
+            d_curves = {label: directional_frf(fc, gc, None, frf.output_names, frf.input_names)
+                        for label, (fc, gc) in curves.items()
                         if label in ("fitted model", "true rig (simulated)")}
             whirls = [(row["freq_hz"], row["whirl"]) for row in mode_rows]
             extra.append(("directional_frf.png", "Directional FRFs p / f (p = x + j y, f = u_x + j u_y per bearing "
@@ -694,6 +704,30 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     summary = to_jsonable(summary)
     (out / "identification.json").write_text(json.dumps(summary, indent=1))
     return summary
+
+
+def _on_channels(model: StateSpace, freq_hz: np.ndarray, frf: FrfResult) -> np.ndarray:
+    """A model's FRF at ``freq_hz`` on the measured FRF's channels: its rows and columns picked by name, so a
+    session that excited some of the rig's inputs is compared with the same entries of the truth."""
+    g = model.freqresp(freq_hz)
+    rows = [model.output_names.index(n) for n in frf.output_names]
+    cols = [model.input_names.index(n) for n in frf.input_names]
+    return g[:, rows][:, :, cols]
+
+
+def _at_excitation(layout: Layout, ki_x: np.ndarray, ks_x: np.ndarray) -> dict[str, float]:
+    """The true magnets' slopes at the excitation level as the updated parameters name them: ki, ks (radial
+    mean), ks_b_over_a (bearing B's over A's), and the axial ones."""
+    axial = list(layout.axial)
+    radial = [j for j in range(len(layout)) if j not in axial]
+    a_axes = [j for j in radial if bearing_of(layout.axes[j]) == "a"]
+    b_axes = [j for j in radial if bearing_of(layout.axes[j]) == "b"]
+    out = dict(ki_at_excitation=float(np.mean(ki_x[radial])), ks_at_excitation=float(np.mean(ks_x[radial])),
+               ks_b_over_a_at_excitation=float(np.mean(ks_x[b_axes]) / np.mean(ks_x[a_axes])))
+    if axial:
+        out.update(axial_ki_at_excitation=float(np.mean(ki_x[axial])),
+                   axial_ks_at_excitation=float(np.mean(ks_x[axial])))
+    return out
 
 
 def _synchronous_dict(frf: FrfResult) -> dict | None:
@@ -754,6 +788,8 @@ def _model_sensitivity(path, model, band, fs_hz: float, rig, recover: bool) -> d
     if recorded is None:
         return {}
     k = recorded[0]
+    if (k.n_inputs, k.n_outputs) != (model.n_outputs, model.n_inputs):   # the loop needs the whole square plant
+        return {}
     f = np.linspace(band[0], band[1], 8000)
     g = model.freqresp(f)
     kz = k.freqresp(f)
