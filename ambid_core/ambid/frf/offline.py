@@ -71,8 +71,10 @@ def data_channels(design_inputs: Sequence[str], names: Sequence[str] | None = No
 
     Args:
         design_inputs: the design's input names (``u_a_x``, or a bare axis).
-        names: the record's channel names (a measurement block's); its ``y_<axis>`` channels, in their
-            order, are the outputs. None: the y channels of the design's axes.
+        names: the record's channel names (a measurement block's); its ``y_<axis>`` channels are the
+            outputs: those of the design's axes first, in the design's order (so the matrix's rows and
+            columns name the same axes in the same order), then the others in the record's order. None:
+            the y channels of the design's axes.
         outputs, inputs, references: given channel names (None: from the data).
 
     Returns:
@@ -90,7 +92,9 @@ def data_channels(design_inputs: Sequence[str], names: Sequence[str] | None = No
         if names is None:
             outputs = tuple(f"y_{a}" for a in axes)
         else:
-            outputs = tuple(n for n in names if _signal(n) == "y")
+            ys = [n for n in names if _signal(n) == "y"]
+            first = [f"y_{a}" for a in axes if f"y_{a}" in ys]
+            outputs = tuple(first + [n for n in ys if n not in first])
             if not outputs:
                 raise ValueError(f"the record's channels {list(names)} hold no displacement y_<axis>; record the "
                                  "measured displacements (y_a_x, ...)")

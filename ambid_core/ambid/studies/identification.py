@@ -53,7 +53,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from ambid.channels import Layout, bearing_of
+from ambid.channels import Layout, bearing_of, split_name
 from ambid.control.closed_loop import loop_robustness
 from ambid.excitation.design import ExcitationDesign
 from ambid.fit import (FitResult, StabilisationDiagram, fit_common_denominator, modal_summary, save_model_json,
@@ -67,7 +67,7 @@ from ambid.frf.levels import LineLevels, line_levels
 from ambid.frf.offline import frf_from_session, session_designs
 from ambid.frf.sensitivity import iso14839_zone
 from ambid.frf.uncertainty import fit_weight_variance, row_covariance
-from ambid.frf.streaming import FrfResult
+from ambid.frf.streaming import FrfResult, axis_tag
 from ambid.jsonable import to_jsonable
 from ambid.plant.analytical import analytical_model
 from ambid.plant.rig import Rig, load_rig, make_rig
@@ -777,6 +777,30 @@ def recorded_controller(path: str | os.PathLike, recover: bool = False) -> tuple
     return None
 
 
+def _axis(name: str) -> str:
+    """The axis of a channel name (``y_a_x``, ``ic_a_x``, ``u_a_x`` -> ``a_x``); another name as it is."""
+    try:
+        return split_name(name)[1]
+    except ValueError:
+        return axis_tag(name)
+
+
+def _aligned_controller(k: StateSpace, model: StateSpace) -> StateSpace | None:
+    """The controller y -> ic with its inputs in the fitted plant's output order and its outputs in the plant's
+    input order, matched by axis (``y_a_x`` <-> ``y_a_x``, ``u_a_x`` <-> ``ic_a_x``); as it is when its
+    channels are unnamed and the sizes agree; None when the two do not close one loop."""
+    if not (k.input_names and k.output_names and model.output_names and model.input_names):
+        return k if (k.n_inputs, k.n_outputs) == (model.n_outputs, model.n_inputs) else None
+    ins, outs = [_axis(n) for n in k.input_names], [_axis(n) for n in k.output_names]
+    want_in, want_out = [_axis(n) for n in model.output_names], [_axis(n) for n in model.input_names]
+    if sorted(ins) != sorted(want_in) or sorted(outs) != sorted(want_out):
+        return None
+    rows, cols = [outs.index(a) for a in want_out], [ins.index(a) for a in want_in]
+    return k._replace(b=k.b[:, cols], c=k.c[rows], d=k.d[np.ix_(rows, cols)],
+                      input_names=tuple(k.input_names[i] for i in cols),
+                      output_names=tuple(k.output_names[i] for i in rows))
+
+
 def _model_sensitivity(path, model, band, fs_hz: float, rig, recover: bool) -> dict:
     """Input-sensitivity peak between the excited lines: S = (I - K G_fit)^-1 on a dense grid.
 
@@ -787,8 +811,8 @@ def _model_sensitivity(path, model, band, fs_hz: float, rig, recover: bool) -> d
     recorded = recorded_controller(path, recover)
     if recorded is None:
         return {}
-    k = recorded[0]
-    if (k.n_inputs, k.n_outputs) != (model.n_outputs, model.n_inputs):   # the loop needs the whole square plant
+    k = _aligned_controller(recorded[0], model)
+    if k is None:   # the loop needs the plant on the controller's channels
         return {}
     f = np.linspace(band[0], band[1], 8000)
     g = model.freqresp(f)
