@@ -151,7 +151,9 @@ RIG_FIELDS: dict[str, RigField] = {
     "axial_sensor_gain": RigField(1.0, "m/m", 0.1, 10.0, "axial probe, calibrated sensitivity (true / nominal)"),
     "axial_sensor_noise_m": RigField(0.3e-6, "m", 0.0, 1e-3, "RMS white noise of the axial probe at 10 kHz "
                                      "(a larger target distance than the radial probes')"),
-    "axial_backup_clearance_m": RigField(0.25e-3, "m", 1e-6, 0.01, "axial retainer clearance, < axial s0"),
+    "axial_backup_clearance_m": RigField(0.2e-3, "m", 1e-6, 0.01, "axial retainer clearance, a third of the "
+                                         "axial s0: the disk lands before the magnet's pull at full current "
+                                         "overcomes the retainer's stiffness"),
 }
 
 _ROTOR_KEYS = ("shaft_length_m", "shaft_diameter_m", "stack_length_m", "stack_diameter_m", "sleeve_length_m",
