@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ambid.channels import Layout
+from ambid.channels import Layout, bearing_of
 
 # a mode whose forward share of the orbit lies between these is called standing (no clear direction)
 _STANDING = (0.4, 0.6)
@@ -35,6 +35,7 @@ class DirectionalFrf:
         forward, backward: (L, Np, Np) complex, p (outputs) per f (inputs) [m/A].
         var_forward, var_backward: (L, Np, Np) variances [(m/A)^2] from the x/y variances, the
             elements taken independent; None without them.
+        planes: the bearings of the Np planes (rows), e.g. ("a", "b").
     """
 
     freq_hz: np.ndarray
@@ -42,6 +43,7 @@ class DirectionalFrf:
     backward: np.ndarray
     var_forward: np.ndarray | None = None
     var_backward: np.ndarray | None = None
+    planes: tuple[str, ...] = ()
 
 
 def planes(names: Sequence[str]) -> tuple[tuple[int, ...], tuple[int, ...]]:
@@ -85,7 +87,9 @@ def directional_frf(freq_hz: np.ndarray, frf: np.ndarray, var: np.ndarray | None
     if var is not None:
         v = np.asarray(var, dtype=float)
         vf = (v[:, xo][:, :, xi] + v[:, yo][:, :, yi] + v[:, xo][:, :, yi] + v[:, yo][:, :, xi]) / 4
-    return DirectionalFrf(np.asarray(freq_hz, dtype=float), fwd, bwd, vf, vf)
+    lay = Layout.from_names(output_names)
+    return DirectionalFrf(np.asarray(freq_hz, dtype=float), fwd, bwd, vf, vf,
+                          tuple(bearing_of(lay.axes[x]) for x, _ in lay.radial_pairs))
 
 
 def whirl(shape: np.ndarray, names: Sequence[str]) -> tuple[str, float]:
