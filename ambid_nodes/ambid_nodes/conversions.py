@@ -12,6 +12,7 @@ import math
 from collections.abc import Callable, Sequence
 
 import numpy as np
+from ambid.session.blocks import MAX_SAMPLE_INDEX
 from builtin_interfaces.msg import Time
 from rclpy.serialization import deserialize_message
 
@@ -29,9 +30,6 @@ class BadMessage(ValueError):
         self.index = index
 
 
-#: largest sample index a message may name: 2**40 samples are 3.5 years at 10 kHz, and
-#: every time stamp derived from an index still fits builtin_interfaces/Time (int32 seconds)
-MAX_SAMPLE_INDEX = 2**40
 
 
 #: sample rates a message may name [Hz]: far around the rigs' 1 kHz - 100 kHz

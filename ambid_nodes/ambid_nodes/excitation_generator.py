@@ -34,13 +34,13 @@ from __future__ import annotations
 
 import json
 import sys
-from dataclasses import dataclass
 
 import numpy as np
 from ambid.channels import AXES, CURRENT_NAMES
-from ambid.excitation import ExcitationDesign, check_headroom
-from ambid.excitation.spec import DEFAULT_INPUTS, KINDS, build_design
-from ambid.plant.rig import load_rig, make_rig
+from ambid.excitation import ExcitationDesign
+from ambid.excitation.experiment import Experiment, place_experiment
+from ambid.excitation.spec import KINDS, DesignSpec
+from ambid.plant.rig import Rig
 from ambid.session.facts import design_fields
 from rclpy.node import Node
 
@@ -50,56 +50,45 @@ from ambid_msgs.srv import StartExperiment, StopExperiment
 from ambid_nodes import qos
 from ambid_nodes.conversions import BadMessage, block_data, block_msg, check_plant_description, status_msg, time_msg
 from ambid_nodes.intake import Intake
-from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
+from ambid_nodes.parameters import ParameterError, declare, node_rig, refuse_unknown
 
 EXCITATION_NAMES = tuple(f"r_{a}" for a in AXES)
 EXCITATION_UNITS = ("A",) * len(EXCITATION_NAMES)
 STATUS_PERIOD_S = 0.5
 
 
-@dataclass
-class Experiment:
-    """The running experiment: its design and how far it has been published."""
-
-    experiment_id: str
-    design: ExcitationDesign
-    msg: DesignMsg
-    start: int                 # plant sample index of offset 0
-    total: int                 # samples, cut by a stop
-    columns: np.ndarray        # (Nu,) excitation channel of each design input
-    next_offset: int = 0       # first offset not yet published
-    blocks: int = 0
-
-    @property
-    def end(self) -> int:
-        return self.start + self.total
+D = DesignSpec()  # the parameters' defaults: the experiment identify runs
 
 
 class ExcitationGenerator(Node):
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, *, rig: Rig | None = None, **kwargs) -> None:
+        """``rig``: the rig a composed run parsed once (else the ``rig_file`` parameter's)."""
         super().__init__("excitation_generator", **kwargs)
         rig_file = declare(self, "rig_file", "", "YAML rig parameter file for the defaults until plant/description "
                                                  "arrives; empty = the default rig")
-        self.kind = declare(self, "kind", "multisine", "excitation kind: " + " | ".join(KINDS))
-        band = (declare(self, "band_low", 10.0, "lower edge of the band of interest", 0.0, 1e6, "Hz"),
-                declare(self, "band_high", 1000.0, "upper edge of the band of interest, below fs/2", 0.0, 1e6, "Hz"))
-        resolution = declare(self, "resolution", 5.0, "frequency resolution fs/N; fs/resolution must be an integer",
-                             1e-6, 1e6, "Hz")
-        inputs = declare(self, "inputs", list(DEFAULT_INPUTS),
+        kind = declare(self, "kind", D.kind, "excitation kind: " + " | ".join(KINDS))
+        band = (declare(self, "band_low", D.band_hz[0], "lower edge of the band of interest", 0.0, 1e6, "Hz"),
+                declare(self, "band_high", D.band_hz[1], "upper edge of the band of interest, below fs/2", 0.0, 1e6,
+                        "Hz"))
+        resolution = declare(self, "resolution", D.resolution_hz,
+                             "frequency resolution fs/N; fs/resolution must be an integer", 1e-6, 1e6, "Hz")
+        inputs = declare(self, "inputs", list(D.input_names),
                          "excited inputs (plant current names); u_<axis> is excited through channel r_<axis>")
-        peak = declare(self, "peak_current", 0.5, "excitation peak per input", 1e-6, 1e3, "A")
-        periods = declare(self, "periods", 4, "steady-state periods P per experiment", 1, 1_000_000)
-        realisations = declare(self, "realisations", 1, "realisations M (random phases, noise records)", 1, 100_000)
-        transient = declare(self, "transient_periods", 1, "periods discarded ahead of each experiment", 0, 100_000)
-        grid = declare(self, "grid", "", "line grid: random_odd | odd | full; empty = the kind's default")
-        spacing = declare(self, "spacing", "", "line spacing (swept sine: sweep law): linear | log; "
-                                               "empty = the kind's default")
-        phases = declare(self, "phases", "", "multisine phases: random | schroeder | crest_optimised; "
-                                             "empty = random")
-        mimo = declare(self, "mimo", "", "orthogonal | one_at_a_time | simultaneous; empty = the kind's default")
-        seed = declare(self, "seed", 0, "seed of the random choices (phases, grid, noise)", 0, 2**31 - 1)
-        settle = declare(self, "settle_time", 0.5, "stepped sine: settling wait per line", 0.0, 3600.0, "s")
-        cycles = declare(self, "cycles", 10, "stepped sine: measured cycles per line", 1, 1_000_000)
+        peak = declare(self, "peak_current", D.peak_current_a, "excitation peak per input", 1e-6, 1e3, "A")
+        periods = declare(self, "periods", D.n_periods, "steady-state periods P per experiment", 1, 1_000_000)
+        realisations = declare(self, "realisations", D.n_realisations, "realisations M (random phases, noise "
+                                                                       "records)", 1, 100_000)
+        transient = declare(self, "transient_periods", D.n_transient_periods,
+                            "periods discarded ahead of each experiment", 0, 100_000)
+        grid = declare(self, "grid", D.grid, "line grid: random_odd | odd | full; empty = the kind's default")
+        spacing = declare(self, "spacing", D.spacing, "line spacing (swept sine: sweep law): linear | log; "
+                                                      "empty = the kind's default")
+        phases = declare(self, "phases", D.phases, "multisine phases: crest_optimised | random | schroeder; "
+                                                   "empty = the kind's default (crest_optimised)")
+        mimo = declare(self, "mimo", D.mimo, "orthogonal | one_at_a_time | simultaneous; empty = the kind's default")
+        seed = declare(self, "seed", D.seed, "seed of the random choices (phases, grid, noise)", 0, 2**31 - 1)
+        settle = declare(self, "settle_time", D.settle_s, "stepped sine: settling wait per line", 0.0, 3600.0, "s")
+        cycles = declare(self, "cycles", D.n_cycles, "stepped sine: measured cycles per line", 1, 1_000_000)
         self.block_size = declare(self, "block_size", 1000, "samples per excitation block", 1, 1_000_000)
         self.lookahead = declare(self, "lookahead", 20_000, "most samples published ahead of the plant's progress",
                                  2, 100_000_000)
@@ -118,25 +107,19 @@ class ExcitationGenerator(Node):
         if unknown:
             raise ParameterError(f"excitation_generator: inputs {unknown} are not plant currents; use some of "
                                  f"{list(CURRENT_NAMES)}")
-        self.design_args = dict(kind=self.kind, band_hz=band, resolution_hz=resolution, input_names=tuple(inputs),
-                                peak_current_a=peak, n_periods=periods, n_realisations=realisations,
-                                n_transient_periods=transient, grid=grid, spacing=spacing, phases=phases,
-                                mimo=mimo, seed=seed, settle_s=settle, n_cycles=cycles)
-        try:
-            rig = load_rig(rig_file) if rig_file else make_rig()
-        except (ValueError, OSError) as exc:
-            raise ParameterError(f"excitation_generator: rig_file: {exc}") from None
-        # defaults until the plant describes itself; the design is checked now, so a bad band fails at start-up
+        self.spec = DesignSpec(kind, band, resolution, tuple(inputs), peak, periods, realisations, transient, grid,
+                               spacing, phases, mimo, seed, settle, cycles)
+        rig = node_rig(self, rig_file, rig)
+        # defaults until the plant describes itself; the terms are checked now, so a bad band fails at
+        # start-up, and designed only when an experiment asks for them (a caller may bring its own design)
         self.dt = rig.dt
         self.current_names = list(CURRENT_NAMES)
         self.plant_limit = np.full(len(CURRENT_NAMES), float(rig.current_limit_a))
         self.plant_known = False
-        try:
-            self.default_design: ExcitationDesign | None = build_design(fs_hz=1.0 / self.dt, **self.design_args)
-        except ValueError as exc:
-            raise ParameterError(f"excitation_generator: the design parameters are invalid at "
-                                 f"{1.0 / self.dt:g} Hz: {exc}") from None
-        self.default_error = ""
+        self.default_error = self.check_spec()
+        if self.default_error:
+            raise ParameterError(f"excitation_generator: {self.default_error}")
+        self.default_design: ExcitationDesign | None = None  # the parameters' design, once asked for
 
         self.pub_design = self.create_publisher(DesignMsg, "excitation/design", qos.LATCHED)
         self.pub_block = self.create_publisher(SampleBlock, "excitation", qos.BLOCKS)
@@ -152,6 +135,7 @@ class ExcitationGenerator(Node):
         self.measurement_block = 0  # largest measurement block seen [samples]
         self.last_end = 0          # end of the previous experiment: the next may not overlap it
         self.exp: Experiment | None = None
+        self.exp_msg: DesignMsg | None = None  # the running experiment's excitation/design
         self.last: Experiment | None = None
         self.count = 0
         self.state = SessionStatus.STATE_IDLE
@@ -168,12 +152,17 @@ class ExcitationGenerator(Node):
         self.plant_limit = np.asarray(msg.current_limit, dtype=float)
         self.plant_known = True
         if changed:
-            try:
-                self.default_design, self.default_error = build_design(fs_hz=1.0 / self.dt, **self.design_args), ""
-            except ValueError as exc:
-                self.default_design = None
-                self.default_error = f"the design parameters are invalid at the plant's {1.0 / self.dt:g} Hz: {exc}"
+            self.default_design, self.default_error = None, self.check_spec("the plant's ")
+            if self.default_error:
                 self.event(SessionEvent.ERROR, "bad_design", self.default_error)
+
+    def check_spec(self, whose: str = "") -> str:
+        """Why the parameters' design cannot be made at the present sample rate, or ""."""
+        try:
+            self.spec.check(1.0 / self.dt)
+        except ValueError as exc:
+            return f"the design parameters are invalid at {whose}{1.0 / self.dt:g} Hz: {exc}"
+        return ""
 
     def on_measurement(self, msg: SampleBlock) -> None:
         try:
@@ -201,7 +190,8 @@ class ExcitationGenerator(Node):
             self.event(SessionEvent.WARN, "start_refused", str(exc))
             return resp
         self.exp, self.state = exp, SessionStatus.STATE_RUNNING
-        self.pub_design.publish(exp.msg)
+        self.exp_msg = self.design_msg(exp)
+        self.pub_design.publish(self.exp_msg)
         self.event(SessionEvent.INFO, "started",
                    f"{exp.experiment_id}: {exp.design.kind}, samples [{exp.start}, {exp.end}), "
                    f"{exp.design.measurement_time_s:.6g} s")
@@ -225,39 +215,24 @@ class ExcitationGenerator(Node):
                 design = ExcitationDesign.from_dict(json.loads(req.design_json))
             except (ValueError, KeyError, TypeError, AttributeError) as exc:  # JSONDecodeError is a ValueError
                 raise ValueError(f"design_json is not a valid ExcitationDesign: {exc!r}") from None
-        elif self.default_design is None:
+        elif self.default_error:
             raise ValueError(self.default_error)
         else:
+            if self.default_design is None:
+                self.default_design = self.spec.build(1.0 / self.dt)
             design = self.default_design
-        fs_plant = 1.0 / self.dt
-        if abs(design.fs_hz - fs_plant) > 1e-9 * fs_plant:
-            raise ValueError(f"the design's sample rate {design.fs_hz:g} Hz differs from the plant's "
-                             f"{fs_plant:g} Hz; design it at {fs_plant:g} Hz")
-        missing = [n for n in design.input_names if n not in self.current_names]
-        if missing:
-            raise ValueError(f"the design excites {missing}, which the plant does not have; its currents are "
-                             f"{self.current_names}")
-        rows = [self.current_names.index(n) for n in design.input_names]
-        limit = self.plant_limit[rows] if self.current_limit == 0 else self.current_limit
-        check_headroom(design, limit, self.working_current)  # its ValueError is the refusal message
-        columns = np.array([EXCITATION_NAMES.index("r_" + n[2:]) if n.startswith("u_") and
-                            "r_" + n[2:] in EXCITATION_NAMES else -1 for n in design.input_names])
-        if np.any(columns < 0):
-            raise ValueError(f"inputs {list(design.input_names)} have no excitation channel among "
-                             f"{list(EXCITATION_NAMES)} (u_<axis> is excited by r_<axis>)")
-        earliest = max(self.progress + self.start_margin, self.last_end)
-        start = int(req.start_index) or earliest
-        if start < earliest:
-            raise ValueError(f"start_index {start} is too early: the plant is at sample {self.progress} (needs "
-                             f"start_margin {self.start_margin} ahead) and the previous experiment ends at "
-                             f"{self.last_end}; use {earliest} or later, or 0 for the next safe one")
+        limit = self.plant_limit if self.current_limit == 0 else self.current_limit
+        exp = place_experiment(f"exp-{self.count + 1:04d}", design, fs_hz=1.0 / self.dt,
+                               current_names=self.current_names, current_limit_a=limit,
+                               working_current_a=self.working_current, excitation_names=EXCITATION_NAMES,
+                               progress=self.progress, margin=self.start_margin, after=self.last_end,
+                               start_index=req.start_index)
         self.count += 1
-        exp_id = f"exp-{self.count:04d}"
-        return Experiment(exp_id, design, self.design_msg(exp_id, design, start, design.total_samples), start,
-                          design.total_samples, columns)
+        return exp
 
-    def design_msg(self, exp_id: str, d: ExcitationDesign, start: int, total: int) -> DesignMsg:
-        return DesignMsg(stamp=time_msg(start * self.dt), **design_fields(d, exp_id, start, total))
+    def design_msg(self, exp: Experiment) -> DesignMsg:
+        return DesignMsg(stamp=time_msg(exp.start * self.dt),
+                         **design_fields(exp.design, exp.experiment_id, exp.start, exp.total))
 
     def on_stop(self, req: StopExperiment.Request, resp: StopExperiment.Response) -> StopExperiment.Response:
         exp = self.exp
@@ -268,10 +243,10 @@ class ExcitationGenerator(Node):
             running = f"; running: {exp.experiment_id}" if exp is not None else ""
             resp.message += running
             return resp
-        exp.total = exp.next_offset  # every published block is applied, nothing after it
-        exp.msg.total_samples = exp.total
-        exp.msg.measurement_time = exp.total / exp.design.fs_hz
-        self.pub_design.publish(exp.msg)
+        exp.stop()
+        self.exp_msg.total_samples = exp.total
+        self.exp_msg.measurement_time = exp.total / exp.design.fs_hz
+        self.pub_design.publish(self.exp_msg)
         self.event(SessionEvent.INFO, "stopped", f"{exp.experiment_id} stopped at sample {exp.end} "
                                                  f"({exp.total} of {exp.design.total_samples} samples)")
         self.finish(exp)
@@ -285,21 +260,13 @@ class ExcitationGenerator(Node):
         exp = self.exp
         if exp is None:
             return
-        limit = self.progress + self.lookahead
-        while exp.next_offset < exp.total:
-            off = exp.next_offset
-            n = min(self.block_size, exp.total - off)
-            if exp.start + off + n > limit:
-                break
-            data = np.zeros((n, len(EXCITATION_NAMES)))
-            data[:, exp.columns] = exp.design.samples(off, n)
-            final = SampleBlock.FLAG_FINAL if off + n == exp.total else 0
-            self.pub_block.publish(block_msg(exp.start + off, self.dt, EXCITATION_NAMES, EXCITATION_UNITS, data,
-                                             flags=final, experiment_id=exp.experiment_id))
-            exp.next_offset += n
-            exp.blocks += 1
+        for first, data, final in exp.due_blocks(self.progress, self.lookahead, self.block_size,
+                                                 len(EXCITATION_NAMES)):
+            self.pub_block.publish(block_msg(first, self.dt, EXCITATION_NAMES, EXCITATION_UNITS, data,
+                                             flags=SampleBlock.FLAG_FINAL if final else 0,
+                                             experiment_id=exp.experiment_id))
             self.blocks_published += 1
-            self.samples_published += n
+            self.samples_published += len(data)
         if self.progress >= exp.end:
             self.event(SessionEvent.INFO, "finished", f"{exp.experiment_id} done: samples [{exp.start}, {exp.end}) "
                                                       "applied by the plant")

@@ -10,6 +10,8 @@ import sys
 from dataclasses import dataclass, field
 
 import numpy as np
+from ambid.control.kinds import ControllerDesign
+from ambid.plant.rig import Rig
 
 from ambid_nodes.node_main import SUMMARY_PREFIX, spin_until_done
 
@@ -18,12 +20,21 @@ DEFAULT_NAMESPACE = "/amb"
 
 @dataclass
 class GraphConfig:
-    """What to run: parameters per node (name -> value), namespace, layout."""
+    """What to run: parameters per node (name -> value), namespace, layout.
+
+    ``rig`` and ``controller_design``: the rig parsed and the controller designed once by the caller,
+    handed to the nodes of a composed run (None: the plant parses its ``rig_file`` and hands that rig to
+    the controller, which designs from its parameters). Separate processes each read their own
+    parameters, so each parses the rig file (and the controller designs its controller) once, in its
+    own process.
+    """
 
     sim_seconds: float = 2.0
     namespace: str = DEFAULT_NAMESPACE
     plant: dict = field(default_factory=dict)
     controller: dict = field(default_factory=dict)
+    rig: Rig | None = None
+    controller_design: ControllerDesign | None = None
 
 
 def session_domain_id() -> int:
@@ -51,11 +62,11 @@ def run_composed(cfg: GraphConfig) -> dict:
     executor = EventsExecutor(context=context)
     nodes = []
     try:
-        plant = PlantSim(namespace=cfg.namespace, context=context,
+        plant = PlantSim(namespace=cfg.namespace, context=context, rig=cfg.rig,
                          parameter_overrides=overrides({"sim_seconds": float(cfg.sim_seconds), **cfg.plant}))
         nodes.append(plant)
-        nodes.append(PositionController(namespace=cfg.namespace, context=context,
-                                        parameter_overrides=overrides(cfg.controller)))
+        nodes.append(PositionController(namespace=cfg.namespace, context=context, rig=plant.rig,
+                                        design=cfg.controller_design, parameter_overrides=overrides(cfg.controller)))
         for n in nodes:
             executor.add_node(n)
         spin_until_done(executor, plant.finished, context)
@@ -148,7 +159,7 @@ def run_hardware(cfg: GraphConfig, target: str, local_port: int = 0) -> dict:
     rclpy.init(context=context, domain_id=session_domain_id())
     executor = EventsExecutor(context=context)
     params = {"target_host": host, "target_port": port, "local_port": local_port, **cfg.plant}
-    bridge = HardwareBridge(namespace=cfg.namespace, context=context,
+    bridge = HardwareBridge(namespace=cfg.namespace, context=context, rig=cfg.rig,
                             parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
     wanted = int(round(cfg.sim_seconds / bridge.dt))
     monitor = LevitationMonitor(bridge.rig.backup_clearance_m, wanted // 2)

@@ -29,7 +29,6 @@ target finished its run (DONE), failed if it went to its safe state.
 
 from __future__ import annotations
 
-import bisect
 import collections
 import json
 import socket
@@ -39,19 +38,20 @@ import time
 
 import numpy as np
 from ambid.hardware import bridge_protocol as bp
+from ambid.hardware.bridge_link import CommandQueue, ExcitationChunks, FlagRuns, content_error
 from ambid.hardware.rt_target import parse_address
 from ambid.plant.analytical import analytical_model
-from ambid.plant.rig import load_rig, make_rig
+from ambid.plant.rig import Rig
 from rclpy.node import Node
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 
 from ambid_msgs.msg import ExcitationDesign, PlantDescription, SampleBlock, SessionEvent, SessionStatus
 from ambid_nodes import qos
-from ambid_nodes.conversions import (MAX_SAMPLE_INDEX, block_msg, check_design, check_excitation_block,
-                                     statespace_to_msg, status_msg, time_msg)
+from ambid_nodes.conversions import (block_msg, check_design, check_excitation_block, statespace_to_msg, status_msg,
+                                     time_msg)
 from ambid_nodes.intake import Intake
-from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
+from ambid_nodes.parameters import ParameterError, declare, node_rig, refuse_unknown
 
 MEASUREMENT_NAMES = bp.CHANNEL_SETS[bp.CHANNEL_SET_MEASUREMENT]
 MEASUREMENT_UNITS = ("m",) * 4 + ("A",) * 12
@@ -61,7 +61,8 @@ EVENT_THROTTLE_S = 1.0
 
 
 class HardwareBridge(Node):
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, *, rig: Rig | None = None, **kwargs) -> None:
+        """``rig``: the rig a composed run parsed once (else the ``rig_file`` parameter's)."""
         super().__init__("hardware_bridge", **kwargs)
         target_host = declare(self, "target_host", "127.0.0.1", "address of the real-time target")
         target_port = declare(self, "target_port", 50001, "UDP port of the real-time target", 1, 65535)
@@ -99,10 +100,7 @@ class HardwareBridge(Node):
             local = parse_address(f"{local_host}:{local_port}")
         except ValueError as exc:
             raise ParameterError(f"hardware_bridge: {exc}") from None
-        try:
-            self.rig = load_rig(rig_file) if rig_file else make_rig()
-        except (ValueError, OSError) as exc:
-            raise ParameterError(f"hardware_bridge: parameter 'rig_file': {exc}") from None
+        self.rig = node_rig(self, rig_file, rig)
         self.dt = self.rig.dt
 
         self.pub_block = self.create_publisher(SampleBlock, "measurement", qos.BLOCKS)
@@ -123,12 +121,10 @@ class HardwareBridge(Node):
         self.connected = self.silent = False
         self.last_rx: float | None = None
         self.silence_latency: list[float] = []
-        self.exc_chunks: dict[int, list] = {}  # first index -> [r (n, 4), last sent (monotonic) or None]
-        self.exc_firsts: list[int] = []  # sorted keys of exc_chunks
+        self.chunks = ExcitationChunks(self.chunk)  # excitation held until the target applied it
         self.slots: dict[str, int] = {}
-        self.commands: dict[int, dict] = {}  # command_id -> {code, args, sent, tries}
-        self.next_command_id = 1
-        self.runs: dict[int, int] = {}  # FLAG -> first index of the run of flagged samples being reported
+        self.commands = CommandQueue(self.retry_s, self.retries)
+        self.runs = FlagRuns()  # runs of flagged samples, each reported when it ends
         self.last_clock = 0
         self.state = SessionStatus.STATE_IDLE
         self.throttle: dict[str, list] = {}
@@ -300,7 +296,7 @@ class HardwareBridge(Node):
                 self.event(SessionEvent.ERROR, "sample_rate_mismatch",
                            f"the target runs at {hb.sample_rate_hz} Hz, the rig description says {1 / self.dt:g} Hz; "
                            "set rig_file to the rig the target runs")
-            for first in sorted(self.exc_chunks):
+            for first in list(self.chunks.firsts):
                 self.send_chunk(first, t_rx)
             if self.autostart and hb.state == bp.TargetState.IDLE:
                 self.queue_command(bp.CommandCode.START)
@@ -309,20 +305,19 @@ class HardwareBridge(Node):
             reason = f" ({bp.SafeReason(hb.safe_reason).name.lower()})" if hb.state == bp.TargetState.SAFE else ""
             self.event(sev, "target_state", f"target is {bp.TargetState(hb.state).name}{reason} at sample "
                                             f"{hb.sample_index}")
-        for first in [f for f, ch in self.exc_chunks.items() if f + len(ch[0]) <= hb.sample_index]:
-            del self.exc_chunks[first]  # applied: no longer needed for a resend
-            self.exc_firsts.remove(first)
-        if hb.excitation_next != bp.NO_INDEX:
-            self.resend_from(hb.excitation_next, t_rx)
+        self.chunks.applied(hb.sample_index)
+        if hb.excitation_next != bp.NO_INDEX:  # the target lacks excitation there: what we hold, again
+            for first in self.chunks.to_resend(hb.excitation_next, t_rx, max(2 * self.hb_period, self.retry_s)):
+                self.send_chunk(first, t_rx)
 
     def on_ack(self, ack: bp.Ack) -> None:
-        cmd = self.commands.pop(ack.command_id, None)
+        cmd = self.commands.acknowledged(ack.command_id)
         if cmd is None:
             self.c["acks_unexpected"] += 1
             return
         if ack.result != bp.AckResult.OK:
             self.event(SessionEvent.ERROR, "command_refused",
-                       f"the target refused {bp.CommandCode(cmd['code']).name} ({bp.AckResult(ack.result).name}) "
+                       f"the target refused {bp.CommandCode(cmd.code).name} ({bp.AckResult(ack.result).name}) "
                        f"in state {bp.TargetState(ack.state).name}")
 
     # --- measurement out --------------------------------------------------
@@ -350,23 +345,18 @@ class HardwareBridge(Node):
 
     def report_runs(self, first: int, mask: np.ndarray, bit: int, code: str, what: str) -> None:
         """One event per run of flagged samples, when the run ends (a gap or the session end may end it too)."""
-        was_open = bit in self.runs
-        # a change of the flag between consecutive samples (the first compared with the open run, if any)
-        for e in np.flatnonzero(np.diff(np.concatenate([[was_open], mask]).astype(np.int8))):
-            if bit not in self.runs:
-                self.runs[bit] = first + int(e)
-            else:
-                self.end_run(bit, first + int(e), code, what)
+        for start, end in self.runs.feed(first, mask, bit):
+            self.report_run(bit, start, end, code, what)
 
-    def end_run(self, bit: int, end: int, code: str, what: str) -> None:
-        start = self.runs.pop(bit)
+    def report_run(self, bit: int, start: int, end: int, code: str, what: str) -> None:
         sev = SessionEvent.ERROR if bit == bp.FLAG_SAFE_STATE else SessionEvent.WARN
         self.event(sev, code, f"samples [{start}, {end}) ({end - start} samples): {what}")
 
     def close_runs(self, end: int) -> None:
         for bit, code in ((bp.FLAG_EXCITATION_LATE, "excitation_late"), (bp.FLAG_SAFE_STATE, "safe_state")):
-            if bit in self.runs:
-                self.end_run(bit, end, code, "flagged by the target")
+            run = self.runs.close(bit, end)
+            if run is not None:
+                self.report_run(bit, *run, code, "flagged by the target")
 
     def on_gap(self, g: bp.Gap) -> None:
         self.close_runs(g.start)
@@ -415,38 +405,18 @@ class HardwareBridge(Node):
     # --- excitation and commands in ---------------------------------------
     def on_excitation(self, msg: SampleBlock) -> None:
         done = self.hb.sample_index if self.hb else 0
-        data = check_excitation_block(msg, EXCITATION_NAMES, self.dt, done, self.horizon, self.exc_firsts,
-                                      lambda f: len(self.exc_chunks[f][0]), "target", passed=done)
+        data = check_excitation_block(msg, EXCITATION_NAMES, self.dt, done, self.horizon, self.chunks.firsts,
+                                      self.chunks.length, "target", passed=done)
         now = time.monotonic()
-        for off in range(0, msg.n_samples, self.chunk):
-            first = msg.first_index + off
-            self.exc_chunks[first] = [data[off:off + self.chunk], None]
-            bisect.insort(self.exc_firsts, first)
+        for first in self.chunks.add(msg.first_index, data):
             if self.connected:
                 self.send_chunk(first, now)
 
     def send_chunk(self, first: int, now: float) -> None:
-        ch = self.exc_chunks[first]
-        if ch[1] is not None:
-            self.c["excitation_resent"] += 1
-        ch[1] = now
+        data, again = self.chunks.sent(first, now)
+        self.c["excitation_resent"] += again
         self.c["excitation_datagrams"] += 1
-        self.send(bp.Excitation(self.next_seq(bp.Kind.EXCITATION), first, ch[0]))
-
-    def resend_from(self, index: int, now: float, max_chunks: int = 8) -> None:
-        """The target lacks excitation at ``index``: send again what we hold from there, if not just sent."""
-        for first in sorted(self.exc_chunks):
-            if max_chunks == 0:
-                return
-            data, sent = self.exc_chunks[first]
-            if first + len(data) <= index:
-                continue
-            if first > index:
-                return  # not held here (the generator has not published it yet)
-            if sent is None or now - sent > max(2 * self.hb_period, self.retry_s):
-                self.send_chunk(first, now)
-            index = first + len(data)
-            max_chunks -= 1
+        self.send(bp.Excitation(self.next_seq(bp.Kind.EXCITATION), first, data))
 
     def on_design(self, msg: ExcitationDesign) -> None:
         check_design(msg, self.dt)
@@ -454,28 +424,19 @@ class HardwareBridge(Node):
         self.queue_command(bp.CommandCode.EXPERIMENT, msg.start_index, msg.total_samples, slot)
 
     def queue_command(self, code: int, arg0: int = 0, arg1: int = 0, arg2: int = 0) -> None:
-        self.commands[self.next_command_id] = {"code": code, "args": (arg0, arg1, arg2), "sent": None, "tries": 0}
-        self.next_command_id += 1
+        self.commands.queue(code, arg0, arg1, arg2)
         self.send_commands(time.monotonic())
 
     def send_commands(self, now: float) -> None:
         if not self.connected:
             return
-        # START waits until every experiment announcement is acknowledged: the target must know them first
-        announcing = any(c["code"] == bp.CommandCode.EXPERIMENT for c in self.commands.values())
-        for cid, cmd in list(self.commands.items()):
-            if cmd["code"] == bp.CommandCode.START and announcing:
-                continue
-            if cmd["sent"] is not None and now - cmd["sent"] < self.retry_s:
-                continue
-            if cmd["tries"] >= self.retries:
-                del self.commands[cid]
-                self.event(SessionEvent.ERROR, "command_failed",
-                           f"{bp.CommandCode(cmd['code']).name} not acknowledged after {self.retries} sends")
-                continue
-            cmd["sent"], cmd["tries"] = now, cmd["tries"] + 1
+        send, failed = self.commands.due(now)
+        for cmd in failed:
+            self.event(SessionEvent.ERROR, "command_failed",
+                       f"{bp.CommandCode(cmd.code).name} not acknowledged after {self.commands.retries} sends")
+        for cid, cmd in send:
             self.c["commands_sent"] += 1
-            self.send(bp.Command(self.next_seq(bp.Kind.COMMAND), cid, cmd["code"], *cmd["args"]))
+            self.send(bp.Command(self.next_seq(bp.Kind.COMMAND), cid, cmd.code, *cmd.args))
 
     # --- reporting --------------------------------------------------------
     def on_reject(self, topic: str, why: str) -> None:
@@ -539,29 +500,6 @@ class HardwareBridge(Node):
         self.publish_status()
         self.event(SessionEvent.INFO, "finished", json.dumps(self.summary))
         self.finished.set_result(self.summary)
-
-
-def content_error(msg) -> str:
-    """Why a well-formed datagram's content is impossible (an enum out of range, an index beyond
-    MAX_SAMPLE_INDEX, no sample rate), or "" if it is usable."""
-    if isinstance(msg, bp.Heartbeat):
-        if msg.state not in bp.TargetState._value2member_map_:
-            return f"HEARTBEAT with state {msg.state}, not a TargetState"
-        if msg.safe_reason not in bp.SafeReason._value2member_map_:
-            return f"HEARTBEAT with safe_reason {msg.safe_reason}, not a SafeReason"
-        if msg.sample_rate_hz == 0:
-            return "HEARTBEAT with sample_rate_hz 0"
-        for name in ("sample_index", "sent_end"):
-            if getattr(msg, name) > MAX_SAMPLE_INDEX:
-                return f"HEARTBEAT with {name} {getattr(msg, name)} beyond {MAX_SAMPLE_INDEX}"
-        if msg.excitation_next != bp.NO_INDEX and msg.excitation_next > MAX_SAMPLE_INDEX:
-            return f"HEARTBEAT with excitation_next {msg.excitation_next} beyond {MAX_SAMPLE_INDEX}"
-    elif isinstance(msg, bp.Ack):
-        if msg.result not in bp.AckResult._value2member_map_ or msg.state not in bp.TargetState._value2member_map_:
-            return f"ACK with result {msg.result} / state {msg.state} out of range"
-    elif isinstance(msg, bp.Measurement) and msg.first_index + len(msg.data) > MAX_SAMPLE_INDEX:
-        return f"MEASUREMENT at sample {msg.first_index} beyond {MAX_SAMPLE_INDEX}"
-    return ""
 
 
 def main(args=None) -> int:

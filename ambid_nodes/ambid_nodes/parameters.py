@@ -1,7 +1,8 @@
-"""Declaring node parameters with type, description and range, and refusing unknown ones."""
+"""Declaring node parameters with type, description and range, refusing unknown ones, and the rig a node runs."""
 
 from __future__ import annotations
 
+from ambid.plant.rig import Rig, load_rig, make_rig
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
 
@@ -38,3 +39,19 @@ def refuse_unknown(node: Node) -> None:
     if unknown:
         known = ", ".join(sorted(node._parameters))  # noqa: SLF001 - names only, for the message
         raise ParameterError(f"{node.get_name()}: unknown parameter(s) {unknown}; this node takes: {known}")
+
+
+def node_rig(node: Node, rig_file: str, rig: Rig | None = None) -> Rig:
+    """The rig a node runs.
+
+    A composed run parses the rig file once and hands the rig to each node
+    (``rig``); a node started on its own, as in the processes layout, reads
+    its own parameters, so its process parses its ``rig_file`` once here.
+    A bad file is a ParameterError naming the parameter.
+    """
+    if rig is not None:
+        return rig
+    try:
+        return load_rig(rig_file) if rig_file else make_rig()
+    except (ValueError, OSError) as exc:
+        raise ParameterError(f"{node.get_name()}: parameter 'rig_file': {exc}") from None

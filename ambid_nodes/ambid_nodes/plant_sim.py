@@ -55,7 +55,6 @@ FLAG_CLIPPED; each block with clipped samples gives one ``clipped`` event.
 
 from __future__ import annotations
 
-import bisect
 import json
 import sys
 import time
@@ -63,8 +62,9 @@ import time
 import numpy as np
 from ambid.channels import AXES, CURRENT_NAMES, DISPLACEMENT_NAMES
 from ambid.plant.analytical import analytical_model
+from ambid.plant.excitation_schedule import ExcitationSchedule
 from ambid.plant.levitation import LevitationMonitor
-from ambid.plant.rig import load_rig, make_rig
+from ambid.plant.rig import Rig
 from ambid.plant.simulator import PlantSimulator
 from rclpy.node import Node
 from rclpy.task import Future
@@ -81,7 +81,7 @@ from ambid_nodes.loop_kernels import (LOOP_COUNT, LOOP_GATE, LOOP_K, LOOP_LIMIT,
                                       PK_WORK, PLANT_AFTER, PLANT_CLIPPED, PLANT_CONTACT, PLANT_KIND, PLANT_LOOKUP,
                                       PLANT_STEPPED, plant_kernel, plant_loop_vector, sample4_buffer)
 from ambid_nodes.loop_pump import GatingState, LoopEntry
-from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
+from ambid_nodes.parameters import declare, node_rig, refuse_unknown
 from ambid_nodes.raw_publish import raw_publisher
 from ambid_nodes.sample_codec import decode_sample, encode_clock, encode_sample, encode_sample4
 
@@ -96,24 +96,35 @@ STATUS_EVERY = 10_000  # while it runs: a status at the first block end past eac
 
 START_RETRY_S = 0.25  # wall time between re-sends of y[0] until the controller answers
 ZERO4 = (0.0, 0.0, 0.0, 0.0)
-ZERO_ROWS = np.zeros((1, 4))  # r = 0, for the compiled path
 # message constants, read once: the per-sample path must not pay rosidl's class properties
 RUNNING, DONE, FAILED, IDLE = (SessionStatus.STATE_RUNNING, SessionStatus.STATE_DONE, SessionStatus.STATE_FAILED,
                                SessionStatus.STATE_IDLE)
 FLAG_CLIPPED, FLAG_LANDED = SampleBlock.FLAG_CLIPPED, SampleBlock.FLAG_LANDED
 
+
+class KernelSchedule(ExcitationSchedule):
+    """The excitation schedule with the block in use (rows r[first + i] = rows[i]) and free_until (before
+    it no sample outside that block is excited) kept in the plant kernel's context, where plant_kernel
+    reads them."""
+
+    rows = ContextArray("fast", PK_R, np.float64, 4, writes=False)
+    first = ContextWord("fast", PK_R_FIRST)
+    free_until = ContextWord("fast", PK_FREE_UNTIL)
+
+    def __init__(self, fast: BoundKernel) -> None:
+        self.fast = fast
+        super().__init__(len(EXCITATION_NAMES))
+
+
 class PlantSim(Node):
     # what the compiled path reads lives in its context (loop_call): the sample index k the plant
-    # steps next; the excitation block in use, rows r[exc_first + i] = exc_rows[i]; before
-    # exc_free_until no sample outside it is excited
+    # steps next, and the excitation schedule's block in use (KernelSchedule)
     k = ContextWord("fast", LOOP_K)
     state = GatingState()  # each assignment sets the loop pump's gate (regate)
-    exc_rows = ContextArray("fast", PK_R, np.float64, 4, writes=False)
-    exc_first = ContextWord("fast", PK_R_FIRST)
-    exc_free_until = ContextWord("fast", PK_FREE_UNTIL)
     buf_start = ContextWord("fast", PK_BLOCK_START)  # the sample index of the measurement block's row 0
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, *, rig: Rig | None = None, **kwargs) -> None:
+        """``rig``: the rig a composed run parsed once (else the ``rig_file`` parameter's)."""
         super().__init__("plant_sim", **kwargs)
         self.fqn = self.get_fully_qualified_name()
         rig_file = declare(self, "rig_file", "", "YAML rig parameter file; empty = the default rig")
@@ -137,10 +148,7 @@ class PlantSim(Node):
                                "most samples an excitation block may lie ahead of the plant (memory bound)",
                                1, 1_000_000_000)
         refuse_unknown(self)
-        try:
-            self.rig = load_rig(rig_file) if rig_file else make_rig()
-        except (ValueError, OSError) as exc:
-            raise ParameterError(f"plant_sim: parameter 'rig_file': {exc}") from None
+        self.rig = node_rig(self, rig_file, rig)
         self.sim = PlantSimulator(self.rig, seed=self.seed, nonlinear_magnets=nonlinear)
         self.sim_work = self.sim.work
         self.dt = self.rig.dt
@@ -169,16 +177,10 @@ class PlantSim(Node):
         self.k = 0
         # currents received for samples k and k + 1 (a pipelined controller answers one ahead), in order
         self.ic_ready: list[list[float]] = []
-        self.excitation: dict[int, np.ndarray] = {}  # first_index -> (n, 4) rows [A], consumed in order
-        self.exc_starts: list[int] = []  # sorted keys of self.excitation
-        # sample ranges [start, end) a design says are excited: the plant waits for their blocks,
-        # so where the excitation lands never depends on message timing
-        self.excited_ranges: dict[str, tuple[int, int]] = {}
-        # the excitation block in use: rows for [exc_first, exc_end); before exc_free_until no sample
-        # is excited and no block held (both recomputed when designs or blocks arrive or a block ends)
-        self.exc_first = self.exc_end = 0
-        self.exc_rows = ZERO_ROWS
-        self.exc_free_until = 0
+        # the held excitation blocks and the ranges designs excite: the plant waits for an excited
+        # sample's block, so where the excitation lands never depends on message timing
+        self.schedule = KernelSchedule(self.fast)
+        self.excitation_rows = self.schedule.rows_at
         # the plant loop vector (loop_kernels.plant_loop_vector): y[k] as published with the last
         # current taken, and the block's rows (y, u, ic, r); y[k+1] is packed into out
         self.lp, self.cur, self.rec = plant_loop_vector(self.block_size)
@@ -343,10 +345,11 @@ class PlantSim(Node):
     def run_ready(self) -> None:
         """Step every sample whose current (and excitation, where a design excites it) is here."""
         ready = self.ic_ready
+        excitation_rows = self.excitation_rows
         try:
             while ready and self.state == RUNNING:
                 k = self.k
-                exc = self.excitation_rows(k)
+                exc = excitation_rows(k)
                 if exc is None:
                     return  # waiting for the excitation generator; on_excitation resumes
                 self.step_and_record(ready.pop(0), exc[0][exc[1]], 0, final=k == self.last_k)
@@ -354,48 +357,6 @@ class PlantSim(Node):
                     self.finish(DONE)
         finally:
             self.regate()
-
-    def excitation_rows(self, k: int) -> tuple[np.ndarray, int] | None:
-        """(rows, i) with r[k] = rows[i] [A]: the block in use, or zeros where no design excites k;
-        None while the block of an excited sample has not arrived."""
-        if self.exc_first <= k < self.exc_end:
-            return self.exc_rows, k - self.exc_first
-        if k < self.exc_free_until:
-            return ZERO_ROWS, 0
-        first = self.held_block(k)
-        if first is not None:  # it is in use from now on
-            rows = self.excitation[first]
-            self.exc_first, self.exc_end, self.exc_rows = first, first + len(rows), rows
-            return rows, k - first
-        if self.needs_excitation(k):
-            return None
-        self.update_excitation_free()
-        return ZERO_ROWS, 0
-
-    def consume_excitation_block(self) -> None:
-        del self.excitation[self.exc_first]
-        self.exc_starts.remove(self.exc_first)
-        self.update_excitation_free()
-
-    def update_excitation_free(self) -> None:
-        """Samples from k up to the next excited range or held block need no excitation lookup."""
-        k = self.k
-        ahead = [a for a, b in self.excited_ranges.values() if b > k] + [f for f in self.exc_starts if f >= k]
-        covering = self.needs_excitation(k) or self.held_block(k) is not None
-        self.exc_free_until = k if covering else min([max(a, k) for a in ahead], default=2**62)  # int64 for the kernel
-
-    def needs_excitation(self, k: int) -> bool:
-        """A design says sample k is excited."""
-        return any(a <= k < b for a, b in self.excited_ranges.values())
-
-    def held_block(self, k: int) -> int | None:
-        """First index of the held excitation block covering sample k, or None."""
-        i = bisect.bisect_right(self.exc_starts, k) - 1
-        if i >= 0:
-            first = self.exc_starts[i]
-            if k < first + len(self.excitation[first]):
-                return first
-        return None
 
     def step_and_record(self, ic, r, flags: int, final: bool = False, publish: bool = True) -> None:
         """Apply u = ic + r over sample k (the amplifier saturates it), record y, u, ic, r as commanded;
@@ -417,8 +378,7 @@ class PlantSim(Node):
     def after_step(self, k: int, final: bool) -> None:
         """Once the samples before k are done: the excitation block they used up, /clock, and the
         measurement block when full or final."""
-        if k == self.exc_end and self.exc_first in self.excitation:
-            self.consume_excitation_block()
+        self.schedule.passed(k)
         if k % self.clock_every == 0:
             self.publish_clock_raw(encode_clock(k * self.dt))
         if k - self.buf_start == self.block_size or final:
@@ -442,44 +402,25 @@ class PlantSim(Node):
         self.buf_start = self.k
 
     def on_excitation(self, msg: SampleBlock) -> None:
-        data = check_excitation_block(msg, EXCITATION_NAMES, self.dt, self.k, self.horizon, self.exc_starts,
-                                      lambda f: len(self.excitation[f]), "plant")
+        schedule = self.schedule
+        data = check_excitation_block(msg, EXCITATION_NAMES, self.dt, self.k, self.horizon, schedule.starts,
+                                      schedule.length, "plant")
         first, end = msg.first_index, msg.first_index + len(data)
-        if first < self.k:
-            late = min(self.k - first, len(data))
+        late = schedule.add_block(first, data, self.k)
+        if late:
             self.event(SessionEvent.ERROR, "excitation_late",
                        f"excitation samples {first}..{first + late - 1} arrived after they were due (now {self.k}) "
                        "and were not applied; publish excitation further ahead")
             if late == len(data):
                 raise BadMessage(f"excitation: samples [{first}, {end}) arrived after they were due (now {self.k})")
-            first, data = first + late, data[late:]
-        self.excitation[first] = np.ascontiguousarray(data, dtype=float)
-        bisect.insort(self.exc_starts, first)
-        self.update_excitation_free()
         self.run_ready()
 
     def on_design(self, msg: ExcitationDesign) -> None:
         check_design(msg, self.dt)
-        exp_id = msg.experiment_id
-        start, end = msg.start_index, msg.start_index + msg.total_samples
-        for other, (a, b) in list(self.excited_ranges.items()):
-            if b <= self.k:
-                del self.excited_ranges[other]  # passed: no longer needed
-        known = self.excited_ranges.get(exp_id)
-        if known is not None and known[0] != start:
-            raise BadMessage(f"excitation/design {exp_id!r}: start_index changed from {known[0]} to {start}")
-        if known is None and msg.total_samples and start < self.k:
-            raise BadMessage(f"excitation/design {exp_id!r}: starts at sample {start}, which the plant has passed "
-                             f"(now {self.k})")
-        for other, (a, b) in self.excited_ranges.items():
-            if other != exp_id and a < end and start < b:
-                raise BadMessage(f"excitation/design {exp_id!r}: samples [{start}, {end}) overlap experiment "
-                                 f"{other!r} [{a}, {b})")
-        if msg.total_samples == 0 or end <= self.k:
-            self.excited_ranges.pop(exp_id, None)
-        else:
-            self.excited_ranges[exp_id] = (start, end)
-        self.update_excitation_free()
+        try:
+            self.schedule.add_design(msg.experiment_id, msg.start_index, msg.total_samples, self.k)
+        except ValueError as exc:
+            raise BadMessage(str(exc)) from None
         self.run_ready()
 
     # --- supervision ------------------------------------------------------
@@ -532,7 +473,7 @@ class PlantSim(Node):
         waited = now - self.exc_wait_wall
         if waited <= self.exc_timeout:
             return
-        exp = next((e for e, (a, b) in self.excited_ranges.items() if a <= k < b), "?")
+        exp = self.schedule.experiment_at(k)
         self.fatal("excitation_lost",
                    f"no excitation block for sample {k} of experiment {exp!r} within {self.exc_timeout:g} s "
                    f"({waited:.3f} s waiting): the excitation generator is lost or stalled; the session ends "

@@ -45,10 +45,10 @@ import sys
 import time
 
 import numpy as np
-from ambid.control.kinds import checked_design, describe_kinds
+from ambid.control.kinds import ControllerDesign, checked_design, describe_kinds
 from ambid.control.pid import PidParameters
 from ambid.control.stepper import ControllerStepper
-from ambid.plant.rig import load_rig, make_rig
+from ambid.plant.rig import Rig
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile
 
@@ -62,7 +62,7 @@ from ambid_nodes.loop_kernels import (CK_LEAD, CK_LIMIT, CK_MAT, CK_N, CK_SLOTS,
                                       LOOP_COUNT, LOOP_GATE, LOOP_K, LOOP_LIMIT, LOOP_NO_LIMIT, LOOP_OUT, N_CK,
                                       controller_kernel, sample4_buffer)
 from ambid_nodes.loop_pump import GatingState, LoopEntry
-from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
+from ambid_nodes.parameters import ParameterError, declare, node_rig, refuse_unknown
 from ambid_nodes.raw_publish import raw_publisher
 from ambid_nodes.sample_codec import decode_sample, encode_sample, encode_sample4
 
@@ -75,7 +75,9 @@ class PositionController(Node):
     expected = ContextWord("fast", LOOP_K, none=-1)
     state = GatingState()  # each assignment sets the loop pump's gate (regate)
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, *, rig: Rig | None = None, design: ControllerDesign | None = None, **kwargs) -> None:
+        """``rig`` and ``design``: the rig and the controller a composed run parsed and designed (and
+        checked) once; else the node's parameters' (``rig_file``, ``controller``, the PID gains)."""
         super().__init__("position_controller", **kwargs)
         rig_file = declare(self, "rig_file", "", "YAML rig parameter file used for the stability check")
         self.kind = declare(self, "controller", "",
@@ -99,15 +101,13 @@ class PositionController(Node):
                                "wall time without a displacement before the running plant is declared lost",
                                0.01, 3600.0, "s")
         refuse_unknown(self)
-        try:
-            self.rig = load_rig(rig_file) if rig_file else make_rig()
-        except (ValueError, OSError) as exc:
-            raise ParameterError(f"position_controller: parameter 'rig_file': {exc}") from None
-        try:
-            # refuses a loop that is unstable on the analytical or on the true linearised rig
-            design = checked_design(self.kind, self.rig, pid)
-        except ValueError as exc:
-            raise ParameterError(f"position_controller: {exc}") from None
+        self.rig = node_rig(self, rig_file, rig)
+        if design is None:
+            try:
+                # refuses a loop that is unstable on the analytical or on the true linearised rig
+                design = checked_design(self.kind, self.rig, pid)
+            except ValueError as exc:
+                raise ParameterError(f"position_controller: {exc}") from None
         self.model = design.model
         delay_samples, params_json = design.delay_samples, design.parameters
         self.design = design

@@ -61,9 +61,10 @@ import sys
 import time
 
 import ambid
-from ambid.session import SessionWriteError, SessionWriter
-from ambid.session.blocks import SAMPLE_BLOCK_TYPE, sample_block_span
+from ambid.session import SessionWriteError
+from ambid.session.blocks import SAMPLE_BLOCK_TYPE
 from ambid.session.facts import FACT_TYPES, controller_facts, design_facts, plant_facts
+from ambid.session.recording import Recording
 from ambid.session.writer import available_compressions
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
@@ -86,8 +87,6 @@ CONVENTIONAL_QOS = {"displacement": qos.LOOP, "control_current": qos.LOOP, "meas
                     "excitation": qos.BLOCKS, "excitation/design": qos.LATCHED, "plant/description": qos.LATCHED,
                     "controller/description": qos.LATCHED, "status": qos.STATUS, "events": qos.EVENTS,
                     "/clock": qos.CLOCK}
-#: experiments whose design is kept in the session facts (each fact update rewrites them all)
-MAX_DESIGN_FACTS = 1000
 LOG_TIME_CONVENTION = ("receive time on the recorder's ROS clock (system time, or /clock with use_sim_time), "
                        "held non-decreasing; publish time = log time")
 
@@ -148,10 +147,9 @@ class Recorder(Node):
         self.wanted, skipped = self.resolve_topics(topics)
         self.path = os.path.abspath(output)
         try:
-            os.makedirs(os.path.dirname(self.path), exist_ok=True)
-            self.writer = SessionWriter(self.path, chunk_size_bytes=chunk_size,
-                                        chunk_max_duration_ns=int(flush_period * 1e9), compression=compression,
-                                        fsync=fsync, overwrite=overwrite)
+            # the file, its counts and its facts: the recording logic, in the core
+            self.rec = Recording(self.path, chunk_size=chunk_size, flush_period_s=flush_period,
+                                 compression=compression, fsync=fsync, overwrite=overwrite)
         except FileExistsError:
             raise ParameterError(f"recorder: {self.path} exists; pass overwrite:=true or choose another "
                                  "output") from None
@@ -162,35 +160,23 @@ class Recorder(Node):
         self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
         self.subs: dict[str, object] = {}  # topic -> subscription
         self.types: dict[str, str] = {}  # topic -> pkg/msg/Type
-        self.registered: set[str] = set()  # topics with a channel in the file
         self.conventional_qos = {self.resolve_topic_name(t): q for t, q in CONVENTIONAL_QOS.items()}
         self.ignored: set[str] = set()  # topics that cannot be recorded (reported once)
-        self.counts: dict[str, int] = {}
-        self.block_end: dict[str, int] = {}  # SampleBlock topic -> end index of its latest block
         self.fact_decoders: dict[str, tuple[str, type]] = {}  # topic -> (fact key, message class)
-        self.facts: dict[str, object] = {}
-        self.received = 0
-        self.rejected = 0
-        self.bytes = 0
-        self.last_log_ns = 0
         self.clock_back_reported = False
         self.unreadable = 0  # descriptions without readable facts since the last report
         self.unreadable_reported = -1e9
-        self.failed: str | None = None
-        self.closed = False
         self.summary: dict | None = None
-        self.started_wall = time.monotonic()
-        self.last_flush_wall = self.started_wall
         self.finished = Future()  # completes only if recording fails; SIGINT/SIGTERM close via destroy_node
 
         params = {name: p.value for name, p in sorted(self.get_parameters_by_prefix("").items())}
         try:
-            self.write_facts({"recorder": {"node": self.get_fully_qualified_name(), "path": self.path,
-                                           "topics": self.wanted, "parameters": params},
-                              "log_time": LOG_TIME_CONVENTION, "ambid_version": ambid.__version__,
-                              "started_unix_ns": time.time_ns(), **extra_facts})
+            self.rec.write_facts({"recorder": {"node": self.get_fully_qualified_name(), "path": self.path,
+                                               "topics": self.wanted, "parameters": params},
+                                  "log_time": LOG_TIME_CONVENTION, "ambid_version": ambid.__version__,
+                                  "started_unix_ns": time.time_ns(), **extra_facts})
         except SessionWriteError as exc:
-            self.writer.close()
+            self.rec.writer.close()
             raise ParameterError(f"recorder: cannot write {self.path}: {exc}") from None
         steady = Clock(clock_type=ClockType.STEADY_TIME)  # keeps flushing while /clock stands still
         self.flush_timer = self.create_timer(flush_period, self.flush, clock=steady)
@@ -202,6 +188,11 @@ class Recorder(Node):
                    f"recording {len(self.wanted)} topics to {self.path} ({compression}, flush every "
                    f"{flush_period:g} s)")
         self.discover()
+
+    # what the recording counts, as the node's figures
+    counts = property(lambda self: self.rec.counts)
+    received = property(lambda self: self.rec.received)
+    rejected = property(lambda self: self.rec.rejected)
 
     # --- set-up -----------------------------------------------------------
     def resolve_topics(self, topics: list[str]) -> tuple[list[str], list[str]]:
@@ -229,7 +220,7 @@ class Recorder(Node):
         topic, with the graph's conventional QoS, so its first messages are not lost
         to the discovery delay; other topics wait for a publisher.
         """
-        if self.closed or self.failed:
+        if not self.rec.open:
             return
         graph = None
         for topic in self.wanted:
@@ -260,11 +251,9 @@ class Recorder(Node):
             return
         profiles = [p.qos_profile for p in offered] or [self.conventional_qos[topic]]
         sub_qos = subscription_qos(profiles, self.depth)
-        self.counts[topic] = 0
+        self.rec.track(topic, sample_blocks=type_name == SAMPLE_BLOCK_TYPE)
         if type_name in FACT_TYPES:
             self.fact_decoders[topic] = (FACT_TYPES[type_name], cls)
-        if type_name == SAMPLE_BLOCK_TYPE:
-            self.block_end[topic] = 0
         self.subs[topic] = self.create_subscription(cls, topic, functools.partial(self.on_message, topic),
                                                     sub_qos, raw=True)
         self.event(SessionEvent.INFO, "topic_recorded",
@@ -276,7 +265,7 @@ class Recorder(Node):
         hashes = {str(p.topic_type_hash) for p in offered}
         type_hash = hashes.pop() if len(hashes) == 1 and next(iter(hashes)).startswith("RIHS01_") else None
         try:
-            self.writer.add_topic(topic, self.types[topic], [p.qos_profile for p in offered], type_hash=type_hash)
+            self.rec.add_topic(topic, self.types[topic], [p.qos_profile for p in offered], type_hash=type_hash)
         except SessionWriteError as exc:
             self.fail(exc)
             return False
@@ -284,7 +273,6 @@ class Recorder(Node):
             self.ignore(topic, "topic_skipped", f"{topic}: cannot store the definition of {self.types[topic]} "
                         f"({exc})")
             return False
-        self.registered.add(topic)
         return True
 
     def ignore(self, topic: str, code: str, why: str) -> None:
@@ -294,37 +282,27 @@ class Recorder(Node):
 
     # --- recording --------------------------------------------------------
     def on_message(self, topic: str, data: bytes) -> None:
-        self.received += 1
-        if self.closed or self.failed:
-            self.rejected += 1
+        rec = self.rec
+        rec.received += 1
+        if not rec.open:
+            rec.rejected += 1
             return
-        now = self.get_clock().now().nanoseconds
-        if now < self.last_log_ns:
-            if not self.clock_back_reported:
-                self.clock_back_reported = True
-                self.event(SessionEvent.WARN, "clock_backwards",
-                           f"the ROS clock stepped back by {(self.last_log_ns - now) * 1e-9:.6f} s; log times "
-                           "are held at the last time so they stay non-decreasing")
-            now = self.last_log_ns
-        self.last_log_ns = now
-        if topic not in self.registered and (
+        now, back = rec.log_time(self.get_clock().now().nanoseconds)
+        if back and not self.clock_back_reported:
+            self.clock_back_reported = True
+            self.event(SessionEvent.WARN, "clock_backwards",
+                       f"the ROS clock stepped back by {back * 1e-9:.6f} s; log times are held at the last time "
+                       "so they stay non-decreasing")
+        if topic not in rec.registered and (
                 topic in self.ignored or not self.register(topic, self.get_publishers_info_by_topic(topic))):
-            self.rejected += 1
+            rec.rejected += 1
             return
         try:
-            self.writer.write(topic, data, now)
+            rec.write(topic, data, now)
         except SessionWriteError as exc:
-            self.rejected += 1
+            rec.rejected += 1
             self.fail(exc)
             return
-        self.counts[topic] += 1
-        self.bytes += len(data)
-        if topic in self.block_end:
-            try:
-                first, n = sample_block_span(data)
-                self.block_end[topic] = max(self.block_end[topic], first + n)
-            except ValueError:
-                pass  # recorded as received; the consumers judge the content
         if topic in self.fact_decoders:
             self.update_facts(topic, data)
 
@@ -341,14 +319,8 @@ class Recorder(Node):
                 facts = {"controller": controller_facts(msg)}
             else:
                 check_design(msg)
-                designs = dict(self.facts.get("excitation", {}))
-                if msg.experiment_id not in designs and len(designs) >= MAX_DESIGN_FACTS:
-                    raise ValueError(f"more than {MAX_DESIGN_FACTS} experiments in one session; the facts keep "
-                                     "the first ones")
-                designs[msg.experiment_id] = design_facts(msg)
-                facts = {"excitation": designs}
-            if any(self.facts.get(k) != v for k, v in facts.items()):  # a latched message comes again
-                self.write_facts(facts)
+                facts = self.rec.design_facts(msg.experiment_id, design_facts(msg))
+            self.rec.write_facts(facts)  # unless a latched message came again
         except SessionWriteError as exc:
             self.fail(exc)
         except Exception as exc:  # noqa: BLE001 - a malformed description must not stop the recording
@@ -363,66 +335,47 @@ class Recorder(Node):
                 self.event(SessionEvent.WARN, "unreadable_description", why)
                 self.unreadable, self.unreadable_reported = 0, now
 
-    def write_facts(self, facts: dict) -> None:
-        self.facts.update(facts)
-        self.writer.write_session_facts(facts)
-
     def flush(self) -> None:
-        if self.closed or self.failed:
+        if not self.rec.open:
             return
-        if self.writer.message_count > self.writer.flushed_message_count:
-            try:
-                self.writer.flush()
-            except SessionWriteError as exc:
-                self.fail(exc)
-                return
-        self.last_flush_wall = time.monotonic()
+        try:
+            self.rec.flush()
+        except SessionWriteError as exc:
+            self.fail(exc)
 
     def fail(self, exc: Exception) -> None:
         """Stop recording after a write error; keep what is on disk readable."""
-        if self.failed:
+        if self.rec.failed:
             return
-        self.failed = str(exc)
-        text = (f"writing {self.path} failed: {exc}. Recording stopped; the file keeps "
-                f"{self.writer.flushed_message_count} messages, read them with 'ambid inspect --recover'")
+        text = self.rec.fail(exc)
         self.get_logger().error(text)
         self.event(SessionEvent.ERROR, "write_failed", text)
         self.discovery_timer.cancel()  # the subscriptions stay (destroying one inside its callback is unsafe)
         self.flush_timer.cancel()
-        self.writer.close()  # after a failure this only releases the file
-        self.summary = self.figures("failed")
+        self.summary = self.rec.figures()
         self.publish_status()
         if not self.finished.done():
             self.finished.set_result(self.summary)
 
     # --- reporting --------------------------------------------------------
-    def figures(self, state: str) -> dict:
-        wall = time.monotonic() - self.started_wall
-        written = self.writer.message_count
-        file_bytes = os.path.getsize(self.path) if os.path.exists(self.path) else 0
-        return {"state": state, "path": self.path, "messages": written, "topics": dict(self.counts),
-                "bytes_received": self.bytes, "file_bytes": file_bytes, "chunks": self.writer.chunk_count,
-                "flushed_messages": self.writer.flushed_message_count, "messages_received": self.received,
-                "messages_rejected": self.rejected, "wall_s": wall,
-                "messages_per_wall_s": written / wall if wall > 0 else 0.0, "error": self.failed}
-
     def publish_status(self) -> None:
-        state = "failed" if self.failed else ("done" if self.closed else "running")
-        f = self.figures(state)
+        rec = self.rec
+        f = rec.figures()
+        state = f["state"]
         shown = {"path": self.path, "messages": f["messages"], "bytes_received": f["bytes_received"],
                  "file_bytes": f["file_bytes"], "chunks": f["chunks"], "flushed_messages": f["flushed_messages"],
-                 "last_flush_age_s": round(time.monotonic() - self.last_flush_wall, 3)}
-        shown.update((f"messages:{topic}", n) for topic, n in sorted(self.counts.items()))
-        shown.update((f"end_index:{topic}", end) for topic, end in sorted(self.block_end.items()))
+                 "last_flush_age_s": round(time.monotonic() - rec.last_flush_wall, 3)}
+        shown.update((f"messages:{topic}", n) for topic, n in sorted(rec.counts.items()))
+        shown.update((f"end_index:{topic}", end) for topic, end in sorted(rec.block_end.items()))
         measurement = self.resolve_topic_name("measurement")
         text = (f"{state}: {f['messages']} messages ({f['messages_per_wall_s']:.0f}/s), "
-                f"{f['file_bytes'] / 1e6:.2f} MB in {self.path}" + (f"; {self.failed}" if self.failed else ""))
+                f"{f['file_bytes'] / 1e6:.2f} MB in {self.path}" + (f"; {rec.failed}" if rec.failed else ""))
         states = {"running": SessionStatus.STATE_RUNNING, "done": SessionStatus.STATE_DONE,
                   "failed": SessionStatus.STATE_FAILED}
         try:
             self.pub_status.publish(status_msg(
                 self.get_clock().now().to_msg(), self.get_fully_qualified_name(), states[state],
-                self.block_end.get(measurement, 0), -1.0, self.received, self.rejected, text, shown))
+                rec.block_end.get(measurement, 0), -1.0, rec.received, rec.rejected, text, shown))
         except Exception:  # noqa: BLE001 - the context may already be shut down (SIGINT)
             pass
 
@@ -430,7 +383,7 @@ class Recorder(Node):
         try:
             self.pub_event.publish(SessionEvent(
                 stamp=self.get_clock().now().to_msg(),
-                sample_index=max(self.block_end.values(), default=0), severity=severity,
+                sample_index=max(self.rec.block_end.values(), default=0), severity=severity,
                 node=self.get_fully_qualified_name(), code=code, text=text))
         except Exception:  # noqa: BLE001 - the context may already be shut down (SIGINT)
             pass
@@ -438,19 +391,18 @@ class Recorder(Node):
     # --- shutdown ---------------------------------------------------------
     def close(self) -> dict:
         """Write the last chunk, summary and footer; stop recording. Idempotent; returns the summary."""
-        if self.closed:
+        if self.rec.closed:
             return self.summary
-        self.closed = True
         for timer in (self.flush_timer, self.discovery_timer, self.status_timer):
             timer.cancel()
-        if not self.failed:
+        if not self.rec.failed:
             try:
-                self.writer.close()
+                self.rec.close()
             except SessionWriteError as exc:
-                self.failed = str(exc)
                 self.get_logger().error(f"closing {self.path} failed: {exc}")
                 self.event(SessionEvent.ERROR, "write_failed", f"closing {self.path} failed: {exc}")
-            self.summary = self.figures("failed" if self.failed else "done")
+            self.summary = self.rec.figures()
+        self.rec.closed = True
         line = (f"closed {self.path}: {self.summary['messages']} messages, {self.summary['file_bytes']} bytes, "
                 f"{self.summary['state']}")
         if self.context.ok():

@@ -17,11 +17,12 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from ambid.control.kinds import ControllerDesign, checked_design
 from ambid.excitation import ExcitationDesign
+from ambid.excitation.spec import DesignSpec
 from ambid.hardware.bridge_protocol import CommandCode
-from ambid.excitation.spec import build_design
 from ambid.jsonable import to_jsonable
-from ambid.plant.rig import load_rig, make_rig
+from ambid.plant.rig import Rig, load_rig, make_rig
 
 from ambid_nodes.graph import DEFAULT_NAMESPACE, session_domain_id
 from ambid_nodes.node_main import gc_frozen
@@ -32,23 +33,12 @@ SETTLE_S = 0.2  # wall time for the status and events the nodes publish as the r
 
 @dataclass
 class SessionConfig:
-    """What to run. Defaults: the main job of ``ambid identify``."""
+    """What to run. Defaults: the main job of ``ambid identify``; the experiment's are
+    :class:`ambid.excitation.spec.DesignSpec`'s (the one home of the experiment's defaults)."""
 
     out_dir: Path = Path("identify")
-    kind: str = "multisine"
-    band_hz: tuple[float, float] = (10.0, 1000.0)
-    resolution_hz: float = 5.0
-    # 0.4 A keeps the magnets' odd distortion within ~3 dB of the noise (at 0.5 A it biased
-    # the housing-mode damping by 11 %); three realisations bring the worst line under 8 %
-    peak_current_a: float = 0.4
-    periods: int = 4
-    realisations: int = 3
-    transient_periods: int = 3
-    grid: str = "random_odd"
-    mimo: str = "orthogonal"
-    # crest-optimised phases put 2.3x the RMS of random phases under the same peak current
-    phases: str = "crest_optimised"
-    seed: int = 1
+    # the excitation experiment; its seed also seeds the sensor noise, so one seed makes the session
+    experiment: DesignSpec = field(default_factory=DesignSpec)
     rig_file: str = ""
     controller: str = ""  # a kind or a controller file; empty: the rig file's controller, else pid
     nonlinear_magnets: bool = True
@@ -62,15 +52,43 @@ class SessionConfig:
     true_model: str = ""    # with hardware: the C target's model file, the truth the FRF is compared with
     extra: dict = field(default_factory=dict)
 
+    @property
+    def seed(self) -> int:
+        return self.experiment.seed
+
     def design(self, fs_hz: float, rig_speed_rpm: float = 0.0) -> ExcitationDesign:
+        """The experiment's design at the plant's rate; at speed (a multisine only) steered clear of the
+        synchronous harmonics."""
         speed = rig_speed_rpm if self.speed_rpm is None else self.speed_rpm
-        return build_design(self.kind, self.band_hz, self.resolution_hz, fs_hz, peak_current_a=self.peak_current_a,
-                            n_periods=self.periods, n_realisations=self.realisations,
-                            n_transient_periods=self.transient_periods,
-                            grid=self.grid if self.kind == "multisine" else "",
-                            mimo=self.mimo if self.kind == "multisine" else "",
-                            phases=self.phases if self.kind == "multisine" else "", seed=self.seed,
-                            speed_rpm=speed if self.kind == "multisine" else 0.0)
+        return self.experiment.build(fs_hz, speed if self.experiment.kind == "multisine" else 0.0)
+
+
+@dataclass(frozen=True)
+class SessionPlan:
+    """What a session runs, each decided once per run and handed to the nodes that need it.
+
+    Attributes:
+        rig: the rig, its file parsed once (plant_sim, position_controller, excitation_generator and the
+            hardware bridge take this object instead of parsing ``rig_file`` each).
+        controller: the position controller, designed and checked against the rig once; None where a
+            real-time target closes the loop.
+        design: the excitation experiment's design, built once (the generator builds none of its own).
+    """
+
+    rig: Rig
+    controller: ControllerDesign | None
+    design: ExcitationDesign
+
+
+def plan_session(cfg: SessionConfig, rig: Rig | None = None, controller: ControllerDesign | None = None
+                 ) -> SessionPlan:
+    """The plan of ``cfg``: ``rig`` (None: ``cfg.rig_file`` parsed, or the default rig) and ``controller``
+    (None: ``cfg.controller`` designed and checked) as given, the design built. ValueError or OSError
+    names what cannot be used."""
+    rig = rig if rig is not None else (load_rig(cfg.rig_file) if cfg.rig_file else make_rig())
+    if controller is None and not cfg.hardware:
+        controller = checked_design(cfg.controller, rig)
+    return SessionPlan(rig, controller, cfg.design(1.0 / rig.dt, float(rig.rotor_speed_rpm)))
 
 
 class ProgressBar:
@@ -105,8 +123,11 @@ def session_samples(design: ExcitationDesign, fs: float) -> tuple[int, int]:
     return start_index, start_index + design.total_samples + 1000
 
 
-def run_session_composed(cfg: SessionConfig) -> dict:
-    """Run the whole graph in this process; returns the run's facts (no offline analysis)."""
+def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None) -> dict:
+    """Run the whole graph in this process; returns the run's facts (no offline analysis).
+
+    ``plan`` (default :func:`plan_session`) is what the nodes run: one rig, one controller, one design.
+    """
     import rclpy
     from rclpy.experimental import EventsExecutor
     from rclpy.parameter import Parameter
@@ -119,16 +140,16 @@ def run_session_composed(cfg: SessionConfig) -> dict:
     from ambid_nodes.position_controller import PositionController
     from ambid_nodes.recorder import Recorder
 
-    rig = load_rig(cfg.rig_file) if cfg.rig_file else make_rig()
-    fs = 1.0 / rig.dt
-    design = cfg.design(fs, float(rig.rotor_speed_rpm))
+    plan = plan_session(cfg) if plan is None else plan
+    design = plan.design
+    fs = 1.0 / plan.rig.dt
     start_index, total = session_samples(design, fs)
     mcap_path = cfg.out_dir / "session.mcap"
 
     def params(d: dict) -> list:
         return [Parameter(k, value=v) for k, v in d.items()]
 
-    rig_param = {"rig_file": cfg.rig_file} if cfg.rig_file else {}
+    rig_param = {"rig_file": cfg.rig_file} if cfg.rig_file else {}  # said, not parsed again: the nodes get plan.rig
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=session_domain_id())
     executor = EventsExecutor(context=context)
@@ -155,7 +176,7 @@ def run_session_composed(cfg: SessionConfig) -> dict:
             from ambid.hardware.rt_target import parse_address
 
             host, port = parse_address(cfg.hardware)
-            plant = add(HardwareBridge(**ns, parameter_overrides=params({
+            plant = add(HardwareBridge(**ns, rig=plan.rig, parameter_overrides=params({
                 "target_host": host, "target_port": port, "local_port": cfg.local_port, "autostart": False,
                 **rig_param})))
             # the target must answer before anything is written: a wrong address leaves no recording behind
@@ -166,11 +187,11 @@ def run_session_composed(cfg: SessionConfig) -> dict:
             "output": str(mcap_path), "overwrite": True,
             "session_facts": json.dumps({"session": "identify", "config": _jsonable(cfg)})})))
         if not cfg.hardware:
-            plant = add(PlantSim(**ns, parameter_overrides=params({
+            plant = add(PlantSim(**ns, rig=plan.rig, parameter_overrides=params({
                 "sim_seconds": total / fs, "seed": cfg.seed, "nonlinear_magnets": cfg.nonlinear_magnets,
                 **rig_param})))
-        generator = add(ExcitationGenerator(**ns, parameter_overrides=params({"start_margin": start_index,
-                                                                              **rig_param})))
+        generator = add(ExcitationGenerator(**ns, rig=plan.rig, parameter_overrides=params({
+            "start_margin": start_index, **rig_param})))
         consumer = add(FrfConsumer(**ns, parameter_overrides=params({"estimator": cfg.estimator})))
         # the recorder and the consumer must hear the first measurement block
         spin_until(lambda: plant.pub_block.get_subscription_count() >= 3, 30, "recorder, consumer and generator")
@@ -184,12 +205,14 @@ def run_session_composed(cfg: SessionConfig) -> dict:
         if not answer.accepted:
             raise ValueError(f"identify: the excitation generator refused the experiment: {answer.message}")
         if cfg.hardware:
-            spin_until(lambda: answer.experiment_id in plant.slots and plant.connected and not plant.commands, 30,
+            spin_until(lambda: answer.experiment_id in plant.slots and plant.connected
+                       and not plant.commands.pending, 30,
                        f"the real-time target at {cfg.hardware} to acknowledge the experiment (is it running, "
                        "idle, and sending to this bridge's port?)")
             plant.queue_command(CommandCode.START)
         else:
-            add(PositionController(**ns, parameter_overrides=params({**rig_param, "controller": cfg.controller})))
+            add(PositionController(**ns, rig=plan.rig, design=plan.controller, parameter_overrides=params({
+                **rig_param, "controller": cfg.controller})))
         stop_sent = False
         with gc_frozen():
             while not plant.finished.done():
@@ -277,14 +300,14 @@ def _jsonable(cfg: SessionConfig) -> dict:
     return d
 
 
-def run_identify(cfg: SessionConfig) -> dict:
+def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None) -> dict:
     """The whole job: the recorded session on the graph, then the offline identification of it.
 
     Writes ``out_dir/session.mcap``, ``out_dir/summary.json`` and ``out_dir/report/``.
     """
     from ambid.studies.identification import identify_session
 
-    run = run_session_composed(cfg)
+    run = run_session_composed(cfg, plan)
     design: ExcitationDesign = run.pop("design")
     true_model = None
     if cfg.true_model:
@@ -295,9 +318,9 @@ def run_identify(cfg: SessionConfig) -> dict:
     rec = run["recorder"]
     summary = {
         "excitation": {
-            "kind": design.kind, "multi_input": cfg.mimo if design.kind == "multisine" else None,
-            "grid": cfg.grid if design.kind == "multisine" else None,
-            "phases": cfg.phases if design.kind == "multisine" else None,
+            "kind": design.kind, "multi_input": design.options.get("mimo") if design.kind == "multisine" else None,
+            "grid": design.options.get("grid") if design.kind == "multisine" else None,
+            "phases": design.options.get("phases") if design.kind == "multisine" else None,
             "lines": int(len(design.excited_lines)), "samples_per_period": int(design.n_per_period),
             "periods": int(design.n_periods), "transient_periods": int(design.n_transient_periods),
             "realisations": int(design.n_realisations), "experiments": int(design.n_experiments),
@@ -306,7 +329,7 @@ def run_identify(cfg: SessionConfig) -> dict:
             "measurement_time_s": float(design.measurement_time_s), "seed": cfg.seed,
         },
         "sample_rate_hz": float(design.fs_hz),
-        "band_hz": list(cfg.band_hz),
+        "band_hz": list(cfg.experiment.band_hz),
         "inputs": list(design.input_names),
         "simulated_time_s": run["simulated_s"],
         "wall_time_s": run["wall_s"],

@@ -36,16 +36,16 @@ def test_preview_runs_without_rclpy_and_writes_what_it_reports(tmp_path):
 
     # design.json is the design build_design makes from the same terms, at the default rig's 10 kHz
     design = ExcitationDesign.from_dict(json.loads((tmp_path / "design.json").read_text()))
-    assert design == cmd.build_design("multisine", (20.0, 800.0), 10.0, 10_000.0, cmd.DEFAULT_INPUTS, 0.5,
+    assert design == cmd.build_design("multisine", (20.0, 800.0), 10.0, 10_000.0, cmd.DEFAULT_INPUTS, 0.4,
                                       n_periods=3)
-    # orthogonal multisine, 4 inputs: Ne (Pt + P) N / fs = 4 x (1 + 3) x 1000 / 10 kHz
-    assert summary["measurement_time_s"] == pytest.approx(4 * 4 * 1000 / 10_000.0)
-    assert summary["n_lines"] == design.excited_lines.size and summary["peak_a"] == pytest.approx([0.5] * 4)
-    # 3 A limit - 1 A working current - 0.5 A peak
-    assert summary["headroom"]["ok"] and summary["headroom"]["margin_a"] == pytest.approx([1.5] * 4)
+    # orthogonal multisine, 4 inputs, identify's M = 3 and Pt = 3: Ne M (Pt + P) N / fs = 4 x 3 x (3 + 3) x 1000 / 10 kHz
+    assert summary["measurement_time_s"] == pytest.approx(4 * 3 * 6 * 1000 / 10_000.0)
+    assert summary["n_lines"] == design.excited_lines.size and summary["peak_a"] == pytest.approx([0.4] * 4)
+    # 3 A limit - 1 A working current - 0.4 A peak
+    assert summary["headroom"]["ok"] and summary["headroom"]["margin_a"] == pytest.approx([1.6] * 4)
     plan = {row["method"]: row["measurement_time_s"] for row in summary["plan"]}
     assert plan["orthogonal multisine"] == pytest.approx(summary["measurement_time_s"])
-    assert plan["stepped sine"] > 10 * plan["orthogonal multisine"]
+    assert plan["stepped sine"] > 8 * plan["orthogonal multisine"]  # 63 s against 7.2 s for M = 3 realisations
     assert (tmp_path / "design.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
@@ -57,7 +57,7 @@ def test_headroom_refusal_is_reported_with_exit_code_1(tmp_path, capsys):
     with pytest.raises(ValueError) as refusal:
         check_headroom(design, 3.0, 1.0)
     assert f"headroom: REFUSED, {refusal.value}" in out
-    assert "measurement time 1 s (10000 samples)" in out  # 4 experiments x (1 + 4) periods x N = 500
+    assert "measurement time 4.2 s (42000 samples)" in out  # 4 experiments x 3 x (3 + 4) periods x N = 500
     assert not (tmp_path / "design.png").exists()
 
 
@@ -80,4 +80,29 @@ def test_kind_defaults_and_prbs_clock():
     assert 3 * (2**order - 1) >= 2000 > 3 * (2 ** (order - 1) - 1)
     prbs = cmd.build_design("prbs", (10.0, 1000.0), 5.0, 10_000.0)
     assert prbs.n_per_period == divider * (2**order - 1) and prbs.fs_hz / prbs.n_per_period <= 5.0
-    assert np.all(prbs.peak_a == pytest.approx(0.5))
+    assert np.all(prbs.peak_a == pytest.approx(0.4))  # identify's peak, the default
+
+
+def test_every_command_defaults_to_the_one_experiment():
+    """design, identify and campaign with no experiment options, and the session validate and the generator
+    node run, are DesignSpec(): the one home of the experiment's defaults."""
+    import yaml
+    from ambid.excitation.spec import DesignSpec
+    from ambid_cli.commands import campaign, identify
+    from ambid_cli.commands.inputs import experiment_spec
+
+    spec = DesignSpec()
+    for module, argv in ((cmd, []), (identify, []), (campaign, ["--speeds-rpm", "0", "--out", "c"])):
+        p = argparse.ArgumentParser()
+        module.add_arguments(p)
+        args = p.parse_args(argv)
+        terms = {"input_names": tuple(args.inputs.split(","))} if module is cmd else {}
+        assert experiment_spec(args, **terms) == spec, module.__name__
+    # the generator's parameter file (tests/nodes/test_config_files.py: file == the node's declared defaults)
+    gen = yaml.safe_load((ROOT / "ambid_nodes" / "config" / "excitation_generator.yaml").read_text())
+    p = gen["/**"]["ros__parameters"]
+    assert DesignSpec(p["kind"], (p["band_low"], p["band_high"]), p["resolution"], tuple(p["inputs"]),
+                      p["peak_current"], p["periods"], p["realisations"], p["transient_periods"], p["grid"],
+                      p["spacing"], p["phases"], p["mimo"], p["seed"], p["settle_time"], p["cycles"]) == spec
+    # identify's experiment: orthogonal random-odd crest-optimised multisine, 0.4 A, M = 3, 3 + 4 periods
+    assert (spec.peak_current_a, spec.n_realisations, spec.n_transient_periods, spec.n_periods) == (0.4, 3, 3, 4)

@@ -71,3 +71,9 @@ def ros():
 def ros_env(ros):
     """Environment for subprocess nodes on the test's domain."""
     return dict(os.environ, ROS_DOMAIN_ID=str(ros.domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+
+
+@pytest.fixture(scope="module")
+def ros_env_module():
+    """Environment for subprocess nodes on a domain of their own, for a module's shared session."""
+    return dict(os.environ, ROS_DOMAIN_ID=str(next_domain_id()), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")

@@ -26,7 +26,7 @@ INPUTS = ["u_a_x", "u_b_y"]  # excited through r_a_x (column 0) and r_b_y (colum
 COLS = [EXCITATION_NAMES.index("r_a_x"), EXCITATION_NAMES.index("r_b_y")]
 # 2 periods of an N = 1000 orthogonal multisine on 2 inputs: 2 experiments x 2 periods x 1000 = 4000 samples
 GEN = {"band_low": 50.0, "band_high": 2000.0, "resolution": 10.0, "inputs": INPUTS, "peak_current": 0.3,
-       "periods": 2, "transient_periods": 0, "seed": 7, "block_size": 500, "lookahead": 3000, "start_margin": 1500,
+       "periods": 2, "transient_periods": 0, "realisations": 1, "phases": "random", "seed": 7, "block_size": 500, "lookahead": 3000, "start_margin": 1500,
        "working_current": 1.0}
 R_COLS = [MEASUREMENT_NAMES.index(n) for n in EXCITATION_NAMES]
 

@@ -148,7 +148,7 @@ def test_lossless_session_over_udp_records_the_plant_sim_rows(ros, tmp_path, flo
             for p in f.payloads(topic, 2000, 2**39):  # indices far beyond the session, or malformed
                 pub.publish(p)
         assert ros.spin_until(lambda: bridge.intake.received["excitation"] >= 1000, timeout_s=30)
-    assert ros.spin_until(lambda: sum(len(c[0]) for c in bridge.exc_chunks.values()) == length, timeout_s=10)
+    assert ros.spin_until(lambda: sum(len(c[0]) for c in bridge.chunks.held.values()) == length, timeout_s=10)
     proc = subprocess.Popen([sys.executable, "-m", "ambid.hardware.rt_target", "--bind", target, "--bridge", local,
                              "--seed", str(seed), "--pace", "1", "--samples", str(n), "--linger", "0.3"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,

@@ -46,10 +46,10 @@ def test_clipped_samples_are_flagged_recorded_as_commanded_and_reported(ros):
         experiment_id="rogue", kind="multisine", start_index=START, total_samples=N, sample_rate=1 / dt,
         samples_per_period=N, n_periods=1, input_names=["u_a_x"], excited_lines=[5], peak=[1.5 * limit],
         rms=[1.5 * limit / 2**0.5], crest_factor=[2**0.5], measurement_time=N * dt, design_json="{}"))
-    assert ros.spin_until(lambda: "rogue" in plant.excited_ranges, 10)
+    assert ros.spin_until(lambda: "rogue" in plant.schedule.ranges, 10)
     for first in range(0, N, 250):
         rogue.pub_exc.publish(block_msg(START + first, dt, EXCITATION_NAMES, ("A",) * 4, r[first:first + 250]))
-    assert ros.spin_until(lambda: len(plant.excitation) == 4, 10)
+    assert ros.spin_until(lambda: len(plant.schedule.blocks) == 4, 10)
     ros.add(PositionController(namespace=NS, context=ros.context))
     assert ros.spin_until(plant.finished.done, 120)
     assert ros.spin_until(lambda: sum(b.n_samples for b in rogue.blocks) == plant.k, 10)

@@ -181,9 +181,9 @@ def test_a_lost_excitation_generator_fails_the_session_and_keeps_what_was_record
         experiment_id="gone", kind="multisine", start_index=start, total_samples=1000, sample_rate=1 / dt,
         samples_per_period=1000, n_periods=1, input_names=["u_a_x"], excited_lines=[5], peak=[0.1], rms=[0.07],
         crest_factor=[1.4], measurement_time=1000 * dt, design_json="{}"))
-    assert ros.spin_until(lambda: "gone" in plant.excited_ranges, 10)
+    assert ros.spin_until(lambda: "gone" in plant.schedule.ranges, 10)
     pub_exc.publish(block_msg(start, dt, EXCITATION_NAMES, ("A",) * 4, np.full((sent, 4), 0.05)))
-    assert ros.spin_until(lambda: len(plant.excitation) == 1, 10)
+    assert ros.spin_until(lambda: len(plant.schedule.blocks) == 1, 10)
     ros.add(PositionController(namespace=ns, context=ros.context))
     assert ros.spin_until(lambda: plant.k == start + sent, 60)  # waiting for the next block
     waiting = time.monotonic()

@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from ambid.excitation.spec import DesignSpec
 from ambid.hardware.target_model import rig_target_model, write_target_model
 from ambid.plant.rig import make_rig
 
@@ -66,8 +67,8 @@ def test_identify_hardware_gives_the_c_target_the_accuracy_of_the_simulated_rig(
     assert sim.returncode == 0, sim.stdout + sim.stderr
     # free-running, waiting for excitation: deterministic and fast; stops where the session does
     fs = 1 / make_rig().dt
-    _, total = session_samples(SessionConfig(resolution_hz=10, periods=2, realisations=1,
-                                             transient_periods=1).design(fs), fs)
+    _, total = session_samples(SessionConfig(experiment=DesignSpec(resolution_hz=10, n_periods=2, n_realisations=1,
+                                                                   n_transient_periods=1)).design(fs), fs)
     proc, target, local = start_target(model, "--pace", "0", "--hold-for-excitation", "--samples", str(total),
                                        "--seed", "7")
     try:

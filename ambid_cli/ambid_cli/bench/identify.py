@@ -10,13 +10,15 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from ambid.excitation.spec import DesignSpec
+
 
 def identify_figures(out_dir: str | os.PathLike, overrides: dict | None = None) -> dict:
     """Run one composed identify session and time it.
 
     Args:
         out_dir: directory for the session's recording.
-        overrides: SessionConfig fields to change (e.g. a shorter experiment); None = the default session.
+        overrides: DesignSpec fields to change (e.g. a shorter experiment); None = the default session.
 
     Returns:
         dict with ``available`` (False, with ``reason``, when the session runner is missing),
@@ -28,7 +30,7 @@ def identify_figures(out_dir: str | os.PathLike, overrides: dict | None = None) 
         from ambid_nodes.session import SessionConfig, run_session_composed
     except ImportError as exc:
         return {"available": False, "reason": f"the identify session runner cannot be imported: {exc}"}
-    cfg = SessionConfig(out_dir=Path(out_dir), progress=False, **(overrides or {}))
+    cfg = SessionConfig(out_dir=Path(out_dir), progress=False, experiment=DesignSpec(**(overrides or {})))
     run = run_session_composed(cfg)
     plant = run["plant"]
     fs = plant["samples"] / plant["simulated_s"]

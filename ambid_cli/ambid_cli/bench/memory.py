@@ -13,7 +13,7 @@ Two kinds of session:
 The peak is the child's high-water resident size (``VmHWM``); ``baseline_mb`` is its resident size
 after the imports, before the work, so ``growth_mb`` is what the session added.
 As a child: ``python -m ambid_cli.bench.memory offline FILE`` or
-``python -m ambid_cli.bench.memory live OUT_DIR '{SessionConfig overrides}'``,
+``python -m ambid_cli.bench.memory live OUT_DIR '{DesignSpec overrides}'``,
 printing one JSON line.
 """
 
@@ -55,12 +55,14 @@ def _child(argv: list[str]) -> dict:
     if kind == "live":
         import importlib
 
+        from ambid.excitation.spec import DesignSpec
         from ambid_nodes.session import SessionConfig, run_session_composed
 
         for node in ("excitation_generator", "frf_consumer", "plant_sim", "position_controller", "recorder"):
             importlib.import_module(f"ambid_nodes.{node}")  # imported before the baseline, as the offline child
         base = _rss_mb()
-        run = run_session_composed(SessionConfig(out_dir=Path(argv[1]), progress=False, **json.loads(argv[2])))
+        run = run_session_composed(SessionConfig(out_dir=Path(argv[1]), progress=False,
+                                                 experiment=DesignSpec(**json.loads(argv[2]))))
         return {"baseline_mb": base, "peak_mb": _peak_mb(), "simulated_s": run["simulated_s"],
                 "wall_s": run["wall_s"], "state": run["plant"]["state"]}
     raise ValueError(f"unknown child kind {kind!r}; use offline or live")
@@ -101,7 +103,7 @@ def memory_figures(work_dir: str | os.PathLike, design_kwargs: dict, live_overri
     Args:
         work_dir: directory for the session files (the offline ones are deleted after use).
         design_kwargs: :func:`ambid_cli.bench.offline.make_design` overrides of the short offline session.
-        live_overrides: ``SessionConfig`` overrides of the short live session.
+        live_overrides: ``DesignSpec`` overrides of the short live session.
         factor: length factor of the long sessions (their realisations M x factor).
 
     Returns:
@@ -119,7 +121,7 @@ def memory_figures(work_dir: str | os.PathLike, design_kwargs: dict, live_overri
     except ImportError as exc:
         live_reason = f"the identify session runner cannot be imported: {exc}"
     m_off = int(make_design(**design_kwargs).n_realisations)
-    m_live = int(live_overrides.get("realisations", 1))
+    m_live = int(live_overrides.get("n_realisations", 1))
     info, paths = {}, {}
     for label, m in (("short", m_off), ("long", factor * m_off)):
         paths[label] = work_dir / f"memory_{label}.mcap"
@@ -130,7 +132,7 @@ def memory_figures(work_dir: str | os.PathLike, design_kwargs: dict, live_overri
     procs = {("offline", label): _start_child(("offline", str(paths[label])), d) for label in paths}
     if live_reason is None:
         for i, (label, m) in enumerate((("short", m_live), ("long", factor * m_live))):
-            args = ("live", str(work_dir / f"live_{label}"), json.dumps({**live_overrides, "realisations": m}))
+            args = ("live", str(work_dir / f"live_{label}"), json.dumps({**live_overrides, "n_realisations": m}))
             procs["live", label] = _start_child(args, d + 1 + i if d < 231 else d - 1 - i)
     try:
         runs = {key: _child_result(p) for key, p in procs.items()}

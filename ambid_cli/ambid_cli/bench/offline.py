@@ -23,6 +23,7 @@ import numpy as np
 from ambid.control.closed_loop import close_loop
 from ambid.control.pid import PidParameters, pid_controller
 from ambid.excitation import ExcitationDesign
+from ambid.excitation.spec import DesignSpec
 from ambid.plant.rig import make_rig
 from ambid.plant.true_rig import true_linear_model
 from ambid.session import SessionWriter, iter_messages
@@ -36,17 +37,10 @@ from ambid_nodes.conversions import block_msg, time_msg
 
 NAMESPACE = "/amb"
 EXPERIMENT_ID = "bench"
-# the experiment of a default ``ambid identify`` session (ambid_nodes.session.SessionConfig)
-IDENTIFY_DESIGN = dict(kind="multisine", band_hz=(10.0, 1000.0), resolution_hz=5.0, peak_current_a=0.5,
-                       n_periods=4, n_realisations=2, n_transient_periods=3, grid="random_odd", mimo="orthogonal",
-                       seed=1)
-
-
 def make_design(**overrides) -> ExcitationDesign:
-    """The default identify experiment at the default rig's sample rate, with ``build_design`` overrides."""
-    from ambid.excitation.spec import build_design
-
-    return build_design(fs_hz=1.0 / make_rig().dt, **{**IDENTIFY_DESIGN, **overrides})
+    """The default identify experiment (:class:`ambid.excitation.spec.DesignSpec`) at the default rig's sample
+    rate, with DesignSpec field overrides."""
+    return DesignSpec(**overrides).build(1.0 / make_rig().dt)
 
 
 def _design_msg(d: ExcitationDesign, start: int, dt: float) -> DesignMsg:

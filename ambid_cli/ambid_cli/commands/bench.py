@@ -42,12 +42,12 @@ FACTOR = 6  # the long session of the memory figure is this many times longer
 # the sizes of a --quick run (the smoke test): every section, seconds each
 QUICK = {
     "loop_seconds": 0.2, "repeats": 1, "fit_lines": 200, "fit_order": 12,
-    "identify": {"band_hz": (50.0, 1000.0), "resolution_hz": 50.0, "periods": 1, "realisations": 1,
-                 "transient_periods": 1},
+    "identify": {"band_hz": (50.0, 1000.0), "resolution_hz": 50.0, "n_periods": 1, "n_realisations": 1,
+                 "n_transient_periods": 1},
     "offline_design": {"band_hz": (50.0, 1000.0), "resolution_hz": 50.0, "n_periods": 1, "n_realisations": 1,
                        "n_transient_periods": 1},
-    "live_memory": {"band_hz": (50.0, 1000.0), "resolution_hz": 50.0, "periods": 1, "realisations": 1,
-                    "transient_periods": 1},
+    "live_memory": {"band_hz": (50.0, 1000.0), "resolution_hz": 50.0, "n_periods": 1, "n_realisations": 1,
+                    "n_transient_periods": 1},
 }
 # the default sizes: the identify session and the offline file are the default identify experiment
 FULL = {
@@ -56,7 +56,7 @@ FULL = {
     "identify": {},
     "offline_design": {},
     "offline_memory_design": {"n_realisations": 1},
-    "live_memory": {"resolution_hz": 10.0, "periods": 2, "realisations": 1, "transient_periods": 1},
+    "live_memory": {"resolution_hz": 10.0, "n_periods": 2, "n_realisations": 1, "n_transient_periods": 1},
 }
 
 

@@ -18,8 +18,10 @@ from pathlib import Path
 
 HELP = "identify at several rotor speeds (one session each, resumable) and draw the measured Campbell diagram"
 
-from ambid_cli.commands.inputs import (BadInput, add_session_options, check_band, checked_controller, controller,
-                                         output_dir, rig_file)
+from ambid.plant.rig import make_rig
+
+from ambid_cli.commands.inputs import (BadInput, add_session_options, checked_controller, controller,
+                                         experiment_spec, output_dir, rig_file)
 
 _FORMAT = "ambid.campaign/1"
 
@@ -44,6 +46,15 @@ def _speeds(values: list[float]) -> list[float]:
     return speeds
 
 
+def _rig_at(base, rpm: float, controller_spec: str) -> tuple:
+    """(the rig at ``rpm``, its controller): made and checked once per speed, before the first session starts."""
+    try:
+        at = make_rig({**base.to_dict(), "rotor_speed_rpm": rpm})
+    except ValueError as exc:
+        raise BadInput(f"the rig at {rpm:g} rpm: {exc}") from None
+    return at, checked_controller(controller_spec, at)
+
+
 def _settings(args: argparse.Namespace, rig) -> dict:
     """What must not change between a campaign's runs (the speeds may grow)."""
     return dict(rig=rig.to_dict(), controller=args.controller, band_hz=list(args.band), resolution_hz=args.resolution,
@@ -66,20 +77,14 @@ def run(args: argparse.Namespace) -> int:
     import yaml
 
     from ambid.jsonable import to_jsonable
-    from ambid.plant.rig import make_rig
     from ambid.studies.campbell import campbell_summary, campbell_table, write_campbell_report
-    from ambid_nodes.session import SessionConfig, run_identify
+    from ambid_nodes.session import SessionConfig, plan_session, run_identify
 
-    check_band(tuple(args.band))
+    spec = experiment_spec(args)
     out = output_dir(args.out)
     speeds = _speeds(args.speeds_rpm)
     base = rig_file(args.rig)
-    for rpm in speeds:  # every speed's rig and controller are checked before the first session starts
-        try:
-            at = make_rig({**base.to_dict(), "rotor_speed_rpm": rpm})
-        except ValueError as exc:
-            raise BadInput(f"the rig at {rpm:g} rpm: {exc}") from None
-        checked_controller(args.controller, at)
+    rigs = {rpm: _rig_at(base, rpm, args.controller) for rpm in speeds}
     settings = _settings(args, base)
     manifest = out / "campaign.json"
     if manifest.exists():
@@ -93,6 +98,7 @@ def run(args: argparse.Namespace) -> int:
             raise BadInput(f"--out {out} holds a campaign with other settings (rig, controller, band, resolution, "
                            "realisations or seed); continue it with the same ones or give another folder")
         speeds = sorted(set(speeds) | set(old.get("speeds_rpm", [])))
+        rigs.update((rpm, _rig_at(base, rpm, args.controller)) for rpm in speeds if rpm not in rigs)
     out.mkdir(parents=True, exist_ok=True)
     tmp = manifest.with_suffix(".json.tmp")
     tmp.write_text(json.dumps({"format": _FORMAT, "settings": to_jsonable(settings), "speeds_rpm": speeds}, indent=1))
@@ -114,13 +120,11 @@ def run(args: argparse.Namespace) -> int:
         folder.mkdir(parents=True, exist_ok=True)
         rig_path = folder / "rig.yaml"
         rig_path.write_text(yaml.safe_dump({**to_jsonable(base.to_dict()), "rotor_speed_rpm": rpm}, sort_keys=False))
-        cfg = SessionConfig(out_dir=folder, band_hz=tuple(args.band), resolution_hz=args.resolution,
-                            realisations=args.realisations, seed=args.seed, rig_file=str(rig_path),
-                            controller=args.controller,
+        cfg = SessionConfig(out_dir=folder, experiment=spec, rig_file=str(rig_path), controller=args.controller,
                             progress=not args.no_progress and sys.stderr.isatty())
         t_speed = time.perf_counter()
         try:
-            summary = run_identify(cfg)
+            summary = run_identify(cfg, plan_session(cfg, *rigs[rpm]))
         except KeyboardInterrupt:
             print(f"ambid campaign: interrupted at {rpm:.0f} rpm; run the same command again to continue",
                   file=sys.stderr)

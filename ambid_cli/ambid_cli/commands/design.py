@@ -6,7 +6,8 @@ and multisines for the same band and resolution side by side, and writes
 ``design.png`` (spectrum and time signal) and ``design.json`` (loadable by
 the excitation generator's ``start_experiment`` service) to ``--out``.
 
-The design in the user's terms is built by ``ambid.excitation.spec.build_design``.
+The design in the user's terms is :class:`ambid.excitation.spec.DesignSpec`; with no options it is the
+experiment ``ambid identify`` runs and records.
 """
 
 from __future__ import annotations
@@ -19,34 +20,29 @@ from pathlib import Path
 HELP = "preview an excitation design: figures, headroom, measurement times, spectrum plot"
 
 from ambid.excitation.spec import DEFAULT_INPUTS, GRIDS, KINDS, MIMOS, PHASES, SPACINGS, build_design, prbs_clock  # noqa: F401 - re-exported
-from ambid_cli.commands.inputs import check_band, count, output_dir, positive_float, positive_int
+from ambid_cli.commands.inputs import (D, add_experiment_options, add_session_options, count, experiment_spec,
+                                       output_dir, positive_float, positive_int)
 
 
 # ---- the command ------------------------------------------------------------
 def add_arguments(g: argparse.ArgumentParser) -> None:
-    g.add_argument("--kind", choices=KINDS, default="multisine", help="excitation kind (default multisine)")
-    g.add_argument("--band", type=float, nargs=2, default=(10.0, 1000.0), metavar=("LOW", "HIGH"),
-                   help="band of interest [Hz] (default 10 1000)")
-    g.add_argument("--resolution", type=positive_float, default=5.0, help="frequency resolution fs/N [Hz] (default 5)")
-    g.add_argument("--inputs", default=",".join(DEFAULT_INPUTS),
-                   help=f"comma-separated excited inputs (default {','.join(DEFAULT_INPUTS)})")
-    g.add_argument("--peak-current", type=positive_float, default=0.5, help="excitation peak per input [A] (default 0.5)")
-    g.add_argument("--periods", type=positive_int, default=4, help="steady-state periods P (default 4)")
-    g.add_argument("--realisations", type=positive_int, default=1, help="realisations M (default 1)")
-    g.add_argument("--transient-periods", type=count, default=1, help="transient periods Pt (default 1)")
-    g.add_argument("--grid", default="", help="line grid: random_odd | odd | full (default: the kind's)")
-    g.add_argument("--spacing", default="", help="linear | log (swept sine: the sweep law; default: the kind's)")
-    g.add_argument("--phases", default="", help="multisine phases: random | schroeder | crest_optimised")
-    g.add_argument("--mimo", default="", help="orthogonal | one_at_a_time | simultaneous (default: the kind's)")
-    g.add_argument("--seed", type=int, default=0, help="seed of the random choices (default 0)")
-    g.add_argument("--settle", type=positive_float, default=0.5, help="stepped sine settling wait per line [s]")
-    g.add_argument("--cycles", type=positive_int, default=10, help="stepped sine measured cycles per line")
+    # the experiment's terms with identify's defaults: no options preview the experiment identify runs
+    add_session_options(g)
+    add_experiment_options(g)
+    g.add_argument("--inputs", default=",".join(D.input_names),
+                   help=f"comma-separated excited inputs (default {','.join(D.input_names)})")
+    g.add_argument("--settle", type=positive_float, default=D.settle_s,
+                   help=f"stepped sine settling wait per line [s] (default {D.settle_s:g})")
+    g.add_argument("--cycles", type=positive_int, default=D.n_cycles,
+                   help=f"stepped sine measured cycles per line (default {D.n_cycles})")
     g.add_argument("--rig", help="rig parameter YAML file (default: the built-in rig): sample rate, current limit")
     g.add_argument("--speed-rpm", type=float, default=None,
                    help="rotor speed [rpm]: keep the lines clear of its synchronous harmonics and say which moved "
                         "(default: the rig file's rotor_speed_rpm; 0 = standstill)")
-    g.add_argument("--harmonics", type=positive_int, default=6, help="synchronous harmonics kept clear (default 6)")
-    g.add_argument("--guard-bins", type=count, default=1, help="bins kept free each side of a harmonic (default 1)")
+    g.add_argument("--harmonics", type=positive_int, default=D.n_harmonics,
+                   help=f"synchronous harmonics kept clear (default {D.n_harmonics})")
+    g.add_argument("--guard-bins", type=count, default=D.guard_bins,
+                   help=f"bins kept free each side of a harmonic (default {D.guard_bins})")
     g.add_argument("--working-current", type=positive_float, default=1.0,
                    help="controller's peak working current [A] for the headroom check (default 1.0)")
     g.add_argument("--no-plan", action="store_true", help="skip the stepped/swept/multisine time table")
@@ -55,14 +51,14 @@ def add_arguments(g: argparse.ArgumentParser) -> None:
     g.add_argument("--json", action="store_true", help="print one JSON object instead of text")
 
 
-def _plan(args, fs_hz: float, inputs: tuple[str, ...]) -> list:
+def _plan(spec, fs_hz: float) -> list:
     from ambid.excitation import plan_measurements
 
-    grid = args.grid if args.kind == "multisine" and args.grid else "random_odd"
-    return plan_measurements((args.band[0], args.band[1]), args.resolution, fs_hz, inputs, args.peak_current,
-                             n_periods=args.periods, n_transient_periods=args.transient_periods,
-                             n_realisations=args.realisations, grid=grid, settle_s=args.settle,
-                             n_cycles=args.cycles, seed=args.seed)
+    grid = spec.grid if spec.kind == "multisine" and spec.grid else "random_odd"
+    return plan_measurements(spec.band_hz, spec.resolution_hz, fs_hz, spec.input_names, spec.peak_current_a,
+                             n_periods=spec.n_periods, n_transient_periods=spec.n_transient_periods,
+                             n_realisations=spec.n_realisations, grid=grid, settle_s=spec.settle_s,
+                             n_cycles=spec.n_cycles, seed=spec.seed)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -70,20 +66,16 @@ def run(args: argparse.Namespace) -> int:
     from ambid.excitation.synchronous import describe_steering
     from ambid.plant.rig import load_rig, make_rig
 
-    check_band(tuple(args.band))
+    spec = experiment_spec(args, input_names=tuple(s.strip() for s in args.inputs.split(",") if s.strip()))
     output_dir(args.out)
     try:
         rig = load_rig(args.rig) if args.rig else make_rig()
         fs_hz = float(rig.sample_rate_hz)
-        inputs = tuple(s.strip() for s in args.inputs.split(",") if s.strip())
         speed = float(rig.rotor_speed_rpm) if args.speed_rpm is None else args.speed_rpm
         if not (speed >= 0 and speed < 1e6):
             raise ValueError(f"--speed-rpm must be a speed in rpm >= 0, got {args.speed_rpm!r}")
-        design = build_design(args.kind, tuple(args.band), args.resolution, fs_hz, inputs, args.peak_current,
-                              args.periods, args.realisations, args.transient_periods, args.grid, args.spacing,
-                              args.phases, args.mimo, args.seed, args.settle, args.cycles, speed_rpm=speed,
-                              n_harmonics=args.harmonics, guard_bins=args.guard_bins)
-        plan = None if args.no_plan else _plan(args, fs_hz, inputs)
+        design = spec.build(fs_hz, speed)
+        plan = None if args.no_plan else _plan(spec, fs_hz)
     except (ValueError, OSError) as exc:
         print(f"ambid design: {exc}", file=sys.stderr)
         return 2

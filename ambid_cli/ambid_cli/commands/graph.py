@@ -35,13 +35,16 @@ def run(args: argparse.Namespace) -> int:
     rig = rig_file(args.rig)  # a bad rig file stops here, before any node starts
     no_controller_on_hardware(args)
     if args.hardware:
-        return run_on_hardware(args)
+        return run_on_hardware(args, rig)
     ctrl = checked_controller(args.controller, rig)  # and an unknown or unstable controller
     plant = {"seed": args.seed, "nonlinear_magnets": args.nonlinear}
     ctrl_params = {"controller": args.controller}
     if args.rig:
         plant["rig_file"] = ctrl_params["rig_file"] = args.rig
-    cfg = GraphConfig(sim_seconds=args.sim_seconds, namespace=args.namespace, plant=plant, controller=ctrl_params)
+    # composed, the nodes take this rig and controller (parsed and designed once, here); as processes each
+    # node reads its own parameters
+    cfg = GraphConfig(sim_seconds=args.sim_seconds, namespace=args.namespace, plant=plant, controller=ctrl_params,
+                      rig=rig, controller_design=ctrl)
     layout = "separate processes" if args.processes else "one process (EventsExecutor)"
     layout += f", {ctrl.kind.upper()} controller"
     print(f"ambid graph: plant_sim + position_controller in {layout}, namespace {args.namespace}, "
@@ -68,11 +71,9 @@ def run(args: argparse.Namespace) -> int:
     return 0 if ok else 1
 
 
-
-
-def run_on_hardware(args: argparse.Namespace) -> int:
+def run_on_hardware(args: argparse.Namespace, rig) -> int:
     plant = {"rig_file": args.rig} if args.rig else {}
-    cfg = GraphConfig(sim_seconds=args.sim_seconds, namespace=args.namespace, plant=plant)
+    cfg = GraphConfig(sim_seconds=args.sim_seconds, namespace=args.namespace, plant=plant, rig=rig)
     print(f"ambid graph: hardware_bridge to the real-time target at {args.hardware}, namespace {args.namespace}, "
           f"ROS_DOMAIN_ID {session_domain_id()}, {args.sim_seconds:g} s of samples", flush=True)
     try:

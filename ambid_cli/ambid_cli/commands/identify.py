@@ -9,27 +9,17 @@ from pathlib import Path
 
 from ambid.control.kinds import describe_kinds
 
-from ambid_cli.commands.inputs import (BadInput, add_session_options, address, check_band, checked_controller,
-                                        controller, count, no_controller_on_hardware, output_dir, positive_float,
-                                        positive_int, rig_file)
+from ambid_cli.commands.inputs import (BadInput, add_experiment_options, add_session_options, address,
+                                        checked_controller, controller, count, experiment_spec,
+                                        no_controller_on_hardware, output_dir, rig_file)
 
 HELP = "identify the simulated rig end to end (graph, experiment, recording, FRF, fit, report)"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=Path("identify"), help="output folder (default ./identify)")
-    p.add_argument("--kind", default="multisine",
-                   choices=["multisine", "stepped_sine", "swept_sine", "noise", "prbs", "dibs"],
-                   help="excitation kind (default: orthogonal random-odd multisine)")
     add_session_options(p)
-    p.add_argument("--peak-current", type=positive_float, default=0.4, help="excitation peak per input [A] (default 0.4)")
-    p.add_argument("--periods", type=positive_int, default=4, help="steady-state periods per experiment (default 4)")
-    p.add_argument("--transient-periods", type=count, default=3, help="periods discarded per experiment (default 3)")
-    p.add_argument("--mimo", default="orthogonal", choices=["orthogonal", "one_at_a_time"],
-                   help="multisine over the 4 inputs (default orthogonal)")
-    p.add_argument("--grid", default="random_odd", choices=["random_odd", "odd", "full"], help="multisine grid")
-    p.add_argument("--phases", default="crest_optimised", choices=["crest_optimised", "random", "schroeder"],
-                   help="multisine phases (default crest_optimised: lowest crest factor)")
+    add_experiment_options(p)  # the experiment's terms; with none given, what 'ambid design' previews
     p.add_argument("--rig", default="", help="rig parameter YAML file (default: the built-in rig)")
     p.add_argument("--controller", type=controller, default="",
                    help=f"position controller: {describe_kinds()}, or a controller file (.npz, .mat, .yaml) "
@@ -48,13 +38,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ambid_nodes.session import SessionConfig, run_identify
+    from ambid_nodes.session import SessionConfig, plan_session, run_identify
 
-    check_band(tuple(args.band))
+    spec = experiment_spec(args)
     output_dir(args.out)
     no_controller_on_hardware(args)
-    rig = rig_file(args.rig)  # a bad rig file stops here, before any node starts
-    checked_controller(args.controller, rig)  # and an unknown or unstable controller
+    # the run's decisions, each made once, here, and handed to the nodes: a bad rig file, an unknown or
+    # unstable controller or an experiment that cannot be designed stops here, before any node starts
+    rig = rig_file(args.rig)
+    ctrl = None if args.hardware else checked_controller(args.controller, rig)
     if args.true_model:
         if not args.hardware:
             raise BadInput("--true-model needs --hardware: a simulated session is compared with its own true rig")
@@ -64,16 +56,16 @@ def run(args: argparse.Namespace) -> int:
             read_target_model(args.true_model)
         except (OSError, ValueError, IndexError) as exc:
             raise BadInput(f"--true-model {exc}; give the file 'ambid target-model' wrote") from None
-    cfg = SessionConfig(out_dir=args.out, kind=args.kind, band_hz=tuple(args.band), resolution_hz=args.resolution,
-                        peak_current_a=args.peak_current, periods=args.periods, realisations=args.realisations,
-                        transient_periods=args.transient_periods, grid=args.grid, mimo=args.mimo, phases=args.phases,
-                        seed=args.seed,
-                        rig_file=args.rig, controller=args.controller, nonlinear_magnets=not args.linear_magnets,
-                        estimator=args.estimator, hardware=args.hardware or "", local_port=args.local_port,
-                        true_model=args.true_model,
+    cfg = SessionConfig(out_dir=args.out, experiment=spec, rig_file=args.rig, controller=args.controller,
+                        nonlinear_magnets=not args.linear_magnets, estimator=args.estimator,
+                        hardware=args.hardware or "", local_port=args.local_port, true_model=args.true_model,
                         progress=not args.no_progress and sys.stderr.isatty())
     try:
-        summary = run_identify(cfg)
+        plan = plan_session(cfg, rig, ctrl)  # the design, made once
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+    try:
+        summary = run_identify(cfg, plan)
     except KeyboardInterrupt:
         print("ambid identify: interrupted; the recording so far is in", args.out / "session.mcap", file=sys.stderr)
         return 130

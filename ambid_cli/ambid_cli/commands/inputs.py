@@ -14,6 +14,10 @@ import os
 import sys
 from pathlib import Path
 
+from ambid.excitation.spec import KINDS, DesignSpec
+
+D = DesignSpec()  # the experiment identify runs: every command's defaults
+
 
 class BadInput(Exception):
     """Input the command cannot use: the message is one line, the problem and the fix."""
@@ -160,10 +164,49 @@ def check_band(band: tuple[float, float], option: str = "--band") -> tuple[float
 
 
 def add_session_options(p: argparse.ArgumentParser) -> None:
-    """--band, --resolution, --realisations and --seed of an identify session, as identify and campaign take
-    them (identify's defaults)."""
-    p.add_argument("--band", nargs=2, type=float, metavar=("LO", "HI"), default=(10.0, 1000.0),
-                   help="band of interest [Hz] (default 10 1000)")
-    p.add_argument("--resolution", type=positive_float, default=5.0, help="frequency resolution [Hz] (default 5)")
-    p.add_argument("--realisations", type=positive_int, default=3, help="random-phase realisations (default 3)")
-    p.add_argument("--seed", type=int, default=1, help="seed of the noise and the random phases (default 1)")
+    """--band, --resolution, --realisations and --seed of an identify session, as identify, campaign and design
+    take them (the defaults: :class:`ambid.excitation.spec.DesignSpec`'s, the experiment identify runs)."""
+    p.add_argument("--band", nargs=2, type=float, metavar=("LO", "HI"), default=D.band_hz,
+                   help=f"band of interest [Hz] (default {D.band_hz[0]:g} {D.band_hz[1]:g})")
+    p.add_argument("--resolution", type=positive_float, default=D.resolution_hz,
+                   help=f"frequency resolution fs/N [Hz] (default {D.resolution_hz:g})")
+    p.add_argument("--realisations", type=positive_int, default=D.n_realisations,
+                   help=f"random-phase realisations M (default {D.n_realisations})")
+    p.add_argument("--seed", type=int, default=D.seed,
+                   help=f"seed of the random phases and of the simulated noise (default {D.seed})")
+
+
+def add_experiment_options(p: argparse.ArgumentParser) -> None:
+    """The rest of the experiment's terms, as identify and design take them, with DesignSpec's defaults."""
+    p.add_argument("--kind", choices=KINDS, default=D.kind, help=f"excitation kind (default {D.kind})")
+    p.add_argument("--peak-current", type=positive_float, default=D.peak_current_a,
+                   help=f"excitation peak per input [A] (default {D.peak_current_a:g})")
+    p.add_argument("--periods", type=positive_int, default=D.n_periods,
+                   help=f"steady-state periods P per experiment (default {D.n_periods})")
+    p.add_argument("--transient-periods", type=count, default=D.n_transient_periods,
+                   help=f"periods Pt discarded ahead of each experiment (default {D.n_transient_periods})")
+    p.add_argument("--grid", default=D.grid, help="line grid: random_odd | odd | full (default: the kind's, "
+                                                  "random_odd for a multisine)")
+    p.add_argument("--spacing", default=D.spacing, help="line spacing linear | log (swept sine: the sweep law; "
+                                                        "default: the kind's)")
+    p.add_argument("--phases", default=D.phases, help="multisine phases: crest_optimised | random | schroeder "
+                                                      "(default crest_optimised: the lowest crest factor)")
+    p.add_argument("--mimo", default=D.mimo, help="several inputs: orthogonal | one_at_a_time | simultaneous "
+                                                  "(default: the kind's, orthogonal for a multisine)")
+
+
+# option -> DesignSpec field, for the options a command takes
+_SPEC_OPTIONS = {"kind": "kind", "band": "band_hz", "resolution": "resolution_hz", "peak_current": "peak_current_a",
+                 "periods": "n_periods", "realisations": "n_realisations", "transient_periods": "n_transient_periods",
+                 "grid": "grid", "spacing": "spacing", "phases": "phases", "mimo": "mimo", "seed": "seed",
+                 "settle": "settle_s", "cycles": "n_cycles", "harmonics": "n_harmonics", "guard_bins": "guard_bins"}
+
+
+def experiment_spec(args: argparse.Namespace, **terms) -> DesignSpec:
+    """The DesignSpec of the options ``args`` holds (DesignSpec's defaults for those it does not) and
+    ``terms``; the band is checked (:func:`check_band`)."""
+    given = {field: getattr(args, opt) for opt, field in _SPEC_OPTIONS.items() if hasattr(args, opt)}
+    if "band_hz" in given:
+        given["band_hz"] = check_band(tuple(given["band_hz"]))
+    return DesignSpec(**{**given, **terms})
+

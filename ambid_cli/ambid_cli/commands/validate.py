@@ -90,13 +90,17 @@ def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_m
     from ambid.studies.coverage import frf_record, seed_record
     from ambid.studies.identification import identify_session, refit_parameters
 
-    from ambid_nodes.session import SessionConfig, run_session_composed
+    from ambid.excitation.spec import DesignSpec
+
+    from ambid_nodes.session import SessionConfig, plan_session, run_session_composed
 
     t0 = time.perf_counter()
     out = Path(seed_dir)
-    cfg = SessionConfig(out_dir=out, seed=seed, rig_file=rig_path, progress=False,
+    # identify's session (the experiment's defaults) at this seed; the rig parsed once in this worker
+    rig = load_rig(rig_path) if rig_path else make_rig()
+    cfg = SessionConfig(out_dir=out, experiment=DesignSpec(seed=seed), rig_file=rig_path, progress=False,
                         nonlinear_magnets=not linear_magnets, controller=controller_spec)
-    run = run_session_composed(cfg)
+    run = run_session_composed(cfg, plan_session(cfg, rig))
     summary = identify_session(run["mcap_path"], out, estimator=cfg.estimator, report=False)
     frf = np.load(out / "frf.npz")
     truths = {"small-signal truth": frf["true_frf"]}
@@ -111,7 +115,7 @@ def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_m
     # from this session's by the noise alone, the truth a noise-only band claims to hold; the parameters
     # fitted to it with this session's weights carry only what the excitation itself does to them (the
     # magnets' distortion, the best linear approximation's departure from the rig)
-    twin_cfg = SessionConfig(out_dir=out / "noise_free", seed=seed, progress=False,
+    twin_cfg = SessionConfig(out_dir=out / "noise_free", experiment=cfg.experiment, progress=False,
                              rig_file=noise_free_rig_file(rig_path, out / "noise_free_rig.yaml"),
                              nonlinear_magnets=not linear_magnets, controller=controller_spec)
     twin_run = run_session_composed(twin_cfg)
@@ -120,7 +124,6 @@ def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_m
     if twin.frf.shape == frf["frf"].shape and np.allclose(twin.freq_hz, frf["freq_hz"]):
         rec["frf"]["noise only vs noise-free twin"] = frf_record(frf["frf"], twin.frf,
                                                                {"noise only": frf["var_noise"]})["noise only"]
-        rig = load_rig(rig_path) if rig_path else make_rig()
         for name, value in refit_parameters(summary, rig, twin.freq_hz, twin.frf,
                                                 frf["var_fit"] if "var_fit" in frf else frf["var_band"]).items():
             if f"parameter:{name}" in rec["intervals"]:

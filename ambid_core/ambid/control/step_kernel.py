@@ -16,10 +16,9 @@ Controller work vector ``w`` (1-D), for n states, p inputs, q outputs
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
-from ambid.compiled import F8, I8, VEC, add_columns
+from ambid.compiled import F8, I8, VEC, add_columns, njit
 
 
 def statespace_work(n: int, p: int, q: int, matrices: list[np.ndarray]) -> tuple[np.ndarray, list[int]]:
@@ -41,7 +40,7 @@ def statespace_work(n: int, p: int, q: int, matrices: list[np.ndarray]) -> tuple
     return np.concatenate([np.zeros(head), *blocks]), offsets
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def statespace_step(w: np.ndarray, n: int, p: int, q: int, mat: int, limit: float) -> None:
     """One step of a discrete state-space model with output saturation, in place:
     [out; x[k+1]] = m [x; y], out clipped to [-limit, limit].

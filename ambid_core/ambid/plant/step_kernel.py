@@ -28,10 +28,9 @@ offsets from :func:`plant_offsets`, every one of them a function of n and na)::
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
-from ambid.compiled import VEC, add_columns
+from ambid.compiled import VEC, add_columns, njit
 from ambid.plant.sensors import RUNOUT_HARMONICS
 
 # counters and switches, s[PAR_*]
@@ -57,7 +56,7 @@ STATUS_CONTACT = 1.0  # the rotor touches: sub-step the sample
 STATUS_NOISE = 2.0  # the noise block is used up: draw the next one and call again
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def plant_offsets(n: int, na: int) -> tuple[int, int, int, int, int, int, int, int]:
     """Offsets (axes, groups, runout, uin, yout, aux, v, mat) in the plant work vector for n states and
     na axes (module docstring); the scratch lies between v's end and mat, the noise block after M."""
@@ -101,7 +100,7 @@ def plant_work(m: np.ndarray, n_axes: int, noise_rows: int) -> np.ndarray:
     return s
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _residual_axis(s: np.ndarray, j: int, i: float, g: float) -> float:
     """Eq. 2.14 minus its affine linearisation on axis j [N], current i [A], gap g [m].
 
@@ -116,7 +115,7 @@ def _residual_axis(s: np.ndarray, j: int, i: float, g: float) -> float:
     return kc * (ip * ip / (a * a) - im * im / (b * b)) - fc - ki * i - ks * g
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def magnet_residual(s: np.ndarray, cur: np.ndarray, gap: np.ndarray, out: np.ndarray) -> None:
     """The magnets' residual force per axis [N] into out (na,), for the currents cur (na,) [A] and
     gaps gap (na,) [m], with the parameters of the plant work vector s."""
@@ -124,7 +123,7 @@ def magnet_residual(s: np.ndarray, cur: np.ndarray, gap: np.ndarray, out: np.nda
         out[j] = _residual_axis(s, j, cur[j], gap[j])
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def add_runout(s: np.ndarray, c1: float, s1: float, y: np.ndarray, at: int) -> None:
     """Add the probes' runout at the rotor angle (cos theta, sin theta) = (c1, s1) to y[at:at + na] [m]
     (the table in s)."""
@@ -138,7 +137,7 @@ def add_runout(s: np.ndarray, c1: float, s1: float, y: np.ndarray, at: int) -> N
         ch, sh = ch * c1 - sh * s1, sh * c1 + ch * s1  # (h + 1) theta from h theta
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def touching(s: np.ndarray, g: np.ndarray, at: int) -> bool:
     """Whether the gaps g[at:at + na] [m] reach a backup bearing (the groups in s)."""
     groups = N_HEAD + AXIS_WORDS * int(s[PAR_NA])
@@ -153,7 +152,7 @@ def touching(s: np.ndarray, g: np.ndarray, at: int) -> bool:
     return False
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def plant_step(s: np.ndarray) -> tuple[bool, bool]:
     """One free-flight sample of the simulated plant with the current reference u [A] held.
 

@@ -57,6 +57,9 @@ __all__ = [
 ]
 
 SAMPLE_BLOCK_TYPE = "ambid_msgs/msg/SampleBlock"
+#: largest sample index a message may name: 2**40 samples are 3.5 years at 10 kHz, and
+#: every time stamp derived from an index still fits builtin_interfaces/Time (int32 seconds)
+MAX_SAMPLE_INDEX = 2**40
 
 _CDR_LE = b"\x00\x01"  # encapsulation identifier of little-endian plain CDR (XCDR1)
 
