@@ -11,6 +11,8 @@ consumer are subscribed, so nothing of the experiment is missed.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import json
 import sys
 import time
@@ -56,11 +58,12 @@ class SessionConfig:
     def seed(self) -> int:
         return self.experiment.seed
 
-    def design(self, fs_hz: float, rig_speed_rpm: float = 0.0) -> ExcitationDesign:
-        """The experiment's design at the plant's rate; at speed (a multisine only) steered clear of the
-        synchronous harmonics."""
+    def design(self, fs_hz: float, rig_speed_rpm: float = 0.0, inputs: Sequence[str] = ()) -> ExcitationDesign:
+        """The experiment's design at the plant's rate, on the plant's currents ``inputs`` unless the experiment
+        names its own; at speed (a multisine only) steered clear of the synchronous harmonics."""
         speed = rig_speed_rpm if self.speed_rpm is None else self.speed_rpm
-        return self.experiment.build(fs_hz, speed if self.experiment.kind == "multisine" else 0.0)
+        return self.experiment.build(fs_hz, speed if self.experiment.kind == "multisine" else 0.0,
+                                     *([inputs] if inputs else []))
 
 
 @dataclass(frozen=True)
@@ -88,7 +91,7 @@ def plan_session(cfg: SessionConfig, rig: Rig | None = None, controller: Control
     rig = rig if rig is not None else (load_rig(cfg.rig_file) if cfg.rig_file else make_rig())
     if controller is None and not cfg.hardware:
         controller = checked_design(cfg.controller, rig)
-    return SessionPlan(rig, controller, cfg.design(1.0 / rig.dt, float(rig.rotor_speed_rpm)))
+    return SessionPlan(rig, controller, cfg.design(1.0 / rig.dt, float(rig.rotor_speed_rpm), rig.layout.inputs))
 
 
 class ProgressBar:
