@@ -20,9 +20,8 @@ import pytest
 from ambid.hardware import bridge_protocol as bp
 from ambid.hardware.rt_target import SUMMARY_PREFIX, Target, TargetConfig
 from ambid_nodes.conversions import block_data
-from ambid_nodes.hardware_bridge import EXCITATION_NAMES, MEASUREMENT_NAMES, HardwareBridge
+from ambid_nodes.hardware_bridge import HardwareBridge
 from ambid_nodes.parameters import ParameterError
-from ambid_nodes.plant_sim import MEASUREMENT_NAMES as PLANT_SIM_NAMES
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
@@ -30,6 +29,10 @@ from rosgraph_msgs.msg import Clock
 from ambid_msgs.msg import ExcitationDesign, PlantDescription, SampleBlock, SessionEvent, SessionStatus
 from ambid_nodes import qos
 from udp_port import free_port
+from ambid.channels import RADIAL
+
+PLANT_SIM_NAMES = RADIAL.measurement_names  # the default rig's channels
+MEASUREMENT_NAMES, EXCITATION_NAMES = bp.block_channels(bp.Kind.MEASUREMENT, RADIAL), bp.block_channels(bp.Kind.EXCITATION, RADIAL)
 
 NS = "/amb"
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
