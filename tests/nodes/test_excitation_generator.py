@@ -9,7 +9,7 @@ import pytest
 import rclpy
 from ambid.excitation import ExcitationDesign, check_headroom, design_multisine
 from ambid_nodes.conversions import block_data
-from ambid_nodes.excitation_generator import EXCITATION_NAMES, ExcitationGenerator
+from ambid_nodes.excitation_generator import ExcitationGenerator
 from ambid_nodes.parameters import ParameterError
 from ambid_nodes.plant_sim import PlantSim
 from ambid_nodes.position_controller import PositionController
@@ -22,6 +22,7 @@ from ambid_nodes import qos
 from ambid.channels import RADIAL
 
 MEASUREMENT_NAMES = RADIAL.measurement_names  # the default rig's channels
+EXCITATION_NAMES = RADIAL.excitations
 
 NS = "/amb"
 FS = 10_000.0

@@ -109,3 +109,46 @@ def test_identify_hardware_gives_the_c_target_the_accuracy_of_the_simulated_rig(
     assert Path(b["recording"]["path"]).is_file() and b["recording"]["complete"]
     assert b["state"] == "done" and b["simulated_time_s"] == total / fs
     assert np.isfinite(b["noise"]["relative_frf_noise_std"])
+
+
+def test_the_c_target_runs_the_five_axis_model_over_the_bridge(tmp_path):
+    """rigs/five_axis.yaml's model in the C target: protocol version 2 carries its five axes (y, u, ic, r of
+    a_x b_x a_y b_y z); the graph levitates on all five and identify measures the 5 x 5 FRF of the model the
+    target runs."""
+    rig_file = ROOT / "rigs" / "five_axis.yaml"
+    from ambid.plant.rig import load_rig
+
+    rig = load_rig(rig_file)
+    model = tmp_path / "five.txt"
+    write_target_model(model, rig_target_model(rig))
+    assert "axes 5 a_x b_x a_y b_y z" in model.read_text()
+    proc, target, local = start_target(model, "--pace", "1")
+    try:
+        p = cli("graph", "--hardware", target, "--local-port", str(local), "--rig", str(rig_file),
+                "--sim-seconds", "0.5")
+        s = target_summary(proc)
+    finally:
+        proc.kill()
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert "rotor levitated" in p.stdout and "lost 0 samples in 0 gaps" in p.stdout, p.stdout
+    assert s["state"] == "done" and s["samples"] >= 5000 and s["rx_rejected_by_reason"]["content"] == 0
+    # identify over the bridge: the 5 x 5 FRF against the model the target runs
+    fs = 1 / rig.dt
+    _, total = session_samples(SessionConfig(experiment=DesignSpec(resolution_hz=10, n_periods=2, n_realisations=1,
+                                                                   n_transient_periods=1)).design(
+        fs, inputs=rig.layout.inputs), fs)
+    proc, target, local = start_target(model, "--pace", "0", "--hold-for-excitation", "--samples", str(total),
+                                       "--seed", "7")
+    try:
+        hw = cli("identify", "--hardware", target, "--local-port", str(local), "--rig", str(rig_file),
+                 "--true-model", str(model), "--out", str(tmp_path / "hw"), *SMALL)
+        s = target_summary(proc)
+    finally:
+        proc.kill()
+    assert hw.returncode == 0, hw.stdout + hw.stderr
+    assert s["state"] == "done" and s["samples"] == total and s["late_excitation_samples"] == 0
+    b = json.loads((tmp_path / "hw" / "summary.json").read_text())
+    assert b["inputs"] == list(rig.layout.inputs) and b["outputs"] == list(rig.layout.outputs)
+    print(f"five-axis C target: FRF error median {100 * b['frf_error']['median']:.2f} %, worst "
+          f"{100 * b['frf_error']['worst']:.2f} %, modes {[round(m['freq_hz'], 1) for m in b['fit']['modes']]}")
+    assert b["frf_error"]["median"] < 0.05 and b["max_mode_freq_error"] < 0.01
