@@ -79,6 +79,7 @@ class FrfConsumer(Node):
             raise ParameterError(f"frf_consumer: inputs {self.inputs} and references {self.references} must pair "
                                  "up one to one (u_i is the current r_i is added to), or both be [auto]")
         self.plant_outputs: list[str] | None = None  # the plant's displacement channels, once it says them
+        self.pending_design: tuple | None = None  # (message, design) of a design that came before them
 
         self.pub_frf = self.create_publisher(FrfEstimate, "frf", qos.LATCHED)
         self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
@@ -106,6 +107,22 @@ class FrfConsumer(Node):
     def on_plant(self, msg: PlantDescription) -> None:
         check_plant_description(msg)
         self.plant_outputs = list(msg.displacement_names)
+        self.start_pending()
+
+    def start_pending(self) -> None:
+        """The stream of the design that came before the plant's channels were known, now that they are."""
+        pending, self.pending_design = self.pending_design, None
+        if pending is None or self.plant_outputs is None:
+            self.pending_design = pending
+            return
+        msg, design = pending
+        try:
+            stream, u_names = self.new_stream(msg, design)
+        except ValueError as exc:
+            self.event(SessionEvent.ERROR, "bad_design", f"excitation/design {msg.experiment_id!r} on the plant's "
+                                                         f"channels {self.plant_outputs}: {exc}")
+            return
+        self.start_stream(msg, design, stream, u_names)
 
     def channels(self, design: Design) -> tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]:
         """(outputs, inputs, references) of the design's FRF: the parameters', [auto] ones from the data."""
@@ -128,19 +145,32 @@ class FrfConsumer(Node):
             design = Design.from_dict(json.loads(msg.design_json))
             if abs(msg.sample_rate - design.fs_hz) > 1e-9 * design.fs_hz:
                 raise ValueError(f"sample_rate {msg.sample_rate} differs from the design's {design.fs_hz}")
-            outputs, inputs, references = self.channels(design)
-            u_names, r_names = match_inputs(design.input_names, inputs, references)
-            stream = FrfStream(design, outputs, u_names, r_names, start_index=msg.start_index,
-                               total_samples=min(msg.total_samples, design.total_samples))
-            if self.estimator == "h2" and len(outputs) != len(u_names):
-                raise ValueError(f"the h2 estimator needs as many outputs as inputs ({len(outputs)} outputs, "
-                                 f"{len(u_names)} inputs excited); use indirect")
             if not design.is_periodic and self.estimator not in ("indirect", "h1"):
                 raise ValueError(f"a {design.kind} excitation is not periodic: the {self.estimator} estimator "
                                  "does not apply; use indirect or h1")
+            if self.outputs == [AUTO] and self.plant_outputs is None:
+                # the outputs are the plant's displacement channels: the stream starts once its description or
+                # a measurement block says them (the latest design waits; an earlier one it replaces is dropped)
+                self.pending_design = (msg, design)
+                return
+            stream, u_names = self.new_stream(msg, design)
         except (ValueError, KeyError, TypeError, AttributeError, IndexError, OverflowError, RecursionError) as exc:
             # JSONDecodeError is a ValueError
             raise BadMessage(f"excitation/design {msg.experiment_id!r}: {type(exc).__name__}: {exc}") from None
+        self.start_stream(msg, design, stream, u_names)
+
+    def new_stream(self, msg: ExcitationDesign, design: Design) -> tuple[FrfStream, tuple[str, ...]]:
+        """The stream of a design on its channels; ValueError when they cannot make one."""
+        outputs, inputs, references = self.channels(design)
+        u_names, r_names = match_inputs(design.input_names, inputs, references)
+        stream = FrfStream(design, outputs, u_names, r_names, start_index=msg.start_index,
+                           total_samples=min(msg.total_samples, design.total_samples))
+        if self.estimator == "h2" and len(outputs) != len(u_names):
+            raise ValueError(f"the h2 estimator needs as many outputs as inputs ({len(outputs)} outputs, "
+                             f"{len(u_names)} inputs excited); use indirect")
+        return stream, u_names
+
+    def start_stream(self, msg: ExcitationDesign, design: Design, stream: FrfStream, u_names) -> None:
         if self.stream is not None and not self.stream.finished:
             self.event(SessionEvent.WARN, "experiment_superseded",
                        f"{self.experiment_id} replaced by {msg.experiment_id} before its end; its estimate so far "
@@ -181,6 +211,7 @@ class FrfConsumer(Node):
         self.index = max(self.index, msg.first_index + msg.n_samples)
         if self.plant_outputs is None:  # no plant description (yet): the record's own displacement channels
             self.plant_outputs = [n for n in msg.channel_names if n.startswith("y_")] or None
+        self.start_pending()
         stream = self.stream
         if stream is None or stream.finished:
             return

@@ -294,17 +294,17 @@ def test_silent_target_is_detected_and_sent_to_its_safe_state(ros, target_thread
 
 
 def test_wrong_protocol_version_is_refused_and_counted(ros, target_thread):
-    with pytest.raises(ParameterError, match="protocol_version 2 is not implemented"):
-        HardwareBridge(namespace=NS, context=ros.context, parameter_overrides=[Parameter("protocol_version", value=2)])
+    with pytest.raises(ParameterError, match="protocol_version 3 is not implemented"):
+        HardwareBridge(namespace=NS, context=ros.context, parameter_overrides=[Parameter("protocol_version", value=3)])
     with pytest.raises(ParameterError, match="unknown parameter"):
         HardwareBridge(namespace=NS, context=ros.context, parameter_overrides=[Parameter("no_such", value=1)])
     spy = ros.add(Spy(ros.context))
     bridge, target, local = start_bridge(ros)
-    tg, th, res = target_thread(bind=target, bridge=local, protocol_version=2)
+    tg, th, res = target_thread(bind=target, bridge=local, protocol_version=1)   # an old target, four axes
     assert ros.spin_until(lambda: bridge.malformed["version"] >= 3 and tg.rx_malformed >= 3, timeout_s=30)
     assert not bridge.connected and tg.state == bp.TargetState.IDLE and tg.k == 0
     assert ros.spin_until(lambda: spy.codes("malformed_datagram"), timeout_s=5)
     e = spy.codes("malformed_datagram")[0]
     assert e.severity == SessionEvent.ERROR
-    assert "protocol version 2, this end speaks version 1" in e.text
+    assert "protocol version 1, this end speaks version 2" in e.text
     assert bridge.figures()["datagrams_malformed"] == bridge.malformed["version"]
