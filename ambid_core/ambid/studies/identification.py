@@ -712,7 +712,8 @@ def _on_channels(model: StateSpace, freq_hz: np.ndarray, frf: FrfResult) -> np.n
     g = model.freqresp(freq_hz)
     rows = [model.output_names.index(n) for n in frf.output_names]
     cols = [model.input_names.index(n) for n in frf.input_names]
-    return g[:, rows][:, :, cols]
+    # C order, as freqresp gives it: the error norms sum in memory order, the default rig's to the last bit
+    return np.ascontiguousarray(g[:, rows][:, :, cols])
 
 
 def _at_excitation(layout: Layout, ki_x: np.ndarray, ks_x: np.ndarray) -> dict[str, float]:
@@ -796,7 +797,9 @@ def _aligned_controller(k: StateSpace, model: StateSpace) -> StateSpace | None:
     if sorted(ins) != sorted(want_in) or sorted(outs) != sorted(want_out):
         return None
     rows, cols = [outs.index(a) for a in want_out], [ins.index(a) for a in want_in]
-    return k._replace(b=k.b[:, cols], c=k.c[rows], d=k.d[np.ix_(rows, cols)],
+    if rows == sorted(rows) and cols == sorted(cols):
+        return k  # already in order: the very matrices, so the figures do not move by a rounding
+    return k._replace(b=np.ascontiguousarray(k.b[:, cols]), c=k.c[rows], d=k.d[np.ix_(rows, cols)],
                       input_names=tuple(k.input_names[i] for i in cols),
                       output_names=tuple(k.output_names[i] for i in rows))
 
