@@ -55,6 +55,7 @@ STATUS_PERIOD_S = 0.5
 
 
 D = DesignSpec()  # the parameters' defaults: the experiment identify runs
+AUTO = "auto"  # inputs: [auto] = every current of the plant (as frf_consumer's channels)
 
 
 class ExcitationGenerator(Node):
@@ -70,9 +71,9 @@ class ExcitationGenerator(Node):
                         "Hz"))
         resolution = declare(self, "resolution", D.resolution_hz,
                              "frequency resolution fs/N; fs/resolution must be an integer", 1e-6, 1e6, "Hz")
-        inputs = declare(self, "inputs", list(D.input_names or rig.layout.inputs),
-                         "excited inputs (plant current names; default: all the rig's); u_<axis> is excited "
-                         "through channel r_<axis>")
+        inputs = declare(self, "inputs", list(D.input_names) or [AUTO],
+                         "excited inputs (plant current names; [auto]: every current of the plant); u_<axis> is "
+                         "excited through channel r_<axis>")
         peak = declare(self, "peak_current", D.peak_current_a, "excitation peak per input", 1e-6, 1e3, "A")
         periods = declare(self, "periods", D.n_periods, "steady-state periods P per experiment", 1, 1_000_000)
         realisations = declare(self, "realisations", D.n_realisations, "realisations M (random phases, noise "
@@ -102,6 +103,8 @@ class ExcitationGenerator(Node):
         if self.lookahead < 2 * self.block_size:
             raise ParameterError(f"excitation_generator: lookahead {self.lookahead} must be at least twice "
                                  f"block_size {self.block_size} (the plant waits for each block)")
+        if inputs == [AUTO]:
+            inputs = []   # the plant's currents, once it says them (the rig's until then)
         unknown = sorted(set(inputs) - set(rig.layout.inputs))
         if unknown:
             raise ParameterError(f"excitation_generator: inputs {unknown} are not plant currents; use some of "
@@ -144,6 +147,8 @@ class ExcitationGenerator(Node):
     def on_plant(self, msg: PlantDescription) -> None:
         check_plant_description(msg)
         changed = abs(msg.sample_period - self.dt) > 1e-12 * self.dt
+        if list(msg.current_names) != self.current_names:
+            self.default_design = None   # [auto] inputs: the plant's currents
         self.dt = float(msg.sample_period)
         self.set_currents(list(msg.current_names), np.asarray(msg.current_limit, dtype=float))
         self.plant_known = True
@@ -222,7 +227,7 @@ class ExcitationGenerator(Node):
             raise ValueError(self.default_error)
         else:
             if self.default_design is None:
-                self.default_design = self.spec.build(1.0 / self.dt)
+                self.default_design = self.spec.build(1.0 / self.dt, inputs=self.current_names)
             design = self.default_design
         limit = self.plant_limit if self.current_limit == 0 else self.current_limit
         exp = place_experiment(f"exp-{self.count + 1:04d}", design, fs_hz=1.0 / self.dt,

@@ -38,6 +38,9 @@ from ambid.plant.modal import modal_state_space, plane_modes
 GRAVITY = 9.81  # standard gravity [m/s^2]
 # gravity per bearing axis: both axes are turned 45 deg from the vertical
 GRAVITY_PER_AXIS = -GRAVITY / np.sqrt(2.0)
+# the lateral rotor's channels: bearing (and sensor) planes A and B, x and y each, in RADIAL's order
+# (the axial axis, when the rig has one, is appended by with_axial)
+N_LATERAL = len(RADIAL)
 
 
 @dataclass(frozen=True)
@@ -195,7 +198,7 @@ def fem_rotor_model(geometry: RotorGeometry, bearing_z_m: tuple[float, float], s
             # F = m e Omega^2 [cos(theta + phase); sin(theta + phase)] = m e Omega^2 R(phase) [cos; sin]
             cp, sp = np.cos(phase), np.sin(phase)
             b_unb += me * b_node @ np.array([[cp, -sp], [sp, cp]])
-    return RotorModel(a, b, c[:4], c[4:], b_g, props.mass_kg, modal.freq_hz[modal.n_rigid:],
+    return RotorModel(a, b, c[:N_LATERAL], c[N_LATERAL:], b_g, props.mass_kg, modal.freq_hz[modal.n_rigid:],
                       "finite-element rotor (ambid.plant.fem_rotor), modal reduction", b_unb)
 
 
