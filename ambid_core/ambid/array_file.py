@@ -26,7 +26,7 @@ _HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 
 
 def read_arrays(path: str | os.PathLike, what: str, fix: str,
-                suffixes: tuple[str, ...] = (".npz", ".mat")) -> dict[str, Any]:
+                suffixes: tuple[str, ...] = (".npz", ".mat"), complex_names: tuple[str, ...] = ()) -> dict[str, Any]:
     """The named values in ``path``, read whole.
 
     Args:
@@ -34,6 +34,7 @@ def read_arrays(path: str | os.PathLike, what: str, fix: str,
         what: what the file is, for messages ("rotor file", "controller file").
         fix: the fix a message ends with ("give A, B, C, D and dt ...").
         suffixes: the formats accepted, from ``.npz``, ``.mat``, ``.yaml``, ``.yml``.
+        complex_names: the values that may be complex (a measured FRF); any other complex value is refused.
 
     Returns:
         name -> value: numpy arrays (``.mat``: 2-D as MATLAB holds them, also
@@ -64,7 +65,7 @@ def read_arrays(path: str | os.PathLike, what: str, fix: str,
     except _Refused as exc:
         raise ValueError(f"{exc}; {fix}") from None
     for key, value in data.items():
-        if isinstance(value, np.ndarray) and np.iscomplexobj(value):
+        if isinstance(value, np.ndarray) and np.iscomplexobj(value) and key not in complex_names:
             raise ValueError(f"{what} {path}: '{key}' is complex; give real values")
     return data
 
@@ -93,6 +94,7 @@ def _mat(path: Path, what: str) -> dict[str, np.ndarray]:
         head = f.read(520)
     if head.startswith(_MAT73_MAGIC) or head[:8] == _HDF5_MAGIC or head[512:520] == _HDF5_MAGIC:
         return _mat73(path, what)
+    # scipy.io and h5py are loaded only when a .mat file is read (rare; h5py alone costs ~0.2 s to import)
     from scipy import io as sio
     from scipy.io.matlab import matfile_version
 

@@ -108,3 +108,11 @@ def test_every_command_defaults_to_the_one_experiment():
                       p["spacing"], p["phases"], p["mimo"], p["seed"], p["settle_time"], p["cycles"]) == spec
     # identify's experiment: orthogonal random-odd crest-optimised multisine, 0.4 A, M = 3, 3 + 4 periods
     assert (spec.peak_current_a, spec.n_realisations, spec.n_transient_periods, spec.n_periods) == (0.4, 3, 3, 4)
+
+
+def test_the_text_preview_shows_the_plan_of_the_same_lines(tmp_path, capsys):
+    args = parse(["--resolution", "20", "--realisations", "1", "--phases", "random", "--no-figure",
+                  "--out", str(tmp_path)])
+    assert cmd.run(args) == 0
+    out = capsys.readouterr().out
+    assert "measurement time of the full 4 x 4 FRF matrix on the same lines:" in out and "stepped sine" in out

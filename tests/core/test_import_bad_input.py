@@ -1,7 +1,8 @@
 """Every record ambid import cannot use is refused with one line naming the column, the row and the fix,
-exit code 2, and nothing written: not periodic, shorter than a period, NaN/Inf, columns of different
-lengths, a name not in the file, a time column at odds with sample_rate_hz or with gaps, an excitation
-that stops mid-period, damaged files and bad MAP.yaml entries."""
+exit code 2, and nothing written: NaN/Inf, columns of different lengths, a name not in the file, a time column
+at odds with sample_rate_hz or with gaps, damaged files and bad MAP.yaml entries. An excitation that is not
+periodic, shorter than two periods or stops mid-period is no longer refused: it imports for the local
+polynomial method, and the import says so."""
 
 from __future__ import annotations
 
@@ -112,10 +113,13 @@ def _case(name):
     return cols, rmap, kw
 
 
-CASES = {  # case -> what the one line must say
+# an excitation that is no periodic design is no longer refused (issue 28): the local polynomial method takes it
+NOT_A_DESIGN = {  # case -> why the import says it took the local polynomial method
     "not periodic": r"does not repeat itself within \d+ rows: it is not periodic",
     "shorter than a period": r"from row 51 does not repeat itself .*shorter than two periods",
-    "stops mid-period": r"stops at row 791, 40 rows into a period of 100; cut the record at row 750",
+    "stops mid-period": r"stops at row 791, 40 rows into a period of 100",
+}
+CASES = {  # case -> what the one line must say
     "nan": r"column 'i2' is nan at row 301",
     "inf": r"column 'x3' is -inf at row 43",
     "different lengths": r"line 901 \(row 900\) has 3 fields but the header names 13 columns",
@@ -126,6 +130,18 @@ CASES = {  # case -> what the one line must say
     "wrong unit": r"outputs.y_a_x: unit 'V' after scaling must be m",
     "excitation axes": r"must name the same axes as currents",
 }
+
+
+@pytest.mark.parametrize("name", list(NOT_A_DESIGN))
+def test_excitations_that_are_no_design_import_through_the_local_polynomial_method(tmp_path, name, capsys):
+    cols, rmap, kw = _case(name)
+    (tmp_path / "MAP.yaml").write_text(yaml.safe_dump(rmap))
+    code = cli.main(["import", str(_csv(tmp_path / "d.csv", cols, **kw)), "--map", str(tmp_path / "MAP.yaml"),
+                     "--out", str(tmp_path / "s.mcap")])
+    out = capsys.readouterr().out
+    line = [ln for ln in out.splitlines() if ln.startswith("estimator: ")]
+    assert code == 0 and len(line) == 1 and "local polynomial method" in line[0], out
+    assert re.search(NOT_A_DESIGN[name], line[0]), line[0]
 
 
 @pytest.mark.parametrize("name", list(CASES))

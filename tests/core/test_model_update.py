@@ -14,13 +14,32 @@ ROTOR = RIG.rotor_model()
 F = np.linspace(10.0, 1000.0, 34)
 
 
+def _agree(g: np.ndarray, ref: StateSpace, f: np.ndarray, rel: float) -> None:
+    """|g - ref| <= rel * A * |ref| line by line, A = max over ref's poles of |s| / |s - p|.
+
+    Two realisations of one model agree to a relative ``rel`` away from its poles; near a lightly damped
+    pole the FRF's sensitivity to any rounding or realisation difference grows as the distance to the
+    pole shrinks (A ~ 1 / (2 zeta) = Q at the peak: ~190 at the 310 Hz bending line), so a bound on the
+    largest entry over the band would fail there on some BLAS kernels and be slack everywhere else."""
+    poles = ref.poles()
+    if ref.dt:
+        poles = np.log(poles[np.abs(poles) > 0].astype(complex)) / ref.dt
+    s = 2j * np.pi * f
+    amp = np.max(np.abs(s)[:, None] / np.abs(s[:, None] - poles[None, :]), axis=1)
+    r = ref.freqresp(f)
+    err = np.abs(g - r).max(axis=(1, 2))
+    bound = rel * np.maximum(amp, 1.0) * np.abs(r).max(axis=(1, 2))
+    assert np.all(err <= bound), (f[np.argmax(err / bound)], np.max(err / bound))
+
+
 def test_nominal_parameters_give_the_analytical_model():
     nom = nominal_parameters(RIG)
     assert nom["ki_n_per_a"] == RIG.magnet.ki and nom["ks_n_per_m"] == RIG.magnet.ks
     assert bending_coordinates(ROTOR).size == 2          # the first bending mode in the x and y planes
+    assert bending_coordinates(ROTOR, 2).size == 2 and nom["bending_2_freq_hz"] == ROTOR.flexible_freq_hz[1]
     g = physical_frf(ROTOR, nom, F, 0.0)
-    ref = analytical_model(RIG).freqresp(F)
-    assert np.max(np.abs(g - ref)) <= 1e-8 * np.max(np.abs(ref))
+    # the same matrices: rounding alone (measured 1.8e-10 x A on an EPYC with OpenBLAS' Haswell kernels)
+    _agree(g, analytical_model(RIG), F, 1e-9)
 
 
 def test_true_parameters_give_the_true_rig_sampled_and_continuous():
@@ -28,14 +47,14 @@ def test_true_parameters_give_the_true_rig_sampled_and_continuous():
     _, op = levitated_plant(RIG)
     assert true["ks_n_per_m"] == pytest.approx(np.mean(op.ks_n_per_m))
     # the sampled (zero-order hold, delayed) model is what the simulator measures
+    # two realisations (the true plant's states are transformed and reduced): they agree to ~1e-8 off the
+    # poles (measured 6.7e-9 x A at most)
     g = physical_frf(ROTOR, true, F, RIG.dt)
-    ref = true_linear_model(RIG, discrete=True).freqresp(F)
-    assert np.max(np.abs(g - ref)) <= 1e-7 * np.max(np.abs(ref))
+    _agree(g, true_linear_model(RIG, discrete=True), F, 5e-8)
     # continuous, without the delay: the true plant's own matrices
     p, _ = levitated_plant(RIG)
-    ref_c = StateSpace(p.a, p.b_u, p.c_y, np.zeros((4, 4))).freqresp(F)
     g_c = physical_frf(ROTOR, {**true, "delay_s": 0.0}, F, 0.0)
-    assert np.max(np.abs(g_c - ref_c)) <= 1e-8 * np.max(np.abs(ref_c))
+    _agree(g_c, StateSpace(p.a, p.b_u, p.c_y, np.zeros((4, 4))), F, 5e-8)
     # a delay of one sample and a half is z^-1 times the half-sample model
     half = physical_frf(ROTOR, {**true, "delay_s": 0.5 * RIG.dt}, F, RIG.dt)
     more = physical_frf(ROTOR, {**true, "delay_s": 1.5 * RIG.dt}, F, RIG.dt)

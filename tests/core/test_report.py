@@ -149,7 +149,8 @@ def _summary():
         "update": {"chi2_per_dof": 1.2, "message": "converged",
                    "parameters": {"ki_n_per_a": {"value": 179.2, "start": 139.3, "nominal": 174.1, "true": 179.25,
                                                  "error": -0.0003, "unit": "N/A", "ci95": [179.0, 179.4],
-                                                 "free": True},
+                                                 "free": True, "prior": {"mean": 174.1, "ci95": [165.4, 182.8]},
+                                                 "prior_ratio": 0.01, "prior_dominated": False},
                                   "sensor_gain_a_x": {"value": 1.0, "start": 1.0, "nominal": 1.0, "true": 1.0,
                                                       "error": 0.0, "unit": "m/m", "ci95": None, "free": False}}},
         "sensitivity": {"worst_peak": 2.66, "worst_input": "u_2", "iso_zone": "A"},
@@ -162,7 +163,8 @@ def test_render_index_tables_escaping_and_figures():
     assert "run&lt;1&gt;.mcap" in text and "<script>" not in text and html.escape("<script>") in text
     assert "<td>1.23 % / 20 % (at 890 Hz)</td>" in text               # FRF error median / worst
     assert "<td>14 (rule)</td>" in text and "<td>A</td>" in text and "8.5 dB" in text
-    assert "<td>179.2</td><td>+- 0.2</td><td>179.25</td><td>-0.03 %</td>" in text
+    assert "<td>165.4 .. 182.8</td><td>179.2</td><td>179 .. 179.4</td><td>0.01</td><td>179.25</td><td>-0.03 %</td>" \
+        in text
     assert "<td>1</td><td>fixed</td>" in text
     assert "<td>310.37</td><td>-</td><td>0.00503</td><td>-</td><td>yes</td>" in text   # no interval: '-'
     assert "<td>310.37</td><td>0.00503</td><td>1</td>" in text

@@ -50,6 +50,12 @@ def test_amplifier_bandwidth_is_eq_2_24_with_the_coil_inductance():
     ("sensor_b_z_m: 0.45\n", ["sensor_b_z_m", "outside the shaft"]),
     ("extra_delay_s: 0.001\n", ["extra_delay_s", "one sample"]),
     ("- 1\n- 2\n", ["mapping"]),
+    ("tolerances:\n  ki_n_per_a: lots\n", ["ki_n_per_a", "not a tolerance", "x3"]),
+    ("tolerances:\n  kii: 5 %\n", ["kii", "unknown", "ki_n_per_a"]),
+    ("tolerances:\n  ks_n_per_m: 150 %\n", ["ks_n_per_m", "100 %"]),
+    ("tolerances:\n  bending_damping_ratio: x0.5\n", ["bending_damping_ratio", "factor > 1"]),
+    ("tolerances:\n  amplifier_bandwidth_hz: 0..1 sample\n", ["amplifier_bandwidth_hz", "only delay_s"]),
+    ("tolerances: 5 %\n", ["tolerances", "mapping"]),
 ])
 def test_rig_yaml_with_a_bad_field_names_it(tmp_path, text, words):
     path = tmp_path / "bad.yaml"
@@ -72,6 +78,36 @@ def test_rig_yaml_round_trip_and_examples(tmp_path):
     assert examples, "rigs/ holds example rig files"
     for example in examples:
         assert set(load_rig(example).values) == set(RIG_FIELDS)
+
+
+def test_tolerances_are_data_sheet_priors(tmp_path):
+    from ambid.plant.tolerances import DEFAULT_TOLERANCES, Z95, parse_tolerance, tolerance_for
+
+    rig = make_rig()
+    assert rig.tolerances == {}                    # the defaults hold
+    # each form read as a 95 % interval of a normal prior
+    assert parse_tolerance("ki_n_per_a", "5 %").centre_and_sd(180.0, rig.dt) == (180.0, pytest.approx(9.0 / Z95),
+                                                                               False)
+    assert parse_tolerance("bending_damping_ratio", "x3").centre_and_sd(0.005, rig.dt) == \
+        (0.005, pytest.approx(np.log(3) / Z95), True)
+    assert parse_tolerance("delay_s", 2e-5).centre_and_sd(5e-5, rig.dt) == (5e-5, pytest.approx(2e-5 / Z95), False)
+    assert parse_tolerance("delay_s", "0..1 sample").centre_and_sd(0.0, 1e-4) == \
+        (pytest.approx(5e-5), pytest.approx(5e-5 / Z95), False)
+    assert parse_tolerance("sensor_bandwidth_hz", "fixed").centre_and_sd(5e3, rig.dt)[1] == 0
+    for name, tol in DEFAULT_TOLERANCES.items():     # the canonical text reads back to the same tolerance
+        assert parse_tolerance(name, tol.to_text()) == tol
+    # a rig file overrides some; the others keep their default; a higher bending mode takes the first's
+    path = tmp_path / "nominal.yaml"
+    path.write_text("sensor_bandwidth_hz: 3000\ntolerances:\n  sensor_bandwidth_hz: 20 %\n"
+                    "  bending_damping_ratio: x2\n  delay_s: 0..2e-4\n")
+    loaded = load_rig(path)
+    assert tolerance_for("sensor_bandwidth_hz", loaded.tolerances).value == pytest.approx(0.2)
+    assert tolerance_for("bending_2_damping_ratio", loaded.tolerances).value == 2.0
+    assert tolerance_for("ki_n_per_a", loaded.tolerances) == DEFAULT_TOLERANCES["ki_n_per_a"]
+    assert tolerance_for("delay_s", loaded.tolerances).high == pytest.approx(2e-4)
+    # recorded with the rig (a session's rig facts) and read back the same
+    again = make_rig(loaded.to_dict())
+    assert again.tolerances == loaded.tolerances and again.values == loaded.values
 
 
 def test_default_rig_doc_tables_are_up_to_date():

@@ -1,6 +1,6 @@
 """Every YAML file a user writes reads numbers as people write them: ``2e-05``, ``1e3``, ``.5``, ``-1E-3``
 (PyYAML's YAML 1.1 resolver takes the first three for strings), one test per reader: the reader itself,
-the rig file (its parameters and its controller mapping), MAP.yaml, a controller file; a file that is not
+the rig file (its parameters, its controller mapping and its tolerances), MAP.yaml, a controller file; a file that is not
 YAML is still one line naming the file, the line and the fix."""
 
 from __future__ import annotations
@@ -89,3 +89,22 @@ def test_controller_file(tmp_path):
     z = np.exp(2j * np.pi * 100.0 * 1e-4)
     expect = (-1.2e4 * z**-1 + 1.1e4 * z**-2) / (1 - 0.5 * z**-1)
     assert np.allclose(model.freqresp([100.0])[0], expect * np.eye(4))
+
+
+def test_tolerances_in_a_rig_file(tmp_path):
+    """The rig file's ``tolerances:`` (the priors of model updating): a number is an absolute half-width,
+    written as people write it; the forms with a unit stay text; an error names the parameter and the forms."""
+    p = tmp_path / "rig.yaml"
+    p.write_text("tolerances: {delay_s: 2e-05, ks_n_per_m: 1e4, ki_n_per_a: 5 %, bending_damping_ratio: x3,\n"
+                 "             support_freq_hz: .5e1, axial_ks_n_per_m: 1.5E5, sensor_bandwidth_hz: 1e3..2E4}\n")
+    tol = load_rig(p).tolerances
+    assert (tol["delay_s"].kind, tol["delay_s"].value) == ("absolute", 2e-05)
+    assert (tol["ks_n_per_m"].value, tol["support_freq_hz"].value, tol["axial_ks_n_per_m"].value) == \
+        (1e4, 5.0, 1.5e5)
+    assert (tol["ki_n_per_a"].kind, tol["ki_n_per_a"].value) == ("relative", 0.05)
+    assert (tol["bending_damping_ratio"].kind, tol["bending_damping_ratio"].value) == ("factor", 3.0)
+    assert (tol["sensor_bandwidth_hz"].low, tol["sensor_bandwidth_hz"].high) == (1e3, 2e4)
+    p.write_text("tolerances: {delay_s: -1E-3}\n")
+    with pytest.raises(ValueError) as exc:
+        load_rig(p)
+    assert "\n" not in str(exc.value) and "delay_s" in str(exc.value) and "must be > 0" in str(exc.value)

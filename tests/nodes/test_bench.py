@@ -12,8 +12,9 @@ from ambid_cli.commands import bench
 def test_quick_bench_reports_every_figure_as_a_positive_number(ros, tmp_path, capfd, monkeypatch):
     monkeypatch.setenv("ROS_DOMAIN_ID", str(ros.domain_id))  # the bench's graphs on the test's own domain
     out = tmp_path / "bench.json"
+    page = tmp_path / "results.md"
     args = argparse.Namespace(json=str(out), loop_seconds=None, repeats=None, fit_lines=None, skip="", quick=True,
-                              work_dir=str(tmp_path / "work"))
+                              work_dir=str(tmp_path / "work"), results=str(page))
     code = bench.run(args)
     text = capfd.readouterr().out  # capfd: rclpy's EventsExecutor needs a real stderr (faulthandler)
     report = json.loads(out.read_text())
@@ -29,6 +30,7 @@ def test_quick_bench_reports_every_figure_as_a_positive_number(ros, tmp_path, ca
         assert isinstance(f["value"], (int, float)) and math.isfinite(f["value"]) and f["value"] > 0, f
         assert f["pass"] in ((True, False) if f["target"] else (None,)), f
         assert f["name"] in text  # the table shows it
+        assert f"| {f['name']} |" in page.read_text()  # and the results page, written by the bench
     # the loop ran ours and bare in both layouts with the same sample count
     loop = report["sections"]["loop"]
     for layout in ("composed", "processes"):

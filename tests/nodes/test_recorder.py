@@ -15,6 +15,7 @@ import subprocess
 import sys
 import time
 
+import ambid
 import numpy as np
 import pytest
 import rclpy
@@ -173,7 +174,7 @@ def test_sigint_closes_a_complete_rosbag2_session_bit_identical_to_a_live_subscr
     assert json.loads(facts["rig"]) == plant.rig.to_dict()
     assert json.loads(facts["plant"])["seed"] == plant.seed
     assert json.loads(facts["controller"])["kind"] == "pid"
-    assert facts["ambid_version"] == "0.1.0"
+    assert facts["ambid_version"] == ambid.__version__
     # a file without the metadata (as ros2 bag record writes it): inspect reads the latched messages instead
     bare = tmp_path / "bare.mcap"
     with SessionWriter(bare) as w:

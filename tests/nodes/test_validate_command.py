@@ -1,6 +1,7 @@
-"""``ambid validate`` end to end on two seeds under a chosen controller: the sessions and their noise-free twins
-run, each seed's identification says which controller ran, the coverage table covers the interval kinds, and a
-second run reuses both seeds."""
+"""``ambid validate`` end to end on two seeds under a chosen controller, on its local Dask cluster: the sessions
+and their noise-free twins run, each seed's update starts from a nominal rig drawn from the tolerances (recorded
+per seed, never the truth), each seed's identification says which controller ran, the coverage table covers
+the interval kinds, and a second run reuses both seeds."""
 
 from __future__ import annotations
 
@@ -8,6 +9,8 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -36,8 +39,16 @@ def test_validate_runs_seeds_under_the_chosen_controller_and_reuses_them(ros_env
     assert twin["n"] > 2000 and twin["coverage"] > 0.93 and 0.85 < twin["z_rms"] < 1.3
     assert "noise_free_rms_over_std" in kinds["parameter:ki_n_per_a"]
     assert (out / "seeds" / "seed_001" / "noise_free" / "frf.npz").is_file()
+    assert kinds["pooled: parameters and modes"]["n"] >= 2 * 10
     for seed in (1, 2):
         summary = json.loads((out / "seeds" / f"seed_{seed:03d}" / "identification.json").read_text())
         assert summary["controller"]["kind"] == "lqg"
+        # the update's nominal model is the seed's drawn one, and it is not the truth
+        drawn = result["nominal_models"][str(seed)]
+        assert (out / "seeds" / f"seed_{seed:03d}" / "nominal_rig.yaml").is_file()
+        params = summary["update"]["parameters"]
+        for name in ("ki_n_per_a", "sensor_bandwidth_hz", "bending_damping_ratio"):
+            assert params[name]["nominal"] == pytest.approx(drawn[name]["nominal"], rel=1e-6)
+            assert drawn[name]["nominal"] != pytest.approx(drawn[name]["true"], rel=1e-6)
     again = _validate(out, ros_env)
     assert again.returncode == 0 and "(2 reused)" in again.stdout

@@ -10,6 +10,9 @@ Sections (each can be skipped):
 * offline: FRF of a session beside bare reads of the same MCAP file
   (:mod:`ambid_cli.bench.offline`);
 * fit: the common-denominator fit of a 4x4 FRF of 2,000 lines;
+* settling: measurement time at equal FRF error with and without settling
+  periods (the transient removed by the local polynomial method), on the
+  core loop (:mod:`ambid_cli.bench.settling`);
 * memory: peak memory of sessions of one kind, one six times longer
   (:mod:`ambid_cli.bench.memory`).
 
@@ -32,11 +35,12 @@ import traceback
 from pathlib import Path
 
 from ambid_cli.commands.inputs import output_dir, output_file, positive_float, positive_int
+from ambid_cli.results_page import measured_on, write_section
 
 from ambid.jsonable import to_jsonable
 
 HELP = "measure loop throughput, identify real-time factor, offline rates and memory against the targets"
-SECTIONS = ("loop", "identify", "offline", "fit", "memory")
+SECTIONS = ("loop", "identify", "offline", "fit", "settling", "memory")
 FACTOR = 6  # the long session of the memory figure is this many times longer
 
 # the sizes of a --quick run (the smoke test): every section, seconds each
@@ -48,6 +52,7 @@ QUICK = {
                        "n_transient_periods": 1},
     "live_memory": {"band_hz": (50.0, 1000.0), "resolution_hz": 50.0, "n_periods": 1, "n_realisations": 1,
                     "n_transient_periods": 1},
+    "settling": {"band_hz": (50.0, 1000.0), "resolution_hz": 50.0, "n_realisations": 1},
 }
 # the default sizes: the identify session and the offline file are the default identify experiment
 FULL = {
@@ -57,11 +62,14 @@ FULL = {
     "offline_design": {},
     "offline_memory_design": {"n_realisations": 1},
     "live_memory": {"resolution_hz": 10.0, "n_periods": 2, "n_realisations": 1, "n_transient_periods": 1},
+    "settling": {},
 }
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", metavar="FILE", help="write every figure and its details to FILE")
+    p.add_argument("--results", metavar="FILE",
+                   help="write the figures as the bench section of a results page, e.g. docs/results.md")
     p.add_argument("--loop-seconds", type=positive_float, help="simulated time per loop run [s], >= 0.05 (default 2)")
     p.add_argument("--repeats", type=positive_int, help="interleaved rounds of the loop and offline timings (default 5)")
     p.add_argument("--fit-lines", type=positive_int, help="lines of the 4x4 FRF to fit (default 2000)")
@@ -157,6 +165,22 @@ def _fit_section(sizes: dict, figures: list) -> dict:
     return res
 
 
+def _settling_section(sizes: dict, figures: list) -> dict:
+    from ambid_cli.bench.settling import settling_figures
+
+    res = settling_figures(sizes["settling"])
+    b, a = res["before"], res["after"]
+    figures += [
+        _figure(f"time at the default's FRF error ({100 * b['median_error']:.2f} %), {b['transient_periods']} settling "
+                "periods (before)", b["time_s"], "s"),
+        _figure("time at that error, no settling periods, transient removed, by error = c / sqrt(time) fitted to "
+                "each run's realisations (after)", res["time_at_equal_error_by_law_s"], "s"),
+        _at_most(f"FRF error, no settling periods ({a['time_at_default_realisations_s']:.3g} s) / default "
+                 f"({b['time_s']:.3g} s)", res["ratio_at_default_realisations"], "", 1.15, "1.15"),
+    ]
+    return res
+
+
 def _memory_section(sizes: dict, work: Path, figures: list) -> dict:
     from ambid_cli.bench.memory import memory_figures
 
@@ -199,9 +223,20 @@ def print_table(figures: list, out=None) -> None:
         out.write(f"{f['name']:<{w}}  {_format(f['value'], f['unit']):>14}  {f['target'] or '':<22}  {result}\n")
 
 
+def results_markdown(figures: list) -> str:
+    """The figures as a markdown table: figure, value, target, result."""
+    rows = ["| figure | value | target | result |", "| --- | --- | --- | --- |"]
+    for f in figures:
+        result = {True: "pass", False: "FAIL", None: "" if f["target"] is None else "n/a"}[f["pass"]]
+        rows.append(f"| {f['name']} | {_format(f['value'], f['unit'])} | {f['target'] or ''} | {result} |")
+    return "\n".join(rows)
+
+
 def run(args: argparse.Namespace) -> int:
     if args.json:
         output_file(args.json, "--json")
+    if args.results:
+        output_file(args.results, "--results")
     if args.work_dir:
         output_dir(args.work_dir, "--work-dir")
     skip = {s.strip() for s in args.skip.split(",") if s.strip()}
@@ -234,6 +269,7 @@ def run(args: argparse.Namespace) -> int:
         "identify": lambda: _identify_section(sizes, work, figures),
         "offline": lambda: _offline_section(sizes, work, figures),
         "fit": lambda: _fit_section(sizes, figures),
+        "settling": lambda: _settling_section(sizes, figures),
         "memory": lambda: _memory_section(sizes, work, figures),
     }
     t_start = time.perf_counter()
@@ -274,6 +310,13 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         Path(args.json).write_text(json.dumps(to_jsonable(report), indent=2))
         print(f"figures written to {args.json}")
+    if args.results and figures:
+        errors = "".join(f"\n\nSection {name} failed: {err}" for name, err in report["errors"].items())
+        write_section(args.results, "bench", "Performance (`ambid bench`)",
+                      f"{measured_on()} Sections: {', '.join(n for n in SECTIONS if n not in skip)}"
+                      f"{' (--quick sizes: a smoke test, not a measurement)' if args.quick else ''}.\n\n"
+                      + results_markdown(figures) + errors)
+        print(f"results written to {args.results}")
     if report["errors"]:
         return 2
     return 1 if any(f["pass"] is False or (f["target"] and f["pass"] is None) for f in figures) else 0

@@ -4,7 +4,9 @@ For each speed the rig (``--rig``, default the built-in one) runs at that speed,
 runout, and ``identify`` runs on it with a multisine steered clear of the synchronous harmonics; each
 speed gets its own folder ``DIR/rpm_NNNNN/`` (session.mcap, summary.json, report/). A campaign that
 stops half way continues where it stopped: a speed whose summary.json is there and done is not run
-again (the settings must be the same; ``DIR/campaign.json`` keeps them). At the end ``DIR/campbell.json``
+again (the settings must be the same; ``DIR/campaign.json`` keeps them). The speeds' sessions run as tasks
+on Dask distributed (:mod:`ambid_cli.sessions_on_dask`: a local cluster of this machine's cores, or
+``--scheduler ADDRESS``), each on its own ROS domain. At the end ``DIR/campbell.json``
 (:mod:`ambid.studies.campbell`) and ``DIR/report/`` (campbell.png, index.html).
 """
 
@@ -22,6 +24,7 @@ from ambid.plant.rig import make_rig
 
 from ambid_cli.commands.inputs import (BadInput, add_session_options, checked_controller, controller,
                                          experiment_spec, output_dir, rig_file)
+from ambid_cli.sessions_on_dask import add_scheduler_option, as_finished, domain_base, session_client
 
 _FORMAT = "ambid.campaign/1"
 
@@ -35,7 +38,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--controller", type=controller, default="",
                    help="position controller: a kind or a controller file (default: the rig file's, else pid)")
     add_session_options(p)
-    p.add_argument("--no-progress", action="store_true", help="no progress bar per session")
+    add_scheduler_option(p)
+    p.add_argument("--no-progress", action="store_true", help="(kept for scripts: the sessions run as tasks and "
+                                                               "each speed is reported when it is done)")
 
 
 def _speeds(values: list[float]) -> list[float]:
@@ -73,12 +78,21 @@ def _done(folder: Path) -> dict | None:
     return s if isinstance(s, dict) and s.get("state", "done") == "done" and "fit" in s else None
 
 
+def _identify_speed(cfg, rig, controller) -> tuple[dict, float]:
+    """One speed's identify session (a Dask task): its summary and wall time [s]."""
+    from ambid_nodes.session import plan_session, run_identify
+
+    t0 = time.perf_counter()
+    summary = run_identify(cfg, plan_session(cfg, rig, controller))
+    return summary, time.perf_counter() - t0
+
+
 def run(args: argparse.Namespace) -> int:
     import yaml
 
     from ambid.jsonable import to_jsonable
     from ambid.studies.campbell import campbell_summary, campbell_table, write_campbell_report
-    from ambid_nodes.session import SessionConfig, plan_session, run_identify
+    from ambid_nodes.session import SessionConfig
 
     spec = experiment_spec(args)
     out = output_dir(args.out)
@@ -105,42 +119,52 @@ def run(args: argparse.Namespace) -> int:
     tmp.replace(manifest)
 
     t0 = time.perf_counter()
-    runs, walls = [], {}
+    runs, walls, pending = {}, {}, []
     n = len(speeds)
     for i, rpm in enumerate(speeds, start=1):
         folder = _speed_dir(out, rpm)
         done = _done(folder)
-        head = f"ambid campaign: [{i}/{n}] {rpm:.0f} rpm"
         if done is not None:
-            print(f"{head}: done before, kept ({folder})", file=sys.stderr)
-            runs.append((rpm, done))
+            print(f"ambid campaign: [{i}/{n}] {rpm:.0f} rpm: done before, kept ({folder})", file=sys.stderr)
+            runs[rpm] = done
             continue
-        print(f"{head}: identifying ... ({i - 1} of {n} speeds done, {time.perf_counter() - t0:.0f} s so far)",
-              file=sys.stderr)
         folder.mkdir(parents=True, exist_ok=True)
         rig_path = folder / "rig.yaml"
         rig_path.write_text(yaml.safe_dump({**to_jsonable(base.to_dict()), "rotor_speed_rpm": rpm}, sort_keys=False))
-        cfg = SessionConfig(out_dir=folder, experiment=spec, rig_file=str(rig_path), controller=args.controller,
-                            progress=not args.no_progress and sys.stderr.isatty())
-        t_speed = time.perf_counter()
+        cfg = SessionConfig(out_dir=folder.resolve(), experiment=spec, rig_file=str(rig_path.resolve()),
+                            controller=args.controller, progress=False)
+        pending.append((rpm, (cfg, *rigs[rpm])))
+    failed = []
+    if pending:
+        where = args.scheduler or "a local Dask cluster"
+        print(f"ambid campaign: identifying at {len(pending)} speed(s) on {where} ...", file=sys.stderr)
+        base_id = domain_base(args)     # one ROS domain per worker
         try:
-            summary = run_identify(cfg, plan_session(cfg, *rigs[rpm]))
+            with session_client(args.scheduler, args.jobs, len(pending)) as client:
+                for rpm, result, exc in as_finished(client, base_id, _identify_speed, pending):
+                    if exc is not None:
+                        failed.append(rpm)
+                        print(f"ambid campaign: {rpm:.0f} rpm failed: {exc}", file=sys.stderr)
+                        continue
+                    summary, walls[rpm] = result
+                    if summary.get("state", "done") != "done":
+                        failed.append(rpm)
+                        print(f"ambid campaign: {rpm:.0f} rpm did not finish ({summary.get('state')}); see "
+                              f"{_speed_dir(out, rpm)}", file=sys.stderr)
+                        continue
+                    fb = [m for m in summary["fit"]["modes"] if m.get("whirl")]
+                    print(f"ambid campaign: {rpm:.0f} rpm done in {walls[rpm]:.1f} s; modes "
+                          + ", ".join(f"{m['freq_hz']:.1f} Hz {m['whirl'][0]}" for m in fb[:8]), file=sys.stderr)
+                    runs[rpm] = summary
         except KeyboardInterrupt:
-            print(f"ambid campaign: interrupted at {rpm:.0f} rpm; run the same command again to continue",
+            print("ambid campaign: interrupted; run the same command again to continue (finished speeds are kept)",
                   file=sys.stderr)
             return 130
-        except (ValueError, RuntimeError) as exc:
-            print(f"ambid campaign: {rpm:.0f} rpm failed: {exc}", file=sys.stderr)
-            return 1
-        walls[rpm] = time.perf_counter() - t_speed
-        if summary.get("state", "done") != "done":
-            print(f"ambid campaign: {rpm:.0f} rpm did not finish ({summary.get('state')}); see {folder}",
-                  file=sys.stderr)
-            return 1
-        fb = [m for m in summary["fit"]["modes"] if m.get("whirl")]
-        print(f"{head}: done in {walls[rpm]:.1f} s; modes "
-              + ", ".join(f"{m['freq_hz']:.1f} Hz {m['whirl'][0]}" for m in fb[:8]), file=sys.stderr)
-        runs.append((rpm, summary))
+    if failed:
+        print(f"ambid campaign: {', '.join(f'{r:.0f}' for r in sorted(failed))} rpm failed; run the same command "
+              "again to retry them (finished speeds are kept)", file=sys.stderr)
+        return 1
+    runs = [(rpm, runs[rpm]) for rpm in speeds]
 
     camp = campbell_summary(base, runs, tuple(args.band))
     camp["wall_time_s"] = time.perf_counter() - t0

@@ -110,7 +110,8 @@ def run(args: argparse.Namespace) -> int:
             print(line)
         print(headroom["text"])
         if plan is not None:
-            print(f"\nmeasurement time of the full {len(inputs)} x {len(inputs)} FRF matrix on the same lines:")
+            n = len(design.input_names)   # the spec's inputs, else every current of the rig
+            print(f"\nmeasurement time of the full {n} x {n} FRF matrix on the same lines:")
             print(format_plan(plan))
         if png is not None:
             print(f"\nfigure: {png}")

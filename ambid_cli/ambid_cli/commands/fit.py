@@ -1,9 +1,11 @@
-"""ambid fit: identify the rig from a recorded session (never imports rclpy).
+"""ambid fit: identify the rig from a recorded session, or fit a measured FRF file (never imports rclpy).
 
-FRF, order selection, fitted model (state space as .npz and JSON), modes,
-physical-model updating and the HTML report, all written to ``--out``
-(:func:`ambid.studies.identification.identify_session`); the headline figures are
-printed.
+A session (.mcap): FRF, order selection, fitted model (state space as .npz
+and JSON), modes, physical-model updating and the HTML report, all written
+to ``--out`` (:func:`ambid.studies.identification.identify_session`).
+An FRF file (.npz, .mat, .csv, UFF 58 .uff/.unv; :mod:`ambid.frf.frf_file`):
+the same fit, the modes with their intervals and a report
+(:func:`ambid.studies.frf_fit.identify_frf`). The headline figures are printed.
 """
 
 from __future__ import annotations
@@ -12,7 +14,8 @@ import argparse
 import json
 import math
 
-HELP = "identify a recorded session: FRF, fitted model and modes, updated physical parameters, report"
+HELP = ("identify a recorded session (FRF, fitted model and modes, updated physical parameters, report), or fit a "
+        "measured FRF file (.npz, .mat, .csv, UFF 58)")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -20,7 +23,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     from ambid_cli.commands.inputs import positive_int
 
-    p.add_argument("file", help="session .mcap file")
+    p.add_argument("file", help="session .mcap file, or a measured FRF: .npz/.mat (freq_hz, H (n, ny, nu), optional "
+                                "var, outputs, inputs), .csv (freq_hz, re(<out>/<in>), im(<out>/<in>) [, var(..)]) or "
+                                "UFF 58 (.uff, .unv)")
     p.add_argument("--out", required=True, help="output folder (model.npz, model.json, frf.npz, "
                                                 "identification.json, report/index.html)")
     p.add_argument("--estimator", default="indirect", choices=ESTIMATORS, help="FRF estimator (default indirect)")
@@ -32,6 +37,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-update", action="store_true", help="skip the physical-model updating")
     p.add_argument("--no-report", action="store_true", help="skip the HTML report")
     p.add_argument("--recover", action="store_true", help="read a file a killed recorder left")
+    p.add_argument("--delay", type=float, default=0.0, metavar="SECONDS",
+                   help="FRF files: a known pure delay of the measurement [s] (default 0)")
     p.add_argument("--json", action="store_true", help="print the whole summary as JSON")
 
 
@@ -75,10 +82,19 @@ def format_summary(s: dict) -> str:
             true = "" if p.get("true") is None else f", true {p['true']:.6g} ({_pct(p['error'])})"
             lines.append(f"updated {name}: {p['value']:.6g} (95 % CI {ci[0]:.6g} .. {ci[1]:.6g}), nominal "
                          f"{p['nominal']:.6g}{true}")
+    lag = upd.get("total_lag")
+    if lag:
+        true = "" if lag.get("true") is None else f", true {lag['true'] * 1e6:.5g}"
+        lines.append(f"total lag (amplifier + sensor + delay): {lag['value'] * 1e6:.5g} us (95 % CI "
+                     f"{lag['ci95'][0] * 1e6:.5g} .. {lag['ci95'][1] * 1e6:.5g}){true}")
+    if upd.get("prior_dominated"):
+        lines.append(f"set mostly by their tolerances (the data tell little): {', '.join(upd['prior_dominated'])}")
     if "error" in upd:
         lines.append(f"model updating failed: {upd['error']}")
     lines.append(f"peak input sensitivity {sens['worst_peak']:.3g} on {sens['worst_input']}: ISO 14839-3 zone "
-                 f"{sens['iso_zone']}")
+                 f"{sens['iso_zone']}" + ("" if sens.get("updated_peak") is None else
+                                          f"; updated model with the recorded controller {max(sens['updated_peak']):.3g},"
+                                          f" zone {sens['updated_iso_zone']}"))
     files = s["files"]
     lines.append(f"written: {files['model_npz']}, {files['model_json']}" +
                  (f", report {files['report']}" if "report" in files else ""))
@@ -86,8 +102,63 @@ def format_summary(s: dict) -> str:
     return "\n".join(lines)
 
 
+def format_frf_summary(s: dict) -> str:
+    """Headline figures of a measured FRF's fit, a few lines of text."""
+    fit = s["fit"]
+    lines = [f"{s['source']} ({s['format']}): {len(s['outputs'])} outputs x {len(s['inputs'])} inputs, "
+             f"{s['n_lines']} frequencies in {s['band_hz'][0]:g}-{s['band_hz'][1]:g} Hz, variance "
+             + ("given" if s["var_given"] else "not given"),
+             f"model order {fit['order']} ("
+             + (f"chi2/dof {fit['chi2_per_dof']:.3g}" if s["var_given"] else
+                f"relative rms misfit {100 * math.sqrt(max(fit['chi2_per_dof'], 0.0)):.2g} %")
+             + "); modes (95 % interval):"]
+    for m in fit["modes"]:
+        ci_f, ci_z = m.get("freq_hz_ci95"), m.get("damping_ci95")
+        lines.append(f"  {m['freq_hz']:.6g} Hz" + (f" ({ci_f[0]:.6g}..{ci_f[1]:.6g})" if ci_f else "")
+                     + f", zeta {m['damping']:.4g}" + (f" ({ci_z[0]:.3g}..{ci_z[1]:.3g})" if ci_z else ""))
+    if not fit["modes"]:
+        lines.append("  none in the band")
+    lines.append(f"intervals: {s['intervals']['modes']}")
+    files = s["files"]
+    lines.append(f"written: {files['model_npz']}, {files['model_json']}" +
+                 (f", report {files['report']}" if "report" in files else ""))
+    lines += [f"note: {n}" for n in s.get("notes", [])]
+    return "\n".join(lines)
+
+
+def _run_frf_file(args: argparse.Namespace) -> int:
+    from ambid.frf.frf_file import FrfFileError, read_frf_file
+    from ambid.studies.frf_fit import identify_frf
+
+    from ambid_cli.commands.inputs import BadInput, output_dir
+
+    try:
+        measured = read_frf_file(args.file)   # checked before --out is touched
+    except FrfFileError as exc:
+        raise BadInput(str(exc)) from None
+    output_dir(args.out)
+    session_only = [opt for opt, given in (("--experiment", args.experiment), ("--rig", args.rig),
+                                           ("--no-update", args.no_update), ("--recover", args.recover),
+                                           ("--estimator", args.estimator != "indirect")) if given]
+    if session_only:
+        raise BadInput(f"{', '.join(session_only)} apply to a session, not to an FRF file; leave them out")
+    if not (args.delay >= 0 and args.delay < 1):
+        raise BadInput(f"--delay {args.delay} s; give the measurement's pure delay in seconds, >= 0 and < 1")
+    try:
+        summary = identify_frf(measured, args.out, order=args.order, max_order=args.max_order, delay_s=args.delay,
+                               report=not args.no_report)
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+    print(json.dumps(summary, indent=1) if args.json else format_frf_summary(summary))
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
+    from ambid.frf.frf_file import is_frf_file
     from ambid.session import IncompleteSessionError
+
+    if is_frf_file(args.file):
+        return _run_frf_file(args)
     from ambid.studies.identification import identify_session
 
     from ambid_cli.commands.inputs import BadInput, output_dir, rig_file, session_file

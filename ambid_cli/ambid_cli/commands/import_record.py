@@ -46,10 +46,15 @@ def run(args: argparse.Namespace) -> int:
     print(f"imported {res.n_rows} rows at {res.fs_hz:g} Hz from {args.data} "
           f"({res.bytes_read / 1e6:.3g} MB in {res.seconds:.3g} s, {res.bytes_read / 1e6 / res.seconds:.3g} MB/s; "
           f"peak memory {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB)")
-    print(("design found from the excitation:" if res.reconstructed else "design given:") +
-          f" {d.kind}, N = {d.n_per_period}, P = {d.n_periods}, Pt = {d.n_transient_periods}, "
-          f"M = {d.n_realisations}, Ne = {d.n_experiments}, {d.excited_lines.size} lines, experiment from row "
-          f"{res.start_row + 1}")
+    if d.kind == "recorded":
+        print(f"the excitation does not repeat itself: {d.n_per_period} rows from row {res.start_row + 1}, "
+              f"{d.excited_lines.size} lines in {d.band_hz[0]:g}-{d.band_hz[1]:g} Hz")
+    else:
+        print(("design found from the excitation:" if res.reconstructed else "design given:") +
+              f" {d.kind}, N = {d.n_per_period}, P = {d.n_periods}, Pt = {d.n_transient_periods}, "
+              f"M = {d.n_realisations}, Ne = {d.n_experiments}, {d.excited_lines.size} lines, experiment from row "
+              f"{res.start_row + 1}")
+    print(res.estimator)
     for note in res.notes:
         print(f"  {note}")
     print(f"written: {res.session} ({os.path.getsize(res.session) / 1e6:.3g} MB); "

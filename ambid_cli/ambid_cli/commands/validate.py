@@ -2,11 +2,16 @@
 
 Runs ``ambid identify``'s session (the same graph, design and offline
 identification, the report left out) once per seed; the seed sets the sensor
-noise and the multisine's random phases. Each finished seed leaves
+noise and the multisine's random phases. Each seed's update starts from a
+nominal rig drawn from the tolerances around the simulated one, as a data
+sheet misses a real rig (:func:`ambid.studies.coverage.draw_nominal_rig`;
+``seed_NNN/nominal_rig.yaml``, and per seed in coverage.json); the update
+never sees the truth. Each finished seed leaves
 ``DIR/seeds/seed_NNN/record.json`` (what it claimed beside the true rig's
 values, :func:`ambid.studies.coverage.seed_record`); a later run with the same
 options reuses those, so a stopped run loses only the sessions under way.
-Sessions run in parallel, one per core (at most 2 by default). Writes
+Sessions run as tasks on Dask distributed (:mod:`ambid_cli.sessions_on_dask`):
+a local cluster of this machine's cores, or ``--scheduler ADDRESS``. Writes
 ``DIR/coverage.json`` (:func:`ambid.studies.coverage.coverage_table`) and
 ``DIR/coverage.png``.
 """
@@ -19,14 +24,15 @@ import json
 import os
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
-from ambid_cli.commands.inputs import checked_controller, controller, output_dir, positive_int, rig_file
+from ambid_cli.commands.inputs import (checked_controller, controller, output_dir, output_file, positive_int,
+                                       rig_file)
+from ambid_cli.results_page import measured_on, write_section
+from ambid_cli.sessions_on_dask import add_scheduler_option, as_finished, domain_base, session_client
 
 HELP = "measure the coverage of every printed interval over many seeds of the identify session"
 PRESET_SEEDS = {"quick": 6, "full": 20}
-_DOMAIN = None  # the worker's ROS_DOMAIN_ID slot (set by _init_worker)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -38,12 +44,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rig", default="", help="rig parameter YAML file (default: the built-in rig)")
     p.add_argument("--controller", type=controller, default="",
                    help="position controller: a kind or a controller file (default: the rig file's, else pid)")
-    p.add_argument("--jobs", type=positive_int, default=None,
-                   help="sessions run at once (default: the cores, at most 2)")
+    add_scheduler_option(p)
     p.add_argument("--out", type=Path, default=Path("validate"), help="output folder (default ./validate)")
     p.add_argument("--linear-magnets", action="store_true",
                    help="linearised magnets instead of eq. 2.14 (separates the magnets' nonlinearity from the rest)")
     p.add_argument("--no-figure", action="store_true", help="skip coverage.png")
+    p.add_argument("--results", metavar="FILE",
+                   help="write the coverage table as the validate section of a results page, e.g. docs/results.md")
 
 
 def run_fingerprint(rig_path: str, linear_magnets: bool, controller_spec: str = "") -> str:
@@ -71,37 +78,35 @@ def _code_version() -> str:
         return ""
 
 
-def _init_worker(counter, base: int) -> None:
-    global _DOMAIN
-    with counter.get_lock():
-        slot = counter.value
-        counter.value += 1
-    _DOMAIN = base + slot
-    os.environ["ROS_DOMAIN_ID"] = str(_DOMAIN)   # two sessions at once must not hear each other
-
-
 def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_magnets: bool = False,
              controller_spec: str = "") -> dict:
     """One identify session and its record; writes seed_dir/record.json last (atomically)."""
     import numpy as np
-
-    from ambid.frf.offline import frf_from_session
-    from ambid.plant.rig import load_rig, make_rig
-    from ambid.studies.coverage import frf_record, seed_record
-    from ambid.studies.identification import identify_session, refit_parameters
+    import yaml
 
     from ambid.excitation.spec import DesignSpec
+    from ambid.fit.model_update import total_lag
+    from ambid.frf.offline import frf_from_session
+    from ambid.jsonable import to_jsonable
+    from ambid.plant.rig import load_rig, make_rig
+    from ambid.studies.coverage import draw_nominal_rig, frf_record, seed_record
+    from ambid.studies.identification import identify_session, refit_parameters
 
     from ambid_nodes.session import SessionConfig, plan_session, run_session_composed
 
     t0 = time.perf_counter()
     out = Path(seed_dir)
+    out.mkdir(parents=True, exist_ok=True)
     # identify's session (the experiment's defaults) at this seed; the rig parsed once in this worker
     rig = load_rig(rig_path) if rig_path else make_rig()
+    # the nominal model this seed's update starts from: the simulated rig missed by a draw from its tolerances
+    nominal, drawn = draw_nominal_rig(rig, np.random.default_rng([seed, 26]))
+    nominal_path = out / "nominal_rig.yaml"
+    nominal_path.write_text(yaml.safe_dump(to_jsonable(nominal), sort_keys=False))
     cfg = SessionConfig(out_dir=out, experiment=DesignSpec(seed=seed), rig_file=rig_path, progress=False,
                         nonlinear_magnets=not linear_magnets, controller=controller_spec)
     run = run_session_composed(cfg, plan_session(cfg, rig))
-    summary = identify_session(run["mcap_path"], out, estimator=cfg.estimator, report=False)
+    summary = identify_session(run["mcap_path"], out, estimator=cfg.estimator, report=False, rig=nominal_path)
     frf = np.load(out / "frf.npz")
     truths = {"small-signal truth": frf["true_frf"]}
     if "true_frf_at_excitation" in frf:
@@ -111,6 +116,7 @@ def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_m
     if "var_band" in frf:
         variances["printed band (total, pooled)"] = frf["var_band"]
     rec = seed_record(summary, frf["frf"], truths, variances)
+    rec["nominal"] = drawn
     # the noise-free twin: the same seed (grid, phases, everything) without sensor noise. Its FRF differs
     # from this session's by the noise alone, the truth a noise-only band claims to hold; the parameters
     # fitted to it with this session's weights carry only what the excitation itself does to them (the
@@ -124,10 +130,14 @@ def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_m
     if twin.frf.shape == frf["frf"].shape and np.allclose(twin.freq_hz, frf["freq_hz"]):
         rec["frf"]["noise only vs noise-free twin"] = frf_record(frf["frf"], twin.frf,
                                                                {"noise only": frf["var_noise"]})["noise only"]
-        for name, value in refit_parameters(summary, rig, twin.freq_hz, twin.frf,
-                                                frf["var_fit"] if "var_fit" in frf else frf["var_band"]).items():
+        refit = refit_parameters(summary, load_rig(nominal_path), twin.freq_hz, twin.frf,
+                                 frf["var_fit"] if "var_fit" in frf else frf["var_band"])
+        for name, value in refit.items():
             if f"parameter:{name}" in rec["intervals"]:
                 rec["intervals"][f"parameter:{name}"]["noise_free"] = value
+        if "derived:total_lag_s" in rec["intervals"]:
+            values = {k: v["value"] for k, v in summary["update"]["parameters"].items()}
+            rec["intervals"]["derived:total_lag_s"]["noise_free"] = total_lag({**values, **refit})
     Path(twin_run["mcap_path"]).unlink(missing_ok=True)
     rec.update(seed=seed, fingerprint=fingerprint, wall_s=time.perf_counter() - t0)
     tmp = out / "record.json.tmp"
@@ -159,13 +169,13 @@ def reusable_record(path: Path, fingerprint: str) -> dict | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import multiprocessing as mp
-
     from ambid.studies.coverage import coverage_figure, coverage_table
 
     # a bad rig or controller file, or a controller that cannot hold the rig, stops here before any session
     checked_controller(args.controller, rig_file(args.rig))
     out = output_dir(args.out)
+    if args.results:
+        output_file(args.results, "--results")
     n = args.seeds or PRESET_SEEDS[args.preset]
     seeds = list(range(args.first_seed, args.first_seed + n))
     fp = run_fingerprint(args.rig, args.linear_magnets, args.controller)
@@ -177,27 +187,21 @@ def run(args: argparse.Namespace) -> int:
             records[s] = rec
         else:
             todo.append(s)
-    jobs = args.jobs or max(1, min(2, os.cpu_count() or 1))
-    print(f"ambid validate: {n} seeds ({len(records)} reused), {jobs} at a time, out {out}", flush=True)
+    where = args.scheduler or f"a local Dask cluster ({args.jobs or os.cpu_count() or 1} at a time)"
+    print(f"ambid validate: {n} seeds ({len(records)} reused), on {where}, out {out}", flush=True)
     t0 = time.perf_counter()
     if todo:
-        ctx = mp.get_context("spawn")
-        # domain ids 215-230: outside the 100-199 that identify and graph derive from their pid, so that a
-        # session on this machine does not hear (and reject) ours; one id per worker
-        base = 215 + (os.getpid() % 8) * 2
+        base = domain_base(args)     # one ROS domain per worker
         failed = []
-        with ProcessPoolExecutor(max_workers=min(jobs, len(todo), 2), mp_context=ctx, initializer=_init_worker,
-                                 initargs=(ctx.Value("i", 0), base)) as pool:
-            futures = {pool.submit(run_seed, s, args.rig, str(out / "seeds" / f"seed_{s:03d}"), fp,
-                                   args.linear_magnets, args.controller): s
-                       for s in todo}
-            for fut in as_completed(futures):
-                s = futures[fut]
-                try:
-                    records[s] = fut.result()
-                    print(f"  seed {s}: done in {records[s]['wall_s']:.0f} s "
+        items = [(s, (s, args.rig, str((out / "seeds" / f"seed_{s:03d}").resolve()), fp, args.linear_magnets,
+                      args.controller)) for s in todo]
+        with session_client(args.scheduler, args.jobs, len(todo)) as client:
+            for s, rec, exc in as_finished(client, base, run_seed, items):
+                if exc is None:
+                    records[s] = rec
+                    print(f"  seed {s}: done in {rec['wall_s']:.0f} s "
                           f"({len(records)}/{n}, {time.perf_counter() - t0:.0f} s)", flush=True)
-                except Exception as exc:  # one failed session must not lose the others
+                else:
                     failed.append(s)
                     print(f"  seed {s}: failed: {exc}", file=sys.stderr, flush=True)
         if failed:
@@ -209,14 +213,33 @@ def run(args: argparse.Namespace) -> int:
     recs = [records[s] for s in sorted(records)]
     table = coverage_table(recs)
     result = dict(seeds=sorted(records), n_seeds=len(recs), rig=args.rig or "built-in",
-                  session="ambid identify's default session, seed = noise and random phases",
-                  kinds=table)
+                  session="ambid identify's default session, seed = noise and random phases; each seed's update "
+                          "from a nominal rig drawn from the tolerances (nominal_models)",
+                  wall_s=time.perf_counter() - t0, kinds=table,
+                  nominal_models={str(s): records[s].get("nominal") for s in sorted(records)})
     (out / "coverage.json").write_text(json.dumps(result, indent=1))
     if not args.no_figure:
         coverage_figure(table, out / "coverage.png")
     print(format_table(table))
     print(f"written: {out / 'coverage.json'}" + ("" if args.no_figure else f", {out / 'coverage.png'}"))
+    if args.results:
+        write_section(args.results, "validate", "Coverage of the printed intervals (`ambid validate`)",
+                      f"{measured_on()} {len(recs)} seeds ({', '.join(map(str, sorted(records)))}) of identify's "
+                      f"session on the {args.rig or 'built-in'} rig.\n\n" + coverage_markdown(table))
+        print(f"results written to {args.results}")
     return 0
+
+
+def coverage_markdown(table: dict) -> str:
+    """The coverage table in markdown: per interval its nominal level, coverage and binomial interval."""
+    rows = ["| interval | nominal | coverage | 95 % binomial | n | empirical / claimed std |",
+            "| --- | --- | --- | --- | --- | --- |"]
+    for k, r in table.items():
+        if r.get("coverage") is not None:
+            rows.append(f"| {k}{' (noise only)' if r.get('noise_only') else ''} | {r['nominal']:.3f} | "
+                        f"{r['coverage']:.3f} | {r['ci95'][0]:.3f}..{r['ci95'][1]:.3f} | {r['n']} | "
+                        f"{r['std_ratio']:.2f} |")
+    return "\n".join(rows)
 
 
 def format_table(table: dict) -> str:

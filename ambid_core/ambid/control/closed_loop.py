@@ -171,7 +171,8 @@ def loop_robustness(plant: StateSpace, controller: StateSpace, f_lo_hz: float = 
     """
     loop = close_loop(_discrete(plant, controller.dt), controller)
     if not loop.is_stable():
-        raise ValueError("loop_robustness: the closed loop is unstable; see check_stability")
+        raise ValueError("the closed loop of this plant and controller is unstable: it has no sensitivity peak; "
+                         "check the plant model or retune the controller")
     f = robustness_grid(loop, f_lo_hz)
     s = input_sensitivity(plant, controller, f)
     diag = np.diagonal(s, axis1=1, axis2=2)

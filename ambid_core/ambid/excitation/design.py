@@ -20,6 +20,12 @@ repeat their period within a segment. Kind by kind:
   noise (its own stream per (m, e) and input), clipped at the peak; the
   "periods" are the N-sample blocks the FRF code averages over (with a
   window), the transient blocks hold the filter's start-up.
+- 'recorded': an excitation found in a rig's record that does not repeat
+  itself (noise, chirps, a record started mid-run): no waveform to
+  generate, one segment of ``N = n_per_period`` samples, the whole record;
+  the FRF comes from the local polynomial method (:mod:`ambid.frf.lpm`) at
+  the window centres ``excited_lines`` (DFT bins of N), with the settings
+  in ``options['lpm']``.
 - 'stepped_sine': realisation m is line m (M = L lines); experiment e
   excites input e with A[e, m] sin(2 pi k_m n / N). Its period p_m =
   N / gcd(N, k_m) samples holds an integer number of cycles; Pt_m periods
@@ -42,7 +48,7 @@ from ambid.jsonable import to_jsonable
 from .multisine import multisine_period
 from .signals import binary_waveform, filtered_noise, noise_taps, swept_sine_period
 
-KINDS = ("multisine", "stepped_sine", "swept_sine", "noise", "prbs", "dibs")
+KINDS = ("multisine", "stepped_sine", "swept_sine", "noise", "prbs", "dibs", "recorded")
 FORMAT = "ambid.excitation.design/1"
 
 
@@ -181,8 +187,8 @@ class ExcitationDesign:
 
     @property
     def is_periodic(self) -> bool:
-        """True unless the kind is 'noise'."""
-        return self.kind != "noise"
+        """True unless the kind is 'noise' or 'recorded'."""
+        return self.kind not in ("noise", "recorded")
 
     def segment_layout(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per-realisation layout (period_samples, transient_periods, periods), each (M,) int.
@@ -299,6 +305,8 @@ class ExcitationDesign:
             if self.is_periodic:
                 idx = np.arange(a - seg0, b - seg0) % int(periods[m])
                 out[a - start:b - start] = self.period(m, e)[idx]
+            elif self.kind == "recorded":
+                raise ValueError("a recorded excitation has no waveform to generate: it is in the record")
             else:
                 out[a - start:b - start] = self._noise(m, e, a - seg0, b - seg0)
             s += 1

@@ -40,7 +40,7 @@ def plot_design(design: ExcitationDesign, path: str | Path, realisation: int = 0
     Returns:
         The path written.
     """
-    import matplotlib
+    import matplotlib  # optional (ambid[report]): only the figure needs it
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 

@@ -13,9 +13,10 @@ most often, each switched on by giving its parameters:
 * sensors: gains ``sensor_gain_<axis>`` [m/m], and optionally a first-order
   low-pass ``sensor_bandwidth_hz`` [Hz] (``axial_sensor_bandwidth_hz`` the
   axial probe's, the radial one's when not given);
-* the first bending mode of the rotor: its free-free frequency
+* the bending modes of the rotor: the first one's free-free frequency
   ``bending_freq_hz`` [Hz] (the modal stiffness omega^2 of the mass-normalised
-  mode) and damping ratio ``bending_damping_ratio`` [-], both planes;
+  mode) and damping ratio ``bending_damping_ratio`` [-], both planes; mode k >= 2
+  as ``bending_<k>_freq_hz``, ``bending_<k>_damping_ratio``;
 * an extra, unmodelled mode, taken as a support (housing or foundation)
   mode: each radial bearing stator with its sensor sits on a mass-spring-damper of
   uncoupled frequency ``support_freq_hz`` [Hz], damping ratio
@@ -41,30 +42,39 @@ sensor filter states (na) [m].
 Ki and the sensor gains enter the FRF only as their product (the force per
 ampere is seen through the sensors); free either ki or the gains, not both
 (:func:`ambid.fit.update_parameters` names the combination otherwise).
+
+Priors (:func:`parameter_prior`): each parameter's nominal value
+(:func:`nominal_update_parameters`) and the rig's tolerance of it
+(:mod:`ambid.plant.tolerances`) make a normal prior; the update is their
+maximum a posteriori estimate. It starts from the data (:func:`start_from_data`:
+the bending modes at the fitted modes, ki and ks fitted to the FRF with the
+rest held, the lags moved by the phase's slope), not from the nominal values.
 """
 
 from __future__ import annotations
 
 import math
-import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import linalg
+from scipy import linalg, stats
 
 from ambid.channels import FIVE_AXIS, bearing_of
-from ambid.fit.updating import UpdateResult, update_parameters
+from ambid.fit.updating import Prior, UpdateResult, update_parameters
 from ambid.plant.rig import Rig
+from ambid.plant.tolerances import Z95, tolerance_for
 from ambid.plant.rotor_model import RotorModel
 from ambid.plant.sensors import noise_std
 from ambid.excitation.design import ExcitationDesign
 from ambid.plant.true_rig import TruePlant, delayed_zoh, levitated_plant, true_linear_model
 from ambid.statespace import StateSpace
 
-__all__ = ["ParameterInfo", "PARAMETERS", "DEFAULT_FREE", "PhysicalUpdate", "bending_coordinates", "covers",
-           "nominal_parameters", "true_parameters", "excitation_slopes", "closed_loop_noise_std", "physical_statespace",
-           "physical_frf", "update_physical_model", "unmodelled_mode"]
+__all__ = ["ParameterInfo", "PARAMETERS", "DEFAULT_FREE", "PhysicalUpdate", "bending_coordinates", "bending_keys",
+           "covers", "nominal_parameters", "nominal_update_parameters", "parameter_prior", "true_parameters",
+           "excitation_slopes", "closed_loop_noise_std", "physical_statespace", "physical_frf", "physical_discrete",
+           "update_physical_model",
+           "match_modes", "start_from_data", "total_lag", "unmodelled_mode"]
 
 
 @dataclass(frozen=True)
@@ -98,6 +108,9 @@ PARAMETERS: dict[str, ParameterInfo] = {
     "support_damping_ratio": ParameterInfo("-", 0.0, 1.0, 0.02, "damping ratio of the support mode"),
     "support_gain_per_kg": ParameterInfo("1/kg", 0.0, 1e3, 0.05, "1 / modal mass of the support mode"),
     "delay_s": ParameterInfo("s", -0.01, 0.01, 1e-4, "extra input delay"),
+    **{f"bending_{k}_{q}": ParameterInfo(*info[:4], f"{info[4]} (bending mode {k})")
+       for k in range(2, 9) for q, info in (("freq_hz", ("Hz", 1e-3, 1e6, 100.0, "free-free frequency")),
+                                            ("damping_ratio", ("-", 0.0, 1.0, 0.01, "damping ratio")))},
 }
 
 #: Parameters freed by default (the support ones too when the start holds them).
@@ -109,8 +122,15 @@ _REQUIRED = ("ki_n_per_a", "ks_n_per_m", "amplifier_bandwidth_hz")
 _AXIAL = ("axial_ki_n_per_a", "axial_ks_n_per_m", "axial_amplifier_bandwidth_hz")
 
 
-def bending_coordinates(rotor: RotorModel) -> np.ndarray:
-    """Modal coordinates (both planes) of the rotor's first bending mode, (k,) int; empty if none.
+def bending_keys(mode: int) -> tuple[str, str]:
+    """The frequency and damping parameter names of bending mode ``mode`` (1: the first)."""
+    return ("bending_freq_hz", "bending_damping_ratio") if mode == 1 else \
+        (f"bending_{mode}_freq_hz", f"bending_{mode}_damping_ratio")
+
+
+def bending_coordinates(rotor: RotorModel, mode: int = 1) -> np.ndarray:
+    """Modal coordinates (both planes) of the rotor's bending mode ``mode`` (1: the first), (k,) int; empty
+    if none.
 
     Needs the modal layout of :func:`ambid.plant.modal.modal_state_space`
     (x = [eta, eta'], A = [[0, I], [-K, -C]] with K diagonal); an imported
@@ -118,14 +138,14 @@ def bending_coordinates(rotor: RotorModel) -> np.ndarray:
     """
     a = rotor.a
     n = a.shape[0]
-    if rotor.flexible_freq_hz.size == 0 or n % 2:
+    if rotor.flexible_freq_hz.size < mode or mode < 1 or n % 2:
         return np.zeros(0, dtype=int)
     r = n // 2
     k = -a[r:, :r]
     if not (np.allclose(a[:r, :r], 0.0) and np.allclose(a[:r, r:], np.eye(r))
             and np.allclose(k - np.diag(np.diag(k)), 0.0, atol=1e-9 * max(np.abs(k).max(), 1.0))):
         return np.zeros(0, dtype=int)
-    w1 = 2 * np.pi * rotor.flexible_freq_hz[0]
+    w1 = 2 * np.pi * rotor.flexible_freq_hz[mode - 1]
     w = np.sqrt(np.maximum(np.diag(k), 0.0))
     return np.flatnonzero(np.abs(w - w1) <= 1e-6 * w1)
 
@@ -152,10 +172,62 @@ def nominal_parameters(rig: Rig) -> dict[str, float]:
         p.update(axial_ki_n_per_a=float(rig.axial_magnet.ki), axial_ks_n_per_m=float(rig.axial_magnet.ks),
                  axial_amplifier_bandwidth_hz=float(rig.axial_amplifier.bandwidth_hz))
     rotor = rig.rotor_model()
-    if bending_coordinates(rotor).size:
-        p["bending_freq_hz"] = float(rotor.flexible_freq_hz[0])
-        p["bending_damping_ratio"] = float(rig.modal_damping_ratio)
+    for k in range(1, rotor.flexible_freq_hz.size + 1):
+        if bending_coordinates(rotor, k).size:
+            fk, zk = bending_keys(k)
+            p[fk] = float(rotor.flexible_freq_hz[k - 1])
+            p[zk] = float(rig.modal_damping_ratio)
     return p
+
+
+def nominal_update_parameters(rig: Rig) -> dict[str, float]:
+    """Every updating parameter's nominal value, the centre of its prior: the analytical model's
+    (:func:`nominal_parameters`) with the data sheet's sensor bandwidth and delay (``sensor_bandwidth_hz``,
+    ``extra_delay_s`` of the rig)."""
+    p = nominal_parameters(rig)
+    p.update(sensor_bandwidth_hz=float(rig.values["sensor_bandwidth_hz"]),
+             delay_s=float(rig.values["extra_delay_s"]))
+    if rig.layout.axial:
+        p["axial_sensor_bandwidth_hz"] = float(rig.values["axial_sensor_bandwidth_hz"])
+    return p
+
+
+def parameter_prior(rig: Rig, names: Sequence[str], centre: Mapping[str, float]) -> tuple[Prior, tuple[str, ...]]:
+    """The normal prior of each parameter in ``names`` from the rig's tolerances.
+
+    Args:
+        rig: the nominal rig (its ``tolerances``, else the defaults of :mod:`ambid.plant.tolerances`).
+        names: the updated parameters.
+        centre: each one's nominal value (a range tolerance replaces it by its middle).
+
+    Returns:
+        (prior, fixed): the :class:`ambid.fit.updating.Prior` over ``names`` (a parameter without a
+        tolerance gets none: flat), and the names whose tolerance is ``fixed``.
+    """
+    mean, sd, log, fixed = [], [], [], []
+    for name in names:
+        tol = tolerance_for(name, rig.tolerances)
+        if tol is None:
+            mean.append(float(centre[name]))
+            sd.append(np.inf)
+            log.append(False)
+            continue
+        m, s, lg = tol.centre_and_sd(float(centre[name]), rig.dt)
+        if s == 0:
+            fixed.append(name)
+        mean.append(m)
+        sd.append(s if s > 0 else np.inf)
+        log.append(lg)
+    return Prior(np.array(mean), np.array(sd), np.array(log, dtype=bool)), tuple(fixed)
+
+
+def total_lag(params: Mapping[str, float]) -> float:
+    """The input-to-output lag the data tell best [s]: 1 / (2 pi f_amp) + 1 / (2 pi f_sens) + delay
+    (each first-order lag's group delay at low frequency; a missing sensor bandwidth adds none)."""
+    lag = 1.0 / (2 * np.pi * params["amplifier_bandwidth_hz"]) + float(params.get("delay_s", 0.0))
+    if "sensor_bandwidth_hz" in params:
+        lag += 1.0 / (2 * np.pi * params["sensor_bandwidth_hz"])
+    return float(lag)
 
 
 def true_parameters(rig: Rig) -> dict[str, float]:
@@ -244,16 +316,17 @@ def _noise_weighted(einsum, spec: str, x: np.ndarray, sigma: np.ndarray) -> np.n
     return einsum(spec, xs, xs.conj()).real
 
 
-def closed_loop_noise_std(rig: Rig, controller: StateSpace, plant: TruePlant | None = None,
-                          n_lines: int = 1 << 15) -> np.ndarray:
+def closed_loop_noise_std(rig: Rig, controller: StateSpace, plant: TruePlant | None = None) -> np.ndarray:
     """Standard deviation of the measured outputs' noise in the true linear closed loop [m], (na,).
 
-    The sensors' white noise v (std ``sensor_noise_m`` per sample, ``axial_sensor_noise_m`` axially) reaches
-    the outputs as y = (I - G K)^-1 v (positive feedback u = K y + r), so
-    var(y_i) = sigma^2 mean over the unit circle of sum_j |S_ij|^2
-    (Parseval, midpoint rule over ``n_lines`` lines of 0..fs/2: fine enough
-    for the lightly damped closed-loop modes). What the period-to-period
-    scatter of a periodic measurement estimates.
+    The sensors' white noise v (std ``sensor_noise_m`` per sample, ``axial_sensor_noise_m`` axially,
+    Sigma = diag(sigma^2)) reaches the outputs as y = (I - G K)^-1 v (positive feedback u = K y + r): with
+    the loop's states x (plant, then controller), x[k+1] = A_cl x[k] + B_v v[k]
+    and y = C x + v, so var(y) = diag(C P C^T + Sigma) with P the state
+    covariance, P = A_cl P A_cl^T + B_v Sigma B_v^T (the discrete Lyapunov
+    equation: exact, and milliseconds where a Parseval sum over the unit
+    circle fine enough for the lightly damped modes took seconds). What the
+    period-to-period scatter of a periodic measurement estimates.
 
     Args:
         rig: the true rig.
@@ -265,15 +338,16 @@ def closed_loop_noise_std(rig: Rig, controller: StateSpace, plant: TruePlant | N
         (na,) std per sensor, in the rig layout's output order [m].
     """
     g = true_linear_model(rig, discrete=True, plant=plant)
-    f = (np.arange(n_lines) + 0.5) / n_lines / (2 * rig.dt)
-    with warnings.catch_warnings():  # the controller's integrators near z = 1 at the lowest lines: S ~ 0 there
-        warnings.simplefilter("ignore", linalg.LinAlgWarning)
-        k = controller.freqresp(f)
-    s_out = np.linalg.inv(np.eye(g.n_outputs) - g.freqresp(f) @ k)
+    k = controller
+    acl = np.block([[g.a + g.b @ k.d @ g.c, g.b @ k.c], [k.b @ g.c, k.a]])
+    bv = np.vstack([g.b @ k.d, k.b])
+    c = np.hstack([g.c, np.zeros((g.c.shape[0], k.a.shape[0]))])
     sigma = noise_std(rig.axis_sensors())
-    if np.all(sigma == sigma[0]):
-        return float(sigma[0]) * np.sqrt((np.abs(s_out) ** 2).sum(axis=2).mean(axis=0))
-    return np.sqrt((np.abs(s_out * sigma) ** 2).sum(axis=2).mean(axis=0))
+    if np.all(sigma == sigma[0]):   # one noise level (the radial rig): sigma times the unit-noise loop's
+        p = linalg.solve_discrete_lyapunov(acl, bv @ bv.T)
+        return float(sigma[0]) * np.sqrt(np.diag(c @ p @ c.T) + 1.0)
+    p = linalg.solve_discrete_lyapunov(acl, (bv * sigma**2) @ bv.T)
+    return np.sqrt(np.diag(c @ p @ c.T) + sigma**2)
 
 
 def excitation_slopes(rig: Rig, controller: StateSpace, design: ExcitationDesign,
@@ -328,8 +402,9 @@ def _check_params(params: Mapping[str, float]) -> dict[str, float]:
     for k in ("amplifier_bandwidth_hz", "axial_amplifier_bandwidth_hz"):
         if p.get(k, 1.0) <= 0:
             raise ValueError(f"physical model: {k} must be > 0, got {p[k]}")
-    if min(p.get(k, 1.0) for k in ("sensor_bandwidth_hz", "axial_sensor_bandwidth_hz", "bending_freq_hz")) <= 0:
-        raise ValueError("physical model: sensor_bandwidth_hz, axial_sensor_bandwidth_hz and bending_freq_hz "
+    if (min(p.get(k, 1.0) for k in ("sensor_bandwidth_hz", "axial_sensor_bandwidth_hz")) <= 0
+            or any(v <= 0 for k, v in p.items() if k.endswith("freq_hz"))):
+        raise ValueError("physical model: sensor_bandwidth_hz, axial_sensor_bandwidth_hz and the mode frequencies "
                          "must be > 0")
     support = [k for k in _SUPPORT if k in p]
     if support and len(support) != len(_SUPPORT):
@@ -354,17 +429,20 @@ def physical_statespace(rotor: RotorModel, params: Mapping[str, float]) -> State
     """
     p = _check_params(params)
     a_r = rotor.a.copy()
-    if "bending_freq_hz" in p or "bending_damping_ratio" in p:
-        idx = bending_coordinates(rotor)
+    r = a_r.shape[0] // 2
+    for mode in range(1, 9):
+        fk, zk = bending_keys(mode)
+        if fk not in p and zk not in p:
+            continue
+        idx = bending_coordinates(rotor, mode)
         if idx.size == 0:
-            raise ValueError("physical model: this rotor has no adjustable bending mode (none kept, or not in "
-                             "modal layout); drop bending_freq_hz and bending_damping_ratio")
-        r = a_r.shape[0] // 2
-        w_old = 2 * np.pi * rotor.flexible_freq_hz[0]
-        w = 2 * np.pi * p.get("bending_freq_hz", rotor.flexible_freq_hz[0])
+            raise ValueError(f"physical model: this rotor has no adjustable bending mode {mode} (not kept, or not "
+                             f"in modal layout); drop {fk} and {zk}")
+        w_old = 2 * np.pi * rotor.flexible_freq_hz[mode - 1]
+        w = 2 * np.pi * p.get(fk, rotor.flexible_freq_hz[mode - 1])
         a_r[r + idx, idx] = -w * w
-        if "bending_damping_ratio" in p:
-            a_r[r + idx, r + idx] = -2 * p["bending_damping_ratio"] * w
+        if zk in p:
+            a_r[r + idx, r + idx] = -2 * p[zk] * w
         else:  # keep the rotor's damping ratio
             a_r[r + idx, r + idx] *= w / w_old
     layout = rotor.layout
@@ -460,6 +538,39 @@ def physical_frf(rotor: RotorModel, params: Mapping[str, float], freq_hz: np.nda
     return (g[:, :, :na] + g[:, :, na:] / z[:, None, None]) * (z ** -k)[:, None, None]
 
 
+def physical_discrete(rotor: RotorModel, params: Mapping[str, float], dt_s: float) -> StateSpace:
+    """The parametrised rig as a discrete state space at ``dt_s``, the delay exact (zero-order hold,
+    ``delay_s`` >= 0 as whole samples of shift register plus the fraction :func:`delayed_zoh` holds): what a
+    controller at that rate closes its loop around. Its FRF is :func:`physical_frf`'s.
+
+    Returns:
+        StateSpace (dt = dt_s), 4 inputs, 4 outputs, D = 0; states: the continuous model's, then u[k-1] ... (4 each).
+    """
+    if not (math.isfinite(dt_s) and dt_s > 0):
+        raise ValueError(f"dt_s must be > 0 [s], got {dt_s}")
+    ss = physical_statespace(rotor, params)
+    d = max(float(params.get("delay_s", 0.0)), 0.0)
+    m = math.floor(d / dt_s)
+    phi, g1, g0 = delayed_zoh(ss.a, ss.b, dt_s, min(max(d - m * dt_s, 0.0), dt_s))
+    n, nu = ss.a.shape[0], ss.b.shape[1]
+    nb = m + 1                                     # buffers u[k-1] ... u[k-m-1]
+    a = np.zeros((n + nb * nu, n + nb * nu))
+    b = np.zeros((n + nb * nu, nu))
+    a[:n, :n] = phi
+    buf = [slice(n + j * nu, n + (j + 1) * nu) for j in range(nb)]
+    if m == 0:
+        b[:n] = g1
+    else:
+        a[:n, buf[m - 1]] = g1
+    a[:n, buf[m]] = g0
+    b[buf[0]] = np.eye(nu)
+    for j in range(1, nb):
+        a[buf[j], buf[j - 1]] = np.eye(nu)
+    c = np.hstack([ss.c, np.zeros((ss.c.shape[0], nb * nu))])
+    return StateSpace(a, b, c, np.zeros((ss.c.shape[0], nu)), dt_s, ss.input_names, ss.output_names,
+                      ss.input_units, ss.output_units)
+
+
 def _resolvent(a: np.ndarray, b: np.ndarray, c: np.ndarray, s: np.ndarray) -> np.ndarray:
     """C (s I - A)^-1 B at every s (L,), (L, p, m); one batched solve (the model is evaluated
     hundreds of times in an update, a per-line loop costs 20x more)."""
@@ -483,6 +594,7 @@ class PhysicalUpdate:
         parameters: every parameter after the update (fixed ones as started).
         free: names of the parameters updated.
         dt_s: sample period the FRF was modelled at [s].
+        prior: the free parameters' prior (:class:`ambid.fit.updating.Prior`), or None.
     """
 
     result: UpdateResult
@@ -490,28 +602,79 @@ class PhysicalUpdate:
     parameters: dict[str, float]
     free: tuple[str, ...]
     dt_s: float
+    prior: Prior | None = None
+
+    def total_lag(self) -> dict | None:
+        """The total lag (:func:`total_lag`) with its std and 95 % interval, or None unless the amplifier
+        bandwidth is free. Its parts trade the phase between them (strongly correlated); their sum is what
+        the data tell."""
+        r = self.result
+        idx = {n: k for k, n in enumerate(r.names)}
+        if "amplifier_bandwidth_hz" not in idx:
+            return None
+        grad = np.zeros(len(r.names))
+        for name, d in (("amplifier_bandwidth_hz", -1.0 / (2 * np.pi * self.parameters["amplifier_bandwidth_hz"] ** 2)),
+                        ("sensor_bandwidth_hz", -1.0 / (2 * np.pi * self.parameters.get("sensor_bandwidth_hz", 1.0) ** 2)),
+                        ("delay_s", 1.0)):
+            if name in idx:
+                grad[idx[name]] = d
+        var = float(grad @ r.covariance @ grad)
+        contrib = grad**2 * np.diag(r.covariance)
+        dof = r.variance_dof if r.variance_dof is not None else np.full(grad.size, np.inf)
+        used = contrib > 0
+        with np.errstate(divide="ignore"):
+            nu = float(np.sum(contrib[used]) ** 2 / np.sum(contrib[used] ** 2 / dof[used])) if used.any() else np.inf
+        value = total_lag(self.parameters)
+        half = float(stats.t.ppf(0.975, nu)) * np.sqrt(var)
+        return dict(value=value, std=float(np.sqrt(var)), ci95=[value - half, value + half], unit="s",
+                    parts=[n for n in ("amplifier_bandwidth_hz", "sensor_bandwidth_hz", "delay_s") if n in idx])
 
     def to_dict(self) -> dict:
-        """JSON-safe: per parameter value, start, std, ci95, unit, free; plus the fit figures."""
+        """JSON-safe: per parameter value, start, std, ci95, unit, free, its prior (mean, 95 % interval,
+        posterior/prior width) and whether the prior dominates it; the total lag; the fit figures."""
         r = self.result
         std = dict(zip(r.names, r.std))
         ci = dict(zip(r.names, r.ci95))
-        params = {name: dict(value=v, start=self.start[name], unit=PARAMETERS[name].unit, free=name in std,
-                             std=float(std[name]) if name in std else None,
-                             ci95=[float(c) for c in ci[name]] if name in ci else None)
-                  for name, v in self.parameters.items()}
+        ratio = dict(zip(r.names, r.prior_ratio if r.prior_ratio is not None else [np.nan] * len(r.names)))
+        priors = {}
+        if self.prior is not None:
+            for k, name in enumerate(r.names):
+                m, sd, lg = float(self.prior.mean[k]), float(self.prior.std[k]), bool(self.prior.log[k])
+                if np.isfinite(sd):
+                    lo, hi = (m * np.exp(-Z95 * sd), m * np.exp(Z95 * sd)) if lg else (m - Z95 * sd, m + Z95 * sd)
+                    priors[name] = dict(mean=m, ci95=[float(lo), float(hi)], log=lg)
+        params = {}
+        for name, v in self.parameters.items():
+            row = dict(value=v, start=self.start[name], unit=PARAMETERS[name].unit, free=name in std,
+                       std=float(std[name]) if name in std else None,
+                       ci95=[float(c) for c in ci[name]] if name in ci else None)
+            if name in priors:
+                rr = float(ratio[name])
+                # posterior / prior width above 1/sqrt(2): the prior holds more information than the data
+                row.update(prior=priors[name], prior_ratio=rr, prior_dominated=bool(rr > 1 / np.sqrt(2)))
+            params[name] = row
         return dict(parameters=params, chi2_per_dof=r.chi2_per_dof, dof=r.dof, success=r.success,
-                    covariance_inflation=r.inflation,
+                    covariance_inflation=r.inflation, total_lag=self.total_lag(),
+                    prior_dominated=[n for n in r.names if params[n].get("prior_dominated")],
                     message=r.message, n_evaluations=r.n_evaluations, correlation=r.correlation.tolist(),
                     free=list(self.free))
+
+
+def _bounds(free: Sequence[str]) -> tuple[list[float], list[float]]:
+    return [PARAMETERS[k].low for k in free], [PARAMETERS[k].high for k in free]
+
+
+def _scales(free: Sequence[str], start: Mapping[str, float], dt_s: float) -> np.ndarray:
+    return np.array([abs(start[k]) if start[k] != 0 else (dt_s or PARAMETERS[k].typical) for k in free])
 
 
 def update_physical_model(rotor: RotorModel, freq_hz: np.ndarray, G: np.ndarray, var: np.ndarray | None,
                           start: Mapping[str, float], free: Sequence[str] | None = None, dt_s: float = 0.0,
                           max_evaluations: int = 300, covariance: str = "sandwich",
                           row_covariance: np.ndarray | None = None,
-                          realisations: np.ndarray | None = None) -> PhysicalUpdate:
-    """Fit the free physical parameters to a measured FRF (weighted least squares, CIs from the Jacobian).
+                          realisations: np.ndarray | None = None, prior: Prior | None = None,
+                          covariance_only: bool = False) -> PhysicalUpdate:
+    """Fit the free physical parameters to a measured FRF (MAP with ``prior``; intervals from the posterior).
 
     Args:
         rotor: the rig's rotor model.
@@ -530,6 +693,8 @@ def update_physical_model(rotor: RotorModel, freq_hz: np.ndarray, G: np.ndarray,
         row_covariance: (L, na, na, na) covariance of the entries of each row of G
             (:func:`ambid.frf.uncertainty.row_covariance`).
         realisations: (M, L, na, na) the realisations' FRFs (their scatter may widen the intervals).
+        prior: normal priors of the ``free`` parameters (:func:`parameter_prior`), or None.
+        covariance_only: keep ``start`` and give its covariance only.
 
     Returns:
         :class:`PhysicalUpdate`.
@@ -564,17 +729,151 @@ def update_physical_model(rotor: RotorModel, freq_hz: np.ndarray, G: np.ndarray,
         return physical_frf(rotor, p, f, dt_s)
 
     theta0 = np.array([st[k] for k in free])
-    scales = np.array([abs(st[k]) if st[k] != 0 else (dt_s or PARAMETERS[k].typical) for k in free])
-    lower = [PARAMETERS[k].low for k in free]
-    upper = [PARAMETERS[k].high for k in free]
     # sandwich: in closed loop the entries of a line share their noise, and the model may miss some of the data
-    res = update_parameters(model, theta0, f, g, var, names=free, scales=scales, bounds=(lower, upper),
-                            covariance="rows" if row_covariance is not None else covariance,
+    res = update_parameters(model, theta0, f, g, var, names=free, scales=_scales(free, st, dt_s), bounds=_bounds(free),
+                            prior=prior, covariance="rows" if row_covariance is not None else covariance,
                             row_covariance=row_covariance, realisations=realisations,
-                            max_evaluations=max_evaluations)
+                            max_evaluations=max_evaluations, covariance_only=covariance_only)
     final = dict(st)
     final.update(zip(free, (float(v) for v in res.theta)))
-    return PhysicalUpdate(result=res, start=st, parameters=final, free=free, dt_s=float(dt_s))
+    return PhysicalUpdate(result=res, start=st, parameters=final, free=free, dt_s=float(dt_s), prior=prior)
+
+
+def _prior_of(prior: Prior | None, free: Sequence[str], names: Sequence[str]) -> Prior | None:
+    """The prior of ``names`` (a subset of ``free``)."""
+    if prior is None:
+        return None
+    k = [list(free).index(n) for n in names]
+    return Prior(prior.mean[k], prior.std[k], prior.log[k])
+
+
+def _lightly_damped_poles(ss: StateSpace) -> tuple[np.ndarray, np.ndarray]:
+    p = ss.poles()
+    p = p[(p.imag > 0) & (np.abs(p.real) < 0.3 * np.abs(p))]
+    return np.abs(p) / (2 * np.pi), -p.real / np.abs(p)
+
+
+def _sd_of(prior: Prior | None, free: Sequence[str]) -> dict[str, tuple[float, bool]]:
+    """name -> (prior std, log) of the parameters with a prior."""
+    if prior is None:
+        return {}
+    return {name: (float(prior.std[k]), bool(prior.log[k])) for k, name in enumerate(free)
+            if np.isfinite(prior.std[k])}
+
+
+def match_modes(rotor: RotorModel, nominal: Mapping[str, float], free: Sequence[str], prior: Prior | None,
+                modes: Sequence[tuple[float, float]]) -> tuple[dict[str, float], list[int], list[str]]:
+    """Start values of the free bending modes from the fitted modes.
+
+    Each bending mode's frequency and damping start at the fitted mode
+    nearest the nominal model's pole of it (within 3 prior standard
+    deviations of its frequency, at least 2 %): the nominal value times the
+    ratio of the fitted mode's to the nominal model's pole's.
+
+    Args:
+        rotor: the rig's rotor model.
+        nominal: every parameter's nominal value.
+        free: the parameters to be updated (with their bending modes).
+        prior: their prior, or None (then +-5 % windows).
+        modes: fitted modes (frequency [Hz], damping ratio [-]).
+
+    Returns:
+        (start values of the bending parameters, indices of the fitted modes used, notes).
+    """
+    sds = _sd_of(prior, free)
+    fm = np.array([m[0] for m in modes], dtype=float)
+    zm = np.array([m[1] for m in modes], dtype=float)
+    ok = (zm > 0) & (zm < 0.3)
+    out: dict[str, float] = {}
+    used: list[int] = []
+    notes: list[str] = []
+    f_pole, z_pole = _lightly_damped_poles(physical_statespace(rotor, nominal))
+    for mode in range(1, 9):
+        fk, zk = bending_keys(mode)
+        if fk not in free or f_pole.size == 0:
+            continue
+        j = int(np.argmin(np.abs(f_pole - nominal[fk])))
+        sd, lg = sds.get(fk, (0.05 * nominal[fk], False))
+        window = max(3 * (sd if lg else sd / nominal[fk]), 0.02) * f_pole[j]
+        near = np.flatnonzero(ok & (np.abs(fm - f_pole[j]) <= window))
+        near = near[~np.isin(near, used)]
+        if near.size == 0:
+            notes.append(f"bending mode {mode}: no fitted mode within {window:.3g} Hz of the nominal model's "
+                         f"{f_pole[j]:.4g} Hz; its update starts at the nominal values")
+            continue
+        i = int(near[np.argmin(np.abs(fm[near] - f_pole[j]))])
+        used.append(i)
+        out[fk] = float(nominal[fk] * fm[i] / f_pole[j])
+        if zk in free and z_pole[j] > 0:
+            out[zk] = float(np.clip(nominal[zk] * zm[i] / z_pole[j], 1e-5, 0.5))
+    return out, used, notes
+
+
+def start_from_data(rotor: RotorModel, freq_hz: np.ndarray, G: np.ndarray, var: np.ndarray | None,
+                    start: Mapping[str, float], free: Sequence[str], prior: Prior | None,
+                    dt_s: float) -> dict[str, float]:
+    """Start values of the gains and lags from the FRF, the modes already placed (:func:`match_modes`).
+
+    1. ki, ks (and ks_b_over_a) fitted to the FRF with everything else held
+       (a small, well-posed problem: the FRF's level and its unstable poles).
+    2. The lags from the phase: the weighted slope of the phase between the
+       data and that model over frequency is the total lag's error; it is
+       shared among the free lags (amplifier, sensor, delay) in proportion to
+       their prior variances (the MAP split of one known sum).
+
+    Args:
+        rotor: the rig's rotor model.
+        freq_hz, G, var: the FRF (L,), (L, ny, nu) and its variance (or None).
+        start: every parameter's value so far (the prior's centres, the modes from the data).
+        free: the parameters to be updated.
+        prior: their prior, or None.
+        dt_s: sample period [s] (0: continuous).
+
+    Returns:
+        Start values of every parameter.
+    """
+    out = dict(start)
+    free = list(free)
+    sds = _sd_of(prior, free)
+    f = np.asarray(freq_hz, dtype=float)
+    g = np.asarray(G)
+    # the support mode's frequency, damping and gain enter with ks (the housing sits at the cylindrical
+    # mode's anti-resonance): fitted together
+    gains = [k for k in ("ki_n_per_a", "ks_n_per_m", "ks_b_over_a") + _SUPPORT if k in free]
+    if gains:
+        try:
+            up = update_physical_model(rotor, f, g, var, out, gains, dt_s, max_evaluations=60,
+                                       covariance="jacobian", prior=_prior_of(prior, free, gains))
+            out.update({k: up.parameters[k] for k in gains})
+        except ValueError:
+            pass   # the full update starts these at their nominal values then
+    lags = [k for k in ("amplifier_bandwidth_hz", "sensor_bandwidth_hz", "delay_s") if k in free]
+    if not lags:
+        return out
+    gm = physical_frf(rotor, out, f, dt_s)
+    w2 = np.ones(g.shape) if var is None else 1.0 / np.asarray(var, dtype=float)
+    num = np.sum(w2 * g * np.conj(gm), axis=(1, 2))
+    info = np.sum(w2 * np.abs(gm) ** 2, axis=(1, 2))              # the phase's weight per line
+    omega = 2 * np.pi * f
+    d_lag = float(-np.sum(info * omega * np.angle(num)) / np.sum(info * omega**2))
+    # each part's prior variance as a lag [s^2]: tau = 1 / (2 pi f) moves by tau times f's relative sd
+    parts = {}
+    for k in lags:
+        sd, lg = sds.get(k, (0.0, False))
+        if k == "delay_s":
+            parts[k] = (sd * abs(out[k]) if lg else sd) ** 2
+        else:
+            parts[k] = ((sd if lg else sd / out[k]) / (2 * np.pi * out[k])) ** 2
+    total = sum(parts.values())
+    if total > 0 and np.isfinite(d_lag):
+        for k, v in parts.items():
+            share = d_lag * v / total
+            if k == "delay_s":
+                out[k] = float(out[k] + share)
+            else:
+                tau = 1.0 / (2 * np.pi * out[k])
+                out[k] = float(1.0 / (2 * np.pi * max(tau + share, 0.2 * tau)))
+    return out
 
 
 def unmodelled_mode(mode_freq_hz: np.ndarray, mode_damping: np.ndarray, mode_strength: np.ndarray,

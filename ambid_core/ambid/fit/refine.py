@@ -188,7 +188,9 @@ def factor_covariance(data: WeightedData, lin: np.ndarray, quad: np.ndarray, sol
         if deviations is not None:
             dw = data.w[None] * deviations
             d = np.concatenate([dw.real, dw.imag], axis=2)                               # (M, E, 2L)
-            factors, dof = realisation_inflation(np.einsum("mei,eip->mp", d, j) @ bread, cov)
+            # the sandwich's meat sums over the lines: their number less the factors' is its dof
+            factors, dof = realisation_inflation(np.einsum("mei,eip->mp", d, j) @ bread, cov,
+                                                 float(max(n_lines - bread.shape[0], 1)))
             cov = cov * np.sqrt(np.outer(factors, factors))
         return cov, dof
     many = np.full(bread.shape[0], np.inf)

@@ -1,19 +1,32 @@
 """Physical-model updating against a measured FRF matrix, with uncertainties.
 
 Given a parametrised model theta -> StateSpace (continuous) or theta -> FRF,
-the parameters are fitted by weighted nonlinear least squares,
+the parameters are the maximum a posteriori (MAP) estimate of weighted
+nonlinear least squares with an optional normal prior per parameter,
 
-    V(theta) = sum_lines sum_entries |G(theta) - G_meas|^2 / var,
+    V(theta) = sum_lines sum_entries |G(theta) - G_meas|^2 / var
+               + sum_k (x_k - m_k)^2 / (2 s_k^2),
 
-on relative-scaled parameters x = theta / scale (scipy's trust-region
-least squares, bounds allowed). The covariance comes from the Jacobian at
-the optimum (central differences), cov = s^2 (J^T W J)^-1 with
-s^2 = 2 V / (N - p) / 2 estimated from the residual (or 1/2, the value for
-correct variances, with ``scale_covariance=False``); 95 % intervals use
-Student's t with N - p degrees of freedom. A rank-deficient Jacobian (a
-parameter combination that does not change the FRF, e.g. the current gain
-and the mass of a rigid rotor, which enter only as ki / m) is reported as a
-ValueError naming that combination.
+x_k = theta_k / scale_k, or ln theta_k for a prior stated in the logarithm
+(:class:`Prior`), solved by scipy's trust-region least squares (bounds
+allowed). The covariance is the linearised posterior's: with J the weighted
+data Jacobian (central differences at the optimum), P = diag(1 / s^2) the
+prior's precision and B = (J^T J + P / 2)^-1,
+
+    cov = B (M + P / 4) B,
+
+M the covariance of the data's score J^T r: s^2 J^T J with s^2 = V / (N - p)
+from the residual (``covariance="jacobian"``; 1/2, the value for correct
+variances, with ``scale_covariance=False``), or a sandwich (per line, or with
+the rows' known covariance). Without a prior this is the usual
+s^2 (J^T J)^-1; a direction the data cannot tell keeps the prior's width.
+95 % intervals use Student's t with the variance's degrees of freedom (normal
+where the variance is known, :func:`ambid.fit.correlated.realisation_inflation`
+where the realisations' scatter joins it); in ln theta for a log prior. Without
+a prior on every parameter, a rank-deficient Jacobian (a parameter combination
+that does not change the FRF, e.g. the current gain and the mass of a rigid
+rotor, which enter only as ki / m) is reported as :class:`NotIdentifiable`
+naming that combination.
 """
 
 from __future__ import annotations
@@ -25,10 +38,32 @@ import numpy as np
 from scipy import optimize, stats
 
 from ambid.fit.blas_threads import single_threaded_blas
-from ambid.fit.correlated import line_sandwich, realisation_inflation
+from ambid.fit.correlated import combined_dof, line_sandwich, realisation_inflation
 from ambid.statespace import StateSpace
 
-__all__ = ["NotIdentifiable", "UpdateResult", "update_parameters"]
+__all__ = ["NotIdentifiable", "Prior", "UpdateResult", "update_parameters"]
+
+
+@dataclass(frozen=True)
+class Prior:
+    """Independent normal priors of the parameters: the MAP term of :func:`update_parameters`.
+
+    Attributes:
+        mean: (p,) prior means [parameter units].
+        std: (p,) prior standard deviations [parameter units], of ln(theta)
+            where ``log``; inf: no prior on that parameter (flat).
+        log: (p,) bool: the prior is normal in ln(theta) (theta > 0); those
+            parameters are estimated in ln(theta), their intervals too.
+    """
+
+    mean: np.ndarray
+    std: np.ndarray
+    log: np.ndarray
+
+    @staticmethod
+    def flat(p: int) -> "Prior":
+        """No prior on any of p parameters."""
+        return Prior(np.zeros(p), np.full(p, np.inf), np.zeros(p, dtype=bool))
 
 
 @dataclass(frozen=True)
@@ -40,17 +75,21 @@ class UpdateResult:
         theta: (p,) estimates [parameter units].
         theta0: (p,) start values.
         std: (p,) standard deviations.
-        ci95: (p, 2) 95 % confidence intervals [low, high].
+        ci95: (p, 2) 95 % intervals [low, high] (in ln theta for a log prior, then exponentiated).
         covariance: (p, p) covariance of theta.
         correlation: (p, p) correlation matrix.
-        cost: V at the optimum (sum |G(theta) - G|^2 / var).
+        cost: the data part of V at the optimum (sum |G(theta) - G|^2 / var).
         n_residuals: N = 2 L Ny Nu real residuals.
         jacobian_singular_values: (p,) singular values of the weighted
-            Jacobian w.r.t. the relative-scaled parameters, descending.
+            Jacobian (with the prior's rows) w.r.t. the scaled parameters, descending.
         success: the optimiser reported convergence.
         message: the optimiser's stop reason.
         n_evaluations: model evaluations in the optimisation.
         inflation: the largest factor the realisations' scatter widened a standard deviation by (1: none).
+        prior_ratio: (p,) posterior over prior standard deviation (nan: no prior); near 1 the prior
+            dominates, near 0 the data.
+        dof: (p,) degrees of freedom of each variance (inf: the normal quantile).
+        log: (p,) bool: estimated and bounded in ln theta.
     """
 
     names: tuple[str, ...]
@@ -67,10 +106,13 @@ class UpdateResult:
     message: str
     n_evaluations: int
     inflation: float = 1.0
+    prior_ratio: np.ndarray | None = None
+    variance_dof: np.ndarray | None = None
+    log: np.ndarray | None = None
 
     @property
     def dof(self) -> int:
-        """Degrees of freedom N - p."""
+        """Degrees of freedom N - p of the residual."""
         return self.n_residuals - self.theta.size
 
     @property
@@ -80,10 +122,12 @@ class UpdateResult:
 
     def to_dict(self) -> dict:
         """JSON-safe summary: one entry per parameter plus the fit figures."""
+        ratio = self.prior_ratio if self.prior_ratio is not None else np.full(self.theta.size, np.nan)
         return dict(parameters=[dict(name=n, value=float(v), start=float(v0), std=float(s),
-                                     ci95=[float(lo), float(hi)])
-                                for n, v, v0, s, (lo, hi) in zip(self.names, self.theta, self.theta0,
-                                                                 self.std, self.ci95)],
+                                     ci95=[float(lo), float(hi)],
+                                     prior_ratio=None if not np.isfinite(r) else float(r))
+                                for n, v, v0, s, (lo, hi), r in zip(self.names, self.theta, self.theta0,
+                                                                    self.std, self.ci95, ratio)],
                     correlation=self.correlation.tolist(), cost=self.cost, chi2_per_dof=self.chi2_per_dof,
                     dof=self.dof, success=self.success, message=self.message)
 
@@ -132,8 +176,8 @@ def _check_rank(jac: np.ndarray, names: tuple[str, ...], rcond: float,
         raise NotIdentifiable(
             f"parameters not identifiable from these data ({where}): the Jacobian w.r.t. the relative-scaled "
             f"parameters has singular-value ratio {sv[-1] / max(sv[0], 1e-300):.1e} < rcond = {rcond:.0e}; "
-            f"changing ({combo}) (relative steps) leaves the FRF unchanged. Fix one of those parameters "
-            "at a known value, or add data that separates them", involved)
+            f"changing ({combo}) (relative steps) leaves the FRF unchanged. Give those parameters a "
+            "tolerance (a prior), fix one at a known value, or add data that separates them", involved)
     return sv, vt
 
 
@@ -141,10 +185,11 @@ def update_parameters(model: Callable[[np.ndarray], StateSpace | np.ndarray], th
                       freq_hz: np.ndarray, G: np.ndarray, var: np.ndarray | None = None, *,
                       names: Sequence[str] | None = None, scales: Sequence[float] | None = None,
                       bounds: tuple[Sequence[float], Sequence[float]] | None = None,
+                      prior: Prior | None = None,
                       rcond: float = 1e-6, scale_covariance: bool = True, covariance: str = "jacobian",
                       row_covariance: np.ndarray | None = None, realisations: np.ndarray | None = None,
-                      max_evaluations: int = 200) -> UpdateResult:
-    """Fit the parameters of a physical model to a measured FRF matrix.
+                      max_evaluations: int = 200, covariance_only: bool = False) -> UpdateResult:
+    """Fit the parameters of a physical model to a measured FRF matrix (MAP with ``prior``).
 
     Args:
         model: theta (p,) -> continuous :class:`StateSpace` with Ny outputs
@@ -155,15 +200,17 @@ def update_parameters(model: Callable[[np.ndarray], StateSpace | np.ndarray], th
         var: (L, Ny, Nu) noise variance of G, E|G - E G|^2; None weights
             everything equally (then keep ``scale_covariance``).
         names: (p,) parameter names (default theta0, theta1, ...).
-        scales: (p,) typical magnitudes, > 0 (default |theta0|, 1 where 0).
+        scales: (p,) typical magnitudes, > 0 (default |theta0|, 1 where 0);
+            not used for parameters with a log prior.
         bounds: (lower (p,), upper (p,)) in parameter units, or None.
+        prior: normal priors (:class:`Prior`), or None (flat: least squares).
         rcond: smallest singular-value ratio of the scaled Jacobian accepted
             as identifiable.
         scale_covariance: estimate s^2 from the residual (True) or trust
             ``var`` (False); for ``covariance="jacobian"``.
-        covariance: ``"jacobian"``: s^2 (J^T J)^-1, residuals independent
-            with the variances ``var`` (up to s^2); ``"sandwich"``:
-            (J^T J)^-1 (sum_l s_l s_l^T) (J^T J)^-1 N / (N - p), s_l = J_l^T r_l
+        covariance: ``"jacobian"``: s^2 J^T J as the data's score covariance,
+            residuals independent with the variances ``var`` (up to s^2);
+            ``"sandwich"``: sum_l s_l s_l^T N / (N - p), s_l = J_l^T r_l
             the score of line l: lines independent, but the entries of one
             line may be correlated (closed loop) and the model may miss part
             of the data; intervals then use Student's t with L - p degrees of
@@ -173,16 +220,17 @@ def update_parameters(model: Callable[[np.ndarray], StateSpace | np.ndarray], th
         row_covariance: (L, Ny, Nu, Nu) complex covariance of the entries of
             each row of G, for ``covariance="rows"``.
         realisations: (M, L, Ny, Nu) the FRFs of the M realisations whose
-            mean G is; their scatter widens the covariance where it exceeds
-            it (:func:`ambid.fit.correlated.realisation_inflation`).
+            mean G is; their scatter joins the data's covariance
+            (:func:`ambid.fit.correlated.realisation_inflation`).
         max_evaluations: most model evaluations in the optimisation.
+        covariance_only: keep theta0 (no optimisation); only its covariance.
 
     Returns:
         :class:`UpdateResult`.
 
     Raises:
-        ValueError: bad shapes, non-finite values, or parameters that the
-            data cannot identify (rank-deficient Jacobian at the optimum).
+        ValueError: bad shapes, non-finite values, or (:class:`NotIdentifiable`)
+            parameters without a prior that the data cannot identify.
     """
     th0 = np.asarray(theta0, dtype=float).ravel()
     p = th0.size
@@ -191,9 +239,17 @@ def update_parameters(model: Callable[[np.ndarray], StateSpace | np.ndarray], th
     nm = tuple(names) if names is not None else tuple(f"theta{k}" for k in range(p))
     if len(nm) != p:
         raise ValueError(f"names has {len(nm)} entries for {p} parameters")
+    pr = Prior.flat(p) if prior is None else prior
+    pm, ps, lg = (np.asarray(pr.mean, dtype=float).ravel(), np.asarray(pr.std, dtype=float).ravel(),
+                  np.asarray(pr.log, dtype=bool).ravel())
+    if not (pm.shape == ps.shape == lg.shape == (p,)) or np.any(~(ps > 0)) or not np.all(np.isfinite(pm)):
+        raise ValueError(f"prior must give {p} finite means and standard deviations > 0 (inf: none)")
+    if np.any(lg & ((th0 <= 0) | (pm <= 0))):
+        raise ValueError("a prior in the logarithm needs a positive mean and start value")
     sc = np.where(th0 != 0, np.abs(th0), 1.0) if scales is None else np.asarray(scales, dtype=float).ravel()
     if sc.shape != (p,) or not np.all(np.isfinite(sc)) or np.any(sc <= 0):
         raise ValueError(f"scales must be {p} finite values > 0")
+    sc = np.where(lg, 1.0, sc)
     f = np.asarray(freq_hz, dtype=float).ravel()
     g = np.asarray(G)
     if g.ndim != 3 or g.shape[0] != f.size:
@@ -210,7 +266,7 @@ def update_parameters(model: Callable[[np.ndarray], StateSpace | np.ndarray], th
     if bounds is None:
         lb, ub = np.full(p, -np.inf), np.full(p, np.inf)
     else:
-        lb, ub = (np.broadcast_to(np.asarray(b, dtype=float), (p,)) for b in bounds)
+        lb, ub = (np.broadcast_to(np.asarray(b, dtype=float), (p,)).copy() for b in bounds)
         if np.any(lb >= ub) or np.any(th0 < lb) or np.any(th0 > ub):
             raise ValueError("bounds must satisfy lower < upper with theta0 inside")
     if covariance not in ("jacobian", "sandwich", "rows"):
@@ -220,58 +276,91 @@ def update_parameters(model: Callable[[np.ndarray], StateSpace | np.ndarray], th
     if not (0 < rcond < 1):
         raise ValueError(f"rcond must be in (0, 1), got {rcond}")
 
-    def resid(x: np.ndarray) -> np.ndarray:
-        e = w * (_frf(model, x * sc, f, g.shape) - g)
+    # x: theta / scale, or ln theta for a log prior
+    def to_x(th: np.ndarray) -> np.ndarray:
+        return np.where(lg, np.log(np.where(lg, th, 1.0)), th / sc)
+
+    def to_theta(x: np.ndarray) -> np.ndarray:
+        return np.where(lg, np.exp(np.where(lg, x, 0.0)), x * sc)
+
+    with np.errstate(divide="ignore"):
+        xlb = np.where(lg, np.log(np.maximum(lb, 0.0)), lb / sc)
+    xub = np.where(lg, np.log(np.where(lg & (ub > 0), ub, 1.0)), ub / sc)
+    xub = np.where(lg & ~(ub > 0), np.inf, xub)
+    has_prior = np.isfinite(ps)
+    xm = np.where(lg, np.log(np.where(lg, pm, 1.0)), pm / sc)
+    xs = np.where(lg, ps, ps / sc)
+    # a normal prior's term in V: (x - m)^2 / (2 s^2), a real residual of variance 1/2 like the data's
+    jp = np.where(has_prior, 1.0 / (np.sqrt(2.0) * xs), 0.0)
+
+    def resid_data(x: np.ndarray) -> np.ndarray:
+        e = w * (_frf(model, to_theta(x), f, g.shape) - g)
         return np.concatenate([e.real.ravel(), e.imag.ravel()])
 
+    def resid(x: np.ndarray) -> np.ndarray:
+        return np.concatenate([resid_data(x), (jp * np.where(has_prior, x - xm, 0.0))[has_prior]])
+
+    x0 = to_x(th0)
+    prior_rows = np.diag(jp)[has_prior]
     with single_threaded_blas():
-        r0 = resid(th0 / sc)
+        r0 = resid_data(x0)
         if not np.all(np.isfinite(r0)):
             raise ValueError("model(theta0) gives a non-finite FRF")
-        # fail early (and cheaply) when the start already shows a parameter combination without effect
-        _check_rank(_central_jacobian(resid, th0 / sc), nm, rcond, "at theta0")
-        res = optimize.least_squares(resid, th0 / sc, bounds=(lb / sc, ub / sc), method="trf",
-                                     x_scale=1.0, max_nfev=max_evaluations, xtol=1e-12, ftol=1e-12,
-                                     gtol=1e-12)
-        x = res.x
-        r = resid(x)
-        jac = _central_jacobian(resid, x)
-    sv, vt = _check_rank(jac, nm, rcond, "at the optimum")
+        if covariance_only:
+            x, nfev, ok, msg = x0, 1, True, "covariance at the given values"
+        else:
+            if not has_prior.all():
+                # fail early (and cheaply) when the start already shows a parameter combination without effect
+                _check_rank(np.vstack([_central_jacobian(resid_data, x0), prior_rows]), nm, rcond, "at the start")
+            res = optimize.least_squares(resid, x0, bounds=(xlb, xub), method="trf", x_scale=1.0,
+                                         max_nfev=max_evaluations, xtol=1e-12, ftol=1e-12, gtol=1e-12)
+            x, nfev, ok, msg = res.x, int(res.nfev), bool(res.success), str(res.message)
+        r = resid_data(x)
+        jac = _central_jacobian(resid_data, x)
+    sv, vt = _check_rank(np.vstack([jac, prior_rows]), nm, rcond, "at the optimum")
     n_res = r.size
     dof = n_res - p
     cost = float(r @ r)
-    bread = (vt.T / sv**2) @ vt
+    bread = (vt.T / sv**2) @ vt                       # (J^T J + P / 2)^-1
     if covariance == "rows":
         half_n = n_res // 2
-        jr, ji = (x.reshape(g.shape + (p,)) for x in (jac[:half_n], jac[half_n:]))
-        cov_x = line_sandwich(jr, ji, (r[:half_n] + 1j * r[half_n:]).reshape(g.shape), w,
-                             np.asarray(row_covariance), bread, p)
-        t_dof = max(dof, 1)
+        jr, ji = (a.reshape(g.shape + (p,)) for a in (jac[:half_n], jac[half_n:]))
+        cov_data = line_sandwich(jr, ji, (r[:half_n] + 1j * r[half_n:]).reshape(g.shape), w,
+                                 np.asarray(row_covariance), bread, p)
+        data_dof = float(max(f.size - p, 1))
     elif covariance == "sandwich":
         n_lines = f.size
         contrib = jac * r[:, None]
         half_n = n_res // 2
         score = (contrib[:half_n] + contrib[half_n:]).reshape(n_lines, -1, p).sum(axis=1)   # (L, p)
-        cov_x = bread @ (score.T @ score) @ bread * n_res / max(dof, 1)
-        t_dof = max(n_lines - p, 1)
+        cov_data = bread @ (score.T @ score) @ bread * n_res / max(dof, 1)
+        data_dof = float(max(n_lines - p, 1))
     else:
-        cov_x = bread * (cost / max(dof, 1) if scale_covariance else 0.5)
-        t_dof = max(dof, 1)
-    inflation, t_dofs = 1.0, np.full(p, float(t_dof))
+        cov_data = bread @ (jac.T @ jac) @ bread * (cost / max(dof, 1) if scale_covariance else 0.5)
+        data_dof = float(max(dof, 1)) if scale_covariance else np.inf
+    inflation, dofs = 1.0, np.full(p, data_dof)
     if realisations is not None:
         gm = np.asarray(realisations)
         dev = w * (gm - gm.mean(axis=0))
         d = np.concatenate([dev.real.reshape(len(gm), -1), dev.imag.reshape(len(gm), -1)], axis=1)
-        factors, dofs = realisation_inflation(d @ jac @ bread, cov_x)
-        cov_x = cov_x * np.sqrt(np.outer(factors, factors))
-        t_dofs = np.minimum(t_dofs, dofs)
+        factors, dofs = realisation_inflation(d @ jac @ bread, cov_data, data_dof)
+        cov_data = cov_data * np.sqrt(np.outer(factors, factors))
         inflation = float(np.sqrt(factors.max()))
-    cov = cov_x * sc[:, None] * sc[None, :]
+    # the prior's part: its score (x* - m) / s^2 has covariance P, B (P / 4) B in the units of V
+    cov_prior = bread @ np.diag(jp**2 / 2) @ bread
+    cov_x = cov_data + cov_prior
+    # the prior's part is known exactly: the variance's degrees of freedom grow with its share
+    dofs = combined_dof(np.diag(cov_data), dofs, np.diag(cov_prior))
+    std_x = np.sqrt(np.diag(cov_x))
+    theta = to_theta(x)
+    jt = np.where(lg, theta, sc)                       # d theta / d x
+    cov = cov_x * jt[:, None] * jt[None, :]
     std = np.sqrt(np.diag(cov))
     corr = cov / np.outer(std, std)
-    theta = x * sc
-    half = stats.t.ppf(0.975, t_dofs) * std
-    return UpdateResult(names=nm, theta=theta, theta0=th0, std=std,
-                        ci95=np.column_stack([theta - half, theta + half]), covariance=cov, correlation=corr,
-                        cost=cost, n_residuals=n_res, jacobian_singular_values=sv, success=bool(res.success),
-                        message=str(res.message), n_evaluations=int(res.nfev), inflation=inflation)
+    half = stats.t.ppf(0.975, dofs) * std_x
+    ci = np.column_stack([to_theta(x - half), to_theta(x + half)])
+    ratio = np.where(has_prior, std_x / np.where(has_prior, xs, 1.0), np.nan)
+    return UpdateResult(names=nm, theta=theta, theta0=th0, std=std, ci95=ci, covariance=cov, correlation=corr,
+                        cost=cost, n_residuals=n_res, jacobian_singular_values=sv, success=ok,
+                        message=msg, n_evaluations=nfev, inflation=inflation, prior_ratio=ratio,
+                        variance_dof=dofs, log=lg)

@@ -35,12 +35,14 @@ import numpy as np
 from ambid.channels import split_name
 from ambid.excitation.design import ExcitationDesign
 from ambid.frf.arrays_io import load_arrays, stack_channels
+from ambid.frf.lpm import local_frf
+from ambid.frf.sensitivity import iso14839_zone, sensitivity_peak
 from ambid.frf.streaming import ESTIMATORS, FrfResult, FrfStream, axis_tag, match_inputs
-from ambid.session.blocks import SampleBlockReader
+from ambid.session.blocks import SampleBlockReader, read_samples
 from ambid.session.reader import Ros2Decoder, iter_messages, iter_raw
 
-__all__ = ["data_channels", "load_design", "frf_from_arrays", "frf_from_files", "frf_from_session",
-           "session_designs"]
+__all__ = ["data_channels", "load_design", "frf_from_arrays", "frf_from_files", "frf_from_session", "frf_of_record",
+           "local_frf_result", "session_designs"]
 
 _DESIGN_TOPIC = "excitation/design"
 _MEASUREMENT_TOPIC = "measurement"
@@ -335,6 +337,8 @@ def frf_from_session(path: str | os.PathLike, estimator: str = "indirect",
         topic = _measurement_topic(key[0])
         try:
             d = designs.design(entry)
+            if d.kind == "recorded":    # estimated from the whole record after the pass
+                return _Pending(key, entry, None, False)
             ys, us, rs = channels(topic, d)
             u_names, r_names = match_inputs(d.input_names, us, rs)
             stream = FrfStream(d, ys, u_names, r_names, start_index=entry["start_index"],
@@ -395,9 +399,63 @@ def frf_from_session(path: str | os.PathLike, estimator: str = "indirect",
     d = chosen["design"]
     ys, us, rs = channels(topic, d)
     u_names, r_names = match_inputs(d.input_names, us, rs)
+    if d.kind == "recorded":
+        return frf_of_record(path, topic, chosen["start_index"], d, ys, u_names, r_names, estimator, recover)
     stream = FrfStream(d, ys, u_names, r_names, start_index=chosen["start_index"],
                        total_samples=min(chosen["total_samples"], d.total_samples))
     return _run(stream, _session_blocks(path, topic, stream, recover), estimator)
+
+# ------------------------------------------------------------------ records that do not repeat
+
+def local_frf_result(y: np.ndarray, u: np.ndarray, r: np.ndarray, design: ExcitationDesign,
+                     output_names: Sequence[str], input_names: Sequence[str]) -> FrfResult:
+    """The FRF of a 'recorded' design's samples by the local polynomial method, as a :class:`FrfResult`.
+
+    Args:
+        y, u, r: (n, Ny), (n, Nu), (n, Nu) the experiment's samples [m, A, A],
+            n = design.n_per_period.
+        design: the 'recorded' design (its band and ``options['lpm']``).
+        output_names, input_names: labels.
+
+    Returns:
+        :class:`FrfResult` at the LPM's window centres (the design's lines):
+        var_noise from the local fits' residuals (first order, ``dof`` each),
+        no total variance (one record), coherence ``1 - noise / power`` of y.
+    """
+    opt = design.options.get("lpm") or {}
+    est = local_frf(y, u, r, fs_hz=design.fs_hz, band_hz=design.band_hz, degree=int(opt.get("degree", 2)),
+                    half_width=opt.get("half_width"), method=str(opt.get("method", "auto")),
+                    output_names=output_names, input_names=input_names)
+    ny = y.shape[1]
+    noise = np.real(np.diagonal(est.noise_cov[:, :ny, :ny], axis1=1, axis2=2))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        coherence = np.clip(1.0 - noise / est.power[:, :ny], 0.0, 1.0)
+    peak, idx = sensitivity_peak(est.sensitivity)
+    nan = np.full(est.frf.shape, np.nan)
+    return FrfResult(
+        estimator="indirect", freq_hz=est.freq_hz, lines=est.bins, frf=est.frf, var_noise=est.var, var_total=nan,
+        coherence=coherence, sensitivity=est.sensitivity, sensitivity_peak=peak,
+        sensitivity_peak_hz=est.freq_hz[idx], iso_zone=iso14839_zone(float(peak.max())), distortion=None,
+        noise_std=np.full(ny, np.nan), output_names=tuple(output_names), input_names=tuple(input_names),
+        n_realisations=1, n_periods=1, n_experiments=1, gaps=(), complete=True)
+
+
+def frf_of_record(path: str | os.PathLike, topic: str, start_index: int, design: ExcitationDesign,
+                  outputs: Sequence[str], inputs: Sequence[str], references: Sequence[str], estimator: str,
+                  recover: bool = False) -> FrfResult:
+    """:func:`local_frf_result` of a 'recorded' experiment in a session (the whole experiment in memory)."""
+    if estimator != "indirect":
+        raise ValueError(f"a recorded excitation that does not repeat is estimated through the excitation by the "
+                         f"local polynomial method; use the indirect estimator, not {estimator!r}")
+    names = list(outputs) + list(inputs) + list(references)
+    data = read_samples(path, topic, start_index, start_index + design.total_samples, names, recover=recover)
+    if not data.present.all():
+        missing = int(np.count_nonzero(~data.present))
+        raise ValueError(f"{os.fspath(path)}: {missing} samples of the recorded experiment are missing; the local "
+                         "polynomial method needs the record without gaps (import it again)")
+    ny, nu = len(outputs), len(inputs)
+    x = data.data
+    return local_frf_result(x[:, :ny], x[:, ny:ny + nu], x[:, ny + nu:], design, outputs, inputs)
 
 
 def _first_block_names(path: str | os.PathLike, topic: str, recover: bool) -> list[str] | None:

@@ -45,6 +45,7 @@ import numpy as np
 
 from ambid.excitation.design import ExcitationDesign
 from ambid.frf.directional import DirectionalFrf, directional_frf, has_planes
+from ambid.frf.lpm import SegmentTransients
 from ambid.frf.estimators import (arithmetic_mean, errors_in_variables, h1, h2, indirect, log_mean,
                                   multiple_coherence, per_period_frf)
 from ambid.frf.sensitivity import input_sensitivity, iso14839_zone, sensitivity_peak
@@ -408,6 +409,15 @@ class FrfStream:
         self._valid = [np.zeros((ne, int(pm)), bool) for pm in self._np]
         self._window = (None if self._periodic else
                         0.5 - 0.5 * np.cos(2 * np.pi * np.arange(d.n_per_period) / d.n_per_period))
+        # measured without settling periods: each segment's transient is removed by the local polynomial
+        # (or rational) method instead of waiting for it (ambid.frf.lpm)
+        self._transients = (SegmentTransients(d.n_per_period, d.n_periods, self._bins[0], ny + nu)
+                            if self._periodic and not self._stepped and d.n_transient_periods == 0
+                            and d.n_periods >= 2 else None)
+        # the output noise without settling periods: the period scatter of each segment's second half, where
+        # the transient has died away (P >= 4); with fewer periods, the local fits' residuals (a little high
+        # where a transient is too sharp for them)
+        self._noise_from = d.n_periods // 2 if self._transients is not None and d.n_periods >= 4 else None
         p_max = int(self._p.max())
         self._buf = np.zeros((p_max, self._n_ch))
         self._buf_key: tuple[int, int] | None = None  # (segment, period incl. transients)
@@ -591,7 +601,12 @@ class FrfStream:
         self._valid[m][e, p] = True
         self._periods_done += 1
         self._buf_key = None
-        if self._periodic:
+        if self._transients is not None and self._transients.add(s, p, x) and self._noise_from is None:
+            v = self._transients.results[s].noise_var_time[:self._ny]
+            self._noise_var_sum += v
+            self._noise_segments += 1
+            self._noise_seg_vars.append(v)
+        if self._periodic and (self._transients is None or (self._noise_from is not None and p >= self._noise_from)):
             if self._w_seg != s:
                 self._w_seg, self._w_count = s, 0
                 self._w_mean[:] = 0.0
@@ -648,10 +663,15 @@ class FrfStream:
                              f"{_NON_PERIODIC_ESTIMATORS}, not {estimator!r}")
         used = [m for m in range(self._real_done)
                 if self._real_end[m] <= self._end and self._valid[m].all(axis=0).any()]
+        if self._transients is not None:   # a segment with a gap has no transient-free spectrum
+            ne = self.design.n_experiments
+            used = [m for m in used if all(self._transients.complete(m * ne + e) for e in range(ne))]
         if not used:
             return None
         ny, nu = self._ny, self._nu
         groups = [self._records(m)[None] for m in used]          # each (1, Ne, K_m, L, ch)
+        if self._transients is not None:                          # one transient-free record per segment
+            groups = [self._transient_free(m)[None] for m in used]
         if self._stepped:   # one line per realisation: estimate line by line
             parts = [self._figures(estimator, [g], [m]) for g, m in zip(groups, used)]
             fig = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]
@@ -715,7 +735,9 @@ class FrfStream:
         var_noise = np.full(shape, np.nan)
         var_total = np.full(shape, np.nan)
         distortion = g_m = None
-        if self._periodic:
+        if self._transients is not None:
+            var_noise, var_total, distortion, g_m = self._transient_figures(groups, used, split, shape)
+        elif self._periodic:
             # G_m per realisation; the noise variance of one record's solution, s2_m = K_m var_n(G_m),
             # is pooled over the realisations (weights K_m - 1), so that a realisation a gap left
             # with one record still gets var_n(G_m) = s2 / K_m. Equal K_m: the robust method's.
@@ -744,6 +766,51 @@ class FrfStream:
         return {"frf": frf, "var_noise": var_noise, "var_total": var_total,
                 "coherence": multiple_coherence(y, r), "sensitivity": input_sensitivity(u, r),
                 "distortion": distortion, "frf_realisations": g_m}
+
+    def _transient_free(self, m: int) -> np.ndarray:
+        """(Ne, 1, L, ch) line spectra of realisation m's segments, transient removed."""
+        ne = self.design.n_experiments
+        return np.stack([self._transients.spectra(m * ne + e) for e in range(ne)])[:, None]
+
+    def _transient_figures(self, groups: list[np.ndarray], used: list[int], split, shape) -> tuple:
+        """var_noise, var_total, distortion levels and G_m from the transient-free spectra and the noise
+        covariance of the local fits: per realisation ``var G_ij = sum_e (a_i C_e a_i^H) |W_ej|^2``,
+        ``a_i = [e_i, -G_i]``, ``W = R^H (U R^H)^-1`` (first order, :mod:`ambid.frf.lpm`)."""
+        ny, nu, n_exc, n_odd, n_even = self._ny, self._nu, self._n_exc, self._n_odd, self._n_even
+        ne = self.design.n_experiments
+        g_m, v_m, odd, even = [], [], [], []
+        for g, m in zip(groups, used):
+            y, u, r = (np.moveaxis(a[0, :, 0], 0, -1) for a in split(g))      # (L, ch, Ne)
+            r_h = np.conj(np.swapaxes(r, -1, -2))
+            w = r_h @ np.linalg.inv(u @ r_h)                                   # (L, Ne, Nu)
+            gm = y @ w
+            cov = np.stack([self._transients.results[m * ne + e].noise_cov[:n_exc] for e in range(ne)], axis=1)
+            a = np.concatenate([np.broadcast_to(np.eye(ny), (n_exc, ny, ny)), -gm], axis=2)
+            out = np.real(np.einsum("lia,leab,lib->lie", a, cov, a.conj()))    # (L, Ny, Ne)
+            g_m.append(gm)
+            v_m.append(np.einsum("lie,lej->lij", out, np.abs(w) ** 2))
+            levels = []
+            for lo, hi in ((n_exc, n_exc + n_odd), (n_exc + n_odd, n_exc + n_odd + n_even)):
+                spec = g[0, :, 0, lo:hi, :ny]                                  # (Ne, Ld, Ny)
+                var = np.stack([np.real(np.diagonal(self._transients.results[m * ne + e].noise_cov[lo:hi, :ny, :ny],
+                                                    axis1=1, axis2=2)) for e in range(ne)])
+                levels.append((np.abs(spec) ** 2, var))
+            odd.append(levels[0])
+            even.append(levels[1])
+        g_m, n = np.array(g_m), len(used)
+        var_noise = np.mean(v_m, axis=0) / n
+        var_total = g_m.var(axis=0, ddof=1) / n if n >= 2 else np.full(shape, np.nan)
+
+        def level(parts):
+            power = np.mean([p for p, _ in parts], axis=(0, 1))
+            noise = np.mean([v for _, v in parts], axis=(0, 1))
+            return power, noise
+
+        distortion = None
+        if n_odd or n_even:
+            (op, on), (ep, en) = level(odd), level(even)
+            distortion = _mean_levels([DistortionLevels(op, on, ep, en, op[:0, 0], ep[:0, 0])])
+        return var_noise, var_total, distortion, g_m
 
 
 def _mean_levels(levels: list[DistortionLevels]) -> DistortionLevels:

@@ -30,6 +30,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ambid.channels import RADIAL, Layout
+from ambid.control.kinds import checked_design
+from ambid.plant.rig import make_rig
+from ambid.plant.sensors import noise_std
+from ambid.plant.true_rig import true_linear_model
 from ambid.statespace import StateSpace
 from ambid.text_file import read_text
 
@@ -73,11 +77,6 @@ def rig_target_model(rig=None, controller: str = "") -> TargetModel:
     Raises:
         ValueError: the controller cannot be designed or does not hold the rig.
     """
-    from ambid.control.kinds import checked_design
-    from ambid.plant.rig import make_rig
-    from ambid.plant.sensors import noise_std
-    from ambid.plant.true_rig import true_linear_model
-
     rig = rig if rig is not None else make_rig()
     design = checked_design(controller or None, rig)
     return TargetModel(true_linear_model(rig, discrete=True), design.model, float(rig.current_limit_a),

@@ -39,6 +39,7 @@ from ambid.plant.rigid_rotor import RigidRotor
 from ambid.plant.rotor_import import load_rotor
 from ambid.plant.rotor_model import RotorModel, fem_rotor_model, rigid_inverse_mass, with_axial
 from ambid.plant.sensors import Sensors
+from ambid.plant.tolerances import Tolerance, parse_tolerances
 from ambid.yaml_file import read_yaml
 
 
@@ -178,12 +179,15 @@ class Rig:
         controller: the controller the rig's owner runs, as the rig file names
             it (a kind, a file, or a mapping; :func:`ambid.control.kinds.design_controller`
             reads it), or None for the default.
+        tolerances: the rig file's ``tolerances:`` (:mod:`ambid.plant.tolerances`), name ->
+            tolerance; the parameters it does not name keep their default tolerance.
     """
 
     name: str
     values: dict[str, float]
     rotor_import: RotorModel | None = field(default=None, compare=False)
     controller: str | dict | None = field(default=None, compare=False)
+    tolerances: dict[str, Tolerance] = field(default_factory=dict, compare=False)
 
     def __getattr__(self, item: str) -> float:
         values = object.__getattribute__(self, "values")
@@ -448,6 +452,8 @@ class Rig:
             out["rotor_file"] = self.rotor_import.source[len("file:"):]
         if self.controller is not None:
             out["controller"] = self.controller
+        if self.tolerances:
+            out["tolerances"] = {k: t.to_text() for k, t in self.tolerances.items()}
         return out
 
 
@@ -522,7 +528,8 @@ def make_rig(overrides: dict[str, Any] | None = None, name: str = "ambid-default
     Args:
         overrides: parameter name -> value (any subset of RIG_FIELDS); may
             also hold ``name``, ``rotor_file`` (a user rotor model, see
-            :mod:`ambid.plant.rotor_import`) and ``controller`` (see :class:`Rig`).
+            :mod:`ambid.plant.rotor_import`), ``controller`` (see :class:`Rig`) and
+            ``tolerances`` (a mapping, :func:`ambid.plant.tolerances.parse_tolerances`).
         name: rig name unless ``overrides`` gives one.
         rotor_import: a user rotor model replacing the finite-element rotor.
 
@@ -535,10 +542,11 @@ def make_rig(overrides: dict[str, Any] | None = None, name: str = "ambid-default
     controller = overrides.pop("controller", None)
     if controller is not None and not isinstance(controller, (str, dict)):
         raise ValueError(f"rig: controller must name a kind or a file, or be a mapping, got {controller!r}")
+    tolerances = parse_tolerances(overrides.pop("tolerances", None))
     unknown = sorted(set(overrides) - set(RIG_FIELDS))
     if unknown:
         raise ValueError(f"rig: unknown parameter(s) {unknown}; known are: {', '.join(RIG_FIELDS)}, "
-                         "name, rotor_file, controller")
+                         "name, rotor_file, controller, tolerances")
     values = {key: _check_value(key, f, overrides.get(key, f.default)) for key, f in RIG_FIELDS.items()}
     if values["backup_clearance_m"] >= values["air_gap_m"]:
         raise ValueError("rig: backup_clearance_m must be smaller than air_gap_m, so the rotor lands on the "
@@ -556,7 +564,7 @@ def make_rig(overrides: dict[str, Any] | None = None, name: str = "ambid-default
     if rotor_import is not None and any(values[k] > 0 for k in _UNBALANCE_KEYS):
         raise ValueError("rig: an imported rotor model has no stack planes to carry an unbalance; set "
                          f"{', '.join(_UNBALANCE_KEYS)} to 0 (or use the finite-element rotor)")
-    return Rig(name, values, rotor_import, controller)
+    return Rig(name, values, rotor_import, controller, tolerances)
 
 
 def _beside(rig_path: Path, name: Any) -> Path:

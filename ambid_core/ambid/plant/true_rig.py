@@ -39,6 +39,7 @@ deviation [m]; b_c gravity and the affine magnets' constant force.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from math import factorial
 
 import numpy as np
 from scipy import linalg, signal
@@ -269,8 +270,6 @@ def pade_delay(n_channels: int, delay_s: float, order: int = 2) -> StateSpace:
         return StateSpace(np.zeros((0, 0)), np.zeros((0, n_channels)), np.zeros((n_channels, 0)),
                           np.eye(n_channels))
     # [order/order] Pade: coefficients of exp(-x) ~ N(x) / N(-x)
-    from math import factorial
-
     coef = [factorial(2 * order - k) * factorial(order) / (factorial(2 * order) * factorial(k)
                                                             * factorial(order - k)) for k in range(order + 1)]
     num = [c * (-delay_s) ** k for k, c in enumerate(coef)][::-1]

@@ -40,6 +40,7 @@ from ambid.session.facts import controller_facts, design_facts, design_fields
 from ambid.session.writer import QosProfile, SessionWriter
 from ambid.statespace import StateSpace
 
+from .arbitrary import RecordedExcitation
 from .mapping import RecordMap, load_map
 from .readers import CHUNK_ROWS, RecordError, open_record
 from .writers import atomic_path
@@ -63,6 +64,7 @@ class ImportResult:
         design: the experiment's design (given or reconstructed).
         start_row: record row (= sample index) of the experiment's first sample.
         reconstructed: True if the design was found from the excitation record.
+        estimator: which FRF estimator the session's design leads to, and why (one line).
         notes: what was found, a line each.
         bytes_read: size of the record file [bytes].
         seconds: wall time [s].
@@ -74,6 +76,7 @@ class ImportResult:
     design: ExcitationDesign
     start_row: int
     reconstructed: bool
+    estimator: str = ""
     notes: list[str] = field(default_factory=list)
     bytes_read: int = 0
     seconds: float = 0.0
@@ -218,6 +221,10 @@ def _import(rec, m, out, cols, idx, sel, scale, offset, ny, nu, spool, chunk_row
                                                 m.transient_periods, m.band_hz)
     first_on = None
     n_rows = 0
+    # beside the periodic design's search, the band and level of an excitation that turns out not to repeat
+    # itself: its FRF then comes from the local polynomial method over the whole record
+    anyway = None if m.design else RecordedExcitation(len(m.currents))
+    not_periodic = ""
     # ---- pass 1: check, find the design, spool
     for first, x in rec.chunks(cols, chunk_rows):
         bad = ~np.isfinite(x)
@@ -233,11 +240,13 @@ def _import(rec, m, out, cols, idx, sel, scale, offset, ny, nu, spool, chunk_row
         if first_on is None:
             on = np.flatnonzero(np.any(r != 0, axis=1))
             first_on = first + int(on[0]) if on.size else None
+        if anyway is not None and first_on is not None:
+            anyway.add(r[max(first_on - first, 0):])
         if finder is not None:
             try:
                 finder.add(r, v[:, :ny])
             except DesignNotFound as exc:
-                raise RecordError(f"{rec.path}: {exc}") from None
+                finder, not_periodic = None, _reason(exc)
         n_rows = first + len(x)
     if n_rows == 0:
         raise RecordError(f"{rec.path}: the header has no rows under it; give a record with samples")
@@ -246,13 +255,32 @@ def _import(rec, m, out, cols, idx, sel, scale, offset, ny, nu, spool, chunk_row
         raise RecordError(f"{rec.path}: the excitation columns ({', '.join(c.column for c in m.excitation)}) are "
                           "zero in every row; check the excitation: columns in MAP.yaml")
     notes: list[str] = []
+    found = None
     if finder is not None:
         finder.fs = fs
         try:
             found = finder.finish()
         except DesignNotFound as exc:
-            raise RecordError(f"{rec.path}: {exc}") from None
+            not_periodic = _reason(exc)
+    if found is not None:
         design, start, notes = found.design, found.start_row, found.notes
+        estimator = (f"estimator: period averaging through the excitation, S_yr S_ur^-1, as for a session ambid "
+                     f"recorded: the excitation repeats itself every {design.n_per_period} rows (a periodic "
+                     f"{design.options.get('mimo')} design, {design.n_transient_periods} settling period(s) per "
+                     "segment left out)")
+    elif anyway is not None:
+        design, start = anyway.design([f"u_{c.name[2:]}" for c in m.currents], fs, m.band_hz, rec.path,
+                                      not_periodic), first_on
+        h = design.options["lpm"]["half_width"]
+        estimator = (f"estimator: local polynomial method (rational where it pays) over the whole record, "
+                     f"through the excitation: {not_periodic}")
+        notes.append(f"excitation from row {start + 1} to {n_rows}: {n_rows - start} rows, band "
+                     f"{design.band_hz[0]:g}-{design.band_hz[1]:g} Hz, {design.excited_lines.size} lines "
+                     f"{fs * (2 * h + 1) / (n_rows - start):.3g} Hz apart (windows of {2 * h + 1} bins), "
+                     f"peak {', '.join(f'{p:.3g}' for p in design.peak_a)} A")
+        if m.transient_periods is not None:
+            notes.append("transient_periods: in MAP.yaml is not used: the local polynomial method removes the "
+                         "transient itself")
     else:
         design, start = _given_design(m, fs), first_on
         if start + design.total_samples > n_rows:
@@ -260,6 +288,8 @@ def _import(rec, m, out, cols, idx, sel, scale, offset, ny, nu, spool, chunk_row
                               f"but the record ends at row {n_rows}: shorter than the design; give the whole "
                               "record or the design that ran")
         notes.append(f"design from {m.design}: experiment from row {start + 1} (the excitation's first non-zero row)")
+        estimator = (f"estimator: the design's own ({design.kind}), as for a session ambid recorded: the design was "
+                     "given")
     controller = None
     if m.controller:
         try:
@@ -276,7 +306,7 @@ def _import(rec, m, out, cols, idx, sel, scale, offset, ny, nu, spool, chunk_row
     design_msg = _design_message(design, start, m.experiment_id)
     facts = {"excitation": {m.experiment_id: design_facts(SimpleNamespace(**design_msg))},
              "import": {"record": os.path.abspath(rec.path), "map": os.path.abspath(m.path), "rows": n_rows,
-                        "reconstructed": finder is not None, "notes": notes}}
+                        "reconstructed": not m.design, "estimator": estimator, "notes": notes}}
     with atomic_path(out) as tmp:
         with SessionWriter(tmp, overwrite=True) as w:
             w.add_topic(f"{ns}/excitation/design", "ambid_msgs/msg/ExcitationDesign", [_LATCHED])
@@ -292,7 +322,7 @@ def _import(rec, m, out, cols, idx, sel, scale, offset, ny, nu, spool, chunk_row
             w.write(f"{ns}/excitation/design", encode_message("ambid_msgs/msg/ExcitationDesign", design_msg),
                     int(round(start * dt * 1e9)))
             carry = np.zeros((0, len(names)))
-            check = None if finder is not None else _DesignCheck(design, start, m, rec.path)
+            check = _DesignCheck(design, start, m, rec.path) if m.design else None
             spool.seek(0)
             for first in range(0, n_rows, chunk_rows):
                 n = min(chunk_rows, n_rows - first)
@@ -308,8 +338,13 @@ def _import(rec, m, out, cols, idx, sel, scale, offset, ny, nu, spool, chunk_row
                 carry = x[k:]
             if len(carry):
                 _write_block(w, n_rows - len(carry), dt, names, units, carry, m.experiment_id)
-    return ImportResult(str(out), n_rows, fs, design, start, finder is not None, notes, os.path.getsize(rec.path),
-                        time.perf_counter() - t_start)
+    return ImportResult(str(out), n_rows, fs, design, start, not m.design, estimator, notes,
+                        os.path.getsize(rec.path), time.perf_counter() - t_start)
+
+
+def _reason(exc: DesignNotFound) -> str:
+    """Why the excitation is not a periodic design, without the fix (the LPM needs none)."""
+    return str(exc).split(";")[0]
 
 
 def _write_block(w: SessionWriter, first: int, dt: float, names, units, x: np.ndarray, exp: str) -> None:

@@ -27,6 +27,7 @@ from __future__ import annotations
 import itertools
 import os
 import struct
+import tempfile
 import zipfile
 import zlib
 from collections.abc import Iterator, Sequence
@@ -476,7 +477,7 @@ class _H5Source(_Source):
     """One MATLAB matrix (or vector) of a v7.3 file, read in whole HDF5 chunks: each is read and inflated once."""
 
     def __init__(self, path: str, var: str, names, n_rows: int) -> None:
-        import h5py
+        import h5py  # MAT v7.3 only: loaded when such a file is read
 
         # no HDF5 chunk cache (it kept what was read: RSS grew with the file); this source buffers one chunk
         self.f = h5py.File(path, "r", rdcc_nbytes=0)
@@ -510,7 +511,7 @@ def _h5_text(f, ds) -> str:
 
 
 def _open_mat73(path: str) -> Record:
-    import h5py
+    import h5py  # MAT v7.3 only
 
     try:
         f = h5py.File(path, "r")
@@ -620,7 +621,7 @@ def _open_mat5(path: str, head: bytes) -> Record:
     if len(head) < 128 or head[126:128] != b"IM" or not head.startswith(b"MATLAB"):
         raise RecordError(f"{path} is not a MATLAB .mat file (no MAT v5 or v7.3 header); give the file MATLAB "
                           "saved (save -v7 or -v7.3)")
-    from scipy.io import loadmat
+    from scipy.io import loadmat  # MAT v5 only
 
     numeric, texts, unusable = {}, {}, {}
     for off, n, compressed in _mat5_elements(path):
@@ -700,8 +701,6 @@ class _PRead:
 
 def _inflated_columns(path: str, off: int, nbytes: int, head: int, k: int, col_bytes: int) -> list[_PRead]:
     """Readers of the k columns of a compressed matrix, inflated once into an unnamed temporary file."""
-    import tempfile
-
     spool = tempfile.TemporaryFile()
     src = _Inflate(path, off, nbytes, head)
     try:

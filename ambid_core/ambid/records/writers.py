@@ -120,7 +120,7 @@ def write_record(path: str | os.PathLike, fmt: str, names: Sequence[str], n_rows
                     written += len(x)
                 f.truncate(size)
         elif fmt == "mat73":
-            import h5py
+            import h5py  # MAT v7.3 only: loaded when such a file is written
 
             step = min(max(n_rows, 1), 65536)
             # whole HDF5 chunks at a time and no chunk cache (it kept what was written: RSS grew with the file)

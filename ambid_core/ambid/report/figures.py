@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # matplotlib is optional (pip install ambid[report]): the drawing functions import it
     from matplotlib.figure import Figure
 
     from ambid.excitation.design import ExcitationDesign

@@ -147,12 +147,20 @@ def _true_mode_rows(s: Mapping[str, Any]) -> list[list[str]]:
 def _parameter_rows(s: Mapping[str, Any]) -> list[list[str]]:
     upd = s.get("update") or {}
     rows = []
+    def span(ci) -> str:
+        return "-" if ci is None else f"{_fmt(ci[0], '.5g')} .. {_fmt(ci[1], '.5g')}"
+
     for name, p in (upd.get("parameters") or {}).items():
-        ci = p.get("ci95")
-        half = None if ci is None else (ci[1] - ci[0]) / 2
-        rows.append([name, p["unit"], _fmt(p.get("nominal"), ".6g"), _fmt(p["start"], ".6g"),
-                     _fmt(p["value"], ".6g"), "fixed" if half is None else f"+- {_fmt(half, '.3g')}",
+        prior = p.get("prior")
+        rows.append([name, p["unit"], _fmt(p.get("nominal"), ".6g"), span(prior["ci95"]) if prior else "-",
+                     _fmt(p["value"], ".6g"), span(p.get("ci95")) if p.get("free") else "fixed",
+                     _fmt(p.get("prior_ratio"), ".2f") + (" (prior)" if p.get("prior_dominated") else ""),
                      _fmt(p.get("true"), ".6g"), _pct(p.get("error"))])
+    lag = upd.get("total_lag")
+    if lag:
+        rows.append(["total lag (amplifier + sensor + delay)", "s", "-", "-", _fmt(lag["value"], ".6g"),
+                     span(lag["ci95"]), "-", _fmt(lag.get("true"), ".6g"),
+                     _pct(None if lag.get("true") is None else lag["value"] / lag["true"] - 1)])
     return rows
 
 
@@ -195,8 +203,8 @@ def render_index(summary: Mapping[str, Any], figure_list: list[tuple[str, str]])
     upd = summary.get("update")
     if upd and "parameters" in upd:
         parts += ["<h2>Updated physical parameters</h2>",
-                  _table(["parameter", "unit", "nominal", "start", "updated", "95 % CI", "true", "error vs true"],
-                         _parameter_rows(summary)),
+                  _table(["parameter", "unit", "nominal", "tolerance (prior 95 %)", "updated", "95 % interval",
+                          "posterior / prior width", "true", "error vs true"], _parameter_rows(summary)),
                   f"<p>Updating chi2/dof {_fmt(upd.get('chi2_per_dof'), '.3g')}, "
                   f"{html.escape(str(upd.get('message')).rstrip('.'))}. "
                   + html.escape(str((summary.get("intervals") or {}).get("parameters", ""))) + "</p>"]
@@ -284,9 +292,10 @@ def write_report(report_dir: str | Path, summary: Mapping[str, Any], *, frf: Frf
         lambda p: figures.stabilisation(diagram, frf.freq_hz, frf.frf, order, p,
                                         mode_ci95=[m["freq_hz_ci95"] for m in summary["fit"]["modes"]
                                                    if m.get("freq_hz_ci95")]))
-    add("excitation.png", "Excitation design: line amplitudes of one period per input with its crest factor, "
-        "the unexcited detection lines, and the period in time.",
-        lambda p: figures.excitation(design, p))
+    if design.kind != "recorded":   # a recorded excitation has no design to draw: the time window shows it
+        add("excitation.png", "Excitation design: line amplitudes of one period per input with its crest factor, "
+            "the unexcited detection lines, and the period in time.",
+            lambda p: figures.excitation(design, p))
     add("input_sensitivity.png", "Input sensitivity |S_ii| (r -> u) per axis, measured; ISO 14839-3 zones A (< 3), "
         "B (< 4), C (< 5) and D shaded.",
         lambda p: figures.input_sensitivity(frf.freq_hz, frf.sensitivity, frf.input_names, p))

@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 from typing import Any, Callable, Mapping
 
-from .reader import iter_decoded, scan_session
+from .reader import IncompleteSessionError, iter_decoded, scan_session
 
 __all__ = ["SampleIndexExtractor", "inspect_session", "format_inspection"]
 
@@ -86,8 +86,6 @@ def inspect_session(
     """
     scan = scan_session(path)
     if not scan.complete and not recover:
-        from .reader import IncompleteSessionError
-
         raise IncompleteSessionError(
             f"{os.fspath(path)} is incomplete ({scan.problem}); inspect it with recover=True"
         )

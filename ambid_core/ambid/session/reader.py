@@ -24,12 +24,15 @@ import struct
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable, Iterator
 
+import lz4.frame
+import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
 from mcap.records import Attachment, Channel, Chunk, ChunkIndex, Footer, Header, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk
+from mcap_ros2.decoder import DecoderFactory
 
 __all__ = [
     "MCAP_MAGIC",
@@ -291,12 +294,8 @@ def _decompress(compression: str, data: bytes | memoryview, size: int, where: st
     if compression == "":
         return bytes(data)
     if compression == "zstd":
-        import zstandard
-
         return zstandard.decompress(data, size)
     if compression == "lz4":
-        import lz4.frame
-
         return lz4.frame.decompress(data)
     raise McapError(f"{where}: unsupported chunk compression {compression!r} (zstd, lz4 or none are read)")
 
@@ -471,8 +470,6 @@ class Ros2Decoder:
     """Decodes messages with mcap_ros2, one decoder per channel (built on first use)."""
 
     def __init__(self) -> None:
-        from mcap_ros2.decoder import DecoderFactory
-
         self._factory = DecoderFactory()
         self._decoders: dict[int, Any] = {}
 

@@ -41,7 +41,7 @@ from mcap.writer import LIBRARY_IDENTIFIER as MCAP_LIBRARY_IDENTIFIER
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 
-from .. import __version__ as AMBID_VERSION
+from ambid.version import __version__ as AMBID_VERSION
 from .ros2_schema import MessageSchema, load_message_schema, normalize_type_name
 
 __all__ = [
@@ -208,6 +208,7 @@ def parse_qos_profiles(text: str) -> list[QosProfile]:
 
 def available_compressions() -> tuple[str, ...]:
     """Chunk compressions usable here: subset of ``("zstd", "lz4")`` plus ``"none"``."""
+    # a probe: whether each library imports is the answer
     out = []
     try:
         import zstandard  # noqa: F401

@@ -12,6 +12,7 @@ coincident eigenvalues (the x and y planes at standstill) merged, so a standing 
 
 from __future__ import annotations
 
+import html
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -22,6 +23,7 @@ from ambid.frf.directional import whirl_of_residue
 from ambid.plant.analytical import analytical_model
 from ambid.plant.rig import Rig, make_rig
 from ambid.plant.true_rig import true_linear_model
+from ambid.report.rotor_figures import campbell_figure
 from ambid.statespace import StateSpace
 
 __all__ = ["model_modes", "predicted_branches", "critical_speeds", "first_bending", "campbell_summary"]
@@ -244,10 +246,6 @@ def campbell_figure_data(summary: Mapping[str, Any]) -> dict:
 
 def write_campbell_report(summary: Mapping[str, Any], report_dir: str | Path) -> Path:
     """DIR/report: campbell.png and an index.html with the first-bending table."""
-    import html
-
-    from ambid.report.rotor_figures import campbell_figure
-
     out = Path(report_dir)
     out.mkdir(parents=True, exist_ok=True)
     campbell_figure(**campbell_figure_data(summary), path=out / "campbell.png")

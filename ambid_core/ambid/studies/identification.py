@@ -11,11 +11,13 @@
    output;
 3. modes (frequency, damping) and real poles, the state-space export
    (``model.npz``, ``model.json``) and the FRF (``frf.npz``) in ``out_dir``;
-4. physical-model updating (:mod:`ambid.fit.model_update`) started from the
-   analytical (nominal) rig, with an extra support mode when the fit shows a
-   mode the analytical model lacks, where the rig model covers the FRF's
-   channels (a note says so where it does not: channels are data, a record
-   of one axis or one plane is fitted all the same);
+4. physical-model updating (:mod:`ambid.fit.model_update`): the MAP estimate
+   with the nominal rig's values and tolerances as priors, started from the
+   data (the fitted modes, the FRF's level and phase), with an extra support
+   mode when the fit shows a mode the nominal model lacks; the nominal and the
+   updated model's loop with the recorded controller are checked and said;
+   where the rig model covers the FRF's channels (a note says so where it does
+   not: channels are data, a record of one axis or one plane is fitted all the same);
 5. when the session is simulated (rig facts recorded, plant source 'sim'):
    the comparison against the true rig's sampled linear model
    (:func:`ambid.plant.true_rig.true_linear_model`) and its parameters;
@@ -47,6 +49,7 @@ import json
 import os
 import time
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -54,14 +57,16 @@ import numpy as np
 from scipy import stats
 
 from ambid.channels import Layout, bearing_of, split_name
-from ambid.control.closed_loop import loop_robustness
+from ambid.control.closed_loop import close_loop, loop_robustness
 from ambid.excitation.design import ExcitationDesign
 from ambid.fit import (FitResult, StabilisationDiagram, fit_common_denominator, modal_summary, save_model_json,
                        save_model_npz, stabilisation_diagram)
-from ambid.fit.model_update import (PhysicalUpdate, closed_loop_noise_std, covers, excitation_slopes,
-                                    nominal_parameters, physical_frf, true_parameters, unmodelled_mode,
-                                    update_physical_model)
-from ambid.fit.updating import NotIdentifiable
+from ambid.fit.model_update import (PhysicalUpdate, bending_keys, closed_loop_noise_std, covers, excitation_slopes,
+                                    match_modes, nominal_parameters, nominal_update_parameters, parameter_prior,
+                                    physical_discrete, physical_frf, physical_statespace, start_from_data, total_lag, true_parameters,
+                                    unmodelled_mode, update_physical_model)
+from ambid.fit.updating import NotIdentifiable, Prior
+from ambid.plant.tolerances import Z95
 from ambid.frf.directional import directional_frf, has_planes, whirl_of_residue
 from ambid.frf.levels import LineLevels, line_levels
 from ambid.frf.offline import frf_from_session, session_designs
@@ -69,7 +74,6 @@ from ambid.frf.sensitivity import iso14839_zone
 from ambid.frf.uncertainty import fit_weight_variance, row_covariance
 from ambid.frf.streaming import FrfResult, axis_tag
 from ambid.jsonable import to_jsonable
-from ambid.plant.analytical import analytical_model
 from ambid.plant.rig import Rig, load_rig, make_rig
 from ambid.plant.true_rig import true_linear_model, true_plant
 from ambid.report.html import write_report
@@ -80,7 +84,7 @@ from ambid.session.facts import controller_facts, controller_model, plant_facts
 from ambid.statespace import StateSpace
 
 __all__ = ["select_order", "frf_relative_error", "recorded_controller", "session_rig", "true_modes",
-           "compare_modes", "identify_session"]
+           "compare_modes", "FrfFit", "fit_frf", "update_rig", "identify_session"]
 
 _PLANT_TOPIC = "plant/description"
 _DESIGN_TOPIC = "excitation/design"
@@ -305,57 +309,74 @@ def _load_rig(rig: Rig | str | os.PathLike | Mapping | None, facts: dict | None)
     return make_rig(facts) if facts else None
 
 
-def _update(rig: Rig, frf: FrfResult, var, band, modes, dt_s, start_overrides, free, row_cov=None,
+def _update(rig: Rig, frf: FrfResult, var, band, modes, dt_s, nominal_overrides, free, row_cov=None,
             realisations=None) -> tuple[PhysicalUpdate | None, str | None, list[str]]:
-    """Model updating from the nominal rig; the support mode started at the fitted mode the rig lacks.
+    """Model updating: the MAP estimate from the nominal rig's priors, started from the data.
 
-    Returns (update or None, error or None, notes). With the default free parameters, one the data cannot
-    tell (a sensor bandwidth far above the band leaves the FRF unchanged) is fixed at its start value and
-    the update run again, with a note; parameters the caller chose are kept, and the error says why.
+    The nominal values (:func:`ambid.fit.model_update.nominal_update_parameters`, with
+    ``nominal_overrides``) and the rig's tolerances make the prior; the bending modes start at the
+    fitted modes, a support mode is added at the strongest fitted mode the nominal model lacks, the
+    gains and lags start from the FRF (:func:`ambid.fit.model_update.start_from_data`). Nothing is
+    fixed because the data cannot tell it: such a direction keeps its prior's width.
+
+    Returns (update or None, error or None, notes).
     """
-
-    not_covered = covers(rig.rotor_model(), frf.output_names, frf.input_names)
+    rotor = rig.rotor_model()
+    not_covered = covers(rotor, frf.output_names, frf.input_names)
     if not_covered:
         return None, None, [f"no physical model updating: {not_covered}"]
-    start = nominal_parameters(rig)
-    # resonance peak height of R / (s - p) is |R| / (zeta omega)
-    strength = [m.residue_singular_values[0] / (max(m.damping, 1e-6) * 2 * np.pi * m.freq_hz) for m in modes]
-    extra = unmodelled_mode([m.freq_hz for m in modes], [m.damping for m in modes], strength,
-                            analytical_model(rig), band)
-    if extra is not None:
-        start.update(support_freq_hz=extra[0], support_damping_ratio=extra[1],
-                     support_gain_per_kg=2.0 / rig.rotor_mass_kg)
-    # the sensors' own low-pass lags the phase like the amplifier and the delay do: left out of the
-    # structure, it biased the amplifier bandwidth by -5 % and the delay by +54 % with intervals 10x
-    # narrower; it starts at the sensor's data-sheet value and is updated with them (weakly identified:
-    # the three are strongly correlated, and their intervals say so)
-    start["sensor_bandwidth_hz"] = float(rig.values["sensor_bandwidth_hz"])
-    start.update({k: float(v) for k, v in (start_overrides or {}).items()})
+    nominal = nominal_update_parameters(rig)
+    nominal.update({k: float(v) for k, v in (nominal_overrides or {}).items()})
+    fitted = [(m.freq_hz, m.damping) for m in modes]
     chosen = free is not None
     if free is None:
-        free = [k for k in ("ki_n_per_a", "ks_n_per_m", "ks_b_over_a", "amplifier_bandwidth_hz", "sensor_bandwidth_hz",
-                            "bending_freq_hz", "bending_damping_ratio", "support_freq_hz", "support_damping_ratio",
-                            "support_gain_per_kg", "delay_s", "axial_ki_n_per_a", "axial_ks_n_per_m",
-                            "axial_amplifier_bandwidth_hz") if k in start]
-        # a bending mode outside the measured band cannot be identified from it
-        if "bending_freq_hz" in start and not band[0] <= start["bending_freq_hz"] <= band[1]:
-            free = [k for k in free if not k.startswith("bending_")]
-    notes: list[str] = []
+        free = [k for k in ("ki_n_per_a", "ks_n_per_m", "ks_b_over_a", "amplifier_bandwidth_hz",
+                            "sensor_bandwidth_hz", "delay_s", "axial_ki_n_per_a", "axial_ks_n_per_m",
+                            "axial_amplifier_bandwidth_hz") if k in nominal]
+        # the bending modes within the measured band (one outside it cannot be identified from it)
+        for mode in range(1, 9):
+            fk, zk = bending_keys(mode)
+            if fk in nominal and band[0] <= nominal[fk] <= band[1]:
+                free += [fk, zk]
     free = list(free)
-    while True:
-        try:
-            return update_physical_model(rig.rotor_model(), frf.freq_hz, frf.frf, var, start, free, dt_s,
-                                         row_covariance=row_cov, realisations=realisations), None, notes
-        except NotIdentifiable as exc:
-            if chosen or len(free) <= 1 or exc.parameters[0] not in free:
-                return None, str(exc), notes
-            fixed = exc.parameters[0]
-            free.remove(fixed)
-            others = f" together with {', '.join(exc.parameters[1:])}" if len(exc.parameters) > 1 else ""
-            notes.append(f"{fixed} fixed at its start value {start[fixed]:.6g}: these data cannot tell it "
-                         f"(changing it{others} leaves the FRF unchanged)")
-        except ValueError as exc:
-            return None, str(exc), notes
+    known = [k for k in free if k in nominal]
+    bending, used, notes = match_modes(rotor, nominal, known, parameter_prior(rig, known, nominal)[0], fitted)
+    # a support mode where the fit shows a mode that neither the nominal model nor its bending modes explain
+    rest = [m for k, m in enumerate(modes) if k not in used]
+    # resonance peak height of R / (s - p) is |R| / (zeta omega)
+    strength = [m.residue_singular_values[0] / (max(m.damping, 1e-6) * 2 * np.pi * m.freq_hz) for m in rest]
+    extra = unmodelled_mode([m.freq_hz for m in rest], [m.damping for m in rest], strength,
+                            physical_statespace(rotor, {**nominal, **bending}), band)
+    if extra is not None and not all(k in nominal for k in _SUPPORT_KEYS):
+        # no data sheet: its nominal is the fitted mode; its prior only keeps the problem well posed
+        nominal.update(support_freq_hz=extra[0], support_damping_ratio=extra[1],
+                       support_gain_per_kg=2.0 / rig.rotor_mass_kg)
+    if not chosen and all(k in nominal for k in _SUPPORT_KEYS):
+        free += [k for k in _SUPPORT_KEYS if k not in free]
+    prior, fixed = parameter_prior(rig, free, nominal)
+    if fixed:
+        keep = [k for k, name in enumerate(free) if name not in fixed]
+        free = [free[k] for k in keep]
+        prior = Prior(prior.mean[keep], prior.std[keep], prior.log[keep])
+        notes.append(f"{', '.join(fixed)} kept at the nominal value (tolerance 'fixed' in the rig file)")
+    if not free:
+        return None, "every parameter is fixed; nothing to update", notes
+    # the prior's centre where a range replaced the nominal value (the delay's 0..1 sample)
+    centre = dict(nominal)
+    centre.update({name: float(prior.mean[k]) for k, name in enumerate(free) if np.isfinite(prior.std[k])})
+    centre.update(bending)
+    try:
+        start = start_from_data(rotor, frf.freq_hz, frf.frf, var, centre, free, prior, dt_s)
+        return update_physical_model(rotor, frf.freq_hz, frf.frf, var, start, free, dt_s, prior=prior,
+                                     row_covariance=row_cov, realisations=realisations), None, notes
+    except NotIdentifiable as exc:
+        return None, (f"{exc}; the parameters {', '.join(exc.parameters)} have no tolerance here: give them one "
+                      "under tolerances: in the rig file"), notes
+    except ValueError as exc:
+        return None, str(exc), notes
+
+
+_SUPPORT_KEYS = ("support_freq_hz", "support_damping_ratio", "support_gain_per_kg")
 
 
 def refit_parameters(summary: Mapping[str, Any], rig: Rig, freq_hz: np.ndarray, G: np.ndarray,
@@ -363,7 +384,7 @@ def refit_parameters(summary: Mapping[str, Any], rig: Rig, freq_hz: np.ndarray, 
     """The updated parameters of ``summary`` fitted again to another FRF at the same lines.
 
     E.g. a noise-free twin of the session (:mod:`ambid_cli.commands.validate`): started at the summary's
-    estimates, the same parameters free, the same weights ``var``.
+    estimates, the same parameters free, the same priors and weights ``var``.
 
     Args:
         summary: :func:`identify_session`'s summary, with ``update.parameters``.
@@ -380,15 +401,152 @@ def refit_parameters(summary: Mapping[str, Any], rig: Rig, freq_hz: np.ndarray, 
     free = [k for k, v in params.items() if v.get("free")]
     if not free:
         return {}
-    upd = update_physical_model(rig.rotor_model(), freq_hz, G, var, start, free, rig.dt)
+    mean, sd, log = [], [], []
+    for k in free:
+        pr = params[k].get("prior")
+        if pr is None:
+            mean.append(start[k])
+            sd.append(np.inf)
+            log.append(False)
+            continue
+        hi = float(pr["ci95"][1])
+        mean.append(float(pr["mean"]))
+        sd.append(np.log(hi / pr["mean"]) / Z95 if pr["log"] else (hi - pr["mean"]) / Z95)
+        log.append(bool(pr["log"]))
+    prior = Prior(np.array(mean), np.array(sd), np.array(log, dtype=bool))
+    upd = update_physical_model(rig.rotor_model(), freq_hz, G, var, start, free, rig.dt, prior=prior)
     return {k: float(upd.parameters[k]) for k in free}
+
+
+@dataclass(frozen=True)
+class FrfFit:
+    """The common-denominator model of an FRF as identify fits it, and what the fit was weighted by.
+
+    Attributes:
+        fit: the fit at the chosen order (:class:`ambid.fit.FitResult`).
+        order, order_rule: the order and how it was chosen.
+        diagram: the stabilisation diagram the order was chosen on.
+        band_hz: (low, high) of the FRF's lines [Hz].
+        delay_s: the known delay fitted with the model: half a sample (the zero-order hold) [s].
+        modes: the in-band complex pole pairs (:class:`ambid.fit.Mode`), by frequency.
+        mode_rows: per mode, what identify prints and records: freq_hz, damping, stable (found again
+            within 1 % at the next lower order), their 95 % intervals (freq_hz_ci95, damping_ci95, ...),
+            and, where the channels hold a radial bearing's x and y, whirl and forward_share.
+        real_rows: the real poles: pole_hz (signed, > 0 unstable), unstable.
+        var, var_kind: the line variance the intervals are read from, and what it is (None: no variance).
+        band_var: the variance of the printed +-2 sigma band.
+        weights, weights_kind: the variance the fit is weighted by, and what it is.
+        row_cov: the covariance of a row's entries (the indirect estimator), or None.
+        realisations: (M, L, Ny, Nu) the realisations' FRFs whose scatter joins the intervals, or None.
+    """
+
+    fit: FitResult
+    order: int
+    order_rule: str
+    diagram: StabilisationDiagram
+    band_hz: tuple[float, float]
+    delay_s: float
+    modes: list
+    mode_rows: list[dict]
+    real_rows: list[dict]
+    var: np.ndarray | None
+    var_kind: str
+    band_var: np.ndarray
+    weights: np.ndarray | None
+    weights_kind: str
+    row_cov: np.ndarray | None
+    realisations: np.ndarray | None
+
+
+def fit_frf(frf: FrfResult, sample_rate_hz: float, order: int | None = None, *, max_order: int = 32,
+            order_penalty: float = 2.0) -> FrfFit:
+    """The common-denominator fit of an FRF, as :func:`identify_session` makes it (steps 2-3 of the module
+    docstring): order selection on the stabilisation diagram unless ``order`` is given, a known delay of
+    half a sample, the weights and interval covariance of the FRF's variance.
+
+    Args:
+        frf: the estimate (:func:`ambid.frf.offline.frf_from_session`).
+        sample_rate_hz: the measurement's sample rate [Hz].
+        order: model order; None selects it (:func:`select_order`).
+        max_order: highest order in the stabilisation diagram.
+        order_penalty: criterion weight per parameter of the order rule (2: Akaike).
+
+    Raises:
+        ValueError: too few lines for a parametric fit.
+    """
+    f = frf.freq_hz
+    band = (float(f.min()), float(f.max()))
+    var, var_kind = _fit_variance(frf)
+    # the printed +-2 sigma band: the same variance, pooled over the inputs of an output (one output's
+    # noise and distortion reach every input's column alike): 2 (M - 1) Nu degrees of freedom instead of
+    # 2 (M - 1), so that with M = 3 the band covers 96 % of the lines, not 89 %
+    band_var = frf.var_total if var is None else var
+    # the indirect estimator's errors are correlated along a row (U^-1 mixes the experiments); the
+    # intervals of the modes and parameters take that in (a sandwich with this covariance)
+    row_cov = (row_covariance(var, frf.sensitivity) if var is not None and frf.estimator == "indirect"
+               and np.all(np.isfinite(frf.sensitivity)) else None)
+    # and the realisations' own scatter, where it is wider (distortion coherent over the lines)
+    realisations = (frf.frf_realisations if row_cov is not None and frf.frf_realisations is not None
+                    and len(frf.frf_realisations) >= 2 else None)
+    # the fits weight by a variance that does not follow the realisations' scatter their intervals are read from
+    w_var, w_kind = _weight_variance(frf, var, var_kind)
+
+    # --- parametric fit ---------------------------------------------------------------
+    fit_delay = (1.0 / sample_rate_hz) / 2  # the zero-order hold: half a sample
+    labels = dict(input_names=frf.input_names, output_names=frf.output_names,
+                  input_units=("A",) * len(frf.input_names), output_units=("m",) * len(frf.output_names))
+    top = min(max_order, f.size - 1)
+    orders = list(range(2, top + 1, 2))
+    if not orders:
+        raise ValueError(f"{f.size} lines are too few for a parametric fit; excite more lines")
+    diagram = stabilisation_diagram(f, frf.frf, w_var, orders=orders, delay_s=fit_delay)
+    rule = (f"smallest chi2 + {order_penalty:g} p among orders with stable, positively damped in-band modes")
+    if order is None:
+        order = select_order(diagram, band, f.size, frf.frf.shape[1] * frf.frf.shape[2], w_var is not None,
+                             order_penalty)
+    else:
+        rule = "given"
+    fit: FitResult = fit_common_denominator(f, frf.frf, w_var, order=int(order), delay_s=fit_delay,
+                                            row_covariance=row_cov, realisations=realisations, **labels)
+    summary_modes = modal_summary(fit.model)
+    prev = diagram.orders[diagram.orders < order]
+    prev_poles = diagram.poles_of(int(prev[-1])) if prev.size else np.zeros(0, complex)
+    modes = [m for m in summary_modes.modes if band[0] <= m.freq_hz <= band[1]]
+    mode_rows = [dict(freq_hz=m.freq_hz, damping=m.damping,
+                      stable=bool(prev_poles.size and np.min(np.abs(np.abs(prev_poles) / (2 * np.pi) - m.freq_hz))
+                                  <= 0.01 * m.freq_hz), **_mode_interval(fit, m.freq_hz, m.damping))
+                 for m in modes]
+    real_rows = [dict(pole_hz=r.pole_rad_s / (2 * np.pi), unstable=r.unstable) for r in summary_modes.real_poles]
+    # the radial bearing planes among the channels (x and y of a bearing): forward and backward whirl told apart
+    if has_planes(frf.output_names, frf.input_names):
+        for m, row in zip(modes, mode_rows):
+            k = int(np.argmin(np.abs(fit.model.poles - m.pole_rad_s)))
+            row["whirl"], row["forward_share"] = whirl_of_residue(fit.model.residues[k], frf.output_names,
+                                                                  frf.input_names)
+    return FrfFit(fit, int(order), rule, diagram, band, fit_delay, modes, mode_rows, real_rows, var, var_kind,
+                  band_var, w_var, w_kind, row_cov, realisations)
+
+
+def update_rig(rig: Rig, frf: FrfResult, fitted: FrfFit, dt_s: float, nominal: Mapping[str, float] | None = None,
+               free: Sequence[str] | None = None) -> tuple[PhysicalUpdate | None, str | None, list[str]]:
+    """The physical-model update of ``rig`` to an FRF (step 4 of the module docstring), weighted as the fit
+    ``fitted`` was: the MAP estimate with ``rig``'s values (``nominal`` replacing some) and tolerances as
+    priors, started from the data and ``fitted``'s stable modes, a support mode at a stable fitted mode the
+    rig lacks.
+
+    Returns:
+        (the update or None, why not or None, notes).
+    """
+    stable = [m for m, row in zip(fitted.modes, fitted.mode_rows) if row["stable"]]
+    return _update(rig, frf, fitted.weights, fitted.band_hz, stable, dt_s, nominal, free, fitted.row_cov,
+                   fitted.realisations)
 
 
 def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, estimator: str = "indirect",
                      order: int | None = None, *, experiment_id: str | None = None,
                      rig: Rig | str | os.PathLike | Mapping | None = None, max_order: int = 32,
                      order_penalty: float = 2.0, update: bool = True,
-                     update_start: Mapping[str, float] | None = None,
+                     nominal: Mapping[str, float] | None = None,
                      update_free: Sequence[str] | None = None, report: bool = True,
                      recover: bool = False, true_model: StateSpace | None = None) -> dict:
     """Identify the rig from one experiment of a recorded session (module docstring).
@@ -407,11 +565,12 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         order_penalty: criterion weight per parameter of the order rule
             (2: Akaike; larger values choose lower orders).
         update: run the physical-model updating.
-        update_start: start values replacing the nominal ones (parameter
-            name -> value, :data:`ambid.fit.model_update.PARAMETERS`).
-        update_free: parameters to update; default ki, ks, amplifier
-            bandwidth, bending mode (when in the band), support mode (when the
-            fit shows one), delay.
+        nominal: nominal values replacing the rig's (parameter name ->
+            value, :data:`ambid.fit.model_update.PARAMETERS`): the centres of
+            the priors. The update starts from the data, not from these.
+        update_free: parameters to update; default ki, ks, ks_b_over_a, the
+            amplifier and sensor bandwidths, the delay, the bending modes in
+            the band and a support mode (when the fit shows one).
         report: write the HTML report.
         recover: read a session file a killed recorder left.
         true_model: the plant the session measured, u [A] -> y [m], when it is
@@ -457,58 +616,14 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     design: ExcitationDesign = chosen["design"]
     dt_s = 1.0 / design.fs_hz
     f = frf.freq_hz
-    band = (float(f.min()), float(f.max()))
-    var, var_kind = _fit_variance(frf)
-    # the printed +-2 sigma band: the same variance, pooled over the inputs of an output (one output's
-    # noise and distortion reach every input's column alike): 2 (M - 1) Nu degrees of freedom instead of
-    # 2 (M - 1), so that with M = 3 the band covers 96 % of the lines, not 89 %
-    band_var = frf.var_total if var is None else var
-    # the indirect estimator's errors are correlated along a row (U^-1 mixes the experiments); the
-    # intervals of the modes and parameters take that in (a sandwich with this covariance)
-    row_cov = (row_covariance(var, frf.sensitivity) if var is not None and frf.estimator == "indirect"
-               and np.all(np.isfinite(frf.sensitivity)) else None)
-    # and the realisations' own scatter, where it is wider (distortion coherent over the lines)
-    realisations = (frf.frf_realisations if row_cov is not None and frf.frf_realisations is not None
-                    and len(frf.frf_realisations) >= 2 else None)
-    # the fits weight by a variance that does not follow the realisations' scatter their intervals are read from
-    w_var, w_kind = _weight_variance(frf, var, var_kind)
     if frf.gaps:
         notes.append(f"{len(frf.gaps)} gap(s) in the measurement; the periods they touch were left out")
-
-    # --- parametric fit ---------------------------------------------------------------
-    fit_delay = dt_s / 2
-    labels = dict(input_names=frf.input_names, output_names=frf.output_names,
-                  input_units=("A",) * len(frf.input_names), output_units=("m",) * len(frf.output_names))
-    top = min(max_order, f.size - 1)
-    orders = list(range(2, top + 1, 2))
-    if not orders:
-        raise ValueError(f"{f.size} lines are too few for a parametric fit; excite more lines")
-    diagram = stabilisation_diagram(f, frf.frf, w_var, orders=orders, delay_s=fit_delay)
-    rule = (f"smallest chi2 + {order_penalty:g} p among orders with stable, positively damped in-band modes")
-    if order is None:
-        order = select_order(diagram, band, f.size, frf.frf.shape[1] * frf.frf.shape[2], w_var is not None,
-                             order_penalty)
-    else:
-        rule = "given"
-    fit: FitResult = fit_common_denominator(f, frf.frf, w_var, order=int(order), delay_s=fit_delay,
-                                            row_covariance=row_cov, realisations=realisations, **labels)
-    summary_modes = modal_summary(fit.model)
-    prev = diagram.orders[diagram.orders < order]
-    prev_poles = diagram.poles_of(int(prev[-1])) if prev.size else np.zeros(0, complex)
-    modes = [m for m in summary_modes.modes if band[0] <= m.freq_hz <= band[1]]
-    mode_rows = [dict(freq_hz=m.freq_hz, damping=m.damping,
-                      stable=bool(prev_poles.size and np.min(np.abs(np.abs(prev_poles) / (2 * np.pi) - m.freq_hz))
-                                  <= 0.01 * m.freq_hz), **_mode_interval(fit, m.freq_hz, m.damping))
-                 for m in modes]
-    real_rows = [dict(pole_hz=r.pole_rad_s / (2 * np.pi), unstable=r.unstable) for r in summary_modes.real_poles]
+    mf = fit_frf(frf, design.fs_hz, order, max_order=max_order, order_penalty=order_penalty)
+    var, var_kind, band_var, w_var, w_kind = mf.var, mf.var_kind, mf.band_var, mf.weights, mf.weights_kind
+    order, fit, modes, mode_rows, band, diagram = mf.order, mf.fit, mf.modes, mf.mode_rows, mf.band_hz, mf.diagram
     # the radial bearing planes among the channels (x and y of a bearing): forward and backward whirl told apart
-    rotor_axes = has_planes(frf.output_names, frf.input_names)
-    dfrf = directional_frf(f, frf.frf, var, frf.output_names, frf.input_names) if rotor_axes else None
-    if rotor_axes:
-        for m, row in zip(modes, mode_rows):
-            k = int(np.argmin(np.abs(fit.model.poles - m.pole_rad_s)))
-            row["whirl"], row["forward_share"] = whirl_of_residue(fit.model.residues[k], frf.output_names,
-                                                                  frf.input_names)
+    dfrf = (directional_frf(f, frf.frf, var, frf.output_names, frf.input_names)
+            if has_planes(frf.output_names, frf.input_names) else None)
     save_model_npz(out / "model.npz", fit.model)
     save_model_json(out / "model.json", fit.model)
 
@@ -518,12 +633,11 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     the_rig = _load_rig(rig, facts)
     simulated = facts is not None and source == "sim"
     true_g = true_params = true_g_x = true_noise = None
+    true_rig = make_rig(facts) if simulated else None
     modes_vs_true: list[dict] = []
     if the_rig is None:
         notes.append("no rig in the session and none given: no nominal model, no updating")
     if simulated and the_rig is not None:
-
-        true_rig = make_rig(facts)
         true_g = _on_channels(true_linear_model(true_rig, discrete=True), f, frf)
         true_params = true_parameters(true_rig)
         recorded = recorded_controller(path, recover)
@@ -560,9 +674,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     upd: PhysicalUpdate | None = None
     update_error = None
     if update and the_rig is not None:
-        stable = [m for m, row in zip(modes, mode_rows) if row["stable"]]
-        upd, update_error, update_notes = _update(the_rig, frf, w_var, band, stable, dt_s, update_start,
-                                                  update_free, row_cov, realisations)
+        upd, update_error, update_notes = update_rig(the_rig, frf, mf, dt_s, nominal, update_free)
         notes.extend(update_notes)
         if update_error:
             notes.append(f"model updating failed: {update_error}")
@@ -597,11 +709,14 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
                  distortion_odd_db=None if dist is None else dist.odd_db,
                  distortion_even_db=None if dist is None else dist.even_db, fit_weights=w_kind)
     update_dict = None
+    recorded = recorded_controller(path, recover)
+    if the_rig is not None and recorded is not None and update:
+        notes.extend(_loop_notes(the_rig, nominal, upd, recorded[0], dt_s))
     if upd is not None:
         update_dict = upd.to_dict()
-        nominal = nominal_parameters(the_rig)
+        nominal_values = {**nominal_update_parameters(the_rig), **{k: float(v) for k, v in (nominal or {}).items()}}
         for name, row in update_dict["parameters"].items():
-            row["nominal"] = nominal.get(name)
+            row["nominal"] = (row.get("prior") or {}).get("mean", nominal_values.get(name))
             row["true"] = None if true_params is None else true_params.get(name)
             short = name.split("_n_per")[0]
             if true_params is not None and f"{short}_at_excitation" in true_params:
@@ -613,6 +728,15 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         if true_params is not None:
             update_dict["true_centre"] = dict(ki_n_per_a=true_params["ki_centre_n_per_a"],
                                               ks_n_per_m=true_params["ks_centre_n_per_m"])
+        lag = update_dict.get("total_lag")
+        if lag is not None and true_params is not None:
+            lag["true"] = total_lag({k: true_params[k] for k in ("amplifier_bandwidth_hz", "sensor_bandwidth_hz",
+                                                                  "delay_s") if k in true_params})
+        if update_dict["prior_dominated"]:
+            notes.append(f"the data tell little about {', '.join(update_dict['prior_dominated'])}: their intervals "
+                         "are mostly their tolerances (posterior / prior width above 0.71); "
+                         + ("the total lag, which the data do tell, is in update.total_lag"
+                            if lag is not None else "see update.parameters"))
     elif update_error:
         update_dict = dict(error=update_error)
     worst = int(np.argmax(frf.sensitivity_peak))
@@ -627,11 +751,11 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
                         measurement_time_s=design.measurement_time_s,
                         synchronous=design.options.get("synchronous")),
         band_hz=list(band), inputs=list(frf.input_names), outputs=list(frf.output_names),
-        controller=(recorded_controller(path, recover) or (None, None))[1],
+        controller=(recorded or (None, None))[1],
         simulated=simulated, frf_error=frf_error, noise=noise,
-        fit=dict(order=int(order), order_rule=rule, chi2_per_dof=fit.chi2_per_dof, delay_s=fit_delay,
+        fit=dict(order=int(order), order_rule=mf.order_rule, chi2_per_dof=fit.chi2_per_dof, delay_s=mf.delay_s,
                  weights=w_kind, orders_tried=diagram.orders, chi2_per_dof_by_order=diagram.chi2_per_dof,
-                 modes=mode_rows, real_poles=real_rows, refine_message=fit.message),
+                 modes=mode_rows, real_poles=mf.real_rows, refine_message=fit.message),
         intervals=dict(
             noise_only=[] if var is not None and var_kind.startswith("var_total") else
             ["frf band", "parameters", "modes"],
@@ -663,8 +787,8 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         sensitivity=dict(peak=frf.sensitivity_peak, peak_hz=frf.sensitivity_peak_hz,
                          worst_input=frf.input_names[worst], worst_peak=float(frf.sensitivity_peak[worst]),
                          iso_zone=frf.iso_zone,
-                         **_model_sensitivity(path, fit.model, band, design.fs_hz, the_rig if simulated else None,
-                                              recover)),
+                         **_model_sensitivity(fit.model, band, recorded, true_rig),
+                         **_updated_sensitivity(the_rig, upd, recorded, dt_s)),
         files=dict(model_npz=str(out / "model.npz"), model_json=str(out / "model.json"),
                    frf_npz=str(out / "frf.npz"), summary_json=str(out / "identification.json")),
         notes=notes)
@@ -679,9 +803,9 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         if upd is not None:
             curves["updated physical model"] = (dense, physical_frf(the_rig.rotor_model(), upd.parameters,
                                                                      dense, dt_s))
-        if simulated and the_rig is not None:
-            curves["true rig (simulated)"] = (dense, _on_channels(true_linear_model(make_rig(facts), discrete=True),
-                                                                  dense, frf))
+        if true_rig is not None:
+            curves["true rig (simulated)"] = (dense, _on_channels(true_linear_model(true_rig, discrete=True), dense,
+                                                                  frf))
         line_models = {"fitted model": fit.model.freqresp(f)}
         if upd is not None:
             line_models["updated physical model"] = physical_frf(the_rig.rotor_model(), upd.parameters, f, dt_s)
@@ -690,8 +814,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         extra = []
         if dfrf is not None:
             d_curves = {label: directional_frf(fc, gc, None, frf.output_names, frf.input_names)
-                        for label, (fc, gc) in curves.items()
-                        if label in ("fitted model", "true rig (simulated)")}
+                        for label, (fc, gc) in curves.items() if label in ("fitted model", "true rig (simulated)")}
             whirls = [(row["freq_hz"], row["whirl"]) for row in mode_rows]
             extra.append(("directional_frf.png", "Directional FRFs p / f (p = x + j y, f = u_x + j u_y per bearing "
                           "plane): forward whirl (blue) and backward whirl (red), measured (dots) and models; a "
@@ -804,14 +927,13 @@ def _aligned_controller(k: StateSpace, model: StateSpace) -> StateSpace | None:
                       output_names=tuple(k.output_names[i] for i in rows))
 
 
-def _model_sensitivity(path, model, band, fs_hz: float, rig, recover: bool) -> dict:
+def _model_sensitivity(model: StateSpace, band, recorded, true_rig: Rig | None) -> dict:
     """Input-sensitivity peak between the excited lines: S = (I - K G_fit)^-1 on a dense grid.
 
     The measured S is known only at the excited lines, which can straddle a
     sharp peak; the fitted plant with the recorded controller K(z) gives it in
     between. With a simulated rig, the true loop's peak is given beside it.
     """
-    recorded = recorded_controller(path, recover)
     if recorded is None:
         return {}
     k = _aligned_controller(recorded[0], model)
@@ -826,8 +948,48 @@ def _model_sensitivity(path, model, band, fs_hz: float, rig, recover: bool) -> d
     peak = diag[i, np.arange(diag.shape[1])]
     out = dict(model_peak=peak, model_peak_hz=f[i], model_iso_zone=iso14839_zone(float(peak.max())),
                model_note="fitted plant with the recorded controller, 8000 lines over the band")
-    if rig is not None:
-
-        truth = loop_robustness(true_linear_model(rig), k)
+    if true_rig is not None:
+        truth = loop_robustness(true_linear_model(true_rig), k)
         out.update(true_peak=truth.sensitivity_peak, true_peak_hz=truth.peak_freq_hz, true_iso_zone=truth.zone)
     return out
+
+
+def _nominal_values(rig: Rig, nominal: Mapping[str, float] | None) -> dict[str, float]:
+    return {**nominal_update_parameters(rig), **{k: float(v) for k, v in (nominal or {}).items()}}
+
+
+def _loop_notes(rig: Rig, nominal: Mapping[str, float] | None, upd: PhysicalUpdate | None, controller: StateSpace,
+                dt_s: float) -> list[str]:
+    """What the nominal and the updated model say about the loop that ran (which was stable: it was measured)."""
+    notes = []
+    rotor = rig.rotor_model()
+    for label, params in (("the nominal model (the rig file's values)", _nominal_values(rig, nominal)),
+                          ("the updated model", None if upd is None else upd.parameters)):
+        if params is None:
+            continue
+        try:
+            poles = close_loop(physical_discrete(rotor, params, dt_s), controller).poles()
+        except ValueError:
+            continue
+        bad = poles[np.abs(poles) >= 1.0]
+        if bad.size:
+            s_bad = np.log(bad.astype(complex)) / dt_s
+            hz = sorted({round(abs(v.imag) / (2 * np.pi), 1) for v in s_bad})
+            notes.append(f"{label} is unstable with the controller that ran (closed-loop poles outside the unit "
+                         f"circle at {', '.join(f'{h:g}' for h in hz)} Hz), although the measured loop was stable: "
+                         + ("the FRF, the modes and the update come from the data and are kept; the sensitivity "
+                            "is the updated model's" if upd is not None and label.startswith("the nominal") else
+                            "its values are off; check the rig file"))
+    return notes
+
+
+def _updated_sensitivity(rig: Rig | None, upd: PhysicalUpdate | None, recorded, dt_s: float) -> dict:
+    """Peak input sensitivity and ISO 14839-3 zone of the updated physical model with the recorded controller."""
+    if rig is None or upd is None or recorded is None:
+        return {}
+    try:
+        rob = loop_robustness(physical_discrete(rig.rotor_model(), upd.parameters, dt_s), recorded[0])
+    except ValueError:
+        return dict(updated_note="the updated model's loop with the recorded controller is unstable: no peak")
+    return dict(updated_peak=rob.sensitivity_peak, updated_peak_hz=rob.peak_freq_hz, updated_iso_zone=rob.zone,
+                updated_note="updated physical model with the recorded controller")

@@ -1,0 +1,3 @@
+"""The version of the ambid distribution (ambid_core/pyproject.toml says the same)."""
+
+__version__ = "0.2.0"
