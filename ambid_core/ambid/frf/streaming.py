@@ -45,10 +45,10 @@ import numpy as np
 
 from ambid.excitation.design import ExcitationDesign
 from ambid.frf.directional import DirectionalFrf, directional_frf, has_planes
-from ambid.frf.lpm import SegmentTransients
 from ambid.frf.estimators import (arithmetic_mean, errors_in_variables, h1, h2, indirect, log_mean,
                                   multiple_coherence, per_period_frf)
 from ambid.frf.sensitivity import input_sensitivity, iso14839_zone, sensitivity_peak
+from ambid.frf.transient_model import SegmentTransients
 from ambid.frf.uncertainty import DistortionLevels, distortion_levels, frf_noise_variance, noise_std_interval
 
 __all__ = ["ESTIMATORS", "Gap", "BlockReport", "StreamProgress", "SynchronousResponse", "FrfResult", "FrfStream",
@@ -409,8 +409,8 @@ class FrfStream:
         self._valid = [np.zeros((ne, int(pm)), bool) for pm in self._np]
         self._window = (None if self._periodic else
                         0.5 - 0.5 * np.cos(2 * np.pi * np.arange(d.n_per_period) / d.n_per_period))
-        # measured without settling periods: each segment's transient is removed by the local polynomial
-        # (or rational) method instead of waiting for it (ambid.frf.lpm)
+        # measured without settling periods: each segment's transient is removed by one rational model of all the
+        # segments' transients (ambid.frf.transient_model) instead of waiting for it
         self._transients = (SegmentTransients(d.n_per_period, d.n_periods, self._bins[0], ny + nu)
                             if self._periodic and not self._stepped and d.n_transient_periods == 0
                             and d.n_periods >= 2 else None)
@@ -602,7 +602,7 @@ class FrfStream:
         self._periods_done += 1
         self._buf_key = None
         if self._transients is not None and self._transients.add(s, p, x) and self._noise_from is None:
-            v = self._transients.results[s].noise_var_time[:self._ny]
+            v = self._transients.noise_var_time(s)[:self._ny]
             self._noise_var_sum += v
             self._noise_segments += 1
             self._noise_seg_vars.append(v)
@@ -640,12 +640,20 @@ class FrfStream:
         """(Ne, K, L, ch) spectra of the records of realisation m kept in all experiments."""
         return self._spec[m][:, self._valid[m].all(axis=0)]
 
-    def estimate(self, estimator: str = "indirect") -> FrfResult | None:
+    @property
+    def records_done(self) -> int:
+        """Records (m, p) complete in all Ne experiments so far, the running realisation's included."""
+        return int(sum(np.count_nonzero(v.all(axis=0)) for v in self._valid))
+
+    def estimate(self, estimator: str = "indirect", partial: bool = False) -> FrfResult | None:
         """The FRF from the realisations passed so far, or None if there is none yet.
 
         Args:
             estimator: one of :data:`ESTIMATORS` (the noise kind takes
                 'indirect' or 'h1').
+            partial: also use the records of the realisation still running
+                (a live preview after every record; the final estimate is the
+                same either way, since the last realisation has then passed).
 
         Returns:
             :class:`FrfResult`, or None before the first realisation with a
@@ -661,7 +669,8 @@ class FrfStream:
         if not self._periodic and estimator not in _NON_PERIODIC_ESTIMATORS:
             raise ValueError(f"a noise excitation is not periodic: use one of "
                              f"{_NON_PERIODIC_ESTIMATORS}, not {estimator!r}")
-        used = [m for m in range(self._real_done)
+        last = min(self._real_done + (1 if partial else 0), len(self._valid))
+        used = [m for m in range(last)
                 if self._real_end[m] <= self._end and self._valid[m].all(axis=0).any()]
         if self._transients is not None:   # a segment with a gap has no transient-free spectrum
             ne = self.design.n_experiments
