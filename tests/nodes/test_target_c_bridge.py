@@ -31,6 +31,18 @@ def start_target(model: Path, *args: str) -> tuple[subprocess.Popen, str, int]:
     return proc, f"127.0.0.1:{tp}", lp
 
 
+def start_identify_target(model: Path, rig=None) -> tuple[subprocess.Popen, str, int, int]:
+    """The C target free-running while it waits for the excitation (deterministic and fast), stopping where an
+    identify session of SMALL on ``rig`` (default the default rig) does: (process, address, bridge port,
+    the session's samples)."""
+    rig = make_rig() if rig is None else rig
+    fs = 1 / rig.dt
+    spec = DesignSpec(resolution_hz=10, n_periods=2, n_realisations=1, n_transient_periods=1)
+    _, total = session_samples(SessionConfig(experiment=spec).design(fs, inputs=rig.layout.inputs), fs)
+    return (*start_target(model, "--pace", "0", "--hold-for-excitation", "--samples", str(total), "--seed", "7"),
+            total)
+
+
 def target_summary(proc: subprocess.Popen) -> dict:
     out, err = proc.communicate(timeout=30)
     line = next((ln for ln in out.splitlines() if ln.startswith("RT_TARGET_SUMMARY ")), None)
@@ -65,12 +77,7 @@ def test_identify_hardware_gives_the_c_target_the_accuracy_of_the_simulated_rig(
     write_target_model(model, rig_target_model())
     sim = cli("identify", "--out", str(tmp_path / "sim"), "--linear-magnets", *SMALL)
     assert sim.returncode == 0, sim.stdout + sim.stderr
-    # free-running, waiting for excitation: deterministic and fast; stops where the session does
-    fs = 1 / make_rig().dt
-    _, total = session_samples(SessionConfig(experiment=DesignSpec(resolution_hz=10, n_periods=2, n_realisations=1,
-                                                                   n_transient_periods=1)).design(fs), fs)
-    proc, target, local = start_target(model, "--pace", "0", "--hold-for-excitation", "--samples", str(total),
-                                       "--seed", "7")
+    proc, target, local, total = start_identify_target(model)
     try:
         hw = cli("identify", "--hardware", target, "--local-port", str(local), "--true-model", str(model),
                  "--out", str(tmp_path / "hw"), *SMALL)
@@ -107,7 +114,7 @@ def test_identify_hardware_gives_the_c_target_the_accuracy_of_the_simulated_rig(
     assert ep["median"] == ea["median"] and ep["worst"] == ea["worst"]
     # recorded as any session: every sample's measurement, read back by the offline FRF above
     assert Path(b["recording"]["path"]).is_file() and b["recording"]["complete"]
-    assert b["state"] == "done" and b["simulated_time_s"] == total / fs
+    assert b["state"] == "done" and b["simulated_time_s"] == total / (1 / make_rig().dt)
     assert np.isfinite(b["noise"]["relative_frf_noise_std"])
 
 
@@ -133,12 +140,7 @@ def test_the_c_target_runs_the_five_axis_model_over_the_bridge(tmp_path):
     assert "rotor levitated" in p.stdout and "lost 0 samples in 0 gaps" in p.stdout, p.stdout
     assert s["state"] == "done" and s["samples"] >= 5000 and s["rx_rejected_by_reason"]["content"] == 0
     # identify over the bridge: the 5 x 5 FRF against the model the target runs
-    fs = 1 / rig.dt
-    _, total = session_samples(SessionConfig(experiment=DesignSpec(resolution_hz=10, n_periods=2, n_realisations=1,
-                                                                   n_transient_periods=1)).design(
-        fs, inputs=rig.layout.inputs), fs)
-    proc, target, local = start_target(model, "--pace", "0", "--hold-for-excitation", "--samples", str(total),
-                                       "--seed", "7")
+    proc, target, local, total = start_identify_target(model, rig)
     try:
         hw = cli("identify", "--hardware", target, "--local-port", str(local), "--rig", str(rig_file),
                  "--true-model", str(model), "--out", str(tmp_path / "hw"), *SMALL)

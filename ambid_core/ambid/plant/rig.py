@@ -250,7 +250,7 @@ class Rig:
     def coil_inductance_h(self) -> float:
         """L = mu0 Nc^2 Aa / (2 s0) of one magnet at the centre (flux of eq. 2.8 through two gaps) [H]."""
         v = self.values
-        return MU0 * v["coil_turns"] ** 2 * v["pole_area_m2"] / (2.0 * v["air_gap_m"])
+        return _coil_inductance(v["coil_turns"], v["pole_area_m2"], v["air_gap_m"])
 
     @property
     def max_coil_current_a(self) -> float:
@@ -261,9 +261,8 @@ class Rig:
     def amplifier(self) -> Amplifier:
         """One coil's amplifier: L, udc, imax, and a current-loop gain Gp = L omega_BW so that the
         small-signal bandwidth equals the power bandwidth of eq. 2.24 (Lantto's model, eq. 2.21)."""
-        w_bw = np.log(9.0) * self.values["dc_link_voltage_v"] / (self.coil_inductance_h * self.max_coil_current_a)
-        return Amplifier(self.coil_inductance_h, 0.0, self.values["dc_link_voltage_v"], self.max_coil_current_a,
-                         self.coil_inductance_h * w_bw, min_current_a=0.0)
+        return _power_bandwidth_amplifier(self.coil_inductance_h, self.values["dc_link_voltage_v"],
+                                          self.max_coil_current_a)
 
     @property
     def current_loop_bandwidth_hz(self) -> float:
@@ -274,15 +273,13 @@ class Rig:
     def axial_coil_inductance_h(self) -> float:
         """L of one axial magnet at the centre, as :attr:`coil_inductance_h` with the axial data [H]."""
         v = self.values
-        return MU0 * v["axial_coil_turns"] ** 2 * v["axial_pole_area_m2"] / (2.0 * v["axial_air_gap_m"])
+        return _coil_inductance(v["axial_coil_turns"], v["axial_pole_area_m2"], v["axial_air_gap_m"])
 
     @property
     def axial_amplifier(self) -> Amplifier:
         """An axial coil's amplifier (eq. 2.24 with the axial inductance and imax = axial ib + current limit)."""
         imax = self.values["axial_bias_current_a"] + self.values["current_limit_a"]
-        w_bw = np.log(9.0) * self.values["dc_link_voltage_v"] / (self.axial_coil_inductance_h * imax)
-        return Amplifier(self.axial_coil_inductance_h, 0.0, self.values["dc_link_voltage_v"], imax,
-                         self.axial_coil_inductance_h * w_bw, min_current_a=0.0)
+        return _power_bandwidth_amplifier(self.axial_coil_inductance_h, self.values["dc_link_voltage_v"], imax)
 
     @property
     def amplifier_bandwidths_hz(self) -> np.ndarray:
@@ -455,6 +452,18 @@ class Rig:
         if self.tolerances:
             out["tolerances"] = {k: t.to_text() for k, t in self.tolerances.items()}
         return out
+
+
+def _coil_inductance(turns: float, pole_area_m2: float, air_gap_m: float) -> float:
+    """L = mu0 Nc^2 Aa / (2 s0) of one magnet at the centre (flux of eq. 2.8 through two gaps) [H]."""
+    return MU0 * turns ** 2 * pole_area_m2 / (2.0 * air_gap_m)
+
+
+def _power_bandwidth_amplifier(inductance_h: float, udc_v: float, imax_a: float) -> Amplifier:
+    """A coil's amplifier whose small-signal bandwidth is the power bandwidth of eq. 2.24,
+    omega_BW = ln(9) udc / (L imax) (current-loop gain Gp = L omega_BW, Lantto's model, eq. 2.21)."""
+    w_bw = np.log(9.0) * udc_v / (inductance_h * imax_a)
+    return Amplifier(inductance_h, 0.0, udc_v, imax_a, inductance_h * w_bw, min_current_a=0.0)
 
 
 def _with_tolerance(nominal: MagnetPair, ki_factor: float, ks_factor: float) -> MagnetPair:
