@@ -68,7 +68,7 @@ class PlantSimulator(KernelOwner):
     the backup bearings (static equilibrium in contact, zero currents).
     """
 
-    _UNPICKLED = ("_plant_step", "_aux", "_v", "_noise", "_uin", "_yout")  # a copy binds them to its own work vector
+    _UNPICKLED = ("_plant_step", "_aux", "_v", "_noise", "_yout")  # a copy binds them to its own work vector
 
     def __init__(self, rig: Rig, seed: int = 0, nonlinear_magnets: bool = False) -> None:
         self.rig = rig
@@ -135,11 +135,10 @@ class PlantSimulator(KernelOwner):
 
     def _bind(self) -> None:
         """The compiled step kernel, and named views into the work vector (the kernel reads and writes it)."""
-        self._plant_step = compiled(sk.plant_step, sk.PLANT_STEP_ARGS)
+        self._plant_step = compiled(sk.plant_step_with, sk.plant_step_with_args(self._na))
         s = self._s
         n, na = self._n, self._na
-        _, _, _, uin, yout, aux, iv, _ = sk.plant_offsets.py_func(n, na)
-        self._uin = s[uin:uin + na]  # the reference u the next plant_step takes
+        _, _, _, _, yout, aux, iv, _ = sk.plant_offsets.py_func(n, na)
         self._yout = s[yout:yout + na]  # the y[k+1] it leaves
         self._aux = s[aux:aux + 4 * na]  # y, gap, current, sensor displacement at index
         self._v = s[iv:iv + n + 4 * na + 3]
@@ -294,8 +293,15 @@ class PlantSimulator(KernelOwner):
             (clipped, contact): the amplifiers saturated at the current limit
             during this sample; the rotor touched the backup bearings.
         """
-        r = self.step_output(*current_ref)
-        return r[-2], r[-1]
+        u = tuple(current_ref)   # step_output's path without building the output (the core loops' call)
+        clipped, contact = self._plant_step(self._s, u)
+        if contact:  # contact, or the noise block is used up
+            if self._s[sk.PAR_STATUS] == sk.STATUS_NOISE:
+                self.draw_noise()
+                return self.step(u)
+            self._substeps()
+            return clipped, True
+        return clipped, False
 
     def step_output(self, *u: float) -> tuple:
         """``step(u)`` then ``output()`` in one call: the loop's per-sample call.
@@ -308,8 +314,7 @@ class PlantSimulator(KernelOwner):
             output y[k+1] [m] with its noise (what ``output()`` returns
             after this call), then as :meth:`step`.
         """
-        self._uin[:] = u
-        clipped, contact = self._plant_step(self._s)
+        clipped, contact = self._plant_step(self._s, u)
         if contact:  # contact, or the noise block is used up
             if self._s[sk.PAR_STATUS] == sk.STATUS_NOISE:
                 self.draw_noise()
