@@ -255,9 +255,6 @@ def plant_step(s: np.ndarray) -> tuple[bool, bool]:
     return clipped, False
 
 
-PLANT_STEP_ARGS = (VEC,)
-
-
 @njit(cache=True)
 def plant_step_with(s: np.ndarray, u: tuple) -> tuple[bool, bool]:
     """:func:`plant_step` with the current reference ``u`` [A] (a tuple of na floats) put in the input slot
