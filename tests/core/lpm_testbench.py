@@ -120,3 +120,71 @@ def simulate(r: np.ndarray, seed: int, noise_m: float = NOISE_M) -> tuple[np.nda
     noise = noise_m * np.random.default_rng(seed + 1000).standard_normal(r.shape)
     _, out, _ = signal.dlsim((a, b, c, d, 1 / FS), np.hstack([r, noise]))
     return out[:, :4], out[:, 4:]
+
+
+def multisine_segments(n_per: int, n_periods: int, lines: np.ndarray, seed: int = 3,
+                       rms_a: float = 0.25) -> np.ndarray:
+    """(4 P N, 4) excitation of four segments of P periods, one input at a time, each a random-phase multisine at
+    ``lines`` (bins of the N-sample period) [A]; the segments follow one another without settling periods."""
+    rng = np.random.default_rng(seed)
+    segs = []
+    for e in range(4):
+        spec = np.zeros(n_per // 2 + 1, complex)
+        spec[lines] = np.exp(2j * np.pi * rng.random(lines.size))
+        per = np.fft.irfft(spec, n_per)
+        r = np.zeros((n_periods * n_per, 4))
+        r[:, e] = np.tile(per / per.std() * rms_a, n_periods)
+        segs.append(r)
+    return np.vstack(segs)
+
+
+def run_states(r: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The closed loop from rest driven by r (n, 4) [A] and sensor noise (n, 4) [m]: outputs [y; u] (n, 8) and
+    states (n, n_x), the state at each sample before its update."""
+    a, b, c, d = closed_loop()
+    _, out, states = signal.dlsim((a, b, c, d, 1 / FS), np.hstack([r, noise]))
+    return out, states
+
+
+def segment_transients(r: np.ndarray, states: np.ndarray, n_per: int, n_periods: int,
+                       lines: np.ndarray) -> np.ndarray:
+    """(S, L, 8) the transient of [y; u] at the bins P l of each segment's unscaled DFT, in closed form.
+
+    A segment starts in state x0 where its periodic steady state starts in x_s = (I - A^N)^-1 x_N (x_N: one
+    period's response from rest). Its output minus the steady state is the free response C A^t (x0 - x_s), whose
+    DFT over the n = P N samples is ``C (I - zeta A)^-1 (I - A^n) (x0 - x_s)``, zeta = exp(-2j pi k / n).
+    """
+    a, b, c, d = closed_loop()
+    nx = a.shape[0]
+    n_seg_samples = n_periods * n_per
+    an, a_seg = np.linalg.matrix_power(a, n_per), np.linalg.matrix_power(a, n_seg_samples)
+    zeta = np.exp(-2j * np.pi * n_periods * np.asarray(lines) / n_seg_samples)
+    out = []
+    for s in range(r.shape[0] // n_seg_samples):
+        rs = r[s * n_seg_samples:s * n_seg_samples + n_per + 1]
+        _, _, xz = signal.dlsim((a, b, c, d, 1 / FS), np.hstack([rs, np.zeros_like(rs)]), x0=np.zeros(nx))
+        x_s = np.linalg.solve(np.eye(nx) - an, xz[n_per])
+        e = (np.eye(nx) - a_seg) @ (states[s * n_seg_samples] - x_s)
+        out.append(np.array([c @ np.linalg.solve(np.eye(nx) - z * a, e) for z in zeta]))
+    return np.array(out)
+
+
+def g_and_variance(spectra: np.ndarray, noise_cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """G = Y U^-1 over the four one-input segments at each line and its first-order noise variance.
+
+    ``var G_ij = sum_e (a_i C_e a_i^H) |(U^-1)_ej|^2`` with ``a_i = [e_i, -G_i]`` (the error of row i is
+    ``a_i V U^-1``, the experiments' noises independent).
+
+    Args:
+        spectra: (4, L, 8) transient-free line spectra [y; u] of the segments.
+        noise_cov: (4, L, 8, 8) their noise covariances.
+
+    Returns:
+        G (L, 4, 4) [m/A] and its variance (L, 4, 4) [(m/A)^2].
+    """
+    y, u = np.moveaxis(spectra[..., :4], 0, -1), np.moveaxis(spectra[..., 4:], 0, -1)   # (L, 4, Ne)
+    m = np.linalg.inv(u)
+    g = y @ m
+    a = np.concatenate([np.broadcast_to(np.eye(4), g.shape), -g], axis=2)
+    out_var = np.real(np.einsum("lia,leab,lib->lie", a, np.moveaxis(noise_cov, 0, 1), a.conj()))
+    return g, np.einsum("lie,lej->lij", out_var, np.abs(m) ** 2)

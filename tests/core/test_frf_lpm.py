@@ -126,26 +126,12 @@ def test_rational_method_where_a_resonance_is_sharper_than_the_window():
 
 @pytest.fixture(scope="module")
 def periodic_record():
-    """Orthogonal two-experiment multisine segments of P = 4 periods from the loop's rest (no settling period)."""
+    """Multisine segments of P = 4 periods, one input at a time, from the loop's rest (no settling period)."""
     n_per, p = 400, 4
     lines = np.arange(2, 160, 2)
-    rng = np.random.default_rng(3)
-    segs = []
-    x0 = None
-    a, b, c, d = tb.closed_loop()
-    out = {"noisy": [], "clean": []}
-    for e in range(4):          # one input at a time; each segment starts where the last left off
-        spec = np.zeros(n_per // 2 + 1, complex)
-        spec[lines] = np.exp(2j * np.pi * rng.random(lines.size))
-        per = np.fft.irfft(spec, n_per)
-        r = np.zeros((p * n_per, 4))
-        r[:, e] = np.tile(per / per.std() * 0.25, p)
-        segs.append(r)
-    r = np.vstack(segs)
+    r = tb.multisine_segments(n_per, p, lines)
     noise = tb.NOISE_M * 10 * np.random.default_rng(4).standard_normal(r.shape)
-    for key, nz in (("noisy", noise), ("clean", 0 * noise)):
-        _, o, _ = signal.dlsim((a, b, c, d, 1 / tb.FS), np.hstack([r, nz]))
-        out[key] = o
+    out = {"noisy": tb.run_states(r, noise)[0], "clean": tb.run_states(r, 0 * noise)[0]}
     return n_per, p, lines, r, out, noise
 
 
@@ -179,12 +165,7 @@ def test_periodic_noise_variance_and_coverage(periodic_record):
     ratio = np.mean(np.abs(err) ** 2, axis=(0, 1)) / np.mean(predicted, axis=(0, 1))
     assert np.all(np.abs(ratio - 1) < 0.2), ratio
     # G's intervals: var G_ij = sum_e (a_i C_e a_i^H) |U^-1_ej|^2
-    u = np.moveaxis(tf.spectra[..., 4:], 0, -1)
-    m = np.linalg.inv(u)
-    a = np.concatenate([np.broadcast_to(np.eye(4), g.shape), -g], axis=2)
-    cov = np.moveaxis(tf.noise_cov, 0, 1)
-    out_var = np.real(np.einsum("lia,leab,lib->lie", a, cov, a.conj()))
-    var = np.einsum("lie,lej->lij", out_var, np.abs(m) ** 2)
+    g, var = tb.g_and_variance(tf.spectra, tf.noise_cov)
     dof = np.min(tf.dof, axis=0)[:, None, None]
     cover = np.mean(np.abs(g - g0) ** 2 / var <= f_quantile(0.95, dof))
     assert 0.9 < cover < 0.99, cover

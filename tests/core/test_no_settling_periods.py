@@ -10,17 +10,16 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from ambid.channels import Layout
 from ambid.excitation.spec import DesignSpec
+from ambid.frf.streaming import FrfStream
 from ambid.plant.rig import make_rig
 from ambid.studies.comparison import frf_error, levitate, run_loop, true_frf
-from ambid.frf.streaming import FrfStream
-
-NAMES = (("y_a_x", "y_b_x", "y_a_y", "y_b_y"), ("u_a_x", "u_b_x", "u_a_y", "u_b_y"),
-         ("r_a_x", "r_b_x", "r_a_y", "r_b_y"))
 
 
 def _error(design, x, g0) -> float:
-    stream = FrfStream(design, *NAMES)
+    layout = Layout.from_names(design.input_names)       # the channels of the session, from its design
+    stream = FrfStream(design, layout.outputs, layout.inputs, layout.excitations)
     stream.add(0, x)
     return float(np.median(frf_error(stream.estimate().frf, g0)))
 
@@ -38,7 +37,8 @@ def test_transient_periods_zero_keeps_the_default_error(seed):
     e_default, e_quick = _error(default, x_default, g0), _error(quick, x_quick, g0)
     assert e_quick <= 1.15 * e_default, (e_quick, e_default)
     # the same record taken as if it had settled (one period dropped, no removal): the transient in every line
-    n, m = quick.n_per_period, quick.n_realisations
-    pad = np.concatenate([np.zeros((m, 4, n, 12)), x_quick.reshape(m, 4, 4 * n, 12)], axis=2).reshape(-1, 12)
+    n, m, ne, ch = quick.n_per_period, quick.n_realisations, quick.n_experiments, x_quick.shape[1]
+    pad = np.concatenate([np.zeros((m, ne, n, ch)), x_quick.reshape(m, ne, quick.n_periods * n, ch)],
+                         axis=2).reshape(-1, ch)
     e_raw = _error(replace(spec, n_transient_periods=1).build(rig.sample_rate_hz), pad, g0)
     assert e_raw > 4 * e_quick, (e_raw, e_quick)

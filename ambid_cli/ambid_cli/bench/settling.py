@@ -1,5 +1,6 @@
-"""Measurement time at equal FRF error with and without settling periods (each segment's transient removed by the
-local polynomial method, :mod:`ambid.frf.lpm`), on the core lock-step loop of ``ambid compare``.
+"""Measurement time at equal FRF error with and without settling periods (each segment's transient removed by one
+rational model of all the segments' transients, :mod:`ambid.frf.transient_model`), on the core lock-step loop of
+``ambid compare``.
 
 Before: identify's default experiment (:class:`ambid.excitation.spec.DesignSpec`, 3 settling periods per segment)
 and its median FRF error against the true rig. After: the same experiment without settling periods, run with

@@ -11,8 +11,8 @@ Sections (each can be skipped):
   (:mod:`ambid_cli.bench.offline`);
 * fit: the common-denominator fit of a 4x4 FRF of 2,000 lines;
 * settling: measurement time at equal FRF error with and without settling
-  periods (the transient removed by the local polynomial method), on the
-  core loop (:mod:`ambid_cli.bench.settling`);
+  periods (the transient removed by one rational model of all the segments'
+  transients), on the core loop (:mod:`ambid_cli.bench.settling`);
 * memory: peak memory of sessions of one kind, one six times longer
   (:mod:`ambid_cli.bench.memory`).
 

@@ -54,6 +54,9 @@ steady-state response only at every P-th bin (the period lines); the bins
 in between hold the transient and the noise alone. The LPM fits the
 transient there, around each line, and subtracts its value at the line;
 the residuals give the noise covariance of the corrected line spectrum.
+One rational model of the transient across the whole spectrum
+(:mod:`ambid.frf.transient_model`, what a streamed experiment uses) adds
+less noise; these local fits remain where its bins are too few.
 
 Pure numpy; everything is vectorised over lines.
 """
@@ -65,8 +68,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-__all__ = ["METHODS", "LocalFrf", "TransientFree", "SegmentTransients", "local_frf", "window_centres", "periodic_transient_removal", "periodic_window",
-           "f_quantile", "dof_of", "half_width_for"]
+__all__ = ["METHODS", "LocalFrf", "TransientFree", "local_frf", "window_centres", "periodic_transient_removal",
+           "periodic_window", "line_noise", "f_quantile", "dof_of", "half_width_for"]
 
 #: 'lpm': local polynomials; 'lrm': local rational models; 'auto': the LRM at the lines where its smaller
 #: residual is significant (an F test at 0.1 %), the LPM elsewhere
@@ -414,6 +417,7 @@ class _TransientFit:
     """The local fit of a transient alone (no regressors) on a fixed window of offsets."""
 
     def __init__(self, offsets: np.ndarray, degree: int, method: str) -> None:
+        self.offsets = np.asarray(offsets)
         self.k_t = _basis(offsets.astype(float), degree, float(np.abs(offsets).max()))
         self.pinv = np.linalg.pinv(self.k_t)                                   # (R+1, w)
         self.resid_op = np.eye(offsets.size) - self.k_t @ self.pinv
@@ -464,6 +468,37 @@ def _running_median(x: np.ndarray, half: int) -> np.ndarray:
                          axis=-2)
     win = np.lib.stride_tricks.sliding_window_view(pad, 2 * half + 1, axis=-2)   # (..., n, ch, 2h+1)
     return np.median(win, axis=-1)[..., :n, :]
+
+
+def line_noise(spec: np.ndarray, n_per_period: int, n_periods: int, fit: _TransientFit | None = None,
+               half_width: int = 2) -> np.ndarray:
+    """Noise variance of one bin of a segment's DFT around every period line, from local fits between the lines.
+
+    Args:
+        spec: (..., P N, ch) unscaled DFT of segments of P periods of N samples [unit of x].
+        n_per_period, n_periods: N, P.
+        fit: the local polynomial fit to use (default degree 2 over :func:`periodic_window` (P, half_width)).
+
+    Returns:
+        (..., N/2 + 1, ch) E|V(P l)|^2 at the lines l = 0..N/2 [(unit of x)^2, unscaled DFT], from the residuals
+        of the bins between the lines; a running median over 2 * 10 + 1 lines (scaled to the mean of chi^2 with
+        2 q dof) keeps the smooth noise spectrum, not the windows a sharp transient still leaks into.
+    """
+    n, p = int(n_per_period), int(n_periods)
+    fit = _TransientFit(periodic_window(p, half_width), 2, "lpm") if fit is None else fit
+    offsets = fit.offsets
+    all_lines = np.arange(n // 2 + 1)
+    _, res_all, _, dof_all, _ = fit(spec[..., (p * all_lines[:, None] + offsets[None, :]) % (p * n), :])
+    per_bin = np.sum(np.abs(res_all) ** 2, axis=-2) / dof_all[..., None]   # (..., N/2+1, ch)
+    return _running_median(per_bin, _SMOOTH) / (stats.chi2.median(2 * fit.q) / (2 * fit.q))
+
+
+def _time_noise(per_bin: np.ndarray, n_per_period: int) -> np.ndarray:
+    """(..., ch) mean over the two-sided spectrum of :func:`line_noise` (Parseval: N P times the time variance)."""
+    n = int(n_per_period)
+    all_lines = np.arange(n // 2 + 1)
+    weight = np.where((all_lines == 0) | (2 * all_lines == n), 1.0, 2.0)
+    return np.einsum("l,...lc->...c", weight, per_bin) / weight.sum()
 
 
 def periodic_transient_removal(x: np.ndarray, n_per_period: int, lines: np.ndarray, degree: int = 2,
@@ -520,78 +555,6 @@ def periodic_transient_removal(x: np.ndarray, n_per_period: int, lines: np.ndarr
     spectra = (spec[..., centre, :] - t_hat) * sc[:, None]
     noise_cov = cov_bin * ((1.0 + lever) * sc ** 2)[..., None, None]
     # time-domain noise: windows centred on every line 0..N/2 tile the two-sided spectrum (Parseval)
-    all_lines = np.arange(n // 2 + 1)
-    _, res_all, _, dof_all, _ = fit(spec[..., (p * all_lines[:, None] + offsets[None, :]) % n_seg, :])
-    per_bin = np.sum(np.abs(res_all) ** 2, axis=-2) / dof_all[..., None]   # (..., N/2+1, ch)
-    # a window a sharp transient still leaks into stands out of the smooth noise spectrum: a running median
-    # over 2 * _SMOOTH + 1 lines (scaled to the mean of chi^2 with 2 q dof) keeps the spectrum, not the outliers
-    per_bin = _running_median(per_bin, _SMOOTH) / (stats.chi2.median(2 * fit.q) / (2 * fit.q))
-    weight = np.where((all_lines == 0) | (2 * all_lines == n), 1.0, 2.0)
-    mean_bin = np.einsum("l,...lc->...c", weight, per_bin) / weight.sum()
+    mean_bin = _time_noise(line_noise(spec, n, p, fit), n)
     return TransientFree(spectra=spectra, noise_cov=noise_cov, dof=dof, rational=rational,
                          noise_var_time=mean_bin / n_seg, transient=t_hat * sc[:, None])
-
-
-class SegmentTransients:
-    """The periods of each segment of a streamed experiment, and their transient removed once it is complete.
-
-    For a periodic design measured without settling periods (Pt = 0, P >= 2):
-    the P periods of segment s come in order through :meth:`add`; when the
-    last one arrives, :func:`periodic_transient_removal` runs on the segment
-    and only its line spectra, noise covariance and time-domain noise
-    variance are kept (memory: one segment's samples plus L lines per
-    segment). A segment missing a period (a gap) is left out.
-
-    Args:
-        n_per_period: N.
-        n_periods: P >= 2.
-        lines: (L,) period lines analysed.
-        n_noisy: the first ``n_noisy`` channels carry noise and a transient
-            (y and u); the others (the excitation r, exactly periodic) are
-            taken as the mean over the periods.
-        method: one of :data:`METHODS`.
-    """
-
-    def __init__(self, n_per_period: int, n_periods: int, lines: np.ndarray, n_noisy: int,
-                 method: str = "auto") -> None:
-        if n_periods < 2:
-            raise ValueError(f"transient removal needs P >= 2 periods per segment, got {n_periods}")
-        self.n, self.p, self.lines, self.n_noisy, self.method = int(n_per_period), int(n_periods), lines, n_noisy, method
-        self._seg: int | None = None
-        self._buf: np.ndarray | None = None
-        self._next = 0
-        self.results: dict[int, TransientFree] = {}     # segment -> noisy channels' result
-        self.exact: dict[int, np.ndarray] = {}          # segment -> (L, ch - n_noisy) mean of the exact channels
-
-    def add(self, segment: int, period: int, samples: np.ndarray) -> bool:
-        """Period ``period`` (0..P-1) of ``segment``: samples (N, ch). True when the segment was completed."""
-        if segment != self._seg or period != self._next:
-            self._seg, self._next = segment, 0
-            if period != 0:           # a period is missing: this segment cannot be used
-                self._buf = None
-                return False
-            self._buf = np.empty((self.p * self.n, samples.shape[1]))
-        if self._buf is None:
-            return False
-        self._buf[period * self.n:(period + 1) * self.n] = samples
-        self._next += 1
-        if self._next < self.p:
-            return False
-        x = self._buf
-        self.results[segment] = periodic_transient_removal(x[:, :self.n_noisy], self.n, self.lines,
-                                                           method=self.method)
-        if x.shape[1] > self.n_noisy:
-            k = np.fft.rfft(x[:, self.n_noisy:], axis=0)[self.p * self.lines]
-            sc = np.where((self.lines == 0) | (2 * self.lines == self.n), 1.0, 2.0) / (self.p * self.n)
-            self.exact[segment] = k * sc[:, None]
-        else:
-            self.exact[segment] = np.zeros((self.lines.size, 0), complex)
-        self._buf, self._seg = None, None
-        return True
-
-    def complete(self, segment: int) -> bool:
-        return segment in self.results
-
-    def spectra(self, segment: int) -> np.ndarray:
-        """(L, ch) line spectra of a completed segment, transient removed (amplitude scaling)."""
-        return np.concatenate([self.results[segment].spectra, self.exact[segment]], axis=1)

@@ -45,10 +45,10 @@ import numpy as np
 
 from ambid.excitation.design import ExcitationDesign
 from ambid.frf.directional import DirectionalFrf, directional_frf
-from ambid.frf.lpm import SegmentTransients
 from ambid.frf.estimators import (arithmetic_mean, errors_in_variables, h1, h2, indirect, log_mean,
                                   multiple_coherence, per_period_frf)
 from ambid.frf.sensitivity import input_sensitivity, iso14839_zone, sensitivity_peak
+from ambid.frf.transient_model import SegmentTransients
 from ambid.frf.uncertainty import DistortionLevels, distortion_levels, frf_noise_variance, noise_std_interval
 
 __all__ = ["ESTIMATORS", "Gap", "BlockReport", "StreamProgress", "SynchronousResponse", "FrfResult", "FrfStream",
@@ -407,8 +407,8 @@ class FrfStream:
         self._valid = [np.zeros((ne, int(pm)), bool) for pm in self._np]
         self._window = (None if self._periodic else
                         0.5 - 0.5 * np.cos(2 * np.pi * np.arange(d.n_per_period) / d.n_per_period))
-        # measured without settling periods: each segment's transient is removed by the local polynomial
-        # (or rational) method instead of waiting for it (ambid.frf.lpm)
+        # measured without settling periods: each segment's transient is removed by one rational model of all the
+        # segments' transients (ambid.frf.transient_model) instead of waiting for it
         self._transients = (SegmentTransients(d.n_per_period, d.n_periods, self._bins[0], ny + nu)
                             if self._periodic and not self._stepped and d.n_transient_periods == 0
                             and d.n_periods >= 2 else None)
@@ -600,7 +600,7 @@ class FrfStream:
         self._periods_done += 1
         self._buf_key = None
         if self._transients is not None and self._transients.add(s, p, x) and self._noise_from is None:
-            v = self._transients.results[s].noise_var_time[:self._ny]
+            v = self._transients.noise_var_time(s)[:self._ny]
             self._noise_var_sum += v
             self._noise_segments += 1
             self._noise_seg_vars.append(v)

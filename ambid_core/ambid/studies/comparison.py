@@ -83,7 +83,7 @@ METHOD_LABELS = {"stepped_sine": "stepped sine", "swept_sine": "swept sine, one 
                  "noise": "random noise, all inputs", "multisine_one_at_a_time": "multisine, one input at a time",
                  "multisine_orthogonal": "orthogonal multisine",
                  "multisine_orthogonal_no_settling": "orthogonal multisine, no settling periods (transient removed by "
-                                                     "the local polynomial method)"}
+                                                     "one model across the spectrum)"}
 ESTIMATOR_LABELS = {"indirect": "indirect", "h1": "H1", "h2": "H2", "arithmetic_mean": "arithmetic mean",
                     "log_mean": "log mean", "eiv": "EIV"}
 CLAIM_RATIO = 10.0
