@@ -7,7 +7,8 @@ from setuptools import Extension, find_packages, setup
 package_name = "ambid_nodes"
 
 # one console entry point per node: <executable> = ambid_nodes.<module>:main
-NODES = ["plant_sim", "position_controller", "excitation_generator", "recorder", "hardware_bridge", "frf_consumer"]
+NODES = ["plant_sim", "position_controller", "excitation_generator", "recorder", "hardware_bridge", "frf_consumer",
+         "live_view"]
 
 
 def ros_prefixes() -> list[str]:

@@ -26,6 +26,7 @@ COMMANDS = {
     "export": "export_record",
     "campaign": "campaign",
     "validate": "validate",
+    "live": "live",
 }
 
 

@@ -30,6 +30,7 @@ from __future__ import annotations
 import json
 import math
 import sys
+import time
 
 import numpy as np
 from ambid.excitation import ExcitationDesign as Design
@@ -80,6 +81,7 @@ class FrfConsumer(Node):
         self.columns: dict[tuple[str, ...], np.ndarray] = {}
         self.result: FrfResult | None = None           # latest estimate of the current experiment
         self.results: dict[str, FrfResult] = {}        # final estimate per experiment
+        self.finished_at: dict[str, float] = {}        # when it was made (time.perf_counter), for timing figures
         self.dt = 0.0
         self.index = 0
         self.state = SessionStatus.STATE_IDLE
@@ -209,6 +211,7 @@ class FrfConsumer(Node):
         result = self.publish_estimate()
         if result is not None:
             self.results[self.experiment_id] = result
+            self.finished_at[self.experiment_id] = time.perf_counter()
         self.state = SessionStatus.STATE_DONE if result is not None else SessionStatus.STATE_FAILED
         figures = self.figures(final=True)
         self.publish_status(figures)

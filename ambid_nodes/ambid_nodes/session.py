@@ -20,10 +20,16 @@ from pathlib import Path
 from ambid.control.kinds import ControllerDesign, checked_design
 from ambid.excitation import ExcitationDesign
 from ambid.excitation.spec import DesignSpec
+from ambid.frf.offline import DEFAULT_OUTPUTS
 from ambid.hardware.bridge_protocol import CommandCode
 from ambid.jsonable import to_jsonable
 from ambid.plant.rig import Rig, load_rig, make_rig
 
+from rclpy.node import Node
+
+from ambid_msgs.msg import ControllerDescription, PlantDescription
+from ambid_msgs.msg import ExcitationDesign as DesignMessage
+from ambid_nodes import qos
 from ambid_nodes.graph import DEFAULT_NAMESPACE, session_domain_id
 from ambid_nodes.node_main import gc_frozen
 
@@ -50,6 +56,8 @@ class SessionConfig:
     hardware: str = ""      # HOST:PORT of a real-time target: hardware_bridge replaces plant_sim and the controller
     local_port: int = 0     # with hardware: the bridge's UDP port (0: any)
     true_model: str = ""    # with hardware: the C target's model file, the truth the FRF is compared with
+    live_port: int | None = None    # a Foxglove live view on this port (0: any free one); None: none
+    live_host: str = "127.0.0.1"    # the address the live view binds
     extra: dict = field(default_factory=dict)
 
     @property
@@ -123,10 +131,23 @@ def session_samples(design: ExcitationDesign, fs: float) -> tuple[int, int]:
     return start_index, start_index + design.total_samples + 1000
 
 
-def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None) -> dict:
+def start_live(cfg: SessionConfig):
+    """The live view of ``cfg`` (``live_port``) as a process of its own, started; None without one."""
+    if cfg.live_port is None:
+        return None
+    from ambid_nodes.live_view import LiveProcess
+
+    return LiveProcess(cfg.live_port, cfg.live_host, cfg.namespace, cfg.estimator, session_domain_id())
+
+
+def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None, live=None, early=None) -> dict:
     """Run the whole graph in this process; returns the run's facts (no offline analysis).
 
     ``plan`` (default :func:`plan_session`) is what the nodes run: one rig, one controller, one design.
+    ``live`` (a started :class:`ambid_nodes.live_view.LiveProcess`): the experiment starts once it listens
+    and hears the measurement, so it shows the whole experiment. ``early``
+    (:class:`ambid.studies.early_analysis.EarlyAnalysis`): handed the session's inputs as they become known,
+    and the final FRF the moment the consumer has it, so the analysis runs while the graph closes.
     """
     import rclpy
     from rclpy.experimental import EventsExecutor
@@ -193,8 +214,14 @@ def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None) ->
         generator = add(ExcitationGenerator(**ns, rig=plan.rig, parameter_overrides=params({
             "start_margin": start_index, **rig_param})))
         consumer = add(FrfConsumer(**ns, parameter_overrides=params({"estimator": cfg.estimator})))
-        # the recorder and the consumer must hear the first measurement block
-        spin_until(lambda: plant.pub_block.get_subscription_count() >= 3, 30, "recorder, consumer and generator")
+        inputs = add(SessionMessages(**ns)) if early is not None else None
+        # the recorder and the consumer (and a live view) must hear the first measurement block
+        listeners = 3
+        if live is not None:
+            print(f"ambid: live view on {live.wait_ready()} (docs/live.md)", file=sys.stderr, flush=True)
+            listeners += 1
+        spin_until(lambda: plant.pub_block.get_subscription_count() >= listeners, 30,
+                   "recorder, consumer and generator" + (" and the live view" if live is not None else ""))
         spin_until(lambda: generator.plant_known, 30, "the plant description at the generator")
         client = recorder.create_client(StartExperiment, "start_experiment")
         spin_until(client.service_is_ready, 30, "the start_experiment service")
@@ -214,9 +241,15 @@ def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None) ->
             add(PositionController(**ns, rig=plan.rig, design=plan.controller, parameter_overrides=params({
                 **rig_param, "controller": cfg.controller})))
         stop_sent = False
+        def analyse_early() -> None:
+            if inputs is not None and not early.analysing and answer.experiment_id in consumer.results:
+                early.analyse(inputs.session_inputs(mcap_path, consumer.results[answer.experiment_id],
+                                                    cfg.nonlinear_magnets))
+
         with gc_frozen():
             while not plant.finished.done():
                 executor.spin_until_future_complete(plant.finished, timeout_sec=0.25)
+                analyse_early()
                 if cfg.hardware:
                     k = plant.figures()["samples_published"]
                     if k >= total and not stop_sent:  # enough recorded: the target's clock may stop
@@ -242,6 +275,7 @@ def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None) ->
             raise RuntimeError(f"the plant ended the session failed ({failure['code']}): {failure['text']}; "
                                f"the recording so far is in {mcap_path}")
         spin_until(lambda: answer.experiment_id in consumer.results, 30, "the final FRF estimate")
+        analyse_early()
         end = time.monotonic() + SETTLE_S
         while time.monotonic() < end:
             executor.spin_once(timeout_sec=0.02)
@@ -260,12 +294,40 @@ def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None) ->
             "layout": f"hardware bridge to {cfg.hardware}" if cfg.hardware else "composed",
             "design": design,
             "mcap_path": str(mcap_path),
+            "final_estimate_at": consumer.finished_at.get(answer.experiment_id),   # time.perf_counter
         }
     finally:
         executor.shutdown()
         for n in nodes:
             n.destroy_node()
         rclpy.shutdown(context=context)
+
+
+class SessionMessages(Node):
+    """A listener of the session's latched descriptions, the plant's, the controller's and the experiment's,
+    kept as they come: the inputs of an early analysis, read as the recording's are
+    (:func:`ambid.studies.identification.inputs_from_messages`)."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__("identify_inputs", **kwargs)
+        self.last: dict = {}
+        latched = qos.subscription(qos.LATCHED)
+        for name, kind, topic in (("plant", PlantDescription, "plant/description"),
+                                  ("controller", ControllerDescription, "controller/description"),
+                                  ("design", DesignMessage, "excitation/design")):
+            self.create_subscription(kind, topic, lambda msg, name=name: self.last.__setitem__(name, msg), latched)
+        self.design_topic = self.resolve_topic_name("excitation/design")
+
+    def described(self, controller: bool = True) -> bool:
+        """The plant and the experiment (and the controller, where this graph runs one) are known."""
+        return {"plant", "design"} | ({"controller"} if controller else set()) <= set(self.last)
+
+    def session_inputs(self, path, frf, nonlinear_magnets: bool):
+        """:class:`ambid.studies.identification.SessionInputs` of what was heard, with ``frf`` (or None)."""
+        from ambid.studies.identification import inputs_from_messages
+
+        return inputs_from_messages(path, self.design_topic, self.last["design"], self.last.get("plant"),
+                                    self.last.get("controller"), frf, nonlinear_magnets)
 
 
 def _hardware_summary(bridge: dict, total: int, fs: float, wall_s: float) -> dict:
@@ -300,23 +362,102 @@ def _jsonable(cfg: SessionConfig) -> dict:
     return d
 
 
-def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None) -> dict:
+def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None, on_headline=None) -> dict:
     """The whole job: the recorded session on the graph, then the offline identification of it.
+
+    The analysis runs in a process of its own (:class:`ambid.studies.early_analysis.EarlyAnalysis`), started
+    with the session: what the measurement does not change is computed while it runs, the fit and the update
+    start the moment the last period is in, while the graph and the recording close. ``on_headline`` is called
+    with the summary as soon as the results are there, before the report is written (the numbers are those of
+    the recording's analysis; should that process fail, the recording is analysed here, as before).
 
     Writes ``out_dir/session.mcap``, ``out_dir/summary.json`` and ``out_dir/report/``.
     """
+    from ambid.studies.early_analysis import EarlyAnalysis, EarlyAnalysisFailed
     from ambid.studies.identification import identify_session
 
-    run = run_session_composed(cfg, plan)
-    design: ExcitationDesign = run.pop("design")
     true_model = None
     if cfg.true_model:
         from ambid.hardware.target_model import read_target_model
 
         true_model = read_target_model(cfg.true_model).plant
-    offline = identify_session(run["mcap_path"], cfg.out_dir, estimator=cfg.estimator, true_model=true_model)
+    options = dict(estimator=cfg.estimator, true_model=true_model)
+    live = start_live(cfg)
+    # with a real-time target the bridge must never fall silent: the analysis yields it the CPU
+    early = EarlyAnalysis(cfg.out_dir, nice=5 if cfg.hardware else 0, **options)
+    plan = plan_session(cfg) if plan is None else plan
+    # what the analysis compares with and the measurement does not change, computed while the session runs
+    # (from the plan: used if it is what the session then describes, see SessionMessages)
+    early.prepare(_planned_inputs(cfg, plan), plan.design.freq_hz, len(DEFAULT_OUTPUTS))
+    try:
+        run = run_session_composed(cfg, plan, live=live, early=early)
+        design: ExcitationDesign = run.pop("design")
+        shown: dict = {}
+
+        def show(offline: dict) -> None:   # the headline, as soon as the results are there
+            shown["at"] = time.perf_counter()
+            if on_headline is not None:
+                on_headline(_identify_summary(cfg, run, design, offline, _timing(run, shown)))
+
+        offline = notes = None
+        if early.analysing:
+            try:
+                early.recording_closed()
+                first, how = early.summary()
+                shown.update(how, early=True)
+                if run.get("final_estimate_at") is not None:
+                    shown["analysis_started_after_last_period_s"] = early.times["analyse"] - run["final_estimate_at"]
+                show(first)
+                offline, notes = early.result()
+            except EarlyAnalysisFailed as exc:
+                print(f"ambid identify: the analysis process failed ({str(exc).splitlines()[0]}); analysing the "
+                      "recording here", file=sys.stderr)
+        if offline is None:
+            offline = identify_session(run["mcap_path"], cfg.out_dir, on_summary=None if shown else show, **options)
+        shown["done"] = time.perf_counter()
+        if notes:   # the early inputs differed from the recording's: the results shown were replaced
+            print("ambid identify: " + "; ".join(notes), file=sys.stderr)
+            offline = {**offline, "notes": list(offline.get("notes", [])) + notes}
+            show(offline)
+        summary = _identify_summary(cfg, run, design, offline, _timing(run, shown))
+    finally:
+        early.close()
+        live_figures = live.stop() if live is not None else None
+    if live_figures is not None:
+        summary["live"] = live_figures
+    (cfg.out_dir / "summary.json").write_text(json.dumps(to_jsonable(summary), indent=2))
+    return summary
+
+
+def _planned_inputs(cfg: SessionConfig, plan: SessionPlan):
+    """The session's inputs as the plan foresees them (the rig's JSON as plant_sim publishes it, the
+    controller's model, the design), without the FRF: what reference models can be computed from early."""
+    from ambid.studies.identification import SessionInputs
+
+    ctrl = None if plan.controller is None else (plan.controller.model, {})
+    experiment = {"topic": "", "experiment_id": "", "start_index": 0, "total_samples": plan.design.total_samples,
+                  "design": plan.design}
+    return SessionInputs(str(cfg.out_dir / "session.mcap"), experiment, None, json.loads(json.dumps(plan.rig.to_dict())),
+                         "hardware" if cfg.hardware else "sim", ctrl, cfg.nonlinear_magnets)
+
+
+def _timing(run: dict, shown: dict) -> dict:
+    """Wall seconds from the last period's estimate (the consumer's final FRF) to the headline and the report."""
+    t0 = run.get("final_estimate_at")
+    if t0 is None:
+        return {}
+    out = {k: shown[k] for k in ("early", "references_s", "references_used", "waited_for_references_s",
+                                 "analysis_s", "analysis_cpu_s", "analysis_started_after_last_period_s") if k in shown}
+    if "at" in shown:
+        out["headline_after_last_period_s"] = shown["at"] - t0
+    if "done" in shown:
+        out["report_after_last_period_s"] = shown["done"] - t0
+    return out
+
+
+def _identify_summary(cfg: SessionConfig, run: dict, design: ExcitationDesign, offline: dict, timing: dict) -> dict:
     rec = run["recorder"]
-    summary = {
+    return {
         "excitation": {
             "kind": design.kind, "multi_input": design.options.get("mimo") if design.kind == "multisine" else None,
             "grid": design.options.get("grid") if design.kind == "multisine" else None,
@@ -343,8 +484,7 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None) -> dict:
                           "duplicate_answers": run["plant"].get("duplicate_answers", 0)},
         "live_frf": run["live_frf"],
         **offline,
+        "analysis_timing": timing,
         "recording": {"path": run["mcap_path"], "messages": rec.get("messages", rec.get("message_count")),
                       "complete": rec.get("complete", True)},
     }
-    (cfg.out_dir / "summary.json").write_text(json.dumps(to_jsonable(summary), indent=2))
-    return summary

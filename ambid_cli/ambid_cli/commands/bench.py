@@ -7,6 +7,12 @@ Sections (each can be skipped):
   interleaved (:mod:`ambid_cli.bench.loop`);
 * identify: a full default ``identify`` session composed, recorder and
   consumer included (:mod:`ambid_cli.bench.identify`);
+* analysis: a whole ``identify``: wall seconds from the last period to the
+  headline and to the report, beside the analysis of the same recording after
+  the session as it used to run (:mod:`ambid_cli.bench.live`);
+* live: the live view's cost on the loop, an identify session with the live
+  view and a connected Foxglove client against one without
+  (:mod:`ambid_cli.bench.live`);
 * offline: FRF of a session beside bare reads of the same MCAP file
   (:mod:`ambid_cli.bench.offline`);
 * fit: the common-denominator fit of a 4x4 FRF of 2,000 lines;
@@ -40,7 +46,7 @@ from ambid_cli.results_page import measured_on, write_section
 from ambid.jsonable import to_jsonable
 
 HELP = "measure loop throughput, identify real-time factor, offline rates and memory against the targets"
-SECTIONS = ("loop", "identify", "offline", "fit", "settling", "memory")
+SECTIONS = ("loop", "identify", "analysis", "live", "offline", "fit", "settling", "memory")
 FACTOR = 6  # the long session of the memory figure is this many times longer
 
 # the sizes of a --quick run (the smoke test): every section, seconds each
@@ -48,6 +54,11 @@ QUICK = {
     "loop_seconds": 0.2, "repeats": 1, "fit_lines": 200, "fit_order": 12,
     "identify": {"band_hz": (50.0, 1000.0), "resolution_hz": 50.0, "n_periods": 1, "n_realisations": 1,
                  "n_transient_periods": 1},
+    "analysis": {"band_hz": (50.0, 1000.0), "resolution_hz": 50.0, "n_periods": 2, "n_realisations": 2,
+                 "n_transient_periods": 1},
+    "live": {"band_hz": (50.0, 1000.0), "resolution_hz": 50.0, "n_periods": 1, "n_realisations": 1,
+             "n_transient_periods": 1},
+    "live_repeats": 1,
     "offline_design": {"band_hz": (50.0, 1000.0), "resolution_hz": 50.0, "n_periods": 1, "n_realisations": 1,
                        "n_transient_periods": 1},
     "live_memory": {"band_hz": (50.0, 1000.0), "resolution_hz": 50.0, "n_periods": 1, "n_realisations": 1,
@@ -59,6 +70,9 @@ FULL = {
     # five rounds: this machine's speed drifts by up to 2x within seconds, the median of five pairs holds
     "loop_seconds": 2.0, "repeats": 5, "fit_lines": 2000, "fit_order": 24,
     "identify": {},
+    "analysis": {},
+    "live": {},
+    "live_repeats": 5,   # five pairs of default identify sessions with and without the live view (the load drifts)
     "offline_design": {},
     "offline_memory_design": {"n_realisations": 1},
     "live_memory": {"resolution_hz": 10.0, "n_periods": 2, "n_realisations": 1, "n_transient_periods": 1},
@@ -131,6 +145,33 @@ def _identify_section(sizes: dict, work: Path, figures: list) -> dict:
     figures += [
         _at_least("identify session real-time factor (composed)", res["real_time_factor"], "x", 1.0, "1.0"),
         _figure("identify session, loop only: real-time factor", res["loop_real_time_factor"], "x"),
+    ]
+    return res
+
+
+def _analysis_section(sizes: dict, work: Path, figures: list) -> dict:
+    from ambid_cli.bench.live import analysis_figures
+
+    res = analysis_figures(work, sizes["analysis"])
+    figures += [
+        _at_most("analysis after the last period: headline", res.get("headline_after_last_period_s"), "s", 2.0,
+                 "2 s"),
+        _figure("analysis after the last period: report written", res.get("report_after_last_period_s"), "s"),
+        _figure("the same recording analysed after the session (the old path)", res["before_s"], "s"),
+        _figure("identify session beside its analysis process: samples/s", res["session_samples_per_s"], "1/s"),
+    ]
+    return res
+
+
+def _live_section(sizes: dict, work: Path, figures: list) -> dict:
+    from ambid_cli.bench.live import live_figures
+
+    res = live_figures(work, sizes["live"], sizes["live_repeats"])
+    figures += [
+        _at_least("identify loop with the live view and a client / without", res["ratio"], "", 0.95, "0.95"),
+        _figure("identify session with the live view and a client / without", res["session_ratio"], ""),
+        _figure("live view and client CPU / identify session CPU", res["live_and_client_cpu_share"], ""),
+        _figure("live view: messages the client received per session", res["client_messages"], ""),
     ]
     return res
 
@@ -267,6 +308,8 @@ def run(args: argparse.Namespace) -> int:
     sections = {
         "loop": lambda: _loop_section(sizes, figures),
         "identify": lambda: _identify_section(sizes, work, figures),
+        "analysis": lambda: _analysis_section(sizes, work, figures),
+        "live": lambda: _live_section(sizes, work, figures),
         "offline": lambda: _offline_section(sizes, work, figures),
         "fit": lambda: _fit_section(sizes, figures),
         "settling": lambda: _settling_section(sizes, figures),

@@ -6,8 +6,8 @@ import argparse
 import sys
 
 from ambid.control.kinds import describe_kinds
-from ambid_cli.commands.inputs import (address, checked_controller, controller, count, no_controller_on_hardware,
-                                         positive_float, rig_file)
+from ambid_cli.commands.inputs import (add_live_options, address, checked_controller, controller, count, free_port,
+                                       no_controller_on_hardware, positive_float, rig_file)
 
 from ambid_nodes.graph import (DEFAULT_NAMESPACE, GraphConfig, run_composed, run_hardware, run_processes,
                                session_domain_id)
@@ -29,11 +29,34 @@ def add_arguments(g: argparse.ArgumentParser) -> None:
                    help="run against a real-time target over the UDP bridge instead of plant_sim "
                         "(the target runs the fast loop; see docs/bridge_protocol.md)")
     g.add_argument("--local-port", type=count, default=0, help="with --hardware: local UDP port (default: any)")
+    add_live_options(g)
 
 
 def run(args: argparse.Namespace) -> int:
     rig = rig_file(args.rig)  # a bad rig file stops here, before any node starts
     no_controller_on_hardware(args)
+    if args.live is None:
+        return run_graph(args, rig)
+    free_port(args.live_host, args.live)
+    from ambid_nodes.live_view import LiveProcess
+
+    live = LiveProcess(args.live, args.live_host, args.namespace, "indirect", session_domain_id())
+    try:
+        try:
+            url = live.wait_ready()
+        except RuntimeError as exc:
+            print(f"ambid graph: {exc}", file=sys.stderr)
+            return 1
+        print(f"ambid graph: live view on {url} (docs/live.md)", flush=True)
+        return run_graph(args, rig)
+    finally:
+        f = live.stop()
+        if f:
+            print(f"live view: {f.get('frames_sent', 0)} frames sent to {f.get('clients', 0)} client(s), "
+                  f"{f.get('dropped_frames', 0)} dropped, {f.get('lost_blocks', 0)} blocks lost")
+
+
+def run_graph(args: argparse.Namespace, rig) -> int:
     if args.hardware:
         return run_on_hardware(args, rig)
     ctrl = checked_controller(args.controller, rig)  # and an unknown or unstable controller

@@ -9,8 +9,8 @@ from pathlib import Path
 
 from ambid.control.kinds import describe_kinds
 
-from ambid_cli.commands.inputs import (BadInput, add_experiment_options, add_session_options, address,
-                                        checked_controller, controller, count, experiment_spec,
+from ambid_cli.commands.inputs import (BadInput, add_experiment_options, add_live_options, add_session_options,
+                                        address, checked_controller, controller, count, experiment_spec, free_port,
                                         no_controller_on_hardware, output_dir, rig_file)
 
 HELP = "identify the simulated rig end to end (graph, experiment, recording, FRF, fit, report)"
@@ -35,6 +35,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--true-model", default="", metavar="FILE",
                    help="with --hardware: the model file the C reference target runs ('ambid target-model'); "
                         "the FRF error and modes are compared with it")
+    add_live_options(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -56,23 +57,32 @@ def run(args: argparse.Namespace) -> int:
             read_target_model(args.true_model)
         except (OSError, ValueError, IndexError) as exc:
             raise BadInput(f"--true-model {exc}; give the file 'ambid target-model' wrote") from None
+    if args.live is not None:
+        free_port(args.live_host, args.live)
     cfg = SessionConfig(out_dir=args.out, experiment=spec, rig_file=args.rig, controller=args.controller,
                         nonlinear_magnets=not args.linear_magnets, estimator=args.estimator,
                         hardware=args.hardware or "", local_port=args.local_port, true_model=args.true_model,
-                        progress=not args.no_progress and sys.stderr.isatty())
+                        progress=not args.no_progress and sys.stderr.isatty(), live_port=args.live,
+                        live_host=args.live_host)
     try:
         plan = plan_session(cfg, rig, ctrl)  # the design, made once
     except ValueError as exc:
         raise BadInput(str(exc)) from None
+    def headline(summary: dict) -> None:   # printed as soon as the results are there; the report follows
+        print(format_headlines(summary, args.out), flush=True)
+
     try:
-        summary = run_identify(cfg, plan)
+        summary = run_identify(cfg, plan, on_headline=headline)
     except KeyboardInterrupt:
         print("ambid identify: interrupted; the recording so far is in", args.out / "session.mcap", file=sys.stderr)
         return 130
     except (ValueError, RuntimeError) as exc:
         print(f"ambid identify: {exc}", file=sys.stderr)
         return 1
-    print(format_headlines(summary, args.out))
+    live = summary.get("live")
+    if live:
+        print(f"  live view: {live.get('frames_sent', 0)} frames sent to {live.get('clients', 0)} client(s), "
+              f"{live.get('dropped_frames', 0)} dropped, {live.get('lost_blocks', 0)} blocks lost")
     return 0 if summary.get("state", "done") == "done" else 1
 
 
@@ -117,6 +127,10 @@ def format_headlines(s: dict, out: Path) -> str:
             if "true_peak" in sens:
                 line += f", true loop {max(sens['true_peak']):.2f}"
         lines.append(line)
+    timing = s.get("analysis_timing") or {}
+    if "headline_after_last_period_s" in timing:
+        lines.append(f"  results {timing['headline_after_last_period_s']:.1f} s after the last period; the report "
+                     "follows")
     lines += [f"  summary: {out / 'summary.json'}", f"  report:  {out / 'report' / 'index.html'}",
               f"  session: {s['recording']['path']} ({s['recording']['messages']} messages)"]
     return "\n".join(lines)

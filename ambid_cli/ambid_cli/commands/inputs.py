@@ -210,3 +210,37 @@ def experiment_spec(args: argparse.Namespace, **terms) -> DesignSpec:
         given["band_hz"] = check_band(tuple(given["band_hz"]))
     return DesignSpec(**{**given, **terms})
 
+
+
+def port_number(text: str) -> int:
+    """A TCP port (argparse type): 0..65535, 0 for any free one."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a port number (0..65535)") from None
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"{text} is out of range: a port is 0..65535")
+    return value
+
+
+def add_live_options(p: argparse.ArgumentParser) -> None:
+    """--live PORT and --live-host HOST: the Foxglove live view of a running session (docs/live.md)."""
+    p.add_argument("--live", type=port_number, metavar="PORT",
+                   help="show the session live in Foxglove: a WebSocket server on PORT (0: any free one); "
+                        "see docs/live.md")
+    p.add_argument("--live-host", default="127.0.0.1", metavar="HOST",
+                   help="address the live view binds (default 127.0.0.1: this machine only; 0.0.0.0: every "
+                        "interface)")
+
+
+def free_port(host: str, port: int, option: str = "--live") -> None:
+    """:class:`BadInput` unless ``host:port`` can be listened on now (checked before anything starts)."""
+    import socket
+
+    try:
+        with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM) as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            s.bind((host, port))
+    except OSError as exc:
+        raise BadInput(f"{option} {port}: cannot listen on {host}:{port} ({exc.strerror or exc}); choose another "
+                       "port, or free this one") from None

@@ -638,12 +638,20 @@ class FrfStream:
         """(Ne, K, L, ch) spectra of the records of realisation m kept in all experiments."""
         return self._spec[m][:, self._valid[m].all(axis=0)]
 
-    def estimate(self, estimator: str = "indirect") -> FrfResult | None:
+    @property
+    def records_done(self) -> int:
+        """Records (m, p) complete in all Ne experiments so far, the running realisation's included."""
+        return int(sum(np.count_nonzero(v.all(axis=0)) for v in self._valid))
+
+    def estimate(self, estimator: str = "indirect", partial: bool = False) -> FrfResult | None:
         """The FRF from the realisations passed so far, or None if there is none yet.
 
         Args:
             estimator: one of :data:`ESTIMATORS` (the noise kind takes
                 'indirect' or 'h1').
+            partial: also use the records of the realisation still running
+                (a live preview after every record; the final estimate is the
+                same either way, since the last realisation has then passed).
 
         Returns:
             :class:`FrfResult`, or None before the first realisation with a
@@ -659,7 +667,8 @@ class FrfStream:
         if not self._periodic and estimator not in _NON_PERIODIC_ESTIMATORS:
             raise ValueError(f"a noise excitation is not periodic: use one of "
                              f"{_NON_PERIODIC_ESTIMATORS}, not {estimator!r}")
-        used = [m for m in range(self._real_done)
+        last = min(self._real_done + (1 if partial else 0), len(self._valid))
+        used = [m for m in range(last)
                 if self._real_end[m] <= self._end and self._valid[m].all(axis=0).any()]
         if self._transients is not None:   # a segment with a gap has no transient-free spectrum
             ne = self.design.n_experiments

@@ -43,10 +43,12 @@ and worst value over the excited lines.
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import json
 import os
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -81,7 +83,8 @@ from ambid.session.facts import controller_facts, controller_model, plant_facts
 from ambid.statespace import StateSpace
 
 __all__ = ["select_order", "frf_relative_error", "recorded_controller", "session_rig", "true_modes",
-           "compare_modes", "FrfFit", "fit_frf", "update_rig", "identify_session"]
+           "compare_modes", "FrfFit", "fit_frf", "update_rig", "identify_session", "SessionInputs",
+           "read_session_inputs", "inputs_from_messages", "ReferenceModels", "reference_key", "reference_models"]
 
 _PLANT_TOPIC = "plant/description"
 _DESIGN_TOPIC = "excitation/design"
@@ -540,7 +543,10 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
                      order_penalty: float = 2.0, update: bool = True,
                      nominal: Mapping[str, float] | None = None,
                      update_free: Sequence[str] | None = None, report: bool = True,
-                     recover: bool = False, true_model: StateSpace | None = None) -> dict:
+                     recover: bool = False, true_model: StateSpace | None = None,
+                     inputs: SessionInputs | None = None,
+                     references: ReferenceModels | Callable[[], ReferenceModels | None] | None = None,
+                     on_summary: Callable[[dict], None] | None = None) -> dict:
     """Identify the rig from one experiment of a recorded session (module docstring).
 
     Args:
@@ -569,6 +575,13 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
             known from elsewhere (a hardware session against the C reference
             target, whose model file says what it runs): the FRF error and the
             modes are compared with it, as with a simulated session's true rig.
+        inputs: what the session holds (:func:`read_session_inputs`), when the caller has it already (e.g.
+            from the running graph, before the recording is closed); default read from ``mcap_path``.
+        references: :func:`reference_models` computed ahead (e.g. while the session ran), or a function
+            returning them, called once the fit and the update are done (so they can still be in the making
+            meanwhile); used when their key matches these inputs, else computed here: the numbers are the same.
+        on_summary: called with the summary before the report is written, so that a caller can show the
+            results without waiting for the figures.
 
     Returns:
         JSON-safe summary dict (also written to ``identification.json``):
@@ -601,10 +614,11 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     out = Path(out_dir)
     path = os.fspath(mcap_path)
     notes: list[str] = []
-    frf = frf_from_session(path, estimator=estimator, experiment_id=experiment_id, recover=recover)
-    designs = session_designs(path, recover=recover)
+    if inputs is None:
+        inputs = read_session_inputs(path, estimator, experiment_id, recover)
+    frf = inputs.frf
     out.mkdir(parents=True, exist_ok=True)  # only once the session gave an FRF: a refusal leaves nothing behind
-    chosen = [d for d in designs if experiment_id is None or d["experiment_id"] == experiment_id][-1]
+    chosen = inputs.experiment
     design: ExcitationDesign = chosen["design"]
     dt_s = 1.0 / design.fs_hz
     f = frf.freq_hz
@@ -619,49 +633,17 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     save_model_json(out / "model.json", fit.model)
 
     # --- rig: nominal, truth, updating --------------------------------------------------
-    namespace = chosen["topic"].rstrip("/")[:-len(_DESIGN_TOPIC)]
-    facts, source = session_rig(path, namespace + _PLANT_TOPIC, recover=recover)
+    facts, source = inputs.rig_facts, inputs.plant_source
     the_rig = _load_rig(rig, facts)
     simulated = facts is not None and source == "sim"
     true_g = true_params = true_g_x = true_noise = None
     true_rig = make_rig(facts) if simulated else None
+    recorded = inputs.controller
     modes_vs_true: list[dict] = []
     if the_rig is None:
         notes.append("no rig in the session and none given: no nominal model, no updating")
-    if simulated and the_rig is not None:
-        true_g = true_linear_model(true_rig, discrete=True).freqresp(f)
-        true_params = true_parameters(true_rig)
-        recorded = recorded_controller(path, recover)
-        if recorded is not None and design.is_periodic and _nonlinear_magnets(path, recover):
-            # what this excitation measures: the magnets' slopes averaged over the excursions it causes
-            ki_x, ks_x = excitation_slopes(true_rig, recorded[0], design)
-            true_params.update(ki_at_excitation=float(np.mean(ki_x)), ks_at_excitation=float(np.mean(ks_x)),
-                               ks_b_over_a_at_excitation=float(np.mean(ks_x[[1, 3]]) / np.mean(ks_x[[0, 2]])))
-            true_g_x = true_linear_model(true_rig, discrete=True, plant=true_plant(true_rig, ki_x, ks_x)).freqresp(f)
-        # physical-looking fitted modes: positively damped and found again at the next lower order
-        physical = [(m.freq_hz, m.damping) for m, row in zip(modes, mode_rows) if row["stable"] and m.damping > 0]
-        # the modes of the linear system this excitation measures (the magnets' stiffness moves them)
-        true_plant_x = None if true_g_x is None else true_plant(true_rig, ki_x, ks_x)
-        if recorded is not None and frf.noise_std.shape == (4,):
-            # the sensor noise through the loop this excitation linearises
-            true_noise = closed_loop_noise_std(true_rig, recorded[0], true_plant_x)
-        modes_vs_true = compare_modes(physical or [(m.freq_hz, m.damping) for m in modes],
-                                      true_modes(true_linear_model(true_rig, plant=true_plant_x).poles(), band),
-                                      design.fs_hz / design.n_per_period)
-    if true_model is not None:  # given: it is the truth, whatever the session's source
-        true_g = true_model.freqresp(f)
-        z = true_model.poles()
-        s_poles = np.log(z[np.abs(z) > 0]) / true_model.dt if true_model.dt > 0 else true_model.poles()
-        physical = [(m.freq_hz, m.damping) for m, row in zip(modes, mode_rows) if row["stable"] and m.damping > 0]
-        modes_vs_true = compare_modes(physical or [(m.freq_hz, m.damping) for m in modes], true_modes(s_poles, band),
-                                      design.fs_hz / design.n_per_period)
-    elif the_rig is not None and not simulated:
+    if true_model is None and the_rig is not None and not simulated:
         notes.append("not a simulated session: no true model to compare with")
-    for row in modes_vs_true:
-        # one true and one fitted mode: the fitted mode's interval against the truth (a cluster's
-        # mean has none: its members' covariance is not kept)
-        if row["n_true"] == 1 and row["n_fitted"] == 1:
-            row.update(_mode_interval(fit, row["freq_hz"], row["damping"]))
     upd: PhysicalUpdate | None = None
     update_error = None
     if update and the_rig is not None:
@@ -669,6 +651,30 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         notes.extend(update_notes)
         if update_error:
             notes.append(f"model updating failed: {update_error}")
+
+    # the truths, after the fit and the update: reference models still in the making meanwhile are waited for
+    # only now
+    ny = len(frf.output_names)
+    given = references() if callable(references) else references
+    refs = given if given is not None and given.key == reference_key(inputs, f, ny) else reference_models(inputs, f, ny)
+    if simulated and the_rig is not None:
+        true_g, true_params, true_g_x, true_noise = refs.true_g, refs.true_params, refs.true_g_x, refs.true_noise
+        # physical-looking fitted modes: positively damped and found again at the next lower order
+        physical = [(m.freq_hz, m.damping) for m, row in zip(modes, mode_rows) if row["stable"] and m.damping > 0]
+        modes_vs_true = compare_modes(physical or [(m.freq_hz, m.damping) for m in modes],
+                                      true_modes(refs.true_poles, band), design.fs_hz / design.n_per_period)
+    if true_model is not None:  # given: it is the truth, whatever the session's source
+        true_g = true_model.freqresp(f)
+        z = true_model.poles()
+        s_poles = np.log(z[np.abs(z) > 0]) / true_model.dt if true_model.dt > 0 else true_model.poles()
+        physical = [(m.freq_hz, m.damping) for m, row in zip(modes, mode_rows) if row["stable"] and m.damping > 0]
+        modes_vs_true = compare_modes(physical or [(m.freq_hz, m.damping) for m in modes], true_modes(s_poles, band),
+                                      design.fs_hz / design.n_per_period)
+    for row in modes_vs_true:
+        # one true and one fitted mode: the fitted mode's interval against the truth (a cluster's
+        # mean has none: its members' covariance is not kept)
+        if row["n_true"] == 1 and row["n_fitted"] == 1:
+            row.update(_mode_interval(fit, row["freq_hz"], row["damping"]))
 
     truths = {} if true_g is None else {"true_frf": true_g}
     if true_g_x is not None:
@@ -700,7 +706,6 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
                  distortion_odd_db=None if dist is None else dist.odd_db,
                  distortion_even_db=None if dist is None else dist.even_db, fit_weights=w_kind)
     update_dict = None
-    recorded = recorded_controller(path, recover)
     if the_rig is not None and recorded is not None and update:
         notes.extend(_loop_notes(the_rig, nominal, upd, recorded[0], dt_s))
     if upd is not None:
@@ -785,11 +790,13 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         sensitivity=dict(peak=frf.sensitivity_peak, peak_hz=frf.sensitivity_peak_hz,
                          worst_input=frf.input_names[worst], worst_peak=float(frf.sensitivity_peak[worst]),
                          iso_zone=frf.iso_zone,
-                         **_model_sensitivity(fit.model, band, recorded, true_rig),
+                         **_model_sensitivity(fit.model, refs),
                          **_updated_sensitivity(the_rig, upd, recorded, dt_s)),
         files=dict(model_npz=str(out / "model.npz"), model_json=str(out / "model.json"),
                    frf_npz=str(out / "frf.npz"), summary_json=str(out / "identification.json")),
         notes=notes)
+    if on_summary is not None:
+        on_summary(to_jsonable({**summary, "wall_s": time.perf_counter() - t0}))
     if report:
 
         levels, window = _samples_for_report(path, chosen, design, frf, recover)
@@ -873,28 +880,27 @@ def recorded_controller(path: str | os.PathLike, recover: bool = False) -> tuple
     return None
 
 
-def _model_sensitivity(model: StateSpace, band, recorded, true_rig: Rig | None) -> dict:
+def _model_sensitivity(model, refs: ReferenceModels) -> dict:
     """Input-sensitivity peak between the excited lines: S = (I - K G_fit)^-1 on a dense grid.
 
     The measured S is known only at the excited lines, which can straddle a
     sharp peak; the fitted plant with the recorded controller K(z) gives it in
-    between. With a simulated rig, the true loop's peak is given beside it.
+    between (K on the grid: ``refs.controller_frf``). With a simulated rig, the
+    true loop's peak is given beside it (``refs.true_loop``).
     """
-    if recorded is None:
+    if refs.controller_frf is None:
         return {}
-    k = recorded[0]
-    f = np.linspace(band[0], band[1], 8000)
+    f = refs.sens_freq_hz
     g = model.freqresp(f)
-    kz = k.freqresp(f)
+    kz = refs.controller_frf
     s = np.linalg.inv(np.eye(g.shape[2])[None] - kz @ g)
     diag = np.abs(np.diagonal(s, axis1=1, axis2=2))
     i = diag.argmax(axis=0)
     peak = diag[i, np.arange(diag.shape[1])]
     out = dict(model_peak=peak, model_peak_hz=f[i], model_iso_zone=iso14839_zone(float(peak.max())),
                model_note="fitted plant with the recorded controller, 8000 lines over the band")
-    if true_rig is not None:
-        truth = loop_robustness(true_linear_model(true_rig), k)
-        out.update(true_peak=truth.sensitivity_peak, true_peak_hz=truth.peak_freq_hz, true_iso_zone=truth.zone)
+    if refs.true_loop is not None:
+        out.update(refs.true_loop)
     return out
 
 
@@ -937,3 +943,194 @@ def _updated_sensitivity(rig: Rig | None, upd: PhysicalUpdate | None, recorded, 
         return dict(updated_note="the updated model's loop with the recorded controller is unstable: no peak")
     return dict(updated_peak=rob.sensitivity_peak, updated_peak_hz=rob.peak_freq_hz, updated_iso_zone=rob.zone,
                 updated_note="updated physical model with the recorded controller")
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# What an identification reads from its session (read once), and what it compares the measurement with (the
+# same whatever was measured): apart, so that a running session can have both before its recording is closed
+# (ambid.studies.early_analysis).
+
+@dataclass(frozen=True)
+class SessionInputs:
+    """What the identification of one experiment takes from its session.
+
+    Attributes:
+        path: the session file.
+        experiment: the experiment's entry as :func:`ambid.frf.offline.session_designs` lists it
+            (``topic``, ``experiment_id``, ``start_index``, ``total_samples``, ``design``).
+        frf: its FRF (:func:`ambid.frf.offline.frf_from_session`); None before the measurement ends.
+        rig_facts: the rig parameters the session recorded (:func:`session_rig`), or None.
+        plant_source: ``'sim'``, ``'hardware'`` or None.
+        controller: the controller that ran, (discrete StateSpace y -> ic, facts), or None.
+        nonlinear_magnets: the simulated plant ran the nonlinear magnets.
+    """
+
+    path: str
+    experiment: dict
+    frf: FrfResult | None
+    rig_facts: dict | None
+    plant_source: str | None
+    controller: tuple[StateSpace, dict] | None
+    nonlinear_magnets: bool
+
+    def digest(self) -> str:
+        """A hash of everything the identification reads from these inputs (equal digests: equal numbers)."""
+        e = self.experiment
+        d = e["design"]
+        return _digest([e["topic"], e["experiment_id"], e["start_index"], min(e["total_samples"], d.total_samples),
+                        d.to_dict(), self.frf, self.rig_facts, self.plant_source, _controller_parts(self.controller),
+                        self.nonlinear_magnets])
+
+
+def read_session_inputs(path: str | os.PathLike, estimator: str = "indirect", experiment_id: str | None = None,
+                        recover: bool = False) -> SessionInputs:
+    """:class:`SessionInputs` of one experiment (default the last) of a session file, each read once."""
+    path = os.fspath(path)
+    frf = frf_from_session(path, estimator=estimator, experiment_id=experiment_id, recover=recover)
+    designs = session_designs(path, recover=recover)
+    chosen = [d for d in designs if experiment_id is None or d["experiment_id"] == experiment_id][-1]
+    namespace = chosen["topic"].rstrip("/")[:-len(_DESIGN_TOPIC)]
+    facts, source = session_rig(path, namespace + _PLANT_TOPIC, recover=recover)
+    return SessionInputs(path, chosen, frf, facts, source, recorded_controller(path, recover),
+                         _nonlinear_magnets(path, recover))
+
+
+def inputs_from_messages(path: str | os.PathLike, design_topic: str, design_msg: Any, plant_msg: Any,
+                         controller_msg: Any, frf: FrfResult | None, nonlinear_magnets: bool) -> SessionInputs:
+    """:class:`SessionInputs` from the messages a session publishes, read as the recording's are read.
+
+    For a caller that has the session's messages before its recording is closed (the composed graph):
+    ``design_msg`` (the experiment's last ExcitationDesign), ``plant_msg`` (PlantDescription) and
+    ``controller_msg`` (ControllerDescription, or None) as rclpy messages or decoded ones, ``frf`` the
+    estimate of the FRF consumer, which runs the stream :func:`ambid.frf.offline.frf_from_session` runs
+    (None while the measurement runs).
+    """
+    design = ExcitationDesign.from_dict(json.loads(design_msg.design_json))
+    experiment = {"topic": design_topic, "experiment_id": design_msg.experiment_id,
+                  "start_index": int(design_msg.start_index), "total_samples": int(design_msg.total_samples),
+                  "design": design}
+    facts = json.loads(plant_msg.rig_json) if plant_msg is not None and plant_msg.rig_json else None
+    source = plant_facts(plant_msg)["source"] if plant_msg is not None else None
+    controller = (None if controller_msg is None else
+                  (controller_model(controller_msg), controller_facts(controller_msg)))
+    return SessionInputs(os.fspath(path), experiment, frf, facts if isinstance(facts, dict) and facts else None,
+                         str(source) if source else None, controller, bool(nonlinear_magnets))
+
+
+@dataclass(frozen=True)
+class ReferenceModels:
+    """What an identification compares the measurement with that the measurement does not change.
+
+    Attributes:
+        key: :func:`reference_key` of the inputs it was made for.
+        true_g: (L, Ny, Nu) the simulated true rig's small-signal FRF at the lines (sampled), or None.
+        true_params: its physical parameters (and the magnets' slopes at this excitation), or None.
+        true_g_x: (L, Ny, Nu) the true rig linearised at this excitation's level, or None.
+        true_noise: (Ny,) the sensor noise through the true loop [m], or None.
+        true_poles: s-plane poles [rad/s] of the linear system this excitation measures, or None.
+        sens_freq_hz: (8000,) the band's dense grid of the input-sensitivity check [Hz], or None.
+        controller_frf: (8000, Nu, Ny) the recorded controller there, or None.
+        true_loop: the true loop's input-sensitivity peak (true_peak, true_peak_hz, true_iso_zone), or None.
+    """
+
+    key: str
+    true_g: np.ndarray | None = None
+    true_params: dict | None = None
+    true_g_x: np.ndarray | None = None
+    true_noise: np.ndarray | None = None
+    true_poles: np.ndarray | None = None
+    sens_freq_hz: np.ndarray | None = None
+    controller_frf: np.ndarray | None = None
+    true_loop: dict | None = None
+
+
+def reference_key(inputs: SessionInputs, freq_hz: np.ndarray, n_outputs: int) -> str:
+    """What :func:`reference_models` depends on, hashed: the rig facts, the controller's model, the design,
+    the magnets, the lines and the outputs' count."""
+    d = inputs.experiment["design"]
+    k = None if inputs.controller is None else inputs.controller[0]
+    return _digest([inputs.rig_facts, inputs.plant_source, None if k is None else [k.a, k.b, k.c, k.d, k.dt],
+                    d.to_dict(), inputs.nonlinear_magnets, np.asarray(freq_hz, dtype=float), int(n_outputs)])
+
+
+def reference_models(inputs: SessionInputs, freq_hz: np.ndarray, n_outputs: int) -> ReferenceModels:
+    """The models :func:`identify_session` compares with (:class:`ReferenceModels`), from what ``inputs``
+    say of the session, none of what it measured (``inputs.frf`` is not read): so they can be computed while
+    the session still runs.
+
+    Args:
+        inputs: the session's inputs.
+        freq_hz: (L,) the FRF's lines [Hz].
+        n_outputs: the FRF's outputs (the noise through the loop is the four radial sensors').
+    """
+    f = np.asarray(freq_hz, dtype=float)
+    refs: dict[str, Any] = {}
+    facts, design = inputs.rig_facts, inputs.experiment["design"]
+    recorded = inputs.controller
+    if facts is not None and inputs.plant_source == "sim":
+        true_rig = make_rig(facts)
+        refs["true_g"] = true_linear_model(true_rig, discrete=True).freqresp(f)
+        true_params = true_parameters(true_rig)
+        true_plant_x = None
+        if recorded is not None and design.is_periodic and inputs.nonlinear_magnets:
+            # what this excitation measures: the magnets' slopes averaged over the excursions it causes
+            ki_x, ks_x = excitation_slopes(true_rig, recorded[0], design)
+            true_params.update(ki_at_excitation=float(np.mean(ki_x)), ks_at_excitation=float(np.mean(ks_x)),
+                               ks_b_over_a_at_excitation=float(np.mean(ks_x[[1, 3]]) / np.mean(ks_x[[0, 2]])))
+            true_plant_x = true_plant(true_rig, ki_x, ks_x)
+            refs["true_g_x"] = true_linear_model(true_rig, discrete=True, plant=true_plant_x).freqresp(f)
+        refs["true_params"] = true_params
+        if recorded is not None and n_outputs == 4:
+            # the sensor noise through the loop this excitation linearises
+            refs["true_noise"] = closed_loop_noise_std(true_rig, recorded[0], true_plant_x)
+        # the modes of the linear system this excitation measures (the magnets' stiffness moves them)
+        refs["true_poles"] = true_linear_model(true_rig, plant=true_plant_x).poles()
+    if recorded is not None and f.size:
+        k = recorded[0]
+        refs["sens_freq_hz"] = grid = np.linspace(float(f.min()), float(f.max()), 8000)
+        refs["controller_frf"] = k.freqresp(grid)
+        if facts is not None and inputs.plant_source == "sim":
+            truth = loop_robustness(true_linear_model(make_rig(facts)), k)
+            refs["true_loop"] = dict(true_peak=truth.sensitivity_peak, true_peak_hz=truth.peak_freq_hz,
+                                     true_iso_zone=truth.zone)
+    return ReferenceModels(key=reference_key(inputs, f, n_outputs), **refs)
+
+
+def _controller_parts(controller: tuple[StateSpace, dict] | None) -> list | None:
+    if controller is None:
+        return None
+    k, facts = controller
+    return [k.a, k.b, k.c, k.d, k.dt, facts]
+
+
+def _digest(obj: Any) -> str:
+    """A SHA-256 of nested values: arrays by dtype, shape and bytes, floats exactly, dataclasses by field."""
+    h = hashlib.sha256()
+
+    def feed(x: Any) -> None:
+        if isinstance(x, np.ndarray):
+            h.update(f"a{x.dtype.str}{x.shape}".encode())
+            h.update(np.ascontiguousarray(x).tobytes())
+        elif dataclasses.is_dataclass(x) and not isinstance(x, type):
+            h.update(type(x).__name__.encode())
+            for fld in dataclasses.fields(x):
+                h.update(fld.name.encode())
+                feed(getattr(x, fld.name))
+        elif isinstance(x, Mapping):
+            h.update(b"{")
+            for k in sorted(x, key=str):
+                feed(str(k))
+                feed(x[k])
+            h.update(b"}")
+        elif isinstance(x, (list, tuple)):
+            h.update(b"[")
+            for v in x:
+                feed(v)
+            h.update(b"]")
+        elif isinstance(x, (float, np.floating)):
+            h.update(b"f" + float(x).hex().encode())
+        else:
+            h.update(f"{type(x).__name__}:{x!r}".encode())
+
+    feed(obj)
+    return h.hexdigest()

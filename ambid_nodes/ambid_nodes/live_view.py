@@ -1,0 +1,216 @@
+"""live_view: a Foxglove WebSocket server showing the session running on this ROS domain.
+
+Subscribes, in its namespace, ``measurement`` (SampleBlock; KEEP_LAST, so a
+slow live view can never make the plant wait: a block it misses is counted
+and its periods left out of the live FRF), the latched
+``excitation/design``, every node's ``status`` and the ``events``. Each
+message is handed as it is to :class:`ambid.live.server.LiveServer`, which
+queues it (bounded) for its own thread: the Foxglove frames, the live FRF
+and the WebSocket server are the core's (:mod:`ambid.live`). Run it as
+``ambid live PORT`` (attached to a running graph) or let ``ambid identify
+--live PORT`` / ``ambid graph --live PORT`` start it.
+
+Parameters: ``port`` (0: any free one), ``host`` (127.0.0.1: this machine
+only), ``estimator`` (the session's FRF estimator), ``signal_rate_hz``
+(decimated rate of the time plot). On exit it prints one line
+``AMBID_SUMMARY {json}`` of its figures (frames sent, frames dropped, blocks
+lost, ...).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+from ambid.excitation import ExcitationDesign
+from ambid.frf.streaming import ESTIMATORS
+from ambid.live.follower import SessionFollower
+from ambid.live.server import LiveServer, LiveUnavailable
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from ambid_msgs.msg import ExcitationDesign as DesignMsg
+from ambid_msgs.msg import SampleBlock, SessionEvent, SessionStatus
+from ambid_nodes import qos
+from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
+
+# reliable, so that a fragment lost on the way is sent again, but KEEP_LAST: the plant's writer (KEEP_LAST 200)
+# never waits for this reader; a live view 200 blocks (20 s of a 10 kHz session) behind loses the oldest
+LIVE_BLOCKS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
+
+
+def _t_ns(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+class LiveView(Node):
+    def __init__(self, **kwargs) -> None:
+        super().__init__("live_view", **kwargs)
+        port = declare(self, "port", 8765, "TCP port of the Foxglove WebSocket server (0: any free one)", 0, 65535)
+        host = declare(self, "host", "127.0.0.1", "address the server binds (0.0.0.0: every interface)")
+        estimator = declare(self, "estimator", "indirect", "the session's FRF estimator: " + " | ".join(ESTIMATORS))
+        rate = declare(self, "signal_rate_hz", 200.0, "samples per second of the time plot", 1.0, 10_000.0, "Hz")
+        refuse_unknown(self)
+        if estimator not in ESTIMATORS:
+            raise ParameterError(f"live_view: estimator '{estimator}' is not one of {list(ESTIMATORS)}")
+        prefix = self.get_namespace().rstrip("/") + "/live"
+        try:
+            self.server = LiveServer(int(port), host, SessionFollower(estimator, rate), prefix=prefix,
+                                     queue_size=256).start()
+        except LiveUnavailable as exc:
+            raise ParameterError(f"live_view: {exc}") from None
+        self.create_subscription(SampleBlock, "measurement", self.on_block, LIVE_BLOCKS)
+        self.create_subscription(DesignMsg, "excitation/design", self.on_design, qos.subscription(qos.LATCHED))
+        self.create_subscription(SessionStatus, "status", self.on_status, qos.subscription(qos.STATUS))
+        self.create_subscription(SessionEvent, "events", self.on_event, qos.subscription(qos.EVENTS))
+        self.get_logger().info(f"live view on {self.server.url} (topics {prefix}/...)")
+
+    def on_block(self, msg: SampleBlock) -> None:
+        n, names = int(msg.n_samples), list(msg.channel_names)
+        data = np.frombuffer(msg.data, dtype=np.float64)
+        if n <= 0 or not names or data.size != n * len(names):
+            return   # malformed: the session's own nodes say so; the live view shows what it can
+        self.server.submit("block", int(msg.first_index), float(msg.sample_period), names,
+                           data.reshape(n, len(names)))
+
+    def on_design(self, msg: DesignMsg) -> None:
+        try:
+            design = ExcitationDesign.from_dict(json.loads(msg.design_json))
+        except (ValueError, KeyError, TypeError) as exc:
+            self.get_logger().warning(f"excitation/design {msg.experiment_id!r} not shown: {exc}")
+            return
+        self.server.submit("design_message", msg.experiment_id, design, int(msg.start_index), int(msg.total_samples))
+
+    def on_status(self, msg: SessionStatus) -> None:
+        self.server.submit("status_message", msg.node, int(msg.state), int(msg.sample_index), float(msg.progress),
+                           int(msg.messages_received), int(msg.messages_rejected), msg.text,
+                           dict(zip(msg.keys, msg.values)), _t_ns(msg.stamp))
+
+    def on_event(self, msg: SessionEvent) -> None:
+        self.server.submit("event_message", msg.node, int(msg.severity), msg.code, msg.text, int(msg.sample_index),
+                           _t_ns(msg.stamp))
+
+    def close(self) -> dict:
+        """Stop the server (what is queued is shown first); its figures."""
+        return self.server.close()
+
+
+class LiveProcess:
+    """``live_view`` as a process of its own beside a graph, on the same ROS domain and namespace: its work
+    and its clients never share the loop's interpreter (nor its GIL).
+
+    Args:
+        port, host: where the server listens (port 0: any free one, :attr:`url` says which).
+        namespace: the session's namespace.
+        estimator: the session's FRF estimator.
+        domain_id: ROS_DOMAIN_ID of the session.
+    """
+
+    def __init__(self, port: int, host: str, namespace: str, estimator: str, domain_id: int) -> None:
+        from ambid_nodes.graph import ros_args
+
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
+        self._lines: queue.Queue = queue.Queue()
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "ambid_nodes.live_view",
+             *ros_args(namespace, {"port": int(port), "host": host, "estimator": estimator})],
+            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+        self.url = ""
+        self.errors: list[str] = []
+        threading.Thread(target=self._read, args=(self.proc.stdout, True), daemon=True).start()
+        threading.Thread(target=self._read, args=(self.proc.stderr, False), daemon=True).start()
+
+    def _read(self, stream, is_stdout: bool) -> None:
+        for line in stream:
+            if is_stdout:
+                self._lines.put(line.rstrip("\n"))
+            elif line.startswith("error:") or "Error" in line:
+                self.errors.append(line.strip())
+        if is_stdout:
+            self._lines.put(None)
+
+    def _stdout(self, timeout_s: float):
+        """The process's output lines, until it closes its output or ``timeout_s`` passes."""
+        end = time.monotonic() + timeout_s
+        while (left := end - time.monotonic()) > 0:
+            try:
+                line = self._lines.get(timeout=min(left, 0.1))
+            except queue.Empty:
+                continue
+            if line is None:
+                return
+            yield line
+
+    def wait_ready(self, timeout_s: float = 120.0) -> str:
+        """Wait until the server listens; its URL. RuntimeError with the process's own words if it could not."""
+        if self.url:
+            return self.url
+        for line in self._stdout(timeout_s):
+            if line.startswith("live view: "):
+                self.url = line[len("live view: "):]
+                return self.url
+        try:
+            self.proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+            raise RuntimeError(f"the live view did not listen within {timeout_s:g} s") from None
+        why = "; ".join(e.removeprefix("error: ") for e in self.errors) or f"exit code {self.proc.returncode}"
+        raise RuntimeError(f"the live view did not start: {why}")
+
+    def stop(self) -> dict:
+        """SIGTERM, then its figures (from its summary line); {} if it printed none."""
+        from ambid_nodes.graph import stop_processes
+        from ambid_nodes.node_main import SUMMARY_PREFIX
+
+        stop_processes([self.proc], grace_s=10.0)
+        figures: dict = {}
+        for line in self._stdout(5.0):
+            if line.startswith(SUMMARY_PREFIX):
+                figures = json.loads(line[len(SUMMARY_PREFIX):])
+        return figures
+
+
+def main(args=None) -> int:
+    """Run the live view until SIGINT/SIGTERM; print its figures as ``AMBID_SUMMARY {json}``.
+    Exit codes: 0, 2 bad parameters or the port cannot be bound."""
+    import rclpy
+    from rclpy.experimental import EventsExecutor
+
+    from ambid_nodes.node_main import SUMMARY_PREFIX, apply_network_defaults, spin_until_done
+    from rclpy.task import Future
+
+    apply_network_defaults()
+    rclpy.init(args=args)
+    executor = EventsExecutor()
+    node = None
+    code = 0
+    try:
+        node = LiveView()
+        print(f"live view: {node.server.url}", flush=True)
+        executor.add_node(node)
+        spin_until_done(executor, Future())
+    except ParameterError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        code = 2
+    except KeyboardInterrupt:
+        pass
+    finally:
+        executor.shutdown()
+        if node is not None:
+            print(SUMMARY_PREFIX + json.dumps(node.close()), flush=True)
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

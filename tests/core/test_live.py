@@ -1,0 +1,284 @@
+"""The live view's core (ambid.live): frames from a session as it streams, and the Foxglove server.
+
+The session is the simulated 2x2 closed loop of frf_testbench, its channels named as a rig with one radial
+bearing (y_a_x, y_a_y: one orbit, never four axes assumed), excited by an orthogonal multisine and fed in
+blocks. The server is foxglove-sdk's, read by a client that speaks the Foxglove WebSocket protocol over the
+``websockets`` package, as the Foxglove app does.
+"""
+
+import asyncio
+import json
+import socket
+import struct
+import threading
+import time
+
+import numpy as np
+import pytest
+from ambid.excitation import design_multisine
+from ambid.frf.streaming import FrfStream
+from ambid.live.follower import SessionFollower
+from ambid.live.frames import SCHEMAS
+from ambid.live.layout import foxglove_layout
+from ambid.live.server import LiveServer
+from frf_testbench import FS, loop_model, simulate
+
+NAMES = ("y_a_x", "y_a_y", "u_a_x", "u_a_y", "r_a_x", "r_a_y")
+PRE, POST = 300, 500
+
+
+@pytest.fixture(scope="module")
+def session():
+    d = design_multisine((20.0, 600.0), 20.0, FS, ("u_a_x", "u_a_y"), 0.3, n_periods=3, n_realisations=2,
+                         n_transient_periods=1, grid="random_odd", seed=3)
+    r = np.zeros((PRE + d.total_samples + POST, 2))
+    r[PRE:PRE + d.total_samples] = d.samples(0, d.total_samples)
+    y, u = simulate(loop_model(), r[None], 1e-7, 1)
+    return d, np.hstack([y[0], u[0], r])
+
+
+def _follow(design, x, block=700, skip=()):
+    f = SessionFollower(signal_rate_hz=500.0, orbit_points=50)
+    frames = f.design_message("exp1", design, PRE, design.total_samples)
+    for k in range(0, len(x), block):
+        if k in skip:
+            continue
+        frames += f.block(k, 1 / FS, NAMES, x[k:k + block])
+    return f, frames
+
+
+def test_the_last_frf_frames_are_the_whole_records_estimate(session):
+    d, x = session
+    f, frames = _follow(d, x, block=250)   # blocks shorter than a period: each period ends in its own block
+    ref = FrfStream(d, NAMES[:2], NAMES[2:4], NAMES[4:], start_index=PRE)
+    ref.add(0, x)
+    final = ref.estimate("indirect")
+    frf = [fr for fr in frames if fr.schema_name == "ambid.live.FrfEntry"]
+    # the entries' channels advertised as the experiment starts (no message yet), then one estimate after every
+    # period that completed a record (in all Ne = 2 experiments): P = 3, M = 2
+    assert [fr.message for fr in frf[:4]] == [None] * 4
+    frf = frf[4:]
+    assert f.counts["estimates"] == d.n_realisations * d.n_periods
+    assert len(frf) == 4 * f.counts["estimates"]
+    last = {(m.message["output"], m.message["input"]): m.message for m in frf[-4:]}
+    for i, out in enumerate(NAMES[:2]):
+        for j, inp in enumerate(NAMES[2:4]):
+            m = json.loads(json.dumps(last[out, inp]))          # what a client decodes
+            assert m["complete"] and m["records"] == 6 and m["realisations"] == 2 and m["band"] == "total"
+            g = np.array(m["real"]) + 1j * np.array(m["imag"])
+            np.testing.assert_array_equal(g, final.frf[:, i, j])   # JSON floats round-trip exactly
+            np.testing.assert_array_equal(m["freq_hz"], final.freq_hz)
+            db = dict(rtol=0, atol=0.5e-4)   # the dB and degree arrays are rounded to 1e-4
+            np.testing.assert_allclose(m["magnitude_db"], 20 * np.log10(np.abs(final.frf[:, i, j])), **db)
+            np.testing.assert_allclose(m["phase_deg"], np.angle(final.frf[:, i, j], deg=True), **db)
+            s2 = 2 * np.sqrt(final.var_total[:, i, j])
+            np.testing.assert_allclose(m["magnitude_db_upper"], 20 * np.log10(np.abs(final.frf[:, i, j]) + s2), **db)
+            assert np.all(np.array(m["phase_deg_lower"]) <= np.array(m["phase_deg"]))
+            np.testing.assert_allclose(m["noise_db"], 10 * np.log10(final.var_noise[:, i, j]), **db)
+    # the first estimate came from the first realisation's records before it ended (a live preview)
+    first = frf[0].message
+    assert first["records"] == 1 and first["realisations"] == 1 and not first["complete"]
+    levels = [fr.message for fr in frames if fr.schema_name == "ambid.live.Levels"]
+    assert {m["output"] for m in levels[-2:]} == set(NAMES[:2])
+    assert len(levels[-1]["freq_hz"]) == d.detection_lines_odd.size + d.detection_lines_even.size
+    assert levels[-1]["odd_db"] == pytest.approx(final.distortion.odd_db[1])
+
+
+def test_signals_orbit_and_progress_follow_the_layout(session):
+    d, x = session
+    f, frames = _follow(d, x)
+    sig = [fr.message for fr in frames if fr.topic == "signals"]
+    assert set(sig[0]) == {"t_s", "y_a_x", "y_a_y", "u_a_x", "u_a_y"}
+    every = int(FS / 500)
+    assert len(sig) == len(range(0, len(x), every))           # the same samples whatever the block size
+    np.testing.assert_array_equal([m["y_a_y"] for m in sig], x[::every, 1])
+    orbits = [fr for fr in frames if fr.schema_name == "ambid.live.Orbit"]
+    assert {o.topic for o in orbits} == {"orbit/a"}           # one radial pair: one bearing, one orbit
+    o = orbits[0].message
+    assert (o["x_channel"], o["y_channel"]) == ("y_a_x", "y_a_y") and len(o["x_m"]) == 50
+    prog = [fr.message for fr in frames if fr.topic == "progress"]
+    assert prog[-1]["finished"] and prog[-1]["fraction"] == 1.0 and prog[-1]["lost_blocks"] == 0
+    assert prog[-1]["periods_done"] == prog[-1]["periods"] == d.n_realisations * d.n_experiments * d.n_periods
+    for fr in (fr for fr in frames if fr.message is not None):   # every message fits its schema's fields
+        props = SCHEMAS[fr.schema_name]["properties"]
+        extra = SCHEMAS[fr.schema_name].get("additionalProperties")
+        assert extra or set(fr.message) <= set(props), (fr.schema_name, set(fr.message) - set(props))
+
+
+def test_lost_blocks_are_counted_and_their_periods_left_out(session):
+    d, x = session
+    f, _ = _follow(d, x, skip=(1400,))   # samples 1400..2099: the first experiment's steady state
+    assert f.counts["lost_blocks"] == 1 and f.counts["lost_samples"] == 700
+    assert f.result.gaps and f.result.n_periods < d.n_realisations * d.n_periods
+    assert f.figures()["frf_gaps"] == 1 and f.figures()["frf_gap_samples"] == 700
+
+
+def test_a_live_view_that_joins_late_says_what_its_frf_misses(session):
+    d, x = session
+    f = SessionFollower()
+    f.design_message("exp1", d, PRE, d.total_samples)
+    for k in range(2000, len(x), 500):   # the first 2000 samples never came: 1700 of the experiment's
+        f.block(k, 1 / FS, NAMES, x[k:k + 500])
+    fig = f.figures()
+    assert fig["lost_blocks"] == 0 and fig["frf_gaps"] == 1 and fig["frf_gap_samples"] == 2000 - PRE
+    assert fig["finished"] and fig["periods_done"] < fig["periods"]
+
+
+def test_server_streams_to_a_foxglove_client_and_a_late_one_gets_the_latest(session):
+    d, x = session
+    server = LiveServer(0, prefix="/amb/live", follower=SessionFollower(signal_rate_hz=100.0)).start()
+    try:
+        got = asyncio.run(_client(server, d, x))
+    finally:
+        figures = server.close()
+    topics = {c["topic"] for c in got["channels"]}
+    assert {"/amb/live/frf/y_a_x/u_a_y", "/amb/live/orbit/a", "/amb/live/signals", "/amb/live/progress",
+            "/amb/live/levels/y_a_y"} <= topics
+    assert all(c["encoding"] == "json" and c["schemaEncoding"] == "jsonschema" for c in got["channels"])
+    final = [m for m in got["messages"]["/amb/live/frf/y_a_y/u_a_x"] if m["complete"]]
+    assert final, "the final estimate reached the client"
+    ref = FrfStream(d, NAMES[:2], NAMES[2:4], NAMES[4:], start_index=PRE)
+    ref.add(0, x)
+    np.testing.assert_array_equal(np.array(final[-1]["real"]) + 1j * np.array(final[-1]["imag"]),
+                                  ref.estimate().frf[:, 1, 0])
+    assert got["late"]["complete"], "a client subscribing after the end got the latest FRF at once"
+    assert figures["frames_sent"] > 0 and figures["dropped_frames"] == 0 and figures["clients"] == 2
+
+
+async def _client(server, design, x):
+    import websockets
+
+    url = f"ws://127.0.0.1:{server.port}"
+    protocols = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
+    channels, subs, messages = [], {}, {}
+    async with websockets.connect(url, subprotocols=protocols, max_size=None) as ws:
+        info = json.loads(await ws.recv())
+        assert info["op"] == "serverInfo"
+
+        def feed():   # as a session does: the design, then a block every 50 ms
+            server.submit("design_message", "exp1", design, PRE, design.total_samples)
+            for k in range(0, len(x), 1000):
+                time.sleep(0.05)
+                server.submit("block", k, 1 / FS, NAMES, x[k:k + 1000])
+
+        async def subscribe_new(adv):
+            new = []
+            for c in adv["channels"]:
+                channels.append(c)
+                subs[len(subs) + 1] = c
+                new.append({"id": len(subs), "channelId": c["id"]})
+            await ws.send(json.dumps({"op": "subscribe", "subscriptions": new}))
+
+        feeder = threading.Thread(target=feed)
+        feeder.start()
+        finished = False
+        while True:   # until the session finished and nothing more came for a second
+            try:
+                raw = await asyncio.wait_for(ws.recv(), 1.0 if finished else 20.0)
+            except asyncio.TimeoutError:
+                break
+            if isinstance(raw, str):
+                m = json.loads(raw)
+                if m["op"] == "advertise":
+                    await subscribe_new(m)
+            else:
+                assert raw[0] == 1          # MessageData: opcode, subscription id, log time, payload
+                sub_id, _t = struct.unpack_from("<IQ", raw, 1)
+                c = subs[sub_id]
+                msg = json.loads(raw[13:])
+                messages.setdefault(c["topic"], []).append(msg)
+                finished = finished or (c["topic"].endswith("progress") and msg.get("finished"))
+        feeder.join()
+        server.drain()
+    # a second client, after the session: it gets each channel's latest message on subscribing
+    async with websockets.connect(url, subprotocols=protocols, max_size=None) as ws:
+        await ws.recv()
+        adv = json.loads(await ws.recv())
+        c = next(c for c in adv["channels"] if c["topic"] == "/amb/live/frf/y_a_y/u_a_x")
+        await ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": c["id"]}]}))
+        raw = await asyncio.wait_for(ws.recv(), 10.0)
+        late = json.loads(raw[13:])
+    return {"channels": channels, "messages": messages, "late": late}
+
+
+def test_a_client_that_never_reads_costs_bounded_memory():
+    """A client subscribes to everything and never reads: the server keeps at most `backlog` messages for it,
+    so 200 MB of frames pass through while the process grows by a fraction of that (64 x 200 kB queued)."""
+    import resource
+
+    # big orbit frames (2 x 5000 floats, ~200 kB each), hardly any others
+    server = LiveServer(0, backlog=64, follower=SessionFollower(signal_rate_hz=0.1, orbit_points=5000)).start()
+    payload = np.random.default_rng(0).standard_normal((1000, 6))
+    sock = socket.create_connection(("127.0.0.1", server.port))
+    reader = sock.makefile("rb")
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        key = "dGhlIHNhbXBsZSBub25jZQ=="
+        sock.sendall((f"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                      f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
+                      "Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n").encode())
+        # the first block's frames advertise the channels; subscribe to every one, then read nothing more
+        server.submit("block", 0, 1 / FS, NAMES, payload)
+        assert server.drain()
+        while reader.readline() not in (b"\r\n", b""):   # the HTTP 101 answer
+            pass
+        ids = []
+        while len(ids) < server.figures()["channels"]:
+            op, body = _frame(reader)
+            m = json.loads(body) if op == 1 else {}
+            ids += [c["id"] for c in m.get("channels", [])] if m.get("op") == "advertise" else []
+        body = json.dumps({"op": "subscribe", "subscriptions": [{"id": i, "channelId": c}
+                                                                for i, c in enumerate(ids)]}).encode()
+        sock.sendall(bytes([0x81, 0x80 | 126]) + struct.pack(">H", len(body)) + b"\0\0\0\0" + body)
+        time.sleep(0.5)
+        rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        big = np.tile(payload, (10, 1))      # 10,000 samples a block
+        sent0 = server.figures()["bytes_sent"]
+        for k in range(1, 1200):
+            server.submit("block", 10_000 * k, 1 / FS, NAMES, big)
+            if k % 20 == 0:
+                server.drain(30.0)
+        assert server.drain(30.0)
+        sent = server.figures()["bytes_sent"] - sent0
+        grown_mb = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - rss0) / 1024
+        figures = server.close()   # with the stalled client still connected: closing must not wait for it
+    finally:
+        reader.close()
+        sock.close()
+        server.close()
+    assert sent > 200e6, f"the frames were encoded and handed to the server (the client subscribed) {figures}"
+    assert grown_mb < 60, f"{grown_mb:.0f} MB more for {sent / 1e6:.0f} MB a stalled client never read"
+
+
+def _frame(reader) -> tuple[int, bytes]:
+    """One WebSocket frame a server sent (unmasked): (opcode, payload)."""
+    b0, b1 = reader.read(2)
+    n = b1 & 0x7F
+    if n == 126:
+        n = struct.unpack(">H", reader.read(2))[0]
+    elif n == 127:
+        n = struct.unpack(">Q", reader.read(8))[0]
+    return b0 & 0x0F, reader.read(n)
+
+
+def test_the_layout_in_docs_is_the_default_rigs():
+    from pathlib import Path
+
+    from ambid.channels import RADIAL
+
+    doc = Path(__file__).resolve().parents[2] / "docs" / "foxglove_layout.json"
+    assert json.loads(doc.read_text()) == foxglove_layout(RADIAL)
+
+
+def test_the_layout_has_a_bode_orbit_and_status_panel_for_any_layout():
+    from ambid.channels import FIVE_AXIS, Layout
+
+    lay = foxglove_layout(FIVE_AXIS)
+    configs = lay["configById"]
+    paths = [p["value"] for c in configs.values() for p in c.get("paths", [])]
+    assert sum("/amb/live/frf/" in p and p.endswith(".magnitude_db[:]") for p in paths) == 25   # 5 x 5 entries
+    assert sum(p.startswith("/amb/live/orbit/") for p in paths) == 2                        # bearings a, b
+    assert any(c.get("topicPath", "").startswith("/amb/live/status") for c in configs.values())
+    assert any(c.get("topicToRender") == "/amb/live/events" for c in configs.values())
+    one = foxglove_layout(Layout(("z",)))
+    assert not any("/orbit/" in p["value"] for c in one["configById"].values() for p in c.get("paths", []))
