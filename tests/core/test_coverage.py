@@ -213,6 +213,24 @@ def test_with_bla_truth_moves_the_claimed_truth_and_keeps_the_rig_at_rest_beside
     assert pooled["coverage"] == 1.0 and pooled["at_rest"]["coverage"] == 0.5
 
 
+def test_at_own_excitation_moves_only_the_magnets_slopes_by_the_sessions_own_excitation():
+    from ambid.fit.model_update import slopes_as_parameters
+    from ambid.studies.bla_truth import SLOPES, at_own_excitation
+
+    bla = {"ki_n_per_a": 179.0, "ks_n_per_m": 8.7e5, "ks_b_over_a": 0.998, "delay_s": 5e-5, "total_lag_s": 1.7e-4}
+    # a session whose grid stiffens the magnets more than the seeds' mean does
+    own = slopes_as_parameters(np.array([179.1, 179.3, 179.1, 179.3]), np.array([8.70e5, 8.72e5, 8.70e5, 8.72e5]))
+    assert own["ki_n_per_a"] == pytest.approx(179.2) and own["ks_b_over_a"] == pytest.approx(8.72 / 8.70)
+    mean = {"ki_n_per_a": 179.15, "ks_n_per_m": 8.705e5, "ks_b_over_a": 1.0}
+    est = at_own_excitation(bla, own, mean)
+    assert est["ki_n_per_a"] == pytest.approx(179.05) and est["ks_n_per_m"] == pytest.approx(8.705e5)
+    assert est["ks_b_over_a"] == pytest.approx(0.998 + 8.72 / 8.70 - 1.0)
+    assert {k: est[k] for k in ("delay_s", "total_lag_s")} == {"delay_s": 5e-5, "total_lag_s": 1.7e-4}
+    assert bla["ki_n_per_a"] == 179.0                                          # the pooled one is kept
+    # a slope without the session's own value (linear magnets: none) stays pooled
+    assert at_own_excitation(bla, {}, mean) == bla and set(SLOPES) <= set(bla)
+
+
 def test_noise_free_twin_is_the_loop_without_noise_and_the_bla_of_linear_magnets_is_the_rig_at_rest(loop):
     # with linear magnets the simulated rig is its small-signal model: the noise-free twin measures it (to what
     # eight transient periods leave of the lift-off: 1e-7), and the BLA parameters are the rig's at rest; with

@@ -6,8 +6,8 @@ controller that ran.
 
 What the intervals claim is the parameters of the rig's best linear approximation at the session's
 excitation level (ambid.studies.bla_truth): computed here from noise-free twins of the session (the
-simulated rig, the same controller and excitation level, 16 random-phase designs), never from the
-session's estimate. Each twin carries a session's stochastic nonlinear distortion (its parameters scatter
+simulated rig, the same controller and excitation level, 16 random-phase designs), the magnets' slopes
+moved to the session's own excitation (at_own_excitation), never from the session's estimate. Each twin carries a session's stochastic nonlinear distortion (its parameters scatter
 by up to 1.3 claimed standard deviations about the BLA's, ambid validate's noise_free rows), so the mean of
 16 is known to 1.3 / 4 of one: an interval holds its claim when it reaches within twice that of it. The
 magnets' nonlinearity moves the total lag by about 1.7 of its standard deviations from the rig at rest,
@@ -78,20 +78,26 @@ def bla(session):
     twins: designs 1 .. N_TWINS of identify's default experiment (the session's is design 1), each weighted by
     the session's fit variance carried to its lines."""
     from ambid.excitation.spec import DesignSpec
+    from ambid.fit.model_update import excitation_slopes, slopes_as_parameters
     from ambid.plant.rig import make_rig
-    from ambid.studies.bla_truth import Twin, bla_parameters, noise_free_twin, variance_on
+    from ambid.studies.bla_truth import SLOPES, Twin, at_own_excitation, bla_parameters, noise_free_twin, variance_on
     from ambid_nodes.session import SessionConfig, plan_session
 
     rig = make_rig()
     upd = session["summary"]["update"]
     frf = np.load(session["out"] / "frf.npz")
-    twins = []
+    twins, slopes = [], []
     for seed in range(1, N_TWINS + 1):
         plan = plan_session(SessionConfig(out_dir=session["out"], experiment=DesignSpec(seed=seed)), rig)
         twin = noise_free_twin(rig, plan.controller.model, plan.controller.current_limit_a, plan.design)
         twins.append(Twin(twin.freq_hz, twin.frf, variance_on(frf["freq_hz"], frf["var_fit"], twin.freq_hz)))
+        slopes.append(slopes_as_parameters(*excitation_slopes(rig, plan.controller.model, plan.design)))
+    pooled = bla_parameters(rig, twins, sorted(upd["parameters"]), upd["free"])
+    # the magnets' slopes at the session's own excitation (its grid and amplitudes), beside the twins' mean
+    own = {k: upd["parameters"][k]["true"] for k in SLOPES if k in upd["parameters"]}
+    mean = {k: float(np.mean([s[k] for s in slopes])) for k in SLOPES}
     return dict(names=sorted(upd["parameters"]), free=list(upd["free"]),
-                parameters=bla_parameters(rig, twins, sorted(upd["parameters"]), upd["free"]))
+                parameters=at_own_excitation(pooled, own, mean))
 
 
 def test_wrong_nominal_models_give_the_same_update(session, bla, tmp_path):

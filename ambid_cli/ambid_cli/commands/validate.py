@@ -14,8 +14,10 @@ values, :func:`ambid.studies.coverage.seed_record`); a later run with the same
 options reuses those, so a stopped run loses only the sessions under way.
 The updated parameters' intervals claim the parameters of the rig's best
 linear approximation at the excitation level: validate computes them from all
-seeds' twins (:func:`ambid.studies.bla_truth.bla_parameters`) and measures the
-coverage against them, the rig's values at rest beside them.
+seeds' twins (:func:`ambid.studies.bla_truth.bla_parameters`), moves the
+magnets' slopes to each seed's own excitation
+(:func:`ambid.studies.bla_truth.at_own_excitation`) and measures the coverage
+against them, the rig's values at rest beside them.
 Sessions run as tasks on Dask distributed (:mod:`ambid_cli.sessions_on_dask`):
 a local cluster of this machine's cores, or ``--scheduler ADDRESS``. Writes
 ``DIR/coverage.json`` (:func:`ambid.studies.coverage.coverage_table`) and
@@ -163,16 +165,18 @@ def reusable_record(path: Path, fingerprint: str) -> dict | None:
 
 def bla_estimands(seeds_dir: Path, records: dict[int, dict], rig_path: str) -> tuple[dict[int, dict], list[dict]]:
     """The BLA parameters each seed's intervals claim (:func:`ambid.studies.bla_truth.bla_parameters`): the seeds
-    of one model structure (the update's parameters and free ones) share one estimand, their noise-free twins
-    pooled (each seed's own twin among them, one in N).
+    of one model structure (the update's parameters and free ones) share one pooled estimand, their noise-free
+    twins pooled (each seed's own twin among them, one in N), and each seed's magnets' slopes moved from it by
+    its own excitation (:func:`ambid.studies.bla_truth.at_own_excitation`).
 
     Returns:
-        (seed -> estimand, [{seeds, names, free, parameters: the estimand}, ...] for coverage.json).
+        (seed -> estimand, [{seeds, names, free, parameters: the pooled estimand, slopes_mean: the seeds'
+        mean slopes at their own excitation, per_seed: seed -> its slopes' estimand}, ...] for coverage.json).
     """
     import numpy as np
 
     from ambid.plant.rig import load_rig, make_rig
-    from ambid.studies.bla_truth import Twin, bla_parameters
+    from ambid.studies.bla_truth import SLOPES, Twin, at_own_excitation, bla_parameters
 
     rig = load_rig(rig_path) if rig_path else make_rig()
     groups: dict[tuple, list[int]] = {}
@@ -187,8 +191,16 @@ def bla_estimands(seeds_dir: Path, records: dict[int, dict], rig_path: str) -> t
             with np.load(seeds_dir / f"seed_{s:03d}" / "noise_free" / "frf.npz") as z:
                 twins.append(Twin(z["freq_hz"], z["frf"], z["var_fit"]))
         est = bla_parameters(rig, twins, names, free)
-        per_seed.update({s: est for s in seeds})
-        listed.append(dict(seeds=seeds, names=list(names), free=list(free), parameters=est))
+        # each seed's grid and amplitudes set its own excitation level: the magnets' slopes at it (the
+        # summary's truth for them) move its estimand from the pooled one
+        own = {s: {k: float(row["true"]) for k in SLOPES
+                   if (row := records[s]["intervals"].get(f"parameter:{k}")) and row.get("true") is not None}
+               for s in seeds}
+        pooled = {k: float(np.mean([o[k] for o in own.values()])) for k in SLOPES
+                  if all(k in o for o in own.values())}
+        per_seed.update({s: at_own_excitation(est, own[s], pooled) for s in seeds})
+        listed.append(dict(seeds=seeds, names=list(names), free=list(free), parameters=est,
+                           slopes_mean=pooled, per_seed={str(s): {k: per_seed[s][k] for k in pooled} for s in seeds}))
     return per_seed, listed
 
 

@@ -23,7 +23,7 @@ truth is used only to measure ambid (``ambid validate``, the nominal-model test)
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -37,7 +37,11 @@ from ambid.plant.rig import Rig
 from ambid.statespace import StateSpace
 from ambid.studies.comparison import levitate, run_loop
 
-__all__ = ["Twin", "noise_free_twin", "variance_on", "bla_parameters"]
+__all__ = ["SLOPES", "Twin", "noise_free_twin", "variance_on", "bla_parameters", "at_own_excitation"]
+
+#: the updated parameters whose value at a session's own excitation ambid computes (the magnets' slopes
+#: averaged over the excursions it causes, :func:`ambid.fit.model_update.excitation_slopes`)
+SLOPES = ("ki_n_per_a", "ks_n_per_m", "ks_b_over_a")
 
 
 @dataclass(frozen=True)
@@ -140,3 +144,25 @@ def bla_parameters(rig: Rig, twins: Sequence[Twin], names: Sequence[str], free: 
         out["total_lag_s"] = total_lag(out)
     return out
 
+
+
+def at_own_excitation(bla: Mapping[str, float], own: Mapping[str, float],
+                      pooled: Mapping[str, float]) -> dict[str, float]:
+    """One session's BLA parameters: ``bla`` (:func:`bla_parameters`, pooled over the twins of sessions
+    whose excitations differ) with each of :data:`SLOPES` moved by its session's own excitation-level value
+    less the mean of those values over the pooled sessions (Bussgang: the magnets' slopes its grid and
+    amplitudes cause, :func:`ambid.fit.model_update.excitation_slopes`).
+
+    Args:
+        bla: name -> value, the pooled estimand.
+        own: name -> this session's value at its own excitation, for some of :data:`SLOPES`.
+        pooled: name -> the mean of those values over the sessions whose twins gave ``bla``.
+
+    Returns:
+        name -> value: ``bla`` with the slopes it and ``own`` and ``pooled`` share moved.
+    """
+    out = dict(bla)
+    for k in SLOPES:
+        if k in out and k in own and k in pooled:
+            out[k] = float(out[k] + own[k] - pooled[k])
+    return out

@@ -62,8 +62,9 @@ from ambid.fit import (FitResult, StabilisationDiagram, fit_common_denominator, 
                        save_model_npz, stabilisation_diagram)
 from ambid.fit.model_update import (PhysicalUpdate, bending_keys, closed_loop_noise_std, excitation_slopes,
                                     match_modes, nominal_parameters, nominal_update_parameters, parameter_prior,
-                                    physical_discrete, physical_frf, physical_statespace, start_from_data, total_lag, true_parameters,
-                                    unmodelled_mode, update_physical_model)
+                                    physical_discrete, physical_frf, physical_statespace, slopes_as_parameters,
+                                    start_from_data, total_lag, true_parameters, unmodelled_mode,
+                                    update_physical_model)
 from ambid.fit.updating import NotIdentifiable, Prior
 from ambid.plant.tolerances import Z95
 from ambid.frf.directional import directional_frf, whirl_of_residue
@@ -1075,8 +1076,8 @@ def reference_models(inputs: SessionInputs, freq_hz: np.ndarray, n_outputs: int)
         if recorded is not None and design.is_periodic and inputs.nonlinear_magnets:
             # what this excitation measures: the magnets' slopes averaged over the excursions it causes
             ki_x, ks_x = excitation_slopes(true_rig, recorded[0], design)
-            true_params.update(ki_at_excitation=float(np.mean(ki_x)), ks_at_excitation=float(np.mean(ks_x)),
-                               ks_b_over_a_at_excitation=float(np.mean(ks_x[[1, 3]]) / np.mean(ks_x[[0, 2]])))
+            true_params.update({f"{k.split('_n_per')[0]}_at_excitation": v
+                                for k, v in slopes_as_parameters(ki_x, ks_x).items()})
             true_plant_x = true_plant(true_rig, ki_x, ks_x)
             refs["true_g_x"] = true_linear_model(true_rig, discrete=True, plant=true_plant_x).freqresp(f)
         refs["true_params"] = true_params
