@@ -180,7 +180,7 @@ def bla_estimands(seeds_dir: Path, records: dict[int, dict], rig_path: str) -> t
 
     rig = load_rig(rig_path) if rig_path else make_rig()
     groups: dict[tuple, list[int]] = {}
-    for s, rec in records.items():
+    for s, rec in sorted(records.items()):
         twin = seeds_dir / f"seed_{s:03d}" / "noise_free" / "frf.npz"
         if rec.get("model") and rec["model"]["free"] and twin.is_file():
             groups.setdefault((tuple(rec["model"]["names"]), tuple(rec["model"]["free"])), []).append(s)
