@@ -12,6 +12,7 @@ consumer are subscribed, so nothing of the experiment is missed.
 from __future__ import annotations
 
 import json
+import multiprocessing
 import sys
 import time
 from dataclasses import asdict, dataclass, field
@@ -383,12 +384,15 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None, on_headlin
         true_model = read_target_model(cfg.true_model).plant
     options = dict(estimator=cfg.estimator, true_model=true_model)
     live = start_live(cfg)
-    # with a real-time target the bridge must never fall silent: the analysis yields it the CPU
-    early = EarlyAnalysis(cfg.out_dir, nice=5 if cfg.hardware else 0, **options)
+    # with a real-time target the bridge must never fall silent: the analysis yields it the CPU. A session
+    # run by a daemonic worker (a study's on Dask) may not start processes: it analyses the recording itself
+    early = (None if multiprocessing.current_process().daemon
+             else EarlyAnalysis(cfg.out_dir, nice=5 if cfg.hardware else 0, **options))
     plan = plan_session(cfg) if plan is None else plan
-    # what the analysis compares with and the measurement does not change, computed while the session runs
-    # (from the plan: used if it is what the session then describes, see SessionMessages)
-    early.prepare(_planned_inputs(cfg, plan), plan.design.freq_hz, len(DEFAULT_OUTPUTS))
+    if early is not None:
+        # what the analysis compares with and the measurement does not change, computed while the session runs
+        # (from the plan: used if it is what the session then describes, see SessionMessages)
+        early.prepare(_planned_inputs(cfg, plan), plan.design.freq_hz, len(DEFAULT_OUTPUTS))
     try:
         run = run_session_composed(cfg, plan, live=live, early=early)
         design: ExcitationDesign = run.pop("design")
@@ -400,7 +404,7 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None, on_headlin
                 on_headline(_identify_summary(cfg, run, design, offline, _timing(run, shown)))
 
         offline = notes = None
-        if early.analysing:
+        if early is not None and early.analysing:
             try:
                 early.recording_closed()
                 first, how = early.summary()
@@ -421,7 +425,8 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None, on_headlin
             show(offline)
         summary = _identify_summary(cfg, run, design, offline, _timing(run, shown))
     finally:
-        early.close()
+        if early is not None:
+            early.close()
         live_figures = live.stop() if live is not None else None
     if live_figures is not None:
         summary["live"] = live_figures
