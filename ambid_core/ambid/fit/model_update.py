@@ -65,7 +65,7 @@ from ambid.statespace import StateSpace
 
 __all__ = ["ParameterInfo", "PARAMETERS", "DEFAULT_FREE", "PhysicalUpdate", "bending_coordinates", "bending_keys",
            "nominal_parameters", "nominal_update_parameters", "parameter_prior", "true_parameters",
-           "excitation_slopes", "closed_loop_noise_std", "physical_statespace", "physical_frf", "physical_discrete",
+           "excitation_slopes", "slopes_as_parameters", "closed_loop_noise_std", "physical_statespace", "physical_frf", "physical_discrete",
            "update_physical_model",
            "match_modes", "start_from_data", "total_lag", "unmodelled_mode"]
 
@@ -329,6 +329,20 @@ def excitation_slopes(rig: Rig, controller: StateSpace, design: ExcitationDesign
         dfdi, dfdg = rig.true_magnet.slopes(i0[a] + di, g0[a] + dg)
         ki[a], ks[a] = np.sum(ww * dfdi), np.sum(ww * dfdg)
     return ki, ks
+
+
+def slopes_as_parameters(ki: np.ndarray, ks: np.ndarray) -> dict[str, float]:
+    """The magnets' slopes per axis (:func:`excitation_slopes`) as the updating model's parameters.
+
+    Args:
+        ki: (4,) [N/A], ks: (4,) [N/m], CURRENT_NAMES order (bearing A x, B x, A y, B y).
+
+    Returns:
+        ``ki_n_per_a`` and ``ks_n_per_m`` (means over the axes) and ``ks_b_over_a`` (bearing B's ks over A's).
+    """
+    ki, ks = np.asarray(ki, dtype=float), np.asarray(ks, dtype=float)
+    return dict(ki_n_per_a=float(np.mean(ki)), ks_n_per_m=float(np.mean(ks)),
+                ks_b_over_a=float(np.mean(ks[[1, 3]]) / np.mean(ks[[0, 2]])))
 
 
 def _check_params(params: Mapping[str, float]) -> dict[str, float]:

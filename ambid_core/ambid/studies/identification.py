@@ -62,8 +62,9 @@ from ambid.fit import (FitResult, StabilisationDiagram, fit_common_denominator, 
                        save_model_npz, stabilisation_diagram)
 from ambid.fit.model_update import (PhysicalUpdate, bending_keys, closed_loop_noise_std, excitation_slopes,
                                     match_modes, nominal_parameters, nominal_update_parameters, parameter_prior,
-                                    physical_discrete, physical_frf, physical_statespace, start_from_data, total_lag, true_parameters,
-                                    unmodelled_mode, update_physical_model)
+                                    physical_discrete, physical_frf, physical_statespace, slopes_as_parameters,
+                                    start_from_data, total_lag, true_parameters, unmodelled_mode,
+                                    update_physical_model)
 from ambid.fit.updating import NotIdentifiable, Prior
 from ambid.plant.tolerances import Z95
 from ambid.frf.directional import directional_frf, whirl_of_residue
@@ -763,13 +764,20 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
             noise_std="95 % interval (Student t) of each output's noise std from the scatter of the segments' "
                       "period-to-period variances (the noise is coloured by the loop, so the samples' chi2 "
                       "degrees of freedom would be too many); the truth is the sensor noise through the loop",
-            parameters="95 % intervals (Student t) from a sandwich covariance pooled with the realisations' scatter "
+            parameters="95 % intervals (Student t) of the physical parameters of the linear model that best "
+                       "describes the rig at this excitation level (its best linear approximation), the data and "
+                       "each parameter's tolerance together (maximum a posteriori; where prior_dominated, mostly "
+                       "the tolerance about the nominal value). On a nonlinear rig these differ from the "
+                       "parameters at rest by a bias no variance holds: ki and ks by the magnets' slopes averaged "
+                       "over the excursions (true: those slopes, true_small_signal: at rest), the lags by the "
+                       "approximation's phase (the total lag by about 0.1 % on the default rig; true: at rest). "
+                       "From a sandwich covariance pooled with the realisations' scatter "
                        "(ambid.fit.correlated.realisation_inflation): the Jacobian of the fit weighted "
                        f"by {w_kind}, the line covariance {var_kind}, the errors of a line correlated (within a "
                        "row through U^-1, between rows as the residuals show), scaled by the generalised "
-                       "chi2/dof, so they hold the misfit too. ki and ks are compared with the true magnets' "
-                       "slopes at this excitation level (true_small_signal: at rest); the sensor bandwidth, "
-                       "amplifier bandwidth and delay are strongly correlated",
+                       "chi2/dof, so they hold the misfit too. The sensor bandwidth, amplifier bandwidth and "
+                       "delay are strongly correlated; their sum is update.total_lag. ambid validate measures "
+                       "the coverage against the parameters of the best linear approximation (docs/uncertainty.md)",
             modes="95 % intervals (Student t of 2 + M - 1 degrees of freedom where M >= 2 realisations' scatter "
                   "joins the sandwich in the variance; else 1.96 sigma) of the "
                   "fitted modes from the variable-projection sandwich "
@@ -1068,8 +1076,8 @@ def reference_models(inputs: SessionInputs, freq_hz: np.ndarray, n_outputs: int)
         if recorded is not None and design.is_periodic and inputs.nonlinear_magnets:
             # what this excitation measures: the magnets' slopes averaged over the excursions it causes
             ki_x, ks_x = excitation_slopes(true_rig, recorded[0], design)
-            true_params.update(ki_at_excitation=float(np.mean(ki_x)), ks_at_excitation=float(np.mean(ks_x)),
-                               ks_b_over_a_at_excitation=float(np.mean(ks_x[[1, 3]]) / np.mean(ks_x[[0, 2]])))
+            true_params.update({f"{k.split('_n_per')[0]}_at_excitation": v
+                                for k, v in slopes_as_parameters(ki_x, ks_x).items()})
             true_plant_x = true_plant(true_rig, ki_x, ks_x)
             refs["true_g_x"] = true_linear_model(true_rig, discrete=True, plant=true_plant_x).freqresp(f)
         refs["true_params"] = true_params
