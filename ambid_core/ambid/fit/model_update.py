@@ -60,7 +60,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import linalg, stats
 
-from ambid.channels import FIVE_AXIS, bearing_of
+from ambid.channels import FIVE_AXIS, RADIAL, Layout, bearing_of
 from ambid.fit.updating import Prior, UpdateResult, update_parameters
 from ambid.plant.rig import Rig
 from ambid.plant.tolerances import Z95, tolerance_for
@@ -72,7 +72,8 @@ from ambid.statespace import StateSpace
 
 __all__ = ["ParameterInfo", "PARAMETERS", "DEFAULT_FREE", "PhysicalUpdate", "bending_coordinates", "bending_keys",
            "covers", "nominal_parameters", "nominal_update_parameters", "parameter_prior", "true_parameters",
-           "excitation_slopes", "closed_loop_noise_std", "physical_statespace", "physical_frf", "physical_discrete",
+           "excitation_slopes", "slopes_as_parameters", "closed_loop_noise_std", "physical_statespace", "physical_frf",
+           "physical_discrete",
            "update_physical_model",
            "match_modes", "start_from_data", "total_lag", "unmodelled_mode"]
 
@@ -389,6 +390,29 @@ def excitation_slopes(rig: Rig, controller: StateSpace, design: ExcitationDesign
         dfdi, dfdg = mag.slopes(i0[a] + di, g0[a] + dg)
         ki[a], ks[a] = np.sum(ww * dfdi), np.sum(ww * dfdg)
     return ki, ks
+
+
+def slopes_as_parameters(ki: np.ndarray, ks: np.ndarray, layout: Layout = RADIAL) -> dict[str, float]:
+    """The magnets' slopes per axis (:func:`excitation_slopes`) as the updating model's parameters.
+
+    Args:
+        ki: (na,) [N/A], ks: (na,) [N/m], in ``layout``'s axis order (the rig's; default the four radial axes).
+        layout: the axes the slopes belong to.
+
+    Returns:
+        ``ki_n_per_a`` and ``ks_n_per_m`` (means over the radial axes) and ``ks_b_over_a`` (bearing B's ks over
+        A's); with an axial axis also ``axial_ki_n_per_a`` and ``axial_ks_n_per_m``.
+    """
+    ki, ks = np.asarray(ki, dtype=float), np.asarray(ks, dtype=float)
+    axial = list(layout.axial)
+    radial = [j for j in range(len(layout)) if j not in axial]
+    a_axes = [j for j in radial if bearing_of(layout.axes[j]) == "a"]
+    b_axes = [j for j in radial if bearing_of(layout.axes[j]) == "b"]
+    out = dict(ki_n_per_a=float(np.mean(ki[radial])), ks_n_per_m=float(np.mean(ks[radial])),
+               ks_b_over_a=float(np.mean(ks[b_axes]) / np.mean(ks[a_axes])))
+    if axial:
+        out.update(axial_ki_n_per_a=float(np.mean(ki[axial])), axial_ks_n_per_m=float(np.mean(ks[axial])))
+    return out
 
 
 def _check_params(params: Mapping[str, float]) -> dict[str, float]:

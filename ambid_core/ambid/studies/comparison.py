@@ -304,14 +304,16 @@ class LoopRecord:
         return np.hstack([self.y, self.u, self.r])
 
 
-def levitate(rig: Rig, seed: int = 0, nonlinear_magnets: bool = False, liftoff_s: float = 0.5) -> LoopStart:
-    """Lift the rotor off its backup bearings under the default PID and let it settle.
+def levitate(rig: Rig, seed: int = 0, nonlinear_magnets: bool = False, liftoff_s: float = 0.5,
+             controller: tuple[StateSpace, float] | None = None) -> LoopStart:
+    """Lift the rotor off its backup bearings under the default PID (or ``controller``) and let it settle.
 
     Args:
         rig: rig parameters.
         seed: sensor-noise seed.
         nonlinear_magnets: use the full magnet law (eq. 2.14).
         liftoff_s: simulated time [s], > 0.
+        controller: (discrete controller y -> ic, its current limit [A]); None: the default PID.
 
     Raises:
         ValueError if the rotor touches the retainer in the second half of that time.
@@ -319,8 +321,10 @@ def levitate(rig: Rig, seed: int = 0, nonlinear_magnets: bool = False, liftoff_s
     if not (math.isfinite(liftoff_s) and liftoff_s > 0):
         raise ValueError(f"liftoff_s must be finite and > 0, got {liftoff_s!r}")
     sim = PlantSimulator(rig, seed=seed, nonlinear_magnets=nonlinear_magnets)
-    pid = PidParameters()
-    ctl = ControllerStepper(pid_controller(pid, rig.dt, rig.layout), pid.current_limit_a)
+    if controller is None:
+        pid = PidParameters()
+        controller = (pid_controller(pid, rig.dt, rig.layout), pid.current_limit_a)
+    ctl = ControllerStepper(*controller)
     n = int(round(liftoff_s / rig.dt))
     for k in range(n):
         _, contact = sim.step(ctl.step(sim.output()))

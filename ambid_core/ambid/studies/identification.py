@@ -58,15 +58,16 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from ambid.channels import Layout, bearing_of, split_name
+from ambid.channels import split_name
 from ambid.control.closed_loop import close_loop, loop_robustness
 from ambid.excitation.design import ExcitationDesign
 from ambid.fit import (FitResult, StabilisationDiagram, fit_common_denominator, modal_summary, save_model_json,
                        save_model_npz, stabilisation_diagram)
 from ambid.fit.model_update import (PhysicalUpdate, bending_keys, closed_loop_noise_std, covers, excitation_slopes,
                                     match_modes, nominal_parameters, nominal_update_parameters, parameter_prior,
-                                    physical_discrete, physical_frf, physical_statespace, start_from_data, total_lag, true_parameters,
-                                    unmodelled_mode, update_physical_model)
+                                    physical_discrete, physical_frf, physical_statespace, slopes_as_parameters,
+                                    start_from_data, total_lag, true_parameters, unmodelled_mode,
+                                    update_physical_model)
 from ambid.fit.updating import NotIdentifiable, Prior
 from ambid.plant.tolerances import Z95
 from ambid.frf.directional import directional_frf, has_planes, whirl_of_residue
@@ -773,13 +774,20 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
             noise_std="95 % interval (Student t) of each output's noise std from the scatter of the segments' "
                       "period-to-period variances (the noise is coloured by the loop, so the samples' chi2 "
                       "degrees of freedom would be too many); the truth is the sensor noise through the loop",
-            parameters="95 % intervals (Student t) from a sandwich covariance pooled with the realisations' scatter "
+            parameters="95 % intervals (Student t) of the physical parameters of the linear model that best "
+                       "describes the rig at this excitation level (its best linear approximation), the data and "
+                       "each parameter's tolerance together (maximum a posteriori; where prior_dominated, mostly "
+                       "the tolerance about the nominal value). On a nonlinear rig these differ from the "
+                       "parameters at rest by a bias no variance holds: ki and ks by the magnets' slopes averaged "
+                       "over the excursions (true: those slopes, true_small_signal: at rest), the lags by the "
+                       "approximation's phase (the total lag by about 0.1 % on the default rig; true: at rest). "
+                       "From a sandwich covariance pooled with the realisations' scatter "
                        "(ambid.fit.correlated.realisation_inflation): the Jacobian of the fit weighted "
                        f"by {w_kind}, the line covariance {var_kind}, the errors of a line correlated (within a "
                        "row through U^-1, between rows as the residuals show), scaled by the generalised "
-                       "chi2/dof, so they hold the misfit too. ki and ks are compared with the true magnets' "
-                       "slopes at this excitation level (true_small_signal: at rest); the sensor bandwidth, "
-                       "amplifier bandwidth and delay are strongly correlated",
+                       "chi2/dof, so they hold the misfit too. The sensor bandwidth, amplifier bandwidth and "
+                       "delay are strongly correlated; their sum is update.total_lag. ambid validate measures "
+                       "the coverage against the parameters of the best linear approximation (docs/uncertainty.md)",
             modes="95 % intervals (Student t of 2 + M - 1 degrees of freedom where M >= 2 realisations' scatter "
                   "joins the sandwich in the variance; else 1.96 sigma) of the "
                   "fitted modes from the variable-projection sandwich "
@@ -846,21 +854,6 @@ def _on_channels(model: StateSpace, freq_hz: np.ndarray, output_names: Sequence[
     cols = [model.input_names.index(n) for n in input_names]
     # C order, as freqresp gives it: the error norms sum in memory order, the default rig's to the last bit
     return np.ascontiguousarray(g[:, rows][:, :, cols])
-
-
-def _at_excitation(layout: Layout, ki_x: np.ndarray, ks_x: np.ndarray) -> dict[str, float]:
-    """The true magnets' slopes at the excitation level as the updated parameters name them: ki, ks (radial
-    mean), ks_b_over_a (bearing B's over A's), and the axial ones."""
-    axial = list(layout.axial)
-    radial = [j for j in range(len(layout)) if j not in axial]
-    a_axes = [j for j in radial if bearing_of(layout.axes[j]) == "a"]
-    b_axes = [j for j in radial if bearing_of(layout.axes[j]) == "b"]
-    out = dict(ki_at_excitation=float(np.mean(ki_x[radial])), ks_at_excitation=float(np.mean(ks_x[radial])),
-               ks_b_over_a_at_excitation=float(np.mean(ks_x[b_axes]) / np.mean(ks_x[a_axes])))
-    if axial:
-        out.update(axial_ki_at_excitation=float(np.mean(ki_x[axial])),
-                   axial_ks_at_excitation=float(np.mean(ks_x[axial])))
-    return out
 
 
 def _synchronous_dict(frf: FrfResult) -> dict | None:
@@ -1136,7 +1129,8 @@ def reference_models(inputs: SessionInputs, freq_hz: np.ndarray, output_names: S
         if recorded is not None and design.is_periodic and inputs.nonlinear_magnets:
             # what this excitation measures: the magnets' slopes averaged over the excursions it causes
             ki_x, ks_x = excitation_slopes(true_rig, recorded[0], design)
-            true_params.update(_at_excitation(true_rig.layout, ki_x, ks_x))
+            true_params.update({f"{k.split('_n_per')[0]}_at_excitation": v
+                                for k, v in slopes_as_parameters(ki_x, ks_x, true_rig.layout).items()})
             true_plant_x = true_plant(true_rig, ki_x, ks_x)
             refs["true_g_x"] = _on_channels(true_linear_model(true_rig, discrete=True, plant=true_plant_x), f,
                                             output_names, input_names)
