@@ -43,6 +43,22 @@ def start_identify_target(model: Path, rig=None) -> tuple[subprocess.Popen, str,
             total)
 
 
+def identify_on_target(model: Path, out: Path, rig=None, *extra: str) -> int:
+    """``ambid identify --hardware`` (SMALL, ``extra`` arguments) against the C target running ``model``, held
+    for the excitation (:func:`start_identify_target`): both must end as planned; returns the session's
+    samples."""
+    proc, target, local, total = start_identify_target(model, rig)
+    try:
+        hw = cli("identify", "--hardware", target, "--local-port", str(local), "--true-model", str(model),
+                 "--out", str(out), *extra, *SMALL)
+        s = target_summary(proc)
+    finally:
+        proc.kill()
+    assert hw.returncode == 0, hw.stdout + hw.stderr
+    assert s["state"] == "done" and s["samples"] == total and s["late_excitation_samples"] == 0
+    return total
+
+
 def target_summary(proc: subprocess.Popen) -> dict:
     out, err = proc.communicate(timeout=30)
     line = next((ln for ln in out.splitlines() if ln.startswith("RT_TARGET_SUMMARY ")), None)
@@ -77,15 +93,7 @@ def test_identify_hardware_gives_the_c_target_the_accuracy_of_the_simulated_rig(
     write_target_model(model, rig_target_model())
     sim = cli("identify", "--out", str(tmp_path / "sim"), "--linear-magnets", *SMALL)
     assert sim.returncode == 0, sim.stdout + sim.stderr
-    proc, target, local, total = start_identify_target(model)
-    try:
-        hw = cli("identify", "--hardware", target, "--local-port", str(local), "--true-model", str(model),
-                 "--out", str(tmp_path / "hw"), *SMALL)
-        s = target_summary(proc)
-    finally:
-        proc.kill()
-    assert hw.returncode == 0, hw.stdout + hw.stderr
-    assert s["state"] == "done" and s["samples"] == total and s["late_excitation_samples"] == 0
+    total = identify_on_target(model, tmp_path / "hw")
     a = json.loads((tmp_path / "sim" / "summary.json").read_text())
     b = json.loads((tmp_path / "hw" / "summary.json").read_text())
     assert b["layout"].startswith("hardware bridge") and b["frf_error"]["reference"] == "the given plant model"
@@ -140,15 +148,7 @@ def test_the_c_target_runs_the_five_axis_model_over_the_bridge(tmp_path):
     assert "rotor levitated" in p.stdout and "lost 0 samples in 0 gaps" in p.stdout, p.stdout
     assert s["state"] == "done" and s["samples"] >= 5000 and s["rx_rejected_by_reason"]["content"] == 0
     # identify over the bridge: the 5 x 5 FRF against the model the target runs
-    proc, target, local, total = start_identify_target(model, rig)
-    try:
-        hw = cli("identify", "--hardware", target, "--local-port", str(local), "--rig", str(rig_file),
-                 "--true-model", str(model), "--out", str(tmp_path / "hw"), *SMALL)
-        s = target_summary(proc)
-    finally:
-        proc.kill()
-    assert hw.returncode == 0, hw.stdout + hw.stderr
-    assert s["state"] == "done" and s["samples"] == total and s["late_excitation_samples"] == 0
+    identify_on_target(model, tmp_path / "hw", rig, "--rig", str(rig_file))
     b = json.loads((tmp_path / "hw" / "summary.json").read_text())
     assert b["inputs"] == list(rig.layout.inputs) and b["outputs"] == list(rig.layout.outputs)
     print(f"five-axis C target: FRF error median {100 * b['frf_error']['median']:.2f} %, worst "
