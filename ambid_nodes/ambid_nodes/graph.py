@@ -152,7 +152,7 @@ def run_hardware(cfg: GraphConfig, target: str, local_port: int = 0) -> dict:
     from ambid_msgs.msg import SampleBlock
     from ambid_nodes import qos
     from ambid_nodes.conversions import block_data
-    from ambid_nodes.hardware_bridge import MEASUREMENT_NAMES, HardwareBridge
+    from ambid_nodes.hardware_bridge import HardwareBridge
 
     host, port = parse_address(target)
     context = rclpy.Context()
@@ -166,8 +166,9 @@ def run_hardware(cfg: GraphConfig, target: str, local_port: int = 0) -> dict:
     listener = rclpy.create_node("graph_levitation", namespace=cfg.namespace, context=context)
 
     def on_block(msg) -> None:
-        data = block_data(msg, MEASUREMENT_NAMES)
-        monitor.add_block(msg.first_index, data[:, :4], (np.asarray(msg.sample_flags) & SampleBlock.FLAG_LANDED) != 0)
+        data = block_data(msg, bridge.measurement_names)
+        monitor.add_block(msg.first_index, data[:, :bridge.na],
+                          (np.asarray(msg.sample_flags) & SampleBlock.FLAG_LANDED) != 0)
 
     listener.create_subscription(SampleBlock, "measurement", on_block, qos.BLOCKS)
     executor.add_node(bridge)

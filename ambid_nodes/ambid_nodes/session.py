@@ -11,6 +11,8 @@ consumer are subscribed, so nothing of the experiment is missed.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import json
 import multiprocessing
 import sys
@@ -21,7 +23,7 @@ from pathlib import Path
 from ambid.control.kinds import ControllerDesign, checked_design
 from ambid.excitation import ExcitationDesign
 from ambid.excitation.spec import DesignSpec
-from ambid.frf.offline import DEFAULT_OUTPUTS
+from ambid.frf.offline import data_channels
 from ambid.hardware.bridge_protocol import CommandCode
 from ambid.jsonable import to_jsonable
 from ambid.plant.rig import Rig, load_rig, make_rig
@@ -65,11 +67,12 @@ class SessionConfig:
     def seed(self) -> int:
         return self.experiment.seed
 
-    def design(self, fs_hz: float, rig_speed_rpm: float = 0.0) -> ExcitationDesign:
-        """The experiment's design at the plant's rate; at speed (a multisine only) steered clear of the
-        synchronous harmonics."""
+    def design(self, fs_hz: float, rig_speed_rpm: float = 0.0, inputs: Sequence[str] = ()) -> ExcitationDesign:
+        """The experiment's design at the plant's rate, on the plant's currents ``inputs`` unless the experiment
+        names its own; at speed (a multisine only) steered clear of the synchronous harmonics."""
         speed = rig_speed_rpm if self.speed_rpm is None else self.speed_rpm
-        return self.experiment.build(fs_hz, speed if self.experiment.kind == "multisine" else 0.0)
+        return self.experiment.build(fs_hz, speed if self.experiment.kind == "multisine" else 0.0,
+                                     *([inputs] if inputs else []))
 
 
 @dataclass(frozen=True)
@@ -97,7 +100,7 @@ def plan_session(cfg: SessionConfig, rig: Rig | None = None, controller: Control
     rig = rig if rig is not None else (load_rig(cfg.rig_file) if cfg.rig_file else make_rig())
     if controller is None and not cfg.hardware:
         controller = checked_design(cfg.controller, rig)
-    return SessionPlan(rig, controller, cfg.design(1.0 / rig.dt, float(rig.rotor_speed_rpm)))
+    return SessionPlan(rig, controller, cfg.design(1.0 / rig.dt, float(rig.rotor_speed_rpm), rig.layout.inputs))
 
 
 class ProgressBar:
@@ -391,8 +394,10 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None, on_headlin
     plan = plan_session(cfg) if plan is None else plan
     if early is not None:
         # what the analysis compares with and the measurement does not change, computed while the session runs
-        # (from the plan: used if it is what the session then describes, see SessionMessages)
-        early.prepare(_planned_inputs(cfg, plan), plan.design.freq_hz, len(DEFAULT_OUTPUTS))
+        # (from the plan: used if it is what the session then describes, see SessionMessages); the FRF's
+        # channels as the recording will name them: the rig's displacements by the design's inputs
+        outputs, inputs, _ = data_channels(plan.design.input_names, plan.rig.layout.measurement_names)
+        early.prepare(_planned_inputs(cfg, plan), plan.design.freq_hz, outputs, inputs)
     try:
         run = run_session_composed(cfg, plan, live=live, early=early)
         design: ExcitationDesign = run.pop("design")

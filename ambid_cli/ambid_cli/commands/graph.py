@@ -70,8 +70,8 @@ def run_graph(args: argparse.Namespace, rig) -> int:
                       rig=rig, controller_design=ctrl)
     layout = "separate processes" if args.processes else "one process (EventsExecutor)"
     layout += f", {ctrl.kind.upper()} controller"
-    print(f"ambid graph: plant_sim + position_controller in {layout}, namespace {args.namespace}, "
-          f"ROS_DOMAIN_ID {session_domain_id()}, {args.sim_seconds:g} s simulated", flush=True)
+    print(f"ambid graph: plant_sim + position_controller in {layout}, axes {' '.join(rig.layout.axes)}, namespace "
+          f"{args.namespace}, ROS_DOMAIN_ID {session_domain_id()}, {args.sim_seconds:g} s simulated", flush=True)
     try:
         summary = run_processes(cfg) if args.processes else run_composed(cfg)
     except KeyboardInterrupt:
@@ -83,8 +83,8 @@ def run_graph(args: argparse.Namespace, rig) -> int:
     print(f"simulated samples per wall second: {summary['samples_per_wall_s']:.0f} "
           f"({summary['samples']} samples in {summary['wall_s']:.2f} s wall, "
           f"{summary['samples_per_wall_s'] * summary['simulated_s'] / max(summary['samples'], 1):.2f}x real time)")
-    print(f"displacement RMS: {summary['displacement_rms_m'] * 1e6:.3f} um "
-          f"(max {summary['max_abs_displacement_m'] * 1e6:.2f} um after lift-off, "
+    print(f"displacement RMS: {summary['displacement_rms_m'] * 1e6:.3f} um over {len(summary['displacement_mean_m'])} "
+          f"axes (max {summary['max_abs_displacement_m'] * 1e6:.2f} um after lift-off, "
           f"lift-off at sample {summary['lift_off_index']})")
     print(f"rejected messages: {summary['messages_rejected']}")
     if summary.get("resends"):

@@ -20,15 +20,14 @@ class LevitationMonitor:
         self.clearance_m = clearance_m
         self.settle = settle_samples
         self.n = 0
-        self.sum_sq = np.zeros(4)
-        self.sum = np.zeros(4)
+        self.sum_sq = self.sum = np.zeros(0)  # per channel, sized by the first block
         self.max_abs = 0.0
         self.contacts_after_settle = 0
         self.contacts = 0
         self.lift_off_index: int | None = None
 
     def add_block(self, first_index: int, y: np.ndarray, contact: np.ndarray) -> None:
-        """Samples first_index.. of measured displacement y [m] (n, 4) and retainer contact (n,) bool."""
+        """Samples first_index.. of measured displacement y [m] (n, channels) and retainer contact (n,) bool."""
         contact = np.asarray(contact, dtype=bool)
         touching = np.flatnonzero(contact)
         self.contacts += touching.size
@@ -41,6 +40,8 @@ class LevitationMonitor:
         y, contact = y[skip:], contact[skip:]
         if not len(y):
             return
+        if self.sum.size == 0:
+            self.sum, self.sum_sq = np.zeros(y.shape[1]), np.zeros(y.shape[1])
         self.n += len(y)
         self.sum += y.sum(axis=0)
         self.sum_sq += (y * y).sum(axis=0)
@@ -51,13 +52,13 @@ class LevitationMonitor:
         return self.n > 0 and self.contacts_after_settle == 0 and self.max_abs < 0.5 * self.clearance_m
 
     def figures(self) -> dict:
-        """displacement_rms_m (about zero, all 4 channels), per-channel mean and std [m], contacts."""
+        """displacement_rms_m (about zero, all channels), per-channel mean and std [m], contacts."""
         n = max(self.n, 1)
         mean = self.sum / n
         var = np.maximum(self.sum_sq / n - mean**2, 0.0)
         return {
             "levitated": self.levitated(),
-            "displacement_rms_m": float(np.sqrt(np.mean(self.sum_sq / n))),
+            "displacement_rms_m": float(np.sqrt(np.mean(self.sum_sq / n))) if self.sum_sq.size else 0.0,
             "displacement_mean_m": mean.tolist(),
             "displacement_std_m": np.sqrt(var).tolist(),
             "max_abs_displacement_m": self.max_abs,
