@@ -16,7 +16,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
+
+from ambid.yaml_file import read_yaml
 
 __all__ = ["read_arrays"]
 
@@ -133,13 +134,9 @@ def _mat73(path: Path, what: str) -> dict[str, np.ndarray]:
 
 def _yaml(path: Path, what: str) -> dict[str, Any]:
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except UnicodeDecodeError:
-        raise _Refused(f"{what} {path} is not text (binary data)") from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        raise _Refused(f"{what} {path} is not valid YAML" + (f" at line {mark.line + 1}" if mark else "")) \
-            from None
+        data = read_yaml(path, what, "")
+    except ValueError as exc:
+        raise _Refused(str(exc)) from None
     if not isinstance(data, dict):
         raise _Refused(f"{what} {path} holds no mapping of key: value")
     return data

@@ -163,8 +163,3 @@ class Layout:
 RADIAL = Layout(("a_x", "b_x", "a_y", "b_y"))
 # The five-axis machine: the four radial axes and the axial bearing.
 FIVE_AXIS = Layout(("a_x", "b_x", "a_y", "b_y", "z"))
-
-# The default rig's names (issue 27 replaces their uses by a layout read from the rig or the session).
-AXES = RADIAL.axes
-DISPLACEMENT_NAMES = RADIAL.outputs
-CURRENT_NAMES = RADIAL.inputs

@@ -12,16 +12,17 @@ import os
 __all__ = ["read_text"]
 
 
-def read_text(path: str | os.PathLike, what: str = "", fix: str = "") -> str:
+def read_text(path: str | os.PathLike, what: str = "", fix: str = "", binary: str = "is not text (binary data)") -> str:
     """The UTF-8 text of ``path``.
 
     Args:
         path: the file.
         what: what the file is, for messages ("rig file"); "" names the path alone.
         fix: the fix a message ends with, after "; " ("" for none).
+        binary: what the message says of a file that is not UTF-8 text.
 
     Raises:
-        ValueError: "<what> <path> does not exist", "... is a folder" or "... is not text (binary data)",
+        ValueError: "<what> <path> does not exist", "... is a folder" or "... <binary>",
             then "; <fix>".
     """
     name = f"{what} {os.fspath(path)}" if what else os.fspath(path)
@@ -34,4 +35,4 @@ def read_text(path: str | os.PathLike, what: str = "", fix: str = "") -> str:
     except IsADirectoryError:
         raise ValueError(f"{name} is a folder{tail}") from None
     except UnicodeDecodeError:
-        raise ValueError(f"{name} is not text (binary data){tail}") from None
+        raise ValueError(f"{name} {binary}{tail}") from None

@@ -42,14 +42,27 @@ const char *ambp_reason_name(int reason) {
 }
 
 /* ---- codec ----------------------------------------------------------------------------------- */
-static unsigned block_channels(int kind) { return kind == AMBP_MEASUREMENT ? 16u : 4u; }
+/* a block's channels: y, u, ic, r of every axis (MEASUREMENT), r of every axis (EXCITATION) */
+static unsigned block_channels(int kind, unsigned axes) { return kind == AMBP_MEASUREMENT ? 4u * axes : axes; }
+/* version 1's block field at offset 12: the channel set (1 measurement, 2 excitation); version 2's: the axes */
 static unsigned block_channel_set(int kind) { return kind == AMBP_MEASUREMENT ? 1u : 2u; }
+
+static int axes_valid(unsigned axes, uint8_t version) {
+    return version == 1 ? axes == AMBP_V1_AXES : axes >= 1 && axes <= AMBP_MAX_AXES;
+}
+
+unsigned ambp_max_block(unsigned axes, unsigned value_bytes) {
+    if (axes < 1 || axes > AMBP_MAX_AXES || (value_bytes != 8 && value_bytes != 4)) return 0;
+    unsigned most = (AMBP_MAX_DATAGRAM - AMBP_OVERHEAD_BYTES - AMBP_BLOCK_HEADER_BYTES) / (4u * axes * value_bytes + 1u);
+    return most < AMBP_MAX_MEAS_SAMPLES ? most : AMBP_MAX_MEAS_SAMPLES;
+}
 
 static size_t payload_size(const ambp_message *m) {
     switch (m->kind) {
     case AMBP_MEASUREMENT:
     case AMBP_EXCITATION: {
-        size_t per = (size_t)block_channels(m->kind) * m->value_bytes + (m->kind == AMBP_MEASUREMENT ? 1u : 0u);
+        size_t per = (size_t)block_channels(m->kind, m->axes) * m->value_bytes +
+                     (m->kind == AMBP_MEASUREMENT ? 1u : 0u);
         return AMBP_BLOCK_HEADER_BYTES + (size_t)m->n_samples * per;
     }
     case AMBP_HEARTBEAT: return 56;
@@ -64,9 +77,9 @@ size_t ambp_encode(const ambp_message *m, uint8_t version, uint8_t *out, size_t 
     if (pl == 0) return 0;
     int block = m->kind == AMBP_MEASUREMENT || m->kind == AMBP_EXCITATION;
     if (block) {
-        size_t nv = (size_t)m->n_samples * block_channels(m->kind);
-        if ((m->value_bytes != 8 && m->value_bytes != 4) || m->n_samples == 0 || nv > AMBP_MAX_VALUES ||
-            (m->kind == AMBP_MEASUREMENT && m->n_samples > AMBP_MAX_MEAS_SAMPLES))
+        size_t nv = (size_t)m->n_samples * block_channels(m->kind, m->axes);
+        if (!axes_valid(m->axes, version) || (m->value_bytes != 8 && m->value_bytes != 4) || m->n_samples == 0 ||
+            nv > AMBP_MAX_VALUES || (m->kind == AMBP_MEASUREMENT && m->n_samples > AMBP_MAX_MEAS_SAMPLES))
             return 0;
         for (size_t i = 0; i < nv; i++)
             if (!isfinite(m->data[i])) return 0;
@@ -85,11 +98,11 @@ size_t ambp_encode(const ambp_message *m, uint8_t version, uint8_t *out, size_t 
     switch (m->kind) {
     case AMBP_MEASUREMENT:
     case AMBP_EXCITATION: {
-        unsigned nch = block_channels(m->kind);
+        unsigned nch = block_channels(m->kind, m->axes);
         put64(p, m->first_index);
         put16(p + 8, m->n_samples);
         put16(p + 10, (uint16_t)nch);
-        put16(p + 12, (uint16_t)block_channel_set(m->kind));
+        put16(p + 12, (uint16_t)(version == 1 ? block_channel_set(m->kind) : m->axes));
         p[14] = m->value_bytes;
         size_t nv = (size_t)m->n_samples * nch;
         uint8_t *v = p + AMBP_BLOCK_HEADER_BYTES;
@@ -102,6 +115,7 @@ size_t ambp_encode(const ambp_message *m, uint8_t version, uint8_t *out, size_t 
     }
     case AMBP_HEARTBEAT:
         p[0] = m->state; p[1] = m->safe_reason; p[2] = m->clock_running ? 1 : 0;
+        p[3] = version == 1 ? 0 : m->axes;
         put32(p + 4, m->sample_rate_hz);
         put64(p + 8, m->sample_index); put64(p + 16, m->sent_end); put64(p + 24, m->excitation_next);
         put32(p + 32, m->next_measurement_sequence); put32(p + 36, m->rx_datagrams);
@@ -120,12 +134,13 @@ size_t ambp_encode(const ambp_message *m, uint8_t version, uint8_t *out, size_t 
     return size;
 }
 
-static int decode_block(const uint8_t *p, size_t pl, ambp_message *m) {
+static int decode_block(const uint8_t *p, size_t pl, uint8_t version, ambp_message *m) {
     if (pl < AMBP_BLOCK_HEADER_BYTES) return AMBP_E_LENGTH;
     uint64_t first = get64(p);
     uint16_t n = get16(p + 8), nch = get16(p + 10), set = get16(p + 12);
     uint8_t vb = p[14];
-    if (set != block_channel_set(m->kind) || nch != block_channels(m->kind)) return AMBP_E_CONTENT;
+    unsigned axes = version == 1 ? (set == block_channel_set(m->kind) ? AMBP_V1_AXES : 0u) : set;
+    if (!axes_valid(axes, version) || nch != block_channels(m->kind, axes)) return AMBP_E_CONTENT;
     if (vb != 8 && vb != 4) return AMBP_E_CONTENT;
     if (n < 1) return AMBP_E_CONTENT;
     size_t n_flags = m->kind == AMBP_MEASUREMENT ? n : 0;
@@ -143,6 +158,7 @@ static int decode_block(const uint8_t *p, size_t pl, ambp_message *m) {
     m->first_index = first;
     m->n_samples = n;
     m->value_bytes = vb;
+    m->axes = (uint8_t)axes;
     return AMBP_OK;
 }
 
@@ -161,10 +177,11 @@ int ambp_decode(const uint8_t *d, size_t n, uint8_t version, ambp_message *m) {
     m->sequence = get32(d + 8);
     switch (kind) {
     case AMBP_MEASUREMENT:
-    case AMBP_EXCITATION: return decode_block(p, pl, m);
+    case AMBP_EXCITATION: return decode_block(p, pl, version, m);
     case AMBP_HEARTBEAT:
         if (pl != 56) return AMBP_E_LENGTH;
         m->state = p[0]; m->safe_reason = p[1]; m->clock_running = p[2] != 0;
+        m->axes = version == 1 ? 0 : p[3];
         m->sample_rate_hz = get32(p + 4);
         m->sample_index = get64(p + 8); m->sent_end = get64(p + 16); m->excitation_next = get64(p + 24);
         m->next_measurement_sequence = get32(p + 32); m->rx_datagrams = get32(p + 36);
@@ -184,11 +201,13 @@ int ambp_decode(const uint8_t *d, size_t n, uint8_t version, ambp_message *m) {
 }
 
 /* ---- the target ------------------------------------------------------------------------------- */
-void ambp_default_config(ambp_config *cfg, uint32_t sample_rate_hz) {
+void ambp_default_config(ambp_config *cfg, uint32_t sample_rate_hz, uint8_t axes) {
     memset(cfg, 0, sizeof *cfg);
     cfg->version = AMBP_VERSION;
+    cfg->axes = axes;
     cfg->value_bytes = 8;
-    cfg->block = 10;
+    unsigned most = ambp_max_block(axes, 8);
+    cfg->block = (uint16_t)(most < 10u ? most : 10u);
     cfg->sample_rate_hz = sample_rate_hz;
     cfg->heartbeat_ns = 50000000u;
     cfg->bridge_timeout_ns = 500000000u;
@@ -197,9 +216,8 @@ void ambp_default_config(ambp_config *cfg, uint32_t sample_rate_hz) {
 
 int ambp_target_init(ambp_target *t, const ambp_config *cfg, ambp_exc_slot *storage, uint32_t capacity,
                      uint64_t now_ns) {
-    unsigned most = (AMBP_MAX_DATAGRAM - AMBP_OVERHEAD_BYTES - AMBP_BLOCK_HEADER_BYTES) /
-                    (16u * (cfg->value_bytes ? cfg->value_bytes : 8u) + 1u);
-    if ((cfg->value_bytes != 8 && cfg->value_bytes != 4) || cfg->block < 1 || cfg->block > most ||
+    unsigned most = ambp_max_block(cfg->axes, cfg->value_bytes);
+    if (!axes_valid(cfg->axes, cfg->version) || most == 0 || cfg->block < 1 || cfg->block > most ||
         cfg->sample_rate_hz == 0 || cfg->heartbeat_ns == 0 || storage == NULL || capacity == 0)
         return -1;
     memset(t, 0, sizeof *t);
@@ -273,6 +291,7 @@ static void heartbeat(ambp_target *t, uint64_t now_ns) {
     m->rx_rejected = ambp_target_rx_rejected(t);
     m->late_excitation_samples = t->late_excitation;
     m->overruns = t->overruns;
+    m->axes = t->cfg.axes;
     push_out(t, m);
     t->next_hb_ns = now_ns + t->cfg.heartbeat_ns;
 }
@@ -281,10 +300,11 @@ static void send_block(ambp_target *t) {
     if (t->n_rows == 0) return;
     ambp_message *m = &t->scratch;
     m->kind = AMBP_MEASUREMENT;
+    m->axes = t->cfg.axes;
     m->value_bytes = t->cfg.value_bytes;
     m->n_samples = t->n_rows;
     m->first_index = t->k - t->n_rows;
-    memcpy(m->data, t->rows, sizeof(double) * 16u * t->n_rows);
+    memcpy(m->data, t->rows, sizeof(double) * 4u * t->cfg.axes * t->n_rows);
     memcpy(m->sample_flags, t->row_flags, t->n_rows);
     push_out(t, m);
     t->sent_end = t->k;
@@ -319,7 +339,7 @@ static void add_excitation(ambp_target *t, const ambp_message *m) {
         }
         ambp_exc_slot *s = &t->exc[i % t->exc_capacity];
         s->index = i;
-        memcpy(s->r, &m->data[4 * j], sizeof s->r);
+        memcpy(s->r, &m->data[m->axes * j], sizeof(double) * m->axes);
     }
 }
 
@@ -397,6 +417,10 @@ int ambp_target_receive(ambp_target *t, const uint8_t *d, size_t n, int from_bri
         t->rx_rejected_by_reason[why]++;
         return why;
     }
+    if (t->scratch.kind == AMBP_EXCITATION && t->scratch.axes != t->cfg.axes) { /* another rig's channels */
+        t->rx_rejected_by_reason[AMBP_E_CONTENT]++;
+        return AMBP_E_CONTENT;
+    }
     t->rx++;
     t->heard = 1;
     t->last_rx_ns = now_ns;
@@ -426,9 +450,10 @@ static int announced(const ambp_target *t, uint64_t k) {
     return 0;
 }
 
-int ambp_target_sample_begin(ambp_target *t, double r[4], uint8_t *flags) {
+int ambp_target_sample_begin(ambp_target *t, double *r, uint8_t *flags) {
+    const unsigned na = t->cfg.axes;
     *flags = 0;
-    r[0] = r[1] = r[2] = r[3] = 0.0;
+    for (unsigned i = 0; i < na; i++) r[i] = 0.0;
     if (!t->clock_running) return AMBP_SAMPLE_STOPPED;
     if (t->state == AMBP_SAFE) {
         *flags = AMBP_FLAG_SAFE_STATE;
@@ -436,7 +461,7 @@ int ambp_target_sample_begin(ambp_target *t, double r[4], uint8_t *flags) {
     }
     const ambp_exc_slot *s = &t->exc[t->k % t->exc_capacity];
     if (s->index == t->k) {
-        memcpy(r, s->r, sizeof s->r);
+        memcpy(r, s->r, sizeof(double) * na);
     } else if (announced(t, t->k)) {
         if (t->cfg.hold_for_excitation) return AMBP_SAMPLE_HOLD;
         *flags = AMBP_FLAG_EXCITATION_LATE; /* a real-time loop cannot wait: r = 0, counted */
@@ -445,13 +470,14 @@ int ambp_target_sample_begin(ambp_target *t, double r[4], uint8_t *flags) {
     return AMBP_SAMPLE_CONTROL;
 }
 
-void ambp_target_sample_end(ambp_target *t, const double y[4], const double u[4], const double ic[4],
-                            const double r[4], uint8_t flags, uint64_t now_ns) {
-    double *row = &t->rows[16u * t->n_rows];
-    memcpy(row, y, 4 * sizeof(double));
-    memcpy(row + 4, u, 4 * sizeof(double));
-    memcpy(row + 8, ic, 4 * sizeof(double));
-    memcpy(row + 12, r, 4 * sizeof(double));
+void ambp_target_sample_end(ambp_target *t, const double *y, const double *u, const double *ic,
+                            const double *r, uint8_t flags, uint64_t now_ns) {
+    const unsigned na = t->cfg.axes;
+    double *row = &t->rows[4u * na * t->n_rows];
+    memcpy(row, y, na * sizeof(double));
+    memcpy(row + na, u, na * sizeof(double));
+    memcpy(row + 2 * na, ic, na * sizeof(double));
+    memcpy(row + 3 * na, r, na * sizeof(double));
     t->row_flags[t->n_rows++] = flags;
     t->exc[t->k % t->exc_capacity].index = AMBP_NO_INDEX; /* applied: the slot is free for k + capacity */
     t->k++;

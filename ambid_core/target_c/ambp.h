@@ -1,4 +1,4 @@
-/* ambp: the target side of the ambid bridge protocol, version 1 (docs/bridge_protocol.md), in C99.
+/* ambp: the target side of the ambid bridge protocol, versions 2 and 1 (docs/bridge_protocol.md), in C99.
  *
  * Portable core: no heap, no OS calls, no globals that change. The caller owns every byte: one
  * ambp_target struct of state, the excitation queue's storage, and the clock (monotonic
@@ -22,14 +22,16 @@
 extern "C" {
 #endif
 
-#define AMBP_VERSION 1u
+#define AMBP_VERSION 2u               /* version 2: any number of axes (1..AMBP_MAX_AXES); version 1: four */
+#define AMBP_V1_AXES 4u               /* version 1's channel sets carry exactly four axes */
+#define AMBP_MAX_AXES 8u
 #define AMBP_MAX_DATAGRAM 1472u       /* 1500-byte MTU minus IPv4 and UDP headers */
 #define AMBP_HEADER_BYTES 16u
 #define AMBP_OVERHEAD_BYTES 20u       /* header + CRC-32 trailer */
 #define AMBP_BLOCK_HEADER_BYTES 16u
 #define AMBP_NO_INDEX UINT64_MAX
-#define AMBP_MAX_MEAS_SAMPLES 22u     /* float32; 11 at float64 */
-#define AMBP_MAX_VALUES 356u          /* most sample values one block datagram carries (89 float32 excitation rows) */
+#define AMBP_MAX_MEAS_SAMPLES 84u     /* one axis at float32: (1472 - 36) / (4 * 4 + 1) */
+#define AMBP_MAX_VALUES 359u          /* most sample values one block datagram carries: (1472 - 36) / 4 at float32 */
 #define AMBP_MAX_EXPERIMENTS 16u      /* announced ranges held at once */
 #define AMBP_ACK_MEMORY 64u           /* command ids remembered, so a repeated command gets its first answer */
 #define AMBP_OUTBOX 8u                /* datagrams waiting for ambp_target_tx */
@@ -59,6 +61,8 @@ enum ambp_sample_action {
 typedef struct {
     uint8_t kind;                      /* enum ambp_kind */
     uint8_t value_bytes;               /* block kinds: 8 (float64) or 4 (float32) */
+    uint8_t axes;                      /* block kinds: axes na (channels 4 na MEASUREMENT, na EXCITATION);
+                                        * HEARTBEAT (version 2): the sender's axes */
     uint16_t n_samples;                /* block kinds */
     uint32_t sequence;
     uint64_t first_index;              /* block kinds */
@@ -72,7 +76,7 @@ typedef struct {
     uint8_t code, result, reserved1, reserved2;
     uint64_t arg0, arg1;
     uint32_t arg2, reserved3;
-    /* block data, row-major n_samples x channels (16 MEASUREMENT, 4 EXCITATION), and sample flags */
+    /* block data, row-major n_samples x channels (4 na MEASUREMENT, na EXCITATION), and sample flags */
     double data[AMBP_MAX_VALUES];
     uint8_t sample_flags[AMBP_MAX_MEAS_SAMPLES];
 } ambp_message;
@@ -88,16 +92,18 @@ int ambp_decode(const uint8_t *d, size_t n, uint8_t version, ambp_message *m);
 
 const char *ambp_reason_name(int reason);
 
-/* excitation queue slot: r [A] of the sample `index` (AMBP_NO_INDEX: empty) */
+/* excitation queue slot: r [A] of the sample `index` (AMBP_NO_INDEX: empty), the first axes values used */
 typedef struct {
     uint64_t index;
-    double r[4];
+    double r[AMBP_MAX_AXES];
 } ambp_exc_slot;
 
 typedef struct {
-    uint8_t version;            /* protocol version spoken (1) */
+    uint8_t version;            /* protocol version spoken: 2, or 1 (four axes only) */
+    uint8_t axes;               /* axes na the target runs, 1..AMBP_MAX_AXES, in the rig's channel order */
     uint8_t value_bytes;        /* MEASUREMENT values: 8 or 4 */
-    uint16_t block;             /* samples per MEASUREMENT datagram, 1..11 (float64) or 1..22 (float32) */
+    uint16_t block;             /* samples per MEASUREMENT datagram: at most (1436) / (4 na value_bytes + 1),
+                                 * e.g. 11 (float64) or 22 (float32) of four axes, 8 or 17 of five */
     uint32_t sample_rate_hz;    /* control rate, reported in the heartbeat */
     uint64_t heartbeat_ns;      /* heartbeat period */
     uint64_t bridge_timeout_ns; /* bridge silence while RUNNING -> safe state */
@@ -128,8 +134,8 @@ typedef struct {
     /* timing */
     int heard;
     uint64_t last_rx_ns, next_hb_ns, safe_left;
-    /* the MEASUREMENT datagram being filled */
-    double rows[AMBP_MAX_MEAS_SAMPLES * 16];
+    /* the MEASUREMENT datagram being filled: rows of y, u, ic, r (na each) */
+    double rows[AMBP_MAX_VALUES];
     uint8_t row_flags[AMBP_MAX_MEAS_SAMPLES];
     uint16_t n_rows;
     /* datagrams to send, in order */
@@ -139,11 +145,16 @@ typedef struct {
     ambp_message scratch;        /* decode and encode buffer: nothing large on the caller's stack */
 } ambp_target;
 
-/* Defaults of the protocol document: version 1, float64, block 10, heartbeat 50 ms, timeout 0.5 s. */
-void ambp_default_config(ambp_config *cfg, uint32_t sample_rate_hz);
+/* Defaults of the protocol document: version 2, float64, heartbeat 50 ms, timeout 0.5 s, and the
+ * largest block of na axes up to 10 samples. */
+void ambp_default_config(ambp_config *cfg, uint32_t sample_rate_hz, uint8_t axes);
 
-/* Returns 0, or -1 when cfg is invalid (block out of range, value_bytes, rate 0, capacity 0). The
- * queue holds excitation for samples [k, k + capacity): more than the bridge sends ahead. */
+/* Most samples one MEASUREMENT datagram of na axes carries at value_bytes 8 or 4 (0: none fits). */
+unsigned ambp_max_block(unsigned axes, unsigned value_bytes);
+
+/* Returns 0, or -1 when cfg is invalid (axes out of range or not 4 in version 1, block out of range,
+ * value_bytes, rate 0, capacity 0). The queue holds excitation for samples [k, k + capacity): more than
+ * the bridge sends ahead. */
 int ambp_target_init(ambp_target *t, const ambp_config *cfg, ambp_exc_slot *storage, uint32_t capacity,
                      uint64_t now_ns);
 
@@ -154,12 +165,13 @@ int ambp_target_receive(ambp_target *t, const uint8_t *d, size_t n, int from_bri
 /* Time-driven work: the safe state when the bridge is silent, the periodic heartbeat. */
 void ambp_target_poll(ambp_target *t, uint64_t now_ns);
 
-/* Sample k = t->k: r[4] to apply and flags (AMBP_FLAG_SAFE_STATE, AMBP_FLAG_EXCITATION_LATE). */
-int ambp_target_sample_begin(ambp_target *t, double r[4], uint8_t *flags);
+/* Sample k = t->k: r[na] to apply and flags (AMBP_FLAG_SAFE_STATE, AMBP_FLAG_EXCITATION_LATE). */
+int ambp_target_sample_begin(ambp_target *t, double *r, uint8_t *flags);
 
-/* Sample k is done: its row and flags (those of sample_begin OR CLIPPED/LANDED of the plant). */
-void ambp_target_sample_end(ambp_target *t, const double y[4], const double u[4], const double ic[4],
-                            const double r[4], uint8_t flags, uint64_t now_ns);
+/* Sample k is done: its row (y, u, ic, r: na values each) and flags (those of sample_begin OR
+ * CLIPPED/LANDED of the plant). */
+void ambp_target_sample_end(ambp_target *t, const double *y, const double *u, const double *ic,
+                            const double *r, uint8_t flags, uint64_t now_ns);
 
 /* The next datagram to send (valid until the next call into the core); 0 when none is waiting. */
 int ambp_target_tx(ambp_target *t, const uint8_t **data, size_t *len);

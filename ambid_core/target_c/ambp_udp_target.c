@@ -62,7 +62,8 @@ typedef struct {
 } ss_model;
 
 typedef struct {
-    double dt, current_limit, controller_limit, noise_std[4];
+    double dt, current_limit, controller_limit, noise_std[AMBP_MAX_AXES];
+    int axes;          /* na: the channels of everything below, in the model file's axis order */
     ss_model plant, ctl;
 } target_model;
 
@@ -164,11 +165,11 @@ static void load_model(const char *path, target_model *m) {
     if (!r.f) die2("model file %s: %s", path, strerror(errno));
     const char *t = next_token(&r);
     if (!t || strcmp(t, "ambid_target_model") != 0)
-        die2("model file %s is not an ambid target model (it must begin with 'ambid_target_model 1'); "
+        die2("model file %s is not an ambid target model (it must begin with 'ambid_target_model 2'); "
              "write it with './launch_scripts/ambid target-model --out FILE'", path);
     int version = read_count(&r, "format version", 0, 1000000);
-    if (version != 1)
-        die2("model file %s has format version %d; this program reads version 1", path, version);
+    if (version != 1 && version != 2)
+        die2("model file %s has format version %d; this program reads versions 1 and 2", path, version);
     expect_word(&r, "dt");
     m->dt = read_number(&r, "dt");
     if (!(m->dt > 0 && m->dt < 1))
@@ -176,6 +177,16 @@ static void load_model(const char *path, target_model *m) {
     double rate = 1.0 / m->dt;
     if (fabs(rate - floor(rate + 0.5)) > 1e-6 * rate)
         die2("model file %s: dt = %g s is not the period of a whole number of hertz", path, m->dt);
+    m->axes = (int)AMBP_V1_AXES; /* version 1: the four radial axes */
+    if (version == 2) {
+        expect_word(&r, "axes");
+        m->axes = read_count(&r, "axes", 1, (int)AMBP_MAX_AXES);
+        for (int i = 0; i < m->axes; i++) /* the axes' names: for the people reading the file */
+            if (!next_token(&r))
+                die2("model file %s is truncated at line %d: the names of the %d axes are missing", path, r.line,
+                     m->axes);
+    }
+    const int na = m->axes;
     expect_word(&r, "current_limit");
     m->current_limit = read_number(&r, "current_limit");
     if (!(m->current_limit > 0)) die2("model file %s: current_limit = %g A must be > 0", path, m->current_limit);
@@ -184,15 +195,15 @@ static void load_model(const char *path, target_model *m) {
     if (!(m->controller_limit > 0))
         die2("model file %s: controller_limit = %g A must be > 0", path, m->controller_limit);
     expect_word(&r, "noise_std");
-    for (int i = 0; i < 4; i++) {
+    for (int i = 0; i < na; i++) {
         m->noise_std[i] = read_number(&r, "noise_std");
         if (m->noise_std[i] < 0) die2("model file %s: noise_std %g m must be >= 0", path, m->noise_std[i]);
     }
-    read_ss(&r, "plant", &m->plant, 4, 4);
-    for (int i = 0; i < 16; i++)
+    read_ss(&r, "plant", &m->plant, na, na);
+    for (int i = 0; i < na * na; i++)
         if (m->plant.d[i] != 0)
             die2("model file %s: plant_D must be zero (y[k] is measured before u[k] is applied)", path);
-    read_ss(&r, "controller", &m->ctl, 4, 4);
+    read_ss(&r, "controller", &m->ctl, na, na);
     expect_word(&r, "end");
     if (next_token(&r)) die2("model file %s line %d: text after 'end'", path, r.line);
     fclose(r.f);
@@ -298,7 +309,7 @@ static void parse_options(int argc, char **argv, options *o) {
     o->bridge_timeout = 0.5;
     o->safe_seconds = 0.2;
     o->linger = 1.0;
-    o->block = 10;
+    o->block = 0; /* 0: the most of the model's axes, up to 10 */
     o->version = AMBP_VERSION;
     o->queue = 65536;
     for (int i = 1; i < argc; i++) {
@@ -322,7 +333,7 @@ static void parse_options(int argc, char **argv, options *o) {
         else if (!strcmp(a, "--seed")) o->seed = opt_int(a, v, 0, 9223372036854775807LL);
         else if (!strcmp(a, "--pace")) o->pace = opt_double(a, v, 0.0, 1e3);
         else if (!strcmp(a, "--samples")) o->samples = opt_int(a, v, 0, 4611686018427387904LL);
-        else if (!strcmp(a, "--block")) o->block = (int)opt_int(a, v, 1, 22);
+        else if (!strcmp(a, "--block")) o->block = (int)opt_int(a, v, 1, (long long)AMBP_MAX_MEAS_SAMPLES);
         else if (!strcmp(a, "--heartbeat")) o->heartbeat = opt_double(a, v, 1e-3, 10.0);
         else if (!strcmp(a, "--bridge-timeout")) o->bridge_timeout = opt_double(a, v, 1e-3, 3600.0);
         else if (!strcmp(a, "--safe-seconds")) o->safe_seconds = opt_double(a, v, 0.0, 60.0);
@@ -332,10 +343,6 @@ static void parse_options(int argc, char **argv, options *o) {
         else if (!strcmp(a, "--priority")) o->priority = (int)opt_int(a, v, 1, 99);
     }
     if (!o->model) die2("--model FILE is required; write one with './launch_scripts/ambid target-model --out FILE'");
-    int most = o->float32 ? 22 : 11;
-    if (o->block > most)
-        die2("option --block = %d: at most %d samples fit one datagram at %s", o->block, most,
-             o->float32 ? "float32" : "float64");
     if (o->hold && o->pace != 0)
         die2("--hold-for-excitation needs --pace 0 (a real-time target cannot wait)");
     if (o->priority && o->pace == 0)
@@ -350,6 +357,13 @@ int main(int argc, char **argv) {
     struct sockaddr_in bridge_addr = opt_address("--bridge", o.bridge);
     target_model m;
     load_model(o.model, &m);
+    const int na = m.axes;
+    int most = (int)ambp_max_block((unsigned)na, o.float32 ? 4u : 8u);
+    if (o.block > most)
+        die2("option --block = %d: at most %d samples of %d axes fit one datagram at %s", o.block, most, na,
+             o.float32 ? "float32" : "float64");
+    if (o.version == 1 && na != (int)AMBP_V1_AXES)
+        die2("--protocol-version 1 carries %u axes, the model file has %d; speak version 2", AMBP_V1_AXES, na);
     if (o.priority) { /* Linux-RT style: locked memory, SCHED_FIFO; the loop sleeps between samples */
         struct sched_param sp;
         memset(&sp, 0, sizeof sp);
@@ -361,10 +375,10 @@ int main(int argc, char **argv) {
 
     uint32_t rate_hz = (uint32_t)floor(1.0 / m.dt + 0.5);
     ambp_config cfg;
-    ambp_default_config(&cfg, rate_hz);
+    ambp_default_config(&cfg, rate_hz, (uint8_t)na);
     cfg.version = (uint8_t)o.version;
     cfg.value_bytes = o.float32 ? 4 : 8;
-    cfg.block = (uint16_t)o.block;
+    if (o.block) cfg.block = (uint16_t)o.block;
     cfg.heartbeat_ns = (uint64_t)(o.heartbeat * 1e9);
     cfg.bridge_timeout_ns = (uint64_t)(o.bridge_timeout * 1e9);
     cfg.safe_samples = (uint64_t)floor(o.safe_seconds / m.dt + 0.5);
@@ -440,7 +454,7 @@ int main(int argc, char **argv) {
                 if (lagging && !behind) ambp_target_count_overrun(&t);
                 behind = lagging;
             }
-            double r[4], y[4], ic[4], u[4], ua[4];
+            double r[AMBP_MAX_AXES], y[AMBP_MAX_AXES], ic[AMBP_MAX_AXES], u[AMBP_MAX_AXES], ua[AMBP_MAX_AXES];
             uint8_t flags;
             int action = ambp_target_sample_begin(&t, r, &flags);
             if (action == AMBP_SAMPLE_HOLD) {
@@ -450,25 +464,25 @@ int main(int argc, char **argv) {
             }
             if (action == AMBP_SAMPLE_STOPPED) break;
             /* y[k] = C x[k] + noise; ic[k] = controller(y[k]); u = ic + r held over the next period */
-            matvec(m.plant.c, xp, y, 4, np, 0);
-            for (int i = 0; i < 4; i++) y[i] += m.noise_std[i] * normal();
+            matvec(m.plant.c, xp, y, na, np, 0);
+            for (int i = 0; i < na; i++) y[i] += m.noise_std[i] * normal();
             if (action == AMBP_SAMPLE_CONTROL) {
-                matvec(m.ctl.c, xc, ic, 4, nc, 0);
-                matvec(m.ctl.d, y, ic, 4, 4, 1);
+                matvec(m.ctl.c, xc, ic, na, nc, 0);
+                matvec(m.ctl.d, y, ic, na, na, 1);
                 matvec(m.ctl.a, xc, xc2, nc, nc, 0);
-                matvec(m.ctl.b, y, xc2, nc, 4, 1);
+                matvec(m.ctl.b, y, xc2, nc, na, 1);
                 memcpy(xc, xc2, sizeof(double) * (size_t)nc);
-                for (int i = 0; i < 4; i++) ic[i] = fmax(-m.controller_limit, fmin(m.controller_limit, ic[i]));
+                for (int i = 0; i < na; i++) ic[i] = fmax(-m.controller_limit, fmin(m.controller_limit, ic[i]));
             } else {
-                ic[0] = ic[1] = ic[2] = ic[3] = 0.0;
+                for (int i = 0; i < na; i++) ic[i] = 0.0;
             }
-            for (int i = 0; i < 4; i++) {
+            for (int i = 0; i < na; i++) {
                 u[i] = ic[i] + r[i];
                 ua[i] = fmax(-m.current_limit, fmin(m.current_limit, u[i]));
                 if (ua[i] != u[i]) flags |= AMBP_FLAG_CLIPPED;
             }
             matvec(m.plant.a, xp, xp2, np, np, 0);
-            matvec(m.plant.b, ua, xp2, np, 4, 1);
+            matvec(m.plant.b, ua, xp2, np, na, 1);
             memcpy(xp, xp2, sizeof(double) * (size_t)np);
             ambp_target_sample_end(&t, y, u, ic, r, flags, o.pace > 0 ? now_ns() : t_now);
             if (!t.clock_running) break;

@@ -36,7 +36,6 @@ import json
 import sys
 
 import numpy as np
-from ambid.channels import AXES, CURRENT_NAMES
 from ambid.excitation import ExcitationDesign
 from ambid.excitation.experiment import Experiment, place_experiment
 from ambid.excitation.spec import KINDS, DesignSpec
@@ -53,12 +52,11 @@ from ambid_nodes.identity import SESSION_PARAMETER, SessionIdentity
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, node_rig, refuse_unknown
 
-EXCITATION_NAMES = tuple(f"r_{a}" for a in AXES)
-EXCITATION_UNITS = ("A",) * len(EXCITATION_NAMES)
 STATUS_PERIOD_S = 0.5
 
 
 D = DesignSpec()  # the parameters' defaults: the experiment identify runs
+AUTO = "auto"  # inputs: [auto] = every current of the plant (as frf_consumer's channels)
 
 
 class ExcitationGenerator(Node):
@@ -67,14 +65,16 @@ class ExcitationGenerator(Node):
         super().__init__("excitation_generator", **kwargs)
         rig_file = declare(self, "rig_file", "", "YAML rig parameter file for the defaults until plant/description "
                                                  "arrives; empty = the default rig")
+        rig = node_rig(self, rig_file, rig)   # its currents are the default inputs
         kind = declare(self, "kind", D.kind, "excitation kind: " + " | ".join(KINDS))
         band = (declare(self, "band_low", D.band_hz[0], "lower edge of the band of interest", 0.0, 1e6, "Hz"),
                 declare(self, "band_high", D.band_hz[1], "upper edge of the band of interest, below fs/2", 0.0, 1e6,
                         "Hz"))
         resolution = declare(self, "resolution", D.resolution_hz,
                              "frequency resolution fs/N; fs/resolution must be an integer", 1e-6, 1e6, "Hz")
-        inputs = declare(self, "inputs", list(D.input_names),
-                         "excited inputs (plant current names); u_<axis> is excited through channel r_<axis>")
+        inputs = declare(self, "inputs", list(D.input_names) or [AUTO],
+                         "excited inputs (plant current names; [auto]: every current of the plant); u_<axis> is "
+                         "excited through channel r_<axis>")
         peak = declare(self, "peak_current", D.peak_current_a, "excitation peak per input", 1e-6, 1e3, "A")
         periods = declare(self, "periods", D.n_periods, "steady-state periods P per experiment", 1, 1_000_000)
         realisations = declare(self, "realisations", D.n_realisations, "realisations M (random phases, noise "
@@ -106,18 +106,18 @@ class ExcitationGenerator(Node):
         if self.lookahead < 2 * self.block_size:
             raise ParameterError(f"excitation_generator: lookahead {self.lookahead} must be at least twice "
                                  f"block_size {self.block_size} (the plant waits for each block)")
-        unknown = sorted(set(inputs) - set(CURRENT_NAMES))
+        if inputs == [AUTO]:
+            inputs = []   # the plant's currents, once it says them (the rig's until then)
+        unknown = sorted(set(inputs) - set(rig.layout.inputs))
         if unknown:
             raise ParameterError(f"excitation_generator: inputs {unknown} are not plant currents; use some of "
-                                 f"{list(CURRENT_NAMES)}")
+                                 f"{list(rig.layout.inputs)}")
         self.spec = DesignSpec(kind, band, resolution, tuple(inputs), peak, periods, realisations, transient, grid,
                                spacing, phases, mimo, seed, settle, cycles)
-        rig = node_rig(self, rig_file, rig)
         # defaults until the plant describes itself; the terms are checked now, so a bad band fails at
         # start-up, and designed only when an experiment asks for them (a caller may bring its own design)
         self.dt = rig.dt
-        self.current_names = list(CURRENT_NAMES)
-        self.plant_limit = np.full(len(CURRENT_NAMES), float(rig.current_limit_a))
+        self.set_currents(list(rig.layout.inputs), np.full(len(rig.layout), float(rig.current_limit_a)))
         self.plant_known = False
         self.default_error = self.check_spec()
         if self.default_error:
@@ -151,14 +151,22 @@ class ExcitationGenerator(Node):
     def on_plant(self, msg: PlantDescription) -> None:
         check_plant_description(msg)
         changed = abs(msg.sample_period - self.dt) > 1e-12 * self.dt
+        if list(msg.current_names) != self.current_names:
+            self.default_design = None   # [auto] inputs: the plant's currents
         self.dt = float(msg.sample_period)
-        self.current_names = list(msg.current_names)
-        self.plant_limit = np.asarray(msg.current_limit, dtype=float)
+        self.set_currents(list(msg.current_names), np.asarray(msg.current_limit, dtype=float))
         self.plant_known = True
         if changed:
             self.default_design, self.default_error = None, self.check_spec("the plant's ")
             if self.default_error:
                 self.event(SessionEvent.ERROR, "bad_design", self.default_error)
+
+    def set_currents(self, names: list[str], limits: np.ndarray) -> None:
+        """The plant's current channels (u_<axis>) and their limits [A]; the excitation goes out on r_<axis>
+        of each, in the same order."""
+        self.current_names, self.plant_limit = names, limits
+        self.excitation_names = tuple("r_" + (n[2:] if n.startswith("u_") else n) for n in names)
+        self.excitation_units = ("A",) * len(names)
 
     def check_spec(self, whose: str = "") -> str:
         """Why the parameters' design cannot be made at the present sample rate, or ""."""
@@ -223,12 +231,12 @@ class ExcitationGenerator(Node):
             raise ValueError(self.default_error)
         else:
             if self.default_design is None:
-                self.default_design = self.spec.build(1.0 / self.dt)
+                self.default_design = self.spec.build(1.0 / self.dt, inputs=self.current_names)
             design = self.default_design
         limit = self.plant_limit if self.current_limit == 0 else self.current_limit
         exp = place_experiment(f"exp-{self.count + 1:04d}", design, fs_hz=1.0 / self.dt,
                                current_names=self.current_names, current_limit_a=limit,
-                               working_current_a=self.working_current, excitation_names=EXCITATION_NAMES,
+                               working_current_a=self.working_current, excitation_names=self.excitation_names,
                                progress=self.progress, margin=self.start_margin, after=self.last_end,
                                start_index=req.start_index)
         self.count += 1
@@ -265,8 +273,8 @@ class ExcitationGenerator(Node):
         if exp is None:
             return
         for first, data, final in exp.due_blocks(self.progress, self.lookahead, self.block_size,
-                                                 len(EXCITATION_NAMES)):
-            self.pub_block.publish(block_msg(first, self.dt, EXCITATION_NAMES, EXCITATION_UNITS, data,
+                                                 len(self.excitation_names)):
+            self.pub_block.publish(block_msg(first, self.dt, self.excitation_names, self.excitation_units, data,
                                              flags=SampleBlock.FLAG_FINAL if final else 0,
                                              experiment_id=exp.experiment_id))
             self.blocks_published += 1

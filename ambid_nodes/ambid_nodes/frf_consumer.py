@@ -23,6 +23,12 @@ result from a recording.
 
 When a design excites only some inputs, G is the response to those inputs
 with the other loops closed (they are not excited, so not separable).
+
+Channels are data: with the parameters' default ``[auto]`` the outputs are
+the plant's displacement channels (its latched ``plant/description``, else
+the y channels of the measurement blocks), the inputs and references the u
+and r channels of the design's inputs (:func:`ambid.frf.offline.data_channels`),
+whatever the rig's axes.
 """
 
 from __future__ import annotations
@@ -34,41 +40,50 @@ import time
 
 import numpy as np
 from ambid.excitation import ExcitationDesign as Design
-from ambid.frf.offline import DEFAULT_INPUTS, DEFAULT_OUTPUTS, DEFAULT_REFERENCES
+from ambid.frf.offline import data_channels
 from ambid.frf.streaming import ESTIMATORS, FrfResult, FrfStream, loop_consistency, match_inputs
 from ambid.statespace import StateSpace
 from rclpy.node import Node
 
-from ambid_msgs.msg import (ControllerDescription, ExcitationDesign, FrfEstimate, SampleBlock, SessionEvent,
-                            SessionStatus)
+from ambid_msgs.msg import (ControllerDescription, ExcitationDesign, FrfEstimate, PlantDescription, SampleBlock,
+                            SessionEvent, SessionStatus)
 from ambid_nodes import qos
-from ambid_nodes.conversions import (BadMessage, block_data, check_controller_description, check_design, float_array,
-                                     statespace_from_msg, status_msg, time_msg)
+from ambid_nodes.conversions import (BadMessage, block_data, check_controller_description, check_design,
+                                     check_plant_description, float_array, statespace_from_msg, status_msg, time_msg)
 from ambid_nodes.identity import SESSION_PARAMETER, SessionIdentity
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
+
+
+AUTO = "auto"  # a channel parameter taken from the data
 
 
 class FrfConsumer(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("frf_consumer", **kwargs)
         self.estimator = declare(self, "estimator", "indirect", "FRF estimator: " + " | ".join(ESTIMATORS))
-        self.outputs = list(declare(self, "outputs", list(DEFAULT_OUTPUTS), "output channels y of G [m]"))
-        self.inputs = list(declare(self, "inputs", list(DEFAULT_INPUTS),
-                                   "applied-current channels u; those of the design's inputs are used [A]"))
-        self.references = list(declare(self, "references", list(DEFAULT_REFERENCES),
-                                       "excitation channels r, one per entry of inputs, same order [A]"))
+        self.outputs = list(declare(self, "outputs", [AUTO], "output channels y of G; [auto]: the plant's "
+                                                             "displacement channels [m]"))
+        self.inputs = list(declare(self, "inputs", [AUTO],
+                                   "applied-current channels u; those of the design's inputs are used; [auto]: the "
+                                   "design's u_<axis> [A]"))
+        self.references = list(declare(self, "references", [AUTO],
+                                       "excitation channels r, one per entry of inputs, same order; [auto]: the "
+                                       "design's r_<axis> [A]"))
         session = declare(self, *SESSION_PARAMETER)
         refuse_unknown(self)
         self.identity = SessionIdentity(self, session)
         if self.estimator not in ESTIMATORS:
             raise ParameterError(f"frf_consumer: estimator '{self.estimator}' is not one of {list(ESTIMATORS)}")
         for name, names in (("outputs", self.outputs), ("inputs", self.inputs), ("references", self.references)):
-            if not names or len(set(names)) != len(names) or not all(names):
-                raise ParameterError(f"frf_consumer: {name} must be distinct, non-empty channel names, got {names}")
-        if len(self.inputs) != len(self.references):
+            if not names or len(set(names)) != len(names) or not all(names) or (AUTO in names and len(names) > 1):
+                raise ParameterError(f"frf_consumer: {name} must be distinct, non-empty channel names (or [auto]), "
+                                     f"got {names}")
+        if (self.inputs == [AUTO]) != (self.references == [AUTO]) or len(self.inputs) != len(self.references):
             raise ParameterError(f"frf_consumer: inputs {self.inputs} and references {self.references} must pair "
-                                 "up one to one (u_i is the current r_i is added to)")
+                                 "up one to one (u_i is the current r_i is added to), or both be [auto]")
+        self.plant_outputs: list[str] | None = None  # the plant's displacement channels, once it says them
+        self.pending_design: tuple | None = None  # (message, design) of a design that came before them
 
         self.pub_frf = self.identity.publisher(FrfEstimate, "frf", qos.LATCHED)
         self.pub_status = self.identity.publisher(SessionStatus, "status", qos.STATUS)
@@ -78,6 +93,7 @@ class FrfConsumer(Node):
         self.intake.subscribe(SampleBlock, "measurement", self.on_measurement, qos.BLOCKS)
         self.intake.subscribe(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
         self.intake.subscribe(ControllerDescription, "controller/description", self.on_controller, qos.LATCHED)
+        self.intake.subscribe(PlantDescription, "plant/description", self.on_plant, qos.LATCHED)
 
         self.stream: FrfStream | None = None
         self.experiment_id = ""
@@ -94,6 +110,34 @@ class FrfConsumer(Node):
         self.create_timer(1.0, self.status_if_changed)  # rejections between the per-period statuses
 
     # --- inputs ---------------------------------------------------------------
+    def on_plant(self, msg: PlantDescription) -> None:
+        check_plant_description(msg)
+        self.plant_outputs = list(msg.displacement_names)
+        self.start_pending()
+
+    def start_pending(self) -> None:
+        """The stream of the design that came before the plant's channels were known, now that they are."""
+        pending, self.pending_design = self.pending_design, None
+        if pending is None or self.plant_outputs is None:
+            self.pending_design = pending
+            return
+        msg, design = pending
+        try:
+            stream, u_names = self.new_stream(msg, design)
+        except ValueError as exc:
+            self.event(SessionEvent.ERROR, "bad_design", f"excitation/design {msg.experiment_id!r} on the plant's "
+                                                         f"channels {self.plant_outputs}: {exc}")
+            return
+        self.start_stream(msg, design, stream, u_names)
+
+    def channels(self, design: Design) -> tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]:
+        """(outputs, inputs, references) of the design's FRF: the parameters', [auto] ones from the data."""
+        def given(names: list[str]):
+            return None if names == [AUTO] else tuple(names)
+
+        return data_channels(design.input_names, self.plant_outputs, given(self.outputs), given(self.inputs),
+                             given(self.references))
+
     def on_controller(self, msg: ControllerDescription) -> None:
         check_controller_description(msg)
         self.controller = statespace_from_msg(msg.model)
@@ -107,18 +151,32 @@ class FrfConsumer(Node):
             design = Design.from_dict(json.loads(msg.design_json))
             if abs(msg.sample_rate - design.fs_hz) > 1e-9 * design.fs_hz:
                 raise ValueError(f"sample_rate {msg.sample_rate} differs from the design's {design.fs_hz}")
-            u_names, r_names = match_inputs(design.input_names, self.inputs, self.references)
-            stream = FrfStream(design, self.outputs, u_names, r_names, start_index=msg.start_index,
-                               total_samples=min(msg.total_samples, design.total_samples))
-            if self.estimator == "h2" and len(self.outputs) != len(u_names):
-                raise ValueError(f"the h2 estimator needs as many outputs as inputs ({len(self.outputs)} outputs, "
-                                 f"{len(u_names)} inputs excited); use indirect")
             if not design.is_periodic and self.estimator not in ("indirect", "h1"):
                 raise ValueError(f"a {design.kind} excitation is not periodic: the {self.estimator} estimator "
                                  "does not apply; use indirect or h1")
+            if self.outputs == [AUTO] and self.plant_outputs is None:
+                # the outputs are the plant's displacement channels: the stream starts once its description or
+                # a measurement block says them (the latest design waits; an earlier one it replaces is dropped)
+                self.pending_design = (msg, design)
+                return
+            stream, u_names = self.new_stream(msg, design)
         except (ValueError, KeyError, TypeError, AttributeError, IndexError, OverflowError, RecursionError) as exc:
             # JSONDecodeError is a ValueError
             raise BadMessage(f"excitation/design {msg.experiment_id!r}: {type(exc).__name__}: {exc}") from None
+        self.start_stream(msg, design, stream, u_names)
+
+    def new_stream(self, msg: ExcitationDesign, design: Design) -> tuple[FrfStream, tuple[str, ...]]:
+        """The stream of a design on its channels; ValueError when they cannot make one."""
+        outputs, inputs, references = self.channels(design)
+        u_names, r_names = match_inputs(design.input_names, inputs, references)
+        stream = FrfStream(design, outputs, u_names, r_names, start_index=msg.start_index,
+                           total_samples=min(msg.total_samples, design.total_samples))
+        if self.estimator == "h2" and len(outputs) != len(u_names):
+            raise ValueError(f"the h2 estimator needs as many outputs as inputs ({len(outputs)} outputs, "
+                             f"{len(u_names)} inputs excited); use indirect")
+        return stream, u_names
+
+    def start_stream(self, msg: ExcitationDesign, design: Design, stream: FrfStream, u_names) -> None:
         if self.stream is not None and not self.stream.finished:
             self.event(SessionEvent.WARN, "experiment_superseded",
                        f"{self.experiment_id} replaced by {msg.experiment_id} before its end; its estimate so far "
@@ -157,6 +215,9 @@ class FrfConsumer(Node):
         except BadMessage as exc:
             raise BadMessage(f"measurement: {exc}") from None
         self.index = max(self.index, msg.first_index + msg.n_samples)
+        if self.plant_outputs is None:  # no plant description (yet): the record's own displacement channels
+            self.plant_outputs = [n for n in msg.channel_names if n.startswith("y_")] or None
+        self.start_pending()
         stream = self.stream
         if stream is None or stream.finished:
             return

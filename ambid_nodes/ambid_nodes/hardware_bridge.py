@@ -58,9 +58,6 @@ from ambid_nodes.identity import SESSION_PARAMETER, SessionIdentity
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, node_rig, refuse_unknown
 
-MEASUREMENT_NAMES = bp.CHANNEL_SETS[bp.CHANNEL_SET_MEASUREMENT]
-MEASUREMENT_UNITS = ("m",) * 4 + ("A",) * 12
-EXCITATION_NAMES = bp.CHANNEL_SETS[bp.CHANNEL_SET_EXCITATION]
 TICK_S = 0.005  # period of the timer that processes received datagrams and supervises the target
 EVENT_THROTTLE_S = 1.0
 
@@ -84,8 +81,8 @@ class HardwareBridge(Node):
         reorder_timeout = declare(self, "reorder_timeout", 0.2, "longest wait for a missing datagram",
                                   0.0, 60.0, "s")
         self.block_size = declare(self, "block_size", 1000, "samples per measurement block", 1, 100_000)
-        self.chunk = declare(self, "excitation_chunk", 40, "samples per EXCITATION datagram", 1,
-                             bp.max_block_samples(bp.Kind.EXCITATION))
+        self.chunk = declare(self, "excitation_chunk", 40, "samples per EXCITATION datagram (at most what one "
+                             "datagram of the rig's axes carries)", 1, bp.max_block_samples(bp.Kind.EXCITATION, 8, 1))
         self.clock_every = declare(self, "clock_every", 100, "samples between /clock messages", 1, 100_000)
         self.retry_s = declare(self, "command_retry", 0.1, "wait for an ACK before a command is sent again",
                                0.001, 60.0, "s")
@@ -116,6 +113,16 @@ class HardwareBridge(Node):
             raise ParameterError(f"hardware_bridge: {exc}") from None
         self.rig = node_rig(self, rig_file, rig)
         self.dt = self.rig.dt
+        # the rig's axes: the channels of every datagram and block (y, u, ic, r of each; r going out)
+        self.layout = self.rig.layout
+        self.na = len(self.layout)
+        if self.version == 1 and self.na != bp.V1_AXES:
+            raise ParameterError(f"hardware_bridge: protocol_version 1 carries {bp.V1_AXES} axes, the rig has "
+                                 f"{self.na} ({' '.join(self.layout.axes)}); use protocol_version 2")
+        self.measurement_names = bp.block_channels(bp.Kind.MEASUREMENT, self.layout)
+        self.measurement_units = tuple(u for sig in ("y", "u", "ic", "r") for u in self.layout.units(sig))
+        self.excitation_names = bp.block_channels(bp.Kind.EXCITATION, self.layout)
+        self.chunk = min(self.chunk, bp.max_block_samples(bp.Kind.EXCITATION, 8, self.na))
 
         self.pub_block = self.identity.publisher(SampleBlock, "measurement", qos.BLOCKS)
         self.pub_desc = self.identity.publisher(PlantDescription, "plant/description", qos.LATCHED)
@@ -172,12 +179,12 @@ class HardwareBridge(Node):
 
     # --- set-up and tear-down ---------------------------------------------
     def publish_description(self) -> None:
-        r = self.rig
+        r, lay = self.rig, self.layout
         self.pub_desc.publish(PlantDescription(
             stamp=time_msg(0.0), name=self.get_fully_qualified_name(), source="hardware", rig_name=r.name,
-            sample_period=self.dt, displacement_names=list(MEASUREMENT_NAMES[:4]),
-            current_names=list(MEASUREMENT_NAMES[4:8]), bias_current=[r.bias_current_a] * 4,
-            current_limit=[r.current_limit_a] * 4, backup_clearance=[r.backup_clearance_m] * 2,
+            sample_period=self.dt, displacement_names=list(lay.outputs),
+            current_names=list(lay.inputs), bias_current=[m.bias_current_a for m in r.axis_magnets()],
+            current_limit=[r.current_limit_a] * self.na, backup_clearance=[c for _, c in r.backup_bearings()],
             analytical_model=statespace_to_msg(analytical_model(r)), seed=0, controller_timeout_samples=0,
             rig_json=json.dumps(r.to_dict())))
 
@@ -244,7 +251,7 @@ class HardwareBridge(Node):
             self.send(bp.Heartbeat(self.next_seq(bp.Kind.HEARTBEAT), bp.TargetState.RUNNING if self.connected
                                    else bp.TargetState.IDLE, sample_index=self.assembler.next_index or 0,
                                    rx_datagrams=self.c["datagrams"],
-                                   rx_rejected=self.c["foreign"] + sum(self.malformed.values())))
+                                   rx_rejected=self.c["foreign"] + sum(self.malformed.values()), axes=self.na))
         if now >= self.next_status:
             self.next_status = now + 0.5
             self.publish_status()
@@ -257,7 +264,7 @@ class HardwareBridge(Node):
                                  f"{self.target_addr[0]}:{self.target_addr[1]} is accepted")
             return
         try:
-            msg = bp.unpack_datagram(data, self.version)
+            msg = bp.unpack_datagram(data, self.version, self.na)
         except bp.ProtocolError as exc:
             self.malformed[exc.reason] += 1
             self.event_throttled(SessionEvent.WARN if exc.reason != "version" else SessionEvent.ERROR,
@@ -319,6 +326,10 @@ class HardwareBridge(Node):
                 self.event(SessionEvent.ERROR, "sample_rate_mismatch",
                            f"the target runs at {hb.sample_rate_hz} Hz, the rig description says {1 / self.dt:g} Hz; "
                            "set rig_file to the rig the target runs")
+            if hb.axes and hb.axes != self.na:   # version 2 says the target's axes
+                self.event(SessionEvent.ERROR, "axes_mismatch",
+                           f"the target runs {hb.axes} axes, the rig description has {self.na} "
+                           f"({' '.join(self.layout.axes)}); set rig_file to the rig the target runs")
             for first in list(self.chunks.firsts):
                 self.send_chunk(first, t_rx)
             if self.autostart and hb.state == bp.TargetState.IDLE:
@@ -355,7 +366,8 @@ class HardwareBridge(Node):
         raw = b.sample_flags
         flags = ((raw & (bp.FLAG_CLIPPED | bp.FLAG_LANDED))
                  | np.where(raw & bp.FLAG_SAFE_STATE, SampleBlock.FLAG_CONTROLLER_LOST, 0)).astype(np.uint8)
-        self.pub_block.publish(block_msg(b.first_index, self.dt, MEASUREMENT_NAMES, MEASUREMENT_UNITS, b.data, flags,
+        self.pub_block.publish(block_msg(b.first_index, self.dt, self.measurement_names, self.measurement_units, b.data,
+                                         flags,
                                          SampleBlock.FLAG_FINAL if b.final else 0))
         self.c["blocks"] += 1
         self.c["samples_published"] += len(b.data)
@@ -428,7 +440,7 @@ class HardwareBridge(Node):
     # --- excitation and commands in ---------------------------------------
     def on_excitation(self, msg: SampleBlock) -> None:
         done = self.hb.sample_index if self.hb else 0
-        data = check_excitation_block(msg, EXCITATION_NAMES, self.dt, done, self.horizon, self.chunks.firsts,
+        data = check_excitation_block(msg, self.excitation_names, self.dt, done, self.horizon, self.chunks.firsts,
                                       self.chunks.length, "target", passed=done)
         now = time.monotonic()
         for first in self.chunks.add(msg.first_index, data):

@@ -65,7 +65,6 @@ import sys
 import time
 
 import numpy as np
-from ambid.channels import AXES, CURRENT_NAMES, DISPLACEMENT_NAMES
 from ambid.plant.analytical import analytical_model
 from ambid.plant.excitation_schedule import ExcitationSchedule
 from ambid.plant.levitation import LevitationMonitor
@@ -81,27 +80,22 @@ from ambid_nodes.conversions import (BadMessage, block_msg, check_design, check_
                                      status_msg, time_msg)
 from ambid_nodes.identity import SESSION_PARAMETER, LoopPartner, SessionIdentity
 from ambid_nodes.intake import Intake
-from ambid_nodes.loop_call import BoundKernel, ContextArray, ContextWord
+from ambid_nodes.loop_call import BoundKernel, ContextWord
 from ambid_nodes.loop_kernels import (LOOP_COUNT, LOOP_GATE, LOOP_K, LOOP_LIMIT, LOOP_NO_LIMIT, LOOP_OUT, N_PK,
                                       PK_BLOCK_START, PK_CLOCK_EVERY, PK_FREE_UNTIL, PK_LOOP, PK_R, PK_R_FIRST,
                                       PK_WORK, PLANT_AFTER, PLANT_CLIPPED, PLANT_CONTACT, PLANT_KIND, PLANT_LOOKUP,
-                                      PLANT_STEPPED, plant_kernel, plant_loop_vector, sample4_buffer)
+                                      PLANT_STEPPED, plant_kernel, plant_loop_vector, sample_buffer)
 from ambid_nodes.loop_pump import NOT_RUN, GatingState, LoopEntry
 from ambid_nodes.parameters import declare, node_rig, refuse_unknown
 from ambid_nodes.raw_publish import raw_publisher
-from ambid_nodes.sample_codec import decode_sample, encode_clock, encode_sample, encode_sample4
+from ambid_nodes.sample_codec import decode_sample, encode_clock, encode_sample
 
-MEASUREMENT_NAMES = (DISPLACEMENT_NAMES + CURRENT_NAMES + tuple(f"ic_{a}" for a in AXES)
-                     + tuple(f"r_{a}" for a in AXES))
-MEASUREMENT_UNITS = ("m",) * 4 + ("A",) * 12
-EXCITATION_NAMES = tuple(f"r_{a}" for a in AXES)
 # the safe state recorded after a lost controller: the drop through the clearance takes ~7 ms at 1 g
 LANDING_S = 0.05
 STATUS_PERIOD_S = 1.0  # wall time between status messages while the loop does not run
 STATUS_EVERY = 10_000  # while it runs: a status at the first block end past each multiple of this sample count
 
 START_RETRY_S = 0.25  # wall time between re-sends of y[0] until the controller answers
-ZERO4 = (0.0, 0.0, 0.0, 0.0)
 # message constants, read once: the per-sample path must not pay rosidl's class properties
 RUNNING, DONE, FAILED, IDLE = (SessionStatus.STATE_RUNNING, SessionStatus.STATE_DONE, SessionStatus.STATE_FAILED,
                                SessionStatus.STATE_IDLE)
@@ -115,13 +109,21 @@ class KernelSchedule(ExcitationSchedule):
     it no sample outside that block is excited) kept in the plant kernel's context, where plant_kernel
     reads them."""
 
-    rows = ContextArray("fast", PK_R, np.float64, 4, writes=False)
     first = ContextWord("fast", PK_R_FIRST)
     free_until = ContextWord("fast", PK_FREE_UNTIL)
 
-    def __init__(self, fast: BoundKernel) -> None:
+    def __init__(self, fast: BoundKernel, n_channels: int) -> None:
         self.fast = fast
-        super().__init__(len(EXCITATION_NAMES))
+        self.n_channels = n_channels
+        super().__init__(n_channels)
+
+    @property
+    def rows(self) -> np.ndarray:
+        return self.fast._bound[PK_R]
+
+    @rows.setter
+    def rows(self, value: np.ndarray) -> None:  # (rows, na): plant_kernel reads them
+        self.fast.bind(PK_R, value, np.float64, self.n_channels, writes=False)
 
 
 class PlantSim(Node):
@@ -161,6 +163,13 @@ class PlantSim(Node):
         self.rig = node_rig(self, rig_file, rig)
         self.sim = PlantSimulator(self.rig, seed=self.seed, nonlinear_magnets=nonlinear)
         self.sim_work = self.sim.work
+        # the rig's axes: the channels of every message and block (y, u, ic, r of each, in its order)
+        self.layout = self.rig.layout
+        self.na = na = len(self.layout)
+        self.measurement_names = self.layout.measurement_names
+        self.measurement_units = tuple(u for sig in ("y", "u", "ic", "r") for u in self.layout.units(sig))
+        self.excitation_names = self.layout.excitations
+        self.zero = (0.0,) * na
         self.dt = self.rig.dt
         self.n_total = int(round(self.sim_seconds / self.dt)) if self.sim_seconds > 0 else None
         self.last_k = self.n_total - 1 if self.n_total else LOOP_NO_LIMIT  # the final sample's index
@@ -190,12 +199,12 @@ class PlantSim(Node):
         self.ic_ready: list[list[float]] = []
         # the held excitation blocks and the ranges designs excite: the plant waits for an excited
         # sample's block, so where the excitation lands never depends on message timing
-        self.schedule = KernelSchedule(self.fast)
+        self.schedule = KernelSchedule(self.fast, na)
         self.excitation_rows = self.schedule.rows_at
         # the plant loop vector (loop_kernels.plant_loop_vector): y[k] as published with the last
         # current taken, and the block's rows (y, u, ic, r); y[k+1] is packed into out
-        self.lp, self.cur, self.rec = plant_loop_vector(self.block_size)
-        self.out = sample4_buffer()
+        self.lp, self.cur, self.rec = plant_loop_vector(self.block_size, na)
+        self.out = sample_buffer(na)
         self.fast.bind(PK_WORK, self.sim_work, np.float64)
         self.fast.bind(PK_LOOP, self.lp, np.float64)
         self.fast.bind(LOOP_OUT, self.out, np.uint8)
@@ -251,12 +260,12 @@ class PlantSim(Node):
 
     # --- set-up -----------------------------------------------------------
     def publish_description(self) -> None:
-        r = self.rig
+        r, lay = self.rig, self.layout
         self.pub_desc.publish(PlantDescription(
             stamp=time_msg(0.0), name=self.get_fully_qualified_name(), source="sim", rig_name=r.name,
-            sample_period=self.dt, displacement_names=list(DISPLACEMENT_NAMES), current_names=list(CURRENT_NAMES),
-            bias_current=[r.bias_current_a] * 4, current_limit=[r.current_limit_a] * 4,
-            backup_clearance=[r.backup_clearance_m] * 2, analytical_model=statespace_to_msg(analytical_model(r)),
+            sample_period=self.dt, displacement_names=list(lay.outputs), current_names=list(lay.inputs),
+            bias_current=[m.bias_current_a for m in r.axis_magnets()], current_limit=[r.current_limit_a] * self.na,
+            backup_clearance=[c for _, c in r.backup_bearings()], analytical_model=statespace_to_msg(analytical_model(r)),
             seed=self.seed, controller_timeout_samples=0, rig_json=json.dumps(r.to_dict())))
 
     def try_start(self) -> None:
@@ -287,8 +296,8 @@ class PlantSim(Node):
     # --- the loop ---------------------------------------------------------
     def publish_y(self) -> None:
         """Publish y[0] (from then on step_and_record publishes each next y)."""
-        self.cur[0:4] = self.sim.output()
-        self.y_bytes = encode_sample(self.k, self.cur[0:4].tolist())
+        self.cur[0:self.na] = self.sim.output()
+        self.y_bytes = encode_sample(self.k, self.cur[0:self.na].tolist())
         self.publish_y_raw(self.y_bytes)
 
     def finish_control(self, data: bytes, code: int) -> None:
@@ -313,9 +322,9 @@ class PlantSim(Node):
         flags = FLAG_CLIPPED if code & PLANT_CLIPPED else 0
         self.k = k + 1
         if kind == PLANT_CONTACT:
-            self.cur[0:4] = y = self.sim.finish_contact_sample()
+            self.cur[0:self.na] = y = self.sim.finish_contact_sample()
             flags |= FLAG_LANDED
-            self.publish_y_raw(encode_sample4(k + 1, *y))
+            self.publish_y_raw(encode_sample(k + 1, y))
         else:
             self.publish_y_raw(self.out)
         if flags:
@@ -330,13 +339,13 @@ class PlantSim(Node):
         running = self.state == RUNNING
         nxt = self.k + len(ready)  # the only index the plant can take now
         try:
-            index, ic = decode_sample(data, 4, "control_current")
+            index, ic = decode_sample(data, self.na, "control_current")
         except BadMessage as exc:
             if exc.index != nxt or not running or len(ready) > 1:
                 self.intake.reject("control_current", f"{exc} (sample {exc.index}, now {self.k})")
                 return
             self.intake.reject("control_current", f"{exc}; holding the previous current for sample {nxt}")
-            index, ic = nxt, (ready[-1] if ready else self.cur[4:8].tolist())
+            index, ic = nxt, (ready[-1] if ready else self.cur[self.na:2 * self.na].tolist())
         else:
             if index != nxt or not running or len(ready) > 1:
                 self.refuse_control(index, nxt, running)
@@ -382,18 +391,18 @@ class PlantSim(Node):
     def step_and_record(self, ic, r, flags: int, final: bool = False, publish: bool = True) -> None:
         """Apply u = ic + r over sample k (the amplifier saturates it), record y, u, ic, r as commanded;
         publish y[k + 1] unless this is the final sample (or ``publish`` is False: the safe state)."""
-        k = self.k
-        u0, u1, u2, u3 = ic[0] + r[0], ic[1] + r[1], ic[2] + r[2], ic[3] + r[3]
-        y0, y1, y2, y3, clipped, contact = self.sim.step_output(u0, u1, u2, u3)
+        k, na = self.k, self.na
+        u = [a + b for a, b in zip(ic, r)]
+        *y, clipped, contact = self.sim.step_output(*u)
         cur = self.cur
-        self.rec[k - self.buf_start] = (*cur[0:4], u0, u1, u2, u3, *ic, *r)
+        self.rec[k - self.buf_start] = (*cur[0:na], *u, *ic, *r)
         if flags or clipped or contact:
             self.row_flags[k - self.buf_start] = (flags | (FLAG_CLIPPED if clipped else 0)
                                                   | (FLAG_LANDED if contact else 0))
         self.k = k = k + 1
-        cur[0:8] = (y0, y1, y2, y3, *ic)
+        cur[0:2 * na] = (*y, *ic)
         if publish and not final:
-            self.publish_y_raw(encode_sample4(k, y0, y1, y2, y3))
+            self.publish_y_raw(encode_sample(k, y))
         self.after_step(k, final)
 
     def after_step(self, k: int, final: bool) -> None:
@@ -419,8 +428,8 @@ class PlantSim(Node):
         lost = np.flatnonzero(flags & FLAG_CONTROLLER_LOST)
         judged = int(lost[0]) if lost.size else n
         if judged:
-            self.monitor.add_block(self.buf_start, buf[:judged, :4], flags[:judged] & FLAG_LANDED)
-        self.pub_block.publish(block_msg(self.buf_start, self.dt, MEASUREMENT_NAMES, MEASUREMENT_UNITS, buf,
+            self.monitor.add_block(self.buf_start, buf[:judged, :self.na], flags[:judged] & FLAG_LANDED)
+        self.pub_block.publish(block_msg(self.buf_start, self.dt, self.measurement_names, self.measurement_units, buf,
                                          flags, SampleBlock.FLAG_FINAL if final else 0))
         if self.k // STATUS_EVERY != self.buf_start // STATUS_EVERY:  # (finish() sends the final one)
             self.publish_status()
@@ -428,7 +437,7 @@ class PlantSim(Node):
 
     def on_excitation(self, msg: SampleBlock) -> None:
         schedule = self.schedule
-        data = check_excitation_block(msg, EXCITATION_NAMES, self.dt, self.k, self.horizon, schedule.starts,
+        data = check_excitation_block(msg, self.excitation_names, self.dt, self.k, self.horizon, schedule.starts,
                                       schedule.length, "plant")
         first, end = msg.first_index, msg.first_index + len(data)
         late = schedule.add_block(first, data, self.k)
@@ -466,8 +475,8 @@ class PlantSim(Node):
         self.resent_k = k
         row = k - 1 - self.buf_start
         prev = self.rec[row if row >= 0 else self.block_size - 1]  # y[k - 1]: the previous block's last row
-        self.publish_y_raw(encode_sample4(k - 1, *prev[0:4]))
-        self.publish_y_raw(encode_sample4(k, *self.cur[0:4]))
+        self.publish_y_raw(encode_sample(k - 1, prev[0:self.na].tolist()))
+        self.publish_y_raw(encode_sample(k, self.cur[0:self.na].tolist()))
 
     def check_controller(self) -> None:
         if self.state != RUNNING or self.last_answer_wall is None:
@@ -512,7 +521,8 @@ class PlantSim(Node):
         """The safe state: zero control current for LANDING_S simulated, the rotor drops onto the retainer; recorded."""
         n = max(1, int(round(LANDING_S / self.dt)))
         for i in range(n):
-            self.step_and_record(ZERO4, ZERO4, SampleBlock.FLAG_CONTROLLER_LOST, final=i == n - 1, publish=False)
+            self.step_and_record(self.zero, self.zero, SampleBlock.FLAG_CONTROLLER_LOST, final=i == n - 1,
+                                 publish=False)
 
     def report_clipping(self, buf: np.ndarray, flags: np.ndarray) -> None:
         """One event per block with clipped samples: where, how many, the largest commanded |u|."""
@@ -521,7 +531,7 @@ class PlantSim(Node):
         if clipped.size == 0:
             return
         self.clipped_samples += int(clipped.size)
-        peak = float(np.abs(buf[clipped, 4:8]).max())
+        peak = float(np.abs(buf[clipped, self.na:2 * self.na]).max())
         first = self.buf_start + int(clipped[0])
         self.event(SessionEvent.WARN, "clipped",
                    f"{clipped.size} of {n} samples in [{self.buf_start}, {self.buf_start + n}) exceeded the amplifier "

@@ -61,15 +61,15 @@ from ambid_nodes import qos
 from ambid_nodes.conversions import BadMessage, statespace_to_msg, status_msg, time_msg
 from ambid_nodes.intake import Intake
 from ambid_nodes.loop_call import BoundKernel, ContextWord
-from ambid_nodes.loop_kernels import (CK_LEAD, CK_LIMIT, CK_MAT, CK_N, CK_SLOTS, CK_STATUS_EVERY, CK_WORK,
+from ambid_nodes.loop_kernels import (CK_LEAD, CK_LIMIT, CK_MAT, CK_N, CK_P, CK_Q, CK_SLOTS, CK_STATUS_EVERY, CK_WORK,
                                       CONTROLLER_STATUS,
                                       LOOP_COUNT, LOOP_GATE, LOOP_K, LOOP_LIMIT, LOOP_NO_LIMIT, LOOP_OUT, N_CK,
-                                      controller_kernel, sample4_buffer)
+                                      controller_kernel, sample_buffer)
 from ambid_nodes.identity import SESSION_PARAMETER, LoopPartner, SessionIdentity
 from ambid_nodes.loop_pump import NOT_RUN, GatingState, LoopEntry
 from ambid_nodes.parameters import ParameterError, declare, node_rig, refuse_unknown
 from ambid_nodes.raw_publish import raw_publisher
-from ambid_nodes.sample_codec import decode_sample, encode_sample, encode_sample4
+from ambid_nodes.sample_codec import decode_sample, encode_sample
 
 STATUS_EVERY = 10_000  # samples between status messages
 RUNNING = SessionStatus.STATE_RUNNING  # read once: rosidl constants are class properties
@@ -98,6 +98,9 @@ class PositionController(Node):
             lowpass_hz=declare(self, "lowpass", d.lowpass_hz, "first-order low-pass corner", 1.0, 1e6, "Hz"),
             delay_samples=declare(self, "delay_samples", d.delay_samples, "computational delay", 0, 100),
             current_limit_a=declare(self, "current_limit", d.current_limit_a, "saturation of ic", 1e-3, 1e3, "A"),
+            axial_kp_a_per_m=declare(self, "axial_kp", d.axial_kp_a_per_m, "proportional gain of an axial axis",
+                                     1.0, 1e9, "A/m"),
+            axial_td_s=declare(self, "axial_td", d.axial_td_s, "derivative time of an axial axis", 0.0, 1.0, "s"),
         )
         pipeline = declare(self, "pipeline", True,
                            "answer y[k] with ic[k+1] when the controller has a computational delay (no "
@@ -129,13 +132,16 @@ class PositionController(Node):
         self.fast = BoundKernel(controller_kernel, N_CK)
         # the answers to the last two displacements, y[k]'s in slot k % 2, published as they are; both
         # paths write them, so a plant asking again for y[k] gets the very bytes it missed
-        self.slots = (sample4_buffer(), sample4_buffer())
+        self.n_in, self.n_out = self.stepper.n_inputs, self.stepper.n_outputs  # the rig's axes, y in and ic out
+        self.slots = (sample_buffer(self.n_out), sample_buffer(self.n_out))
         self.fast.bind(CK_SLOTS, self.slots[0], np.uint8)
         self.fast.bind(CK_SLOTS + 2, self.slots[1], np.uint8)
         self.fast.bind(LOOP_OUT, self.slots[0], np.uint8)  # the kernel names the slot of each answer
         self.answers_repeated = 0  # displacements the plant sent again, answered again without a step
         self.fast.set(LOOP_LIMIT, LOOP_NO_LIMIT)
         self.fast.set(CK_LEAD, self.lead)
+        self.fast.set(CK_P, self.n_in)
+        self.fast.set(CK_Q, self.n_out)
         self.fast.set(CK_STATUS_EVERY, STATUS_EVERY)
         self.bind_stepper()
         publisher = self.identity.publisher  # its messages carry the session's id
@@ -171,7 +177,7 @@ class PositionController(Node):
         self.pub_desc.publish(ControllerDescription(
             stamp=time_msg(0.0), name=self.get_fully_qualified_name(), kind=design.kind,
             delay_samples=delay_samples, model=statespace_to_msg(self.model),
-            current_limit=[design.current_limit_a] * 4, parameters_json=json.dumps(params_json)))
+            current_limit=[design.current_limit_a] * self.n_out, parameters_json=json.dumps(params_json)))
         self.identity.announce([self.pub_ic, self.pub_desc, self.pub_status, self.pub_event])
 
     def regate(self) -> None:
@@ -198,7 +204,7 @@ class PositionController(Node):
     def on_displacement_checked(self, data: bytes) -> None:
         """Every message the compiled path does not take: decided, reasons given, answered if due."""
         try:
-            k, y = decode_sample(data, 4, "displacement")
+            k, y = decode_sample(data, self.n_in, "displacement")
         except BadMessage as exc:
             if exc.index is None:
                 self.intake.reject("displacement", str(exc))
@@ -212,9 +218,9 @@ class PositionController(Node):
             ic = self.ic_last  # and the state stays as it is
         else:
             self.y_tally.accepted += 1
-            ic = self.step(*y)
+            ic = self.step(y)
         self.expected = k + 1
-        answer = encode_sample4(k + self.lead, *ic)
+        answer = encode_sample(k + self.lead, ic)
         self.slots[k & 1][:] = answer
         self.publish_ic(answer)
         if k == 0:
@@ -224,7 +230,7 @@ class PositionController(Node):
 
     @property
     def ic_last(self) -> tuple[float, ...]:
-        """The last current answered [A] (4): what a bad displacement is answered with."""
+        """The last current answered [A] (one per axis): what a bad displacement is answered with."""
         return self.stepper.last_output()
 
     def start_or_refuse(self, k: int, running: bool, y) -> bool:
@@ -265,7 +271,7 @@ class PositionController(Node):
 
     def bind_stepper(self) -> None:
         """Point the Python path and the compiled path (work vector, matrix, limit) at the present stepper."""
-        self.step = self.stepper.step_ahead4 if self.pipelined else self.stepper.step4
+        self.step = self.stepper.step_ahead if self.pipelined else self.stepper.step
         w, n, mat, limit = self.stepper.kernel_args(ahead=self.pipelined)
         self.fast.bind(CK_WORK, w, np.float64)
         self.fast.set(CK_N, n)

@@ -1,7 +1,7 @@
 """Hand-rolled CDR for ambid_msgs/Sample, the one message of the per-sample hot loop.
 
 rclpy builds a Python message object per sample and converts it field by
-field; packing the 4-channel Sample directly is about 4x cheaper. The bytes
+field; packing the Sample of the rig's channels directly is about 4x cheaper. The bytes
 are the standard XCDR1 little-endian encoding, so typed subscribers (recorder,
 ros2 topic echo) read them as usual.
 
@@ -32,27 +32,19 @@ def encode_sample(index: int, values) -> bytes:
     return _packer(len(values)).pack(_HEADER, index, len(values), *values)
 
 
-_FOUR = _packer(4)  # the loop's 4-channel Sample, 52 bytes
-_PACK4 = _FOUR.pack
-
-
-def encode_sample4(index: int, a: float, b: float, c: float, d: float) -> bytes:
-    """CDR bytes of Sample(index, [a, b, c, d]): the loop's per-sample message."""
-    return _PACK4(_HEADER, index, 4, a, b, c, d)
-
-
 def decode_sample(data: bytes, n_expected: int, what: str) -> tuple[int, list[float]]:
     """(index, values) of a serialized Sample, or BadMessage naming what is wrong.
 
     Checks the encapsulation, the channel count and that every value is finite.
     """
-    if n_expected == 4 and len(data) == _FOUR.size:
-        # the per-sample path: one unpack; a + b + c + d is finite iff all are, unless a huge
+    fast = _packer(n_expected)
+    if len(data) == fast.size:
+        # the per-sample path: one unpack; the sum is finite iff all values are, unless a huge
         # finite sum overflows, which the general path below then decides exactly
-        header, index, count, a, b, c, d = _FOUR.unpack(data)
-        t = a + b + c + d
-        if header == _HEADER and count == 4 and t - t == 0.0:
-            return index, [a, b, c, d]
+        header, index, count, *values = fast.unpack(data)
+        t = sum(values)
+        if header == _HEADER and count == n_expected and t - t == 0.0:
+            return index, values
     if len(data) < _HEAD.size:
         raise BadMessage(f"{what}: {len(data)} bytes, too short for a Sample")
     header, index, count = _HEAD.unpack_from(data)

@@ -18,7 +18,10 @@ it acts only on that session's messages, and the recording holds only them.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import json
+import multiprocessing
 import sys
 import time
 from dataclasses import asdict, dataclass, field
@@ -28,7 +31,7 @@ from typing import Callable
 from ambid.control.kinds import ControllerDesign, checked_design
 from ambid.excitation import ExcitationDesign
 from ambid.excitation.spec import DesignSpec
-from ambid.frf.offline import DEFAULT_OUTPUTS
+from ambid.frf.offline import data_channels
 from ambid.hardware.bridge_protocol import CommandCode
 from ambid.jsonable import to_jsonable
 from ambid.plant.rig import Rig, load_rig, make_rig
@@ -75,11 +78,12 @@ class SessionConfig:
     def seed(self) -> int:
         return self.experiment.seed
 
-    def design(self, fs_hz: float, rig_speed_rpm: float = 0.0) -> ExcitationDesign:
-        """The experiment's design at the plant's rate; at speed (a multisine only) steered clear of the
-        synchronous harmonics."""
+    def design(self, fs_hz: float, rig_speed_rpm: float = 0.0, inputs: Sequence[str] = ()) -> ExcitationDesign:
+        """The experiment's design at the plant's rate, on the plant's currents ``inputs`` unless the experiment
+        names its own; at speed (a multisine only) steered clear of the synchronous harmonics."""
         speed = rig_speed_rpm if self.speed_rpm is None else self.speed_rpm
-        return self.experiment.build(fs_hz, speed if self.experiment.kind == "multisine" else 0.0)
+        return self.experiment.build(fs_hz, speed if self.experiment.kind == "multisine" else 0.0,
+                                     *([inputs] if inputs else []))
 
 
 @dataclass(frozen=True)
@@ -124,7 +128,7 @@ def plan_session(cfg: SessionConfig, rig: Rig | None = None, controller: Control
     rig = rig if rig is not None else (load_rig(cfg.rig_file) if cfg.rig_file else make_rig())
     if controller is None and not cfg.hardware:
         controller = checked_design(cfg.controller, rig)
-    return SessionPlan(rig, controller, cfg.design(1.0 / rig.dt, float(rig.rotor_speed_rpm)))
+    return SessionPlan(rig, controller, cfg.design(1.0 / rig.dt, float(rig.rotor_speed_rpm), rig.layout.inputs))
 
 
 class ProgressBar:
@@ -431,12 +435,17 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None,
         true_model = read_target_model(cfg.true_model).plant
     options = dict(estimator=cfg.estimator, true_model=true_model)
     live = start_live(cfg)
-    # with a real-time target the bridge must never fall silent: the analysis yields it the CPU
-    early = EarlyAnalysis(cfg.out_dir, nice=5 if cfg.hardware else 0, **options)
+    # with a real-time target the bridge must never fall silent: the analysis yields it the CPU. A session
+    # run by a daemonic worker (a study's on Dask) may not start processes: it analyses the recording itself
+    early = (None if multiprocessing.current_process().daemon
+             else EarlyAnalysis(cfg.out_dir, nice=5 if cfg.hardware else 0, **options))
     plan = plan_session(cfg) if plan is None else plan
-    # what the analysis compares with and the measurement does not change, computed while the session runs
-    # (from the plan: used if it is what the session then describes, see SessionMessages)
-    early.prepare(_planned_inputs(cfg, plan), plan.design.freq_hz, len(DEFAULT_OUTPUTS))
+    if early is not None:
+        # what the analysis compares with and the measurement does not change, computed while the session runs
+        # (from the plan: used if it is what the session then describes, see SessionMessages); the FRF's
+        # channels as the recording will name them: the rig's displacements by the design's inputs
+        outputs, inputs, _ = data_channels(plan.design.input_names, plan.rig.layout.measurement_names)
+        early.prepare(_planned_inputs(cfg, plan), plan.design.freq_hz, outputs, inputs)
     try:
         if cfg.processes:   # no early analysis there: the recording is analysed once the session is over
             from ambid_nodes.session_processes import run_session_processes
@@ -453,7 +462,7 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None,
                 on_headline(_identify_summary(cfg, run, design, offline, _timing(run, shown)))
 
         offline = notes = None
-        if early.analysing:
+        if early is not None and early.analysing:
             try:
                 early.recording_closed()
                 first, how = early.summary()
@@ -474,7 +483,8 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None,
             show(offline)
         summary = _identify_summary(cfg, run, design, offline, _timing(run, shown))
     finally:
-        early.close()
+        if early is not None:
+            early.close()
         live_figures = live.stop() if live is not None else None
     if live_figures is not None:
         summary["live"] = live_figures

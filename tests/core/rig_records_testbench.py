@@ -4,10 +4,13 @@ The plant, the controller, the excitation and the file layouts are written
 here with scipy/numpy/h5py only, so an import identified against them is
 checked against something ambid did not compute:
 
-* plant: four bearing axes, each a rotor mass on a magnet with negative
+* plant: bearing axes, each a rotor mass on a magnet with negative
   stiffness (one unstable real pole pair per axis), plus two lightly damped
-  flexible modes that every axis sees (modal shapes, force and sensor
-  collocated), force ki * current, ZOH-discretised at FS;
+  flexible modes that every radial axis sees (modal shapes, force and sensor
+  collocated), force ki * current, ZOH-discretised at FS. Any set of the
+  axes ``x`` (a one-axis rig), ``a_x b_x a_y b_y`` (radial) and ``z`` (an
+  axial axis: its own mass and magnet, no flexible mode, decoupled);
+  the default is the four radial axes;
 * controller: a PID per axis (derivative filtered) whose output is one
   sample late, as a digital controller's;
 * excitation: an orthogonal random-phase multisine (Dobrowiecki et al.
@@ -28,33 +31,46 @@ AXES = ("a_x", "b_x", "a_y", "b_y")
 MASS, KS, KI = 2.0, 2.0e5, 50.0            # kg, N/m (negative stiffness), N/A
 MODES_HZ = (310.0, 720.0)
 MODES_ZETA = (0.006, 0.004)
-SHAPES = np.array([[1.0, -0.8, 0.6, -0.5], [0.5, 1.0, -0.7, 0.9]])   # (mode, axis)
+# each axis' mass [kg], negative stiffness [N/m], force per current [N/A], and its share of the two modes
+AXIS = {"x": (MASS, KS, KI, (1.0, 0.5)), "a_x": (MASS, KS, KI, (1.0, 0.5)), "b_x": (MASS, KS, KI, (-0.8, 1.0)),
+        "a_y": (MASS, KS, KI, (0.6, -0.7)), "b_y": (MASS, KS, KI, (-0.5, 0.9)), "z": (5.0, 3.5e5, 70.0, (0.0, 0.0))}
 KP, KD, KINT = 1.6 * KS / KI, 6.0, 2.0e4   # A/m, A s/m, A/(m s)
 
 
-def plant_continuous() -> tuple[np.ndarray, ...]:
-    """(A, B, C, D): currents (4) [A] -> displacements (4) [m]."""
-    n = 8 + 2 * len(MODES_HZ)
-    a, b, c = np.zeros((n, n)), np.zeros((n, 4)), np.zeros((4, n))
-    for i in range(4):
+def gains(axes=AXES) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The PID's (kp [A/m], kd [A s/m], ki [A/(m s)]) per axis: kp = 1.6 ks / ki of the axis' magnet, kd and
+    the integral gain scaled with its mass."""
+    m, ks, ki = (np.array([AXIS[a][i] for a in axes]) for i in range(3))
+    return 1.6 * ks / ki, KD * m / MASS * KI / ki, KINT * m / MASS * KI / ki
+
+
+def plant_continuous(axes=AXES) -> tuple[np.ndarray, ...]:
+    """(A, B, C, D): currents (na) [A] -> displacements (na) [m] of the axes named."""
+    na = len(axes)
+    n = 2 * na + 2 * len(MODES_HZ)
+    a, b, c = np.zeros((n, n)), np.zeros((n, na)), np.zeros((na, n))
+    for i, axis in enumerate(axes):
+        mass, ks, ki, _ = AXIS[axis]
         a[2 * i, 2 * i + 1] = 1.0
-        a[2 * i + 1, 2 * i] = KS / MASS
-        b[2 * i + 1, i] = KI / MASS
+        a[2 * i + 1, 2 * i] = ks / mass
+        b[2 * i + 1, i] = ki / mass
         c[i, 2 * i] = 1.0
     for k, (f, z) in enumerate(zip(MODES_HZ, MODES_ZETA)):
-        w, j = 2 * np.pi * f, 8 + 2 * k
+        w, j = 2 * np.pi * f, 2 * na + 2 * k
+        shape = np.array([AXIS[axis][3][k] for axis in axes])
         a[j, j + 1] = 1.0
         a[j + 1, j], a[j + 1, j + 1] = -w * w, -2 * z * w
-        b[j + 1] = KI * SHAPES[k] / MASS
-        c[:, j] = SHAPES[k]
-    return a, b, c, np.zeros((4, 4))
+        b[j + 1] = np.array([AXIS[axis][2] for axis in axes]) * shape / MASS
+        c[:, j] = shape
+    return a, b, c, np.zeros((na, na))
 
 
-def true_modes() -> list[tuple[float, float]]:
-    """(frequency [Hz], damping) of the plant's oscillating poles, from its A."""
-    p = np.linalg.eigvals(plant_continuous()[0])
-    p = p[p.imag > 1e-6]
-    return sorted((abs(s) / (2 * np.pi), -s.real / abs(s)) for s in p)
+def true_modes(axes=AXES) -> list[tuple[float, float]]:
+    """(frequency [Hz], damping) of the plant's oscillating poles that the axes see, from its A."""
+    a, b, c, _ = plant_continuous(axes)
+    s, v = np.linalg.eig(a)
+    seen = (s.imag > 1e-6) & (np.abs(c @ v).max(axis=0) > 0) & (np.abs(np.linalg.solve(v, b)).max(axis=1) > 0)
+    return sorted((abs(p) / (2 * np.pi), -p.real / abs(p)) for p in s[seen])
 
 
 def multisine(n: int, lines: np.ndarray, amp: float, m: int, nu: int, pt: int, p: int, seed: int) -> np.ndarray:
@@ -72,10 +88,12 @@ def multisine(n: int, lines: np.ndarray, amp: float, m: int, nu: int, pt: int, p
     return np.concatenate(out)
 
 
-def closed_loop(r: np.ndarray, noise_m: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Simulate the PID loop with r (n, 4) [A] added to the currents: (y measured (n, 4) [m], u (n, 4) [A])."""
-    a, b, c, d = plant_continuous()
+def closed_loop(r: np.ndarray, noise_m: float, seed: int, axes=AXES) -> tuple[np.ndarray, np.ndarray]:
+    """Simulate the PID loop with r (n, na) [A] added to the currents: (y measured (n, na) [m], u (n, na) [A])."""
+    a, b, c, d = plant_continuous(axes)
     ad, bd, *_ = signal.cont2discrete((a, b, c, d), 1 / FS, method="zoh")
+    kp, kd, kint = gains(axes)
+    na = len(axes)
     dt = 1 / FS
     tau = 1 / (2 * np.pi * 2000.0)                     # derivative filter
     alpha = np.exp(-dt / tau)
@@ -83,9 +101,9 @@ def closed_loop(r: np.ndarray, noise_m: float, seed: int) -> tuple[np.ndarray, n
     noise = noise_m * rng.standard_normal(r.shape)
     n = len(r)
     x = np.zeros(ad.shape[0])
-    integ, dfilt, y_prev = np.zeros(4), np.zeros(4), np.zeros(4)
-    ic = np.zeros(4)
-    ys, us = np.empty((n, 4)), np.empty((n, 4))
+    integ, dfilt, y_prev = np.zeros(na), np.zeros(na), np.zeros(na)
+    ic = np.zeros(na)
+    ys, us = np.empty((n, na)), np.empty((n, na))
     for k in range(n):
         y = c @ x + noise[k]
         u = ic + r[k]
@@ -95,7 +113,7 @@ def closed_loop(r: np.ndarray, noise_m: float, seed: int) -> tuple[np.ndarray, n
         integ += dt * y
         dfilt = alpha * dfilt + (1 - alpha) * (y - y_prev) / dt
         y_prev = y
-        ic = -(KP * y + KINT * integ + KD * dfilt)
+        ic = -(kp * y + kint * integ + kd * dfilt)
     return ys, us
 
 

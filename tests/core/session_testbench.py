@@ -62,7 +62,6 @@ def block_message(first, data, names, dt, units=None, experiment_id=""):
 
 def plant_message(rig, seed=0, source="sim"):
     """PlantDescription message dict of an ``ambid.plant.rig.Rig`` (analytical model and rig JSON included)."""
-    from ambid.channels import CURRENT_NAMES, DISPLACEMENT_NAMES
     from ambid.plant.analytical import analytical_model
 
     ss = analytical_model(rig)
@@ -72,9 +71,10 @@ def plant_message(rig, seed=0, source="sim"):
              "input_units": list(ss.input_units), "output_names": list(ss.output_names),
              "output_units": list(ss.output_units)}
     return {"stamp": _ZERO_STAMP, "name": "/amb/plant_sim", "source": source, "rig_name": rig.name,
-            "sample_period": rig.dt, "displacement_names": list(DISPLACEMENT_NAMES),
-            "current_names": list(CURRENT_NAMES), "bias_current": [rig.bias_current_a] * 4,
-            "current_limit": [rig.current_limit_a] * 4, "backup_clearance": [rig.backup_clearance_m] * 2,
+            "sample_period": rig.dt, "displacement_names": list(rig.layout.outputs),
+            "current_names": list(rig.layout.inputs), "bias_current": [m.bias_current_a for m in rig.axis_magnets()],
+            "current_limit": [rig.current_limit_a] * len(rig.layout),
+            "backup_clearance": [c for _, c in rig.backup_bearings()],
             "analytical_model": model, "seed": seed, "controller_timeout_samples": 0,
             "rig_json": json.dumps(rig.to_dict())}
 
@@ -108,33 +108,34 @@ def write_session(path, blocks, names, designs, dt, plant=None, facts=None, name
 
 
 def simulate_closed_loop(rig, design, pre_samples, post_samples=0, seed=0, nonlinear_magnets=False, controller=None):
-    """The default rig in closed loop with the default PID (or ``controller``, a discrete StateSpace y -> ic),
-    excited by ``design`` from ``pre_samples`` on.
+    """The rig in closed loop with the default PID (or ``controller``, a discrete StateSpace y -> ic),
+    excited by ``design`` (on every input of the rig, in its order) from ``pre_samples`` on.
 
     The rotor starts on the backup bearings; the pre-roll lifts it off.
     Loop: y = sim.output(); ic = ctl.step(y); u = ic + r; sim.step(u).
 
     Returns:
-        (names, x): channel names (y_*, u_*, ic_*, r_*) and samples (n, 16).
+        (names, x): channel names (y_*, u_*, ic_*, r_*) and samples (n, 4 na).
     """
-    from ambid.channels import AXES
     from ambid.control.pid import PidParameters, pid_controller
     from ambid.control.stepper import ControllerStepper
     from ambid.plant.simulator import PlantSimulator
 
     sim = PlantSimulator(rig, seed=seed, nonlinear_magnets=nonlinear_magnets)
     pid = PidParameters()
-    ctl = ControllerStepper(pid_controller(pid, rig.dt) if controller is None else controller, pid.current_limit_a)
+    lay = rig.layout
+    na = len(lay)
+    ctl = ControllerStepper(pid_controller(pid, rig.dt, lay) if controller is None else controller,
+                            pid.current_limit_a)
     n = pre_samples + design.total_samples + post_samples
-    r = np.zeros((n, 4))
+    r = np.zeros((n, na))
     r[pre_samples:pre_samples + design.total_samples] = design.samples(0, design.total_samples)
-    x = np.empty((n, 16))
+    x = np.empty((n, 4 * na))
     for k, rk in enumerate(r.tolist()):
         y = sim.output()
         ic = ctl.step(y)
-        u = [ic[0] + rk[0], ic[1] + rk[1], ic[2] + rk[2], ic[3] + rk[3]]
+        u = [a + b for a, b in zip(ic, rk)]
         sim.step(u)
-        x[k, :4], x[k, 4:8], x[k, 8:12] = y, u, ic
-    x[:, 12:] = r
-    names = [f"{p}_{a}" for p in ("y", "u", "ic", "r") for a in AXES]
-    return names, x
+        x[k, :na], x[k, na:2 * na], x[k, 2 * na:3 * na] = y, u, ic
+    x[:, 3 * na:] = r
+    return list(lay.measurement_names), x

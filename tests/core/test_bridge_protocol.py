@@ -57,8 +57,9 @@ def test_measurement_layout_and_float32():
     d = bp.pack_datagram(m)
     # 16 header + 16 block header + 10 x 16 float64 + 10 flags + 4 CRC
     assert len(d) == 16 + 16 + 1280 + 10 + 4 == 1326
-    first, n, n_ch, channel_set, value_bytes, _ = struct.unpack_from("<QHHHBB", d, 16)
-    assert (first, n, n_ch, channel_set, value_bytes) == (1234, 10, 16, 1, 8)
+    first, n, n_ch, axes, value_bytes, _ = struct.unpack_from("<QHHHBB", d, 16)
+    assert (first, n, n_ch, axes, value_bytes) == (1234, 10, 16, 4, 8)   # version 2: the axes field
+    assert struct.unpack_from("<QHHHBB", bp.pack_datagram(m, version=1), 16)[3] == 1   # version 1: channel set 1
     assert np.array_equal(np.frombuffer(d, "<f8", 160, 32).reshape(10, 16), m.data)
     d32 = bp.pack_datagram(m, value_bytes=4)
     assert len(d32) == 16 + 16 + 640 + 10 + 4
@@ -82,11 +83,13 @@ def test_every_single_bit_error_is_refused_with_its_reason():
 
 
 def test_wrong_version_and_magic_are_refused():
-    d = bp.pack_datagram(ALL_MESSAGES[3], version=2)
-    with pytest.raises(bp.ProtocolError, match="protocol version 2, this end speaks version 1") as info:
+    d = bp.pack_datagram(ALL_MESSAGES[3], version=1)
+    with pytest.raises(bp.ProtocolError, match="protocol version 1, this end speaks version 2") as info:
         bp.unpack_datagram(d)
     assert info.value.reason == "version"
-    assert _same(bp.unpack_datagram(d, version=2), ALL_MESSAGES[3])
+    assert _same(bp.unpack_datagram(d, version=1), ALL_MESSAGES[3])
+    with pytest.raises(bp.ProtocolError, match="protocol version 3, this end speaks version 2"):
+        bp.unpack_datagram(bp.pack_datagram(ALL_MESSAGES[3], version=3))
     body = b"XXXX" + bp.pack_datagram(ALL_MESSAGES[3])[4:-4]
     with pytest.raises(bp.ProtocolError) as info:
         bp.unpack_datagram(body + struct.pack("<I", zlib.crc32(body)))
@@ -103,7 +106,8 @@ def test_every_truncation_is_refused():
 
 def _reframe(payload: bytes, kind: bp.Kind, payload_len: int | None = None) -> bytes:
     """A datagram with a valid CRC around an arbitrary payload (what a buggy sender might produce)."""
-    head = bp.HEADER.pack(bp.MAGIC, 1, kind, 0, 0, len(payload) if payload_len is None else payload_len, 0)
+    head = bp.HEADER.pack(bp.MAGIC, bp.PROTOCOL_VERSION, kind, 0, 0, len(payload) if payload_len is None else
+                          payload_len, 0)
     return head + payload + struct.pack("<I", zlib.crc32(head + payload))
 
 
@@ -129,8 +133,40 @@ def test_consistent_but_invalid_content_is_refused():
     assert info.value.reason == "kind"
 
 
+@pytest.mark.parametrize("n_axes", [1, 2, 4, 5, 8])
+def test_version_2_carries_any_number_of_axes(n_axes):
+    """Channels are data on the wire: a block says its axes; y, u, ic, r of each (measurement), r (excitation)."""
+    rng = np.random.default_rng(n_axes)
+    n = bp.max_block_samples(bp.Kind.MEASUREMENT, 8, n_axes)
+    assert n == (1472 - 36) // (32 * n_axes + 1)
+    m = bp.Measurement(5, 77, rng.standard_normal((n, 4 * n_axes)), rng.integers(0, 32, n).astype(np.uint8))
+    e = bp.Excitation(6, 80, rng.standard_normal((bp.max_block_samples(bp.Kind.EXCITATION, 8, n_axes), n_axes)))
+    h = bp.Heartbeat(1, bp.TargetState.RUNNING, axes=n_axes)
+    for msg in (m, e, h):
+        d = bp.pack_datagram(msg)
+        assert len(d) <= bp.MAX_DATAGRAM_BYTES and _same(bp.unpack_datagram(d, n_axes=n_axes), msg)
+    assert struct.unpack_from("<QHHHBB", bp.pack_datagram(m), 16)[2:4] == (4 * n_axes, n_axes)
+    assert bp.pack_datagram(h)[16 + 3] == n_axes           # heartbeat byte 3: the sender's axes
+    # the other end runs another rig: refused by content, naming both
+    with pytest.raises(bp.ProtocolError, match=f"of {n_axes} axes, this end runs 3") as info:
+        bp.unpack_datagram(bp.pack_datagram(m), n_axes=3)
+    assert info.value.reason == "content"
+    assert bp.block_channels(bp.Kind.EXCITATION, __import__("ambid.channels").channels.FIVE_AXIS)[-1] == "r_z"
+
+
+def test_version_1_is_the_four_radial_axes():
+    m5 = bp.Measurement(1, 0, np.zeros((2, 20)), np.zeros(2, np.uint8))
+    with pytest.raises(ValueError, match="version 1 must have shape"):
+        bp.pack_datagram(m5, version=1)
+    assert _same(bp.unpack_datagram(bp.pack_datagram(m5)), m5)     # version 2 carries it
+    hb = bp.pack_datagram(bp.Heartbeat(1, bp.TargetState.IDLE, axes=4), version=1)
+    assert hb[16 + 3] == 0 and bp.unpack_datagram(hb, version=1).axes == 0   # reserved in version 1
+    with pytest.raises(ValueError, match="1 to 8 axes"):
+        bp.pack_datagram(bp.Excitation(1, 0, np.zeros((2, 9))))
+
+
 def test_oversized_datagrams():
-    n_max = bp.max_block_samples(bp.Kind.MEASUREMENT)
+    n_max = bp.max_block_samples(bp.Kind.MEASUREMENT)   # of four axes
     assert n_max == (1472 - 20 - 16) // 129 == 11
     assert len(bp.pack_datagram(_measurement(n=n_max))) <= bp.MAX_DATAGRAM_BYTES
     with pytest.raises(ValueError, match="exceeds 1472 bytes"):
@@ -145,8 +181,10 @@ def test_oversized_datagrams():
 def test_pack_refuses_bad_fields():
     with pytest.raises(ValueError, match="NaN"):
         bp.pack_datagram(bp.Excitation(0, 0, np.full((2, 4), np.nan)))
-    with pytest.raises(ValueError, match=r"shape \(n >= 1, 4\)"):
-        bp.pack_datagram(bp.Excitation(0, 0, np.zeros((2, 3))))
+    with pytest.raises(ValueError, match=r"shape \(n >= 1, 4\)"):   # version 1: four axes
+        bp.pack_datagram(bp.Excitation(0, 0, np.zeros((2, 3))), version=1)
+    with pytest.raises(ValueError, match=r"shape \(n >= 1, 4 x axes"):   # a measurement row is 4 per axis
+        bp.pack_datagram(bp.Measurement(0, 0, np.zeros((2, 7)), np.zeros(2)))
     with pytest.raises(ValueError, match="sequence"):
         bp.pack_datagram(bp.Heartbeat(2**32, 0))
     with pytest.raises(ValueError, match="first_index"):

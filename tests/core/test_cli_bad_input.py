@@ -10,7 +10,7 @@ import re
 
 import numpy as np
 import pytest
-from ambid.channels import AXES
+from ambid.channels import RADIAL
 from ambid.excitation import design_multisine
 from ambid.plant.rig import make_rig
 from ambid_cli import cli
@@ -25,7 +25,7 @@ KINDS = ("missing", "folder", "empty", "random", "truncated", "unrelated")
 def files(tmp_path_factory):
     d = tmp_path_factory.mktemp("bad")
     rig = make_rig()
-    design = design_multisine((20.0, 500.0), 20.0, rig.sample_rate_hz, [f"u_{a}" for a in AXES], 0.5,
+    design = design_multisine((20.0, 500.0), 20.0, rig.sample_rate_hz, list(RADIAL.inputs), 0.5,
                               n_periods=2, n_realisations=1, seed=3)
     names, x = simulate_closed_loop(rig, design, 2000, post_samples=100, seed=4)
     good = d / "good.mcap"
@@ -106,8 +106,8 @@ RIG_COMMANDS = {
     "fit": None,  # filled in the test: it needs the good session
     "target-model": lambda rig, d: ["target-model", "--rig", rig, "--out", str(d / "target-model_out")],
 }
-RIG_REFUSAL = {"missing": "does not exist", "folder": "is a folder", "empty": "is empty", "random": "is not text",
-               "truncated": "is not text", "unrelated": "is not text"}
+RIG_REFUSAL = {"missing": "does not exist", "folder": "is a folder", "empty": "is empty", "random": "is not YAML text",
+               "truncated": "is not YAML text", "unrelated": "is not YAML text"}
 
 
 @pytest.mark.parametrize("kind", KINDS)

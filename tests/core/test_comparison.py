@@ -7,7 +7,6 @@ import math
 
 import numpy as np
 import pytest
-from ambid.channels import CURRENT_NAMES
 from ambid.control.pid import PidParameters, pid_controller
 from ambid.excitation import design_stepped_sine
 from ambid.plant.rig import make_rig
@@ -81,7 +80,7 @@ def test_ladder_times_are_the_cut_designs_times(result, rig):
     st, ms = m["methods"]["stepped_sine"], m["methods"]["multisine_orthogonal"]
     lines = np.array(m["lines"])[::TINY.stepped_line_stride]
     for s in st["ladder"]:
-        d = design_stepped_sine(TINY.band_hz, TINY.resolution_hz, 1 / rig.dt, CURRENT_NAMES, TINY.peak_current_a,
+        d = design_stepped_sine(TINY.band_hz, TINY.resolution_hz, 1 / rig.dt, rig.layout.inputs, TINY.peak_current_a,
                                 settle_s=s["settle_s"], n_cycles=s["cycles"], lines=lines)
         assert s["measurement_time_s"] == pytest.approx(d.measurement_time_s, rel=1e-12)
     pt = math.ceil(st["settle_s"] * TINY.resolution_hz)   # whole 50 ms periods covering the settling wait

@@ -189,28 +189,82 @@ def test_validate_does_not_reuse_a_seed_run_under_another_controller(tmp_path):
     assert fp != run_fingerprint("", False, str(ctrl))
 
 
-def test_noise_free_twin_rig_keeps_the_rig_and_its_files_but_not_the_noise(tmp_path, monkeypatch):
-    from ambid.plant.rig import load_rig
-    from ambid.plant.rotor_import import save_rotor
-    from ambid_cli.commands.validate import noise_free_rig_file
+def test_with_bla_truth_moves_the_claimed_truth_and_keeps_the_rig_at_rest_beside_it():
+    from ambid.studies.coverage import with_bla_truth
 
-    user = tmp_path / "user"
-    user.mkdir()
-    save_rotor(user / "rotor.npz", make_rig().rotor_model())
-    (user / "rig.yaml").write_text("rotor_file: rotor.npz\nhousing_freq_hz: 150\nsensor_noise_m: 5.0e-7\n"
-                                   "controller: lqg\n")
-    monkeypatch.chdir(user)                       # the rig named relative to where the user stands
-    (tmp_path / "seed").mkdir()
-    twin_path = noise_free_rig_file("rig.yaml", tmp_path / "seed" / "twin.yaml")
-    monkeypatch.chdir(tmp_path)                   # the twin read from elsewhere names the same rotor
-    rig, twin = load_rig(user / "rig.yaml"), load_rig(twin_path)
-    assert twin.values["sensor_noise_m"] == 0.0 and rig.values["sensor_noise_m"] == 5.0e-7
-    assert {k: v for k, v in twin.values.items() if k != "sensor_noise_m"} == \
-        {k: v for k, v in rig.values.items() if k != "sensor_noise_m"}
-    assert np.array_equal(twin.rotor_model().a, rig.rotor_model().a)
-    assert twin.controller == rig.controller == "lqg"
-    assert load_rig(noise_free_rig_file("", tmp_path / "default.yaml")).values == \
-        {**make_rig().values, "sensor_noise_m": 0.0}
+    # two seeds whose intervals hold the BLA's value (1.0) and miss the rig at rest (0.0)
+    rec = lambda v: dict(frf={}, noise=None, intervals={
+        "parameter:a": dict(value=v, std=0.1, ci95=[v - 0.196, v + 0.196], true=0.0, true_at_rest=0.0,
+                            noise_only=False),
+        "derived:total_lag_s": dict(value=v, std=0.1, ci95=[v - 0.196, v + 0.196], true=0.0, true_at_rest=0.0,
+                                    noise_only=False),
+        "mode_freq_hz:300Hz": dict(value=v, std=0.1, ci95=[v - 0.196, v + 0.196], true=1.0, noise_only=False)})
+    records = [rec(0.95), rec(1.05)]
+    bla = {"a": 1.0, "total_lag_s": 1.0, "b": 7.0}
+    moved = [with_bla_truth(r, bla) for r in records]
+    assert records[0]["intervals"]["parameter:a"]["true"] == 0.0            # the record itself is kept
+    t = coverage_table(moved)
+    for k in ("parameter:a", "derived:total_lag_s"):
+        assert t[k]["coverage"] == 1.0 and t[k]["std_ratio"] == pytest.approx(0.5)
+        assert t[k]["at_rest"]["coverage"] == 0.0 and t[k]["at_rest"]["shift_over_std"] == pytest.approx(10.0)
+        assert "best linear approximation" in t[k]["claim"]
+    assert "at_rest" not in t["mode_freq_hz:300Hz"]                          # a mode keeps its own truth
+    pooled = t["pooled: parameters and modes"]
+    assert pooled["coverage"] == 1.0 and pooled["at_rest"]["coverage"] == 0.5
+
+
+def test_at_own_excitation_moves_only_the_magnets_slopes_by_the_sessions_own_excitation():
+    from ambid.fit.model_update import slopes_as_parameters
+    from ambid.studies.bla_truth import SLOPES, at_own_excitation
+
+    bla = {"ki_n_per_a": 179.0, "ks_n_per_m": 8.7e5, "ks_b_over_a": 0.998, "delay_s": 5e-5, "total_lag_s": 1.7e-4}
+    # a session whose grid stiffens the magnets more than the seeds' mean does
+    own = slopes_as_parameters(np.array([179.1, 179.3, 179.1, 179.3]), np.array([8.70e5, 8.72e5, 8.70e5, 8.72e5]))
+    assert own["ki_n_per_a"] == pytest.approx(179.2) and own["ks_b_over_a"] == pytest.approx(8.72 / 8.70)
+    mean = {"ki_n_per_a": 179.15, "ks_n_per_m": 8.705e5, "ks_b_over_a": 1.0}
+    est = at_own_excitation(bla, own, mean)
+    assert est["ki_n_per_a"] == pytest.approx(179.05) and est["ks_n_per_m"] == pytest.approx(8.705e5)
+    assert est["ks_b_over_a"] == pytest.approx(0.998 + 8.72 / 8.70 - 1.0)
+    assert {k: est[k] for k in ("delay_s", "total_lag_s")} == {"delay_s": 5e-5, "total_lag_s": 1.7e-4}
+    assert bla["ki_n_per_a"] == 179.0                                          # the pooled one is kept
+    # a slope without the session's own value (linear magnets: none) stays pooled
+    assert at_own_excitation(bla, {}, mean) == bla and set(SLOPES) <= set(bla)
+
+
+def test_noise_free_twin_is_the_loop_without_noise_and_the_bla_of_linear_magnets_is_the_rig_at_rest(loop):
+    # with linear magnets the simulated rig is its small-signal model: the noise-free twin measures it (to what
+    # eight transient periods leave of the lift-off: 1e-7), and the BLA parameters are the rig's at rest; with
+    # the magnets' law they move by the magnets' slopes at the excitation level (Bussgang) and more
+    from ambid.control.pid import PidParameters
+    from ambid.fit.model_update import nominal_update_parameters, total_lag, true_parameters
+    from ambid.studies.bla_truth import Twin, bla_parameters, noise_free_twin, variance_on
+
+    rig, ctl = loop
+    d = build_design("multisine", (10.0, 1000.0), 5.0, 10_000.0, peak_current_a=0.4, n_periods=1,
+                     n_realisations=2, n_transient_periods=8, grid="random_odd", mimo="orthogonal",
+                     phases="random", seed=3)
+    limit = PidParameters().current_limit_a
+    lin = noise_free_twin(rig, ctl, limit, d, nonlinear_magnets=False)
+    g0 = true_linear_model(rig, discrete=True).freqresp(lin.freq_hz)
+    assert np.max(np.abs(lin.frf - g0)) < 1e-6 * np.max(np.abs(g0))
+    truth = true_parameters(rig)
+    names = sorted(nominal_update_parameters(rig)) + ["support_damping_ratio", "support_freq_hz",
+                                                      "support_gain_per_kg"]
+    free = ["ki_n_per_a", "ks_n_per_m", "ks_b_over_a", "amplifier_bandwidth_hz", "sensor_bandwidth_hz", "delay_s",
+            "bending_freq_hz", "bending_damping_ratio", "support_freq_hz"]
+    var = variance_on([10.0, 1000.0], np.full((2, 4, 4), 1e-18), lin.freq_hz)      # equal weights
+    assert var.shape == lin.frf.shape and np.allclose(var, 1e-18)
+    at_rest = bla_parameters(rig, [Twin(lin.freq_hz, lin.frf, var)], names, free)
+    for k in free:
+        assert at_rest[k] == pytest.approx(truth[k], rel=3e-5, abs=1e-12), (k, at_rest[k], truth[k])
+    nl = noise_free_twin(rig, ctl, limit, d)
+    bla = bla_parameters(rig, [Twin(nl.freq_hz, nl.frf, var)], names, free)
+    ki_x, ks_x = excitation_slopes(rig, ctl, d)
+    # one twin of two realisations: its stochastic distortion is not averaged out, a few 1e-4 of ki and ks
+    assert bla["ki_n_per_a"] == pytest.approx(np.mean(ki_x), rel=5e-4)
+    assert bla["ks_n_per_m"] == pytest.approx(np.mean(ks_x), rel=5e-4)
+    assert bla["ks_n_per_m"] / truth["ks_n_per_m"] - 1 > 5e-4                 # the excitation stiffens the magnets
+    assert bla["total_lag_s"] == pytest.approx(total_lag(bla)) and bla["total_lag_s"] != total_lag(truth)
 
 
 def test_drawn_nominal_rig_states_the_drawn_values_and_never_the_truth():

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from ambid.channels import RADIAL
 from ambid.excitation import ExcitationDesign, check_headroom
 from ambid_cli.commands import design as cmd
 
@@ -36,7 +37,7 @@ def test_preview_runs_without_rclpy_and_writes_what_it_reports(tmp_path):
 
     # design.json is the design build_design makes from the same terms, at the default rig's 10 kHz
     design = ExcitationDesign.from_dict(json.loads((tmp_path / "design.json").read_text()))
-    assert design == cmd.build_design("multisine", (20.0, 800.0), 10.0, 10_000.0, cmd.DEFAULT_INPUTS, 0.4,
+    assert design == cmd.build_design("multisine", (20.0, 800.0), 10.0, 10_000.0, RADIAL.inputs, 0.4,
                                       n_periods=3)
     # orthogonal multisine, 4 inputs, identify's M = 3 and Pt = 3: Ne M (Pt + P) N / fs = 4 x 3 x (3 + 3) x 1000 / 10 kHz
     assert summary["measurement_time_s"] == pytest.approx(4 * 3 * 6 * 1000 / 10_000.0)
@@ -96,12 +97,13 @@ def test_every_command_defaults_to_the_one_experiment():
         p = argparse.ArgumentParser()
         module.add_arguments(p)
         args = p.parse_args(argv)
-        terms = {"input_names": tuple(args.inputs.split(","))} if module is cmd else {}
+        terms = {"input_names": tuple(s for s in args.inputs.split(",") if s)} if module is cmd else {}
         assert experiment_spec(args, **terms) == spec, module.__name__
     # the generator's parameter file (tests/nodes/test_config_files.py: file == the node's declared defaults)
     gen = yaml.safe_load((ROOT / "ambid_nodes" / "config" / "excitation_generator.yaml").read_text())
     p = gen["/**"]["ros__parameters"]
-    assert DesignSpec(p["kind"], (p["band_low"], p["band_high"]), p["resolution"], tuple(p["inputs"]),
+    assert DesignSpec(p["kind"], (p["band_low"], p["band_high"]), p["resolution"],
+                      () if p["inputs"] == ["auto"] else tuple(p["inputs"]),
                       p["peak_current"], p["periods"], p["realisations"], p["transient_periods"], p["grid"],
                       p["spacing"], p["phases"], p["mimo"], p["seed"], p["settle_time"], p["cycles"]) == spec
     # identify's experiment: orthogonal random-odd crest-optimised multisine, 0.4 A, M = 3, 3 + 4 periods

@@ -12,6 +12,7 @@ from ambid.plant.true_rig import true_linear_model
 from scipy import signal
 
 RIG = make_rig({"rotor_speed_rpm": 12_000.0})
+NAMES = (RIG.layout.outputs, RIG.layout.inputs)  # y_a_x y_b_x y_a_y y_b_y; u_...
 
 
 def test_forward_and_backward_frfs_are_the_responses_to_rotating_forces():
@@ -21,7 +22,7 @@ def test_forward_and_backward_frfs_are_the_responses_to_rotating_forces():
     sys_d = signal.dlti(loop.a, loop.b, loop.c[:4], loop.d[:4], dt=RIG.dt)
     f0, n = 250.0, 6000  # 250 Hz is 150 periods of 40 samples: the phasor is one DFT bin
     t = np.arange(n) * RIG.dt
-    d = directional_frf([f0], loop.freqresp([f0])[:, :4])
+    d = directional_frf([f0], loop.freqresp([f0])[:, :4], None, *NAMES)
     tail = slice(n - 4000, n)
     e = np.exp(-2j * np.pi * f0 * t[tail])
     for plane in (0, 1):
@@ -42,21 +43,21 @@ def test_forward_and_backward_modes_peak_where_the_eigen_analysis_puts_them():
     pair = sorted(zip(s[first].imag / (2 * np.pi), (model.c @ vecs[:, first]).T), key=lambda x: x[0])
     (f_b, shape_b), (f_f, shape_f) = pair
     assert f_f - f_b > 5.0  # split by the spin
-    assert whirl(shape_b)[0] == "backward" and whirl(shape_f)[0] == "forward"
+    assert whirl(shape_b, NAMES[0])[0] == "backward" and whirl(shape_f, NAMES[0])[0] == "forward"
     f = np.linspace(290, 330, 4001)
-    d = directional_frf(f, true_linear_model(RIG, discrete=True).freqresp(f))
+    d = directional_frf(f, true_linear_model(RIG, discrete=True).freqresp(f), None, *NAMES)
     assert f[np.argmax(np.abs(d.forward[:, 0, 0]))] == pytest.approx(f_f, abs=0.2)
     assert f[np.argmax(np.abs(d.backward[:, 0, 0]))] == pytest.approx(f_b, abs=0.2)
     # at standstill there is no direction: both FRFs equal, x-only shapes standing
     still = true_linear_model(make_rig(), discrete=True).freqresp(f)
-    ds = directional_frf(f, still)
+    ds = directional_frf(f, still, None, *NAMES)
     np.testing.assert_allclose(ds.forward, ds.backward, atol=1e-6 * np.abs(ds.forward).max())
-    assert whirl(np.array([1.0, 0.5, 0.0, 0.0]))[0] == "standing"
+    assert whirl(np.array([1.0, 0.5, 0.0, 0.0]), NAMES[0])[0] == "standing"
 
 
 def test_directional_variance_is_the_mean_of_the_four_element_variances():
     var = np.arange(1, 17, dtype=float).reshape(1, 4, 4)
-    d = directional_frf([1.0], np.zeros((1, 4, 4)), var)
+    d = directional_frf([1.0], np.zeros((1, 4, 4)), var, *NAMES)
     # A->A: elements (0,0), (2,2), (0,2), (2,0)
     assert d.var_forward[0, 0, 0] == pytest.approx((1 + 11 + 3 + 9) / 4)
 
@@ -78,10 +79,26 @@ def test_an_frf_result_gives_its_directional_frfs():
     stream.add(0, x[:, list(range(8)) + list(range(12, 16))])
     res = stream.estimate()
     d = res.directional()
-    want = directional_frf(res.freq_hz, res.frf, res.var_noise)
+    want = directional_frf(res.freq_hz, res.frf, res.var_noise, *NAMES)
     np.testing.assert_array_equal(d.forward, want.forward)
     np.testing.assert_array_equal(d.var_backward, want.var_backward)
     # measured against the true rig at speed: the forward FRF of plane A within a few % at most lines
-    true = directional_frf(res.freq_hz, true_linear_model(RIG, discrete=True).freqresp(res.freq_hz))
+    true = directional_frf(res.freq_hz, true_linear_model(RIG, discrete=True).freqresp(res.freq_hz), None, *NAMES)
     rel = np.abs(d.forward[:, 0, 0] - true.forward[:, 0, 0]) / np.abs(true.forward[:, 0, 0])
     assert np.median(rel) < 0.05
+
+
+def test_the_planes_come_from_the_channel_names():
+    """Whatever the order and whatever else the channels hold (an axial axis, a one-plane rig): the planes are
+    the bearings with an x and a y channel, the same as in the radial order."""
+    f = np.array([100.0, 300.0])
+    g = true_linear_model(RIG, discrete=True).freqresp(f)
+    radial = directional_frf(f, g, None, *NAMES)
+    # the five-axis order (z last, its row and column zero here) gives the same 2 x 2 planes
+    g5 = np.zeros((2, 5, 5), complex)
+    g5[:, :4, :4] = g
+    five = directional_frf(f, g5, None, NAMES[0] + ("y_z",), NAMES[1] + ("u_z",))
+    np.testing.assert_array_equal(five.forward, radial.forward)
+    # one plane (bearing A only, x then y): its 1 x 1 directional FRF is radial's A -> A
+    one = directional_frf(f, g[:, [0, 2]][:, :, [0, 2]], None, ("y_a_x", "y_a_y"), ("u_a_x", "u_a_y"))
+    np.testing.assert_allclose(one.forward[:, 0, 0], radial.forward[:, 0, 0], rtol=1e-12)

@@ -13,7 +13,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from ambid.channels import AXES
+from ambid.channels import RADIAL
 from ambid.excitation import design_multisine
 from ambid.plant.rig import make_rig
 from ambid.studies.early_analysis import EarlyAnalysis
@@ -28,7 +28,7 @@ OPTIONS = dict(max_order=16)
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
-    design = design_multisine((20.0, 600.0), 20.0, RIG.sample_rate_hz, [f"u_{a}" for a in AXES], 0.4,
+    design = design_multisine((20.0, 600.0), 20.0, RIG.sample_rate_hz, list(RADIAL.inputs), 0.4,
                               n_periods=2, n_realisations=2, n_transient_periods=1, seed=5)
     names, x = simulate_closed_loop(RIG, design, PRE, post_samples=200, seed=6)
     root = tmp_path_factory.mktemp("early")
@@ -57,9 +57,11 @@ def test_the_messages_give_the_recordings_inputs(session):
 def test_reference_models_are_used_only_for_their_own_inputs(session):
     rec = read_session_inputs(session["path"])
     f = rec.frf.freq_hz
-    refs = reference_models(dataclasses.replace(rec, frf=None), f, 4)
-    assert refs.key == reference_key(rec, f, 4) and refs.true_g is not None and refs.true_poles is not None
-    assert reference_key(dataclasses.replace(rec, nonlinear_magnets=True), f, 4) != refs.key
+    chans = (rec.frf.output_names, rec.frf.input_names)
+    refs = reference_models(dataclasses.replace(rec, frf=None), f, *chans)
+    assert refs.key == reference_key(rec, f, *chans) and refs.true_g is not None and refs.true_poles is not None
+    assert reference_key(dataclasses.replace(rec, nonlinear_magnets=True), f, *chans) != refs.key
+    assert reference_key(rec, f, chans[0][:2], chans[1]) != refs.key
     # handed over ready-made, or left to identify_session: the same numbers
     _same(identify_session(session["path"], session["root"] / "given", inputs=rec, references=refs, **OPTIONS),
           session["reference"])
@@ -70,7 +72,7 @@ def _early(out, inputs, planned=None, freq_hz=None):
     early = EarlyAnalysis(out, **OPTIONS)
     try:
         if planned is not None:
-            early.prepare(planned, freq_hz, 4)
+            early.prepare(planned, freq_hz, RADIAL.outputs, RADIAL.inputs)
         early.analyse(inputs)
         early.recording_closed()
         return (*early.summary(), *early.result())

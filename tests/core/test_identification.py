@@ -11,7 +11,6 @@ from argparse import Namespace
 
 import numpy as np
 import pytest
-from ambid.channels import AXES
 from ambid.control.pid import PidParameters, pid_controller
 from ambid.excitation import design_multisine
 from ambid.fit import load_model_npz, load_statespace_json
@@ -33,7 +32,7 @@ PRE = 3000
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
-    design = design_multisine((10.0, 1000.0), 10.0, RIG.sample_rate_hz, [f"u_{a}" for a in AXES], 0.5,
+    design = design_multisine((10.0, 1000.0), 10.0, RIG.sample_rate_hz, list(RIG.layout.inputs), 0.5,
                               n_periods=4, n_realisations=1, seed=3)
     names, x = simulate_closed_loop(RIG, design, PRE, post_samples=200, seed=4)
     path = tmp_path_factory.mktemp("session") / "session.mcap"
@@ -126,7 +125,7 @@ def test_frf_error_noise_and_sensitivity_figures(identified, session):
     sens = s["sensitivity"]
     assert sens["iso_zone"] == iso14839_zone(sens["worst_peak"]) and sens["worst_peak"] == max(sens["peak"])
     assert s["band_hz"] == [session["design"].freq_hz[0], session["design"].freq_hz[-1]]
-    assert s["inputs"] == [f"u_{a}" for a in AXES] and s["outputs"] == [f"y_{a}" for a in AXES]
+    assert s["inputs"] == list(RIG.layout.inputs) and s["outputs"] == list(RIG.layout.outputs)
     # the only note: a parameter the data tell little about (its interval is mostly its tolerance)
     assert s["estimator"] == "indirect" and s["simulated"]
     assert all(n.startswith("the data tell little about") for n in s["notes"]), s["notes"]

@@ -105,7 +105,7 @@ def _case(name):
         cols["time"][500:] += 1 / FS
         rmap = {k: v for k, v in MAP.items() if k != "sample_rate_hz"}
     elif name == "unknown output":
-        rmap = {**MAP, "outputs": {"y_c_z": {"column": "x1"}}}
+        rmap = {**MAP, "outputs": {"disp_a": {"column": "x1"}}}  # not y_<axis> (any axis name is one)
     elif name == "wrong unit":
         rmap = {**MAP, "outputs": {**MAP["outputs"], "y_a_x": {"column": "x1", "unit": "V"}}}
     elif name == "excitation axes":
@@ -126,7 +126,7 @@ CASES = {  # case -> what the one line must say
     "name not in file": r"no channel 'x9' \(named in MAP.yaml",
     "rate vs time column": r"time column 'time' at row \d+ is .* but sample_rate_hz 1200 .*the column says 1000 Hz",
     "time gap": r"time column 'time' is not evenly spaced: row 501",
-    "unknown output": r"outputs name 'y_c_z' is not one of ambid's",
+    "unknown output": r"outputs name 'disp_a' is not an ambid output name y_<axis>",
     "wrong unit": r"outputs.y_a_x: unit 'V' after scaling must be m",
     "excitation axes": r"must name the same axes as currents",
 }

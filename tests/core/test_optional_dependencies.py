@@ -35,7 +35,7 @@ ctrl = design_controller("pid", rig)
 stepper = ControllerStepper(ctrl.model, ctrl.current_limit_a)
 y, rows = sim.output(), []
 for k in range(400):
-    ic = stepper.step4(*y)
+    ic = stepper.step(y)
     out = sim.step_output(ic[0] + 0.2 * np.sin(0.06 * k), ic[1], ic[2], ic[3])
     y = out[:4]
     rows.append([float(v) for v in out[:4]] + [float(v) for v in ic])

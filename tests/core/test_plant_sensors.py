@@ -29,7 +29,7 @@ def test_simulator_reading_at_rest_is_the_static_curve():
     sim = PlantSimulator(rig)
     d = sim.plant.c_sensor @ sim.x
     assert np.allclose(sim.output(), gain * (d + c3 * d ** 3), rtol=1e-9)
-    assert np.allclose(sim.output(), sim.sensors.static_curve(d), rtol=1e-9)
+    assert np.allclose(sim.output(), [x.static_curve(dj) for x, dj in zip(sim.sensors, d)], rtol=1e-9)
 
 
 def test_simulator_noise_has_the_rigs_std_and_is_white_and_seeded():

@@ -27,4 +27,9 @@ def test_the_tables_are_markdown_of_the_measured_figures():
     assert table[3] == "| 4x4 fit: CPU time | 1.23 s |  |  |"
     cov = coverage_markdown({"modes": {"nominal": 0.95, "coverage": 0.9, "ci95": [0.7, 0.98], "n": 20,
                                        "std_ratio": 1.1}, "skipped": {"coverage": None}})
-    assert cov.splitlines()[2] == "| modes | 0.950 | 0.900 | 0.700..0.980 | 20 | 1.10 |" and "skipped" not in cov
+    assert cov.splitlines()[2] == "| modes | 0.950 | 0.900 | 0.700..0.980 | 20 | 1.10 |  |  |" and "skipped" not in cov
+    # an updated parameter: beside its claim (the best linear approximation's value) the rig at rest
+    cov = coverage_markdown({"parameter:delay_s": {"nominal": 0.95, "coverage": 0.95, "ci95": [0.83, 0.99], "n": 40,
+                                                   "std_ratio": 1.0, "at_rest": {"coverage": 0.6, "std_ratio": 1.9,
+                                                                                 "shift_over_std": -1.6}}})
+    assert cov.splitlines()[2] == "| parameter:delay_s | 0.950 | 0.950 | 0.830..0.990 | 40 | 1.00 | 0.600, 1.90 | -1.60 |"

@@ -117,7 +117,7 @@ def test_step_output_is_step_then_output(nonlinear):
     for k in range(n):
         y_a = a.output()
         ua = ca.step(y_a)
-        ub = cb.step4(*y_b)
+        ub = cb.step(y_b)
         fa = a.step(ua)
         rb = b.step_output(*ub)
         assert list(ua) == list(ub)
@@ -167,7 +167,9 @@ def test_simulator_copies_and_pickles():
 
 def test_plant_work_checks_the_matrix():
     with pytest.raises(ValueError, match="n \\+ 20, n \\+ 19"):
-        sk.plant_work(np.zeros((10, 20)), 4)
+        sk.plant_work(np.zeros((10, 20)), 4, 4)
+    with pytest.raises(ValueError, match="n \\+ 25, n \\+ 23"):
+        sk.plant_work(np.zeros((10, 20)), 5, 4)
 
 
 def _random_controller(rng, n=6, p=4, q=4, proper=True):
@@ -195,16 +197,16 @@ def test_controller_steps_match_numpy_and_each_other():
     assert np.abs(ref).max() == limit  # the saturation is exercised
     s1, s4, sa = (ControllerStepper(model, limit) for _ in range(3))
     out1 = np.array([s1.step(y) for y in ys])
-    out4 = np.array([s4.step4(*y) for y in ys])
-    assert sa.strictly_proper
-    ahead = np.array([sa.current_output()] + [sa.step_ahead4(*y) for y in ys])
+    out4 = np.array([s4.step(list(y)) for y in ys])
+    assert sa.strictly_proper and (sa.n_inputs, sa.n_outputs) == (4, 4)
+    ahead = np.array([sa.current_output()] + [sa.step_ahead(y) for y in ys])
     tol = 1e-12 * np.abs(ref).max()
     assert np.allclose(out1, ref, rtol=0, atol=tol)
     assert np.allclose(out4, ref, rtol=0, atol=tol)
     assert np.allclose(ahead[:-1], ref, rtol=0, atol=tol)  # shifted by one: ic[0], ic[1], ...
     assert np.allclose(s1.x, s4.x, rtol=0, atol=1e-12 * np.abs(s1.x).max())
     assert np.allclose(sa.x, s4.x, rtol=0, atol=1e-12 * np.abs(s1.x).max())
-    assert isinstance(s1.step(ys[0]), list) and isinstance(s4.step4(*ys[0]), tuple)
+    assert isinstance(s1.step(ys[0]), list) and isinstance(sa.step_ahead(ys[0]), list)
 
 
 def test_controller_with_feedthrough_and_other_sizes():
@@ -215,19 +217,19 @@ def test_controller_with_feedthrough_and_other_sizes():
     st = ControllerStepper(model, 1.5)
     assert np.allclose([st.step(y) for y in ys], ref, rtol=0, atol=1e-12 * np.abs(ref).max())
     assert not st.strictly_proper
-    with pytest.raises(ValueError, match="4 inputs and 4 outputs"):
-        st.step4(0.0, 0.0, 0.0, 0.0)
     with pytest.raises(ValueError, match="strictly proper"):
         st.current_output()
     with pytest.raises(ValueError, match="strictly proper"):
-        st.step_ahead4(0.0, 0.0, 0.0, 0.0)
-    four_d = ControllerStepper(_random_controller(rng, proper=False), 1.0)
-    four_d.step4(0.1, 0.2, 0.3, 0.4)  # 4 x 4 with feedthrough: step4 yes, step_ahead4 no
+        st.step_ahead([0.0, 0.0, 0.0])
     with pytest.raises(ValueError, match="feedthrough"):
-        four_d.step_ahead4(0.0, 0.0, 0.0, 0.0)
-    small = ControllerStepper(_random_controller(rng, p=2, q=2), 1.0)
-    with pytest.raises(ValueError, match="4 inputs and 4 outputs"):
-        small.step_ahead4(0.0, 0.0, 0.0, 0.0)
+        st.kernel_args(ahead=True)
+    # five channels (the five-axis rig), strictly proper: the step ahead is the step one sample early
+    five = _random_controller(rng, p=5, q=5)
+    y5 = rng.standard_normal((30, 5))
+    a5, b5 = ControllerStepper(five, 1.0), ControllerStepper(five, 1.0)
+    ahead = [b5.current_output()] + [b5.step_ahead(y) for y in y5]
+    assert np.allclose(ahead[:-1], [a5.step(y) for y in y5], rtol=0, atol=1e-12)
+    assert a5.kernel_args(ahead=False)[1] == five.n_states
 
 
 def test_pid_pipelined_and_copied():
@@ -239,8 +241,8 @@ def test_pid_pipelined_and_copied():
     assert np.allclose(b.current_output(), [1.0, 1.1, 0.0, -0.2], atol=1e-9)
     rng = np.random.default_rng(1)
     ys = 1e-5 * rng.standard_normal((100, 4))
-    ahead = [b.current_output()] + [b.step_ahead4(*y) for y in ys]
-    now = [a.step4(*y) for y in ys]
+    ahead = [b.current_output()] + [b.step_ahead(y) for y in ys]
+    now = [a.step(y) for y in ys]
     assert np.allclose(ahead[:-1], now, rtol=0, atol=1e-12 * 3.0)
     twin = pickle.loads(pickle.dumps(a))
-    assert twin.step4(*ys[0]) == a.step4(*ys[0])
+    assert twin.step(ys[0]) == a.step(ys[0])

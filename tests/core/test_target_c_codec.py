@@ -21,7 +21,8 @@ REASONS = ["ok", "oversized", "length", "magic", "version", "crc", "kind", "cont
 class Message(ctypes.Structure):
     """ambp_message of ambp.h, field by field."""
 
-    _fields_ = [("kind", ctypes.c_uint8), ("value_bytes", ctypes.c_uint8), ("n_samples", ctypes.c_uint16),
+    _fields_ = [("kind", ctypes.c_uint8), ("value_bytes", ctypes.c_uint8), ("axes", ctypes.c_uint8),
+                ("n_samples", ctypes.c_uint16),
                 ("sequence", ctypes.c_uint32), ("first_index", ctypes.c_uint64),
                 ("state", ctypes.c_uint8), ("safe_reason", ctypes.c_uint8), ("clock_running", ctypes.c_uint8),
                 ("reserved0", ctypes.c_uint8), ("sample_rate_hz", ctypes.c_uint32),
@@ -32,7 +33,7 @@ class Message(ctypes.Structure):
                 ("command_id", ctypes.c_uint32), ("code", ctypes.c_uint8), ("result", ctypes.c_uint8),
                 ("reserved1", ctypes.c_uint8), ("reserved2", ctypes.c_uint8), ("arg0", ctypes.c_uint64),
                 ("arg1", ctypes.c_uint64), ("arg2", ctypes.c_uint32), ("reserved3", ctypes.c_uint32),
-                ("data", ctypes.c_double * 356), ("sample_flags", ctypes.c_uint8 * 22)]
+                ("data", ctypes.c_double * 359), ("sample_flags", ctypes.c_uint8 * 84)]
 
 
 @pytest.fixture(scope="module")
@@ -48,13 +49,13 @@ def lib():
     return so
 
 
-def c_encode(lib, m: Message, version: int = 1) -> bytes:
+def c_encode(lib, m: Message, version: int = bp.PROTOCOL_VERSION) -> bytes:
     buf = ctypes.create_string_buffer(2048)
     n = lib.ambp_encode(ctypes.byref(m), version, buf, len(buf))
     return buf.raw[:n]
 
 
-def c_decode(lib, d: bytes, version: int = 1) -> tuple[str, Message]:
+def c_decode(lib, d: bytes, version: int = bp.PROTOCOL_VERSION) -> tuple[str, Message]:
     m = Message()
     return REASONS[lib.ambp_decode(d, len(d), version, ctypes.byref(m))], m
 
@@ -65,7 +66,7 @@ def to_c(msg, value_bytes: int = 8) -> Message:
     m.sequence = msg.sequence
     if isinstance(msg, (bp.Measurement, bp.Excitation)):
         m.kind = bp.Kind.MEASUREMENT if isinstance(msg, bp.Measurement) else bp.Kind.EXCITATION
-        m.value_bytes, m.n_samples, m.first_index = value_bytes, len(msg.data), msg.first_index
+        m.value_bytes, m.n_samples, m.first_index, m.axes = value_bytes, len(msg.data), msg.first_index, msg.n_axes
         flat = np.ravel(msg.data)
         m.data[:len(flat)] = flat.tolist()
         if isinstance(msg, bp.Measurement):
@@ -74,7 +75,7 @@ def to_c(msg, value_bytes: int = 8) -> Message:
         m.kind = bp.Kind.HEARTBEAT
         for f in ("state", "safe_reason", "clock_running", "sample_rate_hz", "sample_index", "sent_end",
                   "excitation_next", "next_measurement_sequence", "rx_datagrams", "rx_rejected",
-                  "late_excitation_samples", "overruns"):
+                  "late_excitation_samples", "overruns", "axes"):
             setattr(m, f, int(getattr(msg, f)))
     elif isinstance(msg, bp.Command):
         m.kind = bp.Kind.COMMAND
@@ -90,7 +91,7 @@ def from_c(m: Message):
     """The Python message of a decoded C struct."""
     k = m.kind
     if k in (bp.Kind.MEASUREMENT, bp.Kind.EXCITATION):
-        nch = 16 if k == bp.Kind.MEASUREMENT else 4
+        nch = 4 * m.axes if k == bp.Kind.MEASUREMENT else m.axes
         data = np.array(m.data[:m.n_samples * nch]).reshape(m.n_samples, nch)
         if k == bp.Kind.EXCITATION:
             return bp.Excitation(m.sequence, m.first_index, data)
@@ -98,7 +99,7 @@ def from_c(m: Message):
     if k == bp.Kind.HEARTBEAT:
         return bp.Heartbeat(m.sequence, m.state, m.safe_reason, bool(m.clock_running), m.sample_rate_hz,
                             m.sample_index, m.sent_end, m.excitation_next, m.next_measurement_sequence,
-                            m.rx_datagrams, m.rx_rejected, m.late_excitation_samples, m.overruns)
+                            m.rx_datagrams, m.rx_rejected, m.late_excitation_samples, m.overruns, m.axes)
     if k == bp.Kind.COMMAND:
         return bp.Command(m.sequence, m.command_id, m.code, m.arg0, m.arg1, m.arg2)
     return bp.Ack(m.sequence, m.command_id, m.code, m.result, m.state, m.sample_index)
@@ -114,6 +115,12 @@ def _golden():
         (bp.Measurement(0, 0, rng.standard_normal((1, 16)), np.array([8], np.uint8)), 8),
         (bp.Excitation(3, 2**40, rng.standard_normal((44, 4))), 8),
         (bp.Excitation(4, 5, rng.standard_normal((89, 4)) * 0.3), 4),
+        # the five-axis machine (y, u, ic, r of a_x b_x a_y b_y z) and a one-axis rig
+        (bp.Measurement(8, 99, rng.standard_normal((8, 20)) * 1e-5, rng.integers(0, 32, 8).astype(np.uint8)), 8),
+        (bp.Measurement(9, 5, rng.standard_normal((84, 4)), rng.integers(0, 32, 84).astype(np.uint8)), 4),
+        (bp.Excitation(10, 7, rng.standard_normal((35, 5))), 8),
+        (bp.Excitation(11, 8, rng.standard_normal((359, 1))), 4),
+        (bp.Heartbeat(5, bp.TargetState.RUNNING, axes=5), 8),
         (bp.Heartbeat(2**32 - 1, bp.TargetState.SAFE, bp.SafeReason.BRIDGE_SILENT, True, 10_000, 123_456, 123_450,
                       bp.NO_INDEX, 77, 5, 1, 2, 3), 8),
         (bp.Heartbeat(0, bp.TargetState.IDLE), 8),
@@ -141,10 +148,18 @@ def test_golden_datagrams_are_byte_identical_both_ways(lib, msg, value_bytes):
     assert lib.ambp_crc32(py[:-4], len(py) - 4) == zlib.crc32(py[:-4])
 
 
-def _reframe(payload: bytes, kind: int, payload_len: int | None = None, version: int = 1, magic=b"AMBP") -> bytes:
+def _reframe(payload: bytes, kind: int, payload_len: int | None = None, version: int = bp.PROTOCOL_VERSION,
+             magic=b"AMBP") -> bytes:
     head = struct.pack("<4sBBHIHH", magic, version, kind, 0, 0, len(payload) if payload_len is None else payload_len,
                        0)
     return head + payload + struct.pack("<I", zlib.crc32(head + payload))
+
+
+def _axes(block_payload: bytes, axes: int) -> bytes:
+    """A block payload whose axes field says ``axes`` (its channel count unchanged)."""
+    p = bytearray(block_payload)
+    p[12:14] = struct.pack("<H", axes)
+    return bytes(p)
 
 
 def _malformed() -> list[bytes]:
@@ -172,7 +187,8 @@ def _malformed() -> list[bytes]:
         _reframe(bytes(zero), bp.Kind.EXCITATION), _reframe(bytes(vb), bp.Kind.EXCITATION),
         _reframe(pe[:10], bp.Kind.EXCITATION), _reframe(cmd[16:-4], 0), _reframe(cmd[16:-4], 6),
         _reframe(cmd[16:-4] + b"\x00", bp.Kind.COMMAND), _reframe(hb[16:-4][:-1], bp.Kind.HEARTBEAT),
-        _reframe(cmd[16:-4], bp.Kind.ACK), _reframe(cmd[16:-4], bp.Kind.COMMAND, version=2),
+        _reframe(cmd[16:-4], bp.Kind.ACK), _reframe(cmd[16:-4], bp.Kind.COMMAND, version=3),
+        _reframe(_axes(pe, 9), bp.Kind.EXCITATION), _reframe(_axes(pe, 0), bp.Kind.EXCITATION),
         _reframe(cmd[16:-4], bp.Kind.COMMAND, magic=b"AMBQ"),
     ]
     return out
@@ -188,9 +204,15 @@ def test_malformed_datagrams_are_refused_for_the_reason_python_gives(lib):
         assert reason == info.value.reason, (d[:24].hex(), len(d))
         seen.add(reason)
     assert seen == {"oversized", "length", "magic", "version", "crc", "kind", "content"}
-    # a version-2 datagram is fine for a version-2 end
-    reason, _ = c_decode(lib, bp.pack_datagram(bp.Command(1, 1, 1), version=2), 2)
-    assert reason == "ok"
+    # version 1 (the four radial axes, channel sets 1 and 2) still decodes at a version-1 end, and is
+    # refused by a version-2 one
+    for msg in (bp.Measurement(1, 10, np.ones((3, 16)), np.zeros(3, np.uint8)), bp.Excitation(1, 10, np.ones((5, 4)))):
+        d1 = bp.pack_datagram(msg, version=1)
+        reason, m = c_decode(lib, d1, 1)
+        assert reason == "ok" and m.axes == 4 and c_encode(lib, m, 1) == d1
+        assert c_decode(lib, d1)[0] == "version"
+    m5 = to_c(bp.Excitation(1, 0, np.ones((2, 5))))
+    assert c_encode(lib, m5, 1) == b""   # version 1 cannot carry five axes
 
 
 def test_encode_refuses_what_the_protocol_cannot_carry(lib):

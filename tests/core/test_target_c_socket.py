@@ -150,8 +150,8 @@ def test_excitation_reordered_duplicated_lost_and_malformed_is_applied_sample_ex
     bridge.start(model_files["quiet"], "--pace", "0", "--hold-for-excitation", "--samples", str(n),
                  "--linger", "0.2", "--bridge-timeout", "10")
     assert bridge.hbs[0][1].state == bp.TargetState.IDLE and bridge.hbs[0][1].sample_rate_hz == 10_000
-    # a version-2 START is refused as such: the target stays idle
-    bridge.send(None, bp.pack_datagram(bp.Command(0, 99, bp.CommandCode.START), version=2))
+    # a version-1 START is refused as such (this target speaks version 2): the target stays idle
+    bridge.send(None, bp.pack_datagram(bp.Command(0, 99, bp.CommandCode.START), version=1))
     ack = bridge.command(1, bp.CommandCode.EXPERIMENT, start, length, 1)
     assert ack.result == bp.AckResult.OK and ack.state == bp.TargetState.IDLE
     # the same command id again with other arguments: answered as the first time, not run again
@@ -272,8 +272,8 @@ def _bad_models(d: Path, good: str) -> dict[str, tuple[Path, str]]:
         "random": (_write(d / "random.txt", np.random.default_rng(0).bytes(3000)), "not"),
         "truncated": (_write(d / "truncated.txt", good[:len(good) // 2]), "truncated"),
         "unrelated": (_write(d / "unrelated.txt", "a: 1\nb: [2, 3]\n"), "not an ambid target model"),
-        "version": (_write(d / "version.txt", good.replace("ambid_target_model 1", "ambid_target_model 2")),
-                    "format version 2"),
+        "version": (_write(d / "version.txt", good.replace("ambid_target_model 2", "ambid_target_model 3")),
+                    "format version 3"),
         "nan": (_write(d / "nan.txt", good.replace("dt 0.0001", "dt nan")), "dt"),
         "word": (_write(d / "word.txt", good.replace("plant_B", "plant_X")), "expected 'plant_B'"),
         "dt": (_write(d / "dt.txt", good.replace("dt 0.0001", "dt 0.00013")), "whole number of hertz"),

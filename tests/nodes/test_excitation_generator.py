@@ -9,9 +9,9 @@ import pytest
 import rclpy
 from ambid.excitation import ExcitationDesign, check_headroom, design_multisine
 from ambid_nodes.conversions import block_data
-from ambid_nodes.excitation_generator import EXCITATION_NAMES, ExcitationGenerator
+from ambid_nodes.excitation_generator import ExcitationGenerator
 from ambid_nodes.parameters import ParameterError
-from ambid_nodes.plant_sim import MEASUREMENT_NAMES, PlantSim
+from ambid_nodes.plant_sim import PlantSim
 from ambid_nodes.position_controller import PositionController
 from rclpy.parameter import Parameter
 
@@ -19,6 +19,10 @@ from ambid_msgs.msg import ExcitationDesign as DesignMsg
 from ambid_msgs.msg import SampleBlock, SessionStatus
 from ambid_msgs.srv import StartExperiment, StopExperiment
 from ambid_nodes import qos
+from ambid.channels import RADIAL
+
+MEASUREMENT_NAMES = RADIAL.measurement_names  # the default rig's channels
+EXCITATION_NAMES = RADIAL.excitations
 
 NS = "/amb"
 FS = 10_000.0

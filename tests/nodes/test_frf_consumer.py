@@ -16,7 +16,7 @@ from ambid_nodes.conversions import block_msg
 from ambid_nodes.excitation_generator import ExcitationGenerator
 from ambid_nodes.frf_consumer import FrfConsumer
 from ambid_nodes.parameters import ParameterError
-from ambid_nodes.plant_sim import MEASUREMENT_NAMES, MEASUREMENT_UNITS, PlantSim
+from ambid_nodes.plant_sim import PlantSim
 from ambid_nodes.position_controller import PositionController
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -25,6 +25,10 @@ from ambid_msgs.msg import ExcitationDesign as DesignMsg
 from ambid_msgs.msg import FrfEstimate, SampleBlock, SessionEvent, SessionStatus
 from ambid_msgs.srv import StartExperiment
 from ambid_nodes import qos
+from ambid.channels import RADIAL
+
+MEASUREMENT_NAMES = RADIAL.measurement_names  # the default rig's channels
+MEASUREMENT_UNITS = ("m",) * 4 + ("A",) * 12
 
 NS = "/amb"
 FS = 10_000.0
@@ -92,7 +96,8 @@ def test_consumer_fed_by_hand_gaps_and_bad_messages(ros):
     ros.matched(pub_block, pub_design)
     ros.matched(out.node, to=consumer)  # the listener hears every status and estimate from the first
     pub_design.publish(_design_msg(d, "hand-1", start))
-    assert ros.spin_until(lambda: consumer.stream is not None, 10)
+    # no plant description here: the design waits for the first block to say the displacement channels
+    assert ros.spin_until(lambda: consumer.stream is not None or consumer.pending_design is not None, 10)
     pub_design.publish(DesignMsg(experiment_id="broken", design_json="{not json"))
     bad = block_msg(0, 1 / FS, MEASUREMENT_NAMES, MEASUREMENT_UNITS, x[:100])
     bad.n_samples = 99                                        # data no longer matches

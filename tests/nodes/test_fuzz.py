@@ -33,7 +33,7 @@ from ambid_nodes.conversions import block_msg, float_array, statespace_to_msg
 from ambid_nodes.excitation_generator import ExcitationGenerator
 from ambid_nodes.frf_consumer import FrfConsumer
 from ambid_nodes.hardware_bridge import HardwareBridge
-from ambid_nodes.plant_sim import MEASUREMENT_NAMES, MEASUREMENT_UNITS, PlantSim
+from ambid_nodes.plant_sim import PlantSim
 from ambid_nodes.position_controller import PositionController
 from ambid_nodes.recorder import Recorder
 from rclpy.node import Node
@@ -45,6 +45,10 @@ from ambid_msgs.msg import (ControllerDescription, ExcitationDesign, FrfEstimate
                             SampleBlock, SessionEvent, SessionStatus)
 from ambid_msgs.srv import StartExperiment
 from ambid_nodes import qos
+from ambid.channels import RADIAL
+
+MEASUREMENT_NAMES = RADIAL.measurement_names  # the default rig's channels
+MEASUREMENT_UNITS = ("m",) * 4 + ("A",) * 12
 
 DT = 1e-4
 R_NAMES = ("r_a_x", "r_b_x", "r_a_y", "r_b_y")
@@ -445,7 +449,7 @@ def test_fuzz_hardware_bridge_topics_and_datagrams(ros):
         if kind == 2:  # truncated or oversized
             return bytes(b[:int(rng.integers(0, len(b)))]) if rng.random() < 0.5 else bytes(b) + bytes(1500)
         if kind == 3:  # another protocol version, CRC right
-            b[4] = int(rng.choice([0, 2, 255]))
+            b[4] = int(rng.choice([0, 1, 3, 255]))   # 1: the other version this build knows, not the one spoken
             return recrc(b)
         if kind == 4:  # a kind only the bridge sends, or an unknown one, CRC right
             if rng.random() < 0.7:

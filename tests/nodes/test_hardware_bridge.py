@@ -20,9 +20,8 @@ import pytest
 from ambid.hardware import bridge_protocol as bp
 from ambid.hardware.rt_target import SUMMARY_PREFIX, Target, TargetConfig
 from ambid_nodes.conversions import block_data
-from ambid_nodes.hardware_bridge import EXCITATION_NAMES, MEASUREMENT_NAMES, HardwareBridge
+from ambid_nodes.hardware_bridge import HardwareBridge
 from ambid_nodes.parameters import ParameterError
-from ambid_nodes.plant_sim import MEASUREMENT_NAMES as PLANT_SIM_NAMES
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
@@ -30,6 +29,10 @@ from rosgraph_msgs.msg import Clock
 from ambid_msgs.msg import ExcitationDesign, PlantDescription, SampleBlock, SessionEvent, SessionStatus
 from ambid_nodes import qos
 from udp_port import free_port
+from ambid.channels import RADIAL
+
+PLANT_SIM_NAMES = RADIAL.measurement_names  # the default rig's channels
+MEASUREMENT_NAMES, EXCITATION_NAMES = bp.block_channels(bp.Kind.MEASUREMENT, RADIAL), bp.block_channels(bp.Kind.EXCITATION, RADIAL)
 
 NS = "/amb"
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -294,18 +297,18 @@ def test_silent_target_is_detected_and_sent_to_its_safe_state(ros, target_thread
 
 
 def test_wrong_protocol_version_is_refused_and_counted(ros, target_thread):
-    with pytest.raises(ParameterError, match="protocol_version 2 is not implemented"):
-        HardwareBridge(namespace=NS, context=ros.context, parameter_overrides=[Parameter("protocol_version", value=2)])
+    with pytest.raises(ParameterError, match="protocol_version 3 is not implemented"):
+        HardwareBridge(namespace=NS, context=ros.context, parameter_overrides=[Parameter("protocol_version", value=3)])
     with pytest.raises(ParameterError, match="unknown parameter"):
         HardwareBridge(namespace=NS, context=ros.context, parameter_overrides=[Parameter("no_such", value=1)])
     spy = ros.add(Spy(ros.context))
     bridge, target, local = start_bridge(ros)
     ros.matched(spy, to=bridge)  # the spy hears the bridge from its first message
-    tg, th, res = target_thread(bind=target, bridge=local, protocol_version=2)
+    tg, th, res = target_thread(bind=target, bridge=local, protocol_version=1)   # an old target, four axes
     assert ros.spin_until(lambda: bridge.malformed["version"] >= 3 and tg.rx_malformed >= 3, timeout_s=30)
     assert not bridge.connected and tg.state == bp.TargetState.IDLE and tg.k == 0
     assert ros.spin_until(lambda: spy.codes("malformed_datagram"), timeout_s=5)
     e = spy.codes("malformed_datagram")[0]
     assert e.severity == SessionEvent.ERROR
-    assert "protocol version 2, this end speaks version 1" in e.text
+    assert "protocol version 1, this end speaks version 2" in e.text
     assert bridge.figures()["datagrams_malformed"] == bridge.malformed["version"]

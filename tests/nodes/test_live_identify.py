@@ -12,10 +12,13 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
+import signal
 import socket
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -113,19 +116,34 @@ def test_results_are_identical_with_and_without_the_live_view(sessions):
 
 
 def test_graph_live_shows_signals_orbits_and_status(tmp_path, ros_env_module):
+    """A client that connects whenever it can (here: while a long graph runs, however loaded the machine) gets the
+    signals and an orbit per bearing on the session's own clock; ^C ends the graph with the live view's figures."""
     port = _free_port()
     got: dict = {"channels": [], "messages": {}}
     client = threading.Thread(target=lambda: asyncio.run(follow(
         f"ws://127.0.0.1:{port}", lambda topic, t, msg: got["messages"].setdefault(topic, []).append(msg), 300.0,
         got["channels"].extend)))
     client.start()
-    run = subprocess.run([sys.executable, "-m", "ambid_cli.cli", "graph", "--sim-seconds", "30", "--live", str(port)],
-                         env=ros_env_module, cwd=REPO, capture_output=True, text=True, timeout=600)
+    run = subprocess.Popen([sys.executable, "-m", "ambid_cli.cli", "graph", "--sim-seconds", "3000", "--live",
+                            str(port)], env=ros_env_module, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                           text=True, start_new_session=True)
+    topics = ("/amb/live/signals", "/amb/live/orbit/a", "/amb/live/orbit/b")
+    try:
+        end = time.monotonic() + 300
+        while time.monotonic() < end and run.poll() is None and not (
+                all(got["messages"].get(t) for t in topics) and len(got["messages"]["/amb/live/signals"]) > 20):
+            time.sleep(0.2)
+        os.killpg(run.pid, signal.SIGINT)   # ^C, as a user ends it
+        out, err = run.communicate(timeout=120)
+    finally:
+        if run.poll() is None:
+            os.killpg(run.pid, signal.SIGKILL)
     client.join(60)
-    assert run.returncode == 0, run.stderr[-3000:]
-    assert "live view:" in run.stdout and "blocks lost" in run.stdout
-    for topic in ("/amb/live/signals", "/amb/live/orbit/a", "/amb/live/orbit/b"):
+    assert run.returncode == 130, err[-3000:]   # interrupted, as ^C says
+    assert "interrupted; every node stopped" in err
+    assert "live view:" in out and "blocks lost" in out
+    for topic in topics:
         assert got["messages"].get(topic), f"no message on {topic}"
     assert not any("/frf/" in c["topic"] for c in got["channels"])   # no experiment, no FRF
     t = [m["t_s"] for m in got["messages"]["/amb/live/signals"]]
-    assert t == sorted(t) and t[-1] > 20.0   # the session's own clock, 200 samples a second of it
+    assert t == sorted(t) and t[-1] > t[0]   # the session's own clock

@@ -13,7 +13,7 @@ import pytest
 from ambid_nodes.conversions import block_data
 from ambid_nodes.loop_kernels import LOOP_COUNT, LOOP_GATE
 from ambid_nodes.parameters import ParameterError
-from ambid_nodes.plant_sim import MEASUREMENT_NAMES, PlantSim
+from ambid_nodes.plant_sim import PlantSim
 from ambid_nodes.position_controller import PositionController
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -22,6 +22,9 @@ from rclpy.qos import HistoryPolicy, QoSProfile
 from ambid_msgs.msg import ControllerDescription, PlantDescription, Sample, SampleBlock, SessionEvent, SessionStatus
 from ambid_nodes import qos
 from proc_tree import alive, descendants
+from ambid.channels import RADIAL
+
+MEASUREMENT_NAMES = RADIAL.measurement_names  # the default rig's channels
 
 NS = "/amb"
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from ambid_nodes.conversions import BadMessage, block_data, decode_message
-from ambid_nodes.plant_sim import MEASUREMENT_NAMES, PlantSim
+from ambid_nodes.plant_sim import PlantSim
 from ambid_nodes.position_controller import PositionController
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -19,6 +19,9 @@ from rclpy.serialization import deserialize_message
 from ambid_msgs.msg import Sample, SampleBlock, SessionStatus
 from ambid_nodes import qos
 from proc_tree import kill_tree
+from ambid.channels import RADIAL
+
+MEASUREMENT_NAMES = RADIAL.measurement_names  # the default rig's channels
 
 SIM_S = 0.6  # 6000 samples: lift-off and settling
 

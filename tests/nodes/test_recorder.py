@@ -27,7 +27,7 @@ from ambid_cli import cli
 from ambid_cli.commands import inspect as inspect_cmd
 from ambid_nodes.conversions import block_msg
 from ambid_nodes.node_main import SUMMARY_PREFIX
-from ambid_nodes.plant_sim import MEASUREMENT_NAMES, PlantSim
+from ambid_nodes.plant_sim import PlantSim
 from ambid_nodes.position_controller import PositionController
 from mcap.reader import make_reader
 from rclpy.node import Node
@@ -36,6 +36,9 @@ from rclpy.serialization import deserialize_message
 
 from ambid_msgs.msg import ExcitationDesign, SampleBlock, SessionEvent, SessionStatus
 from ambid_nodes import qos
+from ambid.channels import RADIAL
+
+MEASUREMENT_NAMES = RADIAL.measurement_names  # the default rig's channels
 
 NS = "/amb"
 MEAS = f"{NS}/measurement"

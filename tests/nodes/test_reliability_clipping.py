@@ -8,13 +8,17 @@ import re
 
 import numpy as np
 from ambid_nodes.conversions import block_data, block_msg
-from ambid_nodes.plant_sim import EXCITATION_NAMES, MEASUREMENT_NAMES, PlantSim
+from ambid_nodes.plant_sim import PlantSim
 from ambid_nodes.position_controller import PositionController
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from ambid_msgs.msg import ExcitationDesign, SampleBlock, SessionEvent
 from ambid_nodes import qos
+from ambid.channels import RADIAL
+
+EXCITATION_NAMES = RADIAL.excitations
+MEASUREMENT_NAMES = RADIAL.measurement_names  # the default rig's channels
 
 NS = "/clip"
 START, N = 2000, 1000  # excited samples [2000, 3000)

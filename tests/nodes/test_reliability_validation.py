@@ -14,7 +14,7 @@ from ambid_nodes.conversions import block_msg, statespace_to_msg
 from ambid_nodes.excitation_generator import ExcitationGenerator
 from ambid_nodes.frf_consumer import FrfConsumer
 from ambid_nodes.hardware_bridge import HardwareBridge
-from ambid_nodes.plant_sim import MEASUREMENT_NAMES, MEASUREMENT_UNITS, PlantSim
+from ambid_nodes.plant_sim import PlantSim
 from ambid_nodes.position_controller import PositionController
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -23,6 +23,10 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from ambid_msgs.msg import (ControllerDescription, ExcitationDesign, PlantDescription, Sample, SampleBlock,
                             SessionEvent, SessionStatus)
 from ambid_nodes import qos
+from ambid.channels import RADIAL
+
+MEASUREMENT_NAMES = RADIAL.measurement_names  # the default rig's channels
+MEASUREMENT_UNITS = ("m",) * 4 + ("A",) * 12
 
 DT = 1e-4
 R_NAMES = ("r_a_x", "r_b_x", "r_a_y", "r_b_y")

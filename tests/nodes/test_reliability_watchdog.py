@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from ambid_nodes.conversions import block_data, block_msg
 from ambid_nodes.node_main import SUMMARY_PREFIX
-from ambid_nodes.plant_sim import EXCITATION_NAMES, LANDING_S, MEASUREMENT_NAMES, PlantSim
+from ambid_nodes.plant_sim import LANDING_S, PlantSim
 from ambid_nodes.position_controller import PositionController
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -27,6 +27,10 @@ from rclpy.parameter import Parameter
 from ambid_msgs.msg import ExcitationDesign, Sample, SampleBlock, SessionEvent, SessionStatus
 from ambid_nodes import qos
 from proc_tree import kill_tree
+from ambid.channels import RADIAL
+
+EXCITATION_NAMES = RADIAL.excitations
+MEASUREMENT_NAMES = RADIAL.measurement_names  # the default rig's channels
 
 TIMEOUT_S = 0.5
 # the watchdog under test is armed with TIMEOUT_S once the loop runs: until then a loaded machine may keep a

@@ -13,11 +13,11 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from ambid.channels import RADIAL
 from ambid.frf.offline import frf_from_session
 from ambid.session import iter_messages, read_metadata, scan_session
 from ambid.session.blocks import decode_sample_block
 from ambid_nodes.conversions import block_msg
-from ambid_nodes.plant_sim import MEASUREMENT_NAMES, MEASUREMENT_UNITS
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 
@@ -30,7 +30,9 @@ REPO = Path(__file__).resolve().parents[2]
 SMALL = ["--band", "20", "400", "--resolution", "20", "--periods", "2", "--realisations", "1",
          "--transient-periods", "1", "--no-progress", "--seed", "3"]
 SESSION = "00c0ffee"
-EXC_NAMES = ["r_a_x", "r_b_x", "r_a_y", "r_b_y"]
+EXC_NAMES = list(RADIAL.excitations)
+MEASUREMENT_NAMES = RADIAL.measurement_names  # the default rig's channels
+MEASUREMENT_UNITS = ("m",) * 4 + ("A",) * 12
 
 
 class ForeignSource(Node):

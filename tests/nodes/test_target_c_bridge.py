@@ -5,6 +5,7 @@ simulated rig at the same noise."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -31,6 +32,34 @@ def start_target(model: Path, *args: str) -> tuple[subprocess.Popen, str, int]:
     return proc, f"127.0.0.1:{tp}", lp
 
 
+def start_identify_target(model: Path, rig=None) -> tuple[subprocess.Popen, str, int, int]:
+    """The C target free-running while it waits for the excitation (deterministic and fast), stopping where an
+    identify session of SMALL on ``rig`` (default the default rig) does: (process, address, bridge port,
+    the session's samples)."""
+    rig = make_rig() if rig is None else rig
+    fs = 1 / rig.dt
+    spec = DesignSpec(resolution_hz=10, n_periods=2, n_realisations=1, n_transient_periods=1)
+    _, total = session_samples(SessionConfig(experiment=spec).design(fs, inputs=rig.layout.inputs), fs)
+    return (*start_target(model, "--pace", "0", "--hold-for-excitation", "--samples", str(total), "--seed", "7"),
+            total)
+
+
+def identify_on_target(model: Path, out: Path, rig=None, *extra: str) -> int:
+    """``ambid identify --hardware`` (SMALL, ``extra`` arguments) against the C target running ``model``, held
+    for the excitation (:func:`start_identify_target`): both must end as planned; returns the session's
+    samples."""
+    proc, target, local, total = start_identify_target(model, rig)
+    try:
+        hw = cli("identify", "--hardware", target, "--local-port", str(local), "--true-model", str(model),
+                 "--out", str(out), *extra, *SMALL)
+        s = target_summary(proc)
+    finally:
+        proc.kill()
+    assert hw.returncode == 0, hw.stdout + hw.stderr
+    assert s["state"] == "done" and s["samples"] == total and s["late_excitation_samples"] == 0
+    return total
+
+
 def target_summary(proc: subprocess.Popen) -> dict:
     out, err = proc.communicate(timeout=30)
     line = next((ln for ln in out.splitlines() if ln.startswith("RT_TARGET_SUMMARY ")), None)
@@ -38,20 +67,23 @@ def target_summary(proc: subprocess.Popen) -> dict:
     return json.loads(line.split(" ", 1)[1])
 
 
-def cli(env: dict, *args: str) -> subprocess.CompletedProcess:
-    """``ambid ARGS`` on the test's own ROS domain (``env``: the ros_env fixture)."""
+def cli(*args: str) -> subprocess.CompletedProcess:
+    """``ambid ARGS`` on a ROS domain of its own (localhost only): no other test's or user's session hears it."""
+    from conftest import next_domain_id
+
+    env = dict(os.environ, ROS_DOMAIN_ID=str(next_domain_id()), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     return subprocess.run([sys.executable, "-m", "ambid_cli.cli", *args], capture_output=True, text=True,
                           timeout=240, cwd=ROOT, env=env)
 
 
-def test_graph_hardware_levitates_against_the_c_target(tmp_path, ros_env):
+def test_graph_hardware_levitates_against_the_c_target(tmp_path):
     model = tmp_path / "rig.txt"
     write_target_model(model, rig_target_model())
     # paced on absolute deadlines as on a rig, at a quarter of real time: a loaded 2-core machine keeps up with
     # it, so a lost sample is the bridge's fault, not the test machine's (real time is a bench figure)
     proc, target, local = start_target(model, "--pace", "4")
     try:
-        p = cli(ros_env, "graph", "--hardware", target, "--local-port", str(local), "--sim-seconds", "0.5")
+        p = cli("graph", "--hardware", target, "--local-port", str(local), "--sim-seconds", "0.5")
         s = target_summary(proc)
     finally:
         proc.kill()
@@ -63,25 +95,12 @@ def test_graph_hardware_levitates_against_the_c_target(tmp_path, ros_env):
           f" commanded, {s['late_samples']} late samples (max {s['max_late_us']:.0f} us), {s['overruns']} overruns")
 
 
-def test_identify_hardware_gives_the_c_target_the_accuracy_of_the_simulated_rig(tmp_path, ros_env):
+def test_identify_hardware_gives_the_c_target_the_accuracy_of_the_simulated_rig(tmp_path):
     model = tmp_path / "rig.txt"
     write_target_model(model, rig_target_model())
-    sim = cli(ros_env, "identify", "--out", str(tmp_path / "sim"), "--linear-magnets", *SMALL)
+    sim = cli("identify", "--out", str(tmp_path / "sim"), "--linear-magnets", *SMALL)
     assert sim.returncode == 0, sim.stdout + sim.stderr
-    # free-running, waiting for excitation: deterministic and fast; stops where the session does
-    fs = 1 / make_rig().dt
-    _, total = session_samples(SessionConfig(experiment=DesignSpec(resolution_hz=10, n_periods=2, n_realisations=1,
-                                                                   n_transient_periods=1)).design(fs), fs)
-    proc, target, local = start_target(model, "--pace", "0", "--hold-for-excitation", "--samples", str(total),
-                                       "--seed", "7")
-    try:
-        hw = cli(ros_env, "identify", "--hardware", target, "--local-port", str(local), "--true-model", str(model),
-                 "--out", str(tmp_path / "hw"), *SMALL)
-        s = target_summary(proc)
-    finally:
-        proc.kill()
-    assert hw.returncode == 0, hw.stdout + hw.stderr
-    assert s["state"] == "done" and s["samples"] == total and s["late_excitation_samples"] == 0
+    total = identify_on_target(model, tmp_path / "hw")
     a = json.loads((tmp_path / "sim" / "summary.json").read_text())
     b = json.loads((tmp_path / "hw" / "summary.json").read_text())
     assert b["layout"].startswith("hardware bridge") and b["frf_error"]["reference"] == "the given plant model"
@@ -100,8 +119,8 @@ def test_identify_hardware_gives_the_c_target_the_accuracy_of_the_simulated_rig(
                                   "--samples", str(total), "--seed", "1", "--linger", "0.3"],
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT / "ambid_core")
     try:
-        py = cli(ros_env, "identify", "--hardware", f"127.0.0.1:{tp}", "--local-port", str(lp), "--true-model",
-                 str(model), "--out", str(tmp_path / "py"), *SMALL)
+        py = cli("identify", "--hardware", f"127.0.0.1:{tp}", "--local-port", str(lp), "--true-model", str(model),
+                 "--out", str(tmp_path / "py"), *SMALL)
         py_target.communicate(timeout=30)
     finally:
         py_target.kill()
@@ -110,5 +129,37 @@ def test_identify_hardware_gives_the_c_target_the_accuracy_of_the_simulated_rig(
     assert ep["median"] == ea["median"] and ep["worst"] == ea["worst"]
     # recorded as any session: every sample's measurement, read back by the offline FRF above
     assert Path(b["recording"]["path"]).is_file() and b["recording"]["complete"]
-    assert b["state"] == "done" and b["simulated_time_s"] == total / fs
+    assert b["state"] == "done" and b["simulated_time_s"] == total / (1 / make_rig().dt)
     assert np.isfinite(b["noise"]["relative_frf_noise_std"])
+
+
+def test_the_c_target_runs_the_five_axis_model_over_the_bridge(tmp_path):
+    """rigs/five_axis.yaml's model in the C target: protocol version 2 carries its five axes (y, u, ic, r of
+    a_x b_x a_y b_y z); the graph levitates on all five and identify measures the 5 x 5 FRF of the model the
+    target runs."""
+    rig_file = ROOT / "rigs" / "five_axis.yaml"
+    from ambid.plant.rig import load_rig
+
+    rig = load_rig(rig_file)
+    model = tmp_path / "five.txt"
+    write_target_model(model, rig_target_model(rig))
+    assert "axes 5 a_x b_x a_y b_y z" in model.read_text()
+    # paced on absolute deadlines as on a rig, at a quarter of real time: a loaded 2-core machine keeps up with
+    # it, so a lost sample is the bridge's fault, not the test machine's (real time is a bench figure)
+    proc, target, local = start_target(model, "--pace", "4")
+    try:
+        p = cli("graph", "--hardware", target, "--local-port", str(local), "--rig", str(rig_file),
+                "--sim-seconds", "0.5")
+        s = target_summary(proc)
+    finally:
+        proc.kill()
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert "rotor levitated" in p.stdout and "lost 0 samples in 0 gaps" in p.stdout, p.stdout
+    assert s["state"] == "done" and s["samples"] >= 5000 and s["rx_rejected_by_reason"]["content"] == 0
+    # identify over the bridge: the 5 x 5 FRF against the model the target runs
+    identify_on_target(model, tmp_path / "hw", rig, "--rig", str(rig_file))
+    b = json.loads((tmp_path / "hw" / "summary.json").read_text())
+    assert b["inputs"] == list(rig.layout.inputs) and b["outputs"] == list(rig.layout.outputs)
+    print(f"five-axis C target: FRF error median {100 * b['frf_error']['median']:.2f} %, worst "
+          f"{100 * b['frf_error']['worst']:.2f} %, modes {[round(m['freq_hz'], 1) for m in b['fit']['modes']]}")
+    assert b["frf_error"]["median"] < 0.05 and b["max_mode_freq_error"] < 0.01

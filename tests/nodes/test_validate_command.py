@@ -40,6 +40,14 @@ def test_validate_runs_seeds_under_the_chosen_controller_and_reuses_them(ros_env
     assert "noise_free_rms_over_std" in kinds["parameter:ki_n_per_a"]
     assert (out / "seeds" / "seed_001" / "noise_free" / "frf.npz").is_file()
     assert kinds["pooled: parameters and modes"]["n"] >= 2 * 10
+    # the parameters measured against the BLA's, each seed's magnets' slopes at its own excitation (whose
+    # mean over the seeds is the pooled estimand's), the rig at rest beside them
+    bla = result["bla_parameters"][0]
+    assert bla["seeds"] == [1, 2] and set(bla["per_seed"]) == {"1", "2"}
+    for k in ("ki_n_per_a", "ks_n_per_m", "ks_b_over_a"):
+        own = [bla["per_seed"][s][k] for s in ("1", "2")]
+        assert own[0] != own[1] and sum(own) / 2 == pytest.approx(bla["parameters"][k], rel=1e-12)
+    assert "at_rest" in kinds["parameter:ki_n_per_a"] and "best linear" in kinds["parameter:ki_n_per_a"]["claim"]
     for seed in (1, 2):
         summary = json.loads((out / "seeds" / f"seed_{seed:03d}" / "identification.json").read_text())
         assert summary["controller"]["kind"] == "lqg"

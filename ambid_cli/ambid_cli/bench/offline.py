@@ -1,4 +1,4 @@
-"""Offline rates: a session's FRF beside a bare read of the same MCAP file, and the 4x4 fit.
+"""Offline rates: a session's FRF beside a bare read of the same MCAP file, and the fit of its FRF matrix.
 
 The session file is written here from a core-level simulation, not by the
 graph (seconds instead of minutes for the long ones): the linearised true
@@ -6,7 +6,7 @@ rig (:func:`ambid.plant.true_rig.true_linear_model`) in closed loop with the
 default PID, driven by the experiment's excitation, with white sensor noise
 of the rig on the recorded y (not fed back). The file holds what the
 recorder writes of those topics, serialised as the nodes publish them:
-``measurement`` blocks (the plant's 16 channels, 1000 samples each),
+``measurement`` blocks (the plant's y, u, ic, r of every axis of the rig, 1000 samples each),
 ``excitation`` blocks, the ``excitation/design`` message and ``/clock`` every
 100 samples, zstd-compressed chunks as the recorder's default.
 """
@@ -20,7 +20,6 @@ import time
 from collections.abc import Callable
 
 import numpy as np
-from ambid.channels import CURRENT_NAMES
 from ambid.control.closed_loop import close_loop
 from ambid.control.pid import PidParameters, pid_controller
 from ambid.excitation import ExcitationDesign
@@ -35,7 +34,6 @@ from ambid_msgs.msg import ExcitationDesign as DesignMsg
 from ambid_msgs.msg import SampleBlock
 from ambid_nodes import qos
 from ambid_nodes.conversions import block_msg, time_msg
-from ambid_nodes.plant_sim import EXCITATION_NAMES, MEASUREMENT_NAMES, MEASUREMENT_UNITS
 
 NAMESPACE = "/amb"
 EXPERIMENT_ID = "bench"
@@ -62,7 +60,7 @@ def write_simulated_session(path: str | os.PathLike, design: ExcitationDesign, s
 
     Args:
         path: output .mcap file (replaced).
-        design: the experiment; its inputs must be among CURRENT_NAMES, fs = the rig's.
+        design: the experiment; its inputs must be among the rig's (u_<axis>), fs = the rig's.
         start_index: sample index where the experiment starts.
         tail_samples: samples recorded after the experiment.
         seed: seed of the sensor noise.
@@ -76,8 +74,11 @@ def write_simulated_session(path: str | os.PathLike, design: ExcitationDesign, s
     dt = rig.dt
     if abs(design.fs_hz * dt - 1.0) > 1e-9:
         raise ValueError(f"design sample rate {design.fs_hz} Hz differs from the rig's {1 / dt:g} Hz")
-    cols = [CURRENT_NAMES.index(name) for name in design.input_names]
-    loop = close_loop(true_linear_model(rig, discrete=True), pid_controller(PidParameters(), dt))  # r -> [y; u]
+    lay = rig.layout
+    na = len(lay)
+    cols = [lay.inputs.index(name) for name in design.input_names]
+    units = lay.units("y") + lay.units("u") + lay.units("ic") + lay.units("r")
+    loop = close_loop(true_linear_model(rig, discrete=True), pid_controller(PidParameters(), dt, lay))  # r -> [y; u]
     a, b, c, d = loop.a, loop.b, loop.c, loop.d
     rng = np.random.default_rng(seed)
     noise_m = rig.values["sensor_noise_m"]
@@ -95,11 +96,11 @@ def write_simulated_session(path: str | os.PathLike, design: ExcitationDesign, s
         messages += 1
         for first in range(0, n_total, block_size):
             n = min(block_size, n_total - first)
-            r = np.zeros((n, 4))
+            r = np.zeros((n, na))
             lo, hi = max(first, start_index), min(first + n, end_exc)
             if lo < hi:
                 r[lo - first:hi - first, cols] = design.samples(lo - start_index, hi - lo)
-                exc = block_msg(lo, dt, EXCITATION_NAMES, ("A",) * 4, r[lo - first:hi - first],
+                exc = block_msg(lo, dt, lay.excitations, lay.units("r"), r[lo - first:hi - first],
                                 experiment_id=EXPERIMENT_ID)
                 w.write(f"{NAMESPACE}/excitation", serialize_message(exc), int(first * dt * 1e9))
                 messages += 1
@@ -108,14 +109,14 @@ def write_simulated_session(path: str | os.PathLike, design: ExcitationDesign, s
                 xs[k] = x
                 x = a @ x + b @ r[k]
             yu = xs @ c.T + r @ d.T
-            y = yu[:, :4] + noise_m * rng.standard_normal((n, 4))
-            u = yu[:, 4:]
+            y = yu[:, :na] + noise_m * rng.standard_normal((n, na))
+            u = yu[:, na:]
             data = np.hstack([y, u, u - r, r])
             for k in range(first + (-first % 100), first + n, 100):
                 w.write("/clock", serialize_message(Clock(clock=time_msg(k * dt))), int(k * dt * 1e9))
                 messages += 1
             final = SampleBlock.FLAG_FINAL if first + n == n_total else 0
-            meas = block_msg(first, dt, MEASUREMENT_NAMES, MEASUREMENT_UNITS, data, np.zeros(n, np.uint8), final)
+            meas = block_msg(first, dt, lay.measurement_names, units, data, np.zeros(n, np.uint8), final)
             w.write(f"{NAMESPACE}/measurement", serialize_message(meas), int((first + n) * dt * 1e9))
             messages += 1
     return {"samples": n_total, "file_bytes": os.path.getsize(path), "messages": messages,

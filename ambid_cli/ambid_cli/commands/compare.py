@@ -115,7 +115,7 @@ def _measurement_time(plt, m: dict, path: Path) -> Path:
     ax.set_xscale("log")
     ax.set_xlim(min(r[1] for r in rows) / 2, max(r[1] for r in rows) * 8)
     ax.set_xlabel(f"measurement time to a {target:g} % median FRF error [s] (log scale)")
-    ax.set_title("Measurement time per method\n(full 4 x 4 FRF matrix, same lines, peak current and settling rule)",
+    ax.set_title("Measurement time per method\n(full FRF matrix, same lines, peak current and settling rule)",
                  fontsize=10)
     ax.legend(handles=[plt.Rectangle((0, 0), 1, 1, color="tab:blue", label="reached the target"),
                        plt.Rectangle((0, 0), 1, 1, facecolor="lightgray", hatch="//", edgecolor="k",

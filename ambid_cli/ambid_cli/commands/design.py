@@ -19,7 +19,7 @@ from pathlib import Path
 
 HELP = "preview an excitation design: figures, headroom, measurement times, spectrum plot"
 
-from ambid.excitation.spec import DEFAULT_INPUTS, GRIDS, KINDS, MIMOS, PHASES, SPACINGS, build_design, prbs_clock  # noqa: F401 - re-exported
+from ambid.excitation.spec import GRIDS, KINDS, MIMOS, PHASES, SPACINGS, build_design, prbs_clock  # noqa: F401 - re-exported
 from ambid_cli.commands.inputs import (D, add_experiment_options, add_session_options, count, experiment_spec,
                                        output_dir, positive_float, positive_int)
 
@@ -30,7 +30,7 @@ def add_arguments(g: argparse.ArgumentParser) -> None:
     add_session_options(g)
     add_experiment_options(g)
     g.add_argument("--inputs", default=",".join(D.input_names),
-                   help=f"comma-separated excited inputs (default {','.join(D.input_names)})")
+                   help="comma-separated excited inputs, e.g. u_a_x,u_a_y (default: every current of the rig)")
     g.add_argument("--settle", type=positive_float, default=D.settle_s,
                    help=f"stepped sine settling wait per line [s] (default {D.settle_s:g})")
     g.add_argument("--cycles", type=positive_int, default=D.n_cycles,
@@ -51,11 +51,11 @@ def add_arguments(g: argparse.ArgumentParser) -> None:
     g.add_argument("--json", action="store_true", help="print one JSON object instead of text")
 
 
-def _plan(spec, fs_hz: float) -> list:
+def _plan(spec, fs_hz: float, inputs) -> list:
     from ambid.excitation import plan_measurements
 
     grid = spec.grid if spec.kind == "multisine" and spec.grid else "random_odd"
-    return plan_measurements(spec.band_hz, spec.resolution_hz, fs_hz, spec.input_names, spec.peak_current_a,
+    return plan_measurements(spec.band_hz, spec.resolution_hz, fs_hz, spec.input_names or inputs, spec.peak_current_a,
                              n_periods=spec.n_periods, n_transient_periods=spec.n_transient_periods,
                              n_realisations=spec.n_realisations, grid=grid, settle_s=spec.settle_s,
                              n_cycles=spec.n_cycles, seed=spec.seed)
@@ -74,8 +74,8 @@ def run(args: argparse.Namespace) -> int:
         speed = float(rig.rotor_speed_rpm) if args.speed_rpm is None else args.speed_rpm
         if not (speed >= 0 and speed < 1e6):
             raise ValueError(f"--speed-rpm must be a speed in rpm >= 0, got {args.speed_rpm!r}")
-        design = spec.build(fs_hz, speed)
-        plan = None if args.no_plan else _plan(spec, fs_hz)
+        design = spec.build(fs_hz, speed, rig.layout.inputs)
+        plan = None if args.no_plan else _plan(spec, fs_hz, rig.layout.inputs)
     except (ValueError, OSError) as exc:
         print(f"ambid design: {exc}", file=sys.stderr)
         return 2
@@ -110,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
             print(line)
         print(headroom["text"])
         if plan is not None:
-            n = len(spec.input_names)
+            n = len(design.input_names)   # the spec's inputs, else every current of the rig
             print(f"\nmeasurement time of the full {n} x {n} FRF matrix on the same lines:")
             print(format_plan(plan))
         if png is not None:

@@ -72,7 +72,8 @@ def run_graph(args: argparse.Namespace, rig) -> int:
                       rig=rig, controller_design=ctrl, session=session)
     layout = "separate processes" if args.processes else "one process (EventsExecutor)"
     layout += f", {ctrl.kind.upper()} controller"
-    print(f"ambid graph: {session_words(session)}, plant_sim + position_controller in {layout}, namespace "
+    print(f"ambid graph: {session_words(session)}, plant_sim + position_controller in {layout}, axes "
+          f"{' '.join(rig.layout.axes)}, namespace "
           f"{args.namespace}, ROS_DOMAIN_ID {session_domain_id()}, {args.sim_seconds:g} s simulated", flush=True)
     cfg.report_foreign = lambda found: print_foreign("graph", found)  # before anything starts
     try:

@@ -49,6 +49,7 @@ def levitation_lines(f: dict) -> str:
     if not f.get("samples_evaluated"):
         return (f"displacement RMS: no samples to judge (the run ended at sample {f.get('samples')}, before its "
                 f"judged window; lift-off at sample {f.get('lift_off_index')})")
-    return (f"displacement RMS: {f['displacement_rms_m'] * 1e6:.3f} um over samples [{f['evaluated_from_index']}, "
+    axes = f" over {len(f['displacement_mean_m'])} axes," if f.get("displacement_mean_m") is not None else ""
+    return (f"displacement RMS: {f['displacement_rms_m'] * 1e6:.3f} um{axes} over samples [{f['evaluated_from_index']}, "
             f"{f['evaluated_to_index']}) (max {f['max_abs_displacement_m'] * 1e6:.2f} um, lift-off at sample "
             f"{f['lift_off_index']})")

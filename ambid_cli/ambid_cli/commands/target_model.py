@@ -36,7 +36,8 @@ def run(args: argparse.Namespace) -> int:
     except (ValueError, OSError) as exc:
         raise BadInput(str(exc)) from None
     print(f"ambid target-model: {out}: {model.plant.n_states}-state plant (true rig, ZOH at {model.dt:g} s), "
-          f"{model.controller.n_states}-state controller, sensor noise {model.noise_std_m[0]:.3g} m")
+          f"{model.controller.n_states}-state controller, axes {' '.join(model.layout.axes)}, sensor noise "
+          f"{', '.join(f'{v:.3g}' for v in dict.fromkeys(model.noise_std_m.tolist()))} m")
     binary = TARGET_C_DIR / "ambp_udp_target"
     if binary.is_file() and os.access(binary, os.X_OK):
         print(f"run it: {binary} --model {out} --bind 127.0.0.1:50001 --bridge 127.0.0.1:50002")

@@ -6,10 +6,18 @@ noise and the multisine's random phases. Each seed's update starts from a
 nominal rig drawn from the tolerances around the simulated one, as a data
 sheet misses a real rig (:func:`ambid.studies.coverage.draw_nominal_rig`;
 ``seed_NNN/nominal_rig.yaml``, and per seed in coverage.json); the update
-never sees the truth. Each finished seed leaves
+never sees the truth. Each seed also simulates its noise-free twin (the same
+rig, controller and design without sensor noise,
+:func:`ambid.studies.bla_truth.noise_free_twin`). Each finished seed leaves
 ``DIR/seeds/seed_NNN/record.json`` (what it claimed beside the true rig's
 values, :func:`ambid.studies.coverage.seed_record`); a later run with the same
 options reuses those, so a stopped run loses only the sessions under way.
+The updated parameters' intervals claim the parameters of the rig's best
+linear approximation at the excitation level: validate computes them from all
+seeds' twins (:func:`ambid.studies.bla_truth.bla_parameters`), moves the
+magnets' slopes to each seed's own excitation
+(:func:`ambid.studies.bla_truth.at_own_excitation`) and measures the coverage
+against them, the rig's values at rest beside them.
 Sessions run as tasks on Dask distributed (:mod:`ambid_cli.sessions_on_dask`):
 a local cluster of this machine's cores, or ``--scheduler ADDRESS``. Writes
 ``DIR/coverage.json`` (:func:`ambid.studies.coverage.coverage_table`) and
@@ -86,9 +94,9 @@ def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_m
 
     from ambid.excitation.spec import DesignSpec
     from ambid.fit.model_update import total_lag
-    from ambid.frf.offline import frf_from_session
     from ambid.jsonable import to_jsonable
     from ambid.plant.rig import load_rig, make_rig
+    from ambid.studies.bla_truth import noise_free_twin
     from ambid.studies.coverage import draw_nominal_rig, frf_record, seed_record
     from ambid.studies.identification import identify_session, refit_parameters
 
@@ -105,7 +113,8 @@ def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_m
     nominal_path.write_text(yaml.safe_dump(to_jsonable(nominal), sort_keys=False))
     cfg = SessionConfig(out_dir=out, experiment=DesignSpec(seed=seed), rig_file=rig_path, progress=False,
                         nonlinear_magnets=not linear_magnets, controller=controller_spec)
-    run = run_session_composed(cfg, plan_session(cfg, rig))
+    plan = plan_session(cfg, rig)
+    run = run_session_composed(cfg, plan)
     summary = identify_session(run["mcap_path"], out, estimator=cfg.estimator, report=False, rig=nominal_path)
     frf = np.load(out / "frf.npz")
     truths = {"small-signal truth": frf["true_frf"]}
@@ -117,46 +126,32 @@ def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_m
         variances["printed band (total, pooled)"] = frf["var_band"]
     rec = seed_record(summary, frf["frf"], truths, variances)
     rec["nominal"] = drawn
-    # the noise-free twin: the same seed (grid, phases, everything) without sensor noise. Its FRF differs
-    # from this session's by the noise alone, the truth a noise-only band claims to hold; the parameters
-    # fitted to it with this session's weights carry only what the excitation itself does to them (the
-    # magnets' distortion, the best linear approximation's departure from the rig)
-    twin_cfg = SessionConfig(out_dir=out / "noise_free", experiment=cfg.experiment, progress=False,
-                             rig_file=noise_free_rig_file(rig_path, out / "noise_free_rig.yaml"),
-                             nonlinear_magnets=not linear_magnets, controller=controller_spec)
-    twin_run = run_session_composed(twin_cfg)
-    twin = frf_from_session(twin_run["mcap_path"])
-    np.savez(out / "noise_free" / "frf.npz", freq_hz=twin.freq_hz, frf=twin.frf)
+    # the noise-free twin: the same seed (grid, phases, everything) without sensor noise, simulated here (what
+    # the session's graph measures without noise, bit for bit). Its FRF differs from this session's by the
+    # noise alone, the truth a noise-only band claims to hold; the parameters fitted to it with this session's
+    # weights carry only what the excitation itself does to them (the magnets' distortion, the best linear
+    # approximation's departure from the rig); the twins of all seeds give the parameters' estimand (run)
+    twin = noise_free_twin(rig, plan.controller.model, plan.controller.current_limit_a, plan.design,
+                           nonlinear_magnets=not linear_magnets, estimator=cfg.estimator)
+    weights = frf["var_fit"] if "var_fit" in frf else frf["var_band"]
+    (out / "noise_free").mkdir(exist_ok=True)
+    np.savez(out / "noise_free" / "frf.npz", freq_hz=twin.freq_hz, frf=twin.frf, var_fit=weights)
     if twin.frf.shape == frf["frf"].shape and np.allclose(twin.freq_hz, frf["freq_hz"]):
         rec["frf"]["noise only vs noise-free twin"] = frf_record(frf["frf"], twin.frf,
                                                                {"noise only": frf["var_noise"]})["noise only"]
-        refit = refit_parameters(summary, load_rig(nominal_path), twin.freq_hz, twin.frf,
-                                 frf["var_fit"] if "var_fit" in frf else frf["var_band"])
+        refit = refit_parameters(summary, load_rig(nominal_path), twin.freq_hz, twin.frf, weights)
         for name, value in refit.items():
             if f"parameter:{name}" in rec["intervals"]:
                 rec["intervals"][f"parameter:{name}"]["noise_free"] = value
         if "derived:total_lag_s" in rec["intervals"]:
             values = {k: v["value"] for k, v in summary["update"]["parameters"].items()}
             rec["intervals"]["derived:total_lag_s"]["noise_free"] = total_lag({**values, **refit})
-    Path(twin_run["mcap_path"]).unlink(missing_ok=True)
     rec.update(seed=seed, fingerprint=fingerprint, wall_s=time.perf_counter() - t0)
     tmp = out / "record.json.tmp"
     tmp.write_text(json.dumps(rec, indent=1))
     tmp.replace(out / "record.json")
     Path(run["mcap_path"]).unlink(missing_ok=True)   # 19 MB a seed; the record and frf.npz stay
     return rec
-
-
-def noise_free_rig_file(rig_path: str, dest: Path) -> str:
-    """The rig of ``rig_path`` (the built-in one if empty) without sensor noise, written to ``dest``."""
-    import yaml
-
-    from ambid.plant.rig import read_rig_file
-
-    data = read_rig_file(Path(rig_path).resolve()) if rig_path else {}
-    data["sensor_noise_m"] = 0.0
-    dest.write_text(yaml.safe_dump(data, sort_keys=False))
-    return str(dest)
 
 
 def reusable_record(path: Path, fingerprint: str) -> dict | None:
@@ -168,8 +163,49 @@ def reusable_record(path: Path, fingerprint: str) -> dict | None:
     return rec if isinstance(rec, dict) and rec.get("fingerprint") == fingerprint else None
 
 
+def bla_estimands(seeds_dir: Path, records: dict[int, dict], rig_path: str) -> tuple[dict[int, dict], list[dict]]:
+    """The BLA parameters each seed's intervals claim (:func:`ambid.studies.bla_truth.bla_parameters`): the seeds
+    of one model structure (the update's parameters and free ones) share one pooled estimand, their noise-free
+    twins pooled (each seed's own twin among them, one in N), and each seed's magnets' slopes moved from it by
+    its own excitation (:func:`ambid.studies.bla_truth.at_own_excitation`).
+
+    Returns:
+        (seed -> estimand, [{seeds, names, free, parameters: the pooled estimand, slopes_mean: the seeds'
+        mean slopes at their own excitation, per_seed: seed -> its slopes' estimand}, ...] for coverage.json).
+    """
+    import numpy as np
+
+    from ambid.plant.rig import load_rig, make_rig
+    from ambid.studies.bla_truth import SLOPES, Twin, at_own_excitation, bla_parameters
+
+    rig = load_rig(rig_path) if rig_path else make_rig()
+    groups: dict[tuple, list[int]] = {}
+    for s, rec in sorted(records.items()):
+        twin = seeds_dir / f"seed_{s:03d}" / "noise_free" / "frf.npz"
+        if rec.get("model") and rec["model"]["free"] and twin.is_file():
+            groups.setdefault((tuple(rec["model"]["names"]), tuple(rec["model"]["free"])), []).append(s)
+    per_seed, listed = {}, []
+    for (names, free), seeds in groups.items():
+        twins = []
+        for s in seeds:
+            with np.load(seeds_dir / f"seed_{s:03d}" / "noise_free" / "frf.npz") as z:
+                twins.append(Twin(z["freq_hz"], z["frf"], z["var_fit"]))
+        est = bla_parameters(rig, twins, names, free)
+        # each seed's grid and amplitudes set its own excitation level: the magnets' slopes at it (the
+        # summary's truth for them) move its estimand from the pooled one
+        own = {s: {k: float(row["true"]) for k in SLOPES
+                   if (row := records[s]["intervals"].get(f"parameter:{k}")) and row.get("true") is not None}
+               for s in seeds}
+        pooled = {k: float(np.mean([o[k] for o in own.values()])) for k in SLOPES
+                  if all(k in o for o in own.values())}
+        per_seed.update({s: at_own_excitation(est, own[s], pooled) for s in seeds})
+        listed.append(dict(seeds=seeds, names=list(names), free=list(free), parameters=est,
+                           slopes_mean=pooled, per_seed={str(s): {k: per_seed[s][k] for k in pooled} for s in seeds}))
+    return per_seed, listed
+
+
 def run(args: argparse.Namespace) -> int:
-    from ambid.studies.coverage import coverage_figure, coverage_table
+    from ambid.studies.coverage import coverage_figure, coverage_table, with_bla_truth
 
     # a bad rig or controller file, or a controller that cannot hold the rig, stops here before any session
     checked_controller(args.controller, rig_file(args.rig))
@@ -210,12 +246,17 @@ def run(args: argparse.Namespace) -> int:
     if not records:
         print("ambid validate: no session finished; nothing to tabulate", file=sys.stderr)
         return 1
-    recs = [records[s] for s in sorted(records)]
+    # what the parameters' intervals claim: the rig's best linear approximation at this excitation level
+    t_bla = time.perf_counter()
+    estimands, bla_listed = bla_estimands(out / "seeds", records, args.rig)
+    print(f"ambid validate: the BLA parameters from {len(estimands)} noise-free twins "
+          f"({time.perf_counter() - t_bla:.0f} s)", flush=True)
+    recs = [with_bla_truth(records[s], estimands[s]) if s in estimands else records[s] for s in sorted(records)]
     table = coverage_table(recs)
     result = dict(seeds=sorted(records), n_seeds=len(recs), rig=args.rig or "built-in",
                   session="ambid identify's default session, seed = noise and random phases; each seed's update "
                           "from a nominal rig drawn from the tolerances (nominal_models)",
-                  wall_s=time.perf_counter() - t0, kinds=table,
+                  wall_s=time.perf_counter() - t0, kinds=table, bla_parameters=bla_listed,
                   nominal_models={str(s): records[s].get("nominal") for s in sorted(records)})
     (out / "coverage.json").write_text(json.dumps(result, indent=1))
     if not args.no_figure:
@@ -230,26 +271,40 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _at_rest(r: dict) -> tuple[str, str]:
+    """('coverage, std ratio' against the rig at rest, the BLA's shift from it in claimed std), or blanks."""
+    a = r.get("at_rest")
+    if not a:
+        return "", ""
+    shift = a.get("shift_over_std")
+    return f"{a['coverage']:.3f}, {a['std_ratio']:.2f}", "" if shift is None else f"{shift:+.2f}"
+
+
 def coverage_markdown(table: dict) -> str:
-    """The coverage table in markdown: per interval its nominal level, coverage and binomial interval."""
-    rows = ["| interval | nominal | coverage | 95 % binomial | n | empirical / claimed std |",
-            "| --- | --- | --- | --- | --- | --- |"]
+    """The coverage table in markdown: per interval its nominal level, coverage and binomial interval, the
+    empirical / claimed std, and for the updated parameters the same against the rig at rest beside the
+    shift of what they claim (the best linear approximation's parameter) from it."""
+    rows = ["| interval | nominal | coverage | 95 % binomial | n | empirical / claimed std | at rest: coverage, "
+            "std ratio | BLA - at rest [claimed std] |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- |"]
     for k, r in table.items():
         if r.get("coverage") is not None:
+            rest, shift = _at_rest(r)
             rows.append(f"| {k}{' (noise only)' if r.get('noise_only') else ''} | {r['nominal']:.3f} | "
                         f"{r['coverage']:.3f} | {r['ci95'][0]:.3f}..{r['ci95'][1]:.3f} | {r['n']} | "
-                        f"{r['std_ratio']:.2f} |")
+                        f"{r['std_ratio']:.2f} | {rest} | {shift} |")
     return "\n".join(rows)
 
 
 def format_table(table: dict) -> str:
     lines = [f"{'interval':62s} {'nominal':>7s} {'coverage':>8s} {'95 % binomial':>15s} {'n':>6s} "
-             f"{'emp/claimed std':>15s} {'rms |e|/sigma':>13s}"]
+             f"{'emp/claimed std':>15s} {'rms |e|/sigma':>13s} {'at rest: cov, ratio':>19s} {'shift':>6s}"]
     for k, r in table.items():
         if r.get("coverage") is None:
             continue
         z = f"{r['z_rms']:13.2f}" if r.get("z_rms") is not None else f"{'':13s}"
+        rest, shift = _at_rest(r)
         lines.append(f"{k:62s} {r['nominal']:7.3f} {r['coverage']:8.3f} "
-                     f"{r['ci95'][0]:7.3f}..{r['ci95'][1]:5.3f} {r['n']:6d} {r['std_ratio']:15.2f} {z}"
-                     + ("  (noise only)" if r.get("noise_only") else ""))
+                     f"{r['ci95'][0]:7.3f}..{r['ci95'][1]:5.3f} {r['n']:6d} {r['std_ratio']:15.2f} {z} "
+                     f"{rest:>19s} {shift:>6s}" + ("  (noise only)" if r.get("noise_only") else ""))
     return "\n".join(lines)

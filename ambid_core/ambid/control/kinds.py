@@ -35,7 +35,7 @@ class ControllerDesign:
 
     Attributes:
         kind: the name it was designed under.
-        model: discrete state space, y (4) [m] -> ic (4) [A], computational delay included.
+        model: discrete state space, y (na) [m] -> ic (na) [A] on the rig's axes, computational delay included.
         current_limit_a: saturation of ic [A].
         delay_samples: computational delay [samples].
         parameters: JSON-able design parameters (they travel in the controller description).
@@ -50,7 +50,7 @@ class ControllerDesign:
 
 def design_pid(rig: Rig, pid: PidParameters) -> ControllerDesign:
     """The decentralised PID with its filters (:mod:`ambid.control.pid`)."""
-    return ControllerDesign("pid", pid_controller(pid, rig.dt), pid.current_limit_a, pid.delay_samples,
+    return ControllerDesign("pid", pid_controller(pid, rig.dt, rig.layout), pid.current_limit_a, pid.delay_samples,
                             pid_parameters_dict(pid))
 
 
@@ -104,7 +104,7 @@ def _with_parameters(cls, params: Mapping, what: str):
 
 def design_file(path: str | Path, rig: Rig, pid: PidParameters) -> ControllerDesign:
     """A user's controller from a file, saturated at the PID's current limit."""
-    model = load_controller(path, rig.dt)
+    model = load_controller(path, rig.dt, layout=rig.layout)
     feedthrough = bool(np.any(model.d != 0))
     return ControllerDesign("file", model, pid.current_limit_a, 0 if feedthrough else 1,
                             {"file": str(Path(path).resolve()), "n_states": model.n_states,

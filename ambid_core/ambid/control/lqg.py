@@ -7,7 +7,7 @@ the control rate) with
   ic[k] depends on y[k-1] and older, like the PID of
   :mod:`ambid.control.pid` (extra samples of delay are added to the design
   model as input-delay states);
-* a constant input-disturbance model d (4 states, a current offset per
+* a constant input-disturbance model d (na states, a current offset per
   axis) that the estimator tracks and the control cancels, so the rotor
   levitates without offset under gravity and model errors (integral
   action).
@@ -30,7 +30,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import linalg
 
-from ambid.channels import CURRENT_NAMES, DISPLACEMENT_NAMES
 from ambid.plant.analytical import analytical_model
 from ambid.plant.rig import Rig
 from ambid.statespace import StateSpace, delay, series
@@ -105,12 +104,13 @@ def lqg_design_model(rig: Rig, params: LqgParameters) -> StateSpace:
     plant = analytical_model(rig, params.n_bending).to_discrete(rig.dt)
     extra = int(params.delay_samples) - 1
     if extra:
-        plant = series(delay(4, extra, rig.dt), plant)
+        plant = series(delay(plant.n_inputs, extra, rig.dt), plant)
     return plant
 
 
 def lqg_controller(rig: Rig, params: LqgParameters | None = None) -> StateSpace:
-    """Discrete LQG controller y (4) [m] -> ic (4) [A], minus sign and computational delay included.
+    """Discrete LQG controller y (na) [m] -> ic (na) [A] on the rig's axes, minus sign and computational
+    delay included.
 
     Args:
         rig: rig whose analytical model is the design model.
@@ -119,7 +119,7 @@ def lqg_controller(rig: Rig, params: LqgParameters | None = None) -> StateSpace:
     Returns:
         StateSpace, dt = rig.dt, D = 0 (ic[k] depends on y[k-1] and older);
         states: predicted design-model state, the disturbance estimate, then
-        (delay_samples - 1) x 4 output-delay states.
+        (delay_samples - 1) x na output-delay states.
 
     Raises:
         ValueError: a Riccati equation has no stabilising solution (the
@@ -128,7 +128,8 @@ def lqg_controller(rig: Rig, params: LqgParameters | None = None) -> StateSpace:
     p = LqgParameters() if params is None else params
     plant = lqg_design_model(rig, p)
     a, b, c = plant.a, plant.b, plant.c
-    n = a.shape[0]
+    n, na = a.shape[0], b.shape[1]
+    eye = np.eye(na)
     # state scaling: Riccati solvers behave with states of similar size
     scale = _state_scales(a, b, c)
     a_s, b_s, c_s = a * (1 / scale)[:, None] * scale, b / scale[:, None], c * scale
@@ -137,7 +138,7 @@ def lqg_controller(rig: Rig, params: LqgParameters | None = None) -> StateSpace:
     q += p.state_weight * np.trace(q) / n * np.eye(n)
     if p.resonance_weight > 0:
         q += p.resonance_weight * np.trace(q) * _resonance_cost(a_s, rig.dt)
-    r = np.eye(4) / p.current_scale_a**2
+    r = eye / p.current_scale_a**2
     try:
         x_lqr = linalg.solve_discrete_are(a_s, b_s, q, r)
         gain_s = linalg.solve(r + b_s.T @ x_lqr @ b_s, b_s.T @ x_lqr @ a_s)
@@ -146,19 +147,19 @@ def lqg_controller(rig: Rig, params: LqgParameters | None = None) -> StateSpace:
                          "check the weights") from None
     gain = gain_s / scale  # in unscaled states
     # estimator on z = [x; d]
-    az = np.block([[a, b], [np.zeros((4, n)), np.eye(4)]])
-    bz = np.vstack([b, np.zeros((4, 4))])
-    cz = np.hstack([c, np.zeros((4, 4))])
-    zscale = np.concatenate([scale, np.full(4, p.disturbance_drift_a)])
+    az = np.block([[a, b], [np.zeros((na, n)), eye]])
+    bz = np.vstack([b, np.zeros((na, na))])
+    cz = np.hstack([c, np.zeros((na, na))])
+    zscale = np.concatenate([scale, np.full(na, p.disturbance_drift_a)])
     az_s, cz_s = az * (1 / zscale)[:, None] * zscale, cz * zscale
-    g_in = np.vstack([b, np.zeros((4, 4))])
+    g_in = np.vstack([b, np.zeros((na, na))])
     w = p.input_noise_a**2 * g_in @ g_in.T
-    w[n:, n:] += p.disturbance_drift_a**2 * np.eye(4)
+    w[n:, n:] += p.disturbance_drift_a**2 * eye
     w_s = w / np.outer(zscale, zscale)
     w_s[:n, :n] += p.state_noise**2 * np.eye(n)
-    w_s += 1e-9 * np.trace(w_s) / (n + 4) * np.eye(n + 4)
+    w_s += 1e-9 * np.trace(w_s) / (n + na) * np.eye(n + na)
     sigma_y = p.measurement_noise_m if p.measurement_noise_m is not None else max(rig.sensor_noise_m, 0.05e-6)
-    v = sigma_y**2 * np.eye(4)
+    v = sigma_y**2 * eye
     try:
         pz = linalg.solve_discrete_are(az_s.T, cz_s.T, w_s, v)
         kp_s = az_s @ pz @ cz_s.T @ np.linalg.inv(cz_s @ pz @ cz_s.T + v)
@@ -166,24 +167,25 @@ def lqg_controller(rig: Rig, params: LqgParameters | None = None) -> StateSpace:
         raise ValueError(f"lqg_controller: the Kalman Riccati equation has no stabilising solution ({exc}); "
                          "check the noise levels") from None
     k_pred = kp_s * zscale[:, None]
-    lz = np.hstack([gain, np.eye(4)])
+    lz = np.hstack([gain, eye])
     ak = az - bz @ lz - k_pred @ cz
-    ctl = StateSpace(ak, k_pred, -lz, np.zeros((4, 4)), rig.dt)
+    ctl = StateSpace(ak, k_pred, -lz, np.zeros((na, na)), rig.dt)
     extra = int(p.delay_samples) - 1
     if extra:  # the design model delays its input; the controller's output must wait as long
-        ctl = series(ctl, delay(4, extra, rig.dt))
-    ic_names = tuple(name.replace("u_", "ic_") for name in CURRENT_NAMES)
-    return ctl._replace(input_names=DISPLACEMENT_NAMES, output_names=ic_names, input_units=("m",) * 4,
-                        output_units=("A",) * 4)
+        ctl = series(ctl, delay(na, extra, rig.dt))
+    layout = rig.layout
+    return ctl._replace(input_names=layout.outputs, output_names=layout.controls, input_units=layout.units("y"),
+                        output_units=layout.units("ic"))
 
 
 def _cost_outputs(rig: Rig, p: LqgParameters, plant: StateSpace) -> np.ndarray:
-    """(4, n) map from the design state to the regulated displacements."""
+    """(na, n) map from the design state to the regulated displacements."""
     if p.regulate == "sensors":
         return plant.c
     rotor = rig.rotor_model(p.n_bending)
-    n_delay = plant.n_states - rotor.n_states - 4  # series(delay, plant): delay states come first
-    return np.hstack([np.zeros((4, n_delay)), rotor.c_bearing, np.zeros((4, 4))])
+    na = plant.n_inputs
+    n_delay = plant.n_states - rotor.n_states - na  # series(delay, plant): delay states come first
+    return np.hstack([np.zeros((na, n_delay)), rotor.c_bearing, np.zeros((na, na))])
 
 
 def _resonance_cost(a: np.ndarray, dt: float, max_damping: float = 0.05) -> np.ndarray:

@@ -8,12 +8,12 @@ controller that samples, computes and applies at the next sample instant.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 from scipy import signal
 
-from ambid.channels import CURRENT_NAMES, DISPLACEMENT_NAMES
+from ambid.channels import RADIAL, Layout
 from ambid.statespace import StateSpace, block_diag, delay, series
 
 
@@ -25,7 +25,9 @@ class PidParameters:
 
     The defaults are tuned for the default rig (docs/default_rig.md): input
     sensitivity peak 2.41 on the analytical model, 2.71 on the true rig
-    (ISO 14839-3 zone A).
+    (ISO 14839-3 zone A). An axial axis (``z``, rigs/five_axis.yaml) carries
+    the whole rotor mass on one magnet pair: it takes its own proportional
+    gain and derivative time, the rest as the radial axes.
 
     Attributes:
         kp_a_per_m: proportional gain [A/m].
@@ -35,6 +37,8 @@ class PidParameters:
         lowpass_hz: first-order low-pass corner [Hz].
         delay_samples: computational delay [samples].
         current_limit_a: saturation of ic [A].
+        axial_kp_a_per_m: proportional gain of an axial axis [A/m].
+        axial_td_s: derivative time of an axial axis [s].
     """
 
     kp_a_per_m: float = 12_000.0
@@ -44,19 +48,23 @@ class PidParameters:
     lowpass_hz: float = 5_000.0
     delay_samples: int = 1
     current_limit_a: float = 3.0
+    axial_kp_a_per_m: float = 16_000.0
+    axial_td_s: float = 3.0e-3
 
     def __post_init__(self) -> None:
         checks = {
             "kp_a_per_m": (0.0, 1e9), "ti_s": (1e-5, 1e4), "td_s": (0.0, 1.0),
             "derivative_filter_n": (1.0, 1000.0), "lowpass_hz": (1.0, 1e6),
             "delay_samples": (0, 100), "current_limit_a": (1e-3, 1e3),
+            "axial_kp_a_per_m": (0.0, 1e9), "axial_td_s": (0.0, 1.0),
         }
         for name, (lo, hi) in checks.items():
             v = getattr(self, name)
             if not (np.isfinite(v) and lo <= v <= hi):
                 raise ValueError(f"PID parameter {name} = {v!r} is outside [{lo:g}, {hi:g}]")
-        if self.kp_a_per_m <= 0:
-            raise ValueError("PID parameter kp_a_per_m must be > 0")
+        for name in ("kp_a_per_m", "axial_kp_a_per_m"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"PID parameter {name} must be > 0")
 
 
 def pid_axis(p: PidParameters, dt: float) -> StateSpace:
@@ -83,12 +91,15 @@ def pid_axis(p: PidParameters, dt: float) -> StateSpace:
     return StateSpace(ad, bd, cd, dd, dt)
 
 
-def pid_controller(p: PidParameters, dt: float) -> StateSpace:
-    """Decentralised 4-axis PID with computational delay, y (4) [m] -> ic (4) [A]."""
-    axes = block_diag(*(pid_axis(p, dt) for _ in range(4)))
-    k = series(axes, delay(4, p.delay_samples, dt))
-    return k._replace(input_names=DISPLACEMENT_NAMES, output_names=tuple(n.replace("u_", "ic_") for n in CURRENT_NAMES),
-                      input_units=("m",) * 4, output_units=("A",) * 4)
+def pid_controller(p: PidParameters, dt: float, layout: Layout = RADIAL) -> StateSpace:
+    """Decentralised PID on every axis of ``layout`` (the rig's), with computational delay,
+    y (na) [m] -> ic (na) [A]."""
+    na = len(layout)
+    axial = replace(p, kp_a_per_m=p.axial_kp_a_per_m, td_s=p.axial_td_s)
+    axes = block_diag(*(pid_axis(axial if j in layout.axial else p, dt) for j in range(na)))
+    k = series(axes, delay(na, p.delay_samples, dt))
+    return k._replace(input_names=layout.outputs, output_names=layout.controls,
+                      input_units=layout.units("y"), output_units=layout.units("ic"))
 
 
 def pid_parameters_dict(p: PidParameters) -> dict:

@@ -63,19 +63,3 @@ def statespace_step(w: np.ndarray, n: int, p: int, q: int, mat: int, limit: floa
 
 
 STATESPACE_STEP_ARGS = (VEC, I8, I8, I8, I8, F8)
-
-
-@njit(cache=True)
-def statespace_step4(w: np.ndarray, n: int, mat: int, limit: float,
-                     y0: float, y1: float, y2: float, y3: float) -> tuple[float, float, float, float]:
-    """:func:`statespace_step` of a 4-input, 4-output model for the input y0..y3; returns the output."""
-    w[n] = y0
-    w[n + 1] = y1
-    w[n + 2] = y2
-    w[n + 3] = y3
-    statespace_step(w, n, 4, 4, mat, limit)
-    o = n + 4
-    return w[o], w[o + 1], w[o + 2], w[o + 3]
-
-
-STATESPACE_STEP4_ARGS = (VEC, I8, I8, F8, F8, F8, F8, F8)

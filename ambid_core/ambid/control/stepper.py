@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ambid.compiled import KernelOwner, compiled
-from ambid.control.step_kernel import (STATESPACE_STEP4_ARGS, STATESPACE_STEP_ARGS, statespace_step, statespace_step4,
-                                       statespace_work)
+from ambid.control.step_kernel import STATESPACE_STEP_ARGS, statespace_step, statespace_work
 from ambid.statespace import StateSpace
 
 
@@ -19,7 +18,7 @@ class ControllerStepper(KernelOwner):
 
     Pipelining: a strictly proper controller (D = 0) knows ic[k+1] as soon
     as it has y[k]: ``current_output()`` gives ic[0], then each
-    ``step_ahead4(y[k])`` returns ic[k+1], the sequence ``step4`` gives one
+    ``step_ahead(y[k])`` returns ic[k+1], the sequence ``step`` gives one
     sample later.
 
     Args:
@@ -27,7 +26,7 @@ class ControllerStepper(KernelOwner):
         current_limit_a: output saturation [A].
     """
 
-    _UNPICKLED = ("_step", "_step4")  # the compiled kernels, bound again in a copy
+    _UNPICKLED = ("_step",)  # the compiled kernel, bound again in a copy
 
     def __init__(self, model: StateSpace, current_limit_a: float) -> None:
         if model.dt <= 0:
@@ -44,28 +43,36 @@ class ControllerStepper(KernelOwner):
             mats.append(np.block([[model.c @ model.a, model.c @ model.b], [model.a, model.b]]))
         self._w, offsets = statespace_work(n, p, q, mats)  # x, y, ic, the matrices
         self._mat = offsets[0]
-        four = p == 4 and q == 4
-        self._mat4 = offsets[0] if four else -1
-        self._mat_ahead4 = offsets[1] if four and proper else -1
+        self._mat_ahead = offsets[1] if proper else -1
         self._proper = proper
         self._bind()
 
+    @property
+    def n_inputs(self) -> int:
+        """p, the measured displacements y taken per step."""
+        return self._p
+
+    @property
+    def n_outputs(self) -> int:
+        """q, the control currents ic returned per step."""
+        return self._n_out
+
     def kernel_args(self, ahead: bool) -> tuple[np.ndarray, int, int, float]:
         """(work vector, state count n, step-matrix offset, output limit [A]) for a compiled caller that
-        steps a 4 x 4 controller itself (:func:`ambid.control.step_kernel.statespace_step` on ``w``; y at
-        w[n:n + 4], the output at w[n + 4:n + 8]); ``ahead``: the matrix of ``step_ahead4``.
+        steps the controller itself (:func:`ambid.control.step_kernel.statespace_step` on ``w`` with
+        :attr:`n_inputs` p and :attr:`n_outputs` q; y at w[n:n + p], the output at w[n + p:n + p + q]);
+        ``ahead``: the matrix of ``step_ahead``.
 
         Raises:
-            ValueError: the controller is not 4 x 4, or ``ahead`` and it has feedthrough.
+            ValueError: ``ahead`` and the controller has feedthrough.
         """
-        mat = self._mat_ahead4 if ahead else self._mat4
+        mat = self._mat_ahead if ahead else self._mat
         if mat < 0:
-            raise ValueError(f"kernel_args: needs a 4 x 4 controller{' without feedthrough' if ahead else ''}")
+            raise ValueError("kernel_args: the step ahead needs a controller without feedthrough")
         return self._w, self._n, mat, self._limit
 
     def _bind(self) -> None:
         self._step = compiled(statespace_step, STATESPACE_STEP_ARGS)
-        self._step4 = compiled(statespace_step4, STATESPACE_STEP4_ARGS)
 
     @property
     def strictly_proper(self) -> bool:
@@ -102,18 +109,6 @@ class ControllerStepper(KernelOwner):
         self._step(w, n, p, q, self._mat, self._limit)
         return w[n + p:n + p + q].tolist()
 
-    def step4(self, y0: float, y1: float, y2: float, y3: float) -> tuple[float, float, float, float]:
-        """``step([y0, y1, y2, y3])`` of a 4-input, 4-output controller, as a tuple of 4 floats [A].
-
-        Raises:
-            ValueError: the controller is not 4 x 4 (use ``step``).
-        """
-        mat = self._mat4
-        if mat < 0:
-            raise ValueError(f"step4 needs a controller with 4 inputs and 4 outputs, this one has "
-                             f"{self._p} and {self._n_out}; use step(y)")
-        return self._step4(self._w, self._n, mat, self._limit, y0, y1, y2, y3)
-
     def last_output(self) -> tuple[float, ...]:
         """The output of the last step, saturated [A] (q floats; zeros before the first step)."""
         o = self._n + self._p
@@ -133,18 +128,18 @@ class ControllerStepper(KernelOwner):
         ic = (self.model.c @ self._w[: self._n]).tolist()
         return tuple(lim if i > lim else -lim if i < -lim else i for i in ic)
 
-    def step_ahead4(self, y0: float, y1: float, y2: float, y3: float) -> tuple[float, float, float, float]:
-        """Update the state with y[k] = (y0..y3) [m] and return the next output ic[k+1] = C x[k+1] [A],
-        saturated (a strictly proper 4 x 4 controller; ``step4(y[k+1])`` would return the same).
+    def step_ahead(self, y) -> list[float]:
+        """Update the state with y[k] [m] (p floats) and return the next output ic[k+1] = C x[k+1] [A]
+        (q floats), saturated (a strictly proper controller; ``step(y[k+1])`` would return the same).
 
         Raises:
-            ValueError: the controller has feedthrough (D != 0) or is not 4 x 4.
+            ValueError: the controller has feedthrough (D != 0).
         """
-        mat = self._mat_ahead4
+        mat = self._mat_ahead
         if mat < 0:
-            if not self._proper:
-                raise ValueError("step_ahead4 needs a strictly proper controller (D = 0), this one has "
-                                 "feedthrough; use step4")
-            raise ValueError(f"step_ahead4 needs a controller with 4 inputs and 4 outputs, this one has "
-                             f"{self._p} and {self._n_out}; use step(y)")
-        return self._step4(self._w, self._n, mat, self._limit, y0, y1, y2, y3)
+            raise ValueError("step_ahead needs a strictly proper controller (D = 0), this one has "
+                             "feedthrough; use step")
+        n, p, q, w = self._n, self._p, self._n_out, self._w
+        w[n:n + p] = y
+        self._step(w, n, p, q, mat, self._limit)
+        return w[n + p:n + p + q].tolist()

@@ -1,14 +1,15 @@
 """A position controller as its owner has it: a discrete state space or per-axis transfer functions
 in a file (.npz, .mat or YAML).
 
-The model maps the four measured displacements y [m] (``DISPLACEMENT_NAMES``
-order) to the four control currents ic [A] (``CURRENT_NAMES`` order), minus
-sign included (ic = K(z) y), at the rig's sample period. Keys (any case):
+The model maps the na measured displacements y [m] of the rig's axes (its
+layout's order, e.g. ``y_a_x y_b_x y_a_y y_b_y``, ``y_z`` last on a five-axis
+rig) to the na control currents ic [A] in the same order, minus sign included
+(ic = K(z) y), at the rig's sample period. Keys (any case):
 
-* state space: ``A`` (n, n), ``B`` (n, 4), ``C`` (4, n), ``D`` (4, 4), and
+* state space: ``A`` (n, n), ``B`` (n, na), ``C`` (na, n), ``D`` (na, na), and
   the sample period ``dt`` (or ``Ts``) [s]; or
 * transfer functions in z^-1 powers, the same on every axis (``num``,
-  ``den``: 1-D) or one per axis (``num``, ``den``: 4 rows, zero-padded), and
+  ``den``: 1-D) or one per axis (``num``, ``den``: na rows, zero-padded), and
   ``dt``: axis i maps y_i to ic_i only.
 
 A controller that computes ic[k] from y[k] (D != 0, no computational delay)
@@ -27,7 +28,7 @@ from scipy import io as sio
 from scipy import signal
 
 from ambid.array_file import read_arrays
-from ambid.channels import CURRENT_NAMES, DISPLACEMENT_NAMES
+from ambid.channels import RADIAL, Layout
 from ambid.statespace import StateSpace, block_diag
 
 FIX = "give A, B, C, D and dt (or num, den and dt) of a discrete y [m] -> ic [A] controller"
@@ -65,15 +66,15 @@ def _scalar(data: dict, keys: tuple[str, ...], path: Path) -> float:
     raise ValueError(f"controller file {path} has no sample period (dt); {FIX}")
 
 
-def _from_transfer_functions(data: dict, path: Path, dt: float) -> StateSpace:
+def _from_transfer_functions(data: dict, path: Path, dt: float, na: int) -> StateSpace:
     num, den = _matrix(data, "num", path), _matrix(data, "den", path)
     if num.shape[0] == 1:
-        num, den = np.repeat(num, 4, axis=0), np.repeat(np.atleast_2d(den), 4, axis=0)
-    if num.shape[0] != 4 or den.shape[0] != 4:
-        raise ValueError(f"controller file {path}: num and den must have 1 row (every axis) or 4 rows (one per "
+        num, den = np.repeat(num, na, axis=0), np.repeat(np.atleast_2d(den), na, axis=0)
+    if num.shape[0] != na or den.shape[0] != na:
+        raise ValueError(f"controller file {path}: num and den must have 1 row (every axis) or {na} rows (one per "
                          f"axis), got {num.shape[0]} and {den.shape[0]}")
     axes = []
-    for i in range(4):
+    for i in range(na):
         length = max(num.shape[1], den.shape[1])
         n, d = np.pad(num[i], (0, length - num.shape[1])), np.pad(den[i], (0, length - den.shape[1]))
         while length > 1 and n[length - 1] == 0 and d[length - 1] == 0:  # common z^-k factors of padding
@@ -90,8 +91,9 @@ def _from_transfer_functions(data: dict, path: Path, dt: float) -> StateSpace:
     return block_diag(*axes)
 
 
-def load_controller(path: str | Path, dt_s: float, whose: str = "the rig's") -> StateSpace:
-    """The controller in ``path`` as a discrete StateSpace at ``dt_s``, 4 inputs (y) and 4 outputs (ic).
+def load_controller(path: str | Path, dt_s: float, whose: str = "the rig's", layout: Layout = RADIAL) -> StateSpace:
+    """The controller in ``path`` as a discrete StateSpace at ``dt_s``, on the axes of ``layout`` (the rig's,
+    the record's): na inputs (y) and na outputs (ic).
 
     ``whose`` names the sample period ``dt_s`` in a refusal ("the rig's", "the record's").
 
@@ -105,21 +107,23 @@ def load_controller(path: str | Path, dt_s: float, whose: str = "the rig's") -> 
     if abs(dt - dt_s) > 1e-9 * dt_s:
         raise ValueError(f"controller file {path}: sample period {dt:g} s differs from {whose} {dt_s:g} s; "
                          f"discretise the controller at {whose} sample rate")
+    na = len(layout)
     if "num" in data or "den" in data:
-        model = _from_transfer_functions(data, path, dt_s)
+        model = _from_transfer_functions(data, path, dt_s, na)
     else:
         a, b, c, d = (_matrix(data, k, path) for k in ("a", "b", "c", "d"))
         n = a.shape[0]
-        shapes = {"A": (a.shape, (n, n)), "B": (b.shape, (n, 4)), "C": (c.shape, (4, n)), "D": (d.shape, (4, 4))}
+        shapes = {"A": (a.shape, (n, n)), "B": (b.shape, (n, na)), "C": (c.shape, (na, n)),
+                  "D": (d.shape, (na, na))}
         for key, (got, want) in shapes.items():
             if n and got != want or not n and key == "D" and got != want:
                 raise ValueError(f"controller file {path}: {key} is {got[0]} x {got[1]}, expected {want[0]} x "
-                                 f"{want[1]} (4 displacements in, 4 currents out, {n} states)")
+                                 f"{want[1]} ({na} displacements in, {na} currents out, {n} states)")
         if not n:
-            b, c = np.zeros((0, 4)), np.zeros((4, 0))
+            b, c = np.zeros((0, na)), np.zeros((na, 0))
         model = StateSpace(a, b, c, d, dt_s)
-    return model._replace(input_names=DISPLACEMENT_NAMES, output_names=CURRENT_NAMES,
-                          input_units=("m",) * 4, output_units=("A",) * 4)
+    return model._replace(input_names=layout.outputs, output_names=layout.inputs,
+                          input_units=layout.units("y"), output_units=layout.units("u"))
 
 
 def save_controller(path: str | Path, model: StateSpace) -> None:

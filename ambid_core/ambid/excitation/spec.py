@@ -14,7 +14,10 @@ here.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
+
+from ambid.channels import RADIAL
 
 from ambid.excitation.design import ExcitationDesign
 from ambid.excitation.designers import (design_dibs, design_multisine, design_noise, design_prbs,
@@ -23,7 +26,6 @@ from ambid.excitation.lines import band_bins, n_per_period
 from ambid.excitation.synchronous import DEFAULT_GUARD_BINS, DEFAULT_HARMONICS
 
 KINDS = ("multisine", "stepped_sine", "swept_sine", "noise", "prbs", "dibs")
-DEFAULT_INPUTS = ("u_a_x", "u_b_x", "u_a_y", "u_b_y")
 # choices per kind that take them; the first is the kind's default ("" selects it)
 GRIDS = {"multisine": ("random_odd", "odd", "full"), "stepped_sine": ("full", "odd"),
          "dibs": ("odd", "random_odd", "full")}
@@ -83,14 +85,16 @@ class DesignSpec:
     """An excitation experiment in the user's terms; the defaults are ``ambid identify``'s session.
 
     Defaults: an orthogonal random-odd multisine with crest-optimised phases on
-    the four radial currents, 10-1000 Hz at 5 Hz resolution, 0.4 A peak, M = 3
-    realisations of 3 transient + 4 steady-state periods, seed 1.
+    every current of the rig (four radial, five with an axial bearing),
+    10-1000 Hz at 5 Hz resolution, 0.4 A peak, M = 3 realisations of 3
+    transient + 4 steady-state periods, seed 1.
 
     Attributes:
         kind: one of :data:`KINDS`.
         band_hz: (f_lo, f_hi) band of interest [Hz], f_hi < fs/2.
         resolution_hz: line spacing fs/N [Hz] (prbs: the resolution is at least this fine).
-        input_names: (Nu,) excited plant currents.
+        input_names: (Nu,) excited plant currents; empty: every current of the plant (the ``inputs``
+            :meth:`build` is given: the rig layout's u_<axis>).
         peak_current_a: excitation peak per input [A].
         n_periods, n_realisations, n_transient_periods: P, M, Pt (unused by stepped_sine).
         grid, spacing, phases, mimo: "" = the kind's default (first entry of :data:`GRIDS`,
@@ -107,7 +111,7 @@ class DesignSpec:
     kind: str = "multisine"
     band_hz: tuple[float, float] = (10.0, 1000.0)
     resolution_hz: float = 5.0
-    input_names: tuple[str, ...] = DEFAULT_INPUTS
+    input_names: tuple[str, ...] = ()
     # 0.4 A keeps the magnets' odd distortion within ~3 dB of the noise (at 0.5 A it biased the
     # housing-mode damping by 11 %)
     peak_current_a: float = 0.4
@@ -144,10 +148,13 @@ class DesignSpec:
         else:
             band_bins(self.band_hz, float(fs_hz), n_per_period(fs_hz, self.resolution_hz))
 
-    def build(self, fs_hz: float, speed_rpm: float = 0.0) -> ExcitationDesign:
+    def build(self, fs_hz: float, speed_rpm: float = 0.0,
+              inputs: Sequence[str] = RADIAL.inputs) -> ExcitationDesign:
         """The ExcitationDesign of these terms at the plant's sample rate ``fs_hz`` [Hz].
 
         ``speed_rpm`` [rpm] > 0 (multisine only) steers the lines clear of the synchronous harmonics.
+        ``inputs``: the plant's currents, excited when ``input_names`` is empty (the rig's
+        ``layout.inputs``; the default rig's four radial ones unless given).
         Raises ValueError naming the bad term (band above Nyquist, resolution not dividing fs, ...).
         """
         kind = self.kind
@@ -162,7 +169,7 @@ class DesignSpec:
         if speed_rpm and kind != "multisine":
             raise ValueError(f"a {kind} design cannot steer clear of the synchronous harmonics at speed; use kind "
                              "multisine, or leave out the speed")
-        common = dict(input_names=tuple(self.input_names), peak_current_a=self.peak_current_a)
+        common = dict(input_names=tuple(self.input_names or inputs), peak_current_a=self.peak_current_a)
         periodic = dict(n_periods=self.n_periods, n_realisations=self.n_realisations,
                         n_transient_periods=self.n_transient_periods)
         seed = self.seed
@@ -186,7 +193,8 @@ class DesignSpec:
 
 def build_design(kind: str, band_hz: tuple[float, float], resolution_hz: float, fs_hz: float, *terms,
                  speed_rpm: float = 0.0, **named) -> ExcitationDesign:
-    """``DesignSpec(kind, band_hz, resolution_hz, *terms, **named).build(fs_hz, speed_rpm)``.
+    """``DesignSpec(kind, band_hz, resolution_hz, *terms, **named).build(fs_hz, speed_rpm)`` (inputs: the default
+    rig's currents unless ``input_names`` names them).
 
     ``terms`` and ``named`` are :class:`DesignSpec`'s fields after ``resolution_hz``, in its order
     (input_names, peak_current_a, n_periods, n_realisations, n_transient_periods, grid, spacing,

@@ -5,18 +5,20 @@ with its physical parameters exposed, plus the two things a real rig adds
 most often, each switched on by giving its parameters:
 
 * magnets: ``ki_n_per_a`` [N/A], ``ks_n_per_m`` [N/m], one value for all four
-  axes (F = ki i + ks g, eq. 2.18), optionally ``ks_b_over_a`` [-], bearing
-  B's ks over bearing A's (their mean stays ks_n_per_m);
+  radial axes (F = ki i + ks g, eq. 2.18), optionally ``ks_b_over_a`` [-],
+  bearing B's ks over bearing A's (their mean stays ks_n_per_m); an axial
+  bearing (axis ``z``) has its own ``axial_ki_n_per_a``, ``axial_ks_n_per_m``;
 * amplifiers: first-order current loops of ``amplifier_bandwidth_hz`` [Hz]
-  (eq. 2.21);
+  (eq. 2.21), the axial one's ``axial_amplifier_bandwidth_hz``;
 * sensors: gains ``sensor_gain_<axis>`` [m/m], and optionally a first-order
-  low-pass ``sensor_bandwidth_hz`` [Hz];
+  low-pass ``sensor_bandwidth_hz`` [Hz] (``axial_sensor_bandwidth_hz`` the
+  axial probe's, the radial one's when not given);
 * the bending modes of the rotor: the first one's free-free frequency
   ``bending_freq_hz`` [Hz] (the modal stiffness omega^2 of the mass-normalised
   mode) and damping ratio ``bending_damping_ratio`` [-], both planes; mode k >= 2
   as ``bending_<k>_freq_hz``, ``bending_<k>_damping_ratio``;
 * an extra, unmodelled mode, taken as a support (housing or foundation)
-  mode: each bearing stator with its sensor sits on a mass-spring-damper of
+  mode: each radial bearing stator with its sensor sits on a mass-spring-damper of
   uncoupled frequency ``support_freq_hz`` [Hz], damping ratio
   ``support_damping_ratio`` [-] and gain ``support_gain_per_kg`` = 1 / modal
   mass [1/kg]; the magnet force reacts on it and the sensor measures rotor
@@ -28,10 +30,14 @@ zero-order-hold sampled model, u[k] held over a sample and delayed by
 ``delay_s`` (:func:`ambid.plant.true_rig.delayed_zoh`), at z = exp(j 2 pi f dt);
 with ``dt_s = 0`` the continuous model times exp(-j 2 pi f delay_s).
 
+The axes are the rotor model's (``rotor.layout``: the rig's); a rig model
+covers the four radial axes, or five with the axial bearing, and the FRF to
+update against must have those channels (:func:`covers`).
+
 States of :func:`physical_statespace`: rotor (n_r), then (with a support
-mode) the stator displacements h (4) [m] and velocities (4) [m/s], the coil
-control currents i (4) [A] and (with a sensor bandwidth) the sensor filter
-states (4) [m].
+mode) the radial stator displacements h (nh) [m] and velocities (nh) [m/s],
+the coil control currents i (na) [A] and (with a sensor bandwidth) the
+sensor filter states (na) [m].
 
 Ki and the sensor gains enter the FRF only as their product (the force per
 ampere is seen through the sensors); free either ki or the gains, not both
@@ -54,18 +60,20 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import linalg, stats
 
-from ambid.channels import AXES, CURRENT_NAMES, DISPLACEMENT_NAMES
+from ambid.channels import FIVE_AXIS, RADIAL, Layout, bearing_of
 from ambid.fit.updating import Prior, UpdateResult, update_parameters
 from ambid.plant.rig import Rig
 from ambid.plant.tolerances import Z95, tolerance_for
 from ambid.plant.rotor_model import RotorModel
+from ambid.plant.sensors import noise_std
 from ambid.excitation.design import ExcitationDesign
 from ambid.plant.true_rig import TruePlant, delayed_zoh, levitated_plant, true_linear_model
 from ambid.statespace import StateSpace
 
 __all__ = ["ParameterInfo", "PARAMETERS", "DEFAULT_FREE", "PhysicalUpdate", "bending_coordinates", "bending_keys",
-           "nominal_parameters", "nominal_update_parameters", "parameter_prior", "true_parameters",
-           "excitation_slopes", "closed_loop_noise_std", "physical_statespace", "physical_frf", "physical_discrete",
+           "covers", "nominal_parameters", "nominal_update_parameters", "parameter_prior", "true_parameters",
+           "excitation_slopes", "slopes_as_parameters", "closed_loop_noise_std", "physical_statespace", "physical_frf",
+           "physical_discrete",
            "update_physical_model",
            "match_modes", "start_from_data", "total_lag", "unmodelled_mode"]
 
@@ -87,8 +95,14 @@ PARAMETERS: dict[str, ParameterInfo] = {
     "ks_b_over_a": ParameterInfo("-", 0.5, 2.0, 1.0, "ks of bearing B over bearing A (an excitation stiffens "
                                  "the two bearings' magnets unequally)"),
     "amplifier_bandwidth_hz": ParameterInfo("Hz", 1.0, 1e6, 1e3, "closed current-loop bandwidth"),
-    **{f"sensor_gain_{a}": ParameterInfo("m/m", 0.01, 100.0, 1.0, f"gain of sensor {a}") for a in AXES},
+    # every axis a rig model can have (the five-axis machine's); a rotor uses those of its layout
+    **{f"sensor_gain_{a}": ParameterInfo("m/m", 0.01, 100.0, 1.0, f"gain of sensor {a}") for a in FIVE_AXIS.axes},
     "sensor_bandwidth_hz": ParameterInfo("Hz", 1.0, 1e7, 1e4, "first-order sensor low-pass (optional)"),
+    "axial_ki_n_per_a": ParameterInfo("N/A", 1e-6, 1e6, 100.0, "current gain of the axial magnet pair"),
+    "axial_ks_n_per_m": ParameterInfo("N/m", 0.0, 1e10, 1e5, "negative stiffness of the axial magnet pair"),
+    "axial_amplifier_bandwidth_hz": ParameterInfo("Hz", 1.0, 1e6, 1e3, "the axial coils' current-loop bandwidth"),
+    "axial_sensor_bandwidth_hz": ParameterInfo("Hz", 1.0, 1e7, 1e4, "the axial probe's first-order low-pass "
+                                               "(optional; default sensor_bandwidth_hz)"),
     "bending_freq_hz": ParameterInfo("Hz", 1e-3, 1e6, 100.0, "free-free frequency of the first bending mode"),
     "bending_damping_ratio": ParameterInfo("-", 0.0, 1.0, 0.01, "damping ratio of the first bending mode"),
     "support_freq_hz": ParameterInfo("Hz", 0.1, 1e6, 100.0, "uncoupled frequency of the support mode"),
@@ -102,9 +116,11 @@ PARAMETERS: dict[str, ParameterInfo] = {
 
 #: Parameters freed by default (the support ones too when the start holds them).
 DEFAULT_FREE: tuple[str, ...] = ("ki_n_per_a", "ks_n_per_m", "amplifier_bandwidth_hz", "bending_freq_hz",
-                                 "bending_damping_ratio", "delay_s")
+                                 "bending_damping_ratio", "delay_s", "axial_ki_n_per_a", "axial_ks_n_per_m",
+                                 "axial_amplifier_bandwidth_hz")
 _SUPPORT = ("support_freq_hz", "support_damping_ratio", "support_gain_per_kg")
 _REQUIRED = ("ki_n_per_a", "ks_n_per_m", "amplifier_bandwidth_hz")
+_AXIAL = ("axial_ki_n_per_a", "axial_ks_n_per_m", "axial_amplifier_bandwidth_hz")
 
 
 def bending_keys(mode: int) -> tuple[str, str]:
@@ -135,6 +151,16 @@ def bending_coordinates(rotor: RotorModel, mode: int = 1) -> np.ndarray:
     return np.flatnonzero(np.abs(w - w1) <= 1e-6 * w1)
 
 
+def covers(rotor: RotorModel, output_names: Sequence[str], input_names: Sequence[str]) -> str | None:
+    """None when the physical model of ``rotor`` (its layout) has exactly the FRF's channels, in order; else
+    one sentence saying why the model cannot be updated against it."""
+    lay = rotor.layout
+    if tuple(output_names) == lay.outputs and tuple(input_names) == lay.inputs:
+        return None
+    return (f"the rig model covers the axes {' '.join(lay.axes)} (outputs {', '.join(lay.outputs)}), not this FRF's "
+            f"{len(output_names)} x {len(input_names)} channels ({', '.join(output_names)} / {', '.join(input_names)})")
+
+
 def nominal_parameters(rig: Rig) -> dict[str, float]:
     """The analytical model's parameter values (nominal ki, ks, ideal sensors, no support mode, no delay).
 
@@ -142,7 +168,10 @@ def nominal_parameters(rig: Rig) -> dict[str, float]:
     """
     p = {"ki_n_per_a": float(rig.magnet.ki), "ks_n_per_m": float(rig.magnet.ks), "ks_b_over_a": 1.0,
          "amplifier_bandwidth_hz": float(rig.current_loop_bandwidth_hz),
-         **{f"sensor_gain_{a}": 1.0 for a in AXES}, "delay_s": 0.0}
+         **{f"sensor_gain_{a}": 1.0 for a in rig.layout.axes}, "delay_s": 0.0}
+    if rig.layout.axial:
+        p.update(axial_ki_n_per_a=float(rig.axial_magnet.ki), axial_ks_n_per_m=float(rig.axial_magnet.ks),
+                 axial_amplifier_bandwidth_hz=float(rig.axial_amplifier.bandwidth_hz))
     rotor = rig.rotor_model()
     for k in range(1, rotor.flexible_freq_hz.size + 1):
         if bending_coordinates(rotor, k).size:
@@ -159,6 +188,8 @@ def nominal_update_parameters(rig: Rig) -> dict[str, float]:
     p = nominal_parameters(rig)
     p.update(sensor_bandwidth_hz=float(rig.values["sensor_bandwidth_hz"]),
              delay_s=float(rig.values["extra_delay_s"]))
+    if rig.layout.axial:
+        p["axial_sensor_bandwidth_hz"] = float(rig.values["axial_sensor_bandwidth_hz"])
     return p
 
 
@@ -211,15 +242,30 @@ def true_parameters(rig: Rig) -> dict[str, float]:
     _, op = levitated_plant(rig)
     v = rig.values
     p = nominal_parameters(rig)
-    p.update({"ki_n_per_a": float(np.mean(op.ki_n_per_a)), "ks_n_per_m": float(np.mean(op.ks_n_per_m)),
-              "ks_b_over_a": float(np.mean(op.ks_n_per_m[[1, 3]]) / np.mean(op.ks_n_per_m[[0, 2]])),
-              **{f"sensor_gain_{a}": float(v["sensor_gain"]) for a in AXES},
+    a_axes, b_axes, radial, axial = _bearing_axes(rig.layout)
+    p.update({"ki_n_per_a": float(np.mean(op.ki_n_per_a[radial])), "ks_n_per_m": float(np.mean(op.ks_n_per_m[radial])),
+              "ks_b_over_a": float(np.mean(op.ks_n_per_m[b_axes]) / np.mean(op.ks_n_per_m[a_axes])),
+              **{f"sensor_gain_{a}": float(v["axial_sensor_gain" if j in axial else "sensor_gain"])
+                 for j, a in enumerate(rig.layout.axes)},
               "sensor_bandwidth_hz": float(v["sensor_bandwidth_hz"]),
               "support_freq_hz": float(v["housing_freq_hz"]),
               "support_damping_ratio": float(v["housing_damping_ratio"]),
               "support_gain_per_kg": 1.0 / float(v["housing_mass_kg"]), "delay_s": float(v["extra_delay_s"]),
               "ki_centre_n_per_a": float(rig.true_magnet.ki), "ks_centre_n_per_m": float(rig.true_magnet.ks)})
+    if axial:
+        p.update(axial_ki_n_per_a=float(np.mean(op.ki_n_per_a[axial])),
+                 axial_ks_n_per_m=float(np.mean(op.ks_n_per_m[axial])),
+                 axial_sensor_bandwidth_hz=float(v["axial_sensor_bandwidth_hz"]))
     return p
+
+
+def _bearing_axes(layout) -> tuple[list[int], list[int], list[int], list[int]]:
+    """Indices of the axes of radial bearing A, of radial bearing B, of every radial axis, of the axial ones."""
+    axial = list(layout.axial)
+    radial = [j for j in range(len(layout)) if j not in axial]
+    a_axes = [j for j in radial if bearing_of(layout.axes[j]) == "a"]
+    b_axes = [j for j in radial if bearing_of(layout.axes[j]) == "b"]
+    return a_axes, b_axes, radial, axial
 
 
 def _loop_moments(rig: Rig, controller: StateSpace, design: ExcitationDesign,
@@ -231,44 +277,54 @@ def _loop_moments(rig: Rig, controller: StateSpace, design: ExcitationDesign,
     Parseval over ``n_noise_lines`` lines of the unit circle.
 
     Returns:
-        (cov (4, 2, 2) [[A^2, A m], [A m, m^2]], the plant the moments were taken on).
+        (cov (na, 2, 2) [[A^2, A m], [A m, m^2]], the plant the moments were taken on).
     """
     p, _ = levitated_plant(rig)
+    na = p.n_axes
     rows = np.vstack([p.c_y, p.c_current, p.c_gap])
     loop = true_linear_model(rig, discrete=True, plant=p, outputs=rows)
-    order = [design.input_names.index(n) for n in CURRENT_NAMES]
+    order = [design.input_names.index(n) for n in rig.layout.inputs]
 
     def parts(f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         h = loop.freqresp(f)
-        s_in = np.linalg.inv(np.eye(4) - controller.freqresp(f) @ h[:, :4])      # r -> u
-        return s_in, h[:, 4:8] @ s_in, h[:, 8:12] @ s_in
+        s_in = np.linalg.inv(np.eye(na) - controller.freqresp(f) @ h[:, :na])      # r -> u
+        return s_in, h[:, na:2 * na] @ s_in, h[:, 2 * na:3 * na] @ s_in
 
     f = design.freq_hz
     _, ri, rg = parts(f)
-    cov = np.zeros((4, 2, 2))
+    cov = np.zeros((na, 2, 2))
     segs = [(m, e) for m in range(design.n_realisations) for e in range(design.n_experiments)]
     for m, e in segs:
-        r = design.reference_spectrum(m, e)[order].T[:, :, None]                   # (L, 4, 1)
-        x = np.stack([(ri @ r)[:, :, 0], (rg @ r)[:, :, 0]], axis=-1)              # (L, 4 axes, 2)
+        r = design.reference_spectrum(m, e)[order].T[:, :, None]                   # (L, na, 1)
+        x = np.stack([(ri @ r)[:, :, 0], (rg @ r)[:, :, 0]], axis=-1)              # (L, na axes, 2)
         cov += np.einsum("lai,laj->aij", x, x.conj()).real / 2 / len(segs)
-    sigma = float(rig.values["sensor_noise_m"])
-    if sigma > 0:
+    sigma = noise_std(rig.axis_sensors())  # per sensor [m]
+    if np.any(sigma > 0):
         fn = (np.arange(n_noise_lines) + 0.5) / n_noise_lines / rig.dt   # off z = 1: the integrator
         _, ni, ng = parts(fn)
         k = controller.freqresp(fn)
-        xn = np.stack([ni @ k, ng @ k], axis=1)                                    # (L, 2, 4 axes, 4 noises)
-        cov += sigma**2 * np.einsum("liaj,lkaj->aik", xn, xn.conj()).real / n_noise_lines
+        xn = np.stack([ni @ k, ng @ k], axis=1)                                    # (L, 2, na axes, na noises)
+        cov += _noise_weighted(np.einsum, "liaj,lkaj->aik", xn, sigma) / n_noise_lines
     return cov, p
 
 
-def closed_loop_noise_std(rig: Rig, controller: StateSpace, plant: TruePlant | None = None) -> np.ndarray:
-    """Standard deviation of the measured outputs' noise in the true linear closed loop [m], (4,).
+def _noise_weighted(einsum, spec: str, x: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """Re einsum(spec, x, conj x) with the last axis (the sensors) weighted by sigma^2: one factor when every
+    sensor has the same noise (the radial rig), else per sensor."""
+    if np.all(sigma == sigma[0]):
+        return sigma[0] ** 2 * einsum(spec, x, x.conj()).real
+    xs = x * sigma
+    return einsum(spec, xs, xs.conj()).real
 
-    The sensors' white noise v (std ``sensor_noise_m`` per sample) reaches
-    the outputs as y = (I - G K)^-1 v (positive feedback u = K y + r): with
+
+def closed_loop_noise_std(rig: Rig, controller: StateSpace, plant: TruePlant | None = None) -> np.ndarray:
+    """Standard deviation of the measured outputs' noise in the true linear closed loop [m], (na,).
+
+    The sensors' white noise v (std ``sensor_noise_m`` per sample, ``axial_sensor_noise_m`` axially,
+    Sigma = diag(sigma^2)) reaches the outputs as y = (I - G K)^-1 v (positive feedback u = K y + r): with
     the loop's states x (plant, then controller), x[k+1] = A_cl x[k] + B_v v[k]
-    and y = C x + v, so var(y) = diag(C P C^T) + sigma^2 with P the state
-    covariance, P = A_cl P A_cl^T + sigma^2 B_v B_v^T (the discrete Lyapunov
+    and y = C x + v, so var(y) = diag(C P C^T + Sigma) with P the state
+    covariance, P = A_cl P A_cl^T + B_v Sigma B_v^T (the discrete Lyapunov
     equation: exact, and milliseconds where a Parseval sum over the unit
     circle fine enough for the lightly damped modes took seconds). What the
     period-to-period scatter of a periodic measurement estimates.
@@ -280,15 +336,19 @@ def closed_loop_noise_std(rig: Rig, controller: StateSpace, plant: TruePlant | N
             the magnets' slopes at the excitation level.
 
     Returns:
-        (4,) std per sensor, DISPLACEMENT_NAMES order [m].
+        (na,) std per sensor, in the rig layout's output order [m].
     """
     g = true_linear_model(rig, discrete=True, plant=plant)
     k = controller
     acl = np.block([[g.a + g.b @ k.d @ g.c, g.b @ k.c], [k.b @ g.c, k.a]])
     bv = np.vstack([g.b @ k.d, k.b])
-    p = linalg.solve_discrete_lyapunov(acl, bv @ bv.T)
     c = np.hstack([g.c, np.zeros((g.c.shape[0], k.a.shape[0]))])
-    return float(rig.values["sensor_noise_m"]) * np.sqrt(np.diag(c @ p @ c.T) + 1.0)
+    sigma = noise_std(rig.axis_sensors())
+    if np.all(sigma == sigma[0]):   # one noise level (the radial rig): sigma times the unit-noise loop's
+        p = linalg.solve_discrete_lyapunov(acl, bv @ bv.T)
+        return float(sigma[0]) * np.sqrt(np.diag(c @ p @ c.T) + 1.0)
+    p = linalg.solve_discrete_lyapunov(acl, (bv * sigma**2) @ bv.T)
+    return np.sqrt(np.diag(c @ p @ c.T) + sigma**2)
 
 
 def excitation_slopes(rig: Rig, controller: StateSpace, design: ExcitationDesign,
@@ -312,7 +372,7 @@ def excitation_slopes(rig: Rig, controller: StateSpace, design: ExcitationDesign
         design: the periodic excitation design that ran.
 
     Returns:
-        (ki (4,) [N/A], ks (4,) [N/m]), CURRENT_NAMES order.
+        (ki (na,) [N/A], ks (na,) [N/m]), in the rig layout's input order.
     """
     cov, p = _loop_moments(rig, controller, design)
     op = levitated_plant(rig)[1]
@@ -321,14 +381,38 @@ def excitation_slopes(rig: Rig, controller: StateSpace, design: ExcitationDesign
     w = w / w.sum()
     zi, zg = np.meshgrid(x, x, indexing="ij")
     ww = np.outer(w, w)
-    ki, ks = np.zeros(4), np.zeros(4)
-    for a in range(4):
+    mags = rig.axis_magnets(true=True)
+    ki, ks = np.zeros(len(mags)), np.zeros(len(mags))
+    for a, mag in enumerate(mags):
         chol = np.linalg.cholesky(cov[a] + 1e-30 * np.eye(2))
         di = chol[0, 0] * zi
         dg = chol[1, 0] * zi + chol[1, 1] * zg
-        dfdi, dfdg = rig.true_magnet.slopes(i0[a] + di, g0[a] + dg)
+        dfdi, dfdg = mag.slopes(i0[a] + di, g0[a] + dg)
         ki[a], ks[a] = np.sum(ww * dfdi), np.sum(ww * dfdg)
     return ki, ks
+
+
+def slopes_as_parameters(ki: np.ndarray, ks: np.ndarray, layout: Layout = RADIAL) -> dict[str, float]:
+    """The magnets' slopes per axis (:func:`excitation_slopes`) as the updating model's parameters.
+
+    Args:
+        ki: (na,) [N/A], ks: (na,) [N/m], in ``layout``'s axis order (the rig's; default the four radial axes).
+        layout: the axes the slopes belong to.
+
+    Returns:
+        ``ki_n_per_a`` and ``ks_n_per_m`` (means over the radial axes) and ``ks_b_over_a`` (bearing B's ks over
+        A's); with an axial axis also ``axial_ki_n_per_a`` and ``axial_ks_n_per_m``.
+    """
+    ki, ks = np.asarray(ki, dtype=float), np.asarray(ks, dtype=float)
+    axial = list(layout.axial)
+    radial = [j for j in range(len(layout)) if j not in axial]
+    a_axes = [j for j in radial if bearing_of(layout.axes[j]) == "a"]
+    b_axes = [j for j in radial if bearing_of(layout.axes[j]) == "b"]
+    out = dict(ki_n_per_a=float(np.mean(ki[radial])), ks_n_per_m=float(np.mean(ks[radial])),
+               ks_b_over_a=float(np.mean(ks[b_axes]) / np.mean(ks[a_axes])))
+    if axial:
+        out.update(axial_ki_n_per_a=float(np.mean(ki[axial])), axial_ks_n_per_m=float(np.mean(ks[axial])))
+    return out
 
 
 def _check_params(params: Mapping[str, float]) -> dict[str, float]:
@@ -339,10 +423,13 @@ def _check_params(params: Mapping[str, float]) -> dict[str, float]:
     for k, v in p.items():
         if not math.isfinite(v):
             raise ValueError(f"physical model: {k} = {v} must be finite")
-    if p["amplifier_bandwidth_hz"] <= 0:
-        raise ValueError(f"physical model: amplifier_bandwidth_hz must be > 0, got {p['amplifier_bandwidth_hz']}")
-    if p.get("sensor_bandwidth_hz", 1.0) <= 0 or any(v <= 0 for k, v in p.items() if k.endswith("freq_hz")):
-        raise ValueError("physical model: sensor_bandwidth_hz and the mode frequencies must be > 0")
+    for k in ("amplifier_bandwidth_hz", "axial_amplifier_bandwidth_hz"):
+        if p.get(k, 1.0) <= 0:
+            raise ValueError(f"physical model: {k} must be > 0, got {p[k]}")
+    if (min(p.get(k, 1.0) for k in ("sensor_bandwidth_hz", "axial_sensor_bandwidth_hz")) <= 0
+            or any(v <= 0 for k, v in p.items() if k.endswith("freq_hz"))):
+        raise ValueError("physical model: sensor_bandwidth_hz, axial_sensor_bandwidth_hz and the mode frequencies "
+                         "must be > 0")
     support = [k for k in _SUPPORT if k in p]
     if support and len(support) != len(_SUPPORT):
         raise ValueError(f"physical model: a support mode needs all of {list(_SUPPORT)}, got {support}")
@@ -362,7 +449,7 @@ def physical_statespace(rotor: RotorModel, params: Mapping[str, float]) -> State
             support or sensor-bandwidth parameters means none).
 
     Returns:
-        StateSpace (dt = 0), 4 inputs (CURRENT_NAMES), 4 outputs (DISPLACEMENT_NAMES).
+        StateSpace (dt = 0), the rotor layout's na inputs (u) and na outputs (y).
     """
     p = _check_params(params)
     a_r = rotor.a.copy()
@@ -382,57 +469,72 @@ def physical_statespace(rotor: RotorModel, params: Mapping[str, float]) -> State
             a_r[r + idx, r + idx] = -2 * p[zk] * w
         else:  # keep the rotor's damping ratio
             a_r[r + idx, r + idx] *= w / w_old
-    ki, ks = p["ki_n_per_a"], p["ks_n_per_m"]
-    gains = np.array([p.get(f"sensor_gain_{a}", 1.0) for a in AXES])
+    layout = rotor.layout
+    na = len(layout)
+    a_axes, b_axes, radial, axial = _bearing_axes(layout)
+    if axial and not all(k in p for k in _AXIAL):
+        raise ValueError(f"physical model: the rotor has an axial axis; give {', '.join(_AXIAL)} "
+                         "(nominal_parameters(rig) has them)")
+    gains = np.array([p.get(f"sensor_gain_{a}", 1.0) for a in layout.axes])
     has_support = "support_gain_per_kg" in p and p["support_gain_per_kg"] > 0
     has_filter = "sensor_bandwidth_hz" in p
-    nr = rotor.n_states
-    eye = np.eye(4)
-    blocks = [("r", nr)] + ([("h", 4), ("hv", 4)] if has_support else []) + [("i", 4)] + \
-        ([("s", 4)] if has_filter else [])
+    nr, nh = rotor.n_states, len(radial)
+    blocks = [("r", nr)] + ([("h", nh), ("hv", nh)] if has_support else []) + [("i", na)] + \
+        ([("s", na)] if has_filter else [])
     sl, start = {}, 0
     for name, size in blocks:
         sl[name] = slice(start, start + size)
         start += size
     n = start
-    c_gap = np.zeros((4, n))
+    c_gap = np.zeros((na, n))
     c_gap[:, sl["r"]] = rotor.c_bearing
-    c_rel = np.zeros((4, n))  # rotor minus stator at the sensor planes
+    c_rel = np.zeros((na, n))  # rotor minus stator at the sensor planes
     c_rel[:, sl["r"]] = rotor.c_sensor
-    if has_support:
-        c_gap[:, sl["h"]] = -eye
-        c_rel[:, sl["h"]] = -eye
+    if has_support:  # the radial stators on their pedestals
+        c_gap[radial, sl["h"]] = -np.eye(nh)
+        c_rel[radial, sl["h"]] = -np.eye(nh)
     rho = p.get("ks_b_over_a", 1.0)
-    ks_a = 2 * ks / (1 + rho)
-    force = np.array([ks_a, rho * ks_a, ks_a, rho * ks_a])[:, None] * c_gap     # AXES order a_x, b_x, a_y, b_y
-    force[:, sl["i"]] += ki * eye
+    ks_a = 2 * p["ks_n_per_m"] / (1 + rho)
+    ks = np.full(na, ks_a)
+    ks[b_axes] = rho * ks_a
+    ki = np.full(na, p["ki_n_per_a"])
+    bandwidth = np.full(na, p["amplifier_bandwidth_hz"])
+    if axial:
+        ks[axial], ki[axial] = p["axial_ks_n_per_m"], p["axial_ki_n_per_a"]
+        bandwidth[axial] = p["axial_amplifier_bandwidth_hz"]
+    force = ks[:, None] * c_gap
+    force[:, sl["i"]] += np.diag(ki)
     a = np.zeros((n, n))
     a[sl["r"], sl["r"]] = a_r
     a[sl["r"]] += rotor.b @ force
     if has_support:
         mh = 1.0 / p["support_gain_per_kg"]
         wh = 2 * np.pi * p["support_freq_hz"]
+        eye = np.eye(nh)
         a[sl["h"], sl["hv"]] = eye
-        a[sl["hv"]] = -force / mh
+        a[sl["hv"]] = -force[radial] / mh
         a[sl["hv"], sl["h"]] += -wh * wh * eye
         a[sl["hv"], sl["hv"]] += -2 * p["support_damping_ratio"] * wh * eye
-    tau = 1.0 / (2 * np.pi * p["amplifier_bandwidth_hz"])
-    a[sl["i"], sl["i"]] = -eye / tau
-    b = np.zeros((n, 4))
-    b[sl["i"]] = eye / tau
+    inv_tau = 1.0 / (1.0 / (2 * np.pi * bandwidth))
+    a[sl["i"], sl["i"]] = -np.diag(inv_tau)
+    b = np.zeros((n, na))
+    b[sl["i"]] = np.diag(inv_tau)
     if has_filter:
-        wc = 2 * np.pi * p["sensor_bandwidth_hz"]
-        a[sl["s"]] = wc * c_rel
-        a[sl["s"], sl["s"]] += -wc * eye
-        c = np.zeros((4, n))
+        wc = np.full(na, 2 * np.pi * p["sensor_bandwidth_hz"])
+        if axial:
+            wc[axial] = 2 * np.pi * p.get("axial_sensor_bandwidth_hz", p["sensor_bandwidth_hz"])
+        a[sl["s"]] = wc[:, None] * c_rel
+        a[sl["s"], sl["s"]] += -np.diag(wc)
+        c = np.zeros((na, n))
         c[:, sl["s"]] = np.diag(gains)
     else:
         c = gains[:, None] * c_rel
-    return StateSpace(a, b, c, np.zeros((4, 4)), 0.0, CURRENT_NAMES, DISPLACEMENT_NAMES, ("A",) * 4, ("m",) * 4)
+    return StateSpace(a, b, c, np.zeros((na, na)), 0.0, layout.inputs, layout.outputs, layout.units("u"),
+                      layout.units("y"))
 
 
 def physical_frf(rotor: RotorModel, params: Mapping[str, float], freq_hz: np.ndarray, dt_s: float) -> np.ndarray:
-    """FRF of the parametrised rig as measured, (L, 4, 4) complex [m/A].
+    """FRF of the parametrised rig as measured, (L, na, na) complex [m/A].
 
     Args:
         rotor: the rig's rotor model.
@@ -456,7 +558,8 @@ def physical_frf(rotor: RotorModel, params: Mapping[str, float], freq_hz: np.nda
     phi, g1, g0 = delayed_zoh(ss.a, ss.b, dt_s, frac)
     z = np.exp(2j * np.pi * f * dt_s)
     g = _resolvent(phi, np.hstack([g1, g0]), ss.c, z)
-    return (g[:, :, :4] + g[:, :, 4:] / z[:, None, None]) * (z ** -k)[:, None, None]
+    na = ss.n_inputs
+    return (g[:, :, :na] + g[:, :, na:] / z[:, None, None]) * (z ** -k)[:, None, None]
 
 
 def physical_discrete(rotor: RotorModel, params: Mapping[str, float], dt_s: float) -> StateSpace:
@@ -600,8 +703,8 @@ def update_physical_model(rotor: RotorModel, freq_hz: np.ndarray, G: np.ndarray,
     Args:
         rotor: the rig's rotor model.
         freq_hz: (L,) lines [Hz].
-        G: (L, 4, 4) measured FRF u -> y [m/A].
-        var: (L, 4, 4) variance of G [(m/A)^2], or None (equal weights).
+        G: (L, na, na) measured FRF u -> y [m/A], the rotor layout's channels (:func:`covers`).
+        var: (L, na, na) variance of G [(m/A)^2], or None (equal weights).
         start: start values of every parameter of the model (e.g.
             :func:`nominal_parameters` with changes); fixed ones stay.
         free: parameters to update; default :data:`DEFAULT_FREE` (those in
@@ -611,9 +714,9 @@ def update_physical_model(rotor: RotorModel, freq_hz: np.ndarray, G: np.ndarray,
         covariance: ``"sandwich"`` (default), ``"jacobian"`` or ``"rows"``
             (:func:`ambid.fit.update_parameters`); ``row_covariance`` given
             selects ``"rows"``.
-        row_covariance: (L, 4, 4, 4) covariance of the entries of each row of G
+        row_covariance: (L, na, na, na) covariance of the entries of each row of G
             (:func:`ambid.frf.uncertainty.row_covariance`).
-        realisations: (M, L, 4, 4) the realisations' FRFs (their scatter may widen the intervals).
+        realisations: (M, L, na, na) the realisations' FRFs (their scatter may widen the intervals).
         prior: normal priors of the ``free`` parameters (:func:`parameter_prior`), or None.
         covariance_only: keep ``start`` and give its covariance only.
 
@@ -638,9 +741,10 @@ def update_physical_model(rotor: RotorModel, freq_hz: np.ndarray, G: np.ndarray,
             raise ValueError(f"update_physical_model: start {k} = {st[k]} is outside [{info.low:g}, {info.high:g}] "
                              f"{info.unit}")
     g = np.asarray(G)
-    if g.ndim != 3 or g.shape[1:] != (4, 4):
-        raise ValueError(f"G must be (L, 4, 4) (outputs {DISPLACEMENT_NAMES}, inputs {CURRENT_NAMES}), got "
-                         f"{g.shape}")
+    lay = rotor.layout
+    if g.ndim != 3 or g.shape[1:] != (len(lay), len(lay)):
+        raise ValueError(f"G must be (L, {len(lay)}, {len(lay)}) (outputs {list(lay.outputs)}, inputs "
+                         f"{list(lay.inputs)}), got {g.shape}")
     f = np.asarray(freq_hz, dtype=float)
 
     def model(theta: np.ndarray) -> np.ndarray:
@@ -743,7 +847,7 @@ def start_from_data(rotor: RotorModel, freq_hz: np.ndarray, G: np.ndarray, var: 
 
     Args:
         rotor: the rig's rotor model.
-        freq_hz, G, var: the FRF (L,), (L, 4, 4) and its variance (or None).
+        freq_hz, G, var: the FRF (L,), (L, ny, nu) and its variance (or None).
         start: every parameter's value so far (the prior's centres, the modes from the data).
         free: the parameters to be updated.
         prior: their prior, or None.

@@ -20,9 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# AXES order (A x, B x, A y, B y): the x and the y channels of the two bearing planes
-X_CHANNELS = (0, 1)
-Y_CHANNELS = (2, 3)
+from ambid.channels import Layout, bearing_of
+
 # a mode whose forward share of the orbit lies between these is called standing (no clear direction)
 _STANDING = (0.4, 0.6)
 
@@ -36,6 +35,7 @@ class DirectionalFrf:
         forward, backward: (L, Np, Np) complex, p (outputs) per f (inputs) [m/A].
         var_forward, var_backward: (L, Np, Np) variances [(m/A)^2] from the x/y variances, the
             elements taken independent; None without them.
+        planes: the bearings of the Np planes (rows), e.g. ("a", "b").
     """
 
     freq_hz: np.ndarray
@@ -43,24 +43,42 @@ class DirectionalFrf:
     backward: np.ndarray
     var_forward: np.ndarray | None = None
     var_backward: np.ndarray | None = None
+    planes: tuple[str, ...] = ()
+
+
+def planes(names: Sequence[str]) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """(x indices, y indices) of the radial bearing planes among channel names of one signal: the bearings
+    with both an x and a y channel (``Layout.radial_pairs``), e.g. (0, 1), (2, 3) for y_a_x y_b_x y_a_y y_b_y."""
+    pairs = Layout.from_names(names).radial_pairs
+    return tuple(x for x, _ in pairs), tuple(y for _, y in pairs)
+
+
+def has_planes(output_names: Sequence[str], input_names: Sequence[str]) -> bool:
+    """Whether both the outputs and the inputs name the x and y of the same bearing planes (>= 1)."""
+    try:
+        lo, li = Layout.from_names(output_names), Layout.from_names(input_names)
+    except ValueError:
+        return False
+    po, pi = lo.radial_pairs, li.radial_pairs
+    return bool(po) and [(lo.axes[x], lo.axes[y]) for x, y in po] == [(li.axes[x], li.axes[y]) for x, y in pi]
 
 
 def directional_frf(freq_hz: np.ndarray, frf: np.ndarray, var: np.ndarray | None = None,
-                    x_out: Sequence[int] = X_CHANNELS, y_out: Sequence[int] = Y_CHANNELS,
-                    x_in: Sequence[int] = X_CHANNELS, y_in: Sequence[int] = Y_CHANNELS) -> DirectionalFrf:
+                    output_names: Sequence[str] = (), input_names: Sequence[str] = ()) -> DirectionalFrf:
     """Forward and backward directional FRFs from an x/y FRF matrix (module docstring).
 
     Args:
         freq_hz: (L,) [Hz].
-        frf: (L, Ny, Nu) u -> y, e.g. 4 x 4 in AXES order [m/A].
+        frf: (L, Ny, Nu) u -> y [m/A].
         var: (L, Ny, Nu) variance of each element, or None.
-        x_out, y_out, x_in, y_in: channel indices of the planes' x and y outputs and inputs.
+        output_names, input_names: the channels of the rows and columns (``y_a_x``, ``u_a_x``, ...): the
+            planes are their bearings with an x and a y channel (:func:`planes`).
 
     Returns:
-        :class:`DirectionalFrf` with (L, len(x_out), len(x_in)) matrices.
+        :class:`DirectionalFrf` with (L, Np, Np) matrices, Np the planes.
     """
     g = np.asarray(frf)
-    xo, yo, xi, yi = (np.asarray(i, dtype=np.int64) for i in (x_out, y_out, x_in, y_in))
+    (xo, yo), (xi, yi) = (tuple(np.asarray(i, dtype=np.int64) for i in planes(n)) for n in (output_names, input_names))
     gxx, gyy = g[:, xo][:, :, xi], g[:, yo][:, :, yi]
     gxy, gyx = g[:, xo][:, :, yi], g[:, yo][:, :, xi]
     fwd = (gxx + gyy + 1j * (gyx - gxy)) / 2
@@ -69,12 +87,14 @@ def directional_frf(freq_hz: np.ndarray, frf: np.ndarray, var: np.ndarray | None
     if var is not None:
         v = np.asarray(var, dtype=float)
         vf = (v[:, xo][:, :, xi] + v[:, yo][:, :, yi] + v[:, xo][:, :, yi] + v[:, yo][:, :, xi]) / 4
-    return DirectionalFrf(np.asarray(freq_hz, dtype=float), fwd, bwd, vf, vf)
+    lay = Layout.from_names(output_names)
+    return DirectionalFrf(np.asarray(freq_hz, dtype=float), fwd, bwd, vf, vf,
+                          tuple(bearing_of(lay.axes[x]) for x, _ in lay.radial_pairs))
 
 
-def whirl(shape: np.ndarray, x_idx: Sequence[int] = X_CHANNELS, y_idx: Sequence[int] = Y_CHANNELS,
-          ) -> tuple[str, float]:
-    """Whirl direction of a mode from its complex shape at the planes (the response ~ Re(shape e^{j w t})).
+def whirl(shape: np.ndarray, names: Sequence[str]) -> tuple[str, float]:
+    """Whirl direction of a mode from its complex shape at the planes (the response ~ Re(shape e^{j w t})),
+    the shape's channels named by ``names`` (the planes as :func:`planes` finds them).
 
     The orbit p = x + j y of each plane is (s_x + j s_y) / 2 e^{j w t} (forward) plus
     conj(s_x - j s_y) / 2 e^{-j w t} (backward); the forward share is
@@ -84,6 +104,7 @@ def whirl(shape: np.ndarray, x_idx: Sequence[int] = X_CHANNELS, y_idx: Sequence[
         ('forward' | 'backward' | 'standing', forward share in [0, 1]).
     """
     s = np.asarray(shape, dtype=complex)
+    x_idx, y_idx = planes(names)
     sx, sy = s[list(x_idx)], s[list(y_idx)]
     f, b = np.sum(np.abs(sx + 1j * sy) ** 2), np.sum(np.abs(sx - 1j * sy) ** 2)
     share = float(f / (f + b)) if f + b > 0 else 0.5
@@ -91,9 +112,10 @@ def whirl(shape: np.ndarray, x_idx: Sequence[int] = X_CHANNELS, y_idx: Sequence[
     return kind, share
 
 
-def whirl_of_residue(residue: np.ndarray, x_idx: Sequence[int] = X_CHANNELS, y_idx: Sequence[int] = Y_CHANNELS,
+def whirl_of_residue(residue: np.ndarray, output_names: Sequence[str], input_names: Sequence[str],
                      ) -> tuple[str, float]:
-    """Whirl direction of a mode from its residue matrix R (Ny, Nu) at the pole with Im > 0.
+    """Whirl direction of a mode from its residue matrix R (Ny, Nu) at the pole with Im > 0, its rows and
+    columns the channels named.
 
     The forward and backward directional FRFs have the residues R_f, R_b (the combinations of
     :func:`directional_frf` applied to R); the forward share is ||R_f||^2 / (||R_f||^2 + ||R_b||^2).
@@ -104,7 +126,7 @@ def whirl_of_residue(residue: np.ndarray, x_idx: Sequence[int] = X_CHANNELS, y_i
         ('forward' | 'backward' | 'standing', forward share in [0, 1]).
     """
     r = np.asarray(residue, dtype=complex)[None]
-    d = directional_frf([0.0], r, None, x_idx, y_idx, x_idx, y_idx)
+    d = directional_frf([0.0], r, None, output_names, input_names)
     f, b = np.sum(np.abs(d.forward) ** 2), np.sum(np.abs(d.backward) ** 2)
     share = float(f / (f + b)) if f + b > 0 else 0.5
     kind = "forward" if share > _STANDING[1] else "backward" if share < _STANDING[0] else "standing"

@@ -12,6 +12,12 @@ the estimate the node published.
   array) with the design as an ``ExcitationDesign``, its dict or a JSON
   file; :func:`frf_from_files` loads the channels from .npz, .mat or .csv
   first (:func:`ambid.frf.arrays_io.load_arrays`).
+
+Channels are data: unless given, the FRF's outputs are every displacement
+channel ``y_<axis>`` the record holds (in its order), its inputs and
+references the ``u_<axis>`` and ``r_<axis>`` of the design's inputs
+(:func:`data_channels`), so a record of one axis, one plane, four or five
+axes gives its own ny x nu matrix.
 """
 
 from __future__ import annotations
@@ -26,22 +32,17 @@ from typing import Any
 
 import numpy as np
 
-from ambid.channels import AXES, CURRENT_NAMES, DISPLACEMENT_NAMES
+from ambid.channels import split_name
 from ambid.excitation.design import ExcitationDesign
 from ambid.frf.arrays_io import load_arrays, stack_channels
 from ambid.frf.lpm import local_frf
 from ambid.frf.sensitivity import iso14839_zone, sensitivity_peak
-from ambid.frf.streaming import ESTIMATORS, FrfResult, FrfStream, match_inputs
+from ambid.frf.streaming import ESTIMATORS, FrfResult, FrfStream, axis_tag, match_inputs
 from ambid.session.blocks import SampleBlockReader, read_samples
 from ambid.session.reader import Ros2Decoder, iter_messages, iter_raw
 
-__all__ = ["DEFAULT_OUTPUTS", "DEFAULT_INPUTS", "DEFAULT_REFERENCES", "load_design",
-           "frf_from_arrays", "frf_from_files", "frf_from_session", "frf_of_record", "local_frf_result",
-           "session_designs"]
-
-DEFAULT_OUTPUTS: tuple[str, ...] = DISPLACEMENT_NAMES
-DEFAULT_INPUTS: tuple[str, ...] = CURRENT_NAMES
-DEFAULT_REFERENCES: tuple[str, ...] = tuple(f"r_{a}" for a in AXES)
+__all__ = ["data_channels", "load_design", "frf_from_arrays", "frf_from_files", "frf_from_session", "frf_of_record",
+           "local_frf_result", "session_designs"]
 
 _DESIGN_TOPIC = "excitation/design"
 _MEASUREMENT_TOPIC = "measurement"
@@ -65,6 +66,50 @@ def load_design(design: ExcitationDesign | Mapping[str, Any] | str | os.PathLike
     return ExcitationDesign.from_dict(d)
 
 
+def data_channels(design_inputs: Sequence[str], names: Sequence[str] | None = None,
+                  outputs: Sequence[str] | None = None, inputs: Sequence[str] | None = None,
+                  references: Sequence[str] | None = None) -> tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]:
+    """The FRF's channels, those not given taken from the data.
+
+    Args:
+        design_inputs: the design's input names (``u_a_x``, or a bare axis).
+        names: the record's channel names (a measurement block's); its ``y_<axis>`` channels are the
+            outputs: those of the design's axes first, in the design's order (so the matrix's rows and
+            columns name the same axes in the same order), then the others in the record's order. None:
+            the y channels of the design's axes.
+        outputs, inputs, references: given channel names (None: from the data).
+
+    Returns:
+        (outputs, inputs, references): the y channels; the u and r channels of the design's inputs.
+
+    Raises:
+        ValueError: the record holds no displacement channel y_<axis>.
+    """
+    axes = [axis_tag(n) for n in design_inputs]
+    if inputs is None:
+        inputs = tuple(f"u_{a}" for a in axes)
+    if references is None:
+        references = tuple(f"r_{a}" for a in axes)
+    if outputs is None:
+        if names is None:
+            outputs = tuple(f"y_{a}" for a in axes)
+        else:
+            ys = [n for n in names if _signal(n) == "y"]
+            first = [f"y_{a}" for a in axes if f"y_{a}" in ys]
+            outputs = tuple(first + [n for n in ys if n not in first])
+            if not outputs:
+                raise ValueError(f"the record's channels {list(names)} hold no displacement y_<axis>; record the "
+                                 "measured displacements (y_a_x, ...)")
+    return tuple(outputs), tuple(inputs), tuple(references)
+
+
+def _signal(name: str) -> str:
+    try:
+        return split_name(name)[0]
+    except ValueError:
+        return ""
+
+
 def _run(stream: FrfStream, blocks, estimator: str) -> FrfResult:
     n_blocks = 0
     for first_index, data in blocks:
@@ -85,9 +130,9 @@ def _result(stream: FrfStream, n_blocks: int, estimator: str) -> FrfResult:
 
 def frf_from_arrays(data: Mapping[str, np.ndarray],
                     design: ExcitationDesign | Mapping[str, Any] | str | os.PathLike,
-                    estimator: str = "indirect", outputs: Sequence[str] = DEFAULT_OUTPUTS,
-                    inputs: Sequence[str] = DEFAULT_INPUTS,
-                    references: Sequence[str] = DEFAULT_REFERENCES, start_row: int = 0,
+                    estimator: str = "indirect", outputs: Sequence[str] | None = None,
+                    inputs: Sequence[str] | None = None,
+                    references: Sequence[str] | None = None, start_row: int = 0,
                     total_samples: int | None = None) -> FrfResult:
     """FRF of an experiment recorded as named channels.
 
@@ -96,10 +141,10 @@ def frf_from_arrays(data: Mapping[str, np.ndarray],
             all the same length; row i is sample i.
         design: the experiment's ExcitationDesign, its dict, or a JSON file.
         estimator: one of :data:`ambid.frf.streaming.ESTIMATORS`.
-        outputs: y channel names (Ny,).
+        outputs: y channel names (Ny,); None: every y_<axis> key of ``data``, in its order.
         inputs: u channel names; those of the design's inputs are used
-            (:func:`ambid.frf.streaming.match_inputs`).
-        references: r channel names, one per entry of ``inputs``.
+            (:func:`ambid.frf.streaming.match_inputs`); None: u_<axis> of the design's inputs.
+        references: r channel names, one per entry of ``inputs``; None: r_<axis> of the design's inputs.
         start_row: row where the experiment's first sample is.
         total_samples: the experiment was stopped after this many samples.
 
@@ -108,6 +153,7 @@ def frf_from_arrays(data: Mapping[str, np.ndarray],
         record ends before the experiment does.
     """
     d = load_design(design)
+    outputs, inputs, references = data_channels(d.input_names, list(data), outputs, inputs, references)
     u_names, r_names = match_inputs(d.input_names, inputs, references)
     stream = FrfStream(d, outputs, u_names, r_names, start_index=start_row, total_samples=total_samples)
     x = stack_channels(dict(data), stream.channel_names)
@@ -245,9 +291,9 @@ class _Pending:
 
 
 def frf_from_session(path: str | os.PathLike, estimator: str = "indirect",
-                     experiment_id: str | None = None, outputs: Sequence[str] = DEFAULT_OUTPUTS,
-                     inputs: Sequence[str] = DEFAULT_INPUTS,
-                     references: Sequence[str] = DEFAULT_REFERENCES,
+                     experiment_id: str | None = None, outputs: Sequence[str] | None = None,
+                     inputs: Sequence[str] | None = None,
+                     references: Sequence[str] | None = None,
                      recover: bool = False) -> FrfResult:
     """FRF of an experiment in a recorded session (what frf_consumer computes live).
 
@@ -262,7 +308,8 @@ def frf_from_session(path: str | os.PathLike, estimator: str = "indirect",
         estimator: one of :data:`ambid.frf.streaming.ESTIMATORS`.
         experiment_id: which experiment; default the last one recorded.
         outputs, inputs, references: channel names as in
-            :func:`frf_from_arrays`.
+            :func:`frf_from_arrays`; None: from the data (every y channel of
+            the measurement blocks, the design's u and r).
         recover: read a file a killed recorder left (no summary).
 
     Returns:
@@ -275,7 +322,16 @@ def frf_from_session(path: str | os.PathLike, estimator: str = "indirect",
     decode = Ros2Decoder()
     readers: dict[str, SampleBlockReader] = {}
     seen_end: dict[str, int] = {}       # measurement topic -> one past the last sample index read
+    block_names: dict[str, list[str]] = {}  # measurement topic -> the channel names of its first block
     pending: _Pending | None = None
+
+    def channels(topic: str, d: ExcitationDesign) -> tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]:
+        names = None
+        if outputs is None:
+            if topic not in block_names:   # the design came first: the record's channels from its first block
+                block_names[topic] = _first_block_names(path, topic, recover)
+            names = block_names[topic]
+        return data_channels(d.input_names, names, outputs, inputs, references)
 
     def start(key: tuple[str, str], entry: dict[str, Any]) -> _Pending:
         topic = _measurement_topic(key[0])
@@ -283,8 +339,9 @@ def frf_from_session(path: str | os.PathLike, estimator: str = "indirect",
             d = designs.design(entry)
             if d.kind == "recorded":    # estimated from the whole record after the pass
                 return _Pending(key, entry, None, False)
-            u_names, r_names = match_inputs(d.input_names, inputs, references)
-            stream = FrfStream(d, outputs, u_names, r_names, start_index=entry["start_index"],
+            ys, us, rs = channels(topic, d)
+            u_names, r_names = match_inputs(d.input_names, us, rs)
+            stream = FrfStream(d, ys, u_names, r_names, start_index=entry["start_index"],
                                total_samples=min(entry["total_samples"], d.total_samples))
         except ValueError:      # raised again below if this is the experiment
             return _Pending(key, entry, None, False)
@@ -311,6 +368,7 @@ def frf_from_session(path: str | os.PathLike, estimator: str = "indirect",
                 pending.exact = False
             continue
         seen_end[topic] = max(seen_end.get(topic, 0), block[0] + len(block[3]))
+        block_names.setdefault(topic, list(block[2]))
         if pending is not None and pending.exact and pending.topic == topic:
             try:
                 fed = pending.feed.block(*block)
@@ -339,13 +397,13 @@ def frf_from_session(path: str | os.PathLike, estimator: str = "indirect",
         return _result(pending.feed.stream, pending.feed.n_blocks, estimator)
     # the pass followed another experiment or could not follow this one exactly: read its blocks again
     d = chosen["design"]
-    u_names, r_names = match_inputs(d.input_names, inputs, references)
+    ys, us, rs = channels(topic, d)
+    u_names, r_names = match_inputs(d.input_names, us, rs)
     if d.kind == "recorded":
-        return frf_of_record(path, topic, chosen["start_index"], d, outputs, u_names, r_names, estimator, recover)
-    stream = FrfStream(d, outputs, u_names, r_names, start_index=chosen["start_index"],
+        return frf_of_record(path, topic, chosen["start_index"], d, ys, u_names, r_names, estimator, recover)
+    stream = FrfStream(d, ys, u_names, r_names, start_index=chosen["start_index"],
                        total_samples=min(chosen["total_samples"], d.total_samples))
     return _run(stream, _session_blocks(path, topic, stream, recover), estimator)
-
 
 # ------------------------------------------------------------------ records that do not repeat
 
@@ -398,3 +456,14 @@ def frf_of_record(path: str | os.PathLike, topic: str, start_index: int, design:
     ny, nu = len(outputs), len(inputs)
     x = data.data
     return local_frf_result(x[:, :ny], x[:, ny:ny + nu], x[:, ny + nu:], design, outputs, inputs)
+
+
+def _first_block_names(path: str | os.PathLike, topic: str, recover: bool) -> list[str] | None:
+    """The channel names of the first readable SampleBlock on ``topic``, or None without one."""
+    read = SampleBlockReader()
+    for message in iter_messages(path, topic, recover=recover):
+        try:
+            return list(read(message.data)[2])
+        except (ValueError, struct.error):
+            continue
+    return None

@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ambid.excitation.design import ExcitationDesign
-from ambid.frf.directional import DirectionalFrf, directional_frf
+from ambid.frf.directional import DirectionalFrf, directional_frf, has_planes
 from ambid.frf.estimators import (arithmetic_mean, errors_in_variables, h1, h2, indirect, log_mean,
                                   multiple_coherence, per_period_frf)
 from ambid.frf.sensitivity import input_sensitivity, iso14839_zone, sensitivity_peak
@@ -220,11 +220,12 @@ class FrfResult:
     noise_std_sd: np.ndarray | None = None
 
     def directional(self) -> DirectionalFrf | None:
-        """Forward and backward whirl FRFs (:mod:`ambid.frf.directional`) of a rotor's 4 x 4 x/y matrix in
-        AXES order, with the noise variance; None for another shape."""
-        if self.frf.shape[1:] != (4, 4):
+        """Forward and backward whirl FRFs (:mod:`ambid.frf.directional`) of the radial bearing planes the
+        channels name (x and y of a bearing among outputs and inputs), with the noise variance; None
+        without such a plane."""
+        if not has_planes(self.output_names, self.input_names):
             return None
-        return directional_frf(self.freq_hz, self.frf, self.var_noise)
+        return directional_frf(self.freq_hz, self.frf, self.var_noise, self.output_names, self.input_names)
 
     @property
     def relative_noise_std(self) -> float:
@@ -243,7 +244,8 @@ class FrfResult:
         return float(np.median(ratio)) if ratio.size else float("nan")
 
 
-def _axis_tag(name: str) -> str:
+def axis_tag(name: str) -> str:
+    """The axis a channel name tags: ``u_a_x`` -> ``a_x`` (prefixes u_, r_, ic_, i_); a bare name as it is."""
     for prefix in _PREFIXES:
         if name.startswith(prefix):
             return name[len(prefix):]
@@ -271,8 +273,8 @@ def match_inputs(design_inputs: Sequence[str], inputs: Sequence[str],
     if len(inputs) != len(references):
         raise ValueError(f"inputs {list(inputs)} and references {list(references)} must pair up "
                          "one to one (u_i is the current r_i is added to)")
-    tags = [_axis_tag(n) for n in inputs]
-    wanted = [_axis_tag(n) for n in design_inputs]
+    tags = [axis_tag(n) for n in inputs]
+    wanted = [axis_tag(n) for n in design_inputs]
     if all(tags.count(t) == 1 for t in wanted):
         idx = [tags.index(t) for t in wanted]
         return tuple(inputs[i] for i in idx), tuple(references[i] for i in idx)

@@ -15,6 +15,13 @@ Ethernet frame without fragmentation)::
     trailer <I          crc32(header + payload)
 
 Sequence numbers are uint32, counted per sender and per kind, wrapping.
+
+Versions. Version 2 (the default) carries any number of axes (1 to
+:data:`MAX_AXES`): a block's ``axes`` field (offset 12) says how many, its
+channels are y, u, ic, r of every axis (MEASUREMENT, 4 na) or r (EXCITATION,
+na) in the rig's channel order, and a HEARTBEAT's byte 3 says the sender's
+axes. Version 1 carries the four radial axes only: channel sets 1 (16
+channels) and 2 (4), heartbeat byte 3 reserved. Each end speaks one version.
 """
 
 from __future__ import annotations
@@ -28,9 +35,13 @@ from enum import IntEnum
 
 import numpy as np
 
+from ambid.channels import Layout
+
 MAGIC = b"AMBP"
-PROTOCOL_VERSION = 1
-SUPPORTED_VERSIONS = (1,)
+PROTOCOL_VERSION = 2
+SUPPORTED_VERSIONS = (1, 2)
+MAX_AXES = 8  # version 2: axes a block may carry
+V1_AXES = 4   # version 1: its channel sets carry exactly the four radial axes
 # 1500-byte Ethernet MTU minus the IPv4 (20) and UDP (8) headers: no IP fragmentation
 MAX_DATAGRAM_BYTES = 1472
 SEQUENCE_MODULO = 2**32
@@ -39,10 +50,12 @@ NO_INDEX = 2**64 - 1  # "none" in uint64 sample-index fields
 HEADER = struct.Struct("<4sBBHIHH")
 TRAILER = struct.Struct("<I")
 OVERHEAD_BYTES = HEADER.size + TRAILER.size
-# block payloads (MEASUREMENT, EXCITATION): first_index, n_samples, n_channels, channel_set, value_bytes, reserved
+# block payloads (MEASUREMENT, EXCITATION): first_index, n_samples, n_channels, axes (version 2; version 1:
+# channel set), value_bytes, reserved
 BLOCK_LAYOUT = struct.Struct("<QHHHBB")
-# state, safe_reason, clock_running, reserved, sample_rate_hz, sample_index, sent_end, excitation_next,
-# next_measurement_sequence, rx_datagrams, rx_rejected, late_excitation_samples, overruns, reserved
+# state, safe_reason, clock_running, axes (version 2; version 1: reserved), sample_rate_hz, sample_index,
+# sent_end, excitation_next, next_measurement_sequence, rx_datagrams, rx_rejected, late_excitation_samples,
+# overruns, reserved
 HEARTBEAT_LAYOUT = struct.Struct("<BBBBIQQQIIIIII")
 # command_id, code, reserved, reserved, arg0, arg1, arg2, reserved
 COMMAND_LAYOUT = struct.Struct("<IBBHQQII")
@@ -92,15 +105,18 @@ FLAG_LANDED = 2           # the rotor touched the backup bearings
 FLAG_SAFE_STATE = 8       # the target was in its safe state: zero current reference
 FLAG_EXCITATION_LATE = 16  # an announced sample had no excitation: r = 0 applied
 
+# version 1's channel sets: the four radial axes (V1_AXES) in the default rig's order
 CHANNEL_SET_MEASUREMENT = 1  # y(4) [m], u(4), ic(4), r(4) [A]
 CHANNEL_SET_EXCITATION = 2   # r(4) [A]
-_AXES = ("a_x", "b_x", "a_y", "b_y")
-CHANNEL_SETS: dict[int, tuple[str, ...]] = {
-    CHANNEL_SET_MEASUREMENT: tuple(f"{q}_{a}" for q in ("y", "u", "ic", "r") for a in _AXES),
-    CHANNEL_SET_EXCITATION: tuple(f"r_{a}" for a in _AXES),
-}
 _BLOCK_KINDS = {Kind.MEASUREMENT: CHANNEL_SET_MEASUREMENT, Kind.EXCITATION: CHANNEL_SET_EXCITATION}
+_SIGNALS_PER_AXIS = {Kind.MEASUREMENT: 4, Kind.EXCITATION: 1}  # y, u, ic, r; r
 _VALUE_DTYPES = {8: np.dtype("<f8"), 4: np.dtype("<f4")}
+
+
+def block_channels(kind: Kind, layout: Layout) -> tuple[str, ...]:
+    """The channel names of a block of ``kind`` for the rig's ``layout``, in wire order: a MEASUREMENT's y, u,
+    ic, r of every axis (``Layout.measurement_names``), an EXCITATION's r of every axis."""
+    return layout.measurement_names if Kind(kind) == Kind.MEASUREMENT else layout.excitations
 
 
 class ProtocolError(ValueError):
@@ -124,7 +140,8 @@ class Measurement:
     Attributes:
         sequence: uint32, per kind.
         first_index: sample index of the first row.
-        data: (n, 16) float64, rows (y [m], u [A], ic [A], r [A]) in CHANNEL_SETS[1] order.
+        data: (n, 4 na) float64, rows (y [m], u [A], ic [A], r [A]) of the na axes
+            (:func:`block_channels` order).
         sample_flags: (n,) uint8, FLAG_* bits.
     """
 
@@ -137,10 +154,14 @@ class Measurement:
     def end_index(self) -> int:
         return self.first_index + len(self.data)
 
+    @property
+    def n_axes(self) -> int:
+        return np.shape(self.data)[1] // 4
+
 
 @dataclass(frozen=True)
 class Excitation:
-    """EXCITATION: r [A] (n, 4) for samples [first_index, first_index + n)."""
+    """EXCITATION: r [A] (n, na) for samples [first_index, first_index + n)."""
 
     sequence: int
     first_index: int
@@ -149,6 +170,10 @@ class Excitation:
     @property
     def end_index(self) -> int:
         return self.first_index + len(self.data)
+
+    @property
+    def n_axes(self) -> int:
+        return np.shape(self.data)[1]
 
 
 @dataclass(frozen=True)
@@ -168,6 +193,8 @@ class Heartbeat:
         rx_datagrams, rx_rejected: datagrams the sender received / refused (malformed, foreign).
         late_excitation_samples: target: announced samples applied with r = 0.
         overruns: target: times the real-time schedule fell behind.
+        axes: version 2: the sender's axes (target: those it runs; bridge: its rig's); 0: not said
+            (version 1).
     """
 
     sequence: int
@@ -183,6 +210,7 @@ class Heartbeat:
     rx_rejected: int = 0
     late_excitation_samples: int = 0
     overruns: int = 0
+    axes: int = 0
 
 
 @dataclass(frozen=True)
@@ -212,9 +240,10 @@ class Ack:
 Message = Measurement | Excitation | Heartbeat | Command | Ack
 
 
-def max_block_samples(kind: Kind, value_bytes: int = 8) -> int:
-    """Most samples one MEASUREMENT or EXCITATION datagram can carry within MAX_DATAGRAM_BYTES."""
-    n_ch = len(CHANNEL_SETS[_BLOCK_KINDS[Kind(kind)]])
+def max_block_samples(kind: Kind, value_bytes: int = 8, n_axes: int = V1_AXES) -> int:
+    """Most samples one MEASUREMENT or EXCITATION datagram of ``n_axes`` axes can carry within
+    MAX_DATAGRAM_BYTES."""
+    n_ch = _SIGNALS_PER_AXIS[Kind(kind)] * int(n_axes)
     per_sample = n_ch * value_bytes + (1 if kind == Kind.MEASUREMENT else 0)
     return (MAX_DATAGRAM_BYTES - OVERHEAD_BYTES - BLOCK_LAYOUT.size) // per_sample
 
@@ -230,13 +259,14 @@ def _check_uint(name: str, value: int, bits: int) -> int:
     return int(value)
 
 
-def _frame(kind: Kind, sequence: int, payload: bytes, version: int) -> bytes:
+def _frame(kind: Kind, sequence: int, payload: bytes, version: int, n_axes: int = V1_AXES) -> bytes:
     _check_uint("sequence", sequence, 32)
     _check_uint("version", version, 8)
     size = OVERHEAD_BYTES + len(payload)
     if size > MAX_DATAGRAM_BYTES:
         raise ValueError(f"{kind.name} datagram of {size} bytes exceeds {MAX_DATAGRAM_BYTES} bytes; "
-                         f"send fewer samples per datagram (at most {max_block_samples(kind)} at float64)")
+                         f"send fewer samples per datagram (at most {max_block_samples(kind, 8, n_axes)} at "
+                         "float64)")
     head = HEADER.pack(MAGIC, version, kind, 0, sequence, len(payload), 0)
     body = head + payload
     return body + TRAILER.pack(zlib.crc32(body))
@@ -244,24 +274,29 @@ def _frame(kind: Kind, sequence: int, payload: bytes, version: int) -> bytes:
 
 def _pack_block(kind: Kind, sequence: int, first_index: int, data, sample_flags, version: int,
                 value_bytes: int) -> bytes:
-    channel_set = _BLOCK_KINDS[kind]
-    n_ch = len(CHANNEL_SETS[channel_set])
     if value_bytes not in _VALUE_DTYPES:
         raise ValueError(f"value_bytes = {value_bytes!r}: use 8 (float64) or 4 (float32)")
     data = np.asarray(data, dtype=float)
-    if data.ndim != 2 or data.shape[1] != n_ch or data.shape[0] < 1:
-        raise ValueError(f"{kind.name} data must have shape (n >= 1, {n_ch}), got {data.shape}")
+    per_axis = _SIGNALS_PER_AXIS[kind]
+    n_axes = data.shape[1] // per_axis if data.ndim == 2 else 0
+    most = V1_AXES if version == 1 else MAX_AXES
+    if data.ndim != 2 or data.shape[1] != per_axis * n_axes or not (1 <= n_axes <= most) or data.shape[0] < 1 \
+            or (version == 1 and n_axes != V1_AXES):
+        want = f"{per_axis * V1_AXES}" if version == 1 else f"{per_axis} x axes, 1 to {MAX_AXES} axes"
+        raise ValueError(f"{kind.name} data of protocol version {version} must have shape (n >= 1, {want}), "
+                         f"got {data.shape}")
     if not np.all(np.isfinite(data)):
         raise ValueError(f"{kind.name} data contains NaN or Inf")
     _check_uint("first_index", first_index, 64)
-    head = BLOCK_LAYOUT.pack(first_index, data.shape[0], n_ch, channel_set, value_bytes, 0)
+    axes_field = _BLOCK_KINDS[kind] if version == 1 else n_axes
+    head = BLOCK_LAYOUT.pack(first_index, data.shape[0], data.shape[1], axes_field, value_bytes, 0)
     payload = head + data.astype(_VALUE_DTYPES[value_bytes]).tobytes()
     if kind == Kind.MEASUREMENT:
         flags = np.asarray(sample_flags)
         if flags.shape != (data.shape[0],) or np.any((flags < 0) | (flags > 255)):
             raise ValueError(f"sample_flags must be (n,) = ({data.shape[0]},) values in [0, 255], got {flags.shape}")
         payload += flags.astype(np.uint8).tobytes()
-    return _frame(kind, sequence, payload, version)
+    return _frame(kind, sequence, payload, version, n_axes)
 
 
 def pack_datagram(msg: Message, version: int = PROTOCOL_VERSION, value_bytes: int = 8) -> bytes:
@@ -283,7 +318,8 @@ def pack_datagram(msg: Message, version: int = PROTOCOL_VERSION, value_bytes: in
     if isinstance(msg, Heartbeat):
         payload = HEARTBEAT_LAYOUT.pack(
             _check_uint("state", msg.state, 8), _check_uint("safe_reason", msg.safe_reason, 8),
-            1 if msg.clock_running else 0, 0, _check_uint("sample_rate_hz", msg.sample_rate_hz, 32),
+            1 if msg.clock_running else 0, 0 if version == 1 else _check_uint("axes", msg.axes, 8),
+            _check_uint("sample_rate_hz", msg.sample_rate_hz, 32),
             _check_uint("sample_index", msg.sample_index, 64), _check_uint("sent_end", msg.sent_end, 64),
             _check_uint("excitation_next", msg.excitation_next, 64),
             _check_uint("next_measurement_sequence", msg.next_measurement_sequence, 32),
@@ -305,15 +341,26 @@ def pack_datagram(msg: Message, version: int = PROTOCOL_VERSION, value_bytes: in
     raise ValueError(f"cannot pack a {type(msg).__name__}; expected Measurement, Excitation, Heartbeat, Command or Ack")
 
 
-def _unpack_block(kind: Kind, sequence: int, payload: memoryview):
+def _unpack_block(kind: Kind, sequence: int, payload: memoryview, version: int, n_axes: int | None):
     if len(payload) < BLOCK_LAYOUT.size:
         raise ProtocolError("length", f"{kind.name} payload of {len(payload)} bytes is shorter than its "
                                       f"{BLOCK_LAYOUT.size}-byte block header")
-    first, n, n_ch, channel_set, value_bytes, _ = BLOCK_LAYOUT.unpack_from(payload)
-    want_set = _BLOCK_KINDS[kind]
-    if channel_set != want_set or n_ch != len(CHANNEL_SETS[want_set]):
-        raise ProtocolError("content", f"{kind.name} with channel set {channel_set} of {n_ch} channels; expected "
-                                       f"set {want_set} of {len(CHANNEL_SETS[want_set])} channels")
+    first, n, n_ch, axes_field, value_bytes, _ = BLOCK_LAYOUT.unpack_from(payload)
+    per_axis = _SIGNALS_PER_AXIS[kind]
+    if version == 1:
+        want_set = _BLOCK_KINDS[kind]
+        if axes_field != want_set or n_ch != per_axis * V1_AXES:
+            raise ProtocolError("content", f"{kind.name} with channel set {axes_field} of {n_ch} channels; "
+                                           f"expected set {want_set} of {per_axis * V1_AXES} channels")
+        axes = V1_AXES
+    else:
+        axes = axes_field
+        if not 1 <= axes <= MAX_AXES or n_ch != per_axis * axes:
+            raise ProtocolError("content", f"{kind.name} of {axes} axes with {n_ch} channels; expected 1 to "
+                                           f"{MAX_AXES} axes of {per_axis} channel(s) each")
+    if n_axes is not None and axes != n_axes:
+        raise ProtocolError("content", f"{kind.name} of {axes} axes, this end runs {n_axes}: give bridge and "
+                                       "target the same rig (its axes)")
     if value_bytes not in _VALUE_DTYPES:
         raise ProtocolError("content", f"{kind.name} with {value_bytes}-byte values; expected 8 or 4")
     if n < 1:
@@ -333,12 +380,14 @@ def _unpack_block(kind: Kind, sequence: int, payload: memoryview):
     return Measurement(sequence, first, data, flags)
 
 
-def unpack_datagram(datagram: bytes, version: int = PROTOCOL_VERSION) -> Message:
+def unpack_datagram(datagram: bytes, version: int = PROTOCOL_VERSION, n_axes: int | None = None) -> Message:
     """The message in one received datagram.
 
     Args:
         datagram: the bytes received.
         version: the only protocol version accepted.
+        n_axes: the axes this end runs (its rig's); a block of another number is refused (``content``).
+            None accepts any.
 
     Raises:
         ProtocolError: the datagram is truncated, oversized, not of this protocol or version, corrupted
@@ -368,13 +417,14 @@ def unpack_datagram(datagram: bytes, version: int = PROTOCOL_VERSION) -> Message
         raise ProtocolError("kind", f"unknown datagram kind {kind}") from None
     payload = view[HEADER.size:size - TRAILER.size]
     if kind in _BLOCK_KINDS:
-        return _unpack_block(kind, sequence, payload)
+        return _unpack_block(kind, sequence, payload, ver, n_axes)
     layout = {Kind.HEARTBEAT: HEARTBEAT_LAYOUT, Kind.COMMAND: COMMAND_LAYOUT, Kind.ACK: ACK_LAYOUT}[kind]
     if len(payload) != layout.size:
         raise ProtocolError("length", f"{kind.name} payload of {len(payload)} bytes, expected {layout.size}")
     f = layout.unpack(payload)
     if kind == Kind.HEARTBEAT:
-        return Heartbeat(sequence, f[0], f[1], bool(f[2]), f[4], f[5], f[6], f[7], f[8], f[9], f[10], f[11], f[12])
+        return Heartbeat(sequence, f[0], f[1], bool(f[2]), f[4], f[5], f[6], f[7], f[8], f[9], f[10], f[11], f[12],
+                         0 if ver == 1 else f[3])
     if kind == Kind.COMMAND:
         return Command(sequence, f[0], f[1], f[4], f[5], f[6])
     return Ack(sequence, f[0], f[1], f[2], f[3], f[5])
@@ -384,7 +434,7 @@ def unpack_datagram(datagram: bytes, version: int = PROTOCOL_VERSION) -> Message
 
 @dataclass(frozen=True)
 class Block:
-    """Contiguous measured samples [first_index, first_index + n): data (n, 16), sample_flags (n,) uint8.
+    """Contiguous measured samples [first_index, first_index + n): data (n, 4 na), sample_flags (n,) uint8.
 
     ``final``: the last block of the stream (see :meth:`MeasurementAssembler.finish`).
     """

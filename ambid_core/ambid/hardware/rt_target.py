@@ -118,7 +118,8 @@ class TargetConfig:
             "linger": (self.linger, 0.0, 3600.0), "mute_seconds": (self.mute_seconds, 0.0, 3600.0),
             "drop": (self.drop, 0.0, 1.0), "corrupt": (self.corrupt, 0.0, 1.0),
             "duplicate": (self.duplicate, 0.0, 1.0), "reorder": (self.reorder, 0.0, 1.0),
-            "block": (self.block, 1, bp.max_block_samples(bp.Kind.MEASUREMENT, value_bytes)),
+            # the rig's axes set the true limit (Target checks it); one axis allows the most
+            "block": (self.block, 1, bp.max_block_samples(bp.Kind.MEASUREMENT, value_bytes, 1)),
             "samples": (self.samples, 0, 2**62), "seed": (self.seed, 0, 2**63 - 1),
             "fault_seed": (self.fault_seed, 0, 2**63 - 1), "reorder_depth": (self.reorder_depth, 1, 100),
             "protocol_version": (self.protocol_version, 1, 255), "mute_at": (self.mute_at, -1, 2**62),
@@ -192,7 +193,7 @@ class FaultInjector:
 
 
 class ExcitationBuffer:
-    """Excitation blocks r (n, 4) [A] by first sample index, looked up sample by sample."""
+    """Excitation blocks r (n, na) [A] by first sample index, looked up sample by sample."""
 
     def __init__(self) -> None:
         self._starts: list[int] = []
@@ -228,7 +229,7 @@ class ExcitationBuffer:
         return None
 
     def at(self, k: int) -> list[float] | None:
-        """r[k] (4 floats) or None if no block covers k. Blocks ending before k are forgotten."""
+        """r[k] (na floats) or None if no block covers k. Blocks ending before k are forgotten."""
         if self._cur is None or not self._cur_first <= k < self._cur_end:
             # forget what lies behind the clock
             while self._starts and self._starts[0] + len(self._blocks[self._starts[0]]) <= k:
@@ -274,8 +275,16 @@ class Target:
         self.rig = load_rig(cfg.rig_file) if cfg.rig_file else make_rig()
         self.dt = self.rig.dt
         self.sim = PlantSimulator(self.rig, seed=cfg.seed, nonlinear_magnets=cfg.nonlinear_magnets)
+        self.n_axes = len(self.rig.layout)
+        if cfg.protocol_version == 1 and self.n_axes != bp.V1_AXES:
+            raise ValueError(f"rt_target: protocol version 1 carries {bp.V1_AXES} axes, the rig has {self.n_axes}; "
+                             "speak version 2 (--protocol-version 2)")
+        most = bp.max_block_samples(bp.Kind.MEASUREMENT, 4 if cfg.float32 else 8, self.n_axes)
+        if cfg.block > most:
+            raise ValueError(f"rt_target: block = {cfg.block} samples of {self.n_axes} axes exceed a datagram; "
+                             f"give at most {most}")
         pid = PidParameters()
-        self.ctl = ControllerStepper(pid_controller(pid, self.dt), pid.current_limit_a)
+        self.ctl = ControllerStepper(pid_controller(pid, self.dt, self.rig.layout), pid.current_limit_a)
         self.bridge_addr = parse_address(cfg.bridge)
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 * 1024 * 1024)
@@ -336,7 +345,7 @@ class Target:
             excitation_next=bp.NO_INDEX if nxt is None else nxt,
             next_measurement_sequence=self.seq[bp.Kind.MEASUREMENT], rx_datagrams=self.rx,
             rx_rejected=self.rx_foreign + self.rx_malformed, late_excitation_samples=self.late_excitation,
-            overruns=self.overruns))
+            overruns=self.overruns, axes=self.n_axes))
         self.next_hb = time.monotonic() + self.cfg.heartbeat
 
     def send_block(self) -> None:
@@ -361,7 +370,7 @@ class Target:
                 self.rx_foreign += 1
                 continue
             try:
-                msg = bp.unpack_datagram(data, self.cfg.protocol_version)
+                msg = bp.unpack_datagram(data, self.cfg.protocol_version, self.n_axes)
             except bp.ProtocolError:
                 self.rx_malformed += 1
                 continue
@@ -437,7 +446,7 @@ class Target:
         """Run up to n samples; returns how many ran (fewer when holding for excitation or halting)."""
         sim, ctl, exc = self.sim, self.ctl, self.excitation
         block = self.cfg.block
-        zero = [0.0, 0.0, 0.0, 0.0]
+        zero = [0.0] * self.n_axes
         for i in range(n):
             k = self.k
             flag = 0
@@ -457,7 +466,7 @@ class Target:
                     r = zero
                 y = sim.output()
                 ic = ctl.step(y)
-            u = [ic[0] + r[0], ic[1] + r[1], ic[2] + r[2], ic[3] + r[3]]
+            u = [a + b for a, b in zip(ic, r)]
             clipped, contact = sim.step(u)
             self.rows.append((*y.tolist(), *u, *ic, *r))
             self.row_flags.append(flag | (bp.FLAG_CLIPPED if clipped else 0) | (bp.FLAG_LANDED if contact else 0))

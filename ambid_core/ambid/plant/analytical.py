@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ambid.channels import CURRENT_NAMES, DISPLACEMENT_NAMES
 from ambid.plant.rig import Rig
 from ambid.statespace import StateSpace
 
@@ -26,17 +25,21 @@ def analytical_model(rig: Rig, n_bending: int | None = None) -> StateSpace:
             (0 gives the rigid 4-DOF rotor of sec. 2.3.1).
 
     Returns:
-        StateSpace, dt = 0, 4 inputs (CURRENT_NAMES) and 4 outputs
-        (DISPLACEMENT_NAMES); states: rotor states, then coil control
-        currents [A].
+        StateSpace, dt = 0, na inputs (the rig layout's u names) and na outputs
+        (its y names); states: rotor states, then coil control currents [A].
+        With an axial bearing its axis carries the axial magnet's ki, ks and
+        amplifier, and the rotor's axial rigid mass (decoupled).
     """
     rotor = rig.rotor_model(n_bending)
-    ki, ks = rig.magnet.ki, rig.magnet.ks
-    tau = 1.0 / (2 * np.pi * rig.current_loop_bandwidth_hz)
+    layout = rotor.layout
+    na = len(layout)
+    mags = rig.axis_magnets()
+    ki, ks = np.array([m.ki for m in mags]), np.array([m.ks for m in mags])
+    inv_tau = 1.0 / (1.0 / (2 * np.pi * rig.amplifier_bandwidths_hz))
     n = rotor.n_states
-    i4 = np.eye(4)
-    a = np.block([[rotor.a + ks * rotor.b @ rotor.c_bearing, ki * rotor.b], [np.zeros((4, n)), -i4 / tau]])
-    b = np.vstack([np.zeros((n, 4)), i4 / tau])
-    c = np.hstack([rotor.c_sensor, np.zeros((4, 4))])
-    return StateSpace(a, b, c, np.zeros((4, 4)), 0.0, CURRENT_NAMES, DISPLACEMENT_NAMES,
-                      ("A",) * 4, ("m",) * 4)
+    a = np.block([[rotor.a + (rotor.b * ks) @ rotor.c_bearing, rotor.b * ki],
+                  [np.zeros((na, n)), -np.diag(inv_tau)]])
+    b = np.vstack([np.zeros((n, na)), np.diag(inv_tau)])
+    c = np.hstack([rotor.c_sensor, np.zeros((na, na))])
+    return StateSpace(a, b, c, np.zeros((na, na)), 0.0, layout.inputs, layout.outputs,
+                      layout.units("u"), layout.units("y"))

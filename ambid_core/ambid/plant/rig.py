@@ -19,8 +19,9 @@ Two models of the same rig exist on purpose:
   housing mode, sensor dynamics, an extra delay).
 
 Channel order everywhere: bearing A x, bearing B x, bearing A y, bearing B y
-(the axes are turned 45 deg from the vertical). Axial positions are measured
-from the middle of the shaft, A on the negative side.
+(the axes are turned 45 deg from the vertical), then the axial bearing z when
+the rig has one (``axial_bearing``: :attr:`Rig.layout`). Axial positions are
+measured from the middle of the shaft, A on the negative side.
 """
 
 from __future__ import annotations
@@ -30,16 +31,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
-
+from ambid.channels import FIVE_AXIS, RADIAL, Layout
 from ambid.plant.amplifier import Amplifier
-from ambid.plant.fem_rotor import LaminationStack, Material, RotorGeometry, ShaftSection
+from ambid.plant.fem_rotor import Disk, LaminationStack, Material, RotorGeometry, ShaftSection
 from ambid.plant.magnet import MU0, MagnetPair
 from ambid.plant.rigid_rotor import RigidRotor
 from ambid.plant.rotor_import import load_rotor
-from ambid.plant.rotor_model import RotorModel, fem_rotor_model, rigid_inverse_mass
+from ambid.plant.rotor_model import RotorModel, fem_rotor_model, rigid_inverse_mass, with_axial
+from ambid.plant.sensors import Sensors
 from ambid.plant.tolerances import Tolerance, parse_tolerances
-from ambid.text_file import read_text
+from ambid.yaml_file import read_yaml
 
 
 @dataclass(frozen=True)
@@ -129,6 +130,31 @@ RIG_FIELDS: dict[str, RigField] = {
     "backup_clearance_m": RigField(0.25e-3, "m", 1e-6, 0.01, "radial retainer clearance, < s0"),
     "contact_stiffness_n_per_m": RigField(5e7, "N/m", 1e3, 1e10, "backup bearing and retainer stiffness"),
     "contact_damping_ns_per_m": RigField(3e3, "N s/m", 0.0, 1e7, "retainer contact damping, little rebound"),
+    # the axial bearing (axis z; only with axial_bearing = 1: rigs/five_axis.yaml)
+    "axial_bearing": RigField(0.0, "-", 0.0, 1.0, "1: the five-axis machine, a thrust disk on the shaft and an "
+                              "axial magnet pair (axis z, decoupled from the radial planes); 0: radial bearings "
+                              "only", integer=True),
+    "thrust_disk_z_m": RigField(0.37, "m", -10.0, 10.0, "thrust disk centre, outboard of sensor B"),
+    "thrust_disk_diameter_m": RigField(0.16, "m", 0.002, 4.0, "solid steel thrust disk, outer diameter (room for "
+                                       "an inner and an outer pole ring of the axial stator)"),
+    "thrust_disk_thickness_m": RigField(0.02, "m", 0.001, 1.0, "thrust disk, axial thickness"),
+    "axial_coil_turns": RigField(80.0, "-", 1.0, 10_000.0, "Nc of each axial magnet (one toroidal coil)"),
+    "axial_pole_area_m2": RigField(4.0e-3, "m^2", 1e-6, 1.0, "Aa of each of the two pole rings facing the disk "
+                                   "(inner r 35-50 mm, outer r 62-72 mm: equal areas, eq. 2.5)"),
+    "axial_air_gap_m": RigField(0.6e-3, "m", 1e-5, 0.01, "nominal axial air gap s0 on each side of the disk"),
+    "axial_bias_current_a": RigField(3.0, "A", 0.01, 100.0, "ib of the axial magnets, >= current_limit_a"),
+    "axial_true_ki_factor": RigField(1.02, "-", 0.5, 2.0, "true axial ki / nominal: manufacturing tolerance "
+                                     "(+2 %)"),
+    "axial_true_ks_factor": RigField(0.96, "-", 0.5, 2.0, "true axial ks / nominal: manufacturing tolerance "
+                                     "(-4 %)"),
+    "axial_sensor_bandwidth_hz": RigField(5_000.0, "Hz", 10.0, 1e6, "axial eddy-current probe on the shaft end "
+                                          "face and its anti-alias filter, first order"),
+    "axial_sensor_gain": RigField(1.0, "m/m", 0.1, 10.0, "axial probe, calibrated sensitivity (true / nominal)"),
+    "axial_sensor_noise_m": RigField(0.3e-6, "m", 0.0, 1e-3, "RMS white noise of the axial probe at 10 kHz "
+                                     "(a larger target distance than the radial probes')"),
+    "axial_backup_clearance_m": RigField(0.2e-3, "m", 1e-6, 0.01, "axial retainer clearance, a third of the "
+                                         "axial s0: the disk lands before the magnet's pull at full current "
+                                         "overcomes the retainer's stiffness"),
 }
 
 _ROTOR_KEYS = ("shaft_length_m", "shaft_diameter_m", "stack_length_m", "stack_diameter_m", "sleeve_length_m",
@@ -137,6 +163,7 @@ _ROTOR_KEYS = ("shaft_length_m", "shaft_diameter_m", "stack_length_m", "stack_di
                "sensor_b_z_m", "stack_eccentricity_m", "stack_unbalance_phase_deg", "sleeve_a_eccentricity_m",
                "sleeve_a_unbalance_phase_deg", "sleeve_b_eccentricity_m", "sleeve_b_unbalance_phase_deg")
 _UNBALANCE_KEYS = ("stack_eccentricity_m", "sleeve_a_eccentricity_m", "sleeve_b_eccentricity_m")
+_AXIAL_ROTOR_KEYS = ("axial_bearing", "thrust_disk_z_m", "thrust_disk_diameter_m", "thrust_disk_thickness_m")
 _ROTOR_CACHE: dict[tuple, RotorModel] = {}
 
 
@@ -190,16 +217,40 @@ class Rig:
         effective pole area Aa' = Aa fi (s0' / s0)^2 (fringing).
         """
         v = self.values
-        gap_ratio = v["true_ki_factor"] / v["true_ks_factor"]
-        return MagnetPair(v["coil_turns"], v["pole_area_m2"] * v["true_ki_factor"] * gap_ratio**2,
-                          v["air_gap_m"] * gap_ratio, v["bias_current_a"], np.deg2rad(v["pole_angle_deg"]))
+        return _with_tolerance(self.magnet, v["true_ki_factor"], v["true_ks_factor"])
+
+    @property
+    def layout(self) -> Layout:
+        """The axes the rig controls, in channel order: the two radial bearings' (``RADIAL``), and with
+        ``axial_bearing`` the axial one after them (``FIVE_AXIS``)."""
+        return FIVE_AXIS if self.values["axial_bearing"] else RADIAL
+
+    @property
+    def axial_magnet(self) -> MagnetPair:
+        """Nominal magnet pair of the axial bearing: two toroidal magnets facing the thrust disk, each an
+        inner and an outer pole ring, so the force acts along the axis (alpha = 0 in eqs. 2.13-2.17)."""
+        v = self.values
+        return MagnetPair(v["axial_coil_turns"], v["axial_pole_area_m2"], v["axial_air_gap_m"],
+                          v["axial_bias_current_a"], 0.0)
+
+    @property
+    def axial_true_magnet(self) -> MagnetPair:
+        """The true axial magnet pair (``axial_true_ki_factor``, ``axial_true_ks_factor``; as :attr:`true_magnet`)."""
+        v = self.values
+        return _with_tolerance(self.axial_magnet, v["axial_true_ki_factor"], v["axial_true_ks_factor"])
+
+    def axis_magnets(self, true: bool = False) -> tuple[MagnetPair, ...]:
+        """The magnet pair of every axis of :attr:`layout`, nominal or ``true``."""
+        radial, axial = (self.true_magnet, self.axial_true_magnet) if true else (self.magnet, self.axial_magnet)
+        axial_axes = self.layout.axial
+        return tuple(axial if j in axial_axes else radial for j in range(len(self.layout)))
 
     # -- amplifiers ------------------------------------------------------
     @property
     def coil_inductance_h(self) -> float:
         """L = mu0 Nc^2 Aa / (2 s0) of one magnet at the centre (flux of eq. 2.8 through two gaps) [H]."""
         v = self.values
-        return MU0 * v["coil_turns"] ** 2 * v["pole_area_m2"] / (2.0 * v["air_gap_m"])
+        return _coil_inductance(v["coil_turns"], v["pole_area_m2"], v["air_gap_m"])
 
     @property
     def max_coil_current_a(self) -> float:
@@ -210,14 +261,46 @@ class Rig:
     def amplifier(self) -> Amplifier:
         """One coil's amplifier: L, udc, imax, and a current-loop gain Gp = L omega_BW so that the
         small-signal bandwidth equals the power bandwidth of eq. 2.24 (Lantto's model, eq. 2.21)."""
-        w_bw = np.log(9.0) * self.values["dc_link_voltage_v"] / (self.coil_inductance_h * self.max_coil_current_a)
-        return Amplifier(self.coil_inductance_h, 0.0, self.values["dc_link_voltage_v"], self.max_coil_current_a,
-                         self.coil_inductance_h * w_bw, min_current_a=0.0)
+        return _power_bandwidth_amplifier(self.coil_inductance_h, self.values["dc_link_voltage_v"],
+                                          self.max_coil_current_a)
 
     @property
     def current_loop_bandwidth_hz(self) -> float:
         """Closed current-loop bandwidth omega_BW / 2 pi, omega_BW = ln(9) udc / (L imax) (eq. 2.24) [Hz]."""
         return self.amplifier.bandwidth_hz
+
+    @property
+    def axial_coil_inductance_h(self) -> float:
+        """L of one axial magnet at the centre, as :attr:`coil_inductance_h` with the axial data [H]."""
+        v = self.values
+        return _coil_inductance(v["axial_coil_turns"], v["axial_pole_area_m2"], v["axial_air_gap_m"])
+
+    @property
+    def axial_amplifier(self) -> Amplifier:
+        """An axial coil's amplifier (eq. 2.24 with the axial inductance and imax = axial ib + current limit)."""
+        imax = self.values["axial_bias_current_a"] + self.values["current_limit_a"]
+        return _power_bandwidth_amplifier(self.axial_coil_inductance_h, self.values["dc_link_voltage_v"], imax)
+
+    @property
+    def amplifier_bandwidths_hz(self) -> np.ndarray:
+        """The current-loop bandwidth of every axis of :attr:`layout` (eq. 2.24), (na,) [Hz]."""
+        radial, axial = self.current_loop_bandwidth_hz, self.axial_amplifier.bandwidth_hz
+        return np.array([axial if j in self.layout.axial else radial for j in range(len(self.layout))])
+
+    # -- sensors and backup bearings --------------------------------------
+    def axis_sensors(self) -> tuple[Sensors, ...]:
+        """The displacement sensor of every axis of :attr:`layout` (the radial probes' data, the axial probe's)."""
+        v = self.values
+        radial = Sensors.from_rig(v)
+        axial = Sensors(v["axial_sensor_bandwidth_hz"], v["axial_sensor_gain"], v["axial_sensor_noise_m"])
+        return tuple(axial if j in self.layout.axial else radial for j in range(len(self.layout)))
+
+    def backup_bearings(self) -> tuple[tuple[tuple[int, ...], float], ...]:
+        """The retainers: (axes, clearance [m]) of each, a radial bearing's (x, y) axes together (it touches
+        when the radius reaches the clearance), an axial one alone."""
+        lay, v = self.layout, self.values
+        return (tuple((pair, v["backup_clearance_m"]) for pair in lay.radial_pairs)
+                + tuple(((j,), v["axial_backup_clearance_m"]) for j in lay.axial))
 
     # -- rotor -----------------------------------------------------------
     @property
@@ -259,8 +342,12 @@ class Rig:
                                               v["sleeve_diameter_m"], density_kg_m3=v["density_kg_m3"]))
         material = Material(v["youngs_modulus_pa"], v["density_kg_m3"], _STEEL.poisson_ratio)
         stations = tuple(half + v[k] for k in ("bearing_a_z_m", "bearing_b_z_m", "sensor_a_z_m", "sensor_b_z_m"))
+        disks = ()
+        if v["axial_bearing"]:  # the thrust disk: a rigid disk on the shaft (mass and inertia, no stiffness)
+            disks = (Disk.from_geometry(half + v["thrust_disk_z_m"], v["thrust_disk_thickness_m"],
+                                        v["thrust_disk_diameter_m"], v["shaft_diameter_m"], v["density_kg_m3"]),)
         return RotorGeometry(sections=(ShaftSection(v["shaft_length_m"], v["shaft_diameter_m"]),),
-                             stacks=tuple(stacks), stations_m=stations, material=material,
+                             disks=disks, stacks=tuple(stacks), stations_m=stations, material=material,
                              max_element_length_m=min(0.025, v["shaft_length_m"] / 16))
 
     def rotor_model(self, n_bending: int | None = None) -> RotorModel:
@@ -270,17 +357,20 @@ class Rig:
             n_bending: bending modes per plane; None takes ``bending_modes``.
                 Ignored for an imported rotor (it is used as given).
         """
-        if self.rotor_import is not None:
-            return self.rotor_import
         v = self.values
+        if self.rotor_import is not None:
+            # the user's lateral rotor; the axial motion is its rigid mass (sec. 2.3.1)
+            return with_axial(self.rotor_import) if v["axial_bearing"] else self.rotor_import
         nb = int(v["bending_modes"] if n_bending is None else n_bending)
-        key = tuple(v[k] for k in _ROTOR_KEYS) + (nb,)
+        key = tuple(v[k] for k in _ROTOR_KEYS + _AXIAL_ROTOR_KEYS) + (nb,)
         model = _ROTOR_CACHE.get(key)
         if model is None:
             half = v["shaft_length_m"] / 2
             model = fem_rotor_model(self.rotor_geometry, (half + v["bearing_a_z_m"], half + v["bearing_b_z_m"]),
                                     (half + v["sensor_a_z_m"], half + v["sensor_b_z_m"]), nb,
                                     v["modal_damping_ratio"], self.speed_rad_s, self.unbalance_planes())
+            if v["axial_bearing"]:
+                model = with_axial(model)
             if len(_ROTOR_CACHE) > 16:
                 _ROTOR_CACHE.clear()
             _ROTOR_CACHE[key] = model
@@ -335,6 +425,20 @@ class Rig:
         }
         for j, f in enumerate(model.flexible_freq_hz):
             out[f"free_free_bending_{j + 1}_hz"] = float(f)
+        if self.values["axial_bearing"]:
+            ma, mat = self.axial_magnet, self.axial_true_magnet
+            out.update({
+                "thrust_disk_mass_kg": float(self.rotor_geometry.disks[0].mass_kg),
+                "axial_magnet_constant_n_m2_per_a2": ma.k_magnet,
+                "axial_ki_n_per_a": ma.ki,
+                "axial_ks_n_per_m": ma.ks,
+                "axial_true_ki_n_per_a": mat.ki,
+                "axial_true_ks_n_per_m": mat.ks,
+                "axial_coil_inductance_h": self.axial_coil_inductance_h,
+                "axial_current_loop_bandwidth_hz": self.axial_amplifier.bandwidth_hz,
+                "axial_unstable_pole_hz": float(np.sqrt(ma.ks / model.mass_kg) / (2 * np.pi)),
+                "axial_max_force_n": float(ma.force(self.values["current_limit_a"], 0.0)),
+            })
         return out
 
     def to_dict(self) -> dict[str, Any]:
@@ -348,6 +452,25 @@ class Rig:
         if self.tolerances:
             out["tolerances"] = {k: t.to_text() for k, t in self.tolerances.items()}
         return out
+
+
+def _coil_inductance(turns: float, pole_area_m2: float, air_gap_m: float) -> float:
+    """L = mu0 Nc^2 Aa / (2 s0) of one magnet at the centre (flux of eq. 2.8 through two gaps) [H]."""
+    return MU0 * turns ** 2 * pole_area_m2 / (2.0 * air_gap_m)
+
+
+def _power_bandwidth_amplifier(inductance_h: float, udc_v: float, imax_a: float) -> Amplifier:
+    """A coil's amplifier whose small-signal bandwidth is the power bandwidth of eq. 2.24,
+    omega_BW = ln(9) udc / (L imax) (current-loop gain Gp = L omega_BW, Lantto's model, eq. 2.21)."""
+    w_bw = np.log(9.0) * udc_v / (inductance_h * imax_a)
+    return Amplifier(inductance_h, 0.0, udc_v, imax_a, inductance_h * w_bw, min_current_a=0.0)
+
+
+def _with_tolerance(nominal: MagnetPair, ki_factor: float, ks_factor: float) -> MagnetPair:
+    """The magnet pair whose ki and ks are the nominal ones times the factors (see :attr:`Rig.true_magnet`)."""
+    gap_ratio = ki_factor / ks_factor
+    return MagnetPair(nominal.n_turns, nominal.pole_area_m2 * ki_factor * gap_ratio**2,
+                      nominal.air_gap_m * gap_ratio, nominal.bias_current_a, nominal.pole_angle_rad)
 
 
 def _check_value(key: str, f: RigField, raw: Any) -> float:
@@ -385,6 +508,26 @@ def _check_layout(v: dict[str, float]) -> None:
     for key in ("stack_diameter_m", "sleeve_diameter_m"):
         if v[key] <= v["shaft_diameter_m"]:
             raise ValueError(f"rig: {key} must exceed shaft_diameter_m (the stack sits on the shaft)")
+    if not v["axial_bearing"]:
+        return
+    zd, wd = v["thrust_disk_z_m"], v["thrust_disk_thickness_m"]
+    if abs(zd) + wd / 2 > half:
+        raise ValueError(f"rig: the thrust disk at thrust_disk_z_m = {zd} m sticks out of the shaft (+-{half} m "
+                         "from its middle); move it inwards or make it thinner")
+    for key, length in (("bearing_a_z_m", sl), ("bearing_b_z_m", sl), ("thrust_disk_z_m", v["stack_length_m"])):
+        centre = 0.0 if key == "thrust_disk_z_m" else v[key]
+        if length > 0 and abs(zd - centre) < (length + wd) / 2:
+            what = "central stack" if key == "thrust_disk_z_m" else f"bearing sleeve at {key}"
+            raise ValueError(f"rig: the thrust disk at thrust_disk_z_m = {zd} m overlaps the {what}; move it")
+    if v["thrust_disk_diameter_m"] <= v["shaft_diameter_m"]:
+        raise ValueError("rig: thrust_disk_diameter_m must exceed shaft_diameter_m (the disk sits on the shaft)")
+    if v["axial_backup_clearance_m"] >= v["axial_air_gap_m"]:
+        raise ValueError("rig: axial_backup_clearance_m must be smaller than axial_air_gap_m, so the disk lands on "
+                         "the axial retainer before it touches a magnet")
+    if v["current_limit_a"] > v["axial_bias_current_a"]:
+        raise ValueError(f"rig: current_limit_a = {v['current_limit_a']} A exceeds axial_bias_current_a = "
+                         f"{v['axial_bias_current_a']} A; an axial coil current would turn negative: raise "
+                         "axial_bias_current_a or lower current_limit_a")
 
 
 def make_rig(overrides: dict[str, Any] | None = None, name: str = "ambid-default",
@@ -459,15 +602,7 @@ def read_rig_file(path: str | Path) -> dict[str, Any]:
     the mapping written elsewhere (e.g. with one value changed) names the same rig."""
     path = Path(path)
     fix = "give a YAML file of parameter: value lines like rigs/ideal.yaml, or leave out the rig file for the default"
-    text = read_text(path, "rig file", fix)
-    if not text.strip():
-        raise ValueError(f"rig file {path} is empty; {fix}")
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        where = getattr(exc, "problem_mark", None)
-        at = f" at line {where.line + 1}" if where is not None else ""
-        raise ValueError(f"rig file {path} is not valid YAML{at}; {fix}") from None
+    data = read_yaml(path, "rig file", fix, allow_empty=False)
     if data is None:
         data = {}
     if not isinstance(data, dict):

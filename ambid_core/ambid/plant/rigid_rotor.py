@@ -66,7 +66,7 @@ class RigidRotor:
 
     def gravity_acceleration(self) -> np.ndarray:
         """q'' caused by gravity [m/s^2], shape (4,): -g/sqrt(2) on every coordinate."""
-        return np.full(4, -GRAVITY / np.sqrt(2.0))
+        return np.full(2 * len(self.bearing_z_m), -GRAVITY / np.sqrt(2.0))   # x and y at each bearing
 
     def rigid_mode_frequencies_hz(self, ks_n_per_m: float, kb_n_per_m: float) -> np.ndarray:
         """Cylindrical and conical frequencies of one plane on springs kb [N/m] at both

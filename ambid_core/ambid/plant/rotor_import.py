@@ -54,7 +54,7 @@ from scipy.sparse.csgraph import connected_components
 
 from ambid.array_file import read_arrays
 from ambid.plant.modal import undamped_modes
-from ambid.plant.rotor_model import GRAVITY_PER_AXIS, RotorModel, rigid_inverse_mass
+from ambid.plant.rotor_model import GRAVITY_PER_AXIS, N_LATERAL, RotorModel, rigid_inverse_mass
 
 DEFAULT_MAX_FREQ_HZ = 5000.0
 _FIX = ("give M, K (+ G, bearing_dofs, sensor_dofs, x_dofs, y_dofs) or A, B, C, mass_kg as "
@@ -107,7 +107,7 @@ def _scalar(data: dict, key: str, what: str) -> float:
     return value
 
 
-def _indices(data: dict, key: str, n_dof: int, count: int | None = 4) -> np.ndarray:
+def _indices(data: dict, key: str, n_dof: int, count: int | None = N_LATERAL) -> np.ndarray:
     if key not in data:
         raise ValueError(f"rotor file: key {key!r} (DOF indices) is missing; see ambid.plant.rotor_import")
     idx = np.asarray(data[key]).ravel()
@@ -143,7 +143,7 @@ def _gravity_from_rigid_body(a: np.ndarray, b: np.ndarray, c_bearing: np.ndarray
     if not np.all(np.linalg.eigvalsh(0.5 * (w + w.T)) > 0):
         raise ValueError("rotor model: no positive rigid-body inverse mass at the bearings; the rotor must be "
                          "free-free (no bearing or support stiffness in the model)")
-    return b @ np.linalg.solve(w, np.full(4, GRAVITY_PER_AXIS))
+    return b @ np.linalg.solve(w, np.full(N_LATERAL, GRAVITY_PER_AXIS))
 
 
 def rotor_from_state_space(data: dict, source: str = "") -> RotorModel:
@@ -151,16 +151,16 @@ def rotor_from_state_space(data: dict, source: str = "") -> RotorModel:
     a = np.asarray(data.get("A", np.zeros((0, 0))), dtype=float)
     n = a.shape[0] if a.ndim == 2 else 0
     a = _matrix(data, "A", (n, n), "state matrix")
-    b = _matrix(data, "B", (n, 4), "force input at bearings A x, B x, A y, B y")
-    c = _matrix(data, "C", (8, n), "displacements at the 4 bearing then 4 sensor channels")
+    b = _matrix(data, "B", (n, N_LATERAL), "force input at bearings A x, B x, A y, B y")
+    c = _matrix(data, "C", (2 * N_LATERAL, n), "displacements at the 4 bearing then 4 sensor channels")
     if "D" in data and np.any(np.asarray(data["D"], dtype=float)):
         raise ValueError("rotor file: D must be zero (a force cannot move the rotor instantly)")
     mass = _scalar(data, "mass_kg", "total rotor mass")
     if "b_gravity" in data:
         b_g = _matrix(data, "b_gravity", (n,), "state derivative caused by gravity")
     else:
-        b_g = _gravity_from_rigid_body(a, b, c[:4])
-    return RotorModel(a, b, c[:4], c[4:], b_g, mass, source=source)
+        b_g = _gravity_from_rigid_body(a, b, c[:N_LATERAL])
+    return RotorModel(a, b, c[:N_LATERAL], c[N_LATERAL:], b_g, mass, source=source)
 
 
 def _coupled_to(seeds: np.ndarray, matrices: list[np.ndarray]) -> np.ndarray:
@@ -257,9 +257,9 @@ def rotor_from_second_order(data: dict, speed_rad_s: float = 0.0, damping_ratio:
     # at standstill first: the rigid-body checks and gravity's share hold for the resting rotor
     # (spinning, the gyroscopic coupling turns the rigid tilt into a precession)
     a = np.block([[np.zeros((r, r)), np.eye(r)], [-np.diag(w * w), -damp]])
-    b = np.vstack([np.zeros((r, 4)), phi[i_b].T])
-    c_b = np.hstack([phi[i_b], np.zeros((4, r))])
-    c_s = np.hstack([phi[i_s], np.zeros((4, r))])
+    b = np.vstack([np.zeros((r, N_LATERAL)), phi[i_b].T])
+    c_b = np.hstack([phi[i_b], np.zeros((N_LATERAL, r))])
+    c_s = np.hstack([phi[i_s], np.zeros((N_LATERAL, r))])
     if "x_dofs" in data or "y_dofs" in data:
         u_g = np.zeros(n_dof)
         u_g[_indices(data, "x_dofs", n_dof, None)] = GRAVITY_PER_AXIS

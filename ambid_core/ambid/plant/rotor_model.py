@@ -7,12 +7,16 @@ user brings, see :mod:`ambid.plant.rotor_import`) is reduced to one
     x' = A x + B f + b_gravity
     q_bearing = C_bearing x,   q_sensor = C_sensor x
 
-f (4,) are the lateral forces [N] on the rotor at the bearing planes, q the
-lateral displacements [m] at the bearing and sensor planes, all in the rig's
-channel order (bearing A x, bearing B x, bearing A y, bearing B y; the x and
-y axes are the bearing axes, turned 45 deg from the vertical, so gravity
-acts on both with -g / sqrt(2)). The rotor must be free-free: the magnets
-(and, on contact, the backup bearings) are its only supports.
+f are the forces [N] on the rotor at the bearing axes, q the displacements [m]
+at the bearing and sensor axes, all in the rig's channel order (its
+:class:`ambid.channels.Layout`, ``RotorModel.layout``): the lateral axes
+bearing A x, bearing B x, bearing A y, bearing B y (the x and y axes are the
+bearing axes, turned 45 deg from the vertical, so gravity acts on both with
+-g / sqrt(2)), and with an axial bearing the axial axis z last
+(:func:`with_axial`: the rotor's rigid axial motion, decoupled from the
+lateral planes as chapter 2 models it, sec. 2.3.1). The rotor must be
+free-free: the magnets (and, on contact, the backup bearings) are its only
+supports.
 
 Spinning at Omega with mass unbalance, the rotor also feels the synchronous
 forces m e Omega^2 of its unbalanced planes, rotating with the rotor angle
@@ -27,12 +31,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ambid.channels import RADIAL, Layout
 from ambid.plant.fem_rotor import DOF_X, DOF_Y, RotorGeometry, assemble_rotor, dof_index, node_at, rigid_body_properties
 from ambid.plant.modal import modal_state_space, plane_modes
 
 GRAVITY = 9.81  # standard gravity [m/s^2]
 # gravity per bearing axis: both axes are turned 45 deg from the vertical
 GRAVITY_PER_AXIS = -GRAVITY / np.sqrt(2.0)
+# the lateral rotor's channels: bearing (and sensor) planes A and B, x and y each, in RADIAL's order
+# (the axial axis, when the rig has one, is appended by with_axial)
+N_LATERAL = len(RADIAL)
 
 
 @dataclass(frozen=True)
@@ -41,9 +49,9 @@ class RotorModel:
 
     Attributes:
         a: (n, n) state matrix.
-        b: (n, 4) force input [N] at the bearing planes, AXES order.
-        c_bearing: (4, n) displacement [m] at the bearing planes.
-        c_sensor: (4, n) displacement [m] at the sensor planes.
+        b: (n, na) force input [N] at the bearing axes, ``layout`` order.
+        c_bearing: (na, n) displacement [m] at the bearing axes.
+        c_sensor: (na, n) displacement [m] at the sensor axes.
         b_gravity: (n,) state derivative caused by gravity (both 45-deg axes).
         mass_kg: total rotor mass [kg].
         flexible_freq_hz: free-free bending frequencies kept in the model,
@@ -54,6 +62,7 @@ class RotorModel:
             docstring); None: no unbalance.
         notes: what the import changed in the model the user gave (DOFs or
             modes dropped), one sentence each, for the commands to say.
+        layout: the axes of the force inputs and displacement outputs (na of them).
     """
 
     a: np.ndarray
@@ -66,16 +75,18 @@ class RotorModel:
     source: str = ""
     b_unbalance: np.ndarray | None = None
     notes: tuple[str, ...] = ()
+    layout: Layout = RADIAL
 
     def __post_init__(self) -> None:
         a = np.asarray(self.a, dtype=float)
         n = a.shape[0] if a.ndim == 2 else -1
-        shapes = {"a": (n, n), "b": (n, 4), "c_bearing": (4, n), "c_sensor": (4, n), "b_gravity": (n,)}
+        na = len(self.layout)
+        shapes = {"a": (n, n), "b": (n, na), "c_bearing": (na, n), "c_sensor": (na, n), "b_gravity": (n,)}
         for name, shape in shapes.items():
             arr = np.asarray(getattr(self, name), dtype=float)
             if arr.shape != shape:
-                raise ValueError(f"RotorModel.{name} must have shape {shape} (n = states, 4 = bearing axes "
-                                 f"A x, B x, A y, B y), got {arr.shape}")
+                raise ValueError(f"RotorModel.{name} must have shape {shape} (n = states, {na} = bearing axes "
+                                 f"{', '.join(self.layout.axes)}), got {arr.shape}")
             if not np.all(np.isfinite(arr)):
                 raise ValueError(f"RotorModel.{name} contains NaN or inf")
             object.__setattr__(self, name, arr)
@@ -93,8 +104,44 @@ class RotorModel:
         return self.a.shape[0]
 
     def bearing_velocity_map(self) -> np.ndarray:
-        """(4, n) map from the state to the bearing-plane velocities [m/s] (C_bearing A; C_bearing B = 0)."""
+        """(na, n) map from the state to the bearing-axis velocities [m/s] (C_bearing A; C_bearing B = 0)."""
         return self.c_bearing @ self.a
+
+
+def with_axial(model: RotorModel, axis: str = "z") -> RotorModel:
+    """The rotor with its axial rigid-body motion added as the last axis: a free mass ``mass_kg``, force
+    [N] on the axis in, axial displacement [m] at the bearing and the sensor out (the axial probe reads
+    the shaft's end face; the rotor is rigid along its axis), decoupled from the lateral planes.
+
+    In the modal layout of :func:`ambid.plant.modal.modal_state_space` (x = [eta, eta']) the axial
+    displacement joins the coordinates and its velocity the velocities, as one more rigid mode, so
+    the layout stays modal; any other state order gets [z, z'] appended.
+    """
+    if axis in model.layout.axes:
+        raise ValueError(f"with_axial: the rotor already has an axis {axis!r}")
+    n, na = model.n_states, len(model.layout)
+    r = n // 2
+    modal = n % 2 == 0 and np.allclose(model.a[:r, :r], 0.0) and np.allclose(model.a[:r, r:], np.eye(r))
+    iz, iv = (r, n + 1) if modal else (n, n + 1)
+    old = [i for i in range(n + 2) if i not in (iz, iv)]  # where the lateral states go
+    a = np.zeros((n + 2, n + 2))
+    a[np.ix_(old, old)] = model.a
+    a[iz, iv] = 1.0
+    b = np.zeros((n + 2, na + 1))
+    b[old, :na] = model.b
+    b[iv, na] = 1.0 / model.mass_kg
+    c_b, c_s = np.zeros((na + 1, n + 2)), np.zeros((na + 1, n + 2))
+    c_b[:na, old], c_s[:na, old] = model.c_bearing, model.c_sensor
+    c_b[na, iz] = c_s[na, iz] = 1.0
+    b_g = np.zeros(n + 2)
+    b_g[old] = model.b_gravity  # a horizontal rotor: no gravity along the axis
+    b_unb = None
+    if model.b_unbalance is not None:
+        b_unb = np.zeros((n + 2, 2))
+        b_unb[old] = model.b_unbalance
+    return RotorModel(a, b, c_b, c_s, b_g, model.mass_kg, model.flexible_freq_hz,
+                      model.source + ", axial rigid mass", b_unb, model.notes,
+                      Layout(model.layout.axes + (axis,)))
 
 
 def fem_rotor_model(geometry: RotorGeometry, bearing_z_m: tuple[float, float], sensor_z_m: tuple[float, float],
@@ -151,12 +198,12 @@ def fem_rotor_model(geometry: RotorGeometry, bearing_z_m: tuple[float, float], s
             # F = m e Omega^2 [cos(theta + phase); sin(theta + phase)] = m e Omega^2 R(phase) [cos; sin]
             cp, sp = np.cos(phase), np.sin(phase)
             b_unb += me * b_node @ np.array([[cp, -sp], [sp, cp]])
-    return RotorModel(a, b, c[:4], c[4:], b_g, props.mass_kg, modal.freq_hz[modal.n_rigid:],
+    return RotorModel(a, b, c[:N_LATERAL], c[N_LATERAL:], b_g, props.mass_kg, modal.freq_hz[modal.n_rigid:],
                       "finite-element rotor (ambid.plant.fem_rotor), modal reduction", b_unb)
 
 
 def rigid_inverse_mass(model: RotorModel, probe_hz: float = 1e-3) -> np.ndarray:
-    """Rigid-body inverse mass W (4, 4) [1/kg]: bearing accelerations per bearing force.
+    """Rigid-body inverse mass W (na, na) [1/kg]: bearing accelerations per bearing force.
 
     The low-frequency limit of s^2 C_bearing (s I - A)^-1 B of a free-free
     rotor, evaluated at ``probe_hz`` (far below any bending mode).

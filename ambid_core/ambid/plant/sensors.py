@@ -18,21 +18,24 @@ The linear part (d -> s -> y) is a block of the true rig's state-space
 model (:func:`ambid.plant.true_rig.true_plant` places it); the cubic error
 enters that model as the input r_s, evaluated at the start of each step and
 held (:mod:`ambid.plant.simulator`, and its compiled kernel with
-``PAR_CUBIC``); the noise is added to the sampled output.
+``AX_CUBIC``); the noise is added to the sampled output. A rig with an axial
+bearing has a probe of its own kind on that axis (:meth:`ambid.plant.rig.Rig.axis_sensors`).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
+
+from ambid.channels import RADIAL, Layout, bearing_of, direction_of
 
 
 @dataclass(frozen=True)
 class Sensors:
-    """The four identical displacement sensors of a rig.
+    """Displacement sensors of one kind (a rig's radial probes, or its axial probe).
 
     Attributes:
         bandwidth_hz: low-pass corner frequency [Hz].
@@ -87,38 +90,60 @@ class Sensors:
         return rng.standard_normal((n_samples, n_channels)) * self.noise_std_m
 
 
+def filter_blocks(sensors: Sequence[Sensors]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The linear electronics of one sensor per axis as s' = a_ss s + b_ss (d + r_s), y = c_ss s.
+
+    Returns:
+        a_ss, b_ss, c_ss: each (na, na), diagonal.
+    """
+    wc = np.array([x.corner_rad_s for x in sensors])
+    return np.diag(-wc), np.diag(wc), np.diag([x.gain for x in sensors])
+
+
+def noise_std(sensors: Sequence[Sensors]) -> np.ndarray:
+    """The output noise std of one sensor per axis, (na,) [m]."""
+    return np.array([x.noise_std_m for x in sensors])
+
+
+def cubic(sensors: Sequence[Sensors]) -> np.ndarray:
+    """The probe-curve cubic coefficients c3 of one sensor per axis, (na,) [1/m^2]."""
+    return np.array([x.cubic_per_m2 for x in sensors])
+
+
 RUNOUT_HARMONICS = 3  # harmonics of the rotor angle a rig file can give runout at
 _RUNOUT_KINDS = {"mech": (1, 2), "elec": (1, 2, 3)}
 
 
-def runout_table(values: Mapping[str, Any]) -> np.ndarray:
-    """Runout of the four probes as harmonics of the rotor angle theta, from a rig's parameter values.
+def runout_table(values: Mapping[str, Any], layout: Layout = RADIAL) -> np.ndarray:
+    """Runout of the radial probes as harmonics of the rotor angle theta, from a rig's parameter values.
 
     Each track has a profile rho(psi) = sum_h a_h cos(h psi + phi_h) (mechanical
     plus electrical); the x probe reads it at psi = theta, the y probe, a
     quarter turn on in the sense of the spin, at psi = theta - pi / 2, and
     track B's profile is turned by ``runout_b_phase_deg`` (beta):
     a cos(h (theta - gamma) + phi + h beta). A 1X runout thus reads as a
-    forward circular orbit.
+    forward circular orbit. An axial probe reads none here.
 
     Returns:
-        T: (RUNOUT_HARMONICS, 4, 2) [m]; probe c (AXES order) reads
+        T: (RUNOUT_HARMONICS, na, 2) [m]; probe c (``layout`` order) reads
         sum_h T[h - 1, c, 0] cos(h theta) + T[h - 1, c, 1] sin(h theta).
     """
-    t = np.zeros((RUNOUT_HARMONICS, 4, 2))
+    t = np.zeros((RUNOUT_HARMONICS, len(layout), 2))
     beta = math.radians(float(values["runout_b_phase_deg"]))
+    probes = [(c, beta if bearing_of(axis) == "b" else 0.0, math.pi / 2 if direction_of(axis) == "y" else 0.0)
+              for c, axis in enumerate(layout.axes) if direction_of(axis) in ("x", "y")]
     for kind, harmonics in _RUNOUT_KINDS.items():
         for h in harmonics:
             a = float(values[f"runout_{kind}_{h}x_m"])
             phi = math.radians(float(values[f"runout_{kind}_{h}x_phase_deg"]))
-            for c, (track, gamma) in enumerate(((0.0, 0.0), (beta, 0.0), (0.0, math.pi / 2), (beta, math.pi / 2))):
+            for c, track, gamma in probes:
                 psi = phi + h * (track - gamma)
                 t[h - 1, c] += a * math.cos(psi), -a * math.sin(psi)
     return t
 
 
 def runout(table: np.ndarray, theta_rad: np.ndarray) -> np.ndarray:
-    """The probes' runout at rotor angles theta [rad], shape theta.shape + (4,) [m] (table from
+    """The probes' runout at rotor angles theta [rad], shape theta.shape + (na,) [m] (table from
     :func:`runout_table`)."""
     th = np.asarray(theta_rad, dtype=float)[..., None]
     h = np.arange(1, table.shape[0] + 1)

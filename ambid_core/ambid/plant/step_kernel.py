@@ -2,81 +2,101 @@
 
 Shared conventions (work vectors, compiled entry points): :mod:`ambid.compiled`.
 
-Plant work vector ``s`` (1-D), for n plant states (:func:`plant_work`,
-offsets from :func:`plant_offsets`)::
+Plant work vector ``s`` (1-D), for n plant states and na axes (:func:`plant_work`,
+offsets from :func:`plant_offsets`, every one of them a function of n and na)::
 
-    s[0:N_PAR]              parameters and counters, indices PAR_*
-    s[AUX:AUX + 16]         aux at the present sample k: y, gap, current,
-                            sensor displacement (4 each) [m, m, A, m]
-    s[v:v + n + 19]         v = [x; u[k-1]; u[k]; f; r_s; cos theta; sin theta; 1], the
+    s[0:N_HEAD]             counters and switches, indices PAR_*
+    s[axes:groups]          per axis j, AXIS_WORDS values at axes + AXIS_WORDS j: the magnet law
+                            (force_const [N], ki [N/A], ks [N/m], k cos(alpha) [N m^2/A^2], ib [A],
+                            s0 [m], |gap| clamp [m]), the amplifier's current limit [A] and the
+                            sensor's probe-curve cubic coefficient [1/m^2] (AX_*)
+    s[groups:runout]        the backup bearings: na groups of (axis, second axis or -1, clearance^2):
+                            a radial bearing's x and y touch when x^2 + y^2 > clearance^2, an
+                            axial one when z^2 > clearance^2; PAR_GROUPS of them in use
+    s[runout:uin]           runout table, (RUNOUT_HARMONICS, na, 2) row-major [m]
+                            (ambid.plant.sensors.runout_table)
+    s[uin:yout]             the current reference u [A] the caller puts in for the next step (na)
+    s[yout:aux]             the measured y[k+1] [m] a step leaves, noise included (na)
+    s[aux:v]                aux at the present sample k: y, gap, current, sensor displacement
+                            (na each) [m, m, A, m]
+    s[v:v + n + 4 na + 3]   v = [x; u[k-1]; u[k]; f; r_s; cos theta; sin theta; 1], the
                             fused step's input (theta the rotor angle at k)
-    s[v + n + 19:mat]       scratch, n + 20: M v is summed here
-    s[mat:noise]            M.T, (n + 19, n + 20) row-major: [x; u[k]; aux][k+1] = M v
-    s[noise:]               sensor noise block, (rows, 4) row-major [m]
+    s[.. :mat]              scratch, n + 5 na: M v is summed here
+    s[mat:noise]            M.T, (n + 4 na + 3, n + 5 na) row-major: [x; u[k]; aux][k+1] = M v
+    s[noise:]               sensor noise block, (rows, na) row-major [m]
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ambid.compiled import F8, VEC, add_columns, njit
+from ambid.compiled import F8, HAVE_NUMBA, VEC, add_columns, njit, numba
 from ambid.plant.sensors import RUNOUT_HARMONICS
 
-# plant parameters, s[PAR_*]
+# counters and switches, s[PAR_*]
 PAR_N = 0  # number of plant states n
-PAR_LIMIT = 1  # amplifier current limit [A]
+PAR_NA = 1  # number of axes na
 PAR_NONLINEAR = 2  # 1.0: add the magnets' residual force (eq. 2.14 minus its linearisation)
-PAR_KC = 3  # k cos(alpha) of the magnet law [N m^2 / A^2]
-PAR_IB = 4  # bias current [A]
-PAR_S0 = 5  # nominal air gap [m]
-PAR_GAP_GUARD = 6  # |gap| clamp of the magnet law [m]
-PAR_CUBIC = 7  # sensor probe-curve cubic coefficient [1/m^2]
-PAR_CLEAR2 = 8  # backup-bearing clearance squared [m^2]
-PAR_LIN = 9  # (force_const [N], ki [N/A], ks [N/m]) of axis j at PAR_LIN + 3 j
-PAR_INDEX = 21  # sample index k of the present sample
-PAR_NOISE_BASE = 22  # sample index of the noise block's first row
-PAR_STATUS = 23  # why the last plant_step returned contact = True: STATUS_*
-PAR_COS_STEP = 24  # cos(Omega dt): the rotor angle turned per sample, as a rotation
-PAR_SIN_STEP = 25  # sin(Omega dt)
-PAR_COS = 26  # cos theta of the rotor angle at the present sample k
-PAR_SIN = 27  # sin theta
-PAR_UNBALANCE = 28  # 1.0: the unbalance columns of M are in use
-PAR_RUNOUT_N = 29  # harmonics of the probes' runout in use (0: none)
-PAR_RUNOUT = 30  # runout table, (RUNOUT_HARMONICS, 4, 2) row-major [m] (ambid.plant.sensors.runout_table)
-N_PAR = PAR_RUNOUT + 8 * RUNOUT_HARMONICS
+PAR_INDEX = 3  # sample index k of the present sample
+PAR_NOISE_BASE = 4  # sample index of the noise block's first row
+PAR_STATUS = 5  # why the last plant_step returned contact = True: STATUS_*
+PAR_COS_STEP = 6  # cos(Omega dt): the rotor angle turned per sample, as a rotation
+PAR_SIN_STEP = 7  # sin(Omega dt)
+PAR_COS = 8  # cos theta of the rotor angle at the present sample k
+PAR_SIN = 9  # sin theta
+PAR_UNBALANCE = 10  # 1.0: the unbalance columns of M are in use
+PAR_RUNOUT_N = 11  # harmonics of the probes' runout in use (0: none)
+PAR_CUBIC = 12  # 1.0: some sensor has a probe-curve error (AX_CUBIC != 0)
+PAR_GROUPS = 13  # backup-bearing groups in use
+N_HEAD = 14
+# per-axis words, s[axes + AXIS_WORDS j + AX_*]
+AX_FC, AX_KI, AX_KS, AX_KC, AX_IB, AX_S0, AX_GUARD, AX_LIMIT, AX_CUBIC = range(9)
+AXIS_WORDS = 9
 STATUS_CONTACT = 1.0  # the rotor touches: sub-step the sample
 STATUS_NOISE = 2.0  # the noise block is used up: draw the next one and call again
-AUX = N_PAR  # aux block: y (4), gap (4), current (4), sensor displacement (4)
-N_AUX = 16
-N_EXTRA = 19  # v = [x (n); u[k-1] (4); u[k] (4); f (4); r_s (4); cos theta; sin theta; 1]
-N_OUT = 20  # M v = [x (n); u[k] (4); aux (16)][k+1]
 
 
 @njit(cache=True)
-def plant_offsets(n: int) -> tuple[int, int, int]:
-    """Offsets (v, mat, noise) in the plant work vector for n states (module docstring); the
-    scratch lies between v and mat."""
-    v = AUX + N_AUX
-    mat = v + n + N_EXTRA + n + N_OUT
-    return v, mat, mat + (n + N_EXTRA) * (n + N_OUT)
+def plant_offsets(n: int, na: int) -> tuple[int, int, int, int, int, int, int, int]:
+    """Offsets (axes, groups, runout, uin, yout, aux, v, mat) in the plant work vector for n states and
+    na axes (module docstring); the scratch lies between v's end and mat, the noise block after M."""
+    axes = N_HEAD
+    groups = axes + AXIS_WORDS * na
+    runout = groups + 3 * na
+    uin = runout + 2 * RUNOUT_HARMONICS * na
+    yout = uin + na
+    aux = yout + na
+    v = aux + 4 * na
+    mat = v + (n + 4 * na + 3) + (n + 5 * na)
+    return axes, groups, runout, uin, yout, aux, v, mat
 
 
-def plant_work(m: np.ndarray, noise_rows: int) -> np.ndarray:
-    """A plant work vector for the fused step matrix m (n + 20, n + 19): n, M.T and v's constant 1
-    set, everything else zero (the caller sets the PAR_* parameters).
+def noise_offset(n: int, na: int) -> int:
+    """Where the noise block starts in the plant work vector."""
+    mat = plant_offsets.py_func(n, na)[7]
+    return mat + (n + 4 * na + 3) * (n + 5 * na)
+
+
+def plant_work(m: np.ndarray, n_axes: int, noise_rows: int) -> np.ndarray:
+    """A plant work vector for the fused step matrix m (n + 5 na, n + 4 na + 3): n, na, M.T and v's
+    constant 1 set, everything else zero (the caller sets the parameters).
 
     Returns:
-        s: (plant_offsets(n)[2] + 4 noise_rows,) float64.
+        s: (noise_offset(n, na) + na noise_rows,) float64.
     """
+    na = int(n_axes)
     nr, nc = m.shape
-    n = nc - N_EXTRA
-    if n < 0 or nr != n + N_OUT:
-        raise ValueError(f"plant_work: the fused step matrix must be (n + 20, n + 19), got {m.shape}")
-    v, mat, noise = plant_offsets.py_func(n)
-    s = np.zeros(noise + 4 * noise_rows)
+    n = nc - 4 * na - 3
+    if na < 1 or n < 0 or nr != n + 5 * na:
+        raise ValueError(f"plant_work: the fused step matrix of {na} axes must be (n + {5 * na}, n + {4 * na + 3}), "
+                         f"got {m.shape}")
+    v, mat = plant_offsets.py_func(n, na)[6:]
+    noise = noise_offset(n, na)
+    s = np.zeros(noise + na * noise_rows)
     s[PAR_N] = n
+    s[PAR_NA] = na
     s[mat:noise] = np.asarray(m, dtype=float).T.ravel()
-    s[v + n + N_EXTRA - 1] = 1.0
+    s[v + n + 4 * na + 2] = 1.0
     return s
 
 
@@ -86,77 +106,95 @@ def _residual_axis(s: np.ndarray, j: int, i: float, g: float) -> float:
 
     The gap is clamped short of the pole face (only reached in contact).
     """
-    kc, ib, s0, lim = s[PAR_KC], s[PAR_IB], s[PAR_S0], s[PAR_GAP_GUARD]
+    w = N_HEAD + AXIS_WORDS * j
+    kc, ib, s0, lim = s[w + AX_KC], s[w + AX_IB], s[w + AX_S0], s[w + AX_GUARD]
     if not -lim < g < lim:
         g = lim if g > 0 else -lim
     a, b, ip, im = s0 - g, s0 + g, ib + i, ib - i
-    fc, ki, ks = s[PAR_LIN + 3 * j], s[PAR_LIN + 3 * j + 1], s[PAR_LIN + 3 * j + 2]
+    fc, ki, ks = s[w + AX_FC], s[w + AX_KI], s[w + AX_KS]
     return kc * (ip * ip / (a * a) - im * im / (b * b)) - fc - ki * i - ks * g
 
 
 @njit(cache=True)
 def magnet_residual(s: np.ndarray, cur: np.ndarray, gap: np.ndarray, out: np.ndarray) -> None:
-    """The magnets' residual force per axis [N] into out (4,), for the currents cur (4,) [A] and
-    gaps gap (4,) [m], with the parameters of the plant work vector s."""
-    for j in range(4):
+    """The magnets' residual force per axis [N] into out (na,), for the currents cur (na,) [A] and
+    gaps gap (na,) [m], with the parameters of the plant work vector s."""
+    for j in range(int(s[PAR_NA])):
         out[j] = _residual_axis(s, j, cur[j], gap[j])
 
 
 @njit(cache=True)
 def add_runout(s: np.ndarray, c1: float, s1: float, y: np.ndarray, at: int) -> None:
-    """Add the probes' runout at the rotor angle (cos theta, sin theta) = (c1, s1) to y[at:at + 4] [m]
+    """Add the probes' runout at the rotor angle (cos theta, sin theta) = (c1, s1) to y[at:at + na] [m]
     (the table in s)."""
+    na = int(s[PAR_NA])
+    table = plant_offsets(int(s[PAR_N]), na)[2]
     ch, sh = c1, s1
     for h in range(int(s[PAR_RUNOUT_N])):
-        base = PAR_RUNOUT + 8 * h
-        for j in range(4):
+        base = table + 2 * na * h
+        for j in range(na):
             y[at + j] += s[base + 2 * j] * ch + s[base + 2 * j + 1] * sh
         ch, sh = ch * c1 - sh * s1, sh * c1 + ch * s1  # (h + 1) theta from h theta
 
 
+@njit(cache=True)
+def touching(s: np.ndarray, g: np.ndarray, at: int) -> bool:
+    """Whether the gaps g[at:at + na] [m] reach a backup bearing (the groups in s)."""
+    groups = N_HEAD + AXIS_WORDS * int(s[PAR_NA])
+    for q in range(int(s[PAR_GROUPS])):
+        w = groups + 3 * q
+        a, b = at + int(s[w]), int(s[w + 1])
+        r2 = g[a] * g[a]
+        if b >= 0:
+            r2 += g[at + b] * g[at + b]
+        if r2 > s[w + 2]:
+            return True
+    return False
+
 
 @njit(cache=True)
-def plant_step(s: np.ndarray, u0: float, u1: float, u2: float,
-               u3: float) -> tuple[float, float, float, float, bool, bool]:
+def plant_step(s: np.ndarray) -> tuple[bool, bool]:
     """One free-flight sample of the simulated plant with the current reference u [A] held.
 
-    Clips u to the current limit and stores it as u[k] in v, and the rotor
-    angle's cos and sin at k; turns the rotor angle by Omega dt (a rotation
-    of its phasor, held at unit length); with
+    Takes u from the work vector's input slot (``uin``, na values the
+    caller wrote), clips it to each axis' current limit and stores it as
+    u[k] in v, and the rotor angle's cos and sin at k; turns the rotor
+    angle by Omega dt (a rotation of its phasor, held at unit length); with
     nonlinear magnets, stores the magnets' residual force at sample k, and
     the sensors' cubic term, both held over the step; then, unless the
     rotor touches the backup bearings at k or k + 1, advances v and aux to
-    k + 1. Returns contact = True, with s[PAR_STATUS] saying why, when the
-    caller has to finish the sample:
+    k + 1 and leaves y[k+1] with the noise of sample k + 1 in ``yout``.
+    Returns contact = True, with s[PAR_STATUS] saying why, when the caller
+    has to finish the sample:
 
     * STATUS_NOISE: the noise block has no row for k + 1; nothing changed:
       draw the next block, advance s[PAR_NOISE_BASE], call again;
     * STATUS_CONTACT: the rotor touches; s[PAR_INDEX] and s[PAR_COS],
-      s[PAR_SIN] are at k + 1, u[k] (clipped) and the angle at k are in v, v[:n + 4]
+      s[PAR_SIN] are at k + 1, u[k] (clipped) and the angle at k are in v, v[:n + na]
       and aux are still at k: sub-step the sample.
 
     Args:
-        s: plant work vector (module docstring).
-        u0, u1, u2, u3: current reference [A].
+        s: plant work vector (module docstring), u in its input slot.
 
     Returns:
-        (y0, y1, y2, y3, clipped, contact): y[k+1] [m] with the noise of
-        sample k + 1 (NaN when contact is True); u was clipped; see above.
+        (clipped, contact): u was clipped; see above (``yout`` is unchanged when contact is True).
     """
-    nan = np.nan
     n = int(s[PAR_N])
-    v, mat, noise = plant_offsets(n)
+    na = int(s[PAR_NA])
+    axes, _, _, uin, yout, aux, v, mat = plant_offsets(n, na)
+    noise = mat + (n + 4 * na + 3) * (n + 5 * na)
     k = s[PAR_INDEX] + 1.0
     row = int(k - s[PAR_NOISE_BASE])
-    if row >= (s.shape[0] - noise) // 4:
+    if row >= (s.shape[0] - noise) // na:
         s[PAR_STATUS] = STATUS_NOISE
-        return nan, nan, nan, nan, False, True
+        return False, True
     s[PAR_INDEX] = k
     c, sn = s[PAR_COS], s[PAR_SIN]
+    iu = v + n + na  # u[k]; then f, r_s, cos, sin, 1
     unbalance = s[PAR_UNBALANCE] != 0.0
     if unbalance:
-        s[v + n + 16] = c
-        s[v + n + 17] = sn
+        s[iu + 3 * na] = c
+        s[iu + 3 * na + 1] = sn
     # the rotor angle, integrated from the speed: e^{j theta[k+1]} = e^{j theta[k]} e^{j Omega dt}, the
     # phasor's length held at 1 by one Newton step of 1 / sqrt(|z|^2) (no trigonometry per sample)
     cs, ss = s[PAR_COS_STEP], s[PAR_SIN_STEP]
@@ -166,58 +204,68 @@ def plant_step(s: np.ndarray, u0: float, u1: float, u2: float,
     sn *= g
     s[PAR_COS] = c
     s[PAR_SIN] = sn
-    lim = s[PAR_LIMIT]
-    clipped = not (-lim <= u0 <= lim and -lim <= u1 <= lim and -lim <= u2 <= lim and -lim <= u3 <= lim)
-    if clipped:
-        u0 = lim if u0 > lim else -lim if u0 < -lim else u0
-        u1 = lim if u1 > lim else -lim if u1 < -lim else u1
-        u2 = lim if u2 > lim else -lim if u2 < -lim else u2
-        u3 = lim if u3 > lim else -lim if u3 < -lim else u3
-    iu = v + n + 4
-    s[iu] = u0
-    s[iu + 1] = u1
-    s[iu + 2] = u2
-    s[iu + 3] = u3
+    clipped = False
+    for j in range(na):
+        u = s[uin + j]
+        lim = s[axes + AXIS_WORDS * j + AX_LIMIT]
+        if not -lim <= u <= lim:
+            clipped = True
+            u = lim if u > lim else -lim if u < -lim else u
+        s[iu + j] = u
     nonlinear = s[PAR_NONLINEAR] != 0.0
     if nonlinear:
-        for j in range(4):
-            s[iu + 4 + j] = _residual_axis(s, j, s[AUX + 8 + j], s[AUX + 4 + j])
-    c3 = s[PAR_CUBIC]
-    if c3 != 0.0:
-        for j in range(4):
-            d = s[AUX + 12 + j]
-            s[iu + 8 + j] = c3 * d * d * d
-    c2 = s[PAR_CLEAR2]
-    g = AUX + 4
-    if s[g] * s[g] + s[g + 2] * s[g + 2] > c2 or s[g + 1] * s[g + 1] + s[g + 3] * s[g + 3] > c2:
+        for j in range(na):
+            s[iu + na + j] = _residual_axis(s, j, s[aux + 2 * na + j], s[aux + na + j])
+    cubic = s[PAR_CUBIC] != 0.0
+    if cubic:
+        for j in range(na):
+            d = s[aux + 3 * na + j]
+            s[iu + 2 * na + j] = s[axes + AXIS_WORDS * j + AX_CUBIC] * d * d * d
+    if touching(s, s, aux + na):
         s[PAR_STATUS] = STATUS_CONTACT
-        return nan, nan, nan, nan, clipped, True
+        return clipped, True
     # out = [x; u; y; gap; current; sensor displacement][k+1] = M v; the f and r_s columns
     # only when they are in use (skipping exact zeros leaves every sum unchanged)
-    no = n + N_OUT
+    no = n + 5 * na
     out = s[mat - no:mat]  # the scratch
     out[:] = 0.0
-    add_columns(s, mat, no, v, 0, n + 8, out)
+    e = n + 2 * na
+    add_columns(s, mat, no, v, 0, e, out)
     if nonlinear:
-        add_columns(s, mat, no, v, n + 8, n + 12, out)
-    if c3 != 0.0:
-        add_columns(s, mat, no, v, n + 12, n + 16, out)
+        add_columns(s, mat, no, v, e, e + na, out)
+    if cubic:
+        add_columns(s, mat, no, v, e + na, e + 2 * na, out)
+    e += 2 * na
     if unbalance:
-        add_columns(s, mat, no, v, n + 16, n + 19, out)
+        add_columns(s, mat, no, v, e, e + 3, out)
     else:
-        add_columns(s, mat, no, v, n + 18, n + 19, out)
+        add_columns(s, mat, no, v, e + 2, e + 3, out)
     if s[PAR_RUNOUT_N] > 0.0:
-        add_runout(s, c, sn, out, n + 4)
-    g = n + 8
-    if out[g] * out[g] + out[g + 2] * out[g + 2] > c2 or out[g + 1] * out[g + 1] + out[g + 3] * out[g + 3] > c2:
+        add_runout(s, c, sn, out, n + na)
+    if touching(s, out, n + 2 * na):
         s[PAR_STATUS] = STATUS_CONTACT
-        return nan, nan, nan, nan, clipped, True
-    for i in range(n + 4):
+        return clipped, True
+    for i in range(n + na):
         s[v + i] = out[i]
-    for i in range(N_AUX):
-        s[AUX + i] = out[n + 4 + i]
-    r = noise + 4 * row
-    return out[n + 4] + s[r], out[n + 5] + s[r + 1], out[n + 6] + s[r + 2], out[n + 7] + s[r + 3], clipped, False
+    for i in range(4 * na):
+        s[aux + i] = out[n + na + i]
+    r = noise + na * row
+    for j in range(na):
+        s[yout + j] = out[n + na + j] + s[r + j]
+    return clipped, False
 
 
-PLANT_STEP_ARGS = (VEC, F8, F8, F8, F8)
+@njit(cache=True)
+def plant_step_with(s: np.ndarray, u: tuple) -> tuple[bool, bool]:
+    """:func:`plant_step` with the current reference ``u`` [A] (a tuple of na floats) put in the input slot
+    first: the Python caller's per-sample call (a numpy slice assignment and a second call cost it ~1 us,
+    half the step)."""
+    uin = plant_offsets(int(s[PAR_N]), int(s[PAR_NA]))[3]
+    for i in range(len(u)):
+        s[uin + i] = u[i]
+    return plant_step(s)
+
+
+def plant_step_with_args(n_axes: int) -> tuple:
+    """The argument types of :func:`plant_step_with` for na axes (for :func:`ambid.compiled.compiled`)."""
+    return (VEC, numba.types.UniTuple(F8, int(n_axes))) if HAVE_NUMBA else ()

@@ -87,6 +87,11 @@ DEFAULT_TOLERANCES: dict[str, Tolerance] = {
     # eq. 2.24 is a power bandwidth; the current controller's own tuning and the probe electronics differ
     "amplifier_bandwidth_hz": Tolerance("relative", 0.50),
     "sensor_bandwidth_hz": Tolerance("relative", 0.50),
+    # the axial bearing (a five-axis rig): its magnet pair, amplifier and probe, built like the radial ones
+    "axial_ki_n_per_a": Tolerance("relative", 0.05),
+    "axial_ks_n_per_m": Tolerance("relative", 0.10),
+    "axial_amplifier_bandwidth_hz": Tolerance("relative", 0.50),
+    "axial_sensor_bandwidth_hz": Tolerance("relative", 0.50),
     # a finite-element model of a free-free rotor, and a guess of structural damping
     "bending_freq_hz": Tolerance("relative", 0.05),
     "bending_damping_ratio": Tolerance("factor", 3.0),

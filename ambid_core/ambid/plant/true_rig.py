@@ -20,15 +20,18 @@ Against :func:`ambid.plant.analytical.analytical_model` it adds
   time, not states: the small-signal model and the operating point do
   not see them.
 
-Continuous affine model (:class:`TruePlant`), states
-x = [rotor (n_r), pedestal displacement h (4) [m], pedestal velocity (4)
-[m/s], coil control current i (4) [A], sensor filter s (4) [m]]::
+Continuous affine model (:class:`TruePlant`), for the rig's na axes
+(:attr:`ambid.plant.rig.Rig.layout`: the four radial ones, and the axial one
+with an axial bearing), states x = [rotor (n_r), pedestal displacement h
+(nh) [m], pedestal velocity (nh) [m/s], coil control current i (na) [A],
+sensor filter s (na) [m]]; the nh pedestals carry the radial stators (x and
+y of each bearing), the axial stator is mounted rigidly::
 
     x' = A x + B_u u(t - tau) + B_f f + B_s r_s + b_c + B_unb [cos theta; sin theta]
     y  = C_y x + runout(theta) (+ noise)
 
 u the current reference [A]; f extra forces on the rotor at the bearing
-planes [N] (contact, and the magnets' deviation from their affine
+axes [N] (contact, and the magnets' deviation from their affine
 linearisation), reacting on the pedestals; r_s the sensors' static-curve
 deviation [m]; b_c gravity and the affine magnets' constant force.
 """
@@ -41,9 +44,9 @@ from math import factorial
 import numpy as np
 from scipy import linalg, signal
 
-from ambid.channels import CURRENT_NAMES, DISPLACEMENT_NAMES
 from ambid.plant.magnet import MagnetPair
-from ambid.plant.sensors import Sensors, runout_table
+from ambid.plant.sensors import filter_blocks, runout_table
+from ambid.channels import RADIAL, Layout
 from ambid.plant.rig import Rig
 from ambid.statespace import StateSpace, series
 
@@ -56,20 +59,21 @@ class TruePlant:
     F = force_const + ki i + ks g.
 
     Attributes:
-        a, b_u, b_f, b_s: (n, n), (n, 4) x 3.
+        a, b_u, b_f, b_s: (n, n), (n, na) x 3.
         b_c: (n,) constant drive: gravity and the magnets' affine constant.
-        c_y: (4, n) measured output y [m] (without noise).
-        c_gap: (4, n) rotor minus stator displacement at the bearing planes [m].
-        c_current: (4, n) coil control currents [A].
-        c_sensor: (4, n) rotor minus pedestal displacement at the sensor planes [m].
-        ki, ks, force_const: (4,) affine magnet law per axis [N/A, N/m, N].
+        c_y: (na, n) measured output y [m] (without noise).
+        c_gap: (na, n) rotor minus stator displacement at the bearing axes [m].
+        c_current: (na, n) coil control currents [A].
+        c_sensor: (na, n) rotor minus pedestal displacement at the sensor axes [m].
+        ki, ks, force_const: (na,) affine magnet law per axis [N/A, N/m, N].
         delay_s: input delay tau [s].
         n_rotor: rotor states (the first n_rotor states).
         speed_rad_s: spin speed Omega [rad/s]; the rotor angle is theta = Omega t.
         b_unbalance: (n, 2) unbalance drive for [cos theta, sin theta] (Omega^2
             included) [state units / s]; None: none.
-        runout: (H, 4, 2) probe runout table (:func:`ambid.plant.sensors.runout_table`)
+        runout: (H, na, 2) probe runout table (:func:`ambid.plant.sensors.runout_table`)
             [m]; None: none.
+        layout: the axes, in channel order.
     """
 
     a: np.ndarray
@@ -89,13 +93,19 @@ class TruePlant:
     speed_rad_s: float = 0.0
     b_unbalance: np.ndarray | None = None
     runout: np.ndarray | None = None
+    layout: Layout = RADIAL
 
     @property
     def n_states(self) -> int:
         return self.a.shape[0]
 
+    @property
+    def n_axes(self) -> int:
+        """na, the number of axes (inputs and outputs)."""
+        return len(self.layout)
+
     def gap_velocity_map(self) -> np.ndarray:
-        """(4, n): rotor minus stator velocity at the bearing planes, C_gap A [m/s]."""
+        """(na, n): rotor minus stator velocity at the bearing axes, C_gap A [m/s]."""
         return self.c_gap @ self.a
 
 
@@ -105,10 +115,10 @@ class OperatingPoint:
 
     Attributes:
         state: (n,) state of the :class:`TruePlant`.
-        current_a: (4,) control currents ic0 = current references [A].
-        gap_m: (4,) rotor minus stator displacement at the bearings [m].
-        force_n: (4,) magnet forces [N].
-        ki_n_per_a, ks_n_per_m: (4,) slopes of eq. 2.14 there.
+        current_a: (na,) control currents ic0 = current references [A].
+        gap_m: (na,) rotor minus stator displacement at the bearings [m].
+        force_n: (na,) magnet forces [N].
+        ki_n_per_a, ks_n_per_m: (na,) slopes of eq. 2.14 there.
     """
 
     state: np.ndarray
@@ -125,55 +135,59 @@ def true_plant(rig: Rig, ki: np.ndarray | None = None, ks: np.ndarray | None = N
 
     Args:
         rig: rig parameters.
-        ki, ks: (4,) slopes [N/A], [N/m]; None takes the true magnet's at the
+        ki, ks: (na,) slopes [N/A], [N/m]; None takes the true magnets' at the
             centre (eqs. 2.16-2.17 times the tolerance factors).
-        force_const: (4,) [N]; None takes 0.
+        force_const: (na,) [N]; None takes 0.
     """
     rotor = rig.rotor_model()
-    mag = rig.true_magnet
-    ki = np.full(4, mag.ki) if ki is None else np.asarray(ki, dtype=float)
-    ks = np.full(4, mag.ks) if ks is None else np.asarray(ks, dtype=float)
-    fc = np.zeros(4) if force_const is None else np.asarray(force_const, dtype=float)
+    layout = rotor.layout
+    na = len(layout)
+    rad = [j for j in range(na) if j not in layout.axial]  # the axes whose stator sits on a pedestal
+    nh = len(rad)
+    mags = rig.axis_magnets(true=True)
+    ki = np.array([m.ki for m in mags]) if ki is None else np.asarray(ki, dtype=float)
+    ks = np.array([m.ks for m in mags]) if ks is None else np.asarray(ks, dtype=float)
+    fc = np.zeros(na) if force_const is None else np.asarray(force_const, dtype=float)
     v = rig.values
     nr = rotor.n_states
-    n = nr + 16
-    r_, h_, hv_, i_, s_ = slice(0, nr), slice(nr, nr + 4), slice(nr + 4, nr + 8), slice(nr + 8, nr + 12), \
-        slice(nr + 12, nr + 16)
+    n = nr + 2 * nh + 2 * na
+    r_, h_, hv_, i_, s_ = (slice(0, nr), slice(nr, nr + nh), slice(nr + nh, nr + 2 * nh),
+                           slice(nr + 2 * nh, nr + 2 * nh + na), slice(nr + 2 * nh + na, n))
     mh = v["housing_mass_kg"]
     wh = 2 * np.pi * v["housing_freq_hz"]
     kh, ch = mh * wh * wh, 2 * v["housing_damping_ratio"] * wh * mh
-    tau = 1.0 / (2 * np.pi * rig.current_loop_bandwidth_hz)
-    sensors = Sensors.from_rig(v)
-    a_ss, b_ss, c_ss = sensors.filter_blocks()
-    eye = np.eye(4)
+    inv_tau = 1.0 / (1.0 / (2 * np.pi * rig.amplifier_bandwidths_hz))  # 1 / tau per axis, as eye / tau was
+    a_ss, b_ss, c_ss = filter_blocks(rig.axis_sensors())
+    eye = np.eye(na)
     dki, dks = np.diag(ki), np.diag(ks)
     # gap g = C_b x_r - h; magnet force on the rotor F = fc + ki i + ks g, on the pedestal -F
-    c_gap = np.zeros((4, n))
-    c_gap[:, r_], c_gap[:, h_] = rotor.c_bearing, -eye
-    c_sensor = np.zeros((4, n))
-    c_sensor[:, r_], c_sensor[:, h_] = rotor.c_sensor, -eye
-    c_current = np.zeros((4, n))
+    c_gap = np.zeros((na, n))
+    c_gap[:, r_], c_gap[rad, h_] = rotor.c_bearing, -np.eye(nh)
+    c_sensor = np.zeros((na, n))
+    c_sensor[:, r_], c_sensor[rad, h_] = rotor.c_sensor, -np.eye(nh)
+    c_current = np.zeros((na, n))
     c_current[:, i_] = eye
     force_map = dks @ c_gap + dki @ c_current  # F - fc as a function of x
     a = np.zeros((n, n))
     a[r_, :] = rotor.b @ force_map
     a[r_, r_] += rotor.a
-    a[h_, hv_] = eye
-    a[hv_, :] = -force_map / mh
-    a[hv_, h_] += -kh / mh * eye
-    a[hv_, hv_] += -ch / mh * eye
-    a[i_, i_] = -eye / tau
+    a[h_, hv_] = np.eye(nh)
+    a[hv_, :] = -force_map[rad] / mh
+    a[hv_, h_] += -kh / mh * np.eye(nh)
+    a[hv_, hv_] += -ch / mh * np.eye(nh)
+    a[i_, i_] = -np.diag(inv_tau)
     a[s_, :] = b_ss @ c_sensor
     a[s_, s_] += a_ss
-    b_u = np.zeros((n, 4))
-    b_u[i_] = eye / tau
-    b_f = np.zeros((n, 4))
-    b_f[r_], b_f[hv_] = rotor.b, -eye / mh
-    b_s = np.zeros((n, 4))
+    b_u = np.zeros((n, na))
+    b_u[i_] = np.diag(inv_tau)
+    b_f = np.zeros((n, na))
+    b_f[r_] = rotor.b
+    b_f[hv_, rad] = -np.eye(nh) / mh
+    b_s = np.zeros((n, na))
     b_s[s_] = b_ss
     b_c = b_f @ fc
     b_c[r_] += rotor.b_gravity
-    c_y = np.zeros((4, n))
+    c_y = np.zeros((na, n))
     c_y[:, s_] = c_ss
     omega = rig.speed_rad_s
     b_unb = ro = None
@@ -181,17 +195,23 @@ def true_plant(rig: Rig, ki: np.ndarray | None = None, ks: np.ndarray | None = N
         if rotor.b_unbalance is not None:
             b_unb = np.zeros((n, 2))
             b_unb[r_] = omega * omega * rotor.b_unbalance
-        ro = runout_table(v)
+        ro = runout_table(v, layout)
         if not np.any(ro):
             ro = None
     return TruePlant(a, b_u, b_f, b_s, b_c, c_y, c_gap, c_current, c_sensor, ki, ks, fc,
-                     float(v["extra_delay_s"]), nr, omega, b_unb, ro)
+                     float(v["extra_delay_s"]), nr, omega, b_unb, ro, layout)
 
 
-def magnet_force_and_slopes(mag: MagnetPair, current_a: np.ndarray, gap_m: np.ndarray,
+def magnet_force_and_slopes(mags: MagnetPair | tuple[MagnetPair, ...], current_a: np.ndarray, gap_m: np.ndarray,
                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(F, dF/di, dF/dg) of eq. 2.14 per axis, each shaped like ``current_a`` [N, N/A, N/m]."""
-    return mag.force(current_a, gap_m), *mag.slopes(current_a, gap_m)
+    """(F, dF/di, dF/dg) of eq. 2.14 per axis, each shaped like ``current_a`` (na,) [N, N/A, N/m]; ``mags``
+    one magnet pair for every axis, or one per axis."""
+    if isinstance(mags, MagnetPair):
+        return mags.force(current_a, gap_m), *mags.slopes(current_a, gap_m)
+    i, g = np.asarray(current_a, dtype=float), np.asarray(gap_m, dtype=float)
+    f = np.array([m.force(i[j], g[j]) for j, m in enumerate(mags)])
+    slopes = np.array([m.slopes(i[j], g[j]) for j, m in enumerate(mags)])
+    return f, slopes[:, 0], slopes[:, 1]
 
 
 def operating_point(rig: Rig) -> OperatingPoint:
@@ -201,11 +221,11 @@ def operating_point(rig: Rig) -> OperatingPoint:
     state x and the static current reference u (= ic0, unit amplifier gain),
     with r the true magnets' deviation from their linearisation at the centre.
     """
-    mag = rig.true_magnet
+    mag = _axis_law(rig)
     p = true_plant(rig)
-    n = p.n_states
-    z = np.zeros(n + 4)
-    jac = np.zeros((n + 4, n + 4))
+    n, na = p.n_states, p.n_axes
+    z = np.zeros(n + na)
+    jac = np.zeros((n + na, n + na))
     jac[:n, n:] = p.b_u
     jac[n:, :n] = p.c_y
     for _ in range(50):
@@ -228,6 +248,13 @@ def operating_point(rig: Rig) -> OperatingPoint:
                          f"current_limit_a = {rig.current_limit_a} A")
     f, dfdi, dfdg = magnet_force_and_slopes(mag, i, g)
     return OperatingPoint(x, u, g, f, dfdi, dfdg)
+
+
+def _axis_law(rig: Rig) -> MagnetPair | tuple[MagnetPair, ...]:
+    """The true magnets as :func:`magnet_force_and_slopes` takes them: one pair when every axis has the
+    same (the radial rig: vectorised), else one per axis."""
+    mags = rig.axis_magnets(true=True)
+    return mags[0] if all(m == mags[0] for m in mags) else mags
 
 
 def levitated_plant(rig: Rig) -> tuple[TruePlant, OperatingPoint]:
@@ -289,7 +316,7 @@ def true_linear_model(rig: Rig, discrete: bool = False, pade_order: int = 2, pla
         rig: rig parameters.
         discrete: False gives the continuous model with the extra delay as a
             Pade approximation (``pade_order``); True gives the exact
-            zero-order-hold model at rig.dt (the delay exact, 4 extra states
+            zero-order-hold model at rig.dt (the delay exact, na extra states
             u[k-1]) -- what a sampled measurement of the simulator sees.
         pade_order: order of the delay approximation (continuous only).
         plant: the affine model to linearise (default :func:`levitated_plant`'s),
@@ -298,20 +325,21 @@ def true_linear_model(rig: Rig, discrete: bool = False, pade_order: int = 2, pla
             the sensors), e.g. ``c_current`` or ``c_gap``.
 
     Returns:
-        StateSpace with 4 inputs (CURRENT_NAMES), 4 outputs (DISPLACEMENT_NAMES; q unnamed ones with
+        StateSpace with na inputs (the layout's u names), na outputs (its y names; q unnamed ones with
         ``outputs``), D = 0.
     """
     p = levitated_plant(rig)[0] if plant is None else plant
     c_out = p.c_y if outputs is None else np.asarray(outputs, dtype=float)
-    names = dict(input_names=CURRENT_NAMES, input_units=("A",) * 4)
+    na = p.n_axes
+    names = dict(input_names=p.layout.inputs, input_units=p.layout.units("u"))
     if outputs is None:
-        names.update(output_names=DISPLACEMENT_NAMES, output_units=("m",) * 4)
+        names.update(output_names=p.layout.outputs, output_units=p.layout.units("y"))
     if not discrete:
-        cont = StateSpace(p.a, p.b_u, c_out, np.zeros((c_out.shape[0], 4)))
-        return series(pade_delay(4, p.delay_s, pade_order), cont)._replace(**names)
+        cont = StateSpace(p.a, p.b_u, c_out, np.zeros((c_out.shape[0], na)))
+        return series(pade_delay(na, p.delay_s, pade_order), cont)._replace(**names)
     phi, g1, g0 = delayed_zoh(p.a, p.b_u, rig.dt, p.delay_s)
     n = p.n_states
-    a = np.block([[phi, g0], [np.zeros((4, n + 4))]])
-    b = np.vstack([g1, np.eye(4)])
-    c = np.hstack([c_out, np.zeros((c_out.shape[0], 4))])
-    return StateSpace(a, b, c, np.zeros((c_out.shape[0], 4)), rig.dt, **names)
+    a = np.block([[phi, g0], [np.zeros((na, n + na))]])
+    b = np.vstack([g1, np.eye(na)])
+    c = np.hstack([c_out, np.zeros((c_out.shape[0], na))])
+    return StateSpace(a, b, c, np.zeros((c_out.shape[0], na)), rig.dt, **names)

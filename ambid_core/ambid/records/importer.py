@@ -30,6 +30,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from ambid.channels import Layout
 from ambid.control.user_controller import load_controller
 from ambid.excitation.design import ExcitationDesign
 from ambid.excitation.reconstruct import DesignFinder, DesignNotFound
@@ -292,7 +293,9 @@ def _import(rec, m, out, cols, idx, sel, scale, offset, ny, nu, spool, chunk_row
     controller = None
     if m.controller:
         try:
-            controller = load_controller(m.controller, 1.0 / fs, "the record's")
+            # the controller closes the loop on the record's axes: y of each in, its current out
+            controller = load_controller(m.controller, 1.0 / fs, "the record's",
+                                         Layout.from_names(c.name for c in m.outputs))
         except ValueError as exc:
             raise RecordError(str(exc)) from None
     # ---- pass 2: write

@@ -12,9 +12,12 @@
     band_hz: [10, 1000]              # optional, without design: band of the detection lines
 
 A channel's value in SI units is ``scale * (column value) + offset``.
-Output keys are ambid's displacement names (``y_a_x``, ``y_b_x``,
-``y_a_y``, ``y_b_y``), currents ``u_<axis>``, excitation ``r_<axis>`` on
-the same axes as the currents. File paths are relative to MAP.yaml's folder.
+Channels are data: the record's axes are whatever the keys name, any number
+of them (one axis, one plane, the four radial axes ``a_x b_x a_y b_y``, five
+with the axial ``z``): output keys are displacements ``y_<axis>``, currents
+``u_<axis>``, excitation ``r_<axis>`` on the same axes as the currents, in
+the same order. Numbers read as people write them (``2e-05``, ``1e3``, ``.5``:
+:mod:`ambid.yaml_file`). File paths are relative to MAP.yaml's folder.
 """
 
 from __future__ import annotations
@@ -27,7 +30,8 @@ from typing import Any
 
 import yaml
 
-from ambid.channels import AXES, CURRENT_NAMES, DISPLACEMENT_NAMES
+from ambid.yaml_file import read_yaml
+from ambid.channels import split_name
 
 from .readers import RecordError
 
@@ -89,16 +93,29 @@ def _number(path: str, where: str, value: Any, positive: bool = False) -> float:
     return float(value)
 
 
-def _channels(path: str, raw: dict, group: str, allowed: tuple[str, ...]) -> tuple[MapChannel, ...]:
+_SIGNAL = {"outputs": "y", "currents": "u", "excitation": "r"}
+
+
+def _allowed(name: Any, signal: str) -> bool:
+    try:
+        return isinstance(name, str) and split_name(name)[0] == signal
+    except ValueError:
+        return False
+
+
+def _channels(path: str, raw: dict, group: str) -> tuple[MapChannel, ...]:
     entries = raw.get(group)
+    sig = _SIGNAL[group]
+    example = f"{sig}_a_x, {sig}_b_x, ..., {sig}_z"
     if not isinstance(entries, dict) or not entries:
-        raise _bad(path, f"'{group}' must map channel names ({', '.join(allowed)}) to {{column: ...}}; give "
+        raise _bad(path, f"'{group}' must map channel names ({sig}_<axis>: {example}) to {{column: ...}}; give "
                          f"at least one")
     out = []
     for name, spec in entries.items():
-        if name not in allowed:
-            raise _bad(path, f"{group} name '{name}' is not one of ambid's ({', '.join(allowed)}); use those "
-                             "names as keys and put the rig's column name under column:")
+        if not _allowed(name, sig):
+            raise _bad(path, f"{group} name '{name}' is not an ambid {group[:-1] if group != 'excitation' else group} "
+                             f"name {sig}_<axis> ({example}); use those names as keys and put the rig's column "
+                             "name under column:")
         if isinstance(spec, str):
             spec = {"column": spec}
         if not isinstance(spec, dict) or not isinstance(spec.get("column"), (str, int)) or \
@@ -138,9 +155,9 @@ def load_map(path: str | os.PathLike) -> RecordMap:
     if os.path.isdir(path):
         raise RecordError(f"{path} is a folder; give the MAP.yaml file")
     try:
-        raw = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, yaml.YAMLError):
-        raise RecordError(f"{path} is not YAML text; give a MAP.yaml as 'ambid import --help' shows") from None
+        raw = read_yaml(path, "", "give a MAP.yaml as 'ambid import --help' shows")
+    except ValueError as exc:
+        raise RecordError(str(exc)) from None
     if raw is None:
         raise RecordError(f"{path} is empty; give sample_rate_hz (or time_column), outputs, currents and "
                           "excitation")
@@ -154,10 +171,9 @@ def load_map(path: str | os.PathLike) -> RecordMap:
     if rate is None and tcol is None:
         raise _bad(path, "neither sample_rate_hz nor time_column; give one of them")
     rate = None if rate is None else _number(path, "sample_rate_hz", rate, positive=True)
-    outputs = _channels(path, raw, "outputs", DISPLACEMENT_NAMES)
-    currents = _channels(path, raw, "currents", CURRENT_NAMES)
-    refs = tuple(f"r_{a}" for a in AXES)
-    excitation = _channels(path, raw, "excitation", refs)
+    outputs = _channels(path, raw, "outputs")
+    currents = _channels(path, raw, "currents")
+    excitation = _channels(path, raw, "excitation")
     if [c.name[2:] for c in excitation] != [c.name[2:] for c in currents]:
         raise _bad(path, f"excitation {[c.name for c in excitation]} must name the same axes as currents "
                          f"{[c.name for c in currents]}, in the same order; give one r_<axis> per u_<axis>")

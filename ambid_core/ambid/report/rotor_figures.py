@@ -26,7 +26,7 @@ _WHIRL_COLOUR = {"forward": "tab:blue", "backward": "tab:red", "standing": "0.4"
 
 def directional_frf_figure(measured: DirectionalFrf, curves: Mapping[str, DirectionalFrf],
                            modes: Sequence[tuple[float, str]] = (), path: str | Path | None = None) -> Figure:
-    """Forward and backward directional FRFs, plane A and plane B (diagonal elements, p per f).
+    """Forward and backward directional FRFs of each bearing plane (diagonal elements, p per f).
 
     Args:
         measured: the measured directional FRF (dots).
@@ -34,10 +34,12 @@ def directional_frf_figure(measured: DirectionalFrf, curves: Mapping[str, Direct
         modes: (frequency [Hz], whirl) of the fitted modes, marked by whirl colour.
         path: PNG to write.
     """
-    fig = _figure((10.0, 5.2))
-    axes = fig.subplots(1, 2, sharey=True)
+    n_planes = measured.forward.shape[1]
+    names = [p.upper() for p in measured.planes] or [str(j + 1) for j in range(n_planes)]
+    fig = _figure((max(5.0 * n_planes, 9.0), 5.2))
+    axes = fig.subplots(1, n_planes, sharey=True, squeeze=False)[0]
     fig.subplots_adjust(left=0.08, right=0.98, bottom=0.12, top=0.9, wspace=0.06)
-    for j, (ax, plane) in enumerate(zip(axes, "AB")):
+    for j, (ax, plane) in enumerate(zip(axes, names)):
         for name, attr, colour in (("forward", "forward", "tab:blue"), ("backward", "backward", "tab:red")):
             g = getattr(measured, attr)[:, j, j]
             ax.plot(measured.freq_hz, 20 * np.log10(np.abs(g)), "o", ms=2.2, color=colour,
@@ -53,7 +55,7 @@ def directional_frf_figure(measured: DirectionalFrf, curves: Mapping[str, Direct
         ax.set_xlabel("frequency [Hz]")
         ax.grid(True, which="both", alpha=0.3)
     axes[0].set_ylabel("|H| [dB re 1 m/A]")
-    axes[1].legend(fontsize=7, loc="lower left")
+    axes[-1].legend(fontsize=7, loc="lower left")
     fig.suptitle("Directional FRFs: forward whirl (blue) and backward whirl (red); vertical lines: fitted modes "
                  "by whirl", fontsize=9)
     return _save(fig, path)

@@ -40,7 +40,8 @@ def model_modes(model: StateSpace, band_hz: tuple[float, float], max_damping: fl
     """Lightly damped modes of a continuous model in a band, with their whirl.
 
     Args:
-        model: continuous StateSpace with the 4 x 4 x/y channels in AXES order.
+        model: continuous StateSpace whose named inputs and outputs hold the bearing planes' x and y
+            channels (``u_a_x``, ``y_a_x``, ...; any other axis, e.g. the axial one, is left out).
         band_hz: (f_lo, f_hi) [Hz].
         max_damping: modes with damping ratio in (0, max_damping) count.
 
@@ -62,7 +63,7 @@ def model_modes(model: StateSpace, band_hz: tuple[float, float], max_damping: fl
     out = []
     for g in groups:
         residue = sum(np.outer(model.c @ v[:, i], w[i] @ model.b) for i in g)
-        kind, share = whirl_of_residue(residue)
+        kind, share = whirl_of_residue(residue, model.output_names, model.input_names)
         wn = float(np.mean(np.abs(s[g])))
         out.append(dict(freq_hz=wn / (2 * np.pi), damping=float(np.mean(zeta[g])), whirl=kind,
                         forward_share=share))

@@ -4,7 +4,7 @@ Three comparisons, every experiment on the same rig, with the same
 controller and from the same levitated state:
 
 1. **Methods**: stepped sine, swept sine, random noise, one-input-at-a-time
-   multisine and orthogonal multisine, each measuring the full 4 x 4 FRF
+   multisine and orthogonal multisine, each measuring the full FRF
    matrix on the same lines with the same peak excitation current; and the
    orthogonal multisine without settling periods, each segment's transient
    removed by the local polynomial method (:mod:`ambid.frf.lpm`).
@@ -58,7 +58,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ambid.channels import AXES, CURRENT_NAMES, DISPLACEMENT_NAMES
+from ambid.channels import Layout
 from ambid.control.closed_loop import close_loop
 from ambid.control.pid import PidParameters, pid_controller
 from ambid.control.stepper import ControllerStepper
@@ -75,7 +75,6 @@ __all__ = ["ComparePreset", "PRESETS", "PARTS", "METHODS", "LoopStart", "LoopRec
            "settling_time", "levitate", "run_loop", "realisation_ladder", "compare_methods", "compare_estimators",
            "compare_odd_full", "run_comparison", "comparison_markdown"]
 
-REFERENCE_NAMES = tuple(f"r_{a}" for a in AXES)
 PARTS = ("methods", "estimators", "odd_full")
 METHODS = ("stepped_sine", "swept_sine", "noise", "multisine_one_at_a_time", "multisine_orthogonal",
            "multisine_orthogonal_no_settling")
@@ -190,7 +189,7 @@ PRESETS: dict[str, ComparePreset] = {
 # ---------------------------------------------------------------- reference, error, settling
 
 def true_frf(rig: Rig, freq_hz: np.ndarray) -> np.ndarray:
-    """The true rig's sampled small-signal FRF u -> y at ``freq_hz`` (L,) [Hz], shape (L, 4, 4) [m/A]."""
+    """The true rig's sampled small-signal FRF u -> y at ``freq_hz`` (L,) [Hz], shape (L, na, na) [m/A]."""
     return true_linear_model(rig, discrete=True).freqresp(np.asarray(freq_hz, dtype=float))
 
 
@@ -283,12 +282,13 @@ class LoopRecord:
     """What one experiment measured.
 
     Attributes:
-        y: (n, 4) sensor displacements [m].
-        u: (n, 4) current references u = ic + r [A] (before the amplifier limit).
-        r: (n, 4) excitation [A].
+        y: (n, na) sensor displacements [m].
+        u: (n, na) current references u = ic + r [A] (before the amplifier limit).
+        r: (n, na) excitation [A].
         n_clipped: samples where the amplifiers saturated.
         n_contact: samples where the rotor touched the backup bearings.
         wall_s: wall time of the loop [s].
+        layout: the rig's axes, the columns' order.
     """
 
     y: np.ndarray
@@ -297,20 +297,23 @@ class LoopRecord:
     n_clipped: int
     n_contact: int
     wall_s: float
+    layout: Layout
 
     def columns(self) -> np.ndarray:
-        """(n, 12) [y, u, r], the column order of an :class:`ambid.frf.streaming.FrfStream`."""
+        """(n, 3 na) [y, u, r], the column order of an :class:`ambid.frf.streaming.FrfStream`."""
         return np.hstack([self.y, self.u, self.r])
 
 
-def levitate(rig: Rig, seed: int = 0, nonlinear_magnets: bool = False, liftoff_s: float = 0.5) -> LoopStart:
-    """Lift the rotor off its backup bearings under the default PID and let it settle.
+def levitate(rig: Rig, seed: int = 0, nonlinear_magnets: bool = False, liftoff_s: float = 0.5,
+             controller: tuple[StateSpace, float] | None = None) -> LoopStart:
+    """Lift the rotor off its backup bearings under the default PID (or ``controller``) and let it settle.
 
     Args:
         rig: rig parameters.
         seed: sensor-noise seed.
         nonlinear_magnets: use the full magnet law (eq. 2.14).
         liftoff_s: simulated time [s], > 0.
+        controller: (discrete controller y -> ic, its current limit [A]); None: the default PID.
 
     Raises:
         ValueError if the rotor touches the retainer in the second half of that time.
@@ -318,8 +321,10 @@ def levitate(rig: Rig, seed: int = 0, nonlinear_magnets: bool = False, liftoff_s
     if not (math.isfinite(liftoff_s) and liftoff_s > 0):
         raise ValueError(f"liftoff_s must be finite and > 0, got {liftoff_s!r}")
     sim = PlantSimulator(rig, seed=seed, nonlinear_magnets=nonlinear_magnets)
-    pid = PidParameters()
-    ctl = ControllerStepper(pid_controller(pid, rig.dt), pid.current_limit_a)
+    if controller is None:
+        pid = PidParameters()
+        controller = (pid_controller(pid, rig.dt, rig.layout), pid.current_limit_a)
+    ctl = ControllerStepper(*controller)
     n = int(round(liftoff_s / rig.dt))
     for k in range(n):
         _, contact = sim.step(ctl.step(sim.output()))
@@ -334,14 +339,16 @@ def run_loop(start: LoopStart, r: np.ndarray) -> LoopRecord:
 
     Args:
         start: the levitated state (not modified).
-        r: (n, 4) excitation [A] added to the control currents, AXES order.
+        r: (n, na) excitation [A] added to the control currents, in the rig layout's order.
 
     Returns:
         :class:`LoopRecord`.
     """
     r = np.asarray(r, dtype=float)
-    if r.ndim != 2 or r.shape[1] != 4 or not np.all(np.isfinite(r)):
-        raise ValueError(f"run_loop: r must be finite with shape (n, 4) [A], got shape {r.shape}")
+    layout = start.sim.layout
+    na = len(layout)
+    if r.ndim != 2 or r.shape[1] != na or not np.all(np.isfinite(r)):
+        raise ValueError(f"run_loop: r must be finite with shape (n, {na}) [A], got shape {r.shape}")
     sim, ctl = copy.deepcopy(start.sim), copy.deepcopy(start.ctl)
     n = r.shape[0]
     ys: list = [None] * n
@@ -352,23 +359,24 @@ def run_loop(start: LoopStart, r: np.ndarray) -> LoopRecord:
     for k, rk in enumerate(r.tolist()):
         y = output()
         ic = control(y)
-        u = [ic[0] + rk[0], ic[1] + rk[1], ic[2] + rk[2], ic[3] + rk[3]]
+        u = [a + b for a, b in zip(ic, rk)]
         clipped, contact = step(u)
         ys[k] = y
         us[k] = u
         n_clip += clipped
         n_contact += contact
     wall = time.perf_counter() - t0
-    y_arr = np.array(ys, dtype=float).reshape(n, 4)
-    u_arr = np.array(us, dtype=float).reshape(n, 4)
-    return LoopRecord(y_arr, u_arr, r, int(n_clip), int(n_contact), wall)
+    y_arr = np.array(ys, dtype=float).reshape(n, na)
+    u_arr = np.array(us, dtype=float).reshape(n, na)
+    return LoopRecord(y_arr, u_arr, r, int(n_clip), int(n_contact), wall, layout)
 
 
 # ---------------------------------------------------------------- estimates from records
 
 def _stream_estimate(design: ExcitationDesign, record: LoopRecord, n_samples: int,
                      estimator: str = "indirect") -> FrfResult:
-    stream = FrfStream(design, DISPLACEMENT_NAMES, CURRENT_NAMES, REFERENCE_NAMES, total_samples=n_samples)
+    lay = record.layout
+    stream = FrfStream(design, lay.outputs, lay.inputs, lay.excitations, total_samples=n_samples)
     stream.add(0, record.columns()[:n_samples])
     return stream.estimate(estimator)
 
@@ -449,25 +457,26 @@ def _transient_periods(settle_s: float, resolution_hz: float) -> int:
 
 def _method_designs(preset: ComparePreset, rig: Rig, settle_s: float) -> dict[str, ExcitationDesign]:
     fs, band, res, pk = 1.0 / rig.dt, preset.band_hz, preset.resolution_hz, preset.peak_current_a
+    inputs = rig.layout.inputs
     m, p = preset.max_realisations, preset.multisine_periods
     pt = _transient_periods(settle_s, res)
     # Schroeder phases: crest factor ~1.7-1.9 against ~3.5 for random ones; on the linear rig the
     # realisations need not differ (random phases serve the nonlinear analysis)
     ms = dict(n_periods=p, n_realisations=m, n_transient_periods=pt, grid="full", phases="schroeder",
               seed=preset.seed)
-    ortho = design_multisine(band, res, fs, CURRENT_NAMES, pk, mimo="orthogonal", **ms)
+    ortho = design_multisine(band, res, fs, inputs, pk, mimo="orthogonal", **ms)
     lines = ortho.excited_lines[::preset.stepped_line_stride]
     return {
-        "stepped_sine": design_stepped_sine(band, res, fs, CURRENT_NAMES, pk, settle_s=settle_s,
+        "stepped_sine": design_stepped_sine(band, res, fs, inputs, pk, settle_s=settle_s,
                                             n_cycles=int(preset.stepped_cycles[-1]), lines=lines),
-        "swept_sine": design_swept_sine(band, res, fs, CURRENT_NAMES, pk, n_periods=p, n_realisations=m,
+        "swept_sine": design_swept_sine(band, res, fs, inputs, pk, n_periods=p, n_realisations=m,
                                         n_transient_periods=pt, mimo="one_at_a_time"),
-        "noise": design_noise(band, res, fs, CURRENT_NAMES, pk, n_periods=preset.noise_blocks, n_realisations=m,
+        "noise": design_noise(band, res, fs, inputs, pk, n_periods=preset.noise_blocks, n_realisations=m,
                               n_transient_periods=pt, mimo="simultaneous", seed=preset.seed),
-        "multisine_one_at_a_time": design_multisine(band, res, fs, CURRENT_NAMES, pk, mimo="one_at_a_time", **ms),
+        "multisine_one_at_a_time": design_multisine(band, res, fs, inputs, pk, mimo="one_at_a_time", **ms),
         "multisine_orthogonal": ortho,
         # the same without a settling wait: each segment's transient is removed from its own periods (ambid.frf.lpm)
-        "multisine_orthogonal_no_settling": design_multisine(band, res, fs, CURRENT_NAMES, pk, mimo="orthogonal",
+        "multisine_orthogonal_no_settling": design_multisine(band, res, fs, inputs, pk, mimo="orthogonal",
                                                              **(ms | {"n_transient_periods": 0})),
     }
 
@@ -586,13 +595,14 @@ def compare_estimators(preset: ComparePreset, rig: Rig, start: LoopStart | None 
     start = start or levitate(rig, preset.seed, False, preset.liftoff_s)
     fs = 1.0 / rig.dt
     settle = settling_time(rig, start.ctl.model, preset.band_hz[1], preset.settle_time_constants)
-    d = design_multisine(preset.band_hz, preset.resolution_hz, fs, CURRENT_NAMES, preset.estimator_peak_a,
+    lay = rig.layout
+    d = design_multisine(preset.band_hz, preset.resolution_hz, fs, lay.inputs, preset.estimator_peak_a,
                          n_periods=preset.estimator_periods, n_realisations=preset.estimator_realisations,
                          n_transient_periods=_transient_periods(settle["settle_s"], preset.resolution_hz),
                          grid="full", mimo="orthogonal", seed=preset.seed + 1)
     t0 = time.perf_counter()
     rec = run_loop(start, d.samples(0, d.total_samples))
-    stream = FrfStream(d, DISPLACEMENT_NAMES, CURRENT_NAMES, REFERENCE_NAMES)
+    stream = FrfStream(d, lay.outputs, lay.inputs, lay.excitations)
     stream.add(0, rec.columns())
     results = {name: stream.estimate(name) for name in ESTIMATORS}
     g_ref = true_frf(rig, d.freq_hz)
@@ -655,7 +665,7 @@ def compare_odd_full(preset: ComparePreset, rig: Rig, start: LoopStart | None = 
                  "resolution_hz": res_hz, "transient_periods": pt, "grids": {}}
     fits = {}
     for grid in ("full", "random_odd"):
-        d = design_multisine(preset.nonlinear_band_hz, res_hz, fs, CURRENT_NAMES, preset.nonlinear_peak_a,
+        d = design_multisine(preset.nonlinear_band_hz, res_hz, fs, rig.layout.inputs, preset.nonlinear_peak_a,
                              n_periods=preset.nonlinear_periods, n_realisations=preset.nonlinear_realisations,
                              n_transient_periods=pt, grid=grid, mimo="orthogonal", seed=preset.seed + 2)
         t0 = time.perf_counter()
@@ -721,7 +731,7 @@ def run_comparison(preset: ComparePreset | str = "quick", rig: Rig | None = None
     rig = rig or make_rig()
     t0 = time.perf_counter()
     out: dict = {"preset": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(preset).items()},
-                 "rig": rig.name, "sample_rate_hz": 1.0 / rig.dt,
+                 "rig": rig.name, "axes": list(rig.layout.axes), "sample_rate_hz": 1.0 / rig.dt,
                  "loop": ("core lock-step loop of ambid.plant.simulator.PlantSimulator and ambid.control.pid."
                           "ControllerStepper (default PID), in the order of the plant_sim node")}
     if "methods" in parts or "estimators" in parts:
@@ -764,7 +774,7 @@ def comparison_markdown(result: dict) -> str:
         st = m["settling"]
         lines += ["## Excitation methods", "",
                   f"Band {p['band_hz'][0]:g}-{p['band_hz'][1]:g} Hz, {p['resolution_hz']:g} Hz resolution, "
-                  f"{len(m['lines'])} lines, full 4 x 4 FRF matrix, peak {m['peak_current_a']:g} A per input, "
+                  f"{len(m['lines'])} lines, full FRF matrix, peak {m['peak_current_a']:g} A per input, "
                   f"indirect estimator. Settling after every change of excitation: "
                   f"{p['settle_time_constants']:g} x {1e3 * st['time_constant_s']:.1f} ms (slowest closed-loop "
                   f"pole below {p['band_hz'][1]:g} Hz, {_pole(st['pole_hz'])}) = {1e3 * st['settle_s']:.0f} ms. "

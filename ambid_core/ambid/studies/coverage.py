@@ -22,10 +22,14 @@ one row per kind:
   weighs every line alike (sigma spans decades over the lines).
 
 The FRF truth is the true rig's small-signal model sampled with the
-zero-order hold (:func:`ambid.plant.true_rig.true_linear_model`); the
-parameters' truth :func:`ambid.fit.model_update.true_parameters`; the modes'
-the true rig's poles (:func:`ambid.studies.identification.compare_modes`); the
-noise level's the sensor noise through the true closed loop
+zero-order hold (:func:`ambid.plant.true_rig.true_linear_model`), and the
+same model with the magnets' slopes at the excitation level; the updated
+parameters' truth is what their intervals claim, the parameters of the rig's
+best linear approximation at this excitation level (:func:`with_bla_truth`,
+:mod:`ambid.studies.bla_truth`), with the rig's values at rest
+(:func:`ambid.fit.model_update.true_parameters`) beside it in ``at_rest``; the
+modes' the true rig's poles (:func:`ambid.studies.identification.compare_modes`);
+the noise level's the sensor noise through the true closed loop
 (:func:`ambid.fit.model_update.closed_loop_noise_std`). A ``pooled`` row
 counts every parameter and mode interval of every seed as one case.
 
@@ -47,8 +51,8 @@ from scipy import stats
 from ambid.plant.rig import Rig
 from ambid.plant.tolerances import tolerance_for
 
-__all__ = ["FRF_NOMINAL", "POOLED", "clopper_pearson", "frf_record", "seed_record", "coverage_table",
-           "coverage_figure", "draw_nominal_rig"]
+__all__ = ["FRF_NOMINAL", "POOLED", "clopper_pearson", "frf_record", "seed_record", "with_bla_truth",
+           "coverage_table", "coverage_figure", "draw_nominal_rig"]
 
 #: P(|e| <= 2 sigma) for a circular complex Gaussian error e with E|e|^2 = sigma^2.
 FRF_NOMINAL = float(1 - np.exp(-4.0))
@@ -96,7 +100,9 @@ def _interval_rows(prefix: str, items: Sequence[Mapping[str, Any]]) -> dict:
             continue
         out[f"{prefix}{it['name']}"] = dict(value=float(it["value"]), std=float(it["std"]),
                                             ci95=[float(c) for c in it["ci95"]], true=float(it["true"]),
-                                            noise_only=bool(it.get("noise_only", False)))
+                                            noise_only=bool(it.get("noise_only", False)),
+                                            **({} if it.get("true_at_rest") is None
+                                               else dict(true_at_rest=float(it["true_at_rest"]))))
     return out
 
 
@@ -114,8 +120,11 @@ def seed_record(summary: Mapping[str, Any], G: np.ndarray, truths: Mapping[str, 
     Returns:
         dict with ``frf`` (:func:`frf_record`), ``intervals`` (name -> value,
         std, ci95, true, noise_only) for the updated parameters reported as
-        identified (``parameter:<name>``) and the fitted modes with an
-        interval (``mode_freq:<k>``, ``mode_damping:<k>``), ``noise``
+        identified (``parameter:<name>``, with ``true_at_rest``: the rig's value at rest; ``true`` is the
+        summary's until :func:`with_bla_truth` sets the BLA's), the total lag
+        (``derived:total_lag_s``) and the fitted modes with an
+        interval (``mode_freq:<k>``, ``mode_damping:<k>``), ``model`` (the
+        update's parameter ``names`` and ``free`` ones: its structure), ``noise``
         (the estimated output noise std per channel) and ``noise_interval``
         (its value, std, ci95 and true closed-loop noise std per channel, or
         None where the session has no truth).
@@ -125,11 +134,12 @@ def seed_record(summary: Mapping[str, Any], G: np.ndarray, truths: Mapping[str, 
     for name, row in (upd.get("parameters") or {}).items():
         if row.get("free") and row.get("identified", True):
             items.append(dict(name=f"parameter:{name}", value=row["value"], std=row.get("std"),
-                              ci95=row.get("ci95"), true=row.get("true"), noise_only=row.get("noise_only")))
+                              ci95=row.get("ci95"), true=row.get("true"), noise_only=row.get("noise_only"),
+                              true_at_rest=row.get("true_small_signal", row.get("true"))))
     lag = upd.get("total_lag")
     if lag and lag.get("true") is not None:
         items.append(dict(name="derived:total_lag_s", value=lag["value"], std=lag["std"], ci95=lag["ci95"],
-                          true=lag["true"], noise_only=False))
+                          true=lag["true"], noise_only=False, true_at_rest=lag["true"]))
     for k, m in enumerate(summary.get("modes_vs_true") or []):
         for q, tq in (("freq_hz", "true_freq_hz"), ("damping", "true_damping")):
             if m.get(f"{q}_std") is not None:
@@ -145,8 +155,28 @@ def seed_record(summary: Mapping[str, Any], G: np.ndarray, truths: Mapping[str, 
         noise_interval = dict(value=[float(x) for x in noise], std=[float(x) for x in nz["output_noise_std_sd_m"]],
                               ci95=[[float(c) for c in ci] for ci in nz["output_noise_std_ci95_m"]],
                               true=[float(x) for x in nz["true_output_noise_std_m"]])
-    return dict(frf=frf, intervals=_interval_rows("", items),
+    model = None
+    if upd.get("parameters"):
+        model = dict(names=sorted(upd["parameters"]), free=list(upd.get("free") or []))
+    return dict(frf=frf, intervals=_interval_rows("", items), model=model,
                 noise=None if noise is None else [float(x) for x in noise], noise_interval=noise_interval)
+
+
+def with_bla_truth(record: Mapping[str, Any], bla: Mapping[str, float]) -> dict:
+    """``record`` with each updated parameter's and the total lag's truth set to what the interval claims:
+    the parameters of the rig's best linear approximation at this excitation level, ``bla``
+    (:func:`ambid.studies.bla_truth.bla_parameters`: name -> value, ``total_lag_s``). The rig's value at
+    rest stays in ``true_at_rest``; a parameter ``bla`` lacks keeps its truth."""
+    out = dict(record)
+    intervals = {}
+    for name, row in record["intervals"].items():
+        kind, _, key = name.partition(":")
+        key = "total_lag_s" if name == "derived:total_lag_s" else key
+        if kind in ("parameter", "derived") and key in bla:
+            row = {**row, "true": float(bla[key]), "bla": True}
+        intervals[name] = row
+    out["intervals"] = intervals
+    return out
 
 
 def _row(nominal: float, covered: int, n: int, err2: float, var: float, **extra) -> dict:
@@ -192,10 +222,21 @@ def coverage_table(records: Sequence[Mapping[str, Any]]) -> dict:
             e0 = np.array([x["noise_free"] for x in rows]) - t
             extra = dict(noise_free_bias_over_std=float(np.mean(e0) / rms_s),
                          noise_free_rms_over_std=float(np.sqrt(np.mean(e0**2)) / rms_s))
+        if all("true_at_rest" in x for x in rows):
+            # the rig's values at rest: how far the nonlinearity moves what the interval claims
+            t0 = np.array([x["true_at_rest"] for x in rows])
+            extra.update(at_rest=dict(true=float(np.mean(t0)),
+                                      coverage=float(np.mean([x["ci95"][0] <= a <= x["ci95"][1]
+                                                              for x, a in zip(rows, t0)])),
+                                      std_ratio=float(np.sqrt(np.sum((v - t0) ** 2) / np.sum(s**2))),
+                                      shift_over_std=float(np.mean(t - t0) / rms_s)))
         table[name] = _row(0.95, cov, len(rows), float(np.sum((v - t) ** 2)), float(np.sum(s**2)),
                            true=float(np.mean(t)), bias_over_std=float(np.mean(v - t) / rms_s),
                            scatter_over_std=float(np.std(v, ddof=1) / rms_s) if len(v) > 1 else float("nan"),
-                           noise_only=bool(rows[0]["noise_only"]), claim="95 % interval holds the truth", **extra)
+                           noise_only=bool(rows[0]["noise_only"]),
+                           claim="95 % interval holds the parameter of the rig's best linear approximation at this "
+                                 "excitation level (at_rest: against the rig at rest)" if all(x.get("bla") for x in rows)
+                           else "95 % interval holds the truth", **extra)
     # the derived total lag is its own row, not a case here: it is a sum of three parameters already counted
     cases = [x for r in records for k, x in r["intervals"].items()
              if k.split(":")[0] in ("parameter", "mode_freq_hz", "mode_damping")]
@@ -203,8 +244,14 @@ def coverage_table(records: Sequence[Mapping[str, Any]]) -> dict:
         z = np.array([(x["value"] - x["true"]) / x["std"] for x in cases])
         covered = int(sum(x["ci95"][0] <= x["true"] <= x["ci95"][1] for x in cases))
         lo, hi = clopper_pearson(covered, len(cases))
+        # the same cases against the rig at rest (a mode has no other truth than its own)
+        t0 = np.array([x.get("true_at_rest", x["true"]) for x in cases])
+        z0 = np.array([(x["value"] - a) / x["std"] for x, a in zip(cases, t0)])
+        at_rest = dict(coverage=float(np.mean([x["ci95"][0] <= a <= x["ci95"][1] for x, a in zip(cases, t0)])),
+                       std_ratio=float(np.sqrt(np.mean(z0**2))))
         table[POOLED] = dict(nominal=0.95, coverage=covered / len(cases), ci95=[lo, hi], covered=covered,
                              n=len(cases), std_ratio=float(np.sqrt(np.mean(z**2))), noise_only=False,
+                             at_rest=at_rest,
                              claim="every parameter and mode interval of every seed, one case each; std_ratio "
                                    "is the RMS of error / claimed std")
     noise_iv = [r["noise_interval"] for r in records if r.get("noise_interval")]

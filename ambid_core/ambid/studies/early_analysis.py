@@ -65,9 +65,10 @@ class EarlyAnalysis:
         self.analysing = False
         self.times: dict[str, float] = {}    # perf_counter of each step, for the timing figures
 
-    def prepare(self, inputs: SessionInputs, freq_hz, n_outputs: int) -> None:
-        """The session's inputs without the FRF (``inputs.frf`` None), its lines and outputs' count."""
-        self._send(("prepare", inputs, freq_hz, int(n_outputs)))
+    def prepare(self, inputs: SessionInputs, freq_hz, output_names, input_names) -> None:
+        """The session's inputs without the FRF (``inputs.frf`` None), its lines and the FRF's channels
+        (:func:`ambid.studies.identification.reference_models`)."""
+        self._send(("prepare", inputs, freq_hz, tuple(output_names), tuple(input_names)))
         self.times["prepare"] = time.perf_counter()
 
     def analyse(self, inputs: SessionInputs) -> None:
@@ -139,10 +140,10 @@ def _worker(conn, out_dir: str, options: dict, nice: int = 0) -> None:
     refs: dict[str, Any] = {}
     prep: threading.Thread | None = None
 
-    def prepare(inputs: SessionInputs, freq_hz, n_outputs: int) -> None:
+    def prepare(inputs: SessionInputs, freq_hz, output_names, input_names) -> None:
         t0 = time.perf_counter()
         try:
-            refs["models"] = reference_models(inputs, freq_hz, n_outputs)
+            refs["models"] = reference_models(inputs, freq_hz, output_names, input_names)
         except Exception:  # noqa: BLE001 - the analysis computes them itself then
             refs["error"] = traceback.format_exc()
         refs["seconds"] = time.perf_counter() - t0
@@ -172,7 +173,7 @@ def _analyse(conn, out_dir: str, options: dict, inputs: SessionInputs, prep: thr
     def on_summary(summary: dict) -> None:
         models = refs.get("models")
         used = models is not None and models.key == reference_key(inputs, inputs.frf.freq_hz,
-                                                                    len(inputs.frf.output_names))
+                                                                    inputs.frf.output_names, inputs.frf.input_names)
         conn.send(("summary", summary, {"references_s": refs.get("seconds"), "references_used": used,
                                         "waited_for_references_s": waited,
                                         "analysis_s": time.perf_counter() - started,

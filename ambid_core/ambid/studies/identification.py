@@ -16,6 +16,8 @@
    data (the fitted modes, the FRF's level and phase), with an extra support
    mode when the fit shows a mode the nominal model lacks; the nominal and the
    updated model's loop with the recorded controller are checked and said;
+   where the rig model covers the FRF's channels (a note says so where it does
+   not: channels are data, a record of one axis or one plane is fitted all the same);
 5. when the session is simulated (rig facts recorded, plant source 'sim'):
    the comparison against the true rig's sampled linear model
    (:func:`ambid.plant.true_rig.true_linear_model`) and its parameters;
@@ -56,22 +58,24 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from ambid.channels import split_name
 from ambid.control.closed_loop import close_loop, loop_robustness
 from ambid.excitation.design import ExcitationDesign
 from ambid.fit import (FitResult, StabilisationDiagram, fit_common_denominator, modal_summary, save_model_json,
                        save_model_npz, stabilisation_diagram)
-from ambid.fit.model_update import (PhysicalUpdate, bending_keys, closed_loop_noise_std, excitation_slopes,
+from ambid.fit.model_update import (PhysicalUpdate, bending_keys, closed_loop_noise_std, covers, excitation_slopes,
                                     match_modes, nominal_parameters, nominal_update_parameters, parameter_prior,
-                                    physical_discrete, physical_frf, physical_statespace, start_from_data, total_lag, true_parameters,
-                                    unmodelled_mode, update_physical_model)
+                                    physical_discrete, physical_frf, physical_statespace, slopes_as_parameters,
+                                    start_from_data, total_lag, true_parameters, unmodelled_mode,
+                                    update_physical_model)
 from ambid.fit.updating import NotIdentifiable, Prior
 from ambid.plant.tolerances import Z95
-from ambid.frf.directional import directional_frf, whirl_of_residue
+from ambid.frf.directional import directional_frf, has_planes, whirl_of_residue
 from ambid.frf.levels import LineLevels, line_levels
 from ambid.frf.offline import frf_from_session, session_designs
 from ambid.frf.sensitivity import iso14839_zone
 from ambid.frf.uncertainty import fit_weight_variance, row_covariance
-from ambid.frf.streaming import FrfResult
+from ambid.frf.streaming import FrfResult, axis_tag
 from ambid.jsonable import to_jsonable
 from ambid.plant.rig import Rig, load_rig, make_rig
 from ambid.plant.true_rig import true_linear_model, true_plant
@@ -322,13 +326,17 @@ def _update(rig: Rig, frf: FrfResult, var, band, modes, dt_s, nominal_overrides,
     Returns (update or None, error or None, notes).
     """
     rotor = rig.rotor_model()
+    not_covered = covers(rotor, frf.output_names, frf.input_names)
+    if not_covered:
+        return None, None, [f"no physical model updating: {not_covered}"]
     nominal = nominal_update_parameters(rig)
     nominal.update({k: float(v) for k, v in (nominal_overrides or {}).items()})
     fitted = [(m.freq_hz, m.damping) for m in modes]
     chosen = free is not None
     if free is None:
         free = [k for k in ("ki_n_per_a", "ks_n_per_m", "ks_b_over_a", "amplifier_bandwidth_hz",
-                            "sensor_bandwidth_hz", "delay_s") if k in nominal]
+                            "sensor_bandwidth_hz", "delay_s", "axial_ki_n_per_a", "axial_ks_n_per_m",
+                            "axial_amplifier_bandwidth_hz") if k in nominal]
         # the bending modes within the measured band (one outside it cannot be identified from it)
         for mode in range(1, 9):
             fk, zk = bending_keys(mode)
@@ -386,8 +394,8 @@ def refit_parameters(summary: Mapping[str, Any], rig: Rig, freq_hz: np.ndarray, 
         summary: :func:`identify_session`'s summary, with ``update.parameters``.
         rig: the rig the session updated.
         freq_hz: (L,) lines [Hz].
-        G: (L, 4, 4) FRF u -> y [m/A].
-        var: (L, 4, 4) the session's fit variance [(m/A)^2], or None.
+        G: (L, na, na) FRF u -> y [m/A] on the rig's axes.
+        var: (L, na, na) the session's fit variance [(m/A)^2], or None.
 
     Returns:
         free parameter name -> estimate; {} without an update in the summary.
@@ -427,7 +435,7 @@ class FrfFit:
         modes: the in-band complex pole pairs (:class:`ambid.fit.Mode`), by frequency.
         mode_rows: per mode, what identify prints and records: freq_hz, damping, stable (found again
             within 1 % at the next lower order), their 95 % intervals (freq_hz_ci95, damping_ci95, ...),
-            and for a rotor's 4 x 4 x/y matrix whirl and forward_share.
+            and, where the channels hold a radial bearing's x and y, whirl and forward_share.
         real_rows: the real poles: pole_hz (signed, > 0 unstable), unstable.
         var, var_kind: the line variance the intervals are read from, and what it is (None: no variance).
         band_var: the variance of the printed +-2 sigma band.
@@ -513,11 +521,12 @@ def fit_frf(frf: FrfResult, sample_rate_hz: float, order: int | None = None, *, 
                                   <= 0.01 * m.freq_hz), **_mode_interval(fit, m.freq_hz, m.damping))
                  for m in modes]
     real_rows = [dict(pole_hz=r.pole_rad_s / (2 * np.pi), unstable=r.unstable) for r in summary_modes.real_poles]
-    # a rotor's x/y matrix (4 x 4, AXES order): forward and backward whirl told apart
-    if frf.frf.shape[1:] == (4, 4):
+    # the radial bearing planes among the channels (x and y of a bearing): forward and backward whirl told apart
+    if has_planes(frf.output_names, frf.input_names):
         for m, row in zip(modes, mode_rows):
             k = int(np.argmin(np.abs(fit.model.poles - m.pole_rad_s)))
-            row["whirl"], row["forward_share"] = whirl_of_residue(fit.model.residues[k])
+            row["whirl"], row["forward_share"] = whirl_of_residue(fit.model.residues[k], frf.output_names,
+                                                                  frf.input_names)
     return FrfFit(fit, int(order), rule, diagram, band, fit_delay, modes, mode_rows, real_rows, var, var_kind,
                   band_var, w_var, w_kind, row_cov, realisations)
 
@@ -627,8 +636,9 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     mf = fit_frf(frf, design.fs_hz, order, max_order=max_order, order_penalty=order_penalty)
     var, var_kind, band_var, w_var, w_kind = mf.var, mf.var_kind, mf.band_var, mf.weights, mf.weights_kind
     order, fit, modes, mode_rows, band, diagram = mf.order, mf.fit, mf.modes, mf.mode_rows, mf.band_hz, mf.diagram
-    # a rotor's x/y matrix (4 x 4, AXES order): forward and backward whirl told apart
-    dfrf = directional_frf(f, frf.frf, var) if frf.frf.shape[1:] == (4, 4) else None
+    # the radial bearing planes among the channels (x and y of a bearing): forward and backward whirl told apart
+    dfrf = (directional_frf(f, frf.frf, var, frf.output_names, frf.input_names)
+            if has_planes(frf.output_names, frf.input_names) else None)
     save_model_npz(out / "model.npz", fit.model)
     save_model_json(out / "model.json", fit.model)
 
@@ -654,9 +664,10 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
 
     # the truths, after the fit and the update: reference models still in the making meanwhile are waited for
     # only now
-    ny = len(frf.output_names)
+    chans = (frf.output_names, frf.input_names)
     given = references() if callable(references) else references
-    refs = given if given is not None and given.key == reference_key(inputs, f, ny) else reference_models(inputs, f, ny)
+    refs = (given if given is not None and given.key == reference_key(inputs, f, *chans)
+            else reference_models(inputs, f, *chans))
     if simulated and the_rig is not None:
         true_g, true_params, true_g_x, true_noise = refs.true_g, refs.true_params, refs.true_g_x, refs.true_noise
         # physical-looking fitted modes: positively damped and found again at the next lower order
@@ -763,13 +774,20 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
             noise_std="95 % interval (Student t) of each output's noise std from the scatter of the segments' "
                       "period-to-period variances (the noise is coloured by the loop, so the samples' chi2 "
                       "degrees of freedom would be too many); the truth is the sensor noise through the loop",
-            parameters="95 % intervals (Student t) from a sandwich covariance pooled with the realisations' scatter "
+            parameters="95 % intervals (Student t) of the physical parameters of the linear model that best "
+                       "describes the rig at this excitation level (its best linear approximation), the data and "
+                       "each parameter's tolerance together (maximum a posteriori; where prior_dominated, mostly "
+                       "the tolerance about the nominal value). On a nonlinear rig these differ from the "
+                       "parameters at rest by a bias no variance holds: ki and ks by the magnets' slopes averaged "
+                       "over the excursions (true: those slopes, true_small_signal: at rest), the lags by the "
+                       "approximation's phase (the total lag by about 0.1 % on the default rig; true: at rest). "
+                       "From a sandwich covariance pooled with the realisations' scatter "
                        "(ambid.fit.correlated.realisation_inflation): the Jacobian of the fit weighted "
                        f"by {w_kind}, the line covariance {var_kind}, the errors of a line correlated (within a "
                        "row through U^-1, between rows as the residuals show), scaled by the generalised "
-                       "chi2/dof, so they hold the misfit too. ki and ks are compared with the true magnets' "
-                       "slopes at this excitation level (true_small_signal: at rest); the sensor bandwidth, "
-                       "amplifier bandwidth and delay are strongly correlated",
+                       "chi2/dof, so they hold the misfit too. The sensor bandwidth, amplifier bandwidth and "
+                       "delay are strongly correlated; their sum is update.total_lag. ambid validate measures "
+                       "the coverage against the parameters of the best linear approximation (docs/uncertainty.md)",
             modes="95 % intervals (Student t of 2 + M - 1 degrees of freedom where M >= 2 realisations' scatter "
                   "joins the sandwich in the variance; else 1.96 sigma) of the "
                   "fitted modes from the variable-projection sandwich "
@@ -795,14 +813,15 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         levels, window = _samples_for_report(path, chosen, design, frf, recover)
         dense = np.geomspace(max(band[0] / 1.5, 1e-3), min(band[1] * 1.5, 0.499 * design.fs_hz), 400)
         curves = {"fitted model": (dense, fit.model.freqresp(dense))}
-        if the_rig is not None:
+        if the_rig is not None and not covers(the_rig.rotor_model(), frf.output_names, frf.input_names):
             curves["analytical (nominal) model"] = (dense, physical_frf(the_rig.rotor_model(),
                                                                         nominal_parameters(the_rig), dense, dt_s))
         if upd is not None:
             curves["updated physical model"] = (dense, physical_frf(the_rig.rotor_model(), upd.parameters,
                                                                      dense, dt_s))
         if true_rig is not None:
-            curves["true rig (simulated)"] = (dense, true_linear_model(true_rig, discrete=True).freqresp(dense))
+            curves["true rig (simulated)"] = (dense, _on_channels(true_linear_model(true_rig, discrete=True), dense,
+                                                                  frf.output_names, frf.input_names))
         line_models = {"fitted model": fit.model.freqresp(f)}
         if upd is not None:
             line_models["updated physical model"] = physical_frf(the_rig.rotor_model(), upd.parameters, f, dt_s)
@@ -810,8 +829,8 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         summary["wall_s"] = time.perf_counter() - t0
         extra = []
         if dfrf is not None:
-            d_curves = {label: directional_frf(fc, gc) for label, (fc, gc) in curves.items()
-                        if label in ("fitted model", "true rig (simulated)")}
+            d_curves = {label: directional_frf(fc, gc, None, frf.output_names, frf.input_names)
+                        for label, (fc, gc) in curves.items() if label in ("fitted model", "true rig (simulated)")}
             whirls = [(row["freq_hz"], row["whirl"]) for row in mode_rows]
             extra.append(("directional_frf.png", "Directional FRFs p / f (p = x + j y, f = u_x + j u_y per bearing "
                           "plane): forward whirl (blue) and backward whirl (red), measured (dots) and models; a "
@@ -824,6 +843,17 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     summary = to_jsonable(summary)
     (out / "identification.json").write_text(json.dumps(summary, indent=1))
     return summary
+
+
+def _on_channels(model: StateSpace, freq_hz: np.ndarray, output_names: Sequence[str],
+                 input_names: Sequence[str]) -> np.ndarray:
+    """A model's FRF at ``freq_hz`` on the measured FRF's channels: its rows and columns picked by name, so a
+    session that excited some of the rig's inputs is compared with the same entries of the truth."""
+    g = model.freqresp(freq_hz)
+    rows = [model.output_names.index(n) for n in output_names]
+    cols = [model.input_names.index(n) for n in input_names]
+    # C order, as freqresp gives it: the error norms sum in memory order, the default rig's to the last bit
+    return np.ascontiguousarray(g[:, rows][:, :, cols])
 
 
 def _synchronous_dict(frf: FrfResult) -> dict | None:
@@ -871,6 +901,33 @@ def recorded_controller(path: str | os.PathLike, recover: bool = False) -> tuple
         if msg.topic.endswith("controller/description"):
             return controller_model(dec), controller_facts(dec)
     return None
+
+
+def _axis(name: str) -> str:
+    """The axis of a channel name (``y_a_x``, ``ic_a_x``, ``u_a_x`` -> ``a_x``); another name as it is."""
+    try:
+        return split_name(name)[1]
+    except ValueError:
+        return axis_tag(name)
+
+
+def _aligned_controller(k: StateSpace, output_names: Sequence[str],
+                        input_names: Sequence[str]) -> StateSpace | None:
+    """The controller y -> ic with its inputs in the FRF's output order and its outputs in the FRF's input
+    order, matched by axis (``y_a_x`` <-> ``y_a_x``, ``u_a_x`` <-> ``ic_a_x``); as it is when its
+    channels are unnamed and the sizes agree; None when the two do not close one loop."""
+    if not (k.input_names and k.output_names and output_names and input_names):
+        return k if (k.n_inputs, k.n_outputs) == (len(output_names), len(input_names)) else None
+    ins, outs = [_axis(n) for n in k.input_names], [_axis(n) for n in k.output_names]
+    want_in, want_out = [_axis(n) for n in output_names], [_axis(n) for n in input_names]
+    if sorted(ins) != sorted(want_in) or sorted(outs) != sorted(want_out):
+        return None
+    rows, cols = [outs.index(a) for a in want_out], [ins.index(a) for a in want_in]
+    if rows == sorted(rows) and cols == sorted(cols):
+        return k  # already in order: the very matrices, so the figures do not move by a rounding
+    return k._replace(b=np.ascontiguousarray(k.b[:, cols]), c=k.c[rows], d=k.d[np.ix_(rows, cols)],
+                      input_names=tuple(k.input_names[i] for i in cols),
+                      output_names=tuple(k.output_names[i] for i in rows))
 
 
 def _model_sensitivity(model, refs: ReferenceModels) -> dict:
@@ -1037,16 +1094,19 @@ class ReferenceModels:
     true_loop: dict | None = None
 
 
-def reference_key(inputs: SessionInputs, freq_hz: np.ndarray, n_outputs: int) -> str:
+def reference_key(inputs: SessionInputs, freq_hz: np.ndarray, output_names: Sequence[str],
+                  input_names: Sequence[str]) -> str:
     """What :func:`reference_models` depends on, hashed: the rig facts, the controller's model, the design,
-    the magnets, the lines and the outputs' count."""
+    the magnets, the lines and the FRF's channels."""
     d = inputs.experiment["design"]
     k = None if inputs.controller is None else inputs.controller[0]
     return _digest([inputs.rig_facts, inputs.plant_source, None if k is None else [k.a, k.b, k.c, k.d, k.dt],
-                    d.to_dict(), inputs.nonlinear_magnets, np.asarray(freq_hz, dtype=float), int(n_outputs)])
+                    d.to_dict(), inputs.nonlinear_magnets, np.asarray(freq_hz, dtype=float), list(output_names),
+                    list(input_names)])
 
 
-def reference_models(inputs: SessionInputs, freq_hz: np.ndarray, n_outputs: int) -> ReferenceModels:
+def reference_models(inputs: SessionInputs, freq_hz: np.ndarray, output_names: Sequence[str],
+                     input_names: Sequence[str]) -> ReferenceModels:
     """The models :func:`identify_session` compares with (:class:`ReferenceModels`), from what ``inputs``
     say of the session, none of what it measured (``inputs.frf`` is not read): so they can be computed while
     the session still runs.
@@ -1054,7 +1114,8 @@ def reference_models(inputs: SessionInputs, freq_hz: np.ndarray, n_outputs: int)
     Args:
         inputs: the session's inputs.
         freq_hz: (L,) the FRF's lines [Hz].
-        n_outputs: the FRF's outputs (the noise through the loop is the four radial sensors').
+        output_names, input_names: the FRF's channels (``y_<axis>``, ``u_<axis>``): the truths are picked on
+            them, the controller aligned to them by axis; the noise through the loop needs every sensor of the rig.
     """
     f = np.asarray(freq_hz, dtype=float)
     refs: dict[str, Any] = {}
@@ -1062,31 +1123,32 @@ def reference_models(inputs: SessionInputs, freq_hz: np.ndarray, n_outputs: int)
     recorded = inputs.controller
     if facts is not None and inputs.plant_source == "sim":
         true_rig = make_rig(facts)
-        refs["true_g"] = true_linear_model(true_rig, discrete=True).freqresp(f)
+        refs["true_g"] = _on_channels(true_linear_model(true_rig, discrete=True), f, output_names, input_names)
         true_params = true_parameters(true_rig)
         true_plant_x = None
         if recorded is not None and design.is_periodic and inputs.nonlinear_magnets:
             # what this excitation measures: the magnets' slopes averaged over the excursions it causes
             ki_x, ks_x = excitation_slopes(true_rig, recorded[0], design)
-            true_params.update(ki_at_excitation=float(np.mean(ki_x)), ks_at_excitation=float(np.mean(ks_x)),
-                               ks_b_over_a_at_excitation=float(np.mean(ks_x[[1, 3]]) / np.mean(ks_x[[0, 2]])))
+            true_params.update({f"{k.split('_n_per')[0]}_at_excitation": v
+                                for k, v in slopes_as_parameters(ki_x, ks_x, true_rig.layout).items()})
             true_plant_x = true_plant(true_rig, ki_x, ks_x)
-            refs["true_g_x"] = true_linear_model(true_rig, discrete=True, plant=true_plant_x).freqresp(f)
+            refs["true_g_x"] = _on_channels(true_linear_model(true_rig, discrete=True, plant=true_plant_x), f,
+                                            output_names, input_names)
         refs["true_params"] = true_params
-        if recorded is not None and n_outputs == 4:
+        if recorded is not None and tuple(output_names) == true_rig.layout.outputs:
             # the sensor noise through the loop this excitation linearises
             refs["true_noise"] = closed_loop_noise_std(true_rig, recorded[0], true_plant_x)
         # the modes of the linear system this excitation measures (the magnets' stiffness moves them)
         refs["true_poles"] = true_linear_model(true_rig, plant=true_plant_x).poles()
-    if recorded is not None and f.size:
-        k = recorded[0]
+    k = None if recorded is None else _aligned_controller(recorded[0], output_names, input_names)
+    if k is not None and f.size:   # the loop needs the plant on the controller's channels
         refs["sens_freq_hz"] = grid = np.linspace(float(f.min()), float(f.max()), 8000)
         refs["controller_frf"] = k.freqresp(grid)
         if facts is not None and inputs.plant_source == "sim":
-            truth = loop_robustness(true_linear_model(make_rig(facts)), k)
+            truth = loop_robustness(true_linear_model(make_rig(facts)), recorded[0])
             refs["true_loop"] = dict(true_peak=truth.sensitivity_peak, true_peak_hz=truth.peak_freq_hz,
                                      true_iso_zone=truth.zone)
-    return ReferenceModels(key=reference_key(inputs, f, n_outputs), **refs)
+    return ReferenceModels(key=reference_key(inputs, f, output_names, input_names), **refs)
 
 
 def _controller_parts(controller: tuple[StateSpace, dict] | None) -> list | None:
