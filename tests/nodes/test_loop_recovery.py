@@ -92,7 +92,9 @@ def run_loop(ros, pipeline: bool, drop_ic: set[int] = frozenset(), drop_y: set[i
 @pytest.mark.parametrize("pipeline", [True, False], ids=["ic[k+1]", "ic[k]"])
 def test_lost_loop_messages_are_recovered_with_the_same_samples(ros, pipeline):
     clean, _, (ref, ref_flags), _ = run_loop(ros, pipeline)
-    assert clean["state"] == "done" and clean["resends"] == 0
+    # (a loaded machine may stall the clean run's loop for the 20 ms that make the plant ask again: the samples are
+    # the same either way, which is what is compared below)
+    assert clean["state"] == "done"
     # every 997th current and every 1499th displacement lost once, at every phase of the lock-step
     drop_ic = set(range(996, 6000, 997))
     drop_y = set(range(1498, 6000, 1499))
@@ -104,7 +106,8 @@ def test_lost_loop_messages_are_recovered_with_the_same_samples(ros, pipeline):
     assert rec.shape == ref.shape and np.array_equal(rec.view(np.uint64), ref.view(np.uint64))
     assert np.array_equal(flags, ref_flags)
     assert lossy["resends"] >= lost and repeated >= 1
-    print(f"lead {int(pipeline)}: {lost} loop messages dropped, {lossy['resends']} resends, {repeated} answers "
+    print(f"lead {int(pipeline)}: {lost} loop messages dropped, {lossy['resends']} resends (clean run "
+          f"{clean['resends']}), {repeated} answers "
           f"repeated, {lossy['duplicate_answers']} duplicates; records identical ({rec.shape[0]} samples)")
 
 
@@ -192,6 +195,8 @@ def test_a_flood_between_processes_changes_no_sample(ros, ros_env):
     procs = [start("plant_sim", {"sim_seconds": SIM_S, "seed": 3})]
     try:
         ros.matched(blocks)
+        # the flood reaches the plant's topics before the loop starts: its run may be over before a later match
+        ros.matched(*(flood.pubs[t] for t in ("control_current", "excitation", "excitation/design")))
         procs.insert(0, start("position_controller", {}))
         n = ref.shape[0]
         got = lambda: sum(deserialize_message(b, SampleBlock).n_samples for b in blocks.raw)  # noqa: E731
@@ -204,7 +209,7 @@ def test_a_flood_between_processes_changes_no_sample(ros, ros_env):
                 raise AssertionError(f"{what}: {got()} samples recorded; status {statuses[-4:]}; stderr: {tails}")
 
         wait(lambda: got() >= 2000, 120, "the loop levitates")
-        ros.matched(flood)  # every flooded topic reaches its node (the controller's displacement too)
+        ros.matched(flood.pubs["displacement"])  # and the controller's (the plant's were matched before it started)
         sent = flood.send()
         wait(lambda: got() == n, 120, "the loop runs to its end under the flood")
         errs = [procs[1].communicate(timeout=30)[1]]  # the plant exits by itself once its run is done
