@@ -49,6 +49,18 @@
  *         keep: held until the entry goes (the rclpy objects owning those addresses)
  *     entry.resume()  the kick's callback: run the pump (held messages first)
  *     entry.close()   out of the pump, its callback cleared (idempotent; drops messages held for it)
+ *
+ * Session identity. rmw gives every taken message its publisher's GID; an entry can accept the
+ * messages of one publisher only (its session's partner: ambid_nodes.identity), checked before the
+ * kernel runs (a 16-byte compare, nothing else on the per-sample path):
+ *     entry.accept(b"")     any publisher (the default; a node without a session)
+ *     entry.accept(gid)     only the publisher of this 16-byte GID; the others are foreign: counted
+ *                           (entry.foreign), never run nor handed to the handler, and the first message
+ *                           of each foreign publisher calls entry.on_foreign(gid) (to name it)
+ *     entry.accept(None)    the partner is not known yet: every message goes to
+ *                           entry.on_unknown(data, gid), which decides (foreign if it is None)
+ * An entry with kernel 0 (and publisher 0) is a tap: every message goes to its handler, with the
+ * same check (the recorder takes /clock so). publisher_gid(address) is the GID of an rcl publisher.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -59,6 +71,7 @@
 
 #include <rcl/error_handling.h>
 #include <rcl/publisher.h>
+#include <rmw/rmw.h>
 #include <rcl/subscription.h>
 #include <rcutils/allocator.h>
 #include <rmw/serialized_message.h>
@@ -71,6 +84,11 @@
 #define N_LOOP 6
 #define LOOP_DONE 1
 #define NOT_RUN (-1)
+#define GID_SIZE RMW_GID_STORAGE_SIZE
+#define FILTER_OPEN 0   /* any publisher */
+#define FILTER_GID 1    /* only the partner's GID */
+#define FILTER_NONE 2   /* partner not known yet: on_unknown decides */
+#define N_SEEN 16       /* foreign publishers named one by one; more are counted only */
 
 typedef int64_t (*loop_kernel)(const uint8_t *data, int64_t size, int64_t k, int64_t *context);
 
@@ -80,6 +98,7 @@ typedef struct Entry Entry;
 typedef struct {
     Entry *entry;  /* borrowed; NULL once its entry closed */
     rcl_serialized_message_t message;
+    uint8_t gid[GID_SIZE];  /* its publisher */
 } Held;
 
 struct Entry {
@@ -94,6 +113,13 @@ struct Entry {
     rcl_serialized_message_t kick;  /* its buffer: a copy the entry owns */
     int listening;  /* its new-message callback is set */
     PyObject *keep;  /* the rclpy handles of the addresses: alive while the entry is (not traversed) */
+    int filter;  /* FILTER_* */
+    uint8_t partner[GID_SIZE];
+    unsigned long long foreign;  /* messages of other publishers, dropped */
+    PyObject *on_foreign;  /* on_foreign(gid) at the first message of each foreign publisher, or NULL */
+    PyObject *on_unknown;  /* with FILTER_NONE: on_unknown(data, gid), or NULL */
+    uint8_t seen[N_SEEN][GID_SIZE];  /* foreign publishers already named */
+    int n_seen;
 };
 
 struct Pump {
@@ -107,6 +133,7 @@ struct Pump {
     atomic_int arrived;  /* a message came while it ran: look again before stopping */
     atomic_int kicked;  /* a kick is on its way */
     rcl_serialized_message_t message;  /* what the last take got */
+    uint8_t gid[GID_SIZE];  /* and its publisher */
     Held *held;  /* taken at the budget: every message then waiting, in the order taken */
     Py_ssize_t n_held, held_capacity;
     unsigned long long taken, holds;  /* messages it took itself; runs it ended holding one */
@@ -149,14 +176,61 @@ on_new_message(const void *user_data, size_t number_of_events)
     }
 }
 
-/* Run e's kernel on one message, publish where it completed; 0, or -1 with an exception set. */
+/* fn(*args), e kept alive meanwhile (fn may close it and drop its last other reference); steals args;
+ * 0, or -1 with an exception set (also where building args failed: args NULL). */
 static int
-step_entry(Entry *e, const uint8_t *data, size_t size)
+call_python(Entry *e, PyObject *fn, PyObject *args)
 {
+    if (args == NULL) {
+        return -1;
+    }
+    Py_INCREF(e);
+    PyObject *result = PyObject_CallObject(fn, args);
+    Py_DECREF(e);
+    Py_DECREF(args);
+    if (result == NULL) {
+        return -1;
+    }
+    Py_DECREF(result);
+    return 0;
+}
+
+/* A message of a publisher e does not accept: counted, dropped; its first one named through on_foreign.
+ * 0, or -1 with an exception set. */
+static int
+foreign_message(Entry *e, const uint8_t *gid)
+{
+    e->foreign++;
+    for (int i = 0; i < e->n_seen; i++) {
+        if (memcmp(e->seen[i], gid, GID_SIZE) == 0) {
+            return 0;
+        }
+    }
+    if (e->n_seen == N_SEEN) {
+        return 0;  /* a flood of publishers: counted, no more names */
+    }
+    memcpy(e->seen[e->n_seen++], gid, GID_SIZE);
+    if (e->on_foreign == NULL) {
+        return 0;
+    }
+    return call_python(e, e->on_foreign, Py_BuildValue("(y#)", (const char *)gid, (Py_ssize_t)GID_SIZE));
+}
+
+/* Run e's kernel on one message of publisher gid, publish where it completed; 0, or -1 with an exception set. */
+static int
+step_entry(Entry *e, const uint8_t *data, size_t size, const uint8_t *gid)
+{
+    if (e->filter != FILTER_OPEN && !(e->filter == FILTER_GID && memcmp(gid, e->partner, GID_SIZE) == 0)) {
+        if (e->filter == FILTER_GID || e->on_unknown == NULL) {
+            return foreign_message(e, gid);
+        }
+        return call_python(e, e->on_unknown, Py_BuildValue("(y#y#)", (const char *)data, (Py_ssize_t)size,
+                                                           (const char *)gid, (Py_ssize_t)GID_SIZE));
+    }
     int64_t *c = (int64_t *)e->context.buf;
     int64_t k = c[LOOP_K];
     int64_t code = NOT_RUN;
-    if (c[LOOP_GATE] && k < c[LOOP_LIMIT]) {
+    if (e->kernel != NULL && c[LOOP_GATE] && k < c[LOOP_LIMIT]) {
         code = e->kernel(data, (int64_t)size, k, c);
     }
     if (code == LOOP_DONE) {
@@ -171,30 +245,20 @@ step_entry(Entry *e, const uint8_t *data, size_t size)
         }
         return 0;
     }
-    PyObject *message = PyBytes_FromStringAndSize((const char *)data, (Py_ssize_t)size);
-    if (message == NULL) {
-        return -1;
-    }
-    Py_INCREF(e);  /* the handler may close the entry and drop the last other reference */
-    PyObject *result = PyObject_CallFunction(e->handler, "OL", message, (long long)code);
-    Py_DECREF(e);
-    Py_DECREF(message);
-    if (result == NULL) {
-        return -1;
-    }
-    Py_DECREF(result);
-    return 0;
+    return call_python(e, e->handler, Py_BuildValue("(y#L)", (const char *)data, (Py_ssize_t)size, (long long)code));
 }
 
-/* Take the next waiting message of any entry into `into`; the entry's index or -1. */
+/* Take the next waiting message of any entry into `into`, its publisher's GID into `gid`; the entry's
+ * index or -1. */
 static Py_ssize_t
-take_into(Pump *p, Py_ssize_t after, rcl_serialized_message_t *into)
+take_into(Pump *p, Py_ssize_t after, rcl_serialized_message_t *into, uint8_t *gid)
 {
     rmw_message_info_t info;
     for (Py_ssize_t i = 1; i <= p->n_entries; i++) {
         Py_ssize_t j = (after + i) % p->n_entries;
         rcl_ret_t ret = rcl_take_serialized_message(p->entries[j]->subscription, into, &info, NULL);
         if (ret == RCL_RET_OK) {
+            memcpy(gid, info.publisher_gid.data, GID_SIZE);
             return j;
         }
         if (ret != RCL_RET_SUBSCRIPTION_TAKE_FAILED) {
@@ -245,7 +309,7 @@ hold_waiting(Pump *p, Py_ssize_t at)
             }
             p->held_capacity = capacity;
         }
-        at = take_into(p, at, &p->held[p->n_held].message);
+        at = take_into(p, at, &p->held[p->n_held].message, p->held[p->n_held].gid);
         if (at < 0) {
             break;
         }
@@ -275,7 +339,7 @@ pump_run(Pump *p, Entry *from)
         Held *h = &p->held[i];
         if (h->entry != NULL) {
             last = h->entry;
-            err = step_entry(h->entry, h->message.buffer, h->message.buffer_length);
+            err = step_entry(h->entry, h->message.buffer, h->message.buffer_length, h->gid);
         }
     }
     Py_ssize_t at = last != NULL ? entry_index(p, last) : -1;
@@ -285,7 +349,7 @@ pump_run(Pump *p, Entry *from)
             err = hold_waiting(p, at);
             break;
         }
-        Py_ssize_t next = take_into(p, at, &p->message);
+        Py_ssize_t next = take_into(p, at, &p->message, p->gid);
         if (next < 0) {
             /* none waits: stop, unless one came meanwhile (its callback saw the run on) */
             atomic_store(&p->running, 0);
@@ -297,7 +361,7 @@ pump_run(Pump *p, Entry *from)
         }
         at = next;
         p->taken++;
-        err = step_entry(p->entries[at], p->message.buffer, p->message.buffer_length);
+        err = step_entry(p->entries[at], p->message.buffer, p->message.buffer_length, p->gid);
     }
     atomic_store(&p->running, 0);
     if (atomic_exchange(&p->arrived, 0) && p->n_held == 0 && p->n_entries > 0) {
@@ -360,11 +424,88 @@ Entry_get_open(PyObject *obj, void *Py_UNUSED(closure))
     return PyBool_FromLong(((Entry *)obj)->pump != NULL);
 }
 
+static PyObject *
+Entry_accept(PyObject *obj, PyObject *gid)
+{
+    Entry *e = (Entry *)obj;
+    if (gid == Py_None) {
+        e->filter = FILTER_NONE;
+        Py_RETURN_NONE;
+    }
+    char *buf;
+    Py_ssize_t len;
+    if (PyBytes_AsStringAndSize(gid, &buf, &len) < 0) {
+        return NULL;
+    }
+    if (len == 0) {
+        e->filter = FILTER_OPEN;
+    } else if (len == GID_SIZE) {
+        memcpy(e->partner, buf, GID_SIZE);
+        e->filter = FILTER_GID;
+    } else {
+        return PyErr_Format(PyExc_ValueError, "Entry.accept: a GID has %d bytes, got %zd", (int)GID_SIZE, len);
+    }
+    Py_RETURN_NONE;
+}
+
+static PyObject *
+Entry_get_callback(PyObject *obj, void *closure)
+{
+    Entry *e = (Entry *)obj;
+    PyObject *cb = closure ? e->on_unknown : e->on_foreign;
+    return Py_NewRef(cb ? cb : Py_None);
+}
+
+static int
+Entry_set_callback(PyObject *obj, PyObject *value, void *closure)
+{
+    Entry *e = (Entry *)obj;
+    if (value != NULL && value != Py_None && !PyCallable_Check(value)) {
+        PyErr_SetString(PyExc_TypeError, "Entry: on_foreign and on_unknown must be callable or None");
+        return -1;
+    }
+    PyObject **slot = closure ? &e->on_unknown : &e->on_foreign;
+    PyObject *old = *slot;
+    *slot = (value == NULL || value == Py_None) ? NULL : Py_NewRef(value);
+    Py_XDECREF(old);
+    return 0;
+}
+
+static PyObject *
+Entry_get_foreign(PyObject *obj, void *Py_UNUSED(closure))
+{
+    return PyLong_FromUnsignedLongLong(((Entry *)obj)->foreign);
+}
+
+static PyObject *
+publisher_gid(PyObject *Py_UNUSED(module), PyObject *arg)
+{
+    unsigned long long address = PyLong_AsUnsignedLongLong(arg);
+    if (address == (unsigned long long)-1 && PyErr_Occurred()) {
+        return NULL;
+    }
+    if (address == 0) {
+        PyErr_SetString(PyExc_ValueError, "publisher_gid: the publisher address is 0");
+        return NULL;
+    }
+    rmw_publisher_t *rmw = rcl_publisher_get_rmw_handle((rcl_publisher_t *)(uintptr_t)address);
+    if (rmw == NULL) {
+        return rcl_failure("getting the publisher's rmw handle");
+    }
+    rmw_gid_t gid;
+    if (rmw_get_gid_for_publisher(rmw, &gid) != RMW_RET_OK) {
+        return rcl_failure("getting the publisher's GID");  /* rmw reports in rcutils' error state too */
+    }
+    return PyBytes_FromStringAndSize((const char *)gid.data, GID_SIZE);
+}
+
 static int
 Entry_traverse(PyObject *obj, visitproc visit, void *arg)
 {
     Entry *e = (Entry *)obj;
     Py_VISIT(e->handler);
+    Py_VISIT(e->on_foreign);
+    Py_VISIT(e->on_unknown);
     Py_VISIT(e->context.obj);
     return 0;
 }
@@ -374,6 +515,8 @@ Entry_clear(PyObject *obj)
 {
     Entry *e = (Entry *)obj;
     Py_CLEAR(e->handler);
+    Py_CLEAR(e->on_foreign);
+    Py_CLEAR(e->on_unknown);
     return 0;
 }
 
@@ -384,6 +527,8 @@ Entry_dealloc(PyObject *obj)
     PyObject_GC_UnTrack(obj);
     entry_detach(e);
     Py_CLEAR(e->handler);
+    Py_CLEAR(e->on_foreign);
+    Py_CLEAR(e->on_unknown);
     Py_CLEAR(e->keep);  /* after the callback is cleared */
     PyMem_Free(e->kick.buffer);
     if (e->context.obj != NULL) {
@@ -405,9 +550,10 @@ Pump_add(PyObject *obj, PyObject *args, PyObject *kwds)
                                      &kick_pub, &kick, &keep)) {
         return NULL;
     }
-    if (sub == 0 || pub == 0 || kernel == 0 || kick_pub == 0) {
+    if (sub == 0 || kick_pub == 0 || (pub == 0) != (kernel == 0)) {
         PyBuffer_Release(&kick);
-        PyErr_SetString(PyExc_ValueError, "Pump.add: a subscription, publisher or kernel address is 0");
+        PyErr_SetString(PyExc_ValueError, "Pump.add: a subscription, publisher or kernel address is 0 (a tap has "
+                                          "kernel and publisher 0, both)");
         return NULL;
     }
     if (!PyCallable_Check(handler)) {
@@ -431,6 +577,10 @@ Pump_add(PyObject *obj, PyObject *args, PyObject *kwds)
     }
     e->pump = NULL;
     e->handler = NULL;
+    e->on_foreign = e->on_unknown = NULL;
+    e->filter = FILTER_OPEN;
+    e->foreign = 0;
+    e->n_seen = 0;
     e->keep = Py_NewRef(keep);
     e->listening = 0;
     e->kick = (rcl_serialized_message_t){.buffer = kick_copy, .buffer_length = kick_len, .buffer_capacity = kick_len,
@@ -522,11 +672,17 @@ Pump_dealloc(PyObject *obj)
 static PyMethodDef Entry_methods[] = {
     {"close", Entry_close, METH_NOARGS, "Remove the entry from its pump (idempotent)."},
     {"resume", Entry_resume, METH_NOARGS, "The kick's callback: run the pump (held messages first)."},
+    {"accept", Entry_accept, METH_O, "accept(gid): b'' any publisher, a 16-byte GID only that one, None none yet."},
     {NULL, NULL, 0, NULL},
 };
 
 static PyGetSetDef Entry_getset[] = {
     {"open", Entry_get_open, NULL, "False once closed.", NULL},
+    {"foreign", Entry_get_foreign, NULL, "Messages of publishers it does not accept, dropped.", NULL},
+    {"on_foreign", Entry_get_callback, Entry_set_callback, "on_foreign(gid): a foreign publisher's first message.",
+     NULL},
+    {"on_unknown", Entry_get_callback, Entry_set_callback, "on_unknown(data, gid): with accept(None), each message.",
+     (void *)1},
     {NULL, NULL, NULL, NULL, NULL},
 };
 
@@ -568,9 +724,14 @@ static PyTypeObject PumpType = {
     .tp_members = Pump_members,
 };
 
+static PyMethodDef module_methods[] = {
+    {"publisher_gid", publisher_gid, METH_O, "publisher_gid(address) -> bytes: the GID of an rcl publisher."},
+    {NULL, NULL, 0, NULL},
+};
+
 static struct PyModuleDef module = {
     PyModuleDef_HEAD_INIT, "_loop_pump", "Take, step and answer the lock-step loop's messages in compiled code.",
-    -1, NULL,
+    -1, module_methods,
 };
 
 PyMODINIT_FUNC
@@ -585,7 +746,8 @@ PyInit__loop_pump(void)
     }
     if (PyModule_AddObjectRef(m, "Pump", (PyObject *)&PumpType) < 0
         || PyModule_AddObjectRef(m, "Entry", (PyObject *)&EntryType) < 0
-        || PyModule_AddIntConstant(m, "NOT_RUN", NOT_RUN) < 0 || PyModule_AddIntConstant(m, "LOOP_DONE", LOOP_DONE) < 0) {
+        || PyModule_AddIntConstant(m, "NOT_RUN", NOT_RUN) < 0 || PyModule_AddIntConstant(m, "LOOP_DONE", LOOP_DONE) < 0
+        || PyModule_AddIntConstant(m, "GID_SIZE", GID_SIZE) < 0) {
         Py_DECREF(m);
         return NULL;
     }

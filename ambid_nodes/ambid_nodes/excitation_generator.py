@@ -48,6 +48,7 @@ from ambid_msgs.msg import PlantDescription, SampleBlock, SessionEvent, SessionS
 from ambid_msgs.srv import StartExperiment, StopExperiment
 from ambid_nodes import qos
 from ambid_nodes.conversions import BadMessage, block_data, block_msg, check_plant_description, status_msg, time_msg
+from ambid_nodes.identity import SESSION_PARAMETER, SessionIdentity
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, node_rig, refuse_unknown
 
@@ -99,7 +100,9 @@ class ExcitationGenerator(Node):
         self.working_current = declare(self, "working_current", 1.0, "controller's peak working current (gravity "
                                                                      "and regulation) for the headroom check",
                                        0.0, 1e3, "A")
+        session = declare(self, *SESSION_PARAMETER)
         refuse_unknown(self)
+        self.identity = SessionIdentity(self, session)
         if self.lookahead < 2 * self.block_size:
             raise ParameterError(f"excitation_generator: lookahead {self.lookahead} must be at least twice "
                                  f"block_size {self.block_size} (the plant waits for each block)")
@@ -121,11 +124,12 @@ class ExcitationGenerator(Node):
             raise ParameterError(f"excitation_generator: {self.default_error}")
         self.default_design: ExcitationDesign | None = None  # the parameters' design, once asked for
 
-        self.pub_design = self.create_publisher(DesignMsg, "excitation/design", qos.LATCHED)
-        self.pub_block = self.create_publisher(SampleBlock, "excitation", qos.BLOCKS)
-        self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
-        self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
-        self.intake = Intake(self, self.on_reject, self.on_handler_error)
+        self.pub_design = self.identity.publisher(DesignMsg, "excitation/design", qos.LATCHED)
+        self.pub_block = self.identity.publisher(SampleBlock, "excitation", qos.BLOCKS)
+        self.pub_status = self.identity.publisher(SessionStatus, "status", qos.STATUS)
+        self.pub_event = self.identity.publisher(SessionEvent, "events", qos.EVENTS)
+        self.intake = Intake(self, self.on_reject, self.on_handler_error, self.identity, self.on_foreign)
+        self.identity.announce([self.pub_design, self.pub_block, self.pub_status, self.pub_event])
         self.intake.subscribe(PlantDescription, "plant/description", self.on_plant, qos.LATCHED)
         self.intake.subscribe(SampleBlock, "measurement", self.on_measurement, qos.BLOCKS)
         self.create_service(StartExperiment, "start_experiment", self.on_start)
@@ -288,6 +292,9 @@ class ExcitationGenerator(Node):
     # --- reporting -------------------------------------------------------------
     def on_reject(self, topic: str, why: str) -> None:
         self.event(SessionEvent.WARN, "rejected_message", why)
+
+    def on_foreign(self, topic: str, why: str) -> None:
+        self.event(SessionEvent.WARN, "foreign_message", why)
 
     def on_handler_error(self, topic: str, why: str) -> None:
         self.event(SessionEvent.ERROR, "handler_error", why)

@@ -50,6 +50,7 @@ from ambid_msgs.msg import (ControllerDescription, ExcitationDesign, FrfEstimate
 from ambid_nodes import qos
 from ambid_nodes.conversions import (BadMessage, block_data, check_controller_description, check_design,
                                      check_plant_description, float_array, statespace_from_msg, status_msg, time_msg)
+from ambid_nodes.identity import SESSION_PARAMETER, SessionIdentity
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 
@@ -69,7 +70,9 @@ class FrfConsumer(Node):
         self.references = list(declare(self, "references", [AUTO],
                                        "excitation channels r, one per entry of inputs, same order; [auto]: the "
                                        "design's r_<axis> [A]"))
+        session = declare(self, *SESSION_PARAMETER)
         refuse_unknown(self)
+        self.identity = SessionIdentity(self, session)
         if self.estimator not in ESTIMATORS:
             raise ParameterError(f"frf_consumer: estimator '{self.estimator}' is not one of {list(ESTIMATORS)}")
         for name, names in (("outputs", self.outputs), ("inputs", self.inputs), ("references", self.references)):
@@ -82,10 +85,11 @@ class FrfConsumer(Node):
         self.plant_outputs: list[str] | None = None  # the plant's displacement channels, once it says them
         self.pending_design: tuple | None = None  # (message, design) of a design that came before them
 
-        self.pub_frf = self.create_publisher(FrfEstimate, "frf", qos.LATCHED)
-        self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
-        self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
-        self.intake = Intake(self, self.on_reject, self.on_handler_error)
+        self.pub_frf = self.identity.publisher(FrfEstimate, "frf", qos.LATCHED)
+        self.pub_status = self.identity.publisher(SessionStatus, "status", qos.STATUS)
+        self.pub_event = self.identity.publisher(SessionEvent, "events", qos.EVENTS)
+        self.intake = Intake(self, self.on_reject, self.on_handler_error, self.identity, self.on_foreign)
+        self.identity.announce([self.pub_frf, self.pub_status, self.pub_event])
         self.intake.subscribe(SampleBlock, "measurement", self.on_measurement, qos.BLOCKS)
         self.intake.subscribe(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
         self.intake.subscribe(ControllerDescription, "controller/description", self.on_controller, qos.LATCHED)
@@ -361,6 +365,9 @@ class FrfConsumer(Node):
 
     def on_reject(self, topic: str, why: str) -> None:
         self.event(SessionEvent.WARN, "rejected_message", why)
+
+    def on_foreign(self, topic: str, why: str) -> None:
+        self.event(SessionEvent.WARN, "foreign_message", why)
 
     def on_handler_error(self, topic: str, why: str) -> None:
         self.event(SessionEvent.ERROR, "handler_error", why)

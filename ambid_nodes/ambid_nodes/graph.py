@@ -2,18 +2,15 @@
 
 from __future__ import annotations
 
-import json
 import os
-import signal
-import subprocess
-import sys
+import time
 from dataclasses import dataclass, field
+from typing import Callable
 
-import numpy as np
 from ambid.control.kinds import ControllerDesign
 from ambid.plant.rig import Rig
 
-from ambid_nodes.node_main import SUMMARY_PREFIX, spin_until_done
+from ambid_nodes.node_main import spin_until_done
 
 DEFAULT_NAMESPACE = "/amb"
 
@@ -35,6 +32,8 @@ class GraphConfig:
     controller: dict = field(default_factory=dict)
     rig: Rig | None = None
     controller_design: ControllerDesign | None = None
+    session: int = 0  # the session's id (docs/sessions.md); 0: open nodes
+    report_foreign: Callable[[dict], None] | None = None  # told the foreign publishers found before the start
 
 
 def session_domain_id() -> int:
@@ -62,15 +61,18 @@ def run_composed(cfg: GraphConfig) -> dict:
     executor = EventsExecutor(context=context)
     nodes = []
     try:
-        plant = PlantSim(namespace=cfg.namespace, context=context, rig=cfg.rig,
-                         parameter_overrides=overrides({"sim_seconds": float(cfg.sim_seconds), **cfg.plant}))
+        foreign = preflight(executor, cfg.namespace, context, cfg.report_foreign)
+        session = {"session": cfg.session}
+        plant = PlantSim(namespace=cfg.namespace, context=context, rig=cfg.rig, parameter_overrides=overrides(
+            {"sim_seconds": float(cfg.sim_seconds), **cfg.plant, **session}))
         nodes.append(plant)
         nodes.append(PositionController(namespace=cfg.namespace, context=context, rig=plant.rig,
-                                        design=cfg.controller_design, parameter_overrides=overrides(cfg.controller)))
+                                        design=cfg.controller_design,
+                                        parameter_overrides=overrides({**cfg.controller, **session})))
         for n in nodes:
             executor.add_node(n)
         spin_until_done(executor, plant.finished, context)
-        return {**plant.finished.result(), "layout": "composed"}
+        return {**plant.finished.result(), "layout": "composed", "foreign_publishers": foreign}
     finally:
         executor.shutdown()
         for n in nodes:
@@ -78,58 +80,106 @@ def run_composed(cfg: GraphConfig) -> dict:
         rclpy.shutdown(context=context)
 
 
-def ros_args(namespace: str, params: dict) -> list[str]:
-    args = ["--ros-args", "-r", f"__ns:={namespace}"]
-    for k, v in params.items():
-        args += ["-p", f"{k}:={json.dumps(v) if isinstance(v, str) else str(v).lower() if isinstance(v, bool) else v}"]
-    return args
+def preflight(executor, namespace: str, context, report: Callable[[dict], None] | None = None) -> dict[str, list[str]]:
+    """{topic: [publishers named]} already on the rig's topics before its session starts (a rig next door, a
+    replayed recording, a script left running), found in the session's own ``context`` before any of its nodes
+    exists: a listener waits for discovery to settle (:func:`wait_for_discovery`, 1-5 s), so the session's
+    participant knows them from then on and its nodes hear them from their first message. The session runs
+    unaffected by them (every node acts only on its session's messages); ``report(found)`` names them at
+    once (the command's one line). Without ``report`` (a study's sessions: campaign, validate, bench) nobody
+    asks: no wait, {}."""
+    if report is None:
+        return {}
+    import rclpy
+
+    from ambid_nodes.watch import SESSION_TOPICS
+
+    probe = rclpy.create_node("session_preflight", namespace=namespace, context=context)
+    executor.add_node(probe)
+    try:
+        wait_for_discovery(executor, probe)
+        found = {}
+        for t in SESSION_TOPICS:  # nothing of the session publishes yet: every publisher there is foreign
+            topic = probe.resolve_topic_name(t)
+            names = sorted({f"{i.node_namespace.rstrip('/')}/{i.node_name}"
+                            for i in probe.get_publishers_info_by_topic(topic)})
+            if names:
+                found[topic] = names
+    finally:
+        executor.remove_node(probe)
+        probe.destroy_node()
+    report(found)
+    return found
 
 
-def stop_processes(procs: list[subprocess.Popen], grace_s: float = 5.0) -> None:
-    """SIGTERM every process, SIGKILL what is left after grace_s.
-
-    A running node shuts down cleanly on SIGTERM (rclpy handles it as SIGINT); a
-    process still importing ends quietly, where SIGINT would print a
-    KeyboardInterrupt traceback from the middle of an import.
-    """
-    for p in procs:
-        if p.poll() is None:
-            p.send_signal(signal.SIGTERM)
-    for p in procs:
-        try:
-            p.wait(timeout=grace_s)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
+def wait_for_discovery(executor, node, least_s: float = 1.0, most_s: float = 5.0, still_s: float = 1.0) -> None:
+    """Spin at least ``least_s``, then until the graph ``node`` sees has not changed for ``still_s`` (at most
+    ``most_s`` in all): participants already on the domain are discovered within a fraction of a second on
+    one host, later on a loaded one (a node's name and its publishers come a while after its participant)."""
+    start = time.monotonic()
+    seen, since = None, start
+    while time.monotonic() - start < most_s:
+        executor.spin_once(timeout_sec=0.05)
+        now = set(node.get_node_names_and_namespaces())
+        if now != seen:
+            seen, since = now, time.monotonic()
+        elif time.monotonic() - start >= least_s and time.monotonic() - since >= still_s:
+            return
 
 
 def run_processes(cfg: GraphConfig) -> dict:
-    """Plant and controller as separate processes on one DDS domain. Returns the plant's summary."""
-    env = dict(os.environ, ROS_DOMAIN_ID=str(session_domain_id()))
-    py = sys.executable
-    procs = []
-    try:
-        ctrl = subprocess.Popen([py, "-m", "ambid_nodes.position_controller", *ros_args(cfg.namespace, cfg.controller)],
-                                env=env, start_new_session=True)
-        procs.append(ctrl)
-        plant = subprocess.Popen([py, "-m", "ambid_nodes.plant_sim",
-                                  *ros_args(cfg.namespace, {"sim_seconds": float(cfg.sim_seconds), **cfg.plant})],
-                                 env=env, stdout=subprocess.PIPE, text=True, start_new_session=True)
-        procs.append(plant)
-        summary = None
-        for line in plant.stdout:
-            if line.startswith(SUMMARY_PREFIX):
-                summary = json.loads(line[len(SUMMARY_PREFIX):])
-            else:
-                sys.stdout.write(line)
-        code = plant.wait()
-        if ctrl.poll() is not None and summary is None:
-            raise RuntimeError(f"position_controller exited with code {ctrl.returncode} before the run ended")
-        if summary is None:
-            raise RuntimeError(f"plant_sim exited with code {code} without a summary")
-        return {**summary, "layout": "processes"}
-    finally:
-        stop_processes(procs)
+    """Plant and controller as separate processes on one DDS domain, supervised (ambid_nodes.supervisor).
+
+    Returns the plant's summary; where a node died before the run was over, the figures up to there (from
+    the plant's summary if it ended its run, else from the measurement blocks this process heard) and
+    ``death``: {node, how, sample_index, consequence}.
+    """
+    from ambid.plant.rig import load_rig, make_rig
+
+    from ambid_nodes.supervisor import NodeGone, supervise, supervised, wait_for
+
+    rig = cfg.rig or (load_rig(cfg.plant["rig_file"]) if cfg.plant.get("rig_file") else make_rig())
+    n_total = int(round(cfg.sim_seconds / rig.dt))
+    with supervised(cfg.namespace, cfg.session, rig.backup_clearance_m, n_total // 2,
+                    int(round(0.5 / rig.dt))) as (executor, sup, watch):
+        foreign = preflight(executor, cfg.namespace, watch.context, cfg.report_foreign)
+        session = {"session": cfg.session}
+        plant = sup.start("plant_sim", {"sim_seconds": float(cfg.sim_seconds), **cfg.plant, **session},
+                          finishes=True)
+        wall0 = time.perf_counter()
+        try:  # the watch hears every block from the first before the controller joins and the loop starts
+            wait_for(executor, sup, watch, watch.hears_the_plant, 120, "plant_sim's measurement")
+            sup.start("position_controller", {**cfg.controller, **session})
+            death = supervise(executor, sup, watch, lambda: sup.exited("plant_sim"))
+        except NodeGone as gone:
+            death = gone.death
+        summary = plant.summary
+        if death is None and summary is None:
+            raise RuntimeError(f"plant_sim exited with code {plant.proc.returncode} without a summary")
+        if death is not None:
+            summary = died_summary(death, summary, watch, rig.dt, time.perf_counter() - wall0)
+        return {**summary, "layout": "processes", "foreign_publishers": foreign}
+
+
+def died_summary(death, summary: dict | None, watch, dt: float, wall_s: float) -> dict:
+    """The run's figures where ``death`` ended it: the plant's own where it ended its run (its levitation is
+    judged up to where the loop stopped), else what the watch heard up to the last block."""
+    from ambid_nodes.supervisor import consequence
+
+    if summary is None:
+        k = watch.progress
+        figures = watch.figures("plant_sim")
+        summary = {**watch.monitor.figures(), "samples": k, "simulated_s": k * dt, "wall_s": wall_s,
+                   "samples_per_wall_s": k / wall_s if wall_s > 0 else 0.0, "state": "failed", "failure": None,
+                   "messages_rejected": figures.get("messages_rejected", 0),
+                   "messages_received": figures.get("messages_received", 0)}
+    failure = summary.get("failure") or {}
+    finished = summary.get("state") == "done"
+    k = failure.get("sample_index", summary.get("samples", watch.progress))
+    summary = {**summary, "state": "failed"}
+    summary["death"] = {"node": death.node, "how": death.how, "sample_index": int(k), "simulated_s": k * dt,
+                        "consequence": consequence(death.node, failure, finished)}
+    return summary
 
 
 def run_hardware(cfg: GraphConfig, target: str, local_port: int = 0) -> dict:
@@ -137,42 +187,34 @@ def run_hardware(cfg: GraphConfig, target: str, local_port: int = 0) -> dict:
 
     The target runs the fast loop (plant and position controller); this
     process runs ``hardware_bridge``, which publishes the measured blocks,
-    and a listener that judges the levitation from them as plant_sim does
-    (over the second half of the run). Once ``cfg.sim_seconds`` of samples
+    and a listener (``SessionWatch``) that judges the levitation from the
+    session's blocks as plant_sim does (over the second half of the run). Once ``cfg.sim_seconds`` of samples
     arrived (or the target finished) the target is told to STOP, and the
     bridge's figures are returned with the levitation's.
     """
     import rclpy
     from ambid.hardware.bridge_protocol import CommandCode
     from ambid.hardware.rt_target import parse_address
-    from ambid.plant.levitation import LevitationMonitor
     from rclpy.experimental import EventsExecutor
     from rclpy.parameter import Parameter
 
-    from ambid_msgs.msg import SampleBlock
-    from ambid_nodes import qos
-    from ambid_nodes.conversions import block_data
     from ambid_nodes.hardware_bridge import HardwareBridge
+    from ambid_nodes.watch import SessionWatch
 
     host, port = parse_address(target)
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=session_domain_id())
     executor = EventsExecutor(context=context)
-    params = {"target_host": host, "target_port": port, "local_port": local_port, **cfg.plant}
+    foreign = preflight(executor, cfg.namespace, context, cfg.report_foreign)
+    params = {"target_host": host, "target_port": port, "local_port": local_port, **cfg.plant, "session": cfg.session}
     bridge = HardwareBridge(namespace=cfg.namespace, context=context, rig=cfg.rig,
                             parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
     wanted = int(round(cfg.sim_seconds / bridge.dt))
-    monitor = LevitationMonitor(bridge.rig.backup_clearance_m, wanted // 2)
-    listener = rclpy.create_node("graph_levitation", namespace=cfg.namespace, context=context)
-
-    def on_block(msg) -> None:
-        data = block_data(msg, bridge.measurement_names)
-        monitor.add_block(msg.first_index, data[:, :bridge.na],
-                          (np.asarray(msg.sample_flags) & SampleBlock.FLAG_LANDED) != 0)
-
-    listener.create_subscription(SampleBlock, "measurement", on_block, qos.BLOCKS)
+    # the levitation judged from the session's blocks, as plant_sim judges it
+    watch = SessionWatch(cfg.session, bridge.rig.backup_clearance_m, wanted // 2, int(round(0.5 / bridge.dt)),
+                         namespace=cfg.namespace, context=context)
     executor.add_node(bridge)
-    executor.add_node(listener)
+    executor.add_node(watch)
     try:
         while not bridge.finished.done() and bridge.figures()["samples_published"] < wanted:
             executor.spin_until_future_complete(bridge.finished, timeout_sec=0.25)
@@ -180,10 +222,11 @@ def run_hardware(cfg: GraphConfig, target: str, local_port: int = 0) -> dict:
             bridge.queue_command(CommandCode.STOP)  # the session is over: the target stops its clock
             executor.spin_until_future_complete(bridge.finished, timeout_sec=2.0)
         figures = bridge.figures()
-        return {**figures, **monitor.figures(), "layout": f"hardware bridge to {target}",
-                "samples_per_wall_s": figures["samples_published"] / max(figures["wall_s"], 1e-9)}
+        return {**figures, **watch.monitor.figures(), "layout": f"hardware bridge to {target}",
+                "samples_per_wall_s": figures["samples_published"] / max(figures["wall_s"], 1e-9),
+                "foreign_publishers": foreign}
     finally:
         executor.shutdown()
-        listener.destroy_node()
+        watch.destroy_node()
         bridge.destroy_node()
         rclpy.shutdown(context=context)

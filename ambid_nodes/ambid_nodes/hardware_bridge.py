@@ -10,6 +10,10 @@ sample index, ``status`` and ``events``; forwards ``excitation`` blocks and
 them until the target is heard and re-sending blocks its heartbeat says are
 missing.
 
+Session (parameter ``session``, docs/sessions.md): the bridge obeys only its session's designs and
+excitation blocks (anyone else's are foreign: counted, named, never forwarded to the target) and stamps
+the id on all it publishes.
+
 Datagrams from any address but ``target_host:target_port`` are dropped and
 counted; malformed ones (magic, version, CRC, length, and ``content``: enum
 fields out of range, indices beyond 2**40, a zero sample rate) are refused and
@@ -50,6 +54,7 @@ from ambid_msgs.msg import ExcitationDesign, PlantDescription, SampleBlock, Sess
 from ambid_nodes import qos
 from ambid_nodes.conversions import (block_msg, check_design, check_excitation_block, statespace_to_msg, status_msg,
                                      time_msg)
+from ambid_nodes.identity import SESSION_PARAMETER, SessionIdentity
 from ambid_nodes.intake import Intake
 from ambid_nodes.parameters import ParameterError, declare, node_rig, refuse_unknown
 
@@ -83,12 +88,21 @@ class HardwareBridge(Node):
                                0.001, 60.0, "s")
         self.retries = declare(self, "command_retries", 20, "sends of a command before it is given up", 1, 1000)
         self.autostart = declare(self, "autostart", True, "send START when an idle target is first heard")
+        self.start_with_experiment = declare(
+            self, "start_with_experiment", False,
+            "send START once the target acknowledged the first experiment (a session in the processes layout: "
+            "the experiment is placed before the target's clock runs)")
+        self.stop_after = declare(self, "stop_after_samples", 0,
+                                  "send STOP once this many samples are published (the session's length); 0: never",
+                                  0, 2**40)
         self.horizon = declare(self, "excitation_horizon", 1_000_000,
                                "most samples an excitation block may lie ahead of the target (memory bound)",
                                1, 1_000_000_000)
         rcvbuf = declare(self, "receive_buffer", 4 * 1024 * 1024, "UDP receive buffer (capped by "
                          "net.core.rmem_max)", 65536, 1 << 30, "bytes")
+        session = declare(self, *SESSION_PARAMETER)
         refuse_unknown(self)
+        self.identity = SessionIdentity(self, session)
         if self.version not in bp.SUPPORTED_VERSIONS:
             raise ParameterError(f"hardware_bridge: protocol_version {self.version} is not implemented; "
                                  f"this build speaks {list(bp.SUPPORTED_VERSIONS)}")
@@ -110,12 +124,13 @@ class HardwareBridge(Node):
         self.excitation_names = bp.block_channels(bp.Kind.EXCITATION, self.layout)
         self.chunk = min(self.chunk, bp.max_block_samples(bp.Kind.EXCITATION, 8, self.na))
 
-        self.pub_block = self.create_publisher(SampleBlock, "measurement", qos.BLOCKS)
-        self.pub_desc = self.create_publisher(PlantDescription, "plant/description", qos.LATCHED)
-        self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
-        self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
+        self.pub_block = self.identity.publisher(SampleBlock, "measurement", qos.BLOCKS)
+        self.pub_desc = self.identity.publisher(PlantDescription, "plant/description", qos.LATCHED)
+        self.pub_status = self.identity.publisher(SessionStatus, "status", qos.STATUS)
+        self.pub_event = self.identity.publisher(SessionEvent, "events", qos.EVENTS)
         self.pub_clock = self.create_publisher(Clock, "/clock", qos.CLOCK)
-        self.intake = Intake(self, self.on_reject, self.on_handler_error)
+        self.intake = Intake(self, self.on_reject, self.on_handler_error, self.identity, self.on_foreign)
+        self.identity.announce([self.pub_block, self.pub_desc, self.pub_status, self.pub_event, self.pub_clock])
         self.intake.subscribe(SampleBlock, "excitation", self.on_excitation, qos.BLOCKS)
         self.intake.subscribe(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
 
@@ -139,6 +154,8 @@ class HardwareBridge(Node):
         self.next_hb = self.next_status = 0.0
         self.summary: dict | None = None
         self.finished = Future()
+        self.start_state = "waiting"  # start_with_experiment: waiting -> experiment (queued) -> sent
+        self.stop_sent = False
 
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
@@ -223,6 +240,12 @@ class HardwareBridge(Node):
         self.check_halted()
         self.check_silence(now)
         self.send_commands(now)
+        if self.start_state == "experiment" and self.connected and not self.commands.pending:
+            self.start_state = "sent"
+            self.queue_command(bp.CommandCode.START)
+        if self.stop_after and not self.stop_sent and self.c["samples_published"] >= self.stop_after:
+            self.stop_sent = True  # the session's samples are in: the target's clock may stop
+            self.queue_command(bp.CommandCode.STOP)
         if now >= self.next_hb:
             self.next_hb = now + self.hb_period
             self.send(bp.Heartbeat(self.next_seq(bp.Kind.HEARTBEAT), bp.TargetState.RUNNING if self.connected
@@ -434,6 +457,8 @@ class HardwareBridge(Node):
         check_design(msg, self.dt)
         slot = self.slots.setdefault(msg.experiment_id, len(self.slots) + 1)
         self.queue_command(bp.CommandCode.EXPERIMENT, msg.start_index, msg.total_samples, slot)
+        if self.start_with_experiment and self.start_state == "waiting":
+            self.start_state = "experiment"  # START once the target acknowledged it (tick)
 
     def queue_command(self, code: int, arg0: int = 0, arg1: int = 0, arg2: int = 0) -> None:
         self.commands.queue(code, arg0, arg1, arg2)
@@ -453,6 +478,9 @@ class HardwareBridge(Node):
     # --- reporting --------------------------------------------------------
     def on_reject(self, topic: str, why: str) -> None:
         self.event(SessionEvent.WARN, "rejected_message", why)
+
+    def on_foreign(self, topic: str, why: str) -> None:
+        self.event(SessionEvent.WARN, "foreign_message", why)
 
     def on_handler_error(self, topic: str, why: str) -> None:
         self.event(SessionEvent.ERROR, "handler_error", why)

@@ -114,7 +114,7 @@ class LiveProcess:
     """
 
     def __init__(self, port: int, host: str, namespace: str, estimator: str, domain_id: int) -> None:
-        from ambid_nodes.graph import ros_args
+        from ambid_nodes.supervisor import ros_args
 
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
         self._lines: queue.Queue = queue.Queue()
@@ -167,7 +167,7 @@ class LiveProcess:
 
     def stop(self) -> dict:
         """SIGTERM, then its figures (from its summary line); {} if it printed none."""
-        from ambid_nodes.graph import stop_processes
+        from ambid_nodes.supervisor import stop_processes
         from ambid_nodes.node_main import SUMMARY_PREFIX
 
         stop_processes([self.proc], grace_s=10.0)

@@ -7,6 +7,12 @@ and controller composed in one process answer each other without a Python
 frame or an executor dispatch per message; what a kernel leaves undone goes to
 the node's Python handler. One pump per rclpy context: the nodes sharing it
 are spun by one executor, as every ambid graph is.
+
+Each entry accepts the messages of its session's partner only (``entry.accept(gid)``, the GID rmw gives
+with every message; ``ambid_nodes.identity.LoopPartner``): a foreign publisher's messages are counted and
+dropped in C. A *tap* (no kernel, no publisher) hands every accepted message to its handler: the recorder
+takes ``/clock`` and the loop topics so, from its session's publishers only; taps have a pump of their own,
+so the loop's pump takes from its two entries only.
 """
 
 from __future__ import annotations
@@ -14,6 +20,7 @@ from __future__ import annotations
 import weakref
 from typing import Callable
 
+import numpy as np
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.publisher import Publisher
@@ -25,7 +32,7 @@ from ambid_nodes import qos
 from ambid_nodes.loop_call import BoundKernel
 
 try:
-    from ambid_nodes._loop_pump import NOT_RUN, Entry, Pump
+    from ambid_nodes._loop_pump import GID_SIZE, NOT_RUN, Entry, Pump
 except ImportError as exc:  # pragma: no cover - a set-up problem, not a code path
     raise ImportError("ambid_nodes._loop_pump, the loop nodes' C extension, is not built: run "
                       "'./launch_scripts/ambid setup' (it needs gcc, the Python headers and rcl's headers)") from exc
@@ -33,7 +40,8 @@ except ImportError as exc:  # pragma: no cover - a set-up problem, not a code pa
 # messages one pump call takes before the executor serves timers, services and other topics again
 # (~1-3 ms); a subscriber of a loop topic in the same process then has up to BUDGET / 2 queued
 BUDGET = 64
-_PUMPS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # rclpy Context -> Pump
+_PUMPS: dict[str, weakref.WeakKeyDictionary] = {"loop": weakref.WeakKeyDictionary(),  # rclpy Context -> Pump
+                                                "taps": weakref.WeakKeyDictionary()}
 # the kick: a message to the node's own hidden topic, whose event the executor queues behind
 # every event queued before it (a timer's can come sooner: rclpy's timers manager may have
 # queued its next check before them)
@@ -41,14 +49,17 @@ KICK_TOPIC = "~/_loop_pump_kick"
 KICK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.VOLATILE)
 
-__all__ = ["BUDGET", "NOT_RUN", "Entry", "GatingState", "LoopEntry", "Pump", "pump_of"]
+TAP_CONTEXT_WORDS = 6  # _loop_pump.c's N_LOOP: a tap's context, never read
+
+__all__ = ["BUDGET", "GID_SIZE", "NOT_RUN", "Entry", "GatingState", "LoopEntry", "Pump", "pump_of"]
 
 
-def pump_of(context) -> Pump:
-    """The loop pump of an rclpy context (made on first use, with :data:`BUDGET`)."""
-    pump = _PUMPS.get(context)
+def pump_of(context, kind: str = "loop") -> Pump:
+    """The loop pump of an rclpy context (``kind`` "taps": the pump of its taps), made on first use."""
+    pumps = _PUMPS[kind]
+    pump = pumps.get(context)
     if pump is None:
-        pump = _PUMPS[context] = Pump(BUDGET)
+        pump = pumps[context] = Pump(BUDGET)
     return pump
 
 
@@ -83,25 +94,33 @@ class LoopEntry:
     the node's hidden topic :data:`KICK_TOPIC`, so it runs on the executor's
     thread, after what queued there before. :meth:`close` before the node
     destroys its entities.
+
+    ``kernel`` and ``publisher`` None: a tap, whose every message goes to
+    ``handler(data, NOT_RUN)`` (in the pump of the context's taps).
     """
 
-    def __init__(self, node: Node, msg_type, topic: str, qos_profile: QoSProfile, publisher: Publisher,
-                 kernel: BoundKernel, handler: Callable[[bytes, int], None]) -> None:
+    def __init__(self, node: Node, msg_type, topic: str, qos_profile: QoSProfile, publisher: Publisher | None,
+                 kernel: BoundKernel | None, handler: Callable[[bytes, int], None]) -> None:
         check_for_type_support(msg_type)
+        tap = kernel is None
+        if tap != (publisher is None):
+            raise ValueError("LoopEntry: a tap has neither kernel nor publisher; a loop entry has both")
         with node.handle:  # as Node.create_subscription does, without handing it to the executor
             self.subscription = _rclpy.Subscription(node.handle, msg_type, topic,
                                                      qos.subscription(qos_profile).get_c_qos_profile())
-        self._kick_pub = node.create_publisher(msg_type, KICK_TOPIC, KICK_QOS)
-        self._kick_sub = node.create_subscription(msg_type, KICK_TOPIC, self._resume, KICK_QOS, raw=True)
+        kick_topic = KICK_TOPIC + ("_tap" + self.subscription.get_topic_name().replace("/", "_") if tap else "")
+        self._kick_pub = node.create_publisher(msg_type, kick_topic, KICK_QOS)
+        self._kick_sub = node.create_subscription(msg_type, kick_topic, self._resume, KICK_QOS, raw=True)
         # entering an rclpy handle defers its destruction until the matching exit: the pump's
         # addresses stay valid until close()
-        self._handles = [self.subscription, publisher.handle, self._kick_pub.handle]
+        self._handles = [self.subscription, self._kick_pub.handle] + ([] if tap else [publisher.handle])
         for h in self._handles:
             h.__enter__()
         try:
-            self.entry = pump_of(node.context).add(
-                self.subscription.pointer, publisher.handle.pointer, kernel.address, kernel.context, handler,
-                self._kick_pub.handle.pointer, serialize_message(msg_type()), tuple(self._handles))
+            context = kernel.context if not tap else np.zeros(TAP_CONTEXT_WORDS, dtype=np.int64)
+            self.entry = pump_of(node.context, "taps" if tap else "loop").add(
+                self.subscription.pointer, 0 if tap else publisher.handle.pointer, 0 if tap else kernel.address,
+                context, handler, self._kick_pub.handle.pointer, serialize_message(msg_type()), tuple(self._handles))
         except BaseException:
             self._release()
             raise

@@ -16,6 +16,27 @@ from rclpy.task import Future
 from ambid_nodes.parameters import ParameterError
 
 SUMMARY_PREFIX = "AMBID_SUMMARY "
+# set by a supervising command (ambid_nodes.supervisor) to its pid: the node dies with it
+DIE_WITH_PARENT_ENV = "AMBID_DIE_WITH_PARENT"
+_PR_SET_PDEATHSIG = 1
+
+
+def die_with_parent(environ=os.environ) -> None:
+    """Where ``AMBID_DIE_WITH_PARENT`` names this process's parent, ask the kernel for SIGTERM when the parent
+    goes (Linux), so a node never outlives the command that started it, even a ``kill -9`` of that command. A
+    parent already gone by now: SIGTERM at once."""
+    parent = environ.get(DIE_WITH_PARENT_ENV, "")
+    if not parent.isdigit() or not sys.platform.startswith("linux"):
+        return
+    import ctypes
+    import signal
+
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+    except (OSError, AttributeError):  # pragma: no cover - not Linux after all
+        return
+    if os.getppid() != int(parent):  # it went before the request was made
+        os.kill(os.getpid(), signal.SIGTERM)
 
 
 def apply_network_defaults(environ=os.environ) -> str:
@@ -68,6 +89,7 @@ def run_single(node_class, args=None) -> int:
     A node with a ``finished`` future prints one line ``AMBID_SUMMARY {json}`` of its
     result for a supervising script.
     """
+    die_with_parent()
     network = apply_network_defaults()  # before rclpy.init: the middleware reads it there
     try:
         rclpy.init(args=args)

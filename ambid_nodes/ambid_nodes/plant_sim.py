@@ -11,8 +11,13 @@ same either way. Publishes measurement blocks (y, u, ic, r),
 while the loop runs, at its end, and once a second while idle if its counts moved) and
 ``events``.
 
-Every received message is accepted or rejected with its reason (counted per
-topic in ``status``, logged, reported as a ``rejected_message`` event; see
+Session (parameter ``session``, docs/sessions.md): everything published carries its id; control
+currents are taken from the session's controller only (its GID, from the roster on ``session``; the
+loop does not start before the roster names it), excitation blocks and designs of the session only;
+any other is foreign: counted and named, never acted on.
+
+Every received message is accepted, rejected with its reason, or foreign (counted per
+topic in ``status``, logged, reported as a ``rejected_message`` or ``foreign_message`` event; see
 ``ambid_nodes.intake``). A control message with a NaN or the wrong channel
 count for the awaited sample is rejected and the previous valid current is held
 for that sample; one for any other index (stale, repeated, out of range) is
@@ -73,13 +78,14 @@ from ambid_msgs.msg import ExcitationDesign, PlantDescription, Sample, SampleBlo
 from ambid_nodes import qos
 from ambid_nodes.conversions import (BadMessage, block_msg, check_design, check_excitation_block, statespace_to_msg,
                                      status_msg, time_msg)
+from ambid_nodes.identity import SESSION_PARAMETER, LoopPartner, SessionIdentity
 from ambid_nodes.intake import Intake
 from ambid_nodes.loop_call import BoundKernel, ContextWord
 from ambid_nodes.loop_kernels import (LOOP_COUNT, LOOP_GATE, LOOP_K, LOOP_LIMIT, LOOP_NO_LIMIT, LOOP_OUT, N_PK,
                                       PK_BLOCK_START, PK_CLOCK_EVERY, PK_FREE_UNTIL, PK_LOOP, PK_R, PK_R_FIRST,
                                       PK_WORK, PLANT_AFTER, PLANT_CLIPPED, PLANT_CONTACT, PLANT_KIND, PLANT_LOOKUP,
                                       PLANT_STEPPED, plant_kernel, plant_loop_vector, sample_buffer)
-from ambid_nodes.loop_pump import GatingState, LoopEntry
+from ambid_nodes.loop_pump import NOT_RUN, GatingState, LoopEntry
 from ambid_nodes.parameters import declare, node_rig, refuse_unknown
 from ambid_nodes.raw_publish import raw_publisher
 from ambid_nodes.sample_codec import decode_sample, encode_clock, encode_sample
@@ -94,6 +100,8 @@ START_RETRY_S = 0.25  # wall time between re-sends of y[0] until the controller 
 RUNNING, DONE, FAILED, IDLE = (SessionStatus.STATE_RUNNING, SessionStatus.STATE_DONE, SessionStatus.STATE_FAILED,
                                SessionStatus.STATE_IDLE)
 FLAG_CLIPPED, FLAG_LANDED = SampleBlock.FLAG_CLIPPED, SampleBlock.FLAG_LANDED
+FLAG_CONTROLLER_LOST = SampleBlock.FLAG_CONTROLLER_LOST
+AFTER_LIFT_OFF_S = 0.5  # a run that ends before its second half is judged from this long after lift-off
 
 
 class KernelSchedule(ExcitationSchedule):
@@ -149,7 +157,9 @@ class PlantSim(Node):
         self.horizon = declare(self, "excitation_horizon", 1_000_000,
                                "most samples an excitation block may lie ahead of the plant (memory bound)",
                                1, 1_000_000_000)
+        session = declare(self, *SESSION_PARAMETER)
         refuse_unknown(self)
+        self.identity = SessionIdentity(self, session)
         self.rig = node_rig(self, rig_file, rig)
         self.sim = PlantSimulator(self.rig, seed=self.seed, nonlinear_magnets=nonlinear)
         self.sim_work = self.sim.work
@@ -172,13 +182,14 @@ class PlantSim(Node):
 
         self.pub_y = self.create_publisher(Sample, "displacement", qos.LOOP)
         self.publish_y_raw = raw_publisher(self.pub_y)
-        self.pub_block = self.create_publisher(SampleBlock, "measurement", qos.BLOCKS)
-        self.pub_desc = self.create_publisher(PlantDescription, "plant/description", qos.LATCHED)
-        self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
-        self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
+        publisher = self.identity.publisher  # its messages carry the session's id
+        self.pub_block = publisher(SampleBlock, "measurement", qos.BLOCKS)
+        self.pub_desc = publisher(PlantDescription, "plant/description", qos.LATCHED)
+        self.pub_status = publisher(SessionStatus, "status", qos.STATUS)
+        self.pub_event = publisher(SessionEvent, "events", qos.EVENTS)
         self.pub_clock = self.create_publisher(Clock, "/clock", qos.CLOCK)
         self.publish_clock_raw = raw_publisher(self.pub_clock)
-        self.intake = Intake(self, self.on_reject, self.on_handler_error)
+        self.intake = Intake(self, self.on_reject, self.on_handler_error, self.identity, self.on_foreign)
         self.ic_tally = self.intake.tally("control_current")
         self.intake.subscribe(SampleBlock, "excitation", self.on_excitation, qos.BLOCKS)
         self.intake.subscribe(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
@@ -203,12 +214,18 @@ class PlantSim(Node):
         self.loop = LoopEntry(self, Sample, "control_current", qos.LOOP, self.pub_y, self.fast,
                               self.finish_control)
         self.sub_ic = self.loop.subscription
+        # the session's controller by GID (the roster): another publisher's currents are dropped in C
+        self.controller = LoopPartner(self.identity, self.loop.entry, self.sub_ic.get_topic_name(),
+                                      self.finish_control, self.on_foreign_gid("control_current"), NOT_RUN)
+        self.ic_tally.count_foreign_also(self.controller)
         self.row_flags: dict[int, int] = {}  # row -> FLAG_* where not 0
         self.buf_start = 0
         self.clipped_samples = 0
         self.controller_lost_after_s: float | None = None  # wall time without an answer when declared lost
+        # judged over the second half of the run, or where it ended before, from 0.5 s after lift-off on
         self.monitor = LevitationMonitor(self.rig.backup_clearance_m,
-                                         self.n_total // 2 if self.n_total else int(0.5 / self.dt))
+                                         self.n_total // 2 if self.n_total else int(0.5 / self.dt),
+                                         int(round(AFTER_LIFT_OFF_S / self.dt)))
         self.state = IDLE
         self.started_wall = None
         self.finished_wall = None
@@ -229,6 +246,8 @@ class PlantSim(Node):
         self.resend_timer = self.create_timer(self.resend_after, self.resend_if_stalled)
         self.status_received = -1
         self.create_timer(STATUS_PERIOD_S, self.status_when_idle)
+        self.identity.announce([self.pub_y, self.pub_block, self.pub_desc, self.pub_status, self.pub_event,
+                                self.pub_clock])
 
     def regate(self) -> None:
         """Open the loop pump's gate while it may take the next control message: the loop
@@ -250,8 +269,10 @@ class PlantSim(Node):
             seed=self.seed, controller_timeout_samples=0, rig_json=json.dumps(r.to_dict())))
 
     def try_start(self) -> None:
-        # start once both directions are matched: neither y[0] nor the answer ic[0] may be lost
-        if self.pub_y.get_subscription_count() < 1 or self.sub_ic.get_publisher_count() < 1:
+        # start once both directions are matched: neither y[0] nor the answer ic[0] may be lost; with a
+        # session, once the roster names the session's controller (whose currents alone are taken)
+        if (self.pub_y.get_subscription_count() < 1 or self.sub_ic.get_publisher_count() < 1
+                or not self.controller.known):
             return
         self.start_timer.cancel()
         self.state = RUNNING
@@ -270,7 +291,7 @@ class PlantSim(Node):
 
     def describe_run(self) -> str:
         t = f"{self.sim_seconds:g} s" if self.n_total else "until stopped"
-        return f"rig {self.rig.name}, {1 / self.dt:g} Hz, {t}, seed {self.seed}"
+        return f"rig {self.rig.name}, {1 / self.dt:g} Hz, {t}, seed {self.seed}, session {self.identity}"
 
     # --- the loop ---------------------------------------------------------
     def publish_y(self) -> None:
@@ -403,7 +424,11 @@ class PlantSim(Node):
             flags[row] = f
         self.row_flags = {}
         self.report_clipping(buf, flags)
-        self.monitor.add_block(self.buf_start, buf[:, :self.na], flags & FLAG_LANDED)
+        # judged: the run under control; the safe state's landing after a lost controller is recorded, not judged
+        lost = np.flatnonzero(flags & FLAG_CONTROLLER_LOST)
+        judged = int(lost[0]) if lost.size else n
+        if judged:
+            self.monitor.add_block(self.buf_start, buf[:judged, :self.na], flags[:judged] & FLAG_LANDED)
         self.pub_block.publish(block_msg(self.buf_start, self.dt, self.measurement_names, self.measurement_units, buf,
                                          flags, SampleBlock.FLAG_FINAL if final else 0))
         if self.k // STATUS_EVERY != self.buf_start // STATUS_EVERY:  # (finish() sends the final one)
@@ -516,6 +541,13 @@ class PlantSim(Node):
 
     def on_reject(self, topic: str, why: str) -> None:
         self.event(SessionEvent.WARN, "rejected_message", why)
+
+    def on_foreign(self, topic: str, why: str) -> None:
+        self.event(SessionEvent.WARN, "foreign_message", why)
+
+    def on_foreign_gid(self, topic: str):
+        """The report of a loop topic's foreign publisher (its messages are counted in C)."""
+        return lambda gid: self.intake.foreign(topic, gid=gid, count=False)
 
     def on_handler_error(self, topic: str, why: str) -> None:
         self.event(SessionEvent.ERROR, "handler_error", why)

@@ -15,6 +15,10 @@ y[k] with ic[k].
 Before it answers anything it checks the closed loop with the rig's
 analytical model and refuses to run an unstable combination.
 
+Session (parameter ``session``, docs/sessions.md): it answers the displacements of its session's plant
+only (its GID, from the roster on ``session``), takes the status of its session only, and stamps the
+id on all it publishes; another source's messages are foreign: counted, named, never answered.
+
 A displacement message with the wrong channel count or a NaN is rejected
 (counted, logged); the controller then answers with its previous current and
 leaves its state untouched, so one bad sample cannot destabilise the loop. A
@@ -61,7 +65,8 @@ from ambid_nodes.loop_kernels import (CK_LEAD, CK_LIMIT, CK_MAT, CK_N, CK_P, CK_
                                       CONTROLLER_STATUS,
                                       LOOP_COUNT, LOOP_GATE, LOOP_K, LOOP_LIMIT, LOOP_NO_LIMIT, LOOP_OUT, N_CK,
                                       controller_kernel, sample_buffer)
-from ambid_nodes.loop_pump import GatingState, LoopEntry
+from ambid_nodes.identity import SESSION_PARAMETER, LoopPartner, SessionIdentity
+from ambid_nodes.loop_pump import NOT_RUN, GatingState, LoopEntry
 from ambid_nodes.parameters import ParameterError, declare, node_rig, refuse_unknown
 from ambid_nodes.raw_publish import raw_publisher
 from ambid_nodes.sample_codec import decode_sample, encode_sample
@@ -103,7 +108,9 @@ class PositionController(Node):
         self.timeout = declare(self, "plant_timeout", 2.0,
                                "wall time without a displacement before the running plant is declared lost",
                                0.01, 3600.0, "s")
+        session = declare(self, *SESSION_PARAMETER)
         refuse_unknown(self)
+        self.identity = SessionIdentity(self, session)
         self.rig = node_rig(self, rig_file, rig)
         if design is None:
             try:
@@ -137,15 +144,21 @@ class PositionController(Node):
         self.fast.set(CK_Q, self.n_out)
         self.fast.set(CK_STATUS_EVERY, STATUS_EVERY)
         self.bind_stepper()
-        self.pub_desc = self.create_publisher(ControllerDescription, "controller/description", qos.LATCHED)
-        self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
-        self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
-        self.intake = Intake(self, self.on_reject, self.on_handler_error)
+        publisher = self.identity.publisher  # its messages carry the session's id
+        self.pub_desc = publisher(ControllerDescription, "controller/description", qos.LATCHED)
+        self.pub_status = publisher(SessionStatus, "status", qos.STATUS)
+        self.pub_event = publisher(SessionEvent, "events", qos.EVENTS)
+        self.intake = Intake(self, self.on_reject, self.on_handler_error, self.identity, self.on_foreign)
         self.y_tally = self.intake.tally("displacement")
         self.y_tally.count_also(self.fast.context[LOOP_COUNT:LOOP_COUNT + 1])
         # displacement: the loop pump runs controller_kernel, publishes the answer and counts in compiled code
         self.loop = LoopEntry(self, Sample, "displacement", qos.LOOP, self.pub_ic, self.fast,
                               self.finish_displacement)
+        # the session's plant by GID (the roster): another publisher's displacements are dropped in C
+        self.plant = LoopPartner(self.identity, self.loop.entry, self.loop.subscription.get_topic_name(),
+                                 self.finish_displacement,
+                                 lambda gid: self.intake.foreign("displacement", gid=gid, count=False), NOT_RUN)
+        self.y_tally.count_foreign_also(self.plant)
         # the plant's status says whether its silence is the end of its run; a deep queue so no
         # other node's status can push the plant's last one out before it is read
         self.intake.subscribe(SessionStatus, "status", self.on_status, QoSProfile(
@@ -165,6 +178,7 @@ class PositionController(Node):
             stamp=time_msg(0.0), name=self.get_fully_qualified_name(), kind=design.kind,
             delay_samples=delay_samples, model=statespace_to_msg(self.model),
             current_limit=[design.current_limit_a] * self.n_out, parameters_json=json.dumps(params_json)))
+        self.identity.announce([self.pub_ic, self.pub_desc, self.pub_status, self.pub_event])
 
     def regate(self) -> None:
         """The loop pump runs the kernel while a session runs."""
@@ -314,6 +328,9 @@ class PositionController(Node):
 
     def on_reject(self, topic: str, why: str) -> None:
         self.event(SessionEvent.WARN, "rejected_message", why, self.expected or 0)
+
+    def on_foreign(self, topic: str, why: str) -> None:
+        self.event(SessionEvent.WARN, "foreign_message", why, self.expected or 0)
 
     def on_handler_error(self, topic: str, why: str) -> None:
         self.event(SessionEvent.ERROR, "handler_error", why, self.expected or 0)

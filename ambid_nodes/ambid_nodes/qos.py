@@ -20,6 +20,10 @@ EVENTS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=Rel
 CLOCK = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT,
                    durability=DurabilityPolicy.VOLATILE)
 
+# a session's roster (ambid_msgs/SessionMember on `session`): one latched message per node
+MEMBERS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
 
 def subscription(profile: QoSProfile) -> QoSProfile:
     """The profile an ambid node subscribes with: ``profile``'s reliability and durability, KEEP_ALL.

@@ -15,6 +15,20 @@ to the discovery delay; other topics wait for a publisher. The publishers'
 offered QoS and type hash go into the channel metadata (taken at the first
 message if no publisher was known at subscription).
 
+Every subscription is KEEP_ALL, as every ambid node's (``qos.subscription``): a
+flood cannot push a genuine message out of the queue; it slows the recorder down.
+
+Session (parameter ``session``, docs/sessions.md): only the session's own messages are
+recorded. An ambid message carries its ``session_id`` (read from the bytes: a
+SampleBlock's by a walk past its data, the others decoded); ``/clock`` and the loop
+topics carry none and are taken by GID from the session's publishers only (the
+roster on ``session``; taps of the loop pump, ``ambid_nodes.identity.LoopPartner``).
+Anything else on a recorded topic is foreign: never written, counted per topic
+(``foreign:<topic>``, ``foreign_from:<topic>`` naming its publishers in ``status``)
+and reported as ``foreign_message`` events (the first of each topic, then at most one
+a second). A topic of a type without ``session_id`` other than those (a user's own
+topic) is recorded as it comes.
+
 Messages published on a volatile topic before the recorder's subscription
 matched (about ``discovery_period`` plus DDS discovery) are not recorded:
 start the recorder first and let it subscribe (``topic_recorded`` events,
@@ -62,7 +76,8 @@ import time
 
 import ambid
 from ambid.session import SessionWriteError
-from ambid.session.blocks import SAMPLE_BLOCK_TYPE
+from ambid.session.blocks import SAMPLE_BLOCK_TYPE, sample_block_session
+from ambid.session.identity import format_session
 from ambid.session.facts import FACT_TYPES, controller_facts, design_facts, plant_facts
 from ambid.session.recording import Recording
 from ambid.session.writer import available_compressions
@@ -74,30 +89,44 @@ from rclpy.task import Future
 
 from ambid_msgs.msg import SessionEvent, SessionStatus
 from ambid_nodes import qos
-from ambid_nodes.conversions import check_controller_description, check_design, check_plant_description, status_msg
+from ambid_nodes.conversions import (BadMessage, check_controller_description, check_design, check_plant_description,
+                                     decode_message, status_msg)
+from ambid_nodes.identity import SESSION_PARAMETER, LoopPartner, SessionIdentity
+from ambid_nodes.loop_pump import NOT_RUN, LoopEntry
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 
 #: every topic of the ambid graph, relative to the rig's namespace (plus /clock)
 DEFAULT_TOPICS = ["displacement", "control_current", "measurement", "excitation", "excitation/design",
-                  "plant/description", "controller/description", "frf", "status", "events", "/clock"]
+                  "plant/description", "controller/description", "frf", "status", "events", "session", "/clock"]
 #: the per-sample lock-step topics (10,000 msgs/s each), recorded only with include_loop_topics
 LOOP_TOPICS = ("displacement", "control_current")
 #: the QoS the ambid nodes publish with, used to subscribe to a topic before its publisher exists
 CONVENTIONAL_QOS = {"displacement": qos.LOOP, "control_current": qos.LOOP, "measurement": qos.BLOCKS,
                     "excitation": qos.BLOCKS, "excitation/design": qos.LATCHED, "plant/description": qos.LATCHED,
                     "controller/description": qos.LATCHED, "status": qos.STATUS, "events": qos.EVENTS,
-                    "/clock": qos.CLOCK}
+                    "session": qos.MEMBERS, "/clock": qos.CLOCK}
+#: the topics without a session id of their own whose session publishers the roster names: taken by GID
+BY_GID = ("displacement", "control_current", "/clock")
+FOREIGN_EVENT_S = 1.0  # foreign_message events per topic: the first, then at most one this often
+MAX_NAMES = 8  # foreign publishers named per topic
 LOG_TIME_CONVENTION = ("receive time on the recorder's ROS clock (system time, or /clock with use_sim_time), "
                        "held non-decreasing; publish time = log time")
 
 
-def subscription_qos(offered: list, depth: int) -> QoSProfile:
-    """A QoS that matches every offered profile: reliable / transient-local only if all publishers are."""
+def subscription_qos(offered: list) -> QoSProfile:
+    """A QoS that matches every offered profile: reliable / transient-local only if all publishers are; KEEP_ALL
+    (a flood cannot push a genuine message out)."""
     reliable = all(p.reliability == ReliabilityPolicy.RELIABLE for p in offered)
     latched = all(p.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in offered)
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
-                      reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
-                      durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+    return qos.subscription(QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=1,
+        reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE))
+
+
+def _decoded_session(cls, data: bytes) -> int:
+    """The session id of an ambid message; BadMessage where the bytes do not decode."""
+    return decode_message(data, cls, "recorded message").session_id
 
 
 def message_class(type_name: str):
@@ -126,10 +155,11 @@ class Recorder(Node):
         discovery_period = declare(self, "discovery_period", 0.25, "wall time between graph polls for new topics",
                                    0.02, 60.0, "s")
         status_period = declare(self, "status_period", 1.0, "wall time between status messages", 0.02, 3600.0, "s")
-        self.depth = declare(self, "queue_depth", 1000, "subscription queue depth per topic", 1, 100_000)
         facts_text = declare(self, "session_facts", "{}",
                              "extra session facts as a JSON object, e.g. {\"operator\": \"...\", \"notes\": \"...\"}")
+        session = declare(self, *SESSION_PARAMETER)
         refuse_unknown(self)
+        self.identity = SessionIdentity(self, session)
         if compression not in available_compressions():
             raise ParameterError(f"recorder: compression '{compression}' is not usable here; "
                                  f"choose one of {list(available_compressions())}")
@@ -156,13 +186,20 @@ class Recorder(Node):
         except OSError as exc:
             raise ParameterError(f"recorder: cannot create {self.path}: {exc.strerror or exc}") from None
 
-        self.pub_status = self.create_publisher(SessionStatus, "status", qos.STATUS)
-        self.pub_event = self.create_publisher(SessionEvent, "events", qos.EVENTS)
+        self.pub_status = self.identity.publisher(SessionStatus, "status", qos.STATUS)
+        self.pub_event = self.identity.publisher(SessionEvent, "events", qos.EVENTS)
+        self.identity.announce([self.pub_status, self.pub_event])
         self.subs: dict[str, object] = {}  # topic -> subscription
+        self.by_gid = {self.resolve_topic_name(t) for t in BY_GID}
+        self.taps: dict[str, tuple[LoopEntry, LoopPartner]] = {}  # topic -> its tap, taken by GID
+        self.foreign: dict[str, int] = {}  # topic -> foreign messages, not recorded
+        self.foreign_names: dict[str, set[str]] = {}
+        self.foreign_reported: dict[str, tuple[float, int]] = {}  # topic -> (last event, count then)
         self.types: dict[str, str] = {}  # topic -> pkg/msg/Type
         self.conventional_qos = {self.resolve_topic_name(t): q for t, q in CONVENTIONAL_QOS.items()}
         self.ignored: set[str] = set()  # topics that cannot be recorded (reported once)
         self.fact_decoders: dict[str, tuple[str, type]] = {}  # topic -> (fact key, message class)
+        self.session_of: dict[str, object] = {}  # topic -> its messages' session id from their bytes
         self.clock_back_reported = False
         self.unreadable = 0  # descriptions without readable facts since the last report
         self.unreadable_reported = -1e9
@@ -173,6 +210,7 @@ class Recorder(Node):
         try:
             self.rec.write_facts({"recorder": {"node": self.get_fully_qualified_name(), "path": self.path,
                                                "topics": self.wanted, "parameters": params},
+                                  "session_id": format_session(self.identity.id),
                                   "log_time": LOG_TIME_CONVENTION, "ambid_version": ambid.__version__,
                                   "started_unix_ns": time.time_ns(), **extra_facts})
         except SessionWriteError as exc:
@@ -250,12 +288,24 @@ class Recorder(Node):
         if offered and not self.register(topic, offered):
             return
         profiles = [p.qos_profile for p in offered] or [self.conventional_qos[topic]]
-        sub_qos = subscription_qos(profiles, self.depth)
+        sub_qos = subscription_qos(profiles)
         self.rec.track(topic, sample_blocks=type_name == SAMPLE_BLOCK_TYPE)
         if type_name in FACT_TYPES:
             self.fact_decoders[topic] = (FACT_TYPES[type_name], cls)
-        self.subs[topic] = self.create_subscription(cls, topic, functools.partial(self.on_message, topic),
-                                                    sub_qos, raw=True)
+        if not self.identity.open and "session_id" in cls.get_fields_and_field_types():
+            self.session_of[topic] = (sample_block_session if type_name == SAMPLE_BLOCK_TYPE
+                                      else functools.partial(_decoded_session, cls))
+        if not self.identity.open and topic in self.by_gid:
+            # no session id in the message: taken from the session's publisher only, by GID
+            deliver = functools.partial(self.on_tapped, topic)
+            entry = LoopEntry(self, cls, topic, sub_qos, None, None, deliver)
+            partner = LoopPartner(self.identity, entry.entry, entry.subscription.get_topic_name(), deliver,
+                                  functools.partial(self.on_foreign_gid, topic), NOT_RUN)
+            self.taps[topic] = (entry, partner)
+            self.subs[topic] = entry.subscription
+        else:
+            self.subs[topic] = self.create_subscription(cls, topic, functools.partial(self.on_message, topic),
+                                                        sub_qos, raw=True)
         self.event(SessionEvent.INFO, "topic_recorded",
                    f"{topic} ({type_name}, {len(offered)} publisher(s), {sub_qos.reliability.name.lower()}, "
                    f"{sub_qos.durability.name.lower()})")
@@ -281,9 +331,23 @@ class Recorder(Node):
         self.event(SessionEvent.WARN, code, why)
 
     # --- recording --------------------------------------------------------
+    def on_tapped(self, topic: str, data: bytes, code: int) -> None:
+        """A message of a tapped topic from the session's publisher."""
+        self.on_message(topic, data)
+
     def on_message(self, topic: str, data: bytes) -> None:
         rec = self.rec
         rec.received += 1
+        session_of = self.session_of.get(topic)
+        if session_of is not None:
+            try:
+                session = session_of(data)
+            except (ValueError, BadMessage):  # bytes that do not decode name no session: not shown to be ours
+                rec.rejected += 1
+                return
+            if session != self.identity.id:
+                self.on_foreign(topic, session)
+                return
         if not rec.open:
             rec.rejected += 1
             return
@@ -305,6 +369,50 @@ class Recorder(Node):
             return
         if topic in self.fact_decoders:
             self.update_facts(topic, data)
+
+    def on_foreign(self, topic: str, session: int | None = None, gid: bytes | None = None,
+                   count: bool = True) -> None:
+        """A message of another session on ``topic`` (or, ``gid``, the first of a foreign publisher of a tapped
+        topic, counted by its tap): not recorded; counted, named, reported (throttled)."""
+        if count:
+            self.foreign[topic] = self.foreign.get(topic, 0) + 1
+        who = ([self.identity.name_gid(gid, topic)] if gid is not None else self.identity.foreign_publishers(topic))
+        if not who:
+            who = [f"a publisher gone from the graph (session {format_session(session or 0)})"]
+        if gid is None:  # the topic's foreign publishers as the graph shows them now
+            self.foreign_names[topic] = set(who[:MAX_NAMES])
+        else:
+            names = self.foreign_names.setdefault(topic, set())
+            for name in who:
+                if len(names) < MAX_NAMES:
+                    names.add(name)
+        now = time.monotonic()
+        last, then = self.foreign_reported.get(topic, (-1e9, 0))
+        n = self.foreign_count(topic)
+        if now - last < FOREIGN_EVENT_S:
+            return
+        self.foreign_reported[topic] = (now, n)
+        sid = f" of session {format_session(session)}" if session is not None else ""
+        more = f" ({n - then - 1} more since the last report)" if n - then > 1 else ""
+        self.event(SessionEvent.WARN, "foreign_message",
+                   f"{topic}: a message{sid} from {', '.join(who)}, not of this session "
+                   f"({self.identity}): counted, not recorded{more}")
+
+    def on_foreign_gid(self, topic: str, gid: bytes) -> None:
+        self.on_foreign(topic, gid=gid, count=False)
+
+    def foreign_figures(self) -> dict:
+        """{topic: {"messages": n, "from": [publishers named]}} of the foreign messages kept out so far."""
+        out = {}
+        for topic in sorted(set(self.foreign) | set(self.taps)):
+            n = self.foreign_count(topic)
+            if n:
+                out[topic] = {"messages": n, "from": sorted(self.foreign_names.get(topic, ()))}
+        return out
+
+    def foreign_count(self, topic: str) -> int:
+        tap = self.taps.get(topic)
+        return self.foreign.get(topic, 0) + (tap[1].foreign if tap is not None else 0)
 
     def update_facts(self, topic: str, data: bytes) -> None:
         """Session facts from a description message; one that is malformed is recorded but adds no fact."""
@@ -352,7 +460,7 @@ class Recorder(Node):
         self.event(SessionEvent.ERROR, "write_failed", text)
         self.discovery_timer.cancel()  # the subscriptions stay (destroying one inside its callback is unsafe)
         self.flush_timer.cancel()
-        self.summary = self.rec.figures()
+        self.summary = {**self.rec.figures(), "foreign": self.foreign_figures()}
         self.publish_status()
         if not self.finished.done():
             self.finished.set_result(self.summary)
@@ -367,6 +475,9 @@ class Recorder(Node):
                  "last_flush_age_s": round(time.monotonic() - rec.last_flush_wall, 3)}
         shown.update((f"messages:{topic}", n) for topic, n in sorted(rec.counts.items()))
         shown.update((f"end_index:{topic}", end) for topic, end in sorted(rec.block_end.items()))
+        for topic, kept_out in self.foreign_figures().items():
+            shown[f"foreign:{topic}"] = kept_out["messages"]
+            shown[f"foreign_from:{topic}"] = kept_out["from"]
         measurement = self.resolve_topic_name("measurement")
         text = (f"{state}: {f['messages']} messages ({f['messages_per_wall_s']:.0f}/s), "
                 f"{f['file_bytes'] / 1e6:.2f} MB in {self.path}" + (f"; {rec.failed}" if rec.failed else ""))
@@ -397,11 +508,14 @@ class Recorder(Node):
             timer.cancel()
         if not self.rec.failed:
             try:
+                foreign = self.foreign_figures()
+                if foreign:  # what was kept out, in the file's facts (the last status comes after the file)
+                    self.rec.write_facts({"foreign": foreign})
                 self.rec.close()
             except SessionWriteError as exc:
                 self.get_logger().error(f"closing {self.path} failed: {exc}")
                 self.event(SessionEvent.ERROR, "write_failed", f"closing {self.path} failed: {exc}")
-            self.summary = self.rec.figures()
+            self.summary = {**self.rec.figures(), "foreign": self.foreign_figures()}
         self.rec.closed = True
         line = (f"closed {self.path}: {self.summary['messages']} messages, {self.summary['file_bytes']} bytes, "
                 f"{self.summary['state']}")
@@ -415,6 +529,8 @@ class Recorder(Node):
 
     def destroy_node(self) -> None:
         self.close()
+        for entry, _ in self.taps.values():
+            entry.close()
         super().destroy_node()
 
 

@@ -7,6 +7,13 @@ through its ``start_experiment`` service before the loop starts, and placed
 at a fixed sample index after lift-off, so a session is reproducible for a
 seed. The loop starts when the controller joins, after the recorder and the
 consumer are subscribed, so nothing of the experiment is missed.
+
+Processes layout (``processes``): every node its own process, supervised
+(``ambid_nodes.session_processes``): a node's death ends the run with one line
+naming the node and the sample (:class:`NodeDied`).
+
+Either way every node belongs to the session ``session`` (docs/sessions.md):
+it acts only on that session's messages, and the recording holds only them.
 """
 
 from __future__ import annotations
@@ -19,6 +26,7 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Callable
 
 from ambid.control.kinds import ControllerDesign, checked_design
 from ambid.excitation import ExcitationDesign
@@ -27,13 +35,14 @@ from ambid.frf.offline import data_channels
 from ambid.hardware.bridge_protocol import CommandCode
 from ambid.jsonable import to_jsonable
 from ambid.plant.rig import Rig, load_rig, make_rig
+from ambid.session.identity import format_session, new_session_id
 
 from rclpy.node import Node
 
 from ambid_msgs.msg import ControllerDescription, PlantDescription
 from ambid_msgs.msg import ExcitationDesign as DesignMessage
 from ambid_nodes import qos
-from ambid_nodes.graph import DEFAULT_NAMESPACE, session_domain_id
+from ambid_nodes.graph import DEFAULT_NAMESPACE, preflight, session_domain_id
 from ambid_nodes.node_main import gc_frozen
 
 LIFT_OFF_S = 0.5  # levitate and settle before the experiment starts
@@ -59,6 +68,8 @@ class SessionConfig:
     hardware: str = ""      # HOST:PORT of a real-time target: hardware_bridge replaces plant_sim and the controller
     local_port: int = 0     # with hardware: the bridge's UDP port (0: any)
     true_model: str = ""    # with hardware: the C target's model file, the truth the FRF is compared with
+    session: int = 0        # the session's id (docs/sessions.md); 0: open nodes
+    processes: bool = False  # every node its own process, supervised
     live_port: int | None = None    # a Foxglove live view on this port (0: any free one); None: none
     live_host: str = "127.0.0.1"    # the address the live view binds
     extra: dict = field(default_factory=dict)
@@ -90,6 +101,23 @@ class SessionPlan:
     rig: Rig
     controller: ControllerDesign | None
     design: ExcitationDesign
+
+
+class NodeDied(RuntimeError):
+    """A node of a processes-layout session died before its run was over (ambid_nodes.supervisor).
+
+    Attributes:
+        death: {node, how, sample_index, simulated_s, consequence}.
+        mcap_path: the recording.
+        complete: the recording was closed completely (else ``ambid inspect --recover`` reads it).
+        messages: messages recorded (as the recorder or the file says).
+        figures: the levitation figures up to there (``ambid.plant.levitation``).
+    """
+
+    def __init__(self, death: dict, mcap_path: str, complete: bool, messages: int | None, figures: dict) -> None:
+        super().__init__(f"{death['node']} {death['how']} at sample {death['sample_index']}")
+        self.death, self.mcap_path, self.complete, self.messages, self.figures = (death, mcap_path, complete,
+                                                                                   messages, figures)
 
 
 def plan_session(cfg: SessionConfig, rig: Rig | None = None, controller: ControllerDesign | None = None
@@ -144,10 +172,12 @@ def start_live(cfg: SessionConfig):
     return LiveProcess(cfg.live_port, cfg.live_host, cfg.namespace, cfg.estimator, session_domain_id())
 
 
-def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None, live=None, early=None) -> dict:
+def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None,
+                         report_foreign: Callable[[dict], None] | None = None, live=None, early=None) -> dict:
     """Run the whole graph in this process; returns the run's facts (no offline analysis).
 
     ``plan`` (default :func:`plan_session`) is what the nodes run: one rig, one controller, one design.
+    ``report_foreign`` is told the foreign publishers found on the rig's topics before anything starts.
     ``live`` (a started :class:`ambid_nodes.live_view.LiveProcess`): the experiment starts once it listens
     and hears the measurement, so it shows the whole experiment. ``early``
     (:class:`ambid.studies.early_analysis.EarlyAnalysis`): handed the session's inputs as they become known,
@@ -195,6 +225,8 @@ def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None, li
             executor.spin_once(timeout_sec=0.05)
 
     try:
+        foreign = preflight(executor, cfg.namespace, context, report_foreign)
+        session = {"session": cfg.session or new_session_id()}  # every session has an id, given or fresh
         ns = dict(namespace=cfg.namespace, context=context)
         if cfg.hardware:
             # the target runs plant and controller; it starts only once it knows the experiment (below)
@@ -203,22 +235,22 @@ def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None, li
             host, port = parse_address(cfg.hardware)
             plant = add(HardwareBridge(**ns, rig=plan.rig, parameter_overrides=params({
                 "target_host": host, "target_port": port, "local_port": cfg.local_port, "autostart": False,
-                **rig_param})))
+                **rig_param, **session})))
             # the target must answer before anything is written: a wrong address leaves no recording behind
             spin_until(lambda: plant.connected, 15, f"the real-time target at {cfg.hardware} (is it running and "
                                                     "sending to this bridge's port?); nothing was recorded")
         cfg.out_dir.mkdir(parents=True, exist_ok=True)
         recorder = add(Recorder(**ns, parameter_overrides=params({
             "output": str(mcap_path), "overwrite": True,
-            "session_facts": json.dumps({"session": "identify", "config": _jsonable(cfg)})})))
+            "session_facts": json.dumps({"session": "identify", "config": _jsonable(cfg)}), **session})))
         if not cfg.hardware:
             plant = add(PlantSim(**ns, rig=plan.rig, parameter_overrides=params({
                 "sim_seconds": total / fs, "seed": cfg.seed, "nonlinear_magnets": cfg.nonlinear_magnets,
-                **rig_param})))
+                **rig_param, **session})))
         generator = add(ExcitationGenerator(**ns, rig=plan.rig, parameter_overrides=params({
-            "start_margin": start_index, **rig_param})))
-        consumer = add(FrfConsumer(**ns, parameter_overrides=params({"estimator": cfg.estimator})))
-        inputs = add(SessionMessages(**ns)) if early is not None else None
+            "start_margin": start_index, **rig_param, **session})))
+        consumer = add(FrfConsumer(**ns, parameter_overrides=params({"estimator": cfg.estimator, **session})))
+        inputs = add(SessionMessages(session["session"], **ns)) if early is not None else None
         # the recorder and the consumer (and a live view) must hear the first measurement block
         listeners = 3
         if live is not None:
@@ -243,7 +275,7 @@ def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None, li
             plant.queue_command(CommandCode.START)
         else:
             add(PositionController(**ns, rig=plan.rig, design=plan.controller, parameter_overrides=params({
-                **rig_param, "controller": cfg.controller})))
+                **rig_param, "controller": cfg.controller, **session})))
         stop_sent = False
         def analyse_early() -> None:
             if inputs is not None and not early.analysing and answer.experiment_id in consumer.results:
@@ -284,22 +316,10 @@ def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None, li
         while time.monotonic() < end:
             executor.spin_once(timeout_sec=0.02)
         rec = recorder.close()
-        wall = time.perf_counter() - wall0
-        return {
-            "experiment_id": answer.experiment_id,
-            "start_index": answer.start_index,
-            "plant": plant_summary,
-            "recorder": rec,
-            "live_frf": _live_figures(consumer.results[answer.experiment_id]),
-            "wall_s": wall,
-            "simulated_s": plant_summary["simulated_s"],
-            "samples_per_wall_s": plant_summary["samples"] / wall,
-            "loop_samples_per_wall_s": plant_summary["samples_per_wall_s"],
-            "layout": f"hardware bridge to {cfg.hardware}" if cfg.hardware else "composed",
-            "design": design,
-            "mcap_path": str(mcap_path),
-            "final_estimate_at": consumer.finished_at.get(answer.experiment_id),   # time.perf_counter
-        }
+        return run_facts(answer, plant_summary, rec, _live_figures(consumer.results[answer.experiment_id]),
+                         time.perf_counter() - wall0, f"hardware bridge to {cfg.hardware}" if cfg.hardware
+                         else "composed", design, mcap_path, foreign,
+                         consumer.finished_at.get(answer.experiment_id))
     finally:
         executor.shutdown()
         for n in nodes:
@@ -307,19 +327,46 @@ def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None, li
         rclpy.shutdown(context=context)
 
 
+def run_facts(answer, plant_summary: dict, recorder: dict, live_frf: dict, wall_s: float, layout: str,
+              design: ExcitationDesign, mcap_path, foreign: dict, final_estimate_at: float | None = None) -> dict:
+    """What a session's run returns for its offline identification (either layout); ``final_estimate_at``:
+    when the consumer had the final FRF (time.perf_counter), where known."""
+    return {
+        "experiment_id": answer.experiment_id,
+        "start_index": answer.start_index,
+        "plant": plant_summary,
+        "recorder": recorder,
+        "live_frf": live_frf,
+        "wall_s": wall_s,
+        "simulated_s": plant_summary["simulated_s"],
+        "samples_per_wall_s": plant_summary["samples"] / wall_s,
+        "loop_samples_per_wall_s": plant_summary["samples_per_wall_s"],
+        "layout": layout,
+        "design": design,
+        "mcap_path": str(mcap_path),
+        "foreign_publishers": foreign,
+        "final_estimate_at": final_estimate_at,
+    }
+
+
 class SessionMessages(Node):
-    """A listener of the session's latched descriptions, the plant's, the controller's and the experiment's,
+    """A listener of the session's latched descriptions (its own session's only), the plant's, the controller's and the experiment's,
     kept as they come: the inputs of an early analysis, read as the recording's are
     (:func:`ambid.studies.identification.inputs_from_messages`)."""
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, session: int, **kwargs) -> None:
         super().__init__("identify_inputs", **kwargs)
         self.last: dict = {}
         latched = qos.subscription(qos.LATCHED)
+
+        def keep(name: str, msg) -> None:  # another session's descriptions are never the inputs
+            if msg.session_id == session:
+                self.last[name] = msg
+
         for name, kind, topic in (("plant", PlantDescription, "plant/description"),
                                   ("controller", ControllerDescription, "controller/description"),
                                   ("design", DesignMessage, "excitation/design")):
-            self.create_subscription(kind, topic, lambda msg, name=name: self.last.__setitem__(name, msg), latched)
+            self.create_subscription(kind, topic, lambda msg, name=name: keep(name, msg), latched)
         self.design_topic = self.resolve_topic_name("excitation/design")
 
     def described(self, controller: bool = True) -> bool:
@@ -366,7 +413,8 @@ def _jsonable(cfg: SessionConfig) -> dict:
     return d
 
 
-def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None, on_headline=None) -> dict:
+def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None,
+                 report_foreign: Callable[[dict], None] | None = None, on_headline=None) -> dict:
     """The whole job: the recorded session on the graph, then the offline identification of it.
 
     The analysis runs in a process of its own (:class:`ambid.studies.early_analysis.EarlyAnalysis`), started
@@ -399,7 +447,12 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None, on_headlin
         outputs, inputs, _ = data_channels(plan.design.input_names, plan.rig.layout.measurement_names)
         early.prepare(_planned_inputs(cfg, plan), plan.design.freq_hz, outputs, inputs)
     try:
-        run = run_session_composed(cfg, plan, live=live, early=early)
+        if cfg.processes:   # no early analysis there: the recording is analysed once the session is over
+            from ambid_nodes.session_processes import run_session_processes
+
+            run = run_session_processes(cfg, plan, report_foreign)
+        else:
+            run = run_session_composed(cfg, plan, report_foreign, live=live, early=early)
         design: ExcitationDesign = run.pop("design")
         shown: dict = {}
 
@@ -497,4 +550,5 @@ def _identify_summary(cfg: SessionConfig, run: dict, design: ExcitationDesign, o
         "analysis_timing": timing,
         "recording": {"path": run["mcap_path"], "messages": rec.get("messages", rec.get("message_count")),
                       "complete": rec.get("complete", True)},
+        "session": {"id": format_session(cfg.session), "foreign_publishers": run["foreign_publishers"]},
     }

@@ -7,8 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from ambid.session import SessionWriter, inspect_session, iter_messages
-from ambid.session.blocks import (SAMPLE_BLOCK_TYPE, block_spans, decode_sample_block, iter_sample_blocks,
-                                  read_samples, sample_block_span, sample_block_topics, sample_index_report)
+from ambid.session.blocks import (SAMPLE_BLOCK_TYPE, block_spans, decode_sample_block, encode_sample_block,
+                                  iter_sample_blocks, read_samples, sample_block_session, sample_block_span,
+                                  sample_block_topics, sample_index_report)
 from mcap_ros2._dynamic import serialize_dynamic
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -20,18 +21,25 @@ DEFINITION = (
     + (Path(sys.prefix) / "share" / "builtin_interfaces" / "msg" / "Time.msg").read_text()
 )
 ENCODE = serialize_dynamic(SAMPLE_BLOCK_TYPE, DEFINITION)[SAMPLE_BLOCK_TYPE]
+# the layout before sessions had ids: the same fields without the last one
+OLD_ENCODE = serialize_dynamic(SAMPLE_BLOCK_TYPE, DEFINITION.replace(
+    next(line for line in MSG_TEXT.splitlines() if line.startswith("uint64 session_id")) + "\n", ""))[SAMPLE_BLOCK_TYPE]
 NAMES = ["y_a_x", "y_b_x", "u_a_x"]
 
 
-def block(first, data, experiment_id="", flags=None, stamp=(0, 0), names=NAMES):
+def _fields(first, data, experiment_id="", flags=None, stamp=(0, 0), names=NAMES, session_id=0):
     data = np.asarray(data, dtype=float)
-    return ENCODE({
+    return {
         "stamp": {"sec": stamp[0], "nanosec": stamp[1]}, "experiment_id": experiment_id,
         "first_index": first, "sample_period": 1e-4, "n_samples": data.shape[0],
         "channel_names": list(names), "channel_units": ["m"] * len(names),
         "data": data.ravel().tolist(), "sample_flags": [] if flags is None else list(flags),
-        "flags": 0 if flags is None else int(np.bitwise_or.reduce(flags)),
-    })
+        "flags": 0 if flags is None else int(np.bitwise_or.reduce(flags)), "session_id": session_id,
+    }
+
+
+def block(first, data, experiment_id="", flags=None, stamp=(0, 0), names=NAMES, session_id=0):
+    return ENCODE(_fields(first, data, experiment_id, flags, stamp, names, session_id))
 
 
 @pytest.mark.parametrize("experiment_id", ["", "e", "exp", "abcd", "experiment-7"])
@@ -51,6 +59,26 @@ def test_decode_matches_what_mcap_ros2_encoded(experiment_id, with_flags):
     assert sample_block_span(cdr) == (2**40 + 5, 7)
 
 
+@pytest.mark.parametrize("session_id", [0, 1, 0x3FA9C01B, 2**64 - 1])
+@pytest.mark.parametrize("with_flags", [False, True])
+@pytest.mark.parametrize("experiment_id", ["", "exp"])
+def test_the_session_id_ends_every_block_as_mcap_ros2_writes_it(session_id, with_flags, experiment_id):
+    data = np.arange(21.0).reshape(7, 3)
+    flags = np.arange(7, dtype=np.uint8) if with_flags else None
+    theirs = block(40, data, experiment_id, flags, session_id=session_id)
+    # 8-aligned and last: the message is 4 + 8n bytes, its last 8 the id
+    assert (len(theirs) - 4) % 8 == 0 and int.from_bytes(theirs[-8:], "little") == session_id
+    assert decode_sample_block(theirs).session_id == session_id == sample_block_session(theirs)
+    mine = encode_sample_block(40, 1e-4, NAMES, ["m"] * 3, data, experiment_id, session_id=session_id)
+    assert (mine == theirs or with_flags) and decode_sample_block(mine).session_id == session_id  # (rows flags: none)
+    # a block recorded before sessions had ids ends after its flags: no session
+    old = OLD_ENCODE({k: v for k, v in _fields(40, data, experiment_id, flags).items() if k != "session_id"})
+    assert decode_sample_block(old).session_id == 0 == sample_block_session(old)
+    assert decode_sample_block(old).first_index == 40 and np.array_equal(decode_sample_block(old).data, data)
+    with pytest.raises(ValueError, match="truncated"):
+        sample_block_session(theirs[:30])
+
+
 @pytest.mark.parametrize("experiment_id", ["", "e", "exp", "abcd"])
 def test_an_empty_block_has_no_padding_before_its_missing_values(experiment_id):
     for names in (NAMES, NAMES[:1], []):
@@ -68,7 +96,7 @@ def test_bad_bytes_are_rejected_with_the_reason():
         decode_sample_block(b"\x00\x00" + cdr[2:])
     with pytest.raises(ValueError, match="too short"):
         sample_block_span(b"\x00")
-    wrong = ENCODE({"first_index": 3, "n_samples": 5, "channel_names": NAMES, "data": [1.0] * 12,
+    wrong = ENCODE({"session_id": 0, "first_index": 3, "n_samples": 5, "channel_names": NAMES, "data": [1.0] * 12,
                     "stamp": {"sec": 0, "nanosec": 0}, "experiment_id": "", "sample_period": 1.0,
                     "channel_units": [], "sample_flags": [], "flags": 0})
     with pytest.raises(ValueError, match="12 values, expected n_samples x channels = 5 x 3"):

@@ -87,3 +87,33 @@ def test_levitation_monitor_blocks():
     assert f["displacement_rms_m"] == pytest.approx(1e-6)
     mon.add_block(200, y, np.ones(200, bool))
     assert not mon.levitated() and mon.figures()["contact_samples_after_settling"] == 200
+
+
+def test_levitation_monitor_judges_a_run_that_ended_before_its_settled_window():
+    """A run that ends early (a node died 8 s into 30 s) is judged over what it ran after lift-off: six
+    seconds of good levitation read as levitated, with their true RMS, not as 0 um and 'not levitated'."""
+    dt = 1e-4
+    mon = LevitationMonitor(clearance_m=2.5e-4, settle_samples=150_000, after_lift_off=5000)
+    rng = np.random.default_rng(3)
+    contact = np.zeros(1000, bool)
+    for first in range(0, 80_000, 1000):
+        y = rng.normal(0.0, 2e-6, (1000, 4))
+        c = contact
+        if first == 0:  # on the retainer for 300 samples, then a lift-off transient of 1 ms
+            y[:300] = -2.4e-4
+            y[300:310] = -1.5e-4
+            c = contact.copy()
+            c[:300] = True
+        mon.add_block(first, y, c)
+    f = mon.figures()
+    assert f["lift_off_index"] == 300 and f["evaluated_from_index"] == 5300 and f["evaluated_to_index"] == 80_000
+    assert f["samples_evaluated"] == 80_000 - 5300 and mon.levitated()
+    assert f["displacement_rms_m"] == pytest.approx(2e-6, rel=0.02)
+    assert f["contact_samples"] == 300 and f["contact_samples_after_settling"] == 0
+    # nothing judged yet: no figure pretends to be one
+    empty = LevitationMonitor(2.5e-4, 100).figures()
+    assert empty["samples_evaluated"] == 0 and empty["evaluated_from_index"] is None and not empty["levitated"]
+    # a touch-down after lift-off starts the lift-off window again: nothing levitated to judge since
+    mon.add_block(80_000, np.zeros((1000, 4)), np.r_[np.ones(10, bool), np.zeros(990, bool)])
+    assert mon.figures()["samples_evaluated"] == 0 and mon.figures()["lift_off_index"] == 80_010
+    assert not mon.levitated()

@@ -1,9 +1,21 @@
-"""Fixtures of the rclpy node tests: each test gets its own ROS context and DDS domain id."""
+"""Fixtures of the rclpy node tests: each test gets its own ROS context and DDS domain id, waits for the graph
+instead of racing it, and leaves no process behind.
+
+Waiting for the graph. DDS discovery and matching take from milliseconds to seconds on a loaded machine, so a
+test never assumes them: it builds the listening side first, waits with :func:`matched` (or ``ros.matched``)
+until every publisher and subscription it relies on has its peers, and only then starts what it observes (the
+controller, whose arrival starts the lock-step loop; an experiment; a flood).
+
+Processes. Every subprocess a test starts goes through the ``procs`` fixture (or :func:`kill_tree` in a
+``finally``): it runs in its own process group, and at the end of the test, passed or failed, the whole tree it
+started (its children live in sessions of their own) is stopped: SIGCONT, SIGTERM, then SIGKILL.
+"""
 
 from __future__ import annotations
 
 import itertools
 import os
+import subprocess
 import time
 from types import SimpleNamespace
 
@@ -12,13 +24,100 @@ import pytest
 rclpy = pytest.importorskip("rclpy", reason="rclpy missing: run the suite with ./launch_scripts/ambid test")
 from rclpy._rclpy_pybind11 import InvalidHandle  # noqa: E402
 from rclpy.experimental import EventsExecutor  # noqa: E402
+from rclpy.publisher import Publisher  # noqa: E402
+from rclpy.subscription import Subscription  # noqa: E402
+
+from proc_tree import kill_tree  # noqa: E402
 
 # domain ids 1..200, spread by process so concurrent test runs don't meet
 _counter = itertools.count()
+MATCH_TIMEOUT_S = 60.0  # discovery on a loaded 2-core machine: seconds at worst, never this long
+# the waits of the tests are bounds for liveness, never timing assertions: stretched on a loaded machine
+TIMEOUT_SCALE = float(os.environ.get("AMBID_TEST_TIMEOUT_SCALE", "3"))
 
 
 def next_domain_id() -> int:
     return 1 + (os.getpid() * 37 + next(_counter)) % 200
+
+
+def peers(entity) -> int:
+    """Matched peers of a Publisher (subscriptions) or Subscription (publishers); anything with either count."""
+    if isinstance(entity, Publisher) or hasattr(entity, "get_subscription_count"):
+        return entity.get_subscription_count()
+    return entity.get_publisher_count()
+
+
+def _topics(node, kind: str) -> set[str]:
+    return {e.topic_name for e in getattr(node, kind)}
+
+
+def _expand(wanted, to=None) -> list[tuple[object, int, str]]:
+    """(entity, at least n peers, label) from entities, (entity, n) pairs and nodes (each of its topic ends;
+    with ``to``, only those meeting one of that node's)."""
+    out = []
+    for w in wanted:
+        entity, n = w if isinstance(w, tuple) else (w, 1)
+        if isinstance(entity, (Publisher, Subscription)) or not hasattr(entity, "publishers"):
+            out.append((entity, n, getattr(entity, "topic_name", repr(entity))))
+            continue
+        # a node: every publisher and subscription it made on a topic of its own namespace (not the
+        # parameter services' or rosout's, which nothing of a test waits for)
+        ns = entity.get_namespace().rstrip("/") + "/"
+        if to is None or hasattr(to, "publishers"):
+            published = _topics(to, "publishers") if to is not None else None
+            subscribed = _topics(to, "subscriptions") if to is not None else None
+        else:  # topic names (relative to the node's namespace): the node's subscriptions to those
+            published, subscribed = {t if t.startswith("/") else ns + t for t in to}, set()
+        for kind in ("publishers", "subscriptions"):
+            for e in getattr(entity, kind):
+                topic = e.topic_name
+                if not topic.startswith(ns) or "/_" in topic or topic.endswith("parameter_events"):
+                    continue
+                if to is not None and topic not in (subscribed if kind == "publishers" else published):
+                    continue
+                out.append((e, n, f"{entity.get_name()}: {topic}"))
+    return out
+
+
+def matched(ros, *wanted, to=None, timeout_s: float = MATCH_TIMEOUT_S) -> None:
+    """Spin ``ros``'s executor until each wanted end has its peers; fail naming the ends still waiting.
+
+    ``wanted``: publishers and subscriptions (at least one peer), ``(entity, n)`` pairs (at least n), or nodes
+    (each of the node's publishers and subscriptions in its namespace at least one peer; with ``to=node``
+    only those on a topic that node publishes or subscribes: ``matched(ros, spy, to=plant)`` waits until the
+    spy hears every topic the plant publishes; with ``to=["displacement", ...]`` only its subscriptions to
+    these topics, for a publisher in another process). Peers in other processes count too: these are DDS matches.
+    """
+    ends = _expand(wanted, to)
+    if not ends:
+        pytest.fail("matched(): nothing to wait for (no topic in common)")
+
+    def missing() -> list[str]:
+        return [f"{label} ({peers(e)} of {n})" for e, n, label in ends if peers(e) < n]
+
+    end = time.monotonic() + timeout_s
+    while missing() and time.monotonic() < end:
+        ros.executor.spin_once(timeout_sec=0.05)
+    if missing():
+        pytest.fail(f"the graph did not match within {timeout_s:g} s: " + ", ".join(missing()))
+
+
+@pytest.fixture
+def procs():
+    """``procs(args, **popen_kwargs)`` starts a subprocess in its own process group; at the end of the test,
+    passed or failed, it and everything it started are stopped (:func:`kill_tree`)."""
+    started: list[subprocess.Popen] = []
+
+    def start(args, **kwargs) -> subprocess.Popen:
+        kwargs.setdefault("start_new_session", True)
+        p = subprocess.Popen(args, **kwargs)
+        started.append(p)
+        return p
+
+    start.all = started
+    yield start
+    for p in reversed(started):
+        kill_tree(p)
 
 
 @pytest.fixture
@@ -47,14 +146,19 @@ def ros():
         return set()
 
     def spin_until(predicate, timeout_s: float = 30.0) -> bool:
-        end = time.monotonic() + timeout_s
+        # a wait for something to happen gets TIMEOUT_SCALE x its time: on a loaded machine it happens
+        # late, not never (a short spin used as a pause, below 2 s, is kept as it is)
+        end = time.monotonic() + (timeout_s * TIMEOUT_SCALE if timeout_s >= 2.0 else timeout_s)
         while not predicate():
             if time.monotonic() > end:
                 return False
             executor.spin_once(timeout_sec=0.05)
         return True
 
-    yield SimpleNamespace(context=context, executor=executor, domain_id=domain, add=add, spin_until=spin_until)
+    ns = SimpleNamespace(context=context, executor=executor, domain_id=domain, add=add, spin_until=spin_until)
+    ns.matched = lambda *wanted, to=None, timeout_s=MATCH_TIMEOUT_S: matched(ns, *wanted, to=to,
+                                                                             timeout_s=timeout_s)
+    yield ns
     if nodes:
         # let DDS finish with peers that just left (a subprocess node the test stopped) before our
         # entities go: their unmatch events racing the destruction can crash the EventsExecutor

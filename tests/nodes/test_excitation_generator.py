@@ -45,7 +45,6 @@ class Rig:
     def __init__(self, ros, gen: dict) -> None:
         self.ros = ros
         self.plant = ros.add(PlantSim(namespace=NS, context=ros.context))
-        ros.add(PositionController(namespace=NS, context=ros.context))
         self.gen = ros.add(ExcitationGenerator(namespace=NS, context=ros.context, parameter_overrides=params(gen)))
         self.node = ros.add(rclpy.create_node("probe", namespace=NS, context=ros.context))
         self.blocks: list[tuple[SampleBlock, int]] = []  # excitation block, plant sample index on arrival
@@ -54,8 +53,12 @@ class Rig:
         self.node.create_subscription(SampleBlock, "measurement", self.on_meas, qos.BLOCKS)
         self.start = self.node.create_client(StartExperiment, "start_experiment")
         self.stop = self.node.create_client(StopExperiment, "stop_experiment")
+        # the probe hears the plant and the generator before the controller joins and the loop starts
+        ros.matched(self.node, to=self.plant)
+        ros.matched(self.node, to=self.gen)
+        ros.add(PositionController(namespace=NS, context=ros.context))
         assert ros.spin_until(lambda: self.gen.plant_known and self.start.service_is_ready()
-                              and self.stop.service_is_ready(), 20)
+                              and self.stop.service_is_ready(), 60)
 
     def on_block(self, msg: SampleBlock) -> None:
         self.blocks.append((msg, self.plant.k))

@@ -93,7 +93,8 @@ def test_consumer_fed_by_hand_gaps_and_bad_messages(ros):
     out = Listener(ros)
     pub_design = out.node.create_publisher(DesignMsg, "excitation/design", qos.LATCHED)
     pub_block = out.node.create_publisher(SampleBlock, "measurement", qos.BLOCKS)
-    assert ros.spin_until(lambda: pub_block.get_subscription_count() and pub_design.get_subscription_count(), 10)
+    ros.matched(pub_block, pub_design)
+    ros.matched(out.node, to=consumer)  # the listener hears every status and estimate from the first
     pub_design.publish(_design_msg(d, "hand-1", start))
     # no plant description here: the design waits for the first block to say the displacement channels
     assert ros.spin_until(lambda: consumer.stream is not None or consumer.pending_design is not None, 10)
@@ -139,8 +140,7 @@ def test_live_estimate_on_the_simulated_rig_matches_the_rig_and_the_offline_resu
     rig = make_rig()
     d = design_multisine((20.0, 600.0), 20.0, rig.values["sample_rate_hz"], ("u_a_x", "u_b_x"), 1.0, n_periods=2,
                          n_transient_periods=2, seed=1)
-    ros.add(PlantSim(namespace=NS, context=ros.context))
-    ros.add(PositionController(namespace=NS, context=ros.context))
+    plant = ros.add(PlantSim(namespace=NS, context=ros.context))
     # the rotor lifts off the retainer and settles within ~5000 samples; 20,000 ahead of the plant so that the
     # design reaches it first (the free-running plant does ~10^5 samples/s: 5000 was passed once under load)
     gen = ros.add(ExcitationGenerator(namespace=NS, context=ros.context,
@@ -148,8 +148,12 @@ def test_live_estimate_on_the_simulated_rig_matches_the_rig_and_the_offline_resu
     consumer = _consumer(ros)
     out = Listener(ros, raw_topics=[("measurement", SampleBlock, qos.BLOCKS),
                                     ("excitation/design", DesignMsg, qos.LATCHED)])
+    for node in (plant, gen, consumer):  # the listener hears everything before the controller starts the loop
+        ros.matched(out.node, to=node)
+    ros.matched(consumer, to=plant)
+    ros.add(PositionController(namespace=NS, context=ros.context))
     client = out.node.create_client(StartExperiment, "start_experiment")
-    assert ros.spin_until(lambda: client.service_is_ready() and gen.plant_known, 20)
+    assert ros.spin_until(lambda: client.service_is_ready() and gen.plant_known, 60)
     future = client.call_async(StartExperiment.Request(design_json=json.dumps(d.to_dict())))
     assert ros.spin_until(future.done, 10) and future.result().accepted, future.result().message
     exp_id = future.result().experiment_id

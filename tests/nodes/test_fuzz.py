@@ -271,7 +271,7 @@ def fuzz_topics(ros, node, fuzzer: FuzzNode, plan: dict, near=lambda: 0, counted
     sent = {}
     for topic, n in plan.items():
         pub = fuzzer.pubs[topic]
-        wait(ros, lambda: pub.get_subscription_count() >= 2, 20, f"{topic}: subscribers")
+        wait(ros, lambda: pub.get_subscription_count() >= 2, 60, f"{topic}: subscribers")
         t0 = time.perf_counter()
         payloads = f.payloads(topic, n, near())
         t1 = time.perf_counter()
@@ -331,8 +331,9 @@ def test_fuzz_plant_and_controller_while_the_loop_runs(ros):
     # the loop topics: every fuzz message refused, every lock-step message accepted
     assert plant.intake.rejected["control_current"] == sent["control_current"]
     assert ctrl.intake.rejected["displacement"] == sent_c["displacement"]
-    assert abs(plant.intake.accepted["control_current"] - plant.k) <= 1
-    assert abs(ctrl.intake.accepted["displacement"] - plant.k) <= 1
+    # (a loaded machine makes the plant ask again now and then: the answers that then come twice are accepted)
+    assert abs(plant.intake.accepted["control_current"] - plant.duplicate_answers - plant.k) <= 1
+    assert abs(ctrl.intake.accepted["displacement"] - ctrl.answers_repeated - plant.k) <= 1
     check_accounting(ros, plant, fuzzer, {t: sent[t] for t in ("excitation", "excitation/design")})
     check_accounting(ros, ctrl, fuzzer, {"status": sent_c["status"]}, legit_free=False)
     for node, topic in ((plant, "control_current"), (ctrl, "displacement")):

@@ -21,6 +21,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile
 
 from ambid_msgs.msg import ControllerDescription, PlantDescription, Sample, SampleBlock, SessionEvent, SessionStatus
 from ambid_nodes import qos
+from proc_tree import alive, descendants
 from ambid.channels import RADIAL
 
 MEASUREMENT_NAMES = RADIAL.measurement_names  # the default rig's channels
@@ -49,11 +50,15 @@ class Spy(Node):
                                  lambda m: setattr(self, "ctrl_desc", m), qos.LATCHED)
 
 
-def make_loop(ros, sim_seconds: float, **plant_params):
+def make_loop(ros, sim_seconds: float, controller_params=(), **plant_params):
+    """A spy and the plant, matched, then the controller: its arrival starts the loop, so the spy hears
+    every message of it."""
     spy = ros.add(Spy(ros.context))
     plant = ros.add(PlantSim(namespace=NS, context=ros.context, parameter_overrides=[
         Parameter("sim_seconds", value=sim_seconds), *(Parameter(k, value=v) for k, v in plant_params.items())]))
-    ctrl = ros.add(PositionController(namespace=NS, context=ros.context))
+    ros.matched(spy, to=plant)
+    ctrl = ros.add(PositionController(namespace=NS, context=ros.context, parameter_overrides=[
+        Parameter(k, value=v) for k, v in controller_params]))
     return plant, ctrl, spy
 
 
@@ -85,8 +90,9 @@ def test_lockstep_10000_steps_levitates_from_rest(ros):
     assert spy.ctrl_desc.model.sample_period == pytest.approx(1e-4)
     assert spy.ctrl_desc.delay_samples == 1
     # the plant's status: one at the first block end past each 10,000 samples while running, and the last
-    def plant_status():
-        return [(m.state, m.sample_index) for m in spy.statuses if m.node == plant.fqn]
+    def plant_status():  # (an idle status may come first: the plant waited for the controller)
+        return [(m.state, m.sample_index) for m in spy.statuses
+                if m.node == plant.fqn and m.state != SessionStatus.STATE_IDLE]
 
     assert ros.spin_until(lambda: len(plant_status()) >= 2, timeout_s=5)
     assert plant_status() == [(SessionStatus.STATE_RUNNING, 10_000), (SessionStatus.STATE_DONE, 10_000)]
@@ -96,11 +102,8 @@ def test_pipelined_controller_gives_the_same_samples_as_lock_step_answers(ros):
     """Answering y[k] with ic[k + 1] changes when the currents travel, not one recorded number."""
     runs = {}
     for pipeline in (True, False):
-        spy = ros.add(Spy(ros.context))
-        plant = ros.add(PlantSim(namespace=NS, context=ros.context, parameter_overrides=[
-            Parameter("sim_seconds", value=0.3), Parameter("seed", value=5), Parameter("block_size", value=1000)]))
-        ctrl = ros.add(PositionController(namespace=NS, context=ros.context,
-                                          parameter_overrides=[Parameter("pipeline", value=pipeline)]))
+        # the spy matched before the controller joins: it hears the loop from y[0] on
+        plant, ctrl, spy = make_loop(ros, 0.3, [("pipeline", pipeline)], seed=5, block_size=1000)
         assert ros.spin_until(plant.finished.done, timeout_s=120)
         assert plant.finished.result()["messages_rejected"] == 0
         assert ros.spin_until(lambda: sum(b.n_samples for b in spy.blocks) == 3000, timeout_s=10)
@@ -131,11 +134,7 @@ def test_compiled_callbacks_give_the_same_samples_as_the_python_path(ros, monkey
         if not compiled:  # the gates stay closed: every message goes the Python way
             monkeypatch.setattr(PlantSim, "regate", lambda self: self.fast.set(LOOP_GATE, 0))
             monkeypatch.setattr(PositionController, "regate", lambda self: self.fast.set(LOOP_GATE, 0))
-        spy = ros.add(Spy(ros.context))
-        plant = ros.add(PlantSim(namespace=NS, context=ros.context, parameter_overrides=[
-            Parameter("sim_seconds", value=0.3), Parameter("seed", value=5), Parameter("block_size", value=1000)]))
-        ctrl = ros.add(PositionController(namespace=NS, context=ros.context,
-                                          parameter_overrides=[Parameter("controller", value=controller)]))
+        plant, ctrl, spy = make_loop(ros, 0.3, [("controller", controller)], seed=5, block_size=1000)
         assert ctrl.design.kind == ("file" if user_controller else "pid")
         assert ros.spin_until(plant.finished.done, timeout_s=120)
         summary = plant.finished.result()
@@ -213,6 +212,7 @@ def test_bad_control_messages_rejected_counted_loop_survives(ros):
     spy = ros.add(Spy(ros.context))
     plant = ros.add(PlantSim(namespace=NS, context=ros.context,
                              parameter_overrides=[Parameter("sim_seconds", value=0.5)]))
+    ros.matched(spy, to=plant)
     ros.add(BadController(ros.context))
     assert ros.spin_until(plant.finished.done, timeout_s=120)
     s = plant.finished.result()
@@ -223,34 +223,31 @@ def test_bad_control_messages_rejected_counted_loop_survives(ros):
     assert "non-finite" in texts and "3 values, expected 4" in texts and "stale or duplicated" in texts
 
 
-def _children_of(pid: int) -> list[int]:
-    out = subprocess.run(["ps", "-o", "pid=", "--ppid", str(pid)], capture_output=True, text=True).stdout
-    return [int(p) for p in out.split()]
-
-
-def test_processes_layout_runs_and_ctrl_c_leaves_nothing(ros_env):
-    env = dict(ros_env)
+def test_processes_layout_runs_and_ctrl_c_leaves_nothing(ros, ros_env, procs):
     root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     cmd = [sys.executable, "-m", "ambid_cli.cli", "graph", "--processes", "--sim-seconds", "0.3"]
-    done = subprocess.run(cmd, env=env, cwd=root, capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0, done.stdout + done.stderr
-    assert "simulated samples per wall second" in done.stdout and "rotor levitated" in done.stdout
+    done = procs(cmd, env=ros_env, cwd=root, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    out = done.communicate(timeout=180)[0]  # on a timeout the procs fixture stops the whole tree
+    assert done.returncode == 0, out
+    assert "simulated samples per wall second" in out and "rotor levitated" in out
 
-    # Ctrl-C in the middle of a long run stops every process it started
-    runner = subprocess.Popen([*cmd[:-1], "1000"], env=env, cwd=root, stdout=subprocess.PIPE,
-                              stderr=subprocess.STDOUT, text=True, start_new_session=True)
-    deadline = time.monotonic() + 60
-    children: list[int] = []
-    while time.monotonic() < deadline and len(children) < 2:
-        time.sleep(0.5)
-        children = _children_of(runner.pid)
-    assert len(children) == 2, "runner did not start plant and controller"
-    time.sleep(2.0)
+    # Ctrl-C in the middle of a long run stops every process it started; the loop is seen running first
+    blocks = []
+    listener = ros.add(Node("listener", namespace=NS, context=ros.context))
+    listener.create_subscription(SampleBlock, "measurement", lambda m: blocks.append(m.first_index),
+                                 qos.subscription(qos.BLOCKS), raw=False)
+    runner = procs([*cmd[:-1], "1000"], env=ros_env, cwd=root, stdout=subprocess.PIPE,
+                   stderr=subprocess.STDOUT, text=True)
+    assert ros.spin_until(lambda: len(blocks) >= 2 or runner.poll() is not None, 180), "the loop never ran"
+    assert runner.poll() is None, runner.communicate()[0]
+    children = descendants(runner.pid)
+    assert len(children) >= 2, f"runner did not start plant and controller: {children}"
     os.killpg(runner.pid, signal.SIGINT)  # what a terminal's Ctrl-C does
-    runner.wait(timeout=30)
-    time.sleep(0.5)
-    alive = [c for c in children if subprocess.run(["kill", "-0", str(c)], capture_output=True).returncode == 0]
-    assert alive == [], f"processes left behind: {alive}"
+    runner.wait(timeout=60)
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and [c for c in children if alive(c)]:
+        time.sleep(0.1)
+    assert [c for c in children if alive(c)] == [], "processes left behind"
     assert runner.returncode in (1, 130)
 
 

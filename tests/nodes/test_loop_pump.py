@@ -78,7 +78,7 @@ class EchoNode:
 def echo_pair(ros, every: int = 0, lead: int = 1) -> tuple[EchoNode, EchoNode]:
     a = EchoNode(ros, "a", "pong", "ping", lead, every)
     b = EchoNode(ros, "b", "ping", "pong", 0, every)
-    assert ros.spin_until(lambda: a.pub.get_subscription_count() >= 1 and b.pub.get_subscription_count() >= 1, 10)
+    ros.matched(a.pub, b.pub)
     return a, b
 
 
@@ -90,7 +90,7 @@ def test_the_pump_answers_in_compiled_code_and_lets_the_executor_serve_the_rest(
     spy.create_subscription(Sample, "pong", lambda m: seen.append(m.index), qos.LOOP)
     ticks: list[int] = []  # and the executor serves timers meanwhile
     spy.create_timer(0.001, lambda: ticks.append(a.word(LOOP_K)))
-    assert ros.spin_until(lambda: b.pub.get_subscription_count() == 2, 10)
+    ros.matched((b.pub, 2))
     n = 6000
     a.kernel.set(LOOP_LIMIT, n)  # a stops at pong n: the Python path gets it
     for i in range(lead):  # lead messages in flight
@@ -126,7 +126,7 @@ def test_foreign_messages_on_a_loop_topic_go_to_python_while_the_loop_runs(ros):
             pub.publish(Sample(index=10**9, values=[0.0] * 4))
 
     timer = intruder.create_timer(0.001, intrude)
-    assert ros.spin_until(lambda: pub.get_subscription_count() >= 1, 10)
+    ros.matched(pub)
     n = 20000
     a.kernel.set(LOOP_LIMIT, n)
     a.pub.publish(Sample(index=0, values=[0.0] * 4))

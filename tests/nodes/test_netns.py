@@ -112,9 +112,13 @@ def test_one_session_across_two_hosts(two_hosts, ros_env):
     assert line is not None, out[-3000:] + out_ctrl[-2000:]
     s = json.loads(line[len(SUMMARY_PREFIX):])
     assert plant.returncode == 0 and s["state"] == "done" and s["levitated"], s
-    # complete: sample n-1 reached, every control answer accepted for its own sample, none refused
+    # complete: sample n-1 reached, every control answer accepted for its own sample; a loaded machine makes the
+    # plant ask again now and then (y[k - 1] and y[k]): the answers that then come twice are accepted as such, or
+    # refused as stale once the loop has moved past a later resend; nothing else is refused
     assert s["samples"] == n
-    assert s["accepted:control_current"] == n and s["rejected:control_current"] == 0
+    assert s["accepted:control_current"] - s["duplicate_answers"] == n
+    assert s["rejected:control_current"] <= 2 * s["resends"], s
     assert "discovery range SUBNET" in out and "discovery range SUBNET" in out_ctrl
     print(f"two hosts over veth (UDPv4): {n} samples in {s['wall_s']:.2f} s wall, "
-          f"{s['samples_per_wall_s']:.0f} samples/s, levitated, none lost or refused")
+          f"{s['samples_per_wall_s']:.0f} samples/s, levitated, none lost ({s['resends']} resends, "
+          f"{s['rejected:control_current']} stale answers refused)")

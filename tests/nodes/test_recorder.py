@@ -127,9 +127,10 @@ def test_sigint_closes_a_complete_rosbag2_session_bit_identical_to_a_live_subscr
     rec = start_recorder(ros_env, path)
     try:
         plant = plant_graph(ros, sim_seconds=0.2, block_size=250)
-        # the plant waits for a controller: start the loop only once the recorder listens
-        spin_or_fail(ros, lambda: watcher.recorder_subscribed(MEAS) and watcher.recorder_subscribed(
-            f"{NS}/plant/description"), "the recorder to subscribe", rec)
+        # the plant waits for a controller: start the loop only once the recorder and the watcher are matched
+        ros.matched(watcher, to=plant)
+        spin_or_fail(ros, lambda: plant.pub_block.get_subscription_count() >= 2
+                     and plant.pub_desc.get_subscription_count() >= 1, "the recorder to subscribe", rec)
         ros.add(PositionController(namespace=NS, context=ros.context))
         spin_or_fail(ros, lambda: plant.finished.done(), "the plant to finish", rec, timeout_s=90)
         n_blocks = 2000 // 250
@@ -218,7 +219,8 @@ def test_sigkill_leaves_a_file_inspect_recovers(ros, ros_env, tmp_path, capsys):
     rec = start_recorder(ros_env, path)
     try:
         plant = plant_graph(ros, sim_seconds=0.5, block_size=250)
-        spin_or_fail(ros, lambda: watcher.recorder_subscribed(MEAS), "the recorder to subscribe", rec)
+        ros.matched(watcher, to=plant)
+        spin_or_fail(ros, lambda: plant.pub_block.get_subscription_count() >= 2, "the recorder to subscribe", rec)
         ros.add(PositionController(namespace=NS, context=ros.context))
         # kill mid-run, once a chunk was flushed after blocks were recorded: that chunk (or an
         # earlier one) holds blocks; chunks flushed before the first block arrived hold none

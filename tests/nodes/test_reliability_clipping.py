@@ -40,6 +40,7 @@ def test_clipped_samples_are_flagged_recorded_as_commanded_and_reported(ros):
     rogue = ros.add(Rogue(ros.context))
     plant = ros.add(PlantSim(namespace=NS, context=ros.context, parameter_overrides=[
         Parameter("sim_seconds", value=0.4)]))
+    ros.matched(rogue, to=plant)
     limit = plant.rig.current_limit_a
     dt = plant.dt
     # a 50 Hz sine on r_a_x reaching 1.5 x the amplifier limit on its own

@@ -62,7 +62,10 @@ def test_a_lost_block_is_reported_by_consumer_and_recording_and_no_frf_spans_it(
         Parameter("sim_seconds", value=(START + (TRANSIENT + P) * N + BLOCK) * 1e-4),
         Parameter("block_size", value=BLOCK)]))
     assert ros.spin_until(lambda: gen.plant_known and link.start.service_is_ready()
-                          and f"{NS}/measurement" in rec.subs and f"{NS}/excitation/design" in rec.subs, 20)
+                          and f"{NS}/measurement" in rec.subs and f"{NS}/excitation/design" in rec.subs, 60)
+    ros.matched(link, to=plant)  # every listener hears the loop from its first block
+    for node in (rec, consumer):
+        ros.matched(node, to=link)
     future = link.start.call_async(StartExperiment.Request())
     assert ros.spin_until(future.done, 10) and future.result().accepted, future.result()
     assert future.result().start_index == START

@@ -26,12 +26,16 @@ from rclpy.parameter import Parameter
 
 from ambid_msgs.msg import ExcitationDesign, Sample, SampleBlock, SessionEvent, SessionStatus
 from ambid_nodes import qos
+from proc_tree import kill_tree
 from ambid.channels import RADIAL
 
 EXCITATION_NAMES = RADIAL.excitations
 MEASUREMENT_NAMES = RADIAL.measurement_names  # the default rig's channels
 
 TIMEOUT_S = 0.5
+# the watchdog under test is armed with TIMEOUT_S once the loop runs: until then a loaded machine may keep a
+# node that is just starting (imports, its first messages) silent for longer, which is no loss to detect
+START_TIMEOUT_S = 30.0
 WATCHDOG_S = 0.1
 
 
@@ -62,6 +66,21 @@ def start(module, ns, env, **params):
                             start_new_session=True)
 
 
+def settled(ros, count, quiet_s: float = 0.5, timeout_s: float = 30.0) -> bool:
+    """Spin until ``count()`` has not changed for ``quiet_s`` (nothing more in flight); False after
+    ``timeout_s``."""
+    end = time.monotonic() + timeout_s
+    last, since = count(), time.monotonic()
+    while time.monotonic() < end:
+        ros.executor.spin_once(timeout_sec=0.05)
+        now = count()
+        if now != last:
+            last, since = now, time.monotonic()
+        elif time.monotonic() - since >= quiet_s:
+            return True
+    return False
+
+
 def stop(proc):
     if proc.poll() is None:
         os.kill(proc.pid, signal.SIGCONT)
@@ -69,20 +88,24 @@ def stop(proc):
         try:
             proc.wait(10)
         except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-    return proc.stdout.read()
+            pass
+    out = proc.stdout.read() if proc.poll() is not None else ""
+    kill_tree(proc)
+    return out
 
 
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGSTOP], ids=["killed", "stalled"])
 def test_plant_detects_a_dead_or_stalled_controller_and_lands_the_rotor(ros, ros_env, sig):
     ns = f"/wd_ctrl_{sig.name.lower()}"
     spy = ros.add(Spy(ros.context, ns))
+    plant = ros.add(PlantSim(namespace=ns, context=ros.context, parameter_overrides=[
+        Parameter("controller_timeout", value=START_TIMEOUT_S), Parameter("block_size", value=500)]))
+    assert plant.watchdog.timer_period_ns == WATCHDOG_S * 1e9  # the tick TIMEOUT_S is checked at
+    ros.matched(spy, to=plant)  # the spy hears every block from the first before the controller starts the loop
     ctrl = start("position_controller", ns, ros_env)
     try:
-        plant = ros.add(PlantSim(namespace=ns, context=ros.context, parameter_overrides=[
-            Parameter("controller_timeout", value=TIMEOUT_S), Parameter("block_size", value=500)]))
         assert ros.spin_until(lambda: plant.k >= 1000, 90), "the loop did not run across the two processes"
+        plant.timeout = TIMEOUT_S  # the loop runs: now a silent controller is lost
         os.kill(ctrl.pid, sig)
         t_fault = time.monotonic()
         assert ros.spin_until(plant.finished.done, 20)
@@ -102,7 +125,9 @@ def test_plant_detects_a_dead_or_stalled_controller_and_lands_the_rotor(ros, ros
     print(f"controller {sig.name}: detected at sample {lost.sample_index} (last answer {last_answer}, latency 0 "
           f"samples), {quiet:.3f} s after the last answer; event at a subscriber {wall:.3f} s after the fault "
           f"(timeout {TIMEOUT_S} s)")
-    assert TIMEOUT_S < quiet < TIMEOUT_S + WATCHDOG_S + 0.5  # scheduling slack on a loaded 2-core box
+    # never before the timeout; after it within a watchdog tick, and seconds of scheduling on a loaded box
+    # (the latency itself is a bench figure, not a test's)
+    assert TIMEOUT_S < quiet < TIMEOUT_S + WATCHDOG_S + 10
     assert wall < TIMEOUT_S + 10
     # nothing lost: the blocks tile [0, end); the safe state (zero current, landing) is recorded after it
     firsts = [b.first_index for b in spy.blocks]
@@ -121,11 +146,15 @@ def test_plant_detects_a_dead_or_stalled_controller_and_lands_the_rotor(ros, ros
 def test_controller_detects_a_dead_or_stalled_plant_and_idles_safely(ros, ros_env, sig):
     ns = f"/wd_plant_{sig.name.lower()}"
     spy = ros.add(Spy(ros.context, ns))
-    plant = start("plant_sim", ns, ros_env, controller_timeout=TIMEOUT_S)
+    # the plant's own watchdog matters only once it resumes (SIGSTOP): a few seconds, past a start under load
+    plant = start("plant_sim", ns, ros_env, controller_timeout=3.0)
     try:
+        ros.matched(spy, to=["displacement", "measurement"])
         ctrl = ros.add(PositionController(namespace=ns, context=ros.context,
-                                          parameter_overrides=[Parameter("plant_timeout", value=TIMEOUT_S)]))
+                                          parameter_overrides=[Parameter("plant_timeout", value=START_TIMEOUT_S)]))
+        assert ctrl.watchdog.timer_period_ns == WATCHDOG_S * 1e9
         assert ros.spin_until(lambda: (ctrl.expected or 0) >= 1000, 90), "the loop did not run"
+        ctrl.timeout = TIMEOUT_S  # the loop runs: now a silent plant is lost
         os.kill(plant.pid, sig)
         t_fault = time.monotonic()
         assert ros.spin_until(lambda: ctrl.state == SessionStatus.STATE_FAILED, 20)
@@ -138,7 +167,7 @@ def test_controller_detects_a_dead_or_stalled_plant_and_idles_safely(ros, ros_en
         assert list(ctrl.ic_last) == [0.0] * 4
         print(f"plant {sig.name}: detected at sample {lost.sample_index} (last displacement {last_y}, latency 0 "
               f"samples), {wall:.3f} s wall after the fault (timeout {TIMEOUT_S} s)")
-        assert wall < TIMEOUT_S + WATCHDOG_S + 1.0
+        assert wall < TIMEOUT_S + WATCHDOG_S + 10  # detected, not early-or-late timing (a bench figure)
         if sig == signal.SIGSTOP:
             # the stalled plant resumes: it is not answered any more, so it goes to its own safe state
             os.kill(plant.pid, signal.SIGCONT)
@@ -148,7 +177,10 @@ def test_controller_detects_a_dead_or_stalled_plant_and_idles_safely(ros, ros_en
                                  [len(SUMMARY_PREFIX):])
             assert code == 1 and summary["state"] == "failed", out[-2000:]
             assert ros.spin_until(lambda: spy.code("controller_lost"), 10)
-        # the controller idles: a displacement of the lost session is refused, a new session (sample 0) served
+        # the controller idles: a displacement of the lost session is refused, a new session (sample 0) served;
+        # first every displacement the plant sent (the resumed plant asks again until its own watchdog ends it)
+        # must have been taken, so that the one counted below is the test's
+        assert settled(ros, lambda: ctrl.intake.received["displacement"]), "the plant's last messages never ended"
         n = ctrl.intake.rejected["displacement"]
         spy.pub_y.publish(Sample(index=last_y + 5, values=[0.0] * 4))
         assert ros.spin_until(lambda: ctrl.intake.rejected["displacement"] == n + 1, 5)
@@ -163,6 +195,7 @@ def test_a_plant_that_ends_its_run_is_not_reported_lost(ros):
     spy = ros.add(Spy(ros.context, ns))
     plant = ros.add(PlantSim(namespace=ns, context=ros.context,
                              parameter_overrides=[Parameter("sim_seconds", value=0.2)]))
+    ros.matched(spy, to=plant)
     ctrl = ros.add(PositionController(namespace=ns, context=ros.context,
                                       parameter_overrides=[Parameter("plant_timeout", value=0.2)]))
     assert ros.spin_until(plant.finished.done, 60)
@@ -180,6 +213,7 @@ def test_a_lost_excitation_generator_fails_the_session_and_keeps_what_was_record
     pub_exc = spy.create_publisher(SampleBlock, "excitation", qos.BLOCKS)
     plant = ros.add(PlantSim(namespace=ns, context=ros.context, parameter_overrides=[
         Parameter("sim_seconds", value=0.5), Parameter("excitation_timeout", value=TIMEOUT_S)]))
+    ros.matched(spy, to=plant)
     dt = plant.dt
     pub_design.publish(ExcitationDesign(
         experiment_id="gone", kind="multisine", start_index=start, total_samples=1000, sample_rate=1 / dt,
@@ -193,7 +227,7 @@ def test_a_lost_excitation_generator_fails_the_session_and_keeps_what_was_record
     waiting = time.monotonic()
     assert ros.spin_until(plant.finished.done, 10)
     waited = time.monotonic() - waiting
-    assert TIMEOUT_S - 0.15 <= waited <= TIMEOUT_S + 3 * WATCHDOG_S + 1.0, waited
+    assert TIMEOUT_S - 0.15 <= waited <= TIMEOUT_S + 3 * WATCHDOG_S + 10, waited
     summary = plant.finished.result()
     assert summary["state"] == "failed" and plant.k == start + sent
     assert summary["failure"]["code"] == "excitation_lost" and summary["failure"]["sample_index"] == start + sent

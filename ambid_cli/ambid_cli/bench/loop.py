@@ -14,15 +14,19 @@ import statistics
 import time
 
 from ambid.plant.rig import make_rig
+from ambid.session.identity import new_session_id
 
 from ambid_cli.bench.pingpong import run_pingpong_composed, run_pingpong_processes
+
 from ambid_nodes.graph import GraphConfig, run_composed, run_processes, session_domain_id
 
 LAYOUTS = ("composed", "processes")
 
 
 def _ours(layout: str, sim_seconds: float, controller: str = "") -> dict:
-    cfg = GraphConfig(sim_seconds=sim_seconds, controller={"controller": controller} if controller else {})
+    # a session, as identify and graph run: the loop pump checks each message's publisher GID
+    cfg = GraphConfig(sim_seconds=sim_seconds, controller={"controller": controller} if controller else {},
+                      session=new_session_id())
     cpu0 = time.process_time()
     s = run_composed(cfg) if layout == "composed" else run_processes(cfg)
     if s.get("state") != "done":
@@ -36,7 +40,7 @@ def _ours(layout: str, sim_seconds: float, controller: str = "") -> dict:
 def _short_run_cpu() -> tuple[float, int]:
     """(CPU time [s], samples) of a composed run of 0.01 s: mostly the set-up (nodes, stability check)."""
     cpu0 = time.process_time()
-    s = run_composed(GraphConfig(sim_seconds=0.01))
+    s = run_composed(GraphConfig(sim_seconds=0.01, session=new_session_id()))
     return time.process_time() - cpu0, s["samples"]
 
 

@@ -118,7 +118,7 @@ def run_pingpong_composed(n_samples: int, domain_id: int) -> dict:
 
 def run_pingpong_processes(n_samples: int, domain_id: int, timeout_s: float = 300.0) -> dict:
     """Pinger and ponger as separate processes on one DDS domain (as ``graph.run_processes``)."""
-    from ambid_nodes.graph import stop_processes
+    from ambid_nodes.supervisor import stop_processes
 
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
     base = [sys.executable, "-m", "ambid_cli.bench.pingpong"]

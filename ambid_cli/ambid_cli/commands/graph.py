@@ -6,8 +6,9 @@ import argparse
 import sys
 
 from ambid.control.kinds import describe_kinds
-from ambid_cli.commands.inputs import (add_live_options, address, checked_controller, controller, count, free_port,
-                                       no_controller_on_hardware, positive_float, rig_file)
+from ambid_cli.commands.inputs import (add_live_options, add_run_options, address, checked_controller, controller,
+                                       count, free_port, no_controller_on_hardware, positive_float, rig_file)
+from ambid_cli.commands.session_report import death_line, levitation_lines, print_foreign, session_of, session_words
 
 from ambid_nodes.graph import (DEFAULT_NAMESPACE, GraphConfig, run_composed, run_hardware, run_processes,
                                session_domain_id)
@@ -21,7 +22,7 @@ def add_arguments(g: argparse.ArgumentParser) -> None:
     g.add_argument("--seed", type=int, default=0, help="seed of the simulated noise")
     g.add_argument("--rig", help="rig parameter YAML file (default: the built-in rig)")
     g.add_argument("--nonlinear", action="store_true", help="nonlinear magnet force (eq. 2.14)")
-    g.add_argument("--namespace", default=DEFAULT_NAMESPACE, help="ROS namespace of the rig (default /amb)")
+    add_run_options(g, DEFAULT_NAMESPACE)
     g.add_argument("--controller", type=controller, default="",
                    help=f"position controller: {describe_kinds()}, or a controller file (.npz, .mat, .yaml) "
                         "(default: the rig file's controller, else pid)")
@@ -66,12 +67,15 @@ def run_graph(args: argparse.Namespace, rig) -> int:
         plant["rig_file"] = ctrl_params["rig_file"] = args.rig
     # composed, the nodes take this rig and controller (parsed and designed once, here); as processes each
     # node reads its own parameters
+    session = session_of(args)
     cfg = GraphConfig(sim_seconds=args.sim_seconds, namespace=args.namespace, plant=plant, controller=ctrl_params,
-                      rig=rig, controller_design=ctrl)
+                      rig=rig, controller_design=ctrl, session=session)
     layout = "separate processes" if args.processes else "one process (EventsExecutor)"
     layout += f", {ctrl.kind.upper()} controller"
-    print(f"ambid graph: plant_sim + position_controller in {layout}, axes {' '.join(rig.layout.axes)}, namespace "
+    print(f"ambid graph: {session_words(session)}, plant_sim + position_controller in {layout}, axes "
+          f"{' '.join(rig.layout.axes)}, namespace "
           f"{args.namespace}, ROS_DOMAIN_ID {session_domain_id()}, {args.sim_seconds:g} s simulated", flush=True)
+    cfg.report_foreign = lambda found: print_foreign("graph", found)  # before anything starts
     try:
         summary = run_processes(cfg) if args.processes else run_composed(cfg)
     except KeyboardInterrupt:
@@ -80,15 +84,21 @@ def run_graph(args: argparse.Namespace, rig) -> int:
     except (RuntimeError, ValueError) as exc:
         print(f"ambid graph: {exc}", file=sys.stderr)
         return 1
+    death = summary.get("death")
+    if death:  # one line naming the node and the sample; the figures below are true up to there
+        print(death_line("graph", death), file=sys.stderr, flush=True)
     print(f"simulated samples per wall second: {summary['samples_per_wall_s']:.0f} "
           f"({summary['samples']} samples in {summary['wall_s']:.2f} s wall, "
           f"{summary['samples_per_wall_s'] * summary['simulated_s'] / max(summary['samples'], 1):.2f}x real time)")
-    print(f"displacement RMS: {summary['displacement_rms_m'] * 1e6:.3f} um over {len(summary['displacement_mean_m'])} "
-          f"axes (max {summary['max_abs_displacement_m'] * 1e6:.2f} um after lift-off, "
-          f"lift-off at sample {summary['lift_off_index']})")
+    print(levitation_lines(summary))
     print(f"rejected messages: {summary['messages_rejected']}")
     if summary.get("resends"):
         print(f"lost loop messages recovered: the plant asked again {summary['resends']} times")
+    if death:
+        levitated = summary["levitated"]
+        print(f"rotor levitated until the session ended at sample {death['sample_index']}" if levitated
+              else "rotor NOT levitated")
+        return 2
     ok = summary["state"] == "done" and summary["levitated"]
     print("rotor levitated" if ok else "rotor NOT levitated: the session failed")
     return 0 if ok else 1
@@ -96,9 +106,12 @@ def run_graph(args: argparse.Namespace, rig) -> int:
 
 def run_on_hardware(args: argparse.Namespace, rig) -> int:
     plant = {"rig_file": args.rig} if args.rig else {}
-    cfg = GraphConfig(sim_seconds=args.sim_seconds, namespace=args.namespace, plant=plant, rig=rig)
-    print(f"ambid graph: hardware_bridge to the real-time target at {args.hardware}, namespace {args.namespace}, "
-          f"ROS_DOMAIN_ID {session_domain_id()}, {args.sim_seconds:g} s of samples", flush=True)
+    session = session_of(args)
+    cfg = GraphConfig(sim_seconds=args.sim_seconds, namespace=args.namespace, plant=plant, rig=rig, session=session)
+    print(f"ambid graph: {session_words(session)}, hardware_bridge to the real-time target at {args.hardware}, "
+          f"namespace {args.namespace}, ROS_DOMAIN_ID {session_domain_id()}, {args.sim_seconds:g} s of samples",
+          flush=True)
+    cfg.report_foreign = lambda found: print_foreign("graph", found)
     try:
         f = run_hardware(cfg, args.hardware, args.local_port)
     except KeyboardInterrupt:
@@ -110,8 +123,7 @@ def run_on_hardware(args: argparse.Namespace, rig) -> int:
     print(f"samples published per wall second: {f['samples_per_wall_s']:.0f} ({f['samples_published']} samples)")
     print(f"target state {f['target_state']}; lost {f['missing_samples']} samples in {f['gaps']} gaps, "
           f"{f['datagrams_malformed']} malformed and {f['datagrams_foreign']} foreign datagrams")
-    print(f"displacement RMS: {f['displacement_rms_m'] * 1e6:.3f} um (max {f['max_abs_displacement_m'] * 1e6:.2f} um "
-          f"over the second half, {f['contact_samples']} samples landed)")
+    print(levitation_lines(f) + f", {f['contact_samples']} samples landed")
     ok = f["samples_published"] > 0 and not f["silent"] and f["target_state"] != "safe"
     print("target running normally" if ok else "target NOT running normally")
     print("rotor levitated" if f["levitated"] else "rotor NOT levitated")

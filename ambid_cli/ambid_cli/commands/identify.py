@@ -9,9 +9,12 @@ from pathlib import Path
 
 from ambid.control.kinds import describe_kinds
 
-from ambid_cli.commands.inputs import (BadInput, add_experiment_options, add_live_options, add_session_options,
-                                        address, checked_controller, controller, count, experiment_spec, free_port,
-                                        no_controller_on_hardware, output_dir, rig_file)
+from ambid_cli.commands.inputs import (BadInput, add_experiment_options, add_live_options, add_run_options,
+                                        add_session_options, address, checked_controller, controller, count,
+                                        experiment_spec, free_port, no_controller_on_hardware, output_dir, rig_file)
+from ambid_cli.commands.session_report import (death_line, levitation_lines, print_foreign, session_of,
+                                                session_words)
+from ambid_nodes.graph import DEFAULT_NAMESPACE
 
 HELP = "identify the simulated rig end to end (graph, experiment, recording, FRF, fit, report)"
 
@@ -32,6 +35,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="identify a real-time target over the UDP bridge instead of the simulated rig (the target "
                         "runs plant and controller, e.g. the C reference target; see docs/bridge_protocol.md)")
     p.add_argument("--local-port", type=count, default=0, help="with --hardware: local UDP port (default: any)")
+    p.add_argument("--processes", action="store_true",
+                   help="run each node as its own process, supervised: a node's death ends the run with one line "
+                        "naming it and the sample (docs/sessions.md)")
+    add_run_options(p, DEFAULT_NAMESPACE)
     p.add_argument("--true-model", default="", metavar="FILE",
                    help="with --hardware: the model file the C reference target runs ('ambid target-model'); "
                         "the FRF error and modes are compared with it")
@@ -39,7 +46,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ambid_nodes.session import SessionConfig, plan_session, run_identify
+    from ambid_nodes.graph import session_domain_id
+    from ambid_nodes.session import NodeDied, SessionConfig, plan_session, run_identify
 
     spec = experiment_spec(args)
     output_dir(args.out)
@@ -59,23 +67,35 @@ def run(args: argparse.Namespace) -> int:
             raise BadInput(f"--true-model {exc}; give the file 'ambid target-model' wrote") from None
     if args.live is not None:
         free_port(args.live_host, args.live)
+    session = session_of(args)
     cfg = SessionConfig(out_dir=args.out, experiment=spec, rig_file=args.rig, controller=args.controller,
                         nonlinear_magnets=not args.linear_magnets, estimator=args.estimator,
                         hardware=args.hardware or "", local_port=args.local_port, true_model=args.true_model,
-                        progress=not args.no_progress and sys.stderr.isatty(), live_port=args.live,
-                        live_host=args.live_host)
+                        progress=not args.no_progress and sys.stderr.isatty(), namespace=args.namespace,
+                        session=session, processes=args.processes, live_port=args.live, live_host=args.live_host)
     try:
         plan = plan_session(cfg, rig, ctrl)  # the design, made once
     except ValueError as exc:
         raise BadInput(str(exc)) from None
+    layout = "separate processes" if args.processes else "one process"
+    print(f"ambid identify: {session_words(session)}, {layout}, namespace {args.namespace}, ROS_DOMAIN_ID "
+          f"{session_domain_id()}", file=sys.stderr, flush=True)
+
     def headline(summary: dict) -> None:   # printed as soon as the results are there; the report follows
         print(format_headlines(summary, args.out), flush=True)
 
-    try:
-        summary = run_identify(cfg, plan, on_headline=headline)
+    try:  # the foreign publishers named before anything starts
+        summary = run_identify(cfg, plan, lambda found: print_foreign("identify", found), on_headline=headline)
     except KeyboardInterrupt:
         print("ambid identify: interrupted; the recording so far is in", args.out / "session.mcap", file=sys.stderr)
         return 130
+    except NodeDied as died:  # one line naming the node and the sample; what is kept, true up to there
+        print(death_line("identify", died.death), file=sys.stderr)
+        recover = "" if died.complete else f"; read it with 'ambid inspect --recover {died.mcap_path}'"
+        print(f"ambid identify: the recording so far is in {died.mcap_path} ({died.messages} messages"
+              f"{', incomplete' if not died.complete else ''}){recover}", file=sys.stderr)
+        print(levitation_lines(died.figures), file=sys.stderr)
+        return 2
     except (ValueError, RuntimeError) as exc:
         print(f"ambid identify: {exc}", file=sys.stderr)
         return 1

@@ -129,6 +129,26 @@ def address(text: str) -> str:
     return text
 
 
+def session_id(text: str) -> int:
+    """A ``--session`` value (argparse type): a session id as ambid prints it (hex)."""
+    from ambid.session.identity import check_session_id
+
+    try:
+        return check_session_id(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_run_options(p: argparse.ArgumentParser, default_namespace: str) -> None:
+    """--namespace and --session of a command that starts a session (identify, graph)."""
+    p.add_argument("--namespace", default=default_namespace,
+                   help=f"ROS namespace of the rig (default {default_namespace}); two rigs in two namespaces run "
+                        "side by side on one domain")
+    p.add_argument("--session", type=session_id, default=None, metavar="ID",
+                   help="the session's id, hex as printed (default: a fresh one); every node acts only on its "
+                        "session's messages (docs/sessions.md)")
+
+
 def controller(text: str) -> str:
     """A ``--controller`` value (argparse type): a built-in kind, or a controller file that exists."""
     from ambid.control.kinds import CONTROLLER_KINDS, FILE_SUFFIXES, is_controller_file

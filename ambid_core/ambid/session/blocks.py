@@ -24,6 +24,8 @@ of the 4-byte encapsulation header)::
     float64[] data                  uint32 count, values aligned to 8
     uint8[] sample_flags            uint32 count, bytes
     uint32 flags
+    uint64 session_id               aligned to 8: the session that published it (absent in recordings
+                                    made before sessions had ids: read as 0)
 
 Pure Python (numpy, mcap); nothing here imports rclpy.
 """
@@ -48,6 +50,7 @@ __all__ = [
     "decode_sample_block",
     "encode_sample_block",
     "SampleBlockReader",
+    "sample_block_session",
     "sample_block_span",
     "iter_sample_blocks",
     "sample_block_topics",
@@ -78,6 +81,7 @@ class SampleBlockData:
             view of the message bytes (copy it to modify).
         sample_flags: (n_samples,) uint8 ``FLAG_*`` bits, or shape (0,).
         flags: OR of the rows' flags.
+        session_id: the session that published the block, or 0 (none).
     """
 
     stamp_ns: int
@@ -89,6 +93,7 @@ class SampleBlockData:
     data: np.ndarray
     sample_flags: np.ndarray
     flags: int
+    session_id: int = 0
 
     @property
     def n_samples(self) -> int:
@@ -98,6 +103,7 @@ class SampleBlockData:
 
 # Precompiled readers: a block is decoded in a few microseconds of Python.
 _U32 = struct.Struct("<I").unpack_from
+_U64 = struct.Struct("<Q").unpack_from
 _TIME = struct.Struct("<iI").unpack_from
 _INDEX_PERIOD_N = struct.Struct("<QdI").unpack_from  # uint64, float64, uint32: contiguous once aligned
 
@@ -200,6 +206,9 @@ def decode_sample_block(cdr: bytes | memoryview) -> SampleBlockData:
         pos += n_flags
         pos += -pos & 3
         (flags,) = _U32(cdr, pos)
+        pos += 4
+        pos += (4 - pos) & 7  # 8-alignment counted from byte 4
+        session_id = _U64(cdr, pos)[0] if pos + 8 <= end else 0
     except struct.error:
         raise _truncated(end, end) from None
     n_ch = len(names)
@@ -220,7 +229,46 @@ def decode_sample_block(cdr: bytes | memoryview) -> SampleBlockData:
         data=data.reshape(n_samples, n_ch),
         sample_flags=sample_flags,
         flags=flags,
+        session_id=session_id,
     )
+
+
+def sample_block_session(cdr: bytes | memoryview) -> int:
+    """The ``session_id`` of a serialized SampleBlock (0 if it has none: recorded before sessions had ids),
+    walking past its data unread. (A live message's id is its last 8 bytes:
+    :func:`ambid.session.identity.session_of`; this walk also reads old recordings right.)
+
+    Raises:
+        ValueError: on truncated bytes or an unsupported encapsulation.
+    """
+    end = len(cdr)
+    try:
+        *_, pos = _header(cdr)
+        for _ in range(2):  # channel_names, channel_units
+            pos += -pos & 3
+            (count,) = _U32(cdr, pos)
+            pos += 4
+            for _ in range(count):
+                pos += -pos & 3
+                (n,) = _U32(cdr, pos)
+                pos += 4 + n
+        pos += -pos & 3
+        (n_values,) = _U32(cdr, pos)
+        pos += 4
+        if n_values:
+            pos += (4 - pos) & 7
+        pos += 8 * n_values
+        pos += -pos & 3
+        (n_flags,) = _U32(cdr, pos)
+        pos += 4 + n_flags
+        pos += -pos & 3
+        pos += 4  # flags
+        if pos > end:
+            raise _truncated(pos, end)
+        pos += (4 - pos) & 7
+        return _U64(cdr, pos)[0] if pos + 8 <= end else 0
+    except struct.error:
+        raise _truncated(end, end) from None
 
 
 class SampleBlockReader:
@@ -465,7 +513,7 @@ def read_samples(
 
 def encode_sample_block(first_index: int, sample_period_s: float, channel_names: Sequence[str],
                         channel_units: Sequence[str], data: np.ndarray, experiment_id: str = "",
-                        stamp_ns: int = 0, flags: int = 0) -> bytes:
+                        stamp_ns: int = 0, flags: int = 0, session_id: int = 0) -> bytes:
     """CDR bytes of a SampleBlock (the layout in the module docstring), as rclpy serialises it.
 
     Args:
@@ -476,6 +524,7 @@ def encode_sample_block(first_index: int, sample_period_s: float, channel_names:
         experiment_id: the experiment, or "".
         stamp_ns: time of the first sample [ns].
         flags: OR of the rows' flags (no per-row flags are written).
+        session_id: the session the block belongs to, or 0.
     """
     data = np.ascontiguousarray(data, dtype="<f8")
     n, k = data.shape
@@ -507,4 +556,6 @@ def encode_sample_block(first_index: int, sample_period_s: float, channel_names:
     align(4)
     out.extend(struct.pack("<I", 0))
     out.extend(struct.pack("<I", int(flags)))
+    align(8)
+    out.extend(struct.pack("<Q", int(session_id)))
     return bytes(out)

@@ -1,0 +1,55 @@
+"""The lines identify and graph print about their session: its id, foreign publishers found before it
+started, and a node's death that ended it (docs/sessions.md)."""
+
+from __future__ import annotations
+
+import sys
+
+from ambid.session.identity import format_session, new_session_id
+
+
+def session_of(args) -> int:
+    """The session a command starts: ``--session`` or a fresh id."""
+    return args.session if args.session is not None else new_session_id()
+
+
+def foreign_line(command: str, foreign: dict[str, list[str]]) -> str | None:
+    """One line naming the publishers found on the rig's topics before the session started, grouped by publisher;
+    None if there were none."""
+    if not foreign:
+        return None
+    by_who: dict[str, list[str]] = {}
+    for topic, names in foreign.items():
+        for who in names:
+            by_who.setdefault(who, []).append(topic)
+    found = "; ".join(f"{who} on {', '.join(topics)}" for who, topics in sorted(by_who.items()))
+    return (f"ambid {command}: foreign publishers on this rig's topics, ignored (their messages are counted, "
+            f"never acted on nor recorded): {found}")
+
+
+def print_foreign(command: str, foreign: dict[str, list[str]]) -> None:
+    line = foreign_line(command, foreign)
+    if line:
+        print(line, file=sys.stderr, flush=True)
+
+
+def death_line(command: str, death: dict) -> str:
+    """``ambid graph: position_controller was killed (SIGKILL); the session ended at sample 80123 (8.012 s
+    simulated): the plant went to its safe state there, the rotor landed``."""
+    return (f"ambid {command}: {death['node']} {death['how']}; the session ended at sample {death['sample_index']} "
+            f"({death['simulated_s']:.3f} s simulated): {death['consequence']}")
+
+
+def session_words(session: int) -> str:
+    return f"session {format_session(session)}"
+
+
+def levitation_lines(f: dict) -> str:
+    """The displacement figures and the samples they were judged over."""
+    if not f.get("samples_evaluated"):
+        return (f"displacement RMS: no samples to judge (the run ended at sample {f.get('samples')}, before its "
+                f"judged window; lift-off at sample {f.get('lift_off_index')})")
+    axes = f" over {len(f['displacement_mean_m'])} axes," if f.get("displacement_mean_m") is not None else ""
+    return (f"displacement RMS: {f['displacement_rms_m'] * 1e6:.3f} um{axes} over samples [{f['evaluated_from_index']}, "
+            f"{f['evaluated_to_index']}) (max {f['max_abs_displacement_m'] * 1e6:.2f} um, lift-off at sample "
+            f"{f['lift_off_index']})")
