@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
 
 # subcommand -> module in ambid_cli.commands
@@ -31,6 +32,9 @@ COMMANDS = {
 
 
 def main(argv: list[str] | None = None) -> int:
+    # ^C (SIGINT) stops a run even when a script started it in the background, where the shell makes its
+    # children ignore SIGINT and Python would inherit that: every command's runs end cleanly on it
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     argv = sys.argv[1:] if argv is None else argv
     parser = argparse.ArgumentParser(prog="ambid", description="system identification of AMB rotor systems on ROS 2")
     sub = parser.add_subparsers(dest="command", required=True)

@@ -236,8 +236,10 @@ def test_processes_layout_runs_and_ctrl_c_leaves_nothing(ros, ros_env, procs):
     listener = ros.add(Node("listener", namespace=NS, context=ros.context))
     listener.create_subscription(SampleBlock, "measurement", lambda m: blocks.append(m.first_index),
                                  qos.subscription(qos.BLOCKS), raw=False)
+    # started as a script's background job is: SIGINT ignored on entry (the shell's doing), ^C must still stop it
     runner = procs([*cmd[:-1], "1000"], env=ros_env, cwd=root, stdout=subprocess.PIPE,
-                   stderr=subprocess.STDOUT, text=True)
+                   stderr=subprocess.STDOUT, text=True,
+                   preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
     assert ros.spin_until(lambda: len(blocks) >= 2 or runner.poll() is not None, 180), "the loop never ran"
     assert runner.poll() is None, runner.communicate()[0]
     children = descendants(runner.pid)
