@@ -134,11 +134,14 @@ def test_compiled_callbacks_give_the_same_samples_as_the_python_path(ros, monkey
         if not compiled:  # the gates stay closed: every message goes the Python way
             monkeypatch.setattr(PlantSim, "regate", lambda self: self.fast.set(LOOP_GATE, 0))
             monkeypatch.setattr(PositionController, "regate", lambda self: self.fast.set(LOOP_GATE, 0))
-        plant, ctrl, spy = make_loop(ros, 0.3, [("controller", controller)], seed=5, block_size=1000)
+        # the paths' numbers are under test, not the watchdog: a starved machine may hold an answer past 2 s
+        plant, ctrl, spy = make_loop(ros, 0.3, [("controller", controller)], seed=5, block_size=1000,
+                                     controller_timeout=30.0)
         assert ctrl.design.kind == ("file" if user_controller else "pid")
         assert ros.spin_until(plant.finished.done, timeout_s=120)
         summary = plant.finished.result()
-        assert summary["messages_rejected"] == 0 and summary["accepted:control_current"] >= 3000
+        assert summary["messages_rejected"] == 0 and summary["accepted:control_current"] >= 3000, (
+            summary, [e.message for e in spy.events])
         # the compiled callbacks answered nearly every message, or none
         answered = (int(plant.fast.context[LOOP_COUNT]), int(ctrl.fast.context[LOOP_COUNT]))
         if compiled:
