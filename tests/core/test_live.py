@@ -172,9 +172,13 @@ async def _client(server, design, x):
         feeder = threading.Thread(target=feed)
         feeder.start()
         finished = False
-        while True:   # until the session finished and nothing more came for a second
+
+        def complete() -> bool:   # the checked entry's final estimate is in
+            return any(m.get("complete") for m in messages.get("/amb/live/frf/y_a_y/u_a_x", []))
+
+        while True:   # until the session finished, its final estimate came and nothing more for a second
             try:
-                raw = await asyncio.wait_for(ws.recv(), 1.0 if finished else 20.0)
+                raw = await asyncio.wait_for(ws.recv(), 1.0 if finished and complete() else 60.0)
             except asyncio.TimeoutError:
                 break
             if isinstance(raw, str):
