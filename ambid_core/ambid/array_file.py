@@ -19,10 +19,21 @@ import numpy as np
 
 from ambid.yaml_file import read_yaml
 
-__all__ = ["read_arrays"]
+__all__ = ["check_file", "read_arrays"]
 
 _MAT73_MAGIC = b"MATLAB 7.3 MAT-file"
 _HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
+
+
+def check_file(path: Path, what: str, fix: str) -> None:
+    """A file that exists, is no folder and is not empty, or ValueError
+    "<what> <path> does not exist|is a folder|is empty; <fix>"."""
+    if not path.exists():
+        raise ValueError(f"{what} {path} does not exist; {fix}")
+    if path.is_dir():
+        raise ValueError(f"{what} {path} is a folder; {fix}")
+    if path.stat().st_size == 0:
+        raise ValueError(f"{what} {path} is empty; {fix}")
 
 
 def read_arrays(path: str | os.PathLike, what: str, fix: str,
@@ -47,12 +58,7 @@ def read_arrays(path: str | os.PathLike, what: str, fix: str,
     suffix = path.suffix.lower()
     if suffix not in suffixes:
         raise ValueError(f"{what} {path}: '{suffix}' is not a {what} type ({', '.join(suffixes)}); {fix}")
-    if not path.exists():
-        raise ValueError(f"{what} {path} does not exist; {fix}")
-    if path.is_dir():
-        raise ValueError(f"{what} {path} is a folder; {fix}")
-    if path.stat().st_size == 0:
-        raise ValueError(f"{what} {path} is empty; {fix}")
+    check_file(path, what, fix)
     try:
         if suffix == ".npz":
             data = _npz(path, what)

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ambid.array_file import read_arrays
+from ambid.array_file import check_file, read_arrays
 from ambid.text_file import read_text
 
 __all__ = ["FRF_SUFFIXES", "FrfFileError", "MeasuredFrf", "read_frf_file", "is_frf_file"]
@@ -91,12 +91,10 @@ def read_frf_file(path: str | os.PathLike) -> MeasuredFrf:
         raise FrfFileError(f"{p}: '{suffix or p.name}' is not an FRF file type ({', '.join(FRF_SUFFIXES)}); give an "
                            ".npz, .mat, .csv or UFF 58 file, or a session .mcap")
     fix = _FIX[suffix]
-    if not p.exists():
-        raise FrfFileError(f"FRF file {p} does not exist; {fix}")
-    if p.is_dir():
-        raise FrfFileError(f"FRF file {p} is a folder; {fix}")
-    if p.stat().st_size == 0:
-        raise FrfFileError(f"FRF file {p} is empty; {fix}")
+    try:
+        check_file(p, "FRF file", fix)
+    except ValueError as exc:
+        raise FrfFileError(str(exc)) from None
     try:
         if suffix in (".npz", ".mat"):
             freq, h, var, outs, ins, notes = _arrays(p, suffix, fix)
