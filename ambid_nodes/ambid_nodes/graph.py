@@ -115,12 +115,14 @@ def preflight(executor, namespace: str, context, report: Callable[[dict], None] 
 def wait_for_discovery(executor, node, least_s: float = 1.0, most_s: float = 5.0, still_s: float = 1.0) -> None:
     """Spin at least ``least_s``, then until the graph ``node`` sees has not changed for ``still_s`` (at most
     ``most_s`` in all): participants already on the domain are discovered within a fraction of a second on
-    one host, later on a loaded one (a node's name and its publishers come a while after its participant)."""
+    one host, later on a loaded one (a node's name and its publishers come a while after its participant: the
+    graph compared is the nodes and the topics with their types, so late endpoints count as a change)."""
     start = time.monotonic()
     seen, since = None, start
     while time.monotonic() - start < most_s:
         executor.spin_once(timeout_sec=0.05)
-        now = set(node.get_node_names_and_namespaces())
+        now = (frozenset(node.get_node_names_and_namespaces()),
+               frozenset((t, tuple(types)) for t, types in node.get_topic_names_and_types()))
         if now != seen:
             seen, since = now, time.monotonic()
         elif time.monotonic() - start >= least_s and time.monotonic() - since >= still_s:

@@ -7,6 +7,7 @@ import gc
 import json
 import os
 import sys
+import time
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -82,6 +83,28 @@ def gc_frozen():
         gc.unfreeze()
 
 
+FLUSH_S = 2.0  # at the end of a finished run, the most a node waits for its last messages to be acknowledged
+
+
+def flush_publishers(node, timeout_s: float = FLUSH_S) -> bool:
+    """Wait (at most ``timeout_s`` in all) until every reliable reader has acknowledged what ``node``
+    published: a node that ends its run by itself exits next, and a final status, event or block still in
+    flight would die with its writer (a loaded machine's readers lag). False if the time ran out."""
+    from rclpy.duration import Duration
+
+    end = time.monotonic() + timeout_s
+    for pub in list(node.publishers):
+        left = end - time.monotonic()
+        if left <= 0:
+            return False
+        try:
+            if not pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))):
+                return False
+        except Exception:  # noqa: BLE001 - a middleware without the call: nothing to wait for
+            continue
+    return True
+
+
 def run_single(node_class, args=None) -> int:
     """Run one node until it finishes (its ``finished`` future completes) or is interrupted.
 
@@ -107,6 +130,7 @@ def run_single(node_class, args=None) -> int:
         finished = getattr(node, "finished", None)
         spin_until_done(executor, finished if finished is not None else Future())
         if finished is not None and finished.done():
+            flush_publishers(node)
             summary = finished.result()
             if summary is not None:
                 print(SUMMARY_PREFIX + json.dumps(summary), flush=True)

@@ -172,6 +172,11 @@ def start_live(cfg: SessionConfig):
     return LiveProcess(cfg.live_port, cfg.live_host, cfg.namespace, cfg.estimator, session_domain_id())
 
 
+def local_readers(nodes, topic: str) -> int:
+    """How many subscriptions of ``nodes`` (this process's) read ``topic`` (a resolved name)."""
+    return sum(1 for n in nodes for sub in n.subscriptions if sub.topic_name == topic)
+
+
 def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None,
                          report_foreign: Callable[[dict], None] | None = None, live=None, early=None) -> dict:
     """Run the whole graph in this process; returns the run's facts (no offline analysis).
@@ -251,13 +256,19 @@ def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None,
             "start_margin": start_index, **rig_param, **session})))
         consumer = add(FrfConsumer(**ns, parameter_overrides=params({"estimator": cfg.estimator, **session})))
         inputs = add(SessionMessages(session["session"], **ns)) if early is not None else None
-        # the recorder and the consumer (and a live view) must hear the first measurement block
-        listeners = 3
+        # every reader of the measurement and of the (latched) design must be matched before the plant runs:
+        # this process's own (the recorder's once it has found the topic), and a live view's, whose process
+        # discovers ours late on a loaded machine (a design it got after the experiment's blocks had passed
+        # would leave it no FRF to show)
+        remote = 0
         if live is not None:
             print(f"ambid: live view on {live.wait_ready()} (docs/live.md)", file=sys.stderr, flush=True)
-            listeners += 1
-        spin_until(lambda: plant.pub_block.get_subscription_count() >= listeners, 30,
-                   "recorder, consumer and generator" + (" and the live view" if live is not None else ""))
+            remote = 1
+        for pub, who in ((plant.pub_block, "the measurement"), (generator.pub_design, "the excitation design")):
+            topic = pub.topic_name
+            spin_until(lambda pub=pub, topic=topic: topic in recorder.subs and
+                       pub.get_subscription_count() >= local_readers(nodes, topic) + remote, 30,
+                       f"every reader of {who}" + (" (the live view among them)" if remote else ""))
         spin_until(lambda: generator.plant_known, 30, "the plant description at the generator")
         client = recorder.create_client(StartExperiment, "start_experiment")
         spin_until(client.service_is_ready, 30, "the start_experiment service")
@@ -550,5 +561,7 @@ def _identify_summary(cfg: SessionConfig, run: dict, design: ExcitationDesign, o
         "analysis_timing": timing,
         "recording": {"path": run["mcap_path"], "messages": rec.get("messages", rec.get("message_count")),
                       "complete": rec.get("complete", True)},
-        "session": {"id": format_session(cfg.session), "foreign_publishers": run["foreign_publishers"]},
+        "session": {"id": format_session(cfg.session), "foreign_publishers": run["foreign_publishers"],
+                    # what the recorder heard of other sources during the session and kept out, per topic
+                    "foreign_messages": rec.get("foreign", {})},
     }

@@ -29,6 +29,9 @@ from ambid_nodes.node_main import DIE_WITH_PARENT_ENV, SUMMARY_PREFIX
 
 POLL_S = 0.1         # how often the children are looked at
 DEATH_GRACE_S = 3.0  # after a death, the plant's time to end its run itself (its controller_timeout is 2 s)
+# after the controller's death the plant is sure to end its run (safe state, landing) once its 2 s wall-clock
+# watchdog fires; a loaded machine may delay that by seconds, and ending the session first would hide the landing
+CONTROLLER_DEATH_GRACE_S = 15.0
 SETTLE_S = 0.5       # then the time for what is on its way (the last blocks and events)
 STOP_GRACE_S = 5.0   # SIGTERM to SIGKILL
 
@@ -208,10 +211,12 @@ def supervised(namespace: str, session: int, clearance_m: float, settle_samples:
         rclpy.shutdown(context=context)
 
 
-def supervise(executor, sup: Supervisor, watch, done, grace_s: float = DEATH_GRACE_S) -> Death | None:
+def supervise(executor, sup: Supervisor, watch, done, grace_s: float = DEATH_GRACE_S,
+              controller_grace_s: float = CONTROLLER_DEATH_GRACE_S) -> Death | None:
     """Spin ``executor`` (the watch's) until ``done()`` or a node died; after a death, give the plant up to
-    ``grace_s`` to end its run by itself (it names the exact sample where the loop stopped), then return the
-    death. None: the run ended as it should."""
+    ``grace_s`` to end its run by itself (it names the exact sample where the loop stopped; after the
+    position controller's death, which its watchdog always answers, up to ``controller_grace_s``), then return
+    the death. None: the run ended as it should."""
     death = None
     while not done():
         spin(executor, watch)
@@ -222,7 +227,7 @@ def supervise(executor, sup: Supervisor, watch, done, grace_s: float = DEATH_GRA
         return None
     plant = next((n for n in ("plant_sim", "hardware_bridge") if n in sup.nodes), None)
     if plant is not None and death.node != plant:
-        end = time.monotonic() + grace_s
+        end = time.monotonic() + (controller_grace_s if death.node == "position_controller" else grace_s)
         while time.monotonic() < end and not sup.exited(plant):
             spin(executor, watch)
     end = time.monotonic() + SETTLE_S  # the blocks and events already on their way

@@ -72,8 +72,9 @@ def test_the_client_gets_every_channel_of_the_live_view(sessions):
     wanted = frf | {"/amb/live/signals", "/amb/live/orbit/a", "/amb/live/orbit/b", "/amb/live/progress",
                     "/amb/live/status/frf_consumer", "/amb/live/events"} | {f"/amb/live/levels/{o}" for o in RADIAL.outputs}
     assert wanted <= topics, wanted - topics
+    live = json.loads((sessions["root"] / "live" / "summary.json").read_text())["live"]
     for topic in wanted:
-        assert got["messages"].get(topic), f"no message on {topic}"
+        assert got["messages"].get(topic), f"no message on {topic}; the live view's figures: {live}"
     sig = got["messages"]["/amb/live/signals"]
     assert set(RADIAL.outputs) | set(RADIAL.inputs) <= set(sig[-1]) and len(sig) > 100
     orbit = got["messages"]["/amb/live/orbit/b"][-1]

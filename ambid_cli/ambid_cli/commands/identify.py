@@ -12,8 +12,8 @@ from ambid.control.kinds import describe_kinds
 from ambid_cli.commands.inputs import (BadInput, add_experiment_options, add_live_options, add_run_options,
                                         add_session_options, address, checked_controller, controller, count,
                                         experiment_spec, free_port, no_controller_on_hardware, output_dir, rig_file)
-from ambid_cli.commands.session_report import (death_line, levitation_lines, print_foreign, session_of,
-                                                session_words)
+from ambid_cli.commands.session_report import (death_line, kept_out_line, levitation_lines, print_foreign,
+                                                session_of, session_words)
 from ambid_nodes.graph import DEFAULT_NAMESPACE
 
 HELP = "identify the simulated rig end to end (graph, experiment, recording, FRF, fit, report)"
@@ -82,6 +82,9 @@ def run(args: argparse.Namespace) -> int:
           f"{session_domain_id()}", file=sys.stderr, flush=True)
 
     def headline(summary: dict) -> None:   # printed as soon as the results are there; the report follows
+        kept_out = kept_out_line("identify", (summary.get("session") or {}).get("foreign_messages", {}))
+        if kept_out:
+            print(kept_out, file=sys.stderr, flush=True)
         print(format_headlines(summary, args.out), flush=True)
 
     try:  # the foreign publishers named before anything starts

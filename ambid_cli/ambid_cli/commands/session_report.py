@@ -27,6 +27,21 @@ def foreign_line(command: str, foreign: dict[str, list[str]]) -> str | None:
             f"never acted on nor recorded): {found}")
 
 
+def kept_out_line(command: str, kept_out: dict[str, dict]) -> str | None:
+    """One line of the foreign messages the session heard and kept out ({topic: {"messages": n, "from":
+    [publishers]}}, the recorder's count), grouped by publisher; None if there were none. Said after the session
+    whether or not they were found before it (a source that appears later, or is discovered late, is named here)."""
+    if not kept_out:
+        return None
+    by_who: dict[str, list[str]] = {}
+    for topic, f in sorted(kept_out.items()):
+        for who in f.get("from") or ["an unnamed publisher"]:
+            by_who.setdefault(who, []).append(f"{topic} ({f['messages']})")
+    found = "; ".join(f"{who} on {', '.join(topics)}" for who, topics in sorted(by_who.items()))
+    return (f"ambid {command}: foreign messages heard during the session and kept out of it (messages per topic): "
+            f"{found}")
+
+
 def print_foreign(command: str, foreign: dict[str, list[str]]) -> None:
     line = foreign_line(command, foreign)
     if line:

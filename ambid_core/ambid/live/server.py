@@ -191,7 +191,8 @@ class LiveServer:
                     self.errors.append(f"{kind}: {type(exc).__name__}: {exc}")
                     del self.errors[:-20]
             if self._resend:
-                ids, self._resend = self._resend, set()
+                with self._lock:   # the SDK's thread adds to it (_subscribed)
+                    ids, self._resend = self._resend, set()
                 for cid in ids:
                     topic = self._by_id.get(cid)
                     if topic in self._latest:
@@ -228,8 +229,9 @@ class LiveServer:
         return channel
 
     def _subscribed(self, client_id: int, channel_id: int) -> None:
-        self._clients.add(client_id)
-        self._resend.add(channel_id)
+        with self._lock:
+            self._clients.add(client_id)
+            self._resend.add(channel_id)
         self._wake.set()
 
 
