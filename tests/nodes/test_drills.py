@@ -69,13 +69,16 @@ def node_pid(root: int, name: str) -> int | None:
     return None
 
 
-def drill(ros, procs, ros_env, args: list[str], node: str, sig: int, at_sample: int, ns: str = "/amb"):
-    """Run ``ambid ARGS``; once the session is past ``at_sample``, send ``sig`` to ``node``; return the CLI's
-    (exit code, stdout, stderr, the line's match, wall time from the signal to the end, the blocks heard)."""
+def drill(ros, procs, ros_env, args: list[str], node: str, sig: int, at_sample: int, ns: str = "/amb",
+          ready=None):
+    """Run ``ambid ARGS``; once the session is past ``at_sample`` (and ``ready()``, if given), send ``sig`` to
+    ``node``; return the CLI's (exit code, stdout, stderr, the line's match, wall time from the signal to the end,
+    the blocks heard)."""
     blocks = ros.add(Blocks(ros.context, ns))
     run = procs([sys.executable, "-m", "ambid_cli.cli", *args], env=ros_env, cwd=REPO, stdout=subprocess.PIPE,
                 stderr=subprocess.PIPE, text=True)
-    assert ros.spin_until(lambda: blocks.progress >= at_sample or run.poll() is not None, 300), "no session"
+    assert ros.spin_until(lambda: (blocks.progress >= at_sample and (ready is None or ready()))
+                          or run.poll() is not None, 300), "no session"
     if run.poll() is not None:
         out, err = run.communicate()
         pytest.fail(f"the run ended (exit code {run.returncode}) before the drill, the test heard samples up to "
@@ -158,10 +161,10 @@ def test_controller_killed_8_s_in_the_plant_lands_the_rotor_and_the_figures_stay
     assert "rotor levitated until" in out and "NOT levitated" not in out
 
 
-def identify_drill(ros, ros_env, procs, tmp_path, node: str, sig: int, at: int, *extra: str):
+def identify_drill(ros, ros_env, procs, tmp_path, node: str, sig: int, at: int, *extra: str, ready=None):
     out_dir = tmp_path / "run"
     out, err, m, blocks = drill(ros, procs, ros_env, ["identify", "--processes", "--out", str(out_dir), *SMALL,
-                                                      *extra], node, sig, at)
+                                                      *extra], node, sig, at, ready=ready)
     return out_dir / "session.mcap", out, err, int(m.group(5)), blocks
 
 
@@ -197,7 +200,17 @@ def test_frf_consumer_stopped(ros, ros_env, procs, tmp_path):
 
 
 def test_recorder_killed_its_file_reads_with_recover(ros, ros_env, procs, tmp_path, capsys):
-    path, out, err, k, blocks = identify_drill(ros, ros_env, procs, tmp_path, "recorder", signal.SIGKILL, 7000)
+    """Killed once its file holds measurement blocks (it writes a chunk every second: a kill before the first
+    loses that second, as documented, and would leave nothing here to compare); 8 periods, so the session is
+    still running then however the machine is loaded."""
+    def flushed() -> bool:
+        try:
+            return bool(recorded_blocks(tmp_path / "run" / "session.mcap", recover=True))
+        except Exception:  # noqa: BLE001 - not there yet, or its header still being written
+            return False
+
+    path, out, err, k, blocks = identify_drill(ros, ros_env, procs, tmp_path, "recorder", signal.SIGKILL, 7000,
+                                               "--periods", "8", ready=flushed)
     assert "--recover" in err
     capsys.readouterr()
     assert cli.main(["inspect", str(path)]) == 2  # incomplete: inspect says to recover
