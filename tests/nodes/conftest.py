@@ -145,10 +145,10 @@ def ros():
                 continue
         return set()
 
-    def spin_until(predicate, timeout_s: float = 30.0) -> bool:
+    def spin_until(predicate, timeout_s: float = 30.0, scale: bool = True) -> bool:
         # a wait for something to happen gets TIMEOUT_SCALE x its time: on a loaded machine it happens
         # late, not never (a short spin used as a pause, below 2 s, is kept as it is)
-        end = time.monotonic() + (timeout_s * TIMEOUT_SCALE if timeout_s >= 2.0 else timeout_s)
+        end = time.monotonic() + (timeout_s * TIMEOUT_SCALE if timeout_s >= 2.0 and scale else timeout_s)
         while not predicate():
             if time.monotonic() > end:
                 return False
@@ -162,8 +162,8 @@ def ros():
     if nodes:
         # let DDS finish with peers that just left (a subprocess node the test stopped) before our
         # entities go: their unmatch events racing the destruction can crash the EventsExecutor
-        # (ros2/rclpy#1644); bounded, a killed peer lingers until its lease expires
-        spin_until(lambda: graph() <= names, 2.0)
+        # (ros2/rclpy#1644); bounded, not scaled: a killed peer lingers until its lease expires, whatever the load
+        spin_until(lambda: graph() <= names, 2.0, scale=False)
         spin_until(lambda: False, 0.05)  # and the events already queued
     executor.shutdown()
     for n in nodes:
