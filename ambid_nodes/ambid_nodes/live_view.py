@@ -12,9 +12,10 @@ and the WebSocket server are the core's (:mod:`ambid.live`). Run it as
 
 Parameters: ``port`` (0: any free one), ``host`` (127.0.0.1: this machine
 only), ``estimator`` (the session's FRF estimator), ``signal_rate_hz``
-(decimated rate of the time plot). On exit it prints one line
-``AMBID_SUMMARY {json}`` of its figures (frames sent, frames dropped, blocks
-lost, ...).
+(decimated rate of the time plot), ``session`` (the session to show: another
+source's messages on the same topics are counted per topic, never shown; 0
+shows every source). On exit it prints one line ``AMBID_SUMMARY {json}`` of
+its figures (frames sent, frames dropped, blocks lost, foreign messages, ...).
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from ambid_msgs.msg import ExcitationDesign as DesignMsg
 from ambid_msgs.msg import SampleBlock, SessionEvent, SessionStatus
 from ambid_nodes import qos
+from ambid_nodes.identity import SESSION_PARAMETER
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 
 # reliable, so that a fragment lost on the way is sent again, but KEEP_LAST: the plant's writer (KEEP_LAST 200)
@@ -57,6 +59,8 @@ class LiveView(Node):
         host = declare(self, "host", "127.0.0.1", "address the server binds (0.0.0.0: every interface)")
         estimator = declare(self, "estimator", "indirect", "the session's FRF estimator: " + " | ".join(ESTIMATORS))
         rate = declare(self, "signal_rate_hz", 200.0, "samples per second of the time plot", 1.0, 10_000.0, "Hz")
+        self.session = declare(self, *SESSION_PARAMETER)
+        self.foreign: dict[str, int] = {}   # topic -> messages of another session, not shown
         refuse_unknown(self)
         if estimator not in ESTIMATORS:
             raise ParameterError(f"live_view: estimator '{estimator}' is not one of {list(ESTIMATORS)}")
@@ -72,7 +76,16 @@ class LiveView(Node):
         self.create_subscription(SessionEvent, "events", self.on_event, qos.subscription(qos.EVENTS))
         self.get_logger().info(f"live view on {self.server.url} (topics {prefix}/...)")
 
+    def foreign_message(self, topic: str, msg) -> bool:
+        """True (and counted) if ``msg`` is of another session than the one shown."""
+        if not self.session or msg.session_id == self.session:
+            return False
+        self.foreign[topic] = self.foreign.get(topic, 0) + 1
+        return True
+
     def on_block(self, msg: SampleBlock) -> None:
+        if self.foreign_message("measurement", msg):
+            return
         n, names = int(msg.n_samples), list(msg.channel_names)
         data = np.frombuffer(msg.data, dtype=np.float64)
         if n <= 0 or not names or data.size != n * len(names):
@@ -81,6 +94,8 @@ class LiveView(Node):
                            data.reshape(n, len(names)))
 
     def on_design(self, msg: DesignMsg) -> None:
+        if self.foreign_message("excitation/design", msg):
+            return
         try:
             design = ExcitationDesign.from_dict(json.loads(msg.design_json))
         except (ValueError, KeyError, TypeError) as exc:
@@ -89,17 +104,21 @@ class LiveView(Node):
         self.server.submit("design_message", msg.experiment_id, design, int(msg.start_index), int(msg.total_samples))
 
     def on_status(self, msg: SessionStatus) -> None:
+        if self.foreign_message("status", msg):
+            return
         self.server.submit("status_message", msg.node, int(msg.state), int(msg.sample_index), float(msg.progress),
                            int(msg.messages_received), int(msg.messages_rejected), msg.text,
                            dict(zip(msg.keys, msg.values)), _t_ns(msg.stamp))
 
     def on_event(self, msg: SessionEvent) -> None:
+        if self.foreign_message("events", msg):
+            return
         self.server.submit("event_message", msg.node, int(msg.severity), msg.code, msg.text, int(msg.sample_index),
                            _t_ns(msg.stamp))
 
     def close(self) -> dict:
-        """Stop the server (what is queued is shown first); its figures."""
-        return self.server.close()
+        """Stop the server (what is queued is shown first); its figures, with the foreign messages not shown."""
+        return {**self.server.close(), "foreign_messages": dict(self.foreign)}
 
 
 class LiveProcess:
@@ -111,16 +130,18 @@ class LiveProcess:
         namespace: the session's namespace.
         estimator: the session's FRF estimator.
         domain_id: ROS_DOMAIN_ID of the session.
+        session: the session's id (0: show every source).
     """
 
-    def __init__(self, port: int, host: str, namespace: str, estimator: str, domain_id: int) -> None:
+    def __init__(self, port: int, host: str, namespace: str, estimator: str, domain_id: int,
+                 session: int = 0) -> None:
         from ambid_nodes.supervisor import ros_args
 
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
         self._lines: queue.Queue = queue.Queue()
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "ambid_nodes.live_view",
-             *ros_args(namespace, {"port": int(port), "host": host, "estimator": estimator})],
+             *ros_args(namespace, {"port": int(port), "host": host, "estimator": estimator, "session": session})],
             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
         self.url = ""
         self.errors: list[str] = []

@@ -169,7 +169,8 @@ def start_live(cfg: SessionConfig):
         return None
     from ambid_nodes.live_view import LiveProcess
 
-    return LiveProcess(cfg.live_port, cfg.live_host, cfg.namespace, cfg.estimator, session_domain_id())
+    return LiveProcess(cfg.live_port, cfg.live_host, cfg.namespace, cfg.estimator, session_domain_id(),
+                       cfg.session or 0)
 
 
 def local_readers(nodes, topic: str) -> int:

@@ -8,7 +8,7 @@ import os
 import sys
 from pathlib import Path
 
-from ambid_cli.commands.inputs import BadInput, free_port, output_file, port_number, rig_file
+from ambid_cli.commands.inputs import BadInput, free_port, output_file, port_number, rig_file, session_id
 
 HELP = "show the session running on this ROS domain live in Foxglove: a WebSocket server on PORT"
 
@@ -18,6 +18,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--live-host", default="127.0.0.1", metavar="HOST",
                    help="address to bind (default 127.0.0.1: this machine only; 0.0.0.0: every interface)")
     p.add_argument("--namespace", default="/amb", help="ROS namespace of the session (default /amb)")
+    p.add_argument("--session", type=session_id, default=0, metavar="ID",
+                   help="show only this session (its id as identify and graph print it); other sources on the "
+                        "same topics are counted, not shown (default: every source)")
     p.add_argument("--estimator", default="indirect",
                    choices=["indirect", "h1", "h2", "arithmetic_mean", "log_mean", "eiv"],
                    help="the session's FRF estimator, for the live FRF (default indirect)")
@@ -47,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"ambid live: the session in namespace {args.namespace} on ROS_DOMAIN_ID {session_domain_id()}; in "
           f"Foxglove open a connection to ws://{args.live_host}:{args.port} and import the layout "
           f"{Path('docs') / 'foxglove_layout.json'} (Ctrl-C stops)", file=sys.stderr, flush=True)
-    params = {"port": args.port, "host": args.live_host, "estimator": args.estimator}
+    params = {"port": args.port, "host": args.live_host, "estimator": args.estimator, "session": args.session}
     os.environ["ROS_DOMAIN_ID"] = str(session_domain_id())
     # replace this process: Ctrl-C goes straight to the node, which prints its figures as it ends
     os.execv(sys.executable, [sys.executable, "-m", "ambid_nodes.live_view", *ros_args(args.namespace, params)])

@@ -42,6 +42,12 @@ def kept_out_line(command: str, kept_out: dict[str, dict]) -> str | None:
             f"{found}")
 
 
+def foreign_not_shown(live: dict) -> str:
+    """The live view's words on the foreign messages it did not show (``, 12 foreign messages not shown``)."""
+    n = sum((live.get("foreign_messages") or {}).values())
+    return f", {n} foreign messages not shown" if n else ""
+
+
 def print_foreign(command: str, foreign: dict[str, list[str]]) -> None:
     line = foreign_line(command, foreign)
     if line:
