@@ -48,6 +48,9 @@ LIVE_BLOCKS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200, reliability
                          durability=DurabilityPolicy.VOLATILE)
 
 
+DESIGN_LINE = "live view: experiment "   # printed on each design shown
+
+
 def _t_ns(stamp) -> int:
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
@@ -102,6 +105,7 @@ class LiveView(Node):
             self.get_logger().warning(f"excitation/design {msg.experiment_id!r} not shown: {exc}")
             return
         self.server.submit("design_message", msg.experiment_id, design, int(msg.start_index), int(msg.total_samples))
+        print(f"{DESIGN_LINE}{msg.experiment_id}", flush=True)   # for a supervising command (LiveProcess)
 
     def on_status(self, msg: SessionStatus) -> None:
         if self.foreign_message("status", msg):
@@ -185,6 +189,14 @@ class LiveProcess:
             raise RuntimeError(f"the live view did not listen within {timeout_s:g} s") from None
         why = "; ".join(e.removeprefix("error: ") for e in self.errors) or f"exit code {self.proc.returncode}"
         raise RuntimeError(f"the live view did not start: {why}")
+
+    def wait_design(self, experiment_id: str, timeout_s: float = 60.0) -> None:
+        """Wait until the live view has the experiment's design (so it shows the experiment from its first
+        sample); RuntimeError if it has not within ``timeout_s``."""
+        for line in self._stdout(timeout_s):
+            if line == DESIGN_LINE + experiment_id:
+                return
+        raise RuntimeError(f"the live view did not get the design of {experiment_id} within {timeout_s:g} s")
 
     def stop(self) -> dict:
         """SIGTERM, then its figures (from its summary line); {} if it printed none."""

@@ -462,7 +462,7 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None,
         if cfg.processes:   # no early analysis there: the recording is analysed once the session is over
             from ambid_nodes.session_processes import run_session_processes
 
-            run = run_session_processes(cfg, plan, report_foreign)
+            run = run_session_processes(cfg, plan, report_foreign, live=live)
         else:
             run = run_session_composed(cfg, plan, report_foreign, live=live, early=early)
         design: ExcitationDesign = run.pop("design")

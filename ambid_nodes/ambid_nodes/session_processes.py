@@ -13,6 +13,7 @@ figures up to there and where the recording is.
 from __future__ import annotations
 
 import json
+import sys
 import time
 
 from ambid.session import scan_session
@@ -29,9 +30,11 @@ RECORDER_CATCH_UP_S = 10.0  # at the end, the recorder's time to record the last
 RECORDER_STATUS_S = 0.25  # its status period here: how soon it says so
 
 
-def run_session_processes(cfg: SessionConfig, plan: SessionPlan | None = None, report_foreign=None) -> dict:
+def run_session_processes(cfg: SessionConfig, plan: SessionPlan | None = None, report_foreign=None,
+                          live=None) -> dict:
     """Run the session's nodes as processes; returns the run's facts (no offline analysis), as the composed
-    run does. NodeDied if a node died before the run was over; RuntimeError/ValueError as the composed run."""
+    run does. NodeDied if a node died before the run was over; RuntimeError/ValueError as the composed run.
+    ``live`` (a started :class:`ambid_nodes.live_view.LiveProcess`): the loop starts once it has the design."""
     from ambid_msgs.srv import StartExperiment
 
     plan = plan_session(cfg) if plan is None else plan
@@ -70,11 +73,19 @@ def run_session_processes(cfg: SessionConfig, plan: SessionPlan | None = None, r
                           finishes=True)
             sup.start("excitation_generator", {"start_margin": start_index, **rig_param, **session})
             sup.start("frf_consumer", {"estimator": cfg.estimator, **session})
-            # the recorder, the consumer and the generator listen to the measurement before the loop starts
+            # the recorder, the consumer and the generator (and a live view) listen to the measurement before the
+            # loop starts
             meas = watch.measurement
-            spin_until(lambda: watch.count_subscribers(meas) >= 4 and watch.hears_the_plant(),
-                       START_TIMEOUT_S, "the recorder, the consumer and the generator to subscribe")
+            listeners = 4
+            if live is not None:
+                print(f"ambid: live view on {live.wait_ready()} (docs/live.md)", file=sys.stderr, flush=True)
+                listeners += 1
+            spin_until(lambda: watch.count_subscribers(meas) >= listeners and watch.hears_the_plant(),
+                       START_TIMEOUT_S, "the recorder, the consumer and the generator to subscribe"
+                       + (" (and the live view)" if live is not None else ""))
             answer = _start_experiment(watch, executor, spin_until, StartExperiment, start_index, design)
+            if live is not None:   # it shows the experiment from its first sample: it has the design first
+                live.wait_design(answer.experiment_id, START_TIMEOUT_S)
             if not cfg.hardware:
                 sup.start("position_controller", {**rig_param, "controller": cfg.controller, **session})
             # the run: until the plant (or the bridge) finishes, or a node dies

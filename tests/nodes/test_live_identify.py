@@ -148,3 +148,17 @@ def test_graph_live_shows_signals_orbits_and_status(tmp_path, ros_env_module):
     assert not any("/frf/" in c["topic"] for c in got["channels"])   # no experiment, no FRF
     t = [m["t_s"] for m in got["messages"]["/amb/live/signals"]]
     assert t == sorted(t) and t[-1] > t[0]   # the session's own clock
+
+
+def test_identify_processes_live_view_sees_the_whole_experiment(tmp_path, ros_env_module):
+    """With ``--processes`` the loop starts only once the live view (a process of its own) has the design: it
+    takes every block of the experiment, every period in its live FRF, no gap, and finishes with the session."""
+    run = _identify(ros_env_module, tmp_path / "p", "--processes", "--live", "0")
+    out, err = run.communicate(timeout=900)
+    assert run.returncode == 0, err[-3000:]
+    s = json.loads((tmp_path / "p" / "summary.json").read_text())
+    live = s["live"]
+    assert live["finished"] and live["periods_done"] == live["periods"] > 0, live
+    assert live["lost_blocks"] == 0 and live["frf_gaps"] == 0 and live["rejected_blocks"] == 0, live
+    assert live["estimates"] >= 2 and live["records"] == 4 and not live["problems"], live
+    assert s["layout"] == "processes" and "live view:" in out
