@@ -24,6 +24,9 @@ from ambid.channels import RADIAL
 MEASUREMENT_NAMES = RADIAL.measurement_names  # the default rig's channels
 
 SIM_S = 0.6  # 6000 samples: lift-off and settling
+# the flood between processes is sent once the test has heard 2000 samples: the loop must still be running when
+# it lands (a quiet machine runs 6000 samples between two processes before 5000 messages are out)
+FLOOD_SIM_S = 3.0
 
 
 class LossyRelay(Node):
@@ -60,8 +63,9 @@ class Blocks(Node):
                 np.concatenate([np.asarray(m.sample_flags) for m in msgs]))
 
 
-def run_loop(ros, pipeline: bool, drop_ic: set[int] = frozenset(), drop_y: set[int] = frozenset()):
-    """One session of SIM_S, seed 3; with drops, each loop topic passes a LossyRelay."""
+def run_loop(ros, pipeline: bool, drop_ic: set[int] = frozenset(), drop_y: set[int] = frozenset(),
+             sim_s: float = SIM_S):
+    """One session of ``sim_s``, seed 3; with drops, each loop topic passes a LossyRelay."""
     ns = "/lossy" if drop_ic or drop_y else "/clean"  # each run its own names
     plant_args, ctrl_args = [], []
     relays = []
@@ -72,7 +76,7 @@ def run_loop(ros, pipeline: bool, drop_ic: set[int] = frozenset(), drop_y: set[i
                   ros.add(LossyRelay(ros.context, ns, "relay_ic", "control_current_lossy", "control_current", drop_ic))]
     blocks = ros.add(Blocks(ros.context, ns))
     plant = ros.add(PlantSim(namespace=ns, context=ros.context, cli_args=plant_args, parameter_overrides=[
-        Parameter("sim_seconds", value=SIM_S), Parameter("seed", value=3)]))
+        Parameter("sim_seconds", value=sim_s), Parameter("seed", value=3)]))
     ros.matched(blocks, to=plant)  # every block heard
     if relays:  # the plant's side of each relay matched before the controller starts the loop
         ros.matched(relays[1].pub)
@@ -80,7 +84,7 @@ def run_loop(ros, pipeline: bool, drop_ic: set[int] = frozenset(), drop_y: set[i
     ctrl = ros.add(PositionController(namespace=ns, context=ros.context, cli_args=ctrl_args, parameter_overrides=[
         Parameter("pipeline", value=pipeline)]))
     assert ros.spin_until(plant.finished.done, timeout_s=120)
-    n = int(round(SIM_S / plant.dt))
+    n = int(round(sim_s / plant.dt))
     assert ros.spin_until(lambda: sum(deserialize_message(b, SampleBlock).n_samples for b in blocks.raw) == n, 10)
     summary = plant.finished.result()
     for node in (plant, ctrl, blocks, *relays):
@@ -168,7 +172,7 @@ def test_a_flood_between_processes_changes_no_sample(ros, ros_env):
     import sys
 
     from ambid_nodes.supervisor import ros_args
-    _, _, (ref, ref_flags), _ = run_loop(ros, True)
+    _, _, (ref, ref_flags), _ = run_loop(ros, True, sim_s=FLOOD_SIM_S)
     ns = "/procs"
     blocks = ros.add(Blocks(ros.context, ns))
     flood = ros.add(Flood(ros.context, ns))
@@ -192,7 +196,7 @@ def test_a_flood_between_processes_changes_no_sample(ros, ros_env):
     blocks.create_subscription(SessionStatus, "status", on_status, qos.subscription(qos.STATUS), raw=True)
     # the plant first, and the controller once this process is matched to it: the loop cannot start
     # (and its first blocks go out) before the recording listener hears them
-    procs = [start("plant_sim", {"sim_seconds": SIM_S, "seed": 3})]
+    procs = [start("plant_sim", {"sim_seconds": FLOOD_SIM_S, "seed": 3})]
     try:
         ros.matched(blocks)
         # the flood reaches the plant's topics before the loop starts: its run may be over before a later match
@@ -211,6 +215,7 @@ def test_a_flood_between_processes_changes_no_sample(ros, ros_env):
         wait(lambda: got() >= 2000, 120, "the loop levitates")
         ros.matched(flood.pubs["displacement"])  # and the controller's (the plant's were matched before it started)
         sent = flood.send()
+        assert got() < n, "the loop ended before the flood was out: nothing tested"
         wait(lambda: got() == n, 120, "the loop runs to its end under the flood")
         errs = [procs[1].communicate(timeout=30)[1]]  # the plant exits by itself once its run is done
         assert procs[1].returncode == 0, errs[0][-2000:]
@@ -227,7 +232,7 @@ def test_a_flood_between_processes_changes_no_sample(ros, ros_env):
     final = next(st[3] for st in statuses[::-1] if st[0].endswith("plant_sim"))
     # the loop topic's flood is refused as it comes; the excitation flood may still wait in the plant's queue
     # when its run ends (the count is the final status's): refused, never applied, the records say so
-    assert int(final["rejected:control_current"]) > 0, final
+    assert int(final["rejected:control_current"]) > 0, str({k: v for k, v in final.items() if ":" in k})
     print(f"processes: flood of {sent}, the plant rejected {final['rejected:control_current']} control_current, "
           f"{final['rejected:excitation']} excitation, asked again {final['resends']} times; records identical")
     # nothing unattributed on stderr: every line a node's log line (rosidl's refusals are walked first)
