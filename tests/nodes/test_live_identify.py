@@ -117,29 +117,53 @@ def test_results_are_identical_with_and_without_the_live_view(sessions):
 
 
 def test_graph_live_shows_signals_orbits_and_status(tmp_path, ros_env_module):
-    """A client that connects whenever it can (here: while a long graph runs, however loaded the machine) gets the
-    signals and an orbit per bearing on the session's own clock; ^C ends the graph with the live view's figures."""
-    port = _free_port()
+    """A client that connects once the live view listens (here: while a long graph runs, however loaded the
+    machine) gets the signals and an orbit per bearing on the session's own clock; ^C ends the graph with the live
+    view's figures. ``--live 0``: the graph says the port it got (no port picked here that another socket could
+    take meanwhile)."""
     got: dict = {"channels": [], "messages": {}}
-    client = threading.Thread(target=lambda: asyncio.run(follow(
-        f"ws://127.0.0.1:{port}", lambda topic, t, msg: got["messages"].setdefault(topic, []).append(msg), 300.0,
-        got["channels"].extend)))
-    client.start()
-    run = subprocess.Popen([sys.executable, "-m", "ambid_cli.cli", "graph", "--sim-seconds", "3000", "--live",
-                            str(port)], env=ros_env_module, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+    run = subprocess.Popen([sys.executable, "-m", "ambid_cli.cli", "graph", "--sim-seconds", "3000", "--live", "0"],
+                           env=ros_env_module, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                            text=True, start_new_session=True)
+    lines: dict[str, list[str]] = {"out": [], "err": []}
+    readers = [threading.Thread(target=lambda k=k, f=f: lines[k].extend(f), daemon=True)
+               for k, f in (("out", run.stdout), ("err", run.stderr))]
+    for r in readers:
+        r.start()
     topics = ("/amb/live/signals", "/amb/live/orbit/a", "/amb/live/orbit/b")
+    client = None
     try:
         end = time.monotonic() + 300
+        url = None
+        while url is None and time.monotonic() < end and run.poll() is None:
+            url = next((ln.split("live view on ")[1].split()[0] for ln in list(lines["out"])
+                        if "live view on ws://" in ln), None)
+            time.sleep(0.1)
+        if url is not None:
+            client = threading.Thread(target=lambda: asyncio.run(follow(
+                url, lambda topic, t, msg: got["messages"].setdefault(topic, []).append(msg), 60.0,
+                got["channels"].extend)))
+            client.start()
         while time.monotonic() < end and run.poll() is None and not (
                 all(got["messages"].get(t) for t in topics) and len(got["messages"]["/amb/live/signals"]) > 20):
             time.sleep(0.2)
+        if run.poll() is not None or url is None:
+            run.kill()
+            run.wait()
+            pytest.fail(f"the graph ended (exit code {run.returncode}) before the client heard it (url {url}): "
+                        f"{ {t: len(got['messages'].get(t, [])) for t in topics} }; "
+                        f"{''.join(lines['out'])[-1500:]} {''.join(lines['err'])[-2500:]}")
         os.killpg(run.pid, signal.SIGINT)   # ^C, as a user ends it
-        out, err = run.communicate(timeout=120)
+        run.wait(timeout=120)
     finally:
         if run.poll() is None:
             os.killpg(run.pid, signal.SIGKILL)
-    client.join(60)
+            run.wait()
+    for r in readers:
+        r.join(10)
+    if client is not None:
+        client.join(60)
+    out, err = "".join(lines["out"]), "".join(lines["err"])
     assert run.returncode == 130, err[-3000:]   # interrupted, as ^C says
     assert "interrupted; every node stopped" in err
     assert "live view:" in out and "blocks lost" in out
