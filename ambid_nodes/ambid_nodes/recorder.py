@@ -91,7 +91,7 @@ from ambid_msgs.msg import SessionEvent, SessionStatus
 from ambid_nodes import qos
 from ambid_nodes.conversions import (BadMessage, check_controller_description, check_design, check_plant_description,
                                      decode_message, status_msg)
-from ambid_nodes.identity import SESSION_PARAMETER, LoopPartner, SessionIdentity
+from ambid_nodes.identity import SESSION_PARAMETER, UNNAMED, LoopPartner, SessionIdentity
 from ambid_nodes.loop_pump import NOT_RUN, LoopEntry
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 
@@ -194,6 +194,7 @@ class Recorder(Node):
         self.taps: dict[str, tuple[LoopEntry, LoopPartner]] = {}  # topic -> its tap, taken by GID
         self.foreign: dict[str, int] = {}  # topic -> foreign messages, not recorded
         self.foreign_names: dict[str, set[str]] = {}
+        self.unnamed: dict[str, dict[bytes, str]] = {}   # topic -> {GID: its name while the graph knew no node}
         self.foreign_reported: dict[str, tuple[float, int]] = {}  # topic -> (last event, count then)
         self.types: dict[str, str] = {}  # topic -> pkg/msg/Type
         self.conventional_qos = {self.resolve_topic_name(t): q for t, q in CONVENTIONAL_QOS.items()}
@@ -386,6 +387,8 @@ class Recorder(Node):
             for name in who:
                 if len(names) < MAX_NAMES:
                     names.add(name)
+            if UNNAMED in who[0]:  # named again once the graph knows its node (at the latest, at close)
+                self.unnamed.setdefault(topic, {})[bytes(gid)] = who[0]
         now = time.monotonic()
         last, then = self.foreign_reported.get(topic, (-1e9, 0))
         n = self.foreign_count(topic)
@@ -403,6 +406,14 @@ class Recorder(Node):
 
     def foreign_figures(self) -> dict:
         """{topic: {"messages": n, "from": [publishers named]}} of the foreign messages kept out so far."""
+        for topic, gids in self.unnamed.items():   # a publisher first named by its GID: by its node, if known now
+            names = self.foreign_names.get(topic, set())
+            for gid, old in list(gids.items()):
+                new = self.identity.name_gid(gid, topic)
+                if UNNAMED not in new and "gone from the graph" not in new:
+                    names.discard(old)
+                    names.add(new)
+                    del gids[gid]
         out = {}
         for topic in sorted(set(self.foreign) | set(self.taps)):
             n = self.foreign_count(topic)

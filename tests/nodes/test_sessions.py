@@ -225,8 +225,11 @@ def test_two_rigs_in_two_namespaces_on_one_domain_run_side_by_side(ros, ros_env,
               f"b's /clock did not reach rig a during its session (discovery); rig b's samples identical")
         return
     kept_out = json.loads(facts["foreign"])["/clock"]
-    assert kept_out["messages"] > 0 and any("/rig_b/plant_sim" in who for who in kept_out["from"]), kept_out
-    assert len(said) == 1 and "/rig_b/plant_sim" in said[0] and "/clock (" in said[0], err_a[-2000:]
+    # named by its node; by its GID where rig a's graph never learnt rig b's node names (rmw sends a node's info
+    # apart from its endpoints: on a loaded machine it may come after rig a's short session has closed)
+    who = "/rig_b/plant_sim" if any("/rig_b/plant_sim" in w for w in kept_out["from"]) else "not yet known"
+    assert kept_out["messages"] > 0 and any(who in w for w in kept_out["from"]), kept_out
+    assert len(said) == 1 and who in said[0] and "/clock (" in said[0], err_a[-2000:]
     print(f"\nrig a recorded {scan.topic_message_counts['/clock']} /clock messages for {samples} samples; "
           f"rig b's {kept_out['messages']} kept out, from {kept_out['from']}; rig b's samples "
           f"[{got[0][0]}, {n}) identical to the same seed alone")
