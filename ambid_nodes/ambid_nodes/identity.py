@@ -37,6 +37,7 @@ SESSION_PARAMETER = ("session", 0, "the session this node belongs to: it acts on
 NAMES_REFRESH_S = 1.0  # a topic's foreign publishers are looked up in the graph at most this often
 # the graph knows a publisher before it knows its node (rmw's node info travels apart): named by GID meanwhile
 UNNAMED = "its node not yet known to the graph"
+GONE = "gone from the graph"   # a GID the graph no longer shows
 _UNKNOWN_NODE = "_NODE_NAME_UNKNOWN_"
 HOLD_S = 5.0           # a loop message of a publisher the roster does not know yet waits this long for it
 HOLD_MAX = 256         # and at most this many wait
@@ -157,7 +158,7 @@ class SessionIdentity:
                     return _endpoint_name(info, gid)
         except Exception:  # noqa: BLE001 - the graph may be gone while the context shuts down
             pass
-        return f"publisher {format_gid(gid)} (gone from the graph)"
+        return f"publisher {format_gid(gid)} ({GONE})"
 
     def foreign_publishers(self, topic: str) -> list[str]:
         """The publishers of ``topic`` the graph shows that are not of this session, named; looked up at most

@@ -91,7 +91,7 @@ from ambid_msgs.msg import SessionEvent, SessionStatus
 from ambid_nodes import qos
 from ambid_nodes.conversions import (BadMessage, check_controller_description, check_design, check_plant_description,
                                      decode_message, status_msg)
-from ambid_nodes.identity import SESSION_PARAMETER, UNNAMED, LoopPartner, SessionIdentity
+from ambid_nodes.identity import GONE, SESSION_PARAMETER, UNNAMED, LoopPartner, SessionIdentity
 from ambid_nodes.loop_pump import NOT_RUN, LoopEntry
 from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
 
@@ -410,7 +410,7 @@ class Recorder(Node):
             names = self.foreign_names.get(topic, set())
             for gid, old in list(gids.items()):
                 new = self.identity.name_gid(gid, topic)
-                if UNNAMED not in new and "gone from the graph" not in new:
+                if UNNAMED not in new and GONE not in new:
                     names.discard(old)
                     names.add(new)
                     del gids[gid]

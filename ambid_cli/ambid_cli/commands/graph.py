@@ -8,8 +8,8 @@ import sys
 from ambid.control.kinds import describe_kinds
 from ambid_cli.commands.inputs import (add_live_options, add_run_options, address, checked_controller, controller,
                                        count, free_port, no_controller_on_hardware, positive_float, rig_file)
-from ambid_cli.commands.session_report import (death_line, foreign_not_shown, levitation_lines, print_foreign,
-                                                session_of, session_words)
+from ambid_cli.commands.session_report import (death_line, levitation_lines, live_line, print_foreign, session_of,
+                                                session_words)
 
 from ambid_nodes.graph import (DEFAULT_NAMESPACE, GraphConfig, run_composed, run_hardware, run_processes,
                                session_domain_id)
@@ -55,9 +55,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         f = live.stop()
         if f:
-            print(f"live view: {f.get('frames_sent', 0)} frames sent to {f.get('clients', 0)} client(s), "
-                  f"{f.get('dropped_frames', 0)} dropped, {f.get('lost_blocks', 0)} blocks lost"
-                  + foreign_not_shown(f))
+            print(live_line(f))
 
 
 def run_graph(args: argparse.Namespace, rig) -> int:

@@ -12,7 +12,7 @@ from ambid.control.kinds import describe_kinds
 from ambid_cli.commands.inputs import (BadInput, add_experiment_options, add_live_options, add_run_options,
                                         add_session_options, address, checked_controller, controller, count,
                                         experiment_spec, free_port, no_controller_on_hardware, output_dir, rig_file)
-from ambid_cli.commands.session_report import (death_line, foreign_not_shown, kept_out_line, levitation_lines,
+from ambid_cli.commands.session_report import (death_line, kept_out_line, levitation_lines, live_line,
                                                 print_foreign, session_of, session_words)
 from ambid_nodes.graph import DEFAULT_NAMESPACE
 
@@ -104,9 +104,7 @@ def run(args: argparse.Namespace) -> int:
         return 1
     live = summary.get("live")
     if live:
-        print(f"  live view: {live.get('frames_sent', 0)} frames sent to {live.get('clients', 0)} client(s), "
-              f"{live.get('dropped_frames', 0)} dropped, {live.get('lost_blocks', 0)} blocks lost"
-              + foreign_not_shown(live))
+        print("  " + live_line(live))
     return 0 if summary.get("state", "done") == "done" else 1
 
 

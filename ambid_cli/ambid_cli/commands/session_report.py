@@ -13,16 +13,20 @@ def session_of(args) -> int:
     return args.session if args.session is not None else new_session_id()
 
 
+def _by_publisher(pairs) -> str:
+    """``who on a, b; other on c`` from (publisher, what) pairs, publishers sorted, each one's in the given order."""
+    by_who: dict[str, list[str]] = {}
+    for who, what in pairs:
+        by_who.setdefault(who, []).append(what)
+    return "; ".join(f"{who} on {', '.join(items)}" for who, items in sorted(by_who.items()))
+
+
 def foreign_line(command: str, foreign: dict[str, list[str]]) -> str | None:
     """One line naming the publishers found on the rig's topics before the session started, grouped by publisher;
     None if there were none."""
     if not foreign:
         return None
-    by_who: dict[str, list[str]] = {}
-    for topic, names in foreign.items():
-        for who in names:
-            by_who.setdefault(who, []).append(topic)
-    found = "; ".join(f"{who} on {', '.join(topics)}" for who, topics in sorted(by_who.items()))
+    found = _by_publisher((who, topic) for topic, names in foreign.items() for who in names)
     return (f"ambid {command}: foreign publishers on this rig's topics, ignored (their messages are counted, "
             f"never acted on nor recorded): {found}")
 
@@ -33,19 +37,19 @@ def kept_out_line(command: str, kept_out: dict[str, dict]) -> str | None:
     whether or not they were found before it (a source that appears later, or is discovered late, is named here)."""
     if not kept_out:
         return None
-    by_who: dict[str, list[str]] = {}
-    for topic, f in sorted(kept_out.items()):
-        for who in f.get("from") or ["an unnamed publisher"]:
-            by_who.setdefault(who, []).append(f"{topic} ({f['messages']})")
-    found = "; ".join(f"{who} on {', '.join(topics)}" for who, topics in sorted(by_who.items()))
+    found = _by_publisher((who, f"{topic} ({f['messages']})") for topic, f in sorted(kept_out.items())
+                          for who in f.get("from") or ["an unnamed publisher"])
     return (f"ambid {command}: foreign messages heard during the session and kept out of it (messages per topic): "
             f"{found}")
 
 
-def foreign_not_shown(live: dict) -> str:
-    """The live view's words on the foreign messages it did not show (``, 12 foreign messages not shown``)."""
+def live_line(live: dict) -> str:
+    """The live view's figures at the end: frames sent, clients, frames dropped, blocks lost and the foreign
+    messages it did not show."""
     n = sum((live.get("foreign_messages") or {}).values())
-    return f", {n} foreign messages not shown" if n else ""
+    return (f"live view: {live.get('frames_sent', 0)} frames sent to {live.get('clients', 0)} client(s), "
+            f"{live.get('dropped_frames', 0)} dropped, {live.get('lost_blocks', 0)} blocks lost"
+            + (f", {n} foreign messages not shown" if n else ""))
 
 
 def print_foreign(command: str, foreign: dict[str, list[str]]) -> None:
