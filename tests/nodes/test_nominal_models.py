@@ -48,8 +48,44 @@ NOMINALS = {
 }
 
 
+N_TWINS = 16
+# how far an interval may miss the BLA's value, in its own standard deviations: twice the standard error of
+# a mean of N_TWINS twins whose distortion moves each by up to 1.3 standard deviations
+SLACK = 2 * 1.3 / np.sqrt(N_TWINS)
+
+
+def _twin(seed: int, out_dir: Path) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Design ``seed`` of identify's default experiment, its noise-free twin's FRF and its magnets' slopes
+    (a worker process's job: module-level, so it pickles)."""
+    from ambid.excitation.spec import DesignSpec
+    from ambid.fit.model_update import excitation_slopes, slopes_as_parameters
+    from ambid.plant.rig import make_rig
+    from ambid.studies.bla_truth import noise_free_twin
+    from ambid_nodes.session import SessionConfig, plan_session
+
+    rig = make_rig()
+    plan = plan_session(SessionConfig(out_dir=out_dir, experiment=DesignSpec(seed=seed)), rig)
+    twin = noise_free_twin(rig, plan.controller.model, plan.controller.current_limit_a, plan.design)
+    return twin.freq_hz, twin.frf, slopes_as_parameters(*excitation_slopes(rig, plan.controller.model, plan.design))
+
+
 @pytest.fixture(scope="module")
-def session(tmp_path_factory):
+def twin_jobs(tmp_path_factory):
+    """The twins need nothing of the session: one worker process starts on them while identify runs (a
+    spawned one: this process may hold rclpy's threads), and what it has not begun when identify is done is
+    shared with this process (:func:`bla`). About half the module's time, on 2 cores."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    out = tmp_path_factory.mktemp("twins")
+    pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+    jobs = {seed: pool.submit(_twin, seed, out) for seed in range(1, N_TWINS + 1)}
+    yield jobs, out
+    pool.shutdown(wait=True, cancel_futures=True)
+
+
+@pytest.fixture(scope="module")
+def session(twin_jobs, tmp_path_factory):
     import os
 
     from conftest import next_domain_id
@@ -62,36 +98,27 @@ def session(tmp_path_factory):
     return dict(out=out, summary=json.loads((out / "summary.json").read_text()))
 
 
-N_TWINS = 16
-# how far an interval may miss the BLA's value, in its own standard deviations: twice the standard error of
-# a mean of N_TWINS twins whose distortion moves each by up to 1.3 standard deviations
-SLACK = 2 * 1.3 / np.sqrt(N_TWINS)
-
-
 def _holds(ci, std, value) -> bool:
     return ci[0] - SLACK * std <= value <= ci[1] + SLACK * std
 
 
 @pytest.fixture(scope="module")
-def bla(session):
+def bla(session, twin_jobs):
     """The BLA parameters the session's intervals claim (ambid.studies.bla_truth), from N_TWINS noise-free
     twins: designs 1 .. N_TWINS of identify's default experiment (the session's is design 1), each weighted by
     the session's fit variance carried to its lines."""
-    from ambid.excitation.spec import DesignSpec
-    from ambid.fit.model_update import excitation_slopes, slopes_as_parameters
     from ambid.plant.rig import make_rig
-    from ambid.studies.bla_truth import SLOPES, Twin, at_own_excitation, bla_parameters, noise_free_twin, variance_on
-    from ambid_nodes.session import SessionConfig, plan_session
+    from ambid.studies.bla_truth import SLOPES, Twin, at_own_excitation, bla_parameters, variance_on
 
-    rig = make_rig()
+    jobs, out = twin_jobs
+    # this process takes, from the last, the twins the worker has not begun; the worker's come as they end
+    done = {seed: _twin(seed, out) for seed in sorted(jobs, reverse=True) if jobs[seed].cancel()}
+    done.update({seed: job.result(timeout=900) for seed, job in jobs.items() if seed not in done})
     upd = session["summary"]["update"]
     frf = np.load(session["out"] / "frf.npz")
-    twins, slopes = [], []
-    for seed in range(1, N_TWINS + 1):
-        plan = plan_session(SessionConfig(out_dir=session["out"], experiment=DesignSpec(seed=seed)), rig)
-        twin = noise_free_twin(rig, plan.controller.model, plan.controller.current_limit_a, plan.design)
-        twins.append(Twin(twin.freq_hz, twin.frf, variance_on(frf["freq_hz"], frf["var_fit"], twin.freq_hz)))
-        slopes.append(slopes_as_parameters(*excitation_slopes(rig, plan.controller.model, plan.design)))
+    twins = [Twin(f, h, variance_on(frf["freq_hz"], frf["var_fit"], f)) for f, h, _ in (done[s] for s in sorted(done))]
+    slopes = [done[s][2] for s in sorted(done)]
+    rig = make_rig()
     pooled = bla_parameters(rig, twins, sorted(upd["parameters"]), upd["free"])
     # the magnets' slopes at the session's own excitation (its grid and amplitudes), beside the twins' mean
     own = {k: upd["parameters"][k]["true"] for k in SLOPES if k in upd["parameters"]}
