@@ -237,6 +237,7 @@ class PlantSim(Node):
         self.finished = Future()  # completes with the summary when the run ends
         self.publish_description()
         self.start_timer = self.create_timer(0.05, self.try_start)
+        self.start_retry = None  # the re-send of y[0] until the first answer (try_start)
         self.watchdog = self.create_timer(min(0.1, self.timeout / 2), self.check_controller)
         # recovery of a lost loop message: no clock is read per sample; this timer sees the loop stand still
         self.resends = 0  # times the plant asked again
@@ -597,6 +598,8 @@ class PlantSim(Node):
         self.start_timer.cancel()
         self.watchdog.cancel()
         self.resend_timer.cancel()
+        if self.start_retry is not None:  # a run that ended before its first answer, or a timer still armed
+            self.start_retry.cancel()
         self.finished.set_result(self.summary)
 
 

@@ -1,5 +1,5 @@
 """Issue 30: sessions keep to themselves. A foreign source of well-formed blocks and designs on the same domain
-and namespace changes neither what identify estimates nor one recorded byte of the session's own messages,
+and namespace changes neither what identify estimates nor one recorded field of the session's own messages,
 and is counted and named; two rigs in two namespaces on one domain run side by side unaffected."""
 
 from __future__ import annotations
@@ -72,18 +72,21 @@ def identify(out: Path, env: dict, procs, *extra: str) -> subprocess.Popen:
                   *extra], env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def own_messages(path: Path) -> dict[str, list[bytes]]:
-    """The recorded bytes of the session's deterministic messages, per topic, in order (status and events carry
-    wall-clock figures; /clock is compared by count)."""
+def own_messages(path: Path) -> dict[str, list[tuple[int, object]]]:
+    """The session's deterministic messages as recorded, per topic, in order: each one's serialized length and
+    every field (status and events carry wall-clock figures; /clock is compared by count). Not the raw bytes:
+    CDR pads a string to the next 4-byte boundary, and Fast-CDR leaves those padding bytes as the writer's
+    buffer held them, so the same message can be sent as different bytes (seen: a measurement block's 46
+    padding bytes after its channel names differed between two runs with every field the same)."""
     topics = ["/amb/measurement", "/amb/excitation", "/amb/excitation/design", "/amb/plant/description",
               "/amb/controller/description", "/amb/frf"]
-    out: dict[str, list[bytes]] = {t: [] for t in topics}
+    out: dict[str, list[tuple[int, object]]] = {t: [] for t in topics}
     for m in iter_messages(path, topics):
-        out[m.topic].append(m.data)
+        out[m.topic].append((len(m.data), deserialize_message(m.data, message_class(m.type_name))))
     return out
 
 
-def test_a_foreign_source_changes_no_estimate_and_no_recorded_byte_and_is_named(ros, ros_env, procs, tmp_path):
+def test_a_foreign_source_changes_no_estimate_and_no_recorded_message_and_is_named(ros, ros_env, procs, tmp_path):
     clean = identify(tmp_path / "clean", ros_env, procs)
     out, err = clean.communicate(timeout=600)
     assert clean.returncode == 0, err[-3000:]
@@ -113,7 +116,7 @@ def test_a_foreign_source_changes_no_estimate_and_no_recorded_byte_and_is_named(
     for k in ("freq_hz", "frf", "var_noise", "sensitivity"):
         np.testing.assert_array_equal(getattr(fa, k), getattr(fb, k), err_msg=k)
 
-    # not one recorded byte of the session's own messages changed, and nothing foreign was recorded
+    # not one recorded field of the session's own messages changed, and nothing foreign was recorded
     ra, rb = (own_messages(tmp_path / d / "session.mcap") for d in ("clean", "flooded"))
     for topic in ra:
         assert ra[topic] == rb[topic], f"{topic}: {len(ra[topic])} vs {len(rb[topic])} messages"
