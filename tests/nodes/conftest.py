@@ -155,7 +155,20 @@ def ros():
             executor.spin_once(timeout_sec=0.05)
         return True
 
-    ns = SimpleNamespace(context=context, executor=executor, domain_id=domain, add=add, spin_until=spin_until)
+    def retire(*retired) -> None:
+        # nodes taken out mid-test: their timers stopped, and the events already queued for them run while
+        # they still exist (the EventsExecutor runs an event queued before its node was removed and destroyed:
+        # InvalidHandle in a callback), then removed and destroyed
+        for node in retired:
+            for timer in node.timers:
+                timer.cancel()
+        spin_until(lambda: False, 0.1, scale=False)
+        for node in retired:
+            executor.remove_node(node)
+            node.destroy_node()
+
+    ns = SimpleNamespace(context=context, executor=executor, domain_id=domain, add=add, spin_until=spin_until,
+                         retire=retire)
     ns.matched = lambda *wanted, to=None, timeout_s=MATCH_TIMEOUT_S: matched(ns, *wanted, to=to,
                                                                              timeout_s=timeout_s)
     yield ns

@@ -110,9 +110,7 @@ def test_pipelined_controller_gives_the_same_samples_as_lock_step_answers(ros):
         assert ros.spin_until(lambda: len(spy.ic_idx) == 3000 + pipeline, timeout_s=5)
         assert spy.ic_idx == list(range(3000 + pipeline))
         runs[pipeline] = np.vstack([block_data(b, MEASUREMENT_NAMES) for b in spy.blocks])
-        for node in (spy, plant, ctrl):
-            ros.executor.remove_node(node)
-            node.destroy_node()
+        ros.retire(spy, plant, ctrl)
     assert np.array_equal(runs[True], runs[False])
     assert np.abs(runs[True][:, 8:12]).max() > 0.1  # the controller did carry the rotor
 
@@ -150,9 +148,7 @@ def test_compiled_callbacks_give_the_same_samples_as_the_python_path(ros, monkey
             assert answered == (0, 0)
         assert ros.spin_until(lambda: sum(b.n_samples for b in spy.blocks) == 3000, timeout_s=10)
         runs[compiled] = np.vstack([block_data(b, MEASUREMENT_NAMES) for b in spy.blocks])
-        for node in (spy, plant, ctrl):
-            ros.executor.remove_node(node)
-            node.destroy_node()
+        ros.retire(spy, plant, ctrl)
     assert np.array_equal(runs[True], runs[False])
     assert np.abs(runs[True][:, 8:12]).max() > 0.1  # the controller did carry the rotor
 

@@ -87,9 +87,7 @@ def run_loop(ros, pipeline: bool, drop_ic: set[int] = frozenset(), drop_y: set[i
     n = int(round(sim_s / plant.dt))
     assert ros.spin_until(lambda: sum(deserialize_message(b, SampleBlock).n_samples for b in blocks.raw) == n, 10)
     summary = plant.finished.result()
-    for node in (plant, ctrl, blocks, *relays):
-        ros.executor.remove_node(node)
-        node.destroy_node()
+    ros.retire(plant, ctrl, blocks, *relays)
     return summary, ctrl.answers_repeated, blocks.records(), relays
 
 
