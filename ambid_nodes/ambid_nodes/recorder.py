@@ -517,16 +517,18 @@ class Recorder(Node):
             return self.summary
         for timer in (self.flush_timer, self.discovery_timer, self.status_timer):
             timer.cancel()
+        # taken once: the file's facts and the summary (identify's line) name the same publishers, also where
+        # the graph learns a GID-named one's node while the file closes
+        foreign = self.foreign_figures()
         if not self.rec.failed:
             try:
-                foreign = self.foreign_figures()
                 if foreign:  # what was kept out, in the file's facts (the last status comes after the file)
                     self.rec.write_facts({"foreign": foreign})
                 self.rec.close()
             except SessionWriteError as exc:
                 self.get_logger().error(f"closing {self.path} failed: {exc}")
                 self.event(SessionEvent.ERROR, "write_failed", f"closing {self.path} failed: {exc}")
-            self.summary = {**self.rec.figures(), "foreign": self.foreign_figures()}
+            self.summary = {**self.rec.figures(), "foreign": foreign}
         self.rec.closed = True
         line = (f"closed {self.path}: {self.summary['messages']} messages, {self.summary['file_bytes']} bytes, "
                 f"{self.summary['state']}")
