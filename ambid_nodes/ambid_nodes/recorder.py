@@ -405,7 +405,10 @@ class Recorder(Node):
         self.on_foreign(topic, gid=gid, count=False)
 
     def foreign_figures(self) -> dict:
-        """{topic: {"messages": n, "from": [publishers named]}} of the foreign messages kept out so far."""
+        """{topic: {"messages": n, "from": [publishers named]}} of the foreign messages kept out so far; once
+        the file is closed, what its facts say (the last status then names what the file names)."""
+        if self.rec.closed:
+            return (self.summary or {}).get("foreign", {})
         for topic, gids in self.unnamed.items():   # a publisher first named by its GID: by its node, if known now
             names = self.foreign_names.get(topic, set())
             for gid, old in list(gids.items()):
