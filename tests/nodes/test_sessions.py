@@ -23,6 +23,7 @@ from rclpy.serialization import deserialize_message
 
 from ambid_msgs.msg import ExcitationDesign, SampleBlock, SessionEvent, SessionStatus
 from ambid_nodes import qos
+from ambid_nodes.identity import UNNAMED
 from ambid_nodes.recorder import message_class
 from proc_tree import alive, descendants
 
@@ -230,7 +231,7 @@ def test_two_rigs_in_two_namespaces_on_one_domain_run_side_by_side(ros, ros_env,
     kept_out = json.loads(facts["foreign"])["/clock"]
     # named by its node; by its GID where rig a's graph never learnt rig b's node names (rmw sends a node's info
     # apart from its endpoints: on a loaded machine it may come after rig a's short session has closed)
-    who = "/rig_b/plant_sim" if any("/rig_b/plant_sim" in w for w in kept_out["from"]) else "not yet known"
+    who = "/rig_b/plant_sim" if any("/rig_b/plant_sim" in w for w in kept_out["from"]) else UNNAMED
     assert kept_out["messages"] > 0 and any(who in w for w in kept_out["from"]), kept_out
     assert len(said) == 1 and who in said[0] and "/clock (" in said[0], err_a[-2000:]
     print(f"\nrig a recorded {scan.topic_message_counts['/clock']} /clock messages for {samples} samples; "
