@@ -162,8 +162,10 @@ ambid_build_target_c() {
     local -a flags=(-std=c99 -O2 -Wall -Wextra -Wpedantic -Werror)
     command -v "${CC:-gcc}" >/dev/null 2>&1 || ambid_die "no C compiler (${CC:-gcc}) found; install gcc (e.g. 'apt-get install gcc'), then run './launch_scripts/ambid setup' again."
     mkdir -p "$out"
-    if ! { "${CC:-gcc}" "${flags[@]}" -o "$out/ambp_udp_target" "$src/ambp.c" "$src/ambp_udp_target.c" -lm &&
-        "${CC:-gcc}" "${flags[@]}" -fPIC -shared -o "$out/libambp.so" "$src/ambp.c" -lm; } >"$log" 2>&1; then
+    if ! { "${CC:-gcc}" "${flags[@]}" -o "$out/ambp_udp_target" "$src/ambp.c" "$src/ambp_hmac.c" \
+            "$src/ambp_udp_target.c" -lm &&
+        "${CC:-gcc}" "${flags[@]}" -fPIC -shared -o "$out/libambp.so" "$src/ambp.c" "$src/ambp_hmac.c" -lm; } \
+        >"$log" 2>&1; then
         rm -rf "$out"
         ambid_die "the C reference target did not compile (last lines below; full log $log). Fix the source named there, then run './launch_scripts/ambid setup' again.
 $(tail -n 12 "$log")"

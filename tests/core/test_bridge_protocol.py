@@ -11,6 +11,7 @@ import zlib
 import numpy as np
 import pytest
 from ambid.hardware import bridge_protocol as bp
+from ambid.hardware.link_key import LinkKey
 from ambid.hardware.rt_target import ExcitationBuffer, FaultInjector, Target, TargetConfig
 
 
@@ -89,7 +90,8 @@ def test_wrong_version_and_magic_are_refused():
     assert info.value.reason == "version"
     assert _same(bp.unpack_datagram(d, version=1), ALL_MESSAGES[3])
     with pytest.raises(bp.ProtocolError, match="protocol version 3, this end speaks version 2"):
-        bp.unpack_datagram(bp.pack_datagram(ALL_MESSAGES[3], version=3))
+        bp.unpack_datagram(bp.pack_datagram(ALL_MESSAGES[3], version=3,
+                                            seal=bp.Seal(LinkKey(bytes(32)), bp.Sender.BRIDGE, bytes(8))))
     body = b"XXXX" + bp.pack_datagram(ALL_MESSAGES[3])[4:-4]
     with pytest.raises(bp.ProtocolError) as info:
         bp.unpack_datagram(body + struct.pack("<I", zlib.crc32(body)))

@@ -177,7 +177,8 @@ def test_excitation_reordered_duplicated_lost_and_malformed_is_applied_sample_ex
     code, s = bridge.finish()
     assert code == 0 and s["state"] == "done" and s["samples"] == n
     assert s["rx_rejected_by_reason"] == {"oversized": 0, "length": 1, "magic": 0, "version": 1, "crc": 1, "kind": 0,
-                                          "content": 0, "foreign": 1}
+                                          "content": 0, "foreign": 1, "auth": 0, "direction": 0, "session": 0,
+                                          "replay": 0, "duplicate": 0}
     assert s["late_excitation_samples"] == 0
     rows, flags, first = bridge.rows()
     assert first == 0 and len(rows) == n and not flags.any()
