@@ -604,12 +604,13 @@ int ambp_target_receive(ambp_target *t, const uint8_t *d, size_t n, int from_bri
     if (why == AMBP_OK && t->scratch.kind == AMBP_EXCITATION && t->scratch.axes != t->cfg.axes)
         why = AMBP_E_CONTENT; /* another rig's channels */
     int committed = 0;
+    const uint8_t kind = t->scratch.kind; /* link_check may answer a HELLO in the scratch message */
     if (why == AMBP_OK && sealed) why = link_check(t, &committed);
     if (why != AMBP_OK) {
         t->rx_rejected_by_reason[why]++;
         return why;
     }
-    if (t->scratch.kind == AMBP_HELLO) { /* answered (link_check); not a sign of the bridge in the session */
+    if (kind == AMBP_HELLO) { /* answered (link_check); not a sign of the bridge in the session */
         t->rx++;
         return AMBP_OK;
     }
