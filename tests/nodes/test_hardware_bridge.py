@@ -297,7 +297,9 @@ def test_silent_target_is_detected_and_sent_to_its_safe_state(ros, target_thread
 
 
 def test_wrong_protocol_version_is_refused_and_counted(ros, target_thread):
-    with pytest.raises(ParameterError, match="protocol_version 3 is not implemented"):
+    with pytest.raises(ParameterError, match="protocol_version 4 is not implemented"):
+        HardwareBridge(namespace=NS, context=ros.context, parameter_overrides=[Parameter("protocol_version", value=4)])
+    with pytest.raises(ParameterError, match="protocol_version 3 authenticates every datagram and needs key_file"):
         HardwareBridge(namespace=NS, context=ros.context, parameter_overrides=[Parameter("protocol_version", value=3)])
     with pytest.raises(ParameterError, match="unknown parameter"):
         HardwareBridge(namespace=NS, context=ros.context, parameter_overrides=[Parameter("no_such", value=1)])

@@ -32,11 +32,13 @@ from collections.abc import Callable
 
 from ambid.hardware import bridge_protocol as bp
 
-__all__ = ["WINDOW", "PROPOSALS", "LINK_REASONS", "ReplayWindow", "LinkEnd", "link_words"]
+__all__ = ["WINDOW", "PROPOSALS", "REFUSAL_EVENTS", "ReplayWindow", "LinkEnd", "link_words", "refusal_event"]
 
 WINDOW = 64      # sequence numbers per kind a receiver remembers below the highest it accepted
 PROPOSALS = 4    # sessions a target proposed and not yet seen confirmed (the newest kept)
-LINK_REASONS = ("direction", "session", "replay", "duplicate")  # refusals that depend on the link's state
+# the event a refusal raises at the bridge, by reason (the framing reasons raise malformed_datagram)
+REFUSAL_EVENTS = {"auth": "forged_datagram", "session": "foreign_session_datagram", "replay": "replayed_datagram",
+                  "duplicate": "duplicate_datagram"}
 _PEER = {bp.Sender.BRIDGE: bp.Sender.TARGET, bp.Sender.TARGET: bp.Sender.BRIDGE}
 _SENDS = {bp.Sender.BRIDGE: {bp.Kind.EXCITATION, bp.Kind.HEARTBEAT, bp.Kind.COMMAND, bp.Kind.HELLO},
           bp.Sender.TARGET: {bp.Kind.MEASUREMENT, bp.Kind.HEARTBEAT, bp.Kind.ACK, bp.Kind.WELCOME}}
@@ -274,3 +276,8 @@ def link_words(link: LinkEnd, who: str) -> str:
         return f"{who}: protocol version {link.version}, authenticated with the key of fingerprint {link.fingerprint()}"
     return (f"{who}: the link is unauthenticated (protocol version {link.version}): any host on the rig network can "
             "command the magnets; use protocol version 3 with a key file")
+
+
+def refusal_event(reason: str) -> str:
+    """The event code of a refusal's reason: REFUSAL_EVENTS', else ``malformed_datagram``."""
+    return REFUSAL_EVENTS.get(reason, "malformed_datagram")
