@@ -27,7 +27,8 @@
 extern "C" {
 #endif
 
-#define AMBP_VERSION 2u               /* version 2: any number of axes (1..AMBP_MAX_AXES); version 1: four */
+#define AMBP_VERSION 3u               /* the default: version 3, authenticated; 2: any number of axes, unsealed;
+                                       * 1: four axes */
 #define AMBP_AUTH_VERSION 3u          /* version 3 and later: sealed (sender, session id, tag) */
 #define AMBP_V1_AXES 4u               /* version 1's channel sets carry exactly four axes */
 #define AMBP_MAX_AXES 8u

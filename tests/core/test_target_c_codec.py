@@ -15,6 +15,7 @@ from ambid.hardware import bridge_protocol as bp
 from ambid.hardware.link_key import LinkKey, key_fingerprint
 
 ROOT = Path(__file__).resolve().parents[2]
+V2 = 2  # the golden and malformed datagrams of version 2 (and 1) first; version 3's sealed ones below
 LIB = ROOT / "ros_ws" / "install" / "target_c" / "libambp.so"
 REASONS = ["ok", "oversized", "length", "magic", "version", "crc", "kind", "content", "foreign", "auth", "direction",
            "session", "replay", "duplicate"]
@@ -64,6 +65,14 @@ def lib():
     return so
 
 
+def pack(msg, version: int = V2, value_bytes: int = 8) -> bytes:
+    return bp.pack_datagram(msg, version, value_bytes)
+
+
+def unpack(d: bytes, version: int = V2):
+    return bp.unpack_datagram(d, version)
+
+
 def c_key(lib, secret: bytes | None) -> HmacKey | None:
     """The C key of a secret (None: no key)."""
     if secret is None:
@@ -73,13 +82,13 @@ def c_key(lib, secret: bytes | None) -> HmacKey | None:
     return k
 
 
-def c_encode(lib, m: Message, version: int = bp.PROTOCOL_VERSION, key: HmacKey | None = None) -> bytes:
+def c_encode(lib, m: Message, version: int = V2, key: HmacKey | None = None) -> bytes:
     buf = ctypes.create_string_buffer(2048)
     n = lib.ambp_encode(ctypes.byref(m), version, None if key is None else ctypes.byref(key), buf, len(buf))
     return buf.raw[:n]
 
 
-def c_decode(lib, d: bytes, version: int = bp.PROTOCOL_VERSION, key: HmacKey | None = None) -> tuple[str, Message]:
+def c_decode(lib, d: bytes, version: int = V2, key: HmacKey | None = None) -> tuple[str, Message]:
     m = Message()
     return REASONS[lib.ambp_decode(d, len(d), version, None if key is None else ctypes.byref(key),
                                    ctypes.byref(m))], m
@@ -158,22 +167,22 @@ def _golden():
 @pytest.mark.parametrize("msg,value_bytes", _golden(), ids=lambda x: type(x).__name__ if not isinstance(x, int)
                          else f"f{8 * x}")
 def test_golden_datagrams_are_byte_identical_both_ways(lib, msg, value_bytes):
-    py = bp.pack_datagram(msg, value_bytes=value_bytes)
+    py = pack(msg, value_bytes=value_bytes)
     c = c_encode(lib, to_c(msg, value_bytes))
     assert c == py  # C encodes the fields to Python's bytes
     reason, m = c_decode(lib, py)  # C decodes Python's bytes to the same fields ...
     assert reason == "ok"
     back = from_c(m)
-    expect = bp.unpack_datagram(py)  # (float32 values compared after Python's own rounding)
+    expect = unpack(py)  # (float32 values compared after Python's own rounding)
     for name in expect.__dataclass_fields__:
         a, b = getattr(back, name), getattr(expect, name)
         assert (np.array_equal(a, b) if isinstance(b, np.ndarray) else a == b), name
     assert c_encode(lib, m) == py  # ... and re-encodes them to the same bytes
-    assert bp.unpack_datagram(c_encode(lib, m)) is not None
+    assert unpack(c_encode(lib, m)) is not None
     assert lib.ambp_crc32(py[:-4], len(py) - 4) == zlib.crc32(py[:-4])
 
 
-def _reframe(payload: bytes, kind: int, payload_len: int | None = None, version: int = bp.PROTOCOL_VERSION,
+def _reframe(payload: bytes, kind: int, payload_len: int | None = None, version: int = V2,
              magic=b"AMBP") -> bytes:
     head = struct.pack("<4sBBHIHH", magic, version, kind, 0, 0, len(payload) if payload_len is None else payload_len,
                        0)
@@ -189,10 +198,10 @@ def _axes(block_payload: bytes, axes: int) -> bytes:
 
 def _malformed() -> list[bytes]:
     rng = np.random.default_rng(3)
-    meas = bp.pack_datagram(bp.Measurement(1, 10, rng.standard_normal((3, 16)), np.zeros(3, np.uint8)))
-    exc = bp.pack_datagram(bp.Excitation(1, 10, rng.standard_normal((5, 4))))
-    hb = bp.pack_datagram(bp.Heartbeat(1, 1))
-    cmd = bp.pack_datagram(bp.Command(1, 1, 1))
+    meas = pack(bp.Measurement(1, 10, rng.standard_normal((3, 16)), np.zeros(3, np.uint8)))
+    exc = pack(bp.Excitation(1, 10, rng.standard_normal((5, 4))))
+    hb = pack(bp.Heartbeat(1, 1))
+    cmd = pack(bp.Command(1, 1, 1))
     out = [meas + bytes(1472 - len(meas) + 1), bytes(19), b"", meas[:-1], exc[:20]]
     out += [meas[:i] for i in range(0, len(meas), 97)]  # truncations
     for bit in range(len(hb) * 8):  # every single-bit error
@@ -224,7 +233,7 @@ def test_malformed_datagrams_are_refused_for_the_reason_python_gives(lib):
     seen = set()
     for d in cases:
         with pytest.raises(bp.ProtocolError) as info:
-            bp.unpack_datagram(d)
+            unpack(d)
         reason, _ = c_decode(lib, d)
         assert reason == info.value.reason, (d[:24].hex(), len(d))
         seen.add(reason)
@@ -232,7 +241,7 @@ def test_malformed_datagrams_are_refused_for_the_reason_python_gives(lib):
     # version 1 (the four radial axes, channel sets 1 and 2) still decodes at a version-1 end, and is
     # refused by a version-2 one
     for msg in (bp.Measurement(1, 10, np.ones((3, 16)), np.zeros(3, np.uint8)), bp.Excitation(1, 10, np.ones((5, 4)))):
-        d1 = bp.pack_datagram(msg, version=1)
+        d1 = pack(msg, version=1)
         reason, m = c_decode(lib, d1, 1)
         assert reason == "ok" and m.axes == 4 and c_encode(lib, m, 1) == d1
         assert c_decode(lib, d1)[0] == "version"

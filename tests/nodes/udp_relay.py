@@ -31,7 +31,7 @@ class Relay:
         self.to_bridge: list[bytes] = []
         self.taps: list = []  # callables (direction, datagram) run on every forwarded datagram, in the relay thread
         self._stop = threading.Event()
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()  # a tap may inject from inside the relay's thread
         self._thread = threading.Thread(target=self._run, name="udp_relay", daemon=True)
         self._thread.start()
 

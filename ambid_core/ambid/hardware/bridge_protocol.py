@@ -49,7 +49,7 @@ import numpy as np
 from ambid.channels import Layout
 
 MAGIC = b"AMBP"
-PROTOCOL_VERSION = 2
+PROTOCOL_VERSION = 3         # authenticated; 2 and 1 only when both ends ask for them
 AUTHENTICATED_VERSION = 3  # this version and later carry a tag and a session id
 SUPPORTED_VERSIONS = (1, 2, 3)
 MAX_AXES = 8  # version 2: axes a block may carry

@@ -191,8 +191,8 @@ class LinkEnd:
         Version 3: after :func:`bp.open_datagram`'s checks (a wrong tag is ``auth``), the sender must be the
         peer and send this kind (``direction``), the datagram must belong to this end's session (``session``;
         a target commits a proposal on its first datagram), and its sequence must pass its kind's window
-        (``duplicate``, ``replay``). A HELLO (target) or WELCOME (bridge) is returned for the caller to answer
-        or note; a repeated one of the agreed session changes nothing.
+        (``duplicate``, ``replay``; HELLOs are not windowed). A HELLO (target) or WELCOME (bridge) is returned
+        for the caller to answer or note; a repeated one of the agreed session changes nothing.
 
         Raises:
             ProtocolError: refused; ``reason`` says why.
@@ -204,11 +204,12 @@ class LinkEnd:
         if env.sender != self.peer or kind not in _SENDS[self.peer]:
             raise bp.ProtocolError("direction", f"a {kind.name} datagram sealed by sender {env.sender}: this end "
                                             f"hears only the {self.peer.name.lower()}'s kinds (reflected?)")
-        if kind == bp.Kind.HELLO:
+        if kind == bp.Kind.HELLO:  # not windowed: a bridge started again before its session counts from 0
             return self._on_hello(msg, env.session)
         if kind == bp.Kind.WELCOME:
-            return self._on_welcome(msg, env.session)
-        session = self._session_of(env.session)
+            session = self._on_welcome(msg, env.session)
+        else:
+            session = self._session_of(env.session)
         window = self.windows.setdefault(kind, ReplayWindow())
         verdict = window.check(msg.sequence)
         if verdict == "replay":
@@ -218,7 +219,7 @@ class LinkEnd:
             raise bp.ProtocolError("duplicate", f"{kind.name} of sequence {msg.sequence} accepted before "
                                             "(duplicated on the way, or replayed)")
         window.accept(msg.sequence)
-        if self.session is None:
+        if self.session is None and kind != bp.Kind.WELCOME:
             self._commit(session)
         return msg
 
@@ -249,7 +250,7 @@ class LinkEnd:
                                           "(replayed, or another bridge)")
         return hello
 
-    def _on_welcome(self, w: bp.Welcome, session: bytes) -> bp.Welcome:
+    def _on_welcome(self, w: bp.Welcome, session: bytes) -> _Proposal | bytes:
         if w.bridge_nonce != self.bridge_nonce:
             raise bp.ProtocolError("session", "a WELCOME to another bridge's HELLO (not this run's nonce): replayed "
                                           "or another bridge's")
@@ -257,9 +258,10 @@ class LinkEnd:
             raise bp.ProtocolError("content", "a WELCOME whose session id is not the one its nonces give")
         if self.session is None:
             self.pending = _Proposal(w.bridge_nonce, w.target_nonce, session)
-        elif session != self.session:
+            return self.pending
+        if session != self.session:
             raise bp.ProtocolError("session", "a WELCOME of another session after the session was agreed")
-        return w
+        return session
 
     def session_text(self) -> str:
         """The session id in hex (not secret), or what there is instead."""

@@ -57,6 +57,7 @@ from __future__ import annotations
 import argparse
 import bisect
 import collections
+import dataclasses
 import json
 import math
 import select
@@ -65,6 +66,7 @@ import socket
 import sys
 import threading
 import time
+import types
 from dataclasses import dataclass
 
 import numpy as np
@@ -596,7 +598,8 @@ def serve(cfg: TargetConfig, stop: threading.Event | None = None) -> dict:
 
 
 def parse_args(argv: list[str] | None = None) -> TargetConfig:
-    d = TargetConfig()
+    # the defaults, read off the fields: a TargetConfig() itself would refuse version 3 without a key file
+    d = types.SimpleNamespace(**{f.name: f.default for f in dataclasses.fields(TargetConfig)})
     p = argparse.ArgumentParser(prog="python -m ambid.hardware.rt_target", description=__doc__.split("\n\n")[0])
     p.add_argument("--bind", default=d.bind, help="local host:port to listen on")
     p.add_argument("--bridge", default=d.bridge, help="host:port of the only bridge accepted")
