@@ -66,8 +66,11 @@ def identify_on_target(model: Path, key: Path, out: Path, rig=None, *extra: str,
     records the session; ``strike(relay)`` arms it as a forger. Both ends must finish as planned; returns the
     session's samples and the relay's recording."""
     total = session_total(rig)
+    # --bridge-timeout 5: identify's composed process can stall for more than the default 0.5 s on a loaded
+    # machine (seen: the first FRF estimate), and a free-running target would land; a silent bridge is
+    # test_target_c_socket's drill
     proc, target, local, relay = start_target(model, key, "--pace", "0", "--hold-for-excitation", "--samples",
-                                              str(total), "--seed", "7", relay=True)
+                                              str(total), "--seed", "7", "--bridge-timeout", "5", relay=True)
     if strike is not None:
         strike(relay)
     try:
@@ -151,7 +154,7 @@ def test_identify_hardware_gives_the_c_target_the_accuracy_of_the_simulated_rig(
     py_target = subprocess.Popen([sys.executable, "-m", "ambid.hardware.rt_target", "--bind", f"127.0.0.1:{tp}",
                                   "--bridge", f"127.0.0.1:{lp}", "--pace", "0", "--hold-for-excitation",
                                   "--samples", str(total), "--seed", "1", "--linger", "0.3", "--key-file",
-                                  str(key_file)],
+                                  str(key_file), "--bridge-timeout", "5"],
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT / "ambid_core")
     try:
         py = cli("identify", "--hardware", f"127.0.0.1:{tp}", "--local-port", str(lp), "--true-model", str(model),
@@ -256,5 +259,18 @@ def test_identify_hardware_under_forged_and_replayed_traffic_gives_the_same_frf_
         data = f.read_bytes()
         assert bytes.fromhex(secret_hex) not in data and secret_hex.encode() not in data, f
     assert secret_hex not in rec["stdout"] and rec["target"]["key_fingerprint"] in rec["stdout"]
+    # the recorded session's events name the bridge's refusals and the target's, by reason
+    from ambid.session.reader import iter_decoded
+
+    events = [e for _, e in iter_decoded(tmp_path / "hw" / "session.mcap", "/amb/events")]
+    codes = {e.code for e in events}
+    assert {"forged_datagram", "foreign_session_datagram", "replayed_datagram", "duplicate_datagram",
+            "target_refused"} <= codes, codes
+    said = " ".join(e.text for e in events if e.code == "target_refused")
+    assert "auth " in said and "session " in said
+    final = json.loads(next(e.text for e in events if e.code == "finished"))
+    assert final["malformed_by_reason"] == {"auth": sent["to_bridge"], "session": len(old["to_bridge"]),
+                                            "replay": 1}, final["malformed_by_reason"]
+    assert final["duplicates"] == 1 and final["target_refused_by_reason"]["auth"] == sent["to_target"]
     print(f"identify under attack: target refused {refused}; bridge got {len(old['to_bridge'])} replayed and "
           f"{sent['to_bridge']} forged datagrams, {len(rec['to_bridge'])} genuine; FRF identical to the bit")
