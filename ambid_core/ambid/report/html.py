@@ -96,10 +96,17 @@ def _headline(s: Mapping[str, Any]) -> list[list[str]]:
          f"{_fmt(noise.get('distortion_odd_db'), '+.1f')} / {_fmt(noise.get('distortion_even_db'), '+.1f')}"],
         ["model order (rule)", f"{fit['order']} ({fit['order_rule']})"],
         ["fit chi2 / dof", _fmt(fit["chi2_per_dof"], ".3g")],
-        ["peak input sensitivity", f"{_fmt(sens['worst_peak'], '.3g')} on {sens['worst_input']} "
-                                   f"({_fmt(20 * math.log10(sens['worst_peak']), '.1f')} dB)"],
-        ["ISO 14839-3 zone", sens["iso_zone"]],
     ]
+    loop = sens.get("loop")
+    if loop:
+        rows += [["loop sensitivity peak (ISO 14839-3 zone)",
+                  f"{_fmt(loop['peak'], '.3g')} ({_fmt(20 * math.log10(loop['peak']), '.1f')} dB) at "
+                  f"{_fmt(loop['peak_hz'], '.4g')} Hz, {loop['channel']}, from {loop['source']}: zone "
+                  f"{loop['iso_zone']}"]]
+    if sens.get("worst_peak") is not None:
+        rows += [["peak sensitivity at the measured lines", f"{_fmt(sens['worst_peak'], '.3g')} on "
+                  f"{sens['worst_input']} (zone {sens['iso_zone']})"]]
+    rows += [["no sensitivity", why] for why in sens.get("none") or []]
     if s.get("max_mode_freq_error") is not None:
         rows.append(["worst mode frequency / damping error vs true",
                      f"{_pct(s['max_mode_freq_error'])} / {_pct(s['max_mode_damping_error'])}"])

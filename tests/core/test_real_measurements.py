@@ -1,0 +1,90 @@
+"""Real measurements nobody on this project made (tests/data/real/), fitted and checked against an independent
+method written here: sdypy-EMA's LSCF with a stabilisation rule of this test, or the source's published values.
+
+What is counted: the modes ambid prints that the independent method does not find (must be none: a
+computational pole printed as a mode is a wrong result) and those it finds that ambid does not print.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REAL = Path(__file__).resolve().parents[1] / "data" / "real"
+BEAM = REAL / "ladisk_beam_uff" / "measurement.uff"
+
+
+def _lscf_stable(freq_hz, H, lo, hi, top=60, last=6):
+    """sdypy-EMA's LSCF poles at its highest orders; a pole is stable when every one of the last ``last`` orders
+    holds one within 1 % in frequency (positively damped, zeta < 0.2). H: (n_out, n_in..., L)."""
+    from sdypy import EMA
+
+    m = EMA.Model(frf=H, freq=freq_hz, lower=lo, upper=hi, pol_order_high=top, frf_form="accelerance")
+    m.get_poles(show_progress=False)
+    rows = []
+    for p in m.all_poles[-last:]:
+        w = np.abs(p)
+        z = -p.real / w
+        f = w / (2 * np.pi)
+        rows.append(np.sort(f[(p.imag > 0) & (z > 0) & (z < 0.2) & (f > lo) & (f < hi)]))
+    return np.array([x for x in rows[-1] if all(r.size and np.min(np.abs(r - x)) < 0.01 * x for r in rows)])
+
+
+@pytest.fixture(scope="module")
+def beam_fit(tmp_path_factory):
+    pytest.importorskip("pyuff")
+    from ambid.frf.frf_file import read_frf_file
+    from ambid.studies.frf_fit import identify_frf
+
+    measured = read_frf_file(BEAM)
+    out = tmp_path_factory.mktemp("beam")
+    return measured, identify_frf(measured, out, report=False), out
+
+
+def test_uff_channels_are_node_and_direction_units_from_the_header(beam_fit):
+    measured, _, _ = beam_fit
+    assert measured.output_names == ("1+X",) and measured.input_names == ("1+X", "2+X", "3+X")
+    assert measured.output_units == ("m/s^2",) and measured.input_units == ("N", "N", "N")
+    assert measured.form == "accelerance" and measured.unit == "m/s^2/N"
+    assert measured.freq_hz[0] == 1.0 and measured.freq_hz.size == 1000      # the abscissa as written, 0 Hz out
+    assert any("0 Hz line is left out" in n for n in measured.notes)
+    assert any("'TestCase' on every dataset" in n for n in measured.notes)
+
+
+def test_beam_modes_against_lscf_none_printed_that_are_not_there(beam_fit):
+    measured, summary, out = beam_fit
+    H = measured.frf.transpose(1, 2, 0)[0]          # (3 references, L): one accelerometer
+    stable = _lscf_stable(measured.freq_hz, H, 5.0, 995.0)
+    printed = np.array([m["freq_hz"] for m in summary["fit"]["modes"]])
+    extra = [f for f in printed if np.min(np.abs(stable - f)) > 0.001 * f]
+    missing = [f for f in stable if np.min(np.abs(printed - f)) > 0.001 * f]
+    assert extra == [], f"printed modes LSCF does not find: {extra} (LSCF: {stable})"
+    assert len(printed) >= 6 and len(missing) <= 1, (printed, stable)
+    for f in printed:   # the same modes, to 0.01 %
+        assert np.min(np.abs(stable - f)) / f < 1e-4
+    # the fit's other poles are kept apart, each with its reason, and the JSON says so
+    comp = summary["fit"]["computational_poles"]
+    assert len(comp) >= 5 and all(c["reason"].endswith("computational") for c in comp)
+    on_disk = json.loads((out / "identification.json").read_text())
+    assert [m["freq_hz"] for m in on_disk["fit"]["modes"]] == pytest.approx(list(printed))
+    assert on_disk["form"] == "accelerance" and on_disk["unit"] == "m/s^2/N"
+
+
+def test_uff_binary_58b_reads_as_the_ascii_file(beam_fit, tmp_path):
+    """UFF 58b (binary): the beam's datasets written by pyuff, the format's reference implementation, in binary."""
+    import pyuff
+
+    from ambid.frf.frf_file import read_frf_file
+
+    measured, _, _ = beam_fit
+    sets = pyuff.UFF(str(BEAM)).read_sets()
+    path = tmp_path / "beam_binary.uff"
+    writer = pyuff.UFF(str(path))
+    for s in sets:
+        writer.write_sets(dict(s, binary=1), mode="add")
+    again = read_frf_file(path)
+    assert again.input_names == measured.input_names and again.form == "accelerance"
+    np.testing.assert_allclose(again.frf, measured.frf, rtol=1e-6)
