@@ -104,10 +104,16 @@ def _case(name):
         cols["time"] = cols["time"].copy()
         cols["time"][500:] += 1 / FS
         rmap = {k: v for k, v in MAP.items() if k != "sample_rate_hz"}
-    elif name == "unknown output":
-        rmap = {**MAP, "outputs": {"disp_a": {"column": "x1"}}}  # not y_<axis> (any axis name is one)
-    elif name == "wrong unit":
-        rmap = {**MAP, "outputs": {**MAP["outputs"], "y_a_x": {"column": "x1", "unit": "V"}}}
+    elif name == "output without unit":
+        rmap = {**MAP, "outputs": {"disp_a": {"column": "x1"}}}  # any name is an output, with its unit
+    elif name == "unit not SI":
+        rmap = {**MAP, "outputs": {**MAP["outputs"], "y_a_x": {"column": "x1", "unit": "mm"}}}
+    elif name == "unknown unit":
+        rmap = {**MAP, "outputs": {**MAP["outputs"], "acc1": {"column": "x1", "unit": "furlong"}}}
+    elif name == "current in volts":
+        rmap = {**MAP, "excitation": {**MAP["excitation"], "r_a_x": {"column": "exc1", "unit": "V"}}}
+    elif name == "injection point":
+        rmap = {**MAP, "excitation": {**MAP["excitation"], "r_a_x": {"column": "exc1", "injected_at": "sensor"}}}
     elif name == "excitation axes":
         rmap = {**MAP, "excitation": {"r_a_x": {"column": "exc1"}}}
     return cols, rmap, kw
@@ -126,8 +132,11 @@ CASES = {  # case -> what the one line must say
     "name not in file": r"no channel 'x9' \(named in MAP.yaml",
     "rate vs time column": r"time column 'time' at row \d+ is .* but sample_rate_hz 1200 .*the column says 1000 Hz",
     "time gap": r"time column 'time' is not evenly spaced: row 501",
-    "unknown output": r"outputs name 'disp_a' is not an ambid output name y_<axis>",
-    "wrong unit": r"outputs.y_a_x: unit 'V' after scaling must be m",
+    "output without unit": r"outputs.disp_a has no unit \(and the file states none for 'x1'\); give unit:",
+    "unit not SI": r"outputs.y_a_x: unit 'mm' is not SI; give unit: m and scale: 0.001",
+    "unknown unit": r"outputs.acc1: unit 'furlong' after scaling must be m, m/s, m/s\^2, V",
+    "current in volts": r"excitation.r_a_x: unit 'V' after scaling must be A.*or injected_at: reference \| output",
+    "injection point": r"excitation.r_a_x.injected_at is 'sensor'; give current",
     "excitation axes": r"must name the same axes as currents",
 }
 
@@ -172,7 +181,8 @@ def test_damaged_mat_files(tmp_path, capsys):
 @pytest.mark.parametrize("text, expect", [
     ("", "is empty"), ("[1, 2]", "is not a mapping"), ("outputs: {", "is not YAML"),
     ("sample_rate_hz: 1000\nfoo: 1\n", "unknown key 'foo'"),
-    ("outputs: {y_a_x: x1}\n", "neither sample_rate_hz nor time_column"),
+    ("outputs: {y_a_x: x1}\ncurrents: {u_a_x: i1}\nexcitation: {r_a_x: exc1}\n",
+     "neither sample_rate_hz nor time_column"),
     ("sample_rate_hz: -5\n", "sample_rate_hz is -5"),
 ])
 def test_bad_map_files(tmp_path, text, expect, capsys):

@@ -88,3 +88,70 @@ def test_uff_binary_58b_reads_as_the_ascii_file(beam_fit, tmp_path):
     again = read_frf_file(path)
     assert again.input_names == measured.input_names and again.form == "accelerance"
     np.testing.assert_allclose(again.frf, measured.frf, rtol=1e-6)
+
+
+AMB = REAL / "tum_mlps_amb_lms"
+# the source's eigenfrequencies (Identifizierte_EF.txt), read off its reference -> acceleration FRFs: 16, 51 and
+# 59 Hz are the closed loop's suspension modes, which the plant's FRF (current -> acceleration) does not have
+PUBLISHED_FLEXIBLE_HZ = (100.0, 162.0, 212.0)
+
+
+@pytest.fixture(scope="module")
+def amb_fit(tmp_path_factory):
+    from ambid.records.importer import import_record
+    from ambid.studies.identification import identify_session
+
+    d = tmp_path_factory.mktemp("amb")
+    res = import_record([AMB / "Sweep_Time_Anregung.mat", AMB / "Sweep_Time_Ausgang.mat"], AMB / "MAP.yaml",
+                        d / "amb.mcap")
+    return res, identify_session(d / "amb.mcap", d / "fit", report=False), d
+
+
+def _welch_indirect_lscf():
+    """Independent of ambid's estimator and fit: Welch cross spectra through the excitation (H = S_yr / S_ur,
+    consistent in closed loop), then sdypy-EMA's LSCF with this test's stabilisation rule."""
+    import scipy.io as sio
+    import scipy.signal as sg
+
+    a = sio.loadmat(AMB / "Sweep_Time_Anregung.mat", squeeze_me=True, struct_as_record=False)
+    b = sio.loadmat(AMB / "Sweep_Time_Ausgang.mat", squeeze_me=True, struct_as_record=False)
+    u, y, r = a["Signal"].y_values.values, b["Signal_0"].y_values.values, b["Signal_1"].y_values.values
+    f, s_ur = sg.csd(r, u, fs=2048.0, nperseg=4096)
+    H = np.array([sg.csd(r, y[:, k], fs=2048.0, nperseg=4096)[1] / s_ur for k in range(y.shape[1])])
+    sel = (f >= 5) & (f <= 250)
+    return _lscf_stable(f[sel], H[:, sel], 5.0, 250.0, last=8)
+
+
+def test_lms_records_of_an_amb_rig_import_with_their_names_units_and_injection_point(amb_fit):
+    res, summary, d = amb_fit
+    assert res.n_rows == 32768 and res.fs_hz == 2048.0 and res.design.kind == "recorded"
+    assert any("Welle:1:+X" in n and "[m/s^2]" in n and "shown by Test.Lab in g" in n for n in res.notes)
+    assert any("injected at the reference (r_x [V])" in n for n in res.notes)
+    assert summary["outputs"] == [f"y_acc{k}" for k in range(1, 9)] and summary["inputs"] == ["u_x"]
+    model = json.loads((d / "fit" / "model.json").read_text())
+    assert set(model["output_units"]) == {"m/s^2"} and model["input_units"] == ["A"]
+
+
+def test_amb_rig_modes_against_an_independent_fit_and_the_published_values(amb_fit):
+    _, summary, _ = amb_fit
+    stable = _welch_indirect_lscf()
+    printed = np.array([m["freq_hz"] for m in summary["fit"]["modes"]])
+    extra = [f for f in printed if np.min(np.abs(stable - f)) > 0.01 * f]
+    missing = [f for f in stable if np.min(np.abs(printed - f)) > 0.01 * f]
+    assert extra == [], f"printed modes the independent fit does not find: {extra} (it finds {stable})"
+    assert len(printed) >= 4 and len(missing) <= 2, (printed, stable)
+    for f in PUBLISHED_FLEXIBLE_HZ:
+        assert np.min(np.abs(printed - f)) / f < 0.015, (f, printed)
+    assert summary["fit"]["computational_poles"], "the fit's other poles are kept apart"
+
+
+def test_reference_injection_with_accelerometers_reports_no_sensitivity(amb_fit):
+    from ambid_cli.commands.fit import format_summary
+
+    _, summary, _ = amb_fit
+    sens = summary["sensitivity"]
+    assert sens["worst_peak"] is None and sens["iso_zone"] is None and sens["loop"] is None
+    assert len(sens["none"]) == 1 and sens["none"][0].startswith("no sensitivity for r_x: it is injected at the "
+                                                                 "controller's position reference [V]")
+    text = format_summary(summary)
+    assert "zone" not in text and "no sensitivity for r_x" in text

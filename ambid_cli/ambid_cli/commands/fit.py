@@ -98,6 +98,7 @@ def format_summary(s: dict) -> str:
     if "error" in upd:
         lines.append(f"model updating failed: {upd['error']}")
     lines += sensitivity_lines(sens)
+    lines += [f"data quality: {q['text']}" for q in (s.get("quality") or {}).get("findings", [])]
     if sens.get("updated_peak") is not None:
         lines.append(f"updated model with the recorded controller: sensitivity peak {max(sens['updated_peak']):.3g}, "
                      f"zone {sens['updated_iso_zone']}")

@@ -143,6 +143,7 @@ def format_headlines(s: dict, out: Path) -> str:
     from ambid.frf.sensitivity import sensitivity_lines
 
     lines += [f"  {ln}" for ln in sensitivity_lines(s.get("sensitivity"))]
+    lines += [f"  data quality: {q['text']}" for q in (s.get("quality") or {}).get("findings", [])]
     timing = s.get("analysis_timing") or {}
     if "headline_after_last_period_s" in timing:
         lines.append(f"  results {timing['headline_after_last_period_s']:.1f} s after the last period; the report "

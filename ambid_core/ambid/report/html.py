@@ -99,14 +99,17 @@ def _headline(s: Mapping[str, Any]) -> list[list[str]]:
     ]
     loop = sens.get("loop")
     if loop:
-        rows += [["loop sensitivity peak (ISO 14839-3 zone)",
+        rows += [["loop sensitivity peak (the worst over the measured lines and the fitted model between them)",
                   f"{_fmt(loop['peak'], '.3g')} ({_fmt(20 * math.log10(loop['peak']), '.1f')} dB) at "
-                  f"{_fmt(loop['peak_hz'], '.4g')} Hz, {loop['channel']}, from {loop['source']}: zone "
-                  f"{loop['iso_zone']}"]]
+                  f"{_fmt(loop['peak_hz'], '.4g')} Hz, {loop['channel']}, from {loop['source']}"]]
     if sens.get("worst_peak") is not None:
         rows += [["peak sensitivity at the measured lines", f"{_fmt(sens['worst_peak'], '.3g')} on "
-                  f"{sens['worst_input']} (zone {sens['iso_zone']})"]]
+                  f"{sens['worst_input']} ({_fmt(20 * math.log10(sens['worst_peak']), '.1f')} dB)"]]
+    zone = (loop or {}).get("iso_zone", sens.get("iso_zone") if "loop" not in sens else None)
+    if zone is not None:
+        rows += [["ISO 14839-3 zone", zone]]
     rows += [["no sensitivity", why] for why in sens.get("none") or []]
+    rows += [["data quality", q["text"]] for q in (s.get("quality") or {}).get("findings", [])]
     if s.get("max_mode_freq_error") is not None:
         rows.append(["worst mode frequency / damping error vs true",
                      f"{_pct(s['max_mode_freq_error'])} / {_pct(s['max_mode_damping_error'])}"])
@@ -127,6 +130,22 @@ def _pm(m: Mapping[str, Any], key: str, spec: str) -> str:
     """'+- half width' of a 95 % interval m[key + '_ci95'], or '-'."""
     ci = m.get(f"{key}_ci95")
     return "-" if ci is None else f"+- {_fmt((ci[1] - ci[0]) / 2, spec)}"
+
+
+def computational_section(s: Mapping[str, Any]) -> list[str]:
+    """The fit's poles that are not modes, apart from them, each with its reason; and the plant's unstable pole."""
+    fit = s["fit"]
+    comp = fit.get("computational_poles") or []
+    parts = []
+    if comp:
+        parts += ["<h3>Computational poles (not modes of the data)</h3>",
+                  _table(["frequency [Hz]", "damping ratio [-]", "why not a mode"],
+                         [[_fmt(c["freq_hz"], ".5g"), _fmt(c["damping"], ".4g"), html.escape(c["reason"])]
+                          for c in comp])]
+    plant = [r for r in fit.get("real_poles") or [] if r.get("physical")]
+    parts += [f"<p>Unstable real pole at {_fmt(r['pole_hz'], '.4g')} Hz: {html.escape(r['reason'])}</p>"
+              for r in plant]
+    return parts
 
 
 def _modes_rows(s: Mapping[str, Any]) -> list[list[str]]:
@@ -189,6 +208,7 @@ def render_index(summary: Mapping[str, Any], figure_list: list[tuple[str, str]])
               _table(["frequency [Hz]", "95 % CI", "damping ratio [-]", "95 % CI", "stable in diagram"] + whirl_col,
                      _modes_rows(summary)),
               "<p>" + html.escape(str((summary.get("intervals") or {}).get("modes", ""))) + "</p>"]
+    parts += computational_section(summary)
     if summary.get("synchronous"):
         parts += ["<h3>Synchronous response (disturbance lines at k x the rotation)</h3>",
                   _table(["harmonic", "frequency [Hz]"] + list(summary.get("outputs") or []),

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ambid.report import figures
-from ambid.report.html import _CSS, _fmt, _modes_rows, _table
+from ambid.report.html import _CSS, _fmt, _modes_rows, _table, computational_section
 
 if TYPE_CHECKING:
     from ambid.fit.order_selection import StabilisationDiagram
@@ -63,6 +63,7 @@ def write_measured_report(report_dir: str | Path, summary: Mapping[str, Any], fr
               _table(["frequency [Hz]", "95 % CI", "damping ratio [-]", "95 % CI", "stable in diagram"],
                      _modes_rows(summary)),
               "<p>" + html.escape(str(summary["intervals"]["modes"])) + "</p>"]
+    parts += computational_section(summary)
     reals = fit.get("real_poles") or []
     if reals:
         parts.append("<p>Real poles [Hz] (positive: unstable): "

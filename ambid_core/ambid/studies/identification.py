@@ -64,6 +64,7 @@ from ambid.excitation.design import ExcitationDesign
 from ambid.fit import (FitResult, StabilisationDiagram, fit_common_denominator, modal_summary, save_model_json,
                        save_model_npz, stabilisation_diagram)
 from ambid.fit.model_update import (PhysicalUpdate, bending_keys, closed_loop_noise_std, covers, excitation_slopes,
+                                    rig_channels,
                                     match_modes, nominal_parameters, nominal_update_parameters, parameter_prior,
                                     physical_discrete, physical_frf, physical_statespace, slopes_as_parameters,
                                     start_from_data, total_lag, true_parameters, unmodelled_mode,
@@ -74,6 +75,7 @@ from ambid.plant.tolerances import Z95
 from ambid.frf.directional import directional_frf, has_planes, whirl_of_residue
 from ambid.frf.levels import LineLevels, line_levels
 from ambid.frf.offline import frf_from_session, session_designs
+from ambid.frf.quality import record_quality
 from ambid.frf.sensitivity import iso14839_zone, sensitivity_shown
 from ambid.frf.uncertainty import fit_weight_variance, row_covariance
 from ambid.frf.streaming import FrfResult, axis_tag
@@ -328,8 +330,22 @@ def _update(rig: Rig, frf: FrfResult, var, band, modes, dt_s, nominal_overrides,
     """
     rotor = rig.rotor_model()
     not_covered = covers(rotor, frf.output_names, frf.input_names)
+    sub_notes = []
     if not_covered:
-        return None, None, [f"no physical model updating: {not_covered}"]
+        picked = rig_channels(rotor, frf.output_names, frf.input_names)
+        if picked is None:
+            return None, None, [f"no physical model updating: {not_covered}"]
+        # the channels the rig model describes; the others (accelerometers, probes along the shaft) left out
+        rows, cols, left = picked
+        frf = dataclasses.replace(frf, frf=frf.frf[:, rows][:, :, cols],
+                                  output_names=tuple(frf.output_names[i] for i in rows),
+                                  input_names=tuple(frf.input_names[j] for j in cols))
+        var = None if var is None else var[:, rows][:, :, cols]
+        row_cov = None if row_cov is None else row_cov[:, rows][:, :, cols][:, :, :, cols]
+        realisations = None if realisations is None else realisations[:, :, rows][:, :, :, cols]
+        sub_notes.append(f"physical model updating on the channels the rig model describes "
+                         f"({', '.join(frf.output_names)} / {', '.join(frf.input_names)}); left out: "
+                         f"{', '.join(left)} (not in the rig model)")
     nominal = nominal_update_parameters(rig)
     nominal.update({k: float(v) for k, v in (nominal_overrides or {}).items()})
     fitted = [(m.freq_hz, m.damping) for m in modes]
@@ -346,6 +362,7 @@ def _update(rig: Rig, frf: FrfResult, var, band, modes, dt_s, nominal_overrides,
     free = list(free)
     known = [k for k in free if k in nominal]
     bending, used, notes = match_modes(rotor, nominal, known, parameter_prior(rig, known, nominal)[0], fitted)
+    notes = sub_notes + notes
     # a support mode where the fit shows a mode that neither the nominal model nor its bending modes explain
     rest = [m for k, m in enumerate(modes) if k not in used]
     # resonance peak height of R / (s - p) is |R| / (zeta omega)
@@ -792,6 +809,9 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
                             if lag is not None else "see update.parameters"))
     elif update_error:
         update_dict = dict(error=update_error)
+    # the experiment's samples, read once: what spoils them (said in the summary) and the report's figures
+    samples = _experiment_samples(path, chosen, design, frf, recover)
+    quality = _quality(samples, chosen, design, frf)
     summary: dict[str, Any] = dict(
         session=path, experiment_id=chosen["experiment_id"], estimator=frf.estimator,
         excitation=dict(kind=design.kind, mimo=design.options.get("mimo"), grid=design.options.get("grid"),
@@ -844,6 +864,10 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         max_mode_freq_error=max((abs(r["freq_error"]) for r in modes_vs_true), default=None),
         max_mode_damping_error=max((abs(r["damping_error"]) for r in modes_vs_true), default=None),
         update=update_dict,
+        quality=dict(findings=quality, coherence=dict(
+            min=float(np.nanmin(frf.coherence)) if np.size(frf.coherence) else None,
+            median=float(np.nanmedian(frf.coherence)) if np.size(frf.coherence) else None,
+            per_line="frf.npz: coherence (L, Ny), each output's multiple coherence with the excitation")),
         sensitivity=_sensitivity_summary(frf, inputs, fit, refs, the_rig, upd, recorded, dt_s),
         files=dict(model_npz=str(out / "model.npz"), model_json=str(out / "model.json"),
                    frf_npz=str(out / "frf.npz"), summary_json=str(out / "identification.json")),
@@ -852,7 +876,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         on_summary(to_jsonable({**summary, "wall_s": time.perf_counter() - t0}))
     if report:
 
-        levels, window = _samples_for_report(path, chosen, design, frf, recover)
+        levels, window = _samples_for_report(samples, design, frf, int(chosen["start_index"]))
         dense = np.geomspace(max(band[0] / 1.5, 1e-3), min(band[1] * 1.5, 0.499 * design.fs_hz), 400)
         curves = {"fitted model": (dense, fit.model.freqresp(dense))}
         if the_rig is not None and not covers(the_rig.rotor_model(), frf.output_names, frf.input_names):
@@ -910,19 +934,36 @@ def _synchronous_dict(frf: FrfResult) -> dict | None:
                                                        s.amplitude_std)])
 
 
-def _samples_for_report(path: str, chosen: dict, design: ExcitationDesign, frf: FrfResult,
-                        recover: bool) -> tuple[LineLevels | None, dict | None]:
-    """Line levels of the whole experiment and a short time window of y, u, r."""
-
+def _experiment_samples(path: str, chosen: dict, design: ExcitationDesign, frf: FrfResult, recover: bool):
+    """The experiment's samples of the FRF's outputs, inputs and excitation (a SampleRange), or None."""
     topic = chosen["topic"].rstrip("/")[:-len(_DESIGN_TOPIC)] + _MEASUREMENT_TOPIC
     refs = [("r_" + n[2:]) if n.startswith("u_") else "r_" + n for n in frf.input_names]
     names = list(frf.output_names) + list(frf.input_names) + refs
     start = chosen["start_index"]
     total = min(chosen["total_samples"], design.total_samples)
     try:
-        data = read_samples(path, topic, start, start + total, names, recover=recover)
+        return read_samples(path, topic, start, start + total, names, recover=recover)
     except ValueError:
+        return None
+
+
+def _quality(data, chosen: dict, design: ExcitationDesign, frf: FrfResult) -> list[dict]:
+    """What spoils the record (:func:`ambid.frf.quality.record_quality`), one finding each; [] without samples."""
+    if data is None:
+        return []
+    ny, nu = len(frf.output_names), len(frf.input_names)
+    names = list(frf.output_names) + list(frf.input_names) + [f"r_{_axis(n)}" for n in frf.input_names]
+    found = record_quality(data.data, names, design.fs_hz, frf.freq_hz, frf.coherence, frf.output_names,
+                           names[ny + nu:], first_row=int(chosen["start_index"]))
+    return [q.to_dict() for q in found]
+
+
+def _samples_for_report(data, design: ExcitationDesign, frf: FrfResult, start: int
+                        ) -> tuple[LineLevels | None, dict | None]:
+    """Line levels of the whole experiment and a short time window of y, u, r."""
+    if data is None:
         return None, None
+    total = data.data.shape[0]
     ny, nu = len(frf.output_names), len(frf.input_names)
     levels = line_levels(data.data[:, :ny], design)
     w0 = design.n_transient_periods * design.n_per_period if design.kind != "stepped_sine" else 0
