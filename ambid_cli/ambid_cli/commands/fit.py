@@ -65,12 +65,15 @@ def format_summary(s: dict) -> str:
     std = noise.get("output_noise_std_m") or []
     ci = noise.get("output_noise_std_ci95_m") or [None] * len(std)
     odd, even = noise.get("distortion_odd_db"), noise.get("distortion_even_db")
-    lines.append("output noise std [um] (95 % interval): "
-                 + ", ".join("-" if v is None else f"{v * 1e6:.4g}" + ("" if c is None or None in c else
-                                                                       f" ({c[0] * 1e6:.4g}..{c[1] * 1e6:.4g})")
-                             for v, c in zip(std, ci))
-                 + (f"; detection lines above noise: odd {max(odd):+.1f} dB, even {max(even):+.1f} dB (worst output)"
-                    if odd and even and None not in odd + even else ""))
+    units = set(s.get("output_units") or ["m"])
+    k, unit = (1e6, "um") if units == {"m"} else (1.0, "/".join(sorted(units)))
+    if any(v is not None for v in std):   # a record of one non-periodic excitation has no noise figure
+        lines.append(f"output noise std [{unit}] (95 % interval): "
+                     + ", ".join("-" if v is None else f"{v * k:.4g}" + ("" if c is None or None in c else
+                                                                         f" ({c[0] * k:.4g}..{c[1] * k:.4g})")
+                                 for v, c in zip(std, ci))
+                     + (f"; detection lines above noise: odd {max(odd):+.1f} dB, even {max(even):+.1f} dB (worst "
+                        "output)" if odd and even and None not in odd + even else ""))
     lines.append(f"model order {fit['order']} (chi2/dof {fit['chi2_per_dof']:.3g}); modes: "
                  + (", ".join(f"{m['freq_hz']:.5g} Hz / zeta {m['damping']:.3g}" for m in fit["modes"]) or "none"))
     lines += _computational_lines(fit)

@@ -314,7 +314,7 @@ def _import(rec, m, out, cols, idx, sel, scale, offset, ny, nu, spool, chunk_row
         notes.append(f"excitation from row {start + 1} to {n_rows}: {n_rows - start} rows, band "
                      f"{design.band_hz[0]:g}-{design.band_hz[1]:g} Hz, {design.excited_lines.size} lines "
                      f"{fs * (2 * h + 1) / (n_rows - start):.3g} Hz apart (windows of {2 * h + 1} bins), "
-                     f"peak {', '.join(f'{p:.3g}' for p in design.peak_a)} A")
+                     f"peak {', '.join(f'{p:.3g} {c.unit}' for p, c in zip(design.peak_a, m.excitation))}")
         if m.transient_periods is not None:
             notes.append("transient_periods: in MAP.yaml is not used: the local polynomial method removes the "
                          "transient itself")

@@ -132,6 +132,12 @@ def _pm(m: Mapping[str, Any], key: str, spec: str) -> str:
     return "-" if ci is None else f"+- {_fmt((ci[1] - ci[0]) / 2, spec)}"
 
 
+def _row_units(s: Mapping[str, Any]) -> list[str]:
+    """Each FRF row's unit, '<output unit>/<input unit>' where every input shares one (else '')."""
+    ins = set(s.get("input_units") or ["A"])
+    return [f"{u}/{next(iter(ins))}" if len(ins) == 1 else "" for u in s.get("output_units") or []]
+
+
 def computational_section(s: Mapping[str, Any]) -> list[str]:
     """The fit's poles that are not modes, apart from them, each with its reason; and the plant's unstable pole."""
     fit = s["fit"]
@@ -292,7 +298,8 @@ def write_report(report_dir: str | Path, summary: Mapping[str, Any], *, frf: Frf
         f"with its +-2 sigma {sigma_kind} band, and {models}. The band covers the best linear approximation "
         "at this excitation level; the small-signal model at rest differs from it by the magnets' nonlinearity "
         "(the excitation stiffens them), a bias the band does not hold.",
-        lambda p: figures.bode_matrix(frf.freq_hz, frf.frf, std, curves, "magnitude", p, **names))
+        lambda p: figures.bode_matrix(frf.freq_hz, frf.frf, std, curves, "magnitude", p, **names,
+                                      row_units=_row_units(summary)))
     add("bode_phase.png", f"FRF matrix phase [deg], measured (dots) and {models}.",
         lambda p: figures.bode_matrix(frf.freq_hz, frf.frf, std, curves, "phase", p, **names))
     if true_frf is not None:

@@ -277,16 +277,21 @@ def _floored(v: np.ndarray) -> np.ndarray:
     return np.maximum(v, 1e-6 * np.median(v[v > 0]))
 
 
+def _session_fact(path: str, key: str, recover: bool) -> dict:
+    """One entry of the session's facts (``ambid.session`` metadata) as a dict; {} when it is not there."""
+    value = read_metadata(path, recover=recover).get("ambid.session", {}).get(key)
+    if isinstance(value, str):
+        try:
+            value = json.loads(value)
+        except json.JSONDecodeError:
+            value = None
+    return value if isinstance(value, dict) else {}
+
+
 def _nonlinear_magnets(path: str, recover: bool) -> bool:
     """Whether the simulated session ran the nonlinear magnets (the session config identify records; the
     plant node's default, linear, when the session does not say)."""
-    config = read_metadata(path, recover=recover).get("ambid.session", {}).get("config")
-    if isinstance(config, str):
-        try:
-            config = json.loads(config)
-        except json.JSONDecodeError:
-            config = None
-    return bool(config.get("nonlinear_magnets", False)) if isinstance(config, dict) else False
+    return bool(_session_fact(path, "config", recover).get("nonlinear_magnets", False))
 
 
 def _mode_interval(fit: FitResult, freq_hz: float, damping: float) -> dict:
@@ -823,6 +828,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
                         measurement_time_s=design.measurement_time_s,
                         synchronous=design.options.get("synchronous")),
         band_hz=list(band), inputs=list(frf.input_names), outputs=list(frf.output_names),
+        input_units=list(fit.model.input_units), output_units=list(fit.model.output_units),
         controller=(recorded or (None, None))[1],
         simulated=simulated, frf_error=frf_error, noise=noise,
         fit=dict(order=int(order), order_rule=mf.order_rule, chi2_per_dof=fit.chi2_per_dof, delay_s=mf.delay_s,
@@ -1185,14 +1191,7 @@ def read_session_inputs(path: str | os.PathLike, estimator: str = "indirect", ex
 
 def _import_facts(path: str, recover: bool) -> tuple[dict, dict]:
     """(injected_at, units) an imported record's session facts carry ({} for ambid's own sessions)."""
-    facts = read_metadata(path, recover=recover).get("ambid.session", {}).get("import")
-    if isinstance(facts, str):
-        try:
-            facts = json.loads(facts)
-        except json.JSONDecodeError:
-            facts = None
-    if not isinstance(facts, dict):
-        return {}, {}
+    facts = _session_fact(path, "import", recover)
     injected, units = facts.get("injected_at"), facts.get("units")
     return (dict(injected) if isinstance(injected, dict) else {}), (dict(units) if isinstance(units, dict) else {})
 
