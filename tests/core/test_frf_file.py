@@ -106,6 +106,14 @@ def _bad_files(d, good):
         data = (good / f"frf.{ext}").read_bytes()
         (d / f"truncated.{ext}").write_bytes(data[:len(data) // 3])
         out[f"truncated {ext}"] = (d / f"truncated.{ext}", "damaged|not|cut short|values for|no FRF")
+    # a CSV cut short, both ways on purpose (where a cut at a third of the bytes lands depends on the digits
+    # this machine's arithmetic wrote): the last row short but every value a number, and cut inside a number
+    rows = (good / "frf.csv").read_text().splitlines()
+    short = ",".join(rows[11].split(",")[:5])
+    (d / "short_row.csv").write_text("\n".join(rows[:11] + [short]) + "\n")
+    out["csv last row short, numeric"] = (d / "short_row.csv", r"row 12 has 5 values for \d+ header columns")
+    (d / "cut_number.csv").write_text("\n".join(rows[:11] + [short + ",1.5e"]))
+    out["csv cut inside a number"] = (d / "cut_number.csv", r"row 12 is not \d+ comma-separated numbers")
     np.savez(d / "rotor.npz", A=np.eye(2), B=np.ones((2, 1)), C=np.ones((1, 2)), D=np.zeros((1, 1)))
     out["wrong kind"] = (d / "rotor.npz", "has no 'freq_hz'")
     (d / "session.txt").write_text("hello")

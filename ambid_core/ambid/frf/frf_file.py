@@ -210,18 +210,16 @@ def _csv(p: Path, fix: str):
     body = rows[1:]
     if not body:
         raise FrfFileError(f"FRF file {p} has a header but no rows under it; {fix}")
-    try:
-        x = np.array([[float(v) for v in ln.split(",")] for ln in body])
-    except ValueError:
-        bad = next((k for k, ln in enumerate(body) if not _floats(ln)), None)
-        if bad is not None:
-            raise FrfFileError(f"FRF file {p}: row {bad + 2} is not {len(head)} comma-separated numbers; {fix}"
-                               ) from None
-        x = np.zeros((0, 0))    # numbers, but rows of different widths: said below
-    if x.ndim != 2 or x.shape[1] != len(head):
-        widths = {len(ln.split(",")) for ln in body}
-        raise FrfFileError(f"FRF file {p}: rows have {sorted(widths)} values for {len(head)} header columns (cut "
-                           f"short?); {fix}")
+    # each row checked for itself: a file cut short ends in a row that may still parse, only shorter
+    x = np.empty((len(body), len(head)))
+    for k, ln in enumerate(body):
+        values = _floats(ln)
+        if values is None:
+            raise FrfFileError(f"FRF file {p}: row {k + 2} is not {len(head)} comma-separated numbers; {fix}")
+        if len(values) != len(head):
+            raise FrfFileError(f"FRF file {p}: row {k + 2} has {len(values)} values for {len(head)} header columns "
+                               f"(cut short?); {fix}")
+        x[k] = values
     missing = [f"{k}({o}/{u})" for o in outs for u in ins for k in ("re", "im") if (k, o, u) not in cols]
     if missing:
         raise FrfFileError(f"FRF file {p}: no column {missing[0]} (every output/input pair needs re and im); {fix}")
@@ -243,12 +241,12 @@ def _csv(p: Path, fix: str):
     return x[:, head.index("freq_hz")], h, var, tuple(outs), tuple(ins), []
 
 
-def _floats(line: str) -> bool:
+def _floats(line: str) -> list[float] | None:
+    """The comma-separated numbers of ``line``, or None where one is not a number."""
     try:
-        [float(v) for v in line.split(",")]
+        return [float(v) for v in line.split(",")]
     except ValueError:
-        return False
-    return True
+        return None
 
 
 # UFF dataset 58: function types (record 6, field 1) that are ratios of a response to a reference
