@@ -14,7 +14,9 @@ it, by four checks, the first that fails naming the reason:
 3. stable over model orders: found again (frequency within ``tol_freq``,
    damping within a factor of two) at most of the orders fitted from half the
    chosen order up (:func:`ambid.fit.stabilisation_diagram`), as a physical
-   pole stays put while the noise's poles wander;
+   pole stays put while the noise's poles wander (with fewer than two such
+   orders, as a handful of lines allows, this check cannot judge and is left
+   to the next);
 4. above the noise: somewhere within its half-power band (and at least the
    nearest lines) the mode's own contribution to the FRF stands out above the
    FRF's noise there (its standard deviation where the data gives a variance,
@@ -55,7 +57,7 @@ class PoleVerdict:
         real: a real pole.
         physical: printed as a mode (complex) or named as the plant's (real).
         reason: why not, or what it is (one phrase).
-        stable_share: the share of the orders checked at which it was found again [-].
+        stable_share: the share of the orders checked at which it was found again [-] (NaN: too few orders).
         snr: its largest contribution to the FRF over the noise there [-] (complex poles).
     """
 
@@ -78,8 +80,8 @@ def _stable_share(p: complex, diagram: StabilisationDiagram, order: int, tol_fre
     """The share of the diagram's orders from order / 2 up (the chosen one left out) with a pole of the same
     kind within tol_freq in frequency and a factor of two in damping."""
     orders = [int(n) for n in diagram.orders if n >= max(order // 2, 2) and n != order]
-    if not orders:
-        return 1.0
+    if len(orders) < 2:     # too few orders fitted (a handful of lines) to tell a stable pole from a wandering one
+        return float("nan")
     f, z = abs(p), -p.real / abs(p)
     real = p.imag == 0
     found = 0
@@ -151,7 +153,7 @@ def judge_poles(model: RationalModel, diagram: StabilisationDiagram, order: int,
                       "plant's unstable poles are real); computational")
         elif not lo <= fk <= hi:
             reason = f"outside the band the data supports ({lo:g}-{hi:g} Hz); computational"
-        elif share < min_stable_share:
+        elif share < min_stable_share:     # NaN (too few orders to judge) passes: the noise check still applies
             reason = (f"not stable over model orders (found again at {100 * share:.0f} % of the orders from "
                       f"{max(order // 2, 2)} up); computational")
         elif snr < min_snr:
@@ -163,7 +165,7 @@ def judge_poles(model: RationalModel, diagram: StabilisationDiagram, order: int,
         p = p_all[k]
         share = _stable_share(p, diagram, order, tol_freq)
         unstable = p.real > 0
-        if unstable and plant_input_current and share >= min_stable_share:
+        if unstable and plant_input_current and not share < min_stable_share:
             reason, phys = NEGATIVE_STIFFNESS, True
         elif unstable:
             reason, phys = ("an unstable real pole " + ("not stable over model orders" if plant_input_current else

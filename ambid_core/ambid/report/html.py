@@ -330,9 +330,12 @@ def write_report(report_dir: str | Path, summary: Mapping[str, Any], *, frf: Frf
         add("excitation.png", "Excitation design: line amplitudes of one period per input with its crest factor, "
             "the unexcited detection lines, and the period in time.",
             lambda p: figures.excitation(design, p))
-    add("input_sensitivity.png", "Input sensitivity |S_ii| (r -> u) per axis, measured; ISO 14839-3 zones A (< 3), "
-        "B (< 4), C (< 5) and D shaded.",
-        lambda p: figures.input_sensitivity(frf.freq_hz, frf.sensitivity, frf.input_names, p))
+    channels = (summary.get("sensitivity") or {}).get("channels") or []
+    if all(c.get("injected_at", "current") == "current" for c in channels):
+        # u / r is the input sensitivity only where r was added to the current (records.md, injection points)
+        add("input_sensitivity.png", "Input sensitivity |S_ii| (r -> u) per axis, measured; ISO 14839-3 zones A "
+            "(< 3), B (< 4), C (< 5) and D shaded.",
+            lambda p: figures.input_sensitivity(frf.freq_hz, frf.sensitivity, frf.input_names, p))
     if window is not None:
         add("time_records.png", "A short window of the recorded displacements y and currents u (applied) and r "
             "(excitation) in steady state.",
