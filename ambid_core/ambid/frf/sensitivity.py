@@ -179,9 +179,10 @@ def sensitivity_shown(G: np.ndarray, S_ur: np.ndarray, output_names: Sequence[st
         if own in output_names and out_units[list(output_names).index(own)] == r_unit:
             i = list(output_names).index(own)
             t = np.einsum("lk,lk->l", g[:, i, :], s_ur[:, :, j])    # y_a / r_a = G[a, :] (u / r)[:, a]
+            into = "position reference" if sign < 0 else "sensor signal"
             shown.append(ShownSensitivity(r, where, "output", 1.0 + sign * t,
-                                          f"sensitivity S_o = {formula} at the controller's own sensor {own} [{r_unit}]: "
-                                          f"{r} is added to the {'position reference' if sign < 0 else 'sensor signal'}"))
+                                          f"sensitivity S_o = {formula} at the controller's own sensor {own} "
+                                          f"[{r_unit}]: {r} is added to the {into}"))
             continue
         others = ", ".join(f"{n[2:]} [{un}]" for n, un in zip(output_names, out_units)) or "none"
         place = "the controller's position reference" if where == "reference" else "the sensor signal"

@@ -348,7 +348,8 @@ def _import(rec, m, out, cols, idx, sel, scale, offset, ny, nu, spool, chunk_row
     ns = NAMESPACE
     design_msg = _design_message(design, start, m.experiment_id)
     facts = {"excitation": {m.experiment_id: design_facts(SimpleNamespace(**design_msg))},
-             "import": {"record": " + ".join(os.path.abspath(x) for x in rec.path.split(" + ")), "map": os.path.abspath(m.path), "rows": n_rows,
+             "import": {"record": " + ".join(os.path.abspath(x) for x in rec.path.split(" + ")),
+                        "map": os.path.abspath(m.path), "rows": n_rows,
                         "reconstructed": not m.design, "estimator": estimator, "notes": notes,
                         "injected_at": {c.name: c.injected_at for c in m.excitation},
                         "units": {c.name: c.unit for c in m.channels}}}

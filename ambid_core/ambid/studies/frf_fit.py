@@ -108,7 +108,8 @@ def identify_frf(measured: MeasuredFrf, out_dir: str | os.PathLike, *, order: in
     summary: dict[str, Any] = dict(
         source=measured.path, format=measured.kind, form=measured.form, unit=measured.unit,
         output_units=list(measured.output_units), input_units=list(measured.input_units),
-        outputs=list(measured.output_names), inputs=list(measured.input_names), n_lines=int(f.size), band_hz=list(band), var_given=var is not None,
+        outputs=list(measured.output_names), inputs=list(measured.input_names), n_lines=int(f.size),
+        band_hz=list(band), var_given=var is not None,
         fit=dict(order=int(order), order_rule=rule, chi2_per_dof=fit.chi2_per_dof, delay_s=delay_s,
                  weights="the file's var" if var is not None else "each line by its mean |H|^2 (relative)",
                  orders_tried=diagram.orders, chi2_per_dof_by_order=diagram.chi2_per_dof, modes=modes,
