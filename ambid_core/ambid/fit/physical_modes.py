@@ -19,9 +19,12 @@ it, by four checks, the first that fails naming the reason:
    to the next);
 4. above the noise: somewhere within its half-power band (and at least the
    nearest lines) the mode's own contribution to the FRF stands out above the
-   FRF's noise there (its standard deviation where the data gives a variance,
-   else the fit's residual about the model, which holds the noise as the misfit
-   shows it) by ``min_snr``, summed over the outputs and inputs.
+   FRF's noise there by ``min_snr``, summed over the outputs and inputs: its
+   standard deviation where the data gives a variance; else the larger of the
+   fit's residual about the model and the scatter of the FRF, with the pole's
+   own part taken out, about a local quadratic over +-4 lines (a model of high
+   order takes the noise into its spurious poles, so its residual alone
+   understates the noise; a real mode leaves a smooth remainder).
 
 The common denominator makes a pole shared by every output and input, and the
 fourth check is made over all of them together: a mode carried by one entry's
@@ -98,6 +101,24 @@ def _stable_share(p: complex, diagram: StabilisationDiagram, order: int, tol_fre
     return found / len(orders)
 
 
+def _local_scatter(f: np.ndarray, x: np.ndarray, idx: np.ndarray, half: int = 4, deg: int = 2) -> np.ndarray:
+    """At the lines ``idx``: the rms scatter of x (L, E) about a local polynomial of degree ``deg`` in frequency over
+    +-``half`` lines (degrees of freedom counted), summed over the entries as a norm."""
+    out = np.empty(idx.size)
+    n_min = deg + 3
+    for i, k in enumerate(idx):
+        lo, hi = max(0, k - half), min(f.size, k + half + 1)
+        if hi - lo < n_min:
+            lo, hi = max(0, min(lo, f.size - n_min)), min(f.size, max(hi, n_min))
+        t = f[lo:hi] - f[k]
+        t = t / max(np.max(np.abs(t)), 1e-300)
+        a = np.vander(t, deg + 1)
+        coef, *_ = np.linalg.lstsq(a, x[lo:hi], rcond=None)
+        r = x[lo:hi] - a @ coef
+        out[i] = np.sqrt(np.sum(np.abs(r) ** 2) / max(hi - lo - deg - 1, 1))
+    return out
+
+
 def judge_poles(model: RationalModel, diagram: StabilisationDiagram, order: int, freq_hz: np.ndarray,
                 G: np.ndarray, noise_var: np.ndarray | None = None, *, plant_input_current: bool = False,
                 tol_freq: float = 0.01, min_stable_share: float = 0.5, min_snr: float = 3.0) -> list[PoleVerdict]:
@@ -147,7 +168,14 @@ def judge_poles(model: RationalModel, diagram: StabilisationDiagram, order: int,
         if not np.any(near):   # at least the lines on either side of it
             near = np.zeros(f.size, bool)
             near[np.argsort(np.abs(f - fk))[:2]] = True
-        snr = float(np.max(c[near] / noise[near]))
+        level = noise[near]
+        if noise_var is None:
+            # no variance: the model's residual holds too little of the noise where the order is high (the poles
+            # that model the noise take it in), so the scatter of the FRF with this pole's own part taken out,
+            # about a local quadratic over +-4 lines, stands for the noise too (Pintelon & Schoukens' local
+            # polynomial idea): a real mode leaves a smooth remainder, a pole fitted to ripple leaves the ripple
+            level = np.maximum(level, _local_scatter(f, (g - contrib).reshape(f.size, -1), np.flatnonzero(near)))
+        snr = float(np.max(c[near] / np.maximum(level, 1e-300)))
         if zk <= 0:
             reason = ("negative damping: an unstable oscillation, which the measured system cannot have (an AMB "
                       "plant's unstable poles are real); computational")
