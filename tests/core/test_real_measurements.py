@@ -155,3 +155,28 @@ def test_reference_injection_with_accelerometers_reports_no_sensitivity(amb_fit)
                                                                  "controller's position reference [V]")
     text = format_summary(summary)
     assert "zone" not in text and "no sensitivity for r_x" in text
+
+
+def test_an_analysers_coherence_is_read_and_its_low_lines_said(tmp_path, capsys):
+    """UFF 58 coherence datasets (function type 6) beside the beam's FRFs, as an analyser writes them: read per
+    response/reference pair, and ``ambid fit`` says the lines where it is low, one line per pair."""
+    import pyuff
+
+    from ambid.frf.frf_file import read_frf_file
+    from ambid_cli import cli
+
+    sets = pyuff.UFF(str(BEAM)).read_sets()
+    coherence = []
+    for s in sets:
+        c = np.ones(s["x"].size)
+        if s["ref_node"] == 2:
+            c[(s["x"] >= 600) & (s["x"] <= 650)] = 0.3
+        coherence.append(dict(s, func_type=6, data=c.astype(complex), ordinate_spec_data_type=0,
+                              orddenom_spec_data_type=0))
+    path = tmp_path / "beam_with_coherence.uff"
+    pyuff.UFF(str(path)).write_sets(list(sets) + coherence, mode="overwrite")
+    measured = read_frf_file(path)
+    assert measured.coherence.shape == measured.frf.shape and np.nanmin(measured.coherence[:, 0, 1]) == 0.3
+    assert cli.main(["fit", str(path), "--out", str(tmp_path / "fit"), "--max-order", "8", "--no-report"]) == 0
+    said = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("data quality:")]
+    assert said == ["data quality: low coherence on 1+X/2+X (below 0.5, lowest 0.3) at 51 of 1000 lines: 600-650 Hz"]

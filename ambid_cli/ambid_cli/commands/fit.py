@@ -143,6 +143,7 @@ def format_frf_summary(s: dict) -> str:
     if not fit["modes"]:
         lines.append("  none in the band")
     lines += _computational_lines(fit)
+    lines += [f"data quality: {q['text']}" for q in (s.get("quality") or {}).get("findings", [])]
     lines.append(f"intervals: {s['intervals']['modes']}")
     files = s["files"]
     lines.append(f"written: {files['model_npz']}, {files['model_json']}" +

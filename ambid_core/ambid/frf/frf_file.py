@@ -17,7 +17,7 @@ Formats, by suffix:
   UFF identifies it; entity names are labels only (an analyser often writes
   the test's name on every dataset). Units come from the header (the unit
   labels where written, else the SI unit of the data type). UFF carries no
-  variance.
+  variance; the analyser's coherence (function type 6) is read where written.
 
 A first line at 0 Hz (any format) is left out with a note.
 
@@ -74,6 +74,8 @@ class MeasuredFrf:
         notes: what was assumed, a line each.
         output_units, input_units: (ny,), (nu,) each channel's unit as the file says it ('' where it says none).
         form: what H is: 'FRF', 'receptance', 'mobility', 'accelerance' or 'transmissibility'.
+        coherence: (n, ny, nu) the analyser's coherence of each response with each reference (UFF function
+            type 6; NaN where the file has none), or None.
     """
 
     path: str
@@ -87,6 +89,7 @@ class MeasuredFrf:
     output_units: tuple[str, ...] = ()
     input_units: tuple[str, ...] = ()
     form: str = "FRF"
+    coherence: np.ndarray | None = None
 
     @property
     def unit(self) -> str:
@@ -358,13 +361,27 @@ def _uff(p: Path, fix: str):
     shared = set.intersection(*labels.values()) if labels and len(labels) == len(outs) + len(ins) else set()
     if shared:
         notes.append(f"entity name {sorted(shared)[0]!r} on every dataset: a label of the test, not a channel")
+    # the analyser's coherence of each response with each reference (function type 6), where it wrote one
+    coh = np.full(h.shape, np.nan)
+    for s in sets:
+        if not (isinstance(s, dict) and s.get("type") == 58 and s.get("func_type") == 6):
+            continue
+        (o, _), (u, _) = _uff_channel(s, "rsp"), _uff_channel(s, "ref")
+        x = np.asarray(s.get("x"), dtype=float).reshape(-1)
+        if o in outs and u in ins and x.shape == freq.shape and np.allclose(x, freq, rtol=1e-9, atol=0):
+            coh[:, outs.index(o), ins.index(u)] = np.abs(np.asarray(s.get("data")).reshape(-1))
+    coherence = None
+    if np.any(np.isfinite(coh)):
+        coherence = coh
+        notes.append(f"coherence read for {int(np.sum(np.all(np.isfinite(coh), axis=0)))} of {h.shape[1] * h.shape[2]} "
+                     "response/reference pairs")
     return (freq, h, None, tuple(outs), tuple(ins), notes,
             dict(output_units=tuple(units[("response", o)] for o in outs),
-                 input_units=tuple(units[("reference", u)] for u in ins), form=form))
+                 input_units=tuple(units[("reference", u)] for u in ins), form=form, coherence=coherence))
 
 
 def _checked(p: Path, kind: str, freq, h, var, outs, ins, notes, fix, output_units=None, input_units=None,
-             form: str = "FRF") -> MeasuredFrf:
+             form: str = "FRF", coherence: np.ndarray | None = None) -> MeasuredFrf:
     if freq.ndim != 1 or freq.size < 2:
         raise FrfFileError(f"FRF file {p}: freq_hz has shape {freq.shape}; give a vector of n >= 2 frequencies")
     if h.ndim != 3 or h.shape[0] != freq.size or 0 in h.shape:
@@ -382,6 +399,7 @@ def _checked(p: Path, kind: str, freq, h, var, outs, ins, notes, fix, output_uni
         # an analyser's first line is often 0 Hz: a static value (or NaN) that no model of the modes describes
         freq, h = freq[1:], h[1:]
         var = None if var is None or np.ndim(var) != 3 else np.asarray(var)[1:]
+        coherence = None if coherence is None else coherence[1:]
         notes.append("the 0 Hz line is left out (a static value, often undefined, that no model of the modes "
                      "describes)")
     for key, a in (("freq_hz", freq), ("H", h)):
@@ -410,4 +428,4 @@ def _checked(p: Path, kind: str, freq, h, var, outs, ins, notes, fix, output_uni
     return MeasuredFrf(path=os.fspath(p), kind=kind, freq_hz=freq, frf=h, var=var, output_names=tuple(outs),
                        input_names=tuple(ins), notes=list(notes),
                        output_units=tuple(output_units or ("",) * len(outs)),
-                       input_units=tuple(input_units or ("",) * len(ins)), form=form)
+                       input_units=tuple(input_units or ("",) * len(ins)), form=form, coherence=coherence)

@@ -75,7 +75,7 @@ def _runs(mask: np.ndarray, min_len: int) -> list[tuple[int, int]]:
     return [(int(s), int(e - s)) for s, e in zip(starts, ends) if e - s >= min_len]
 
 
-def record_quality(samples: np.ndarray, names: Sequence[str], fs_hz: float, freq_hz: np.ndarray,
+def record_quality(samples: np.ndarray | None, names: Sequence[str], fs_hz: float, freq_hz: np.ndarray,
                    coherence: np.ndarray | None = None, output_names: Sequence[str] = (),
                    excitation_names: Sequence[str] = (), *, first_row: int = 0, min_clip_run: int = 3,
                    min_clip_share: float = 1e-3, min_hold_run: int = 8, low_excitation_db: float = 30.0,
@@ -83,7 +83,8 @@ def record_quality(samples: np.ndarray, names: Sequence[str], fs_hz: float, freq
     """The defects of an experiment's record and FRF (module docstring), one finding each.
 
     Args:
-        samples: (n, k) the experiment's samples, columns ``names``.
+        samples: (n, k) the experiment's samples, columns ``names`` (None: an FRF without its records, the
+            coherence alone is looked at).
         names: (k,) channel names (``y_...``, ``u_...``, ``ic_...``, ``r_...``).
         fs_hz: sample rate [Hz].
         freq_hz: (L,) the FRF's lines [Hz].
@@ -100,14 +101,14 @@ def record_quality(samples: np.ndarray, names: Sequence[str], fs_hz: float, freq
     Returns:
         The findings, time-domain ones first, each with its one line.
     """
-    x = np.asarray(samples, dtype=float)
+    x = np.zeros((0, 0)) if samples is None else np.asarray(samples, dtype=float)
     f = np.asarray(freq_hz, dtype=float)
     n = x.shape[0]
     every = f"all {f.size} lines ({f.min():.4g}-{f.max():.4g} Hz): a clipped or held sample spreads over the " \
             "spectrum" if f.size else "every line"
     out: list[QualityFinding] = []
     exc = list(excitation_names) or [c for c in names if c.startswith("r_")]
-    for j, name in enumerate(names):
+    for j, name in enumerate(names if x.size else ()):
         v = x[:, j]
         if n < 2 * min_hold_run or not np.any(v != v[0]):
             continue
@@ -156,6 +157,8 @@ def record_quality(samples: np.ndarray, names: Sequence[str], fs_hz: float, freq
     if coherence is not None and f.size:
         c = np.asarray(coherence, dtype=float).reshape(f.size, -1)
         for i, name in enumerate(output_names[:c.shape[1]]):
+            if not np.any(np.isfinite(c[:, i])):
+                continue
             low = np.isfinite(c[:, i]) & (c[:, i] < min_coherence)
             if np.any(low):
                 out.append(QualityFinding("low coherence", name, f[low], f"low coherence on {name} (below "

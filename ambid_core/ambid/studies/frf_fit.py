@@ -32,6 +32,7 @@ import numpy as np
 
 from ambid.fit import fit_common_denominator, save_model_json, save_model_npz, stabilisation_diagram
 from ambid.frf.frf_file import MeasuredFrf
+from ambid.frf.quality import record_quality
 from ambid.jsonable import to_jsonable
 from ambid.studies.identification import select_order, split_modes
 
@@ -101,9 +102,15 @@ def identify_frf(measured: MeasuredFrf, out_dir: str | os.PathLike, *, order: in
         if row.get("freq_hz_std") is not None:
             row["noise_only"] = var is not None
         modes.append(row)
+    quality = []
+    if measured.coherence is not None:   # the analyser's coherence: its low lines said, one line per pair
+        pairs = [f"{o}/{u}" for o in measured.output_names for u in measured.input_names]
+        quality = [q.to_dict() for q in record_quality(None, (), 1.0, f, measured.coherence.reshape(f.size, -1),
+                                                       pairs)]
     save_model_npz(out / "model.npz", fit.model)
     save_model_json(out / "model.json", fit.model)
     np.savez(out / "frf.npz", freq_hz=f, H=g, **({} if var is None else dict(var=var)),
+             **({} if measured.coherence is None else dict(coherence=measured.coherence)),
              outputs=np.array(measured.output_names), inputs=np.array(measured.input_names))
     summary: dict[str, Any] = dict(
         source=measured.path, format=measured.kind, form=measured.form, unit=measured.unit,
@@ -114,6 +121,7 @@ def identify_frf(measured: MeasuredFrf, out_dir: str | os.PathLike, *, order: in
                  weights="the file's var" if var is not None else "each line by its mean |H|^2 (relative)",
                  orders_tried=diagram.orders, chi2_per_dof_by_order=diagram.chi2_per_dof, modes=modes,
                  computational_poles=computational, real_poles=real, refine_message=fit.message),
+        quality=dict(findings=quality),
         intervals=dict(modes=INTERVALS_WITH_VAR if var is not None else INTERVALS_WITHOUT_VAR),
         files=dict(model_npz=str(out / "model.npz"), model_json=str(out / "model.json"),
                    frf_npz=str(out / "frf.npz"), summary_json=str(out / "identification.json")),
