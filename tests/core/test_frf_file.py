@@ -63,7 +63,12 @@ def files(tmp_path_factory):
 @pytest.mark.parametrize("ext", ["npz", "mat", "csv", "uff"])
 def test_each_format_fits_the_plants_modes(files, ext, tmp_path):
     measured = read_frf_file(files / f"frf.{ext}")
-    assert measured.output_names == tuple(OUTS) and measured.input_names == tuple(INS)
+    if ext == "uff":   # UFF names a channel by its node and direction; the entity names are labels only
+        assert measured.output_names == tuple(f"{i + 1}+X" for i in range(len(OUTS)))
+        assert measured.input_names == tuple(f"{j + 1}+X" for j in range(len(INS)))
+        assert measured.form == "receptance" and measured.unit == "m/N"
+    else:
+        assert measured.output_names == tuple(OUTS) and measured.input_names == tuple(INS)
     assert (measured.var is None) == (ext == "uff")
     s = identify_frf(measured, tmp_path / "out", max_order=20, report=ext == "csv")
     fitted = [(m["freq_hz"], m["damping"], m) for m in s["fit"]["modes"]]
