@@ -228,3 +228,16 @@ def test_key_files_are_written_private_and_show_only_their_fingerprint(files, tm
     import pickle
     with pytest.raises(TypeError, match="not pickled"):
         pickle.dumps(key)
+
+
+def test_keygen_writes_a_private_key_file_and_says_its_fingerprint_only(tmp_path, capsys):
+    from ambid_cli import cli
+
+    out = tmp_path / "rig.key"
+    assert cli.main(["keygen", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    key = read_key_file(out)
+    assert os.stat(out).st_mode & 0o777 == 0o600
+    assert f"fingerprint {key.fingerprint}" in printed and out.read_text().split()[-1] not in printed
+    assert cli.main(["keygen", "--out", str(out)]) == 2  # never over an existing key
+    assert "exists" in capsys.readouterr().err
