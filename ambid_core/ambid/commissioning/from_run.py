@@ -35,7 +35,6 @@ from ambid.jsonable import to_jsonable
 from ambid.plant.analytical import analytical_model
 from ambid.plant.rig import Rig, load_rig, make_rig
 from ambid.plant.sensors import noise_std
-from ambid.report.tune_report import write_tune_report
 from ambid.session import iter_decoded, read_metadata
 from ambid.session.blocks import read_samples
 from ambid.session.facts import controller_facts, controller_model
@@ -306,6 +305,8 @@ def tune_run(folder: str | os.PathLike, out_dir: str | os.PathLike, *, rig: Rig 
         notes=list(result.notes))
     doc = to_jsonable(doc)
     if report:
+        from ambid.report.tune_report import write_tune_report   # matplotlib: optional (ambid[report])
+
         band = np.geomspace(max(float(inputs.freq_hz.min()) / 2, 1.0), 0.49 / unc.dt_s, 1500)
         controllers = {"after (" + chosen.kind + ")": chosen.model}
         if running is not None and chosen.kind != "running":

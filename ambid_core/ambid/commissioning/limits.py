@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ambid.commissioning.loops import block_inverse, coupled_blocks
+from ambid.commissioning.loops import noise_current_frf
 from ambid.control.closed_loop import residue_freqresp
 from ambid.statespace import StateSpace
 
@@ -96,12 +96,7 @@ def check_current(plant: StateSpace, controller: StateSpace, budget: CurrentBudg
     """
     dt = plant.dt
     f = (np.arange(n_lines) + 0.5) / n_lines * 0.5 / dt
-    g = residue_freqresp(plant, f)
-    k = residue_freqresp(controller, f)
-    na = g.shape[-1]
-    pattern = (np.abs(g).max(axis=0) > 0) | (np.abs(k).max(axis=0).T > 0)
-    so = block_inverse(np.eye(na) - g @ k, coupled_blocks(pattern))
-    t = (k @ so) * np.asarray(budget.noise_std_m)[None, None, :]          # ic per unit noise, each sensor
+    t = noise_current_frf(residue_freqresp(controller, f), residue_freqresp(plant, f), budget.noise_std_m)
     amp = 1.0 / (1.0 + 1j * f[:, None] / np.asarray(budget.amplifier_bandwidth_hz)[None, :])
     didt = t * (2j * np.pi * f[:, None, None] * amp[:, :, None])
     sigma_ic = np.sqrt(np.mean(np.sum(np.abs(t) ** 2, axis=2), axis=0))

@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["coupled_blocks", "block_inverse", "loop_blocks", "input_sensitivity_frf", "worst_peak", "current_noise_rms"]
+__all__ = ["coupled_blocks", "block_inverse", "loop_blocks", "input_sensitivity_frf", "worst_peak", "noise_current_frf",
+           "current_noise_rms"]
 
 
 def coupled_blocks(pattern: np.ndarray) -> list[np.ndarray]:
@@ -60,7 +61,8 @@ def _pattern(controller_frf: np.ndarray, plant_frf: np.ndarray) -> np.ndarray:
     g = np.abs(plant_frf).reshape(-1, *plant_frf.shape[-2:]).max(axis=0)
     k = np.abs(controller_frf)
     k = np.diag(k.max(axis=0)) if k.ndim == 2 else k.max(axis=0)
-    return (g > 1e-12 * g.max()) | (k.T > 1e-12 * max(k.max(), 1e-300))
+    # entries 1e-7 of the largest are rounding (a structural zero of a state-space model), not a coupling
+    return (g > 1e-7 * g.max()) | (k.T > 1e-7 * max(k.max(), 1e-300))
 
 
 def loop_blocks(controller_frf: np.ndarray, plant_frf: np.ndarray) -> list[np.ndarray]:
@@ -120,18 +122,24 @@ def worst_peak(controller_frf: np.ndarray, plant_frf: np.ndarray, blocks: list[n
     return peak
 
 
-def current_noise_rms(controller_frf: np.ndarray, plant_frf: np.ndarray, noise_std_m: np.ndarray) -> np.ndarray:
-    """RMS control current [A] per axis that white sensor noise causes through the loop,
-    ``ic = K (I - G K)^-1 v``, from responses on a uniform grid over (0, Nyquist) (Parseval).
+def noise_current_frf(controller_frf: np.ndarray, plant_frf: np.ndarray, noise_std_m: np.ndarray) -> np.ndarray:
+    """The control current each sensor's white noise causes through the loop, ``ic = K (I - G K)^-1 v``, per
+    unit of noise std: (L, na currents, na sensors) [A per sample].
 
     Args:
-        controller_frf: (L, na) decentralised, or (L, na, na) full controller [A/m] on the uniform grid.
-        plant_frf: (L, na, na) one plant there [m/A].
+        controller_frf: (L, na) decentralised, or (L, na, na) full controller [A/m].
+        plant_frf: (L, na, na) one plant [m/A].
         noise_std_m: (na,) each sensor's noise std per sample [m].
     """
     k = np.asarray(controller_frf)
     kf = np.einsum("li,ij->lij", k, np.eye(k.shape[1])) if k.ndim == 2 else k
     na = plant_frf.shape[-1]
-    so = block_inverse(np.eye(na) - plant_frf @ kf, coupled_blocks(_pattern(k, plant_frf)))
-    t = (kf @ so) * np.asarray(noise_std_m)[None, None, :]
+    so = block_inverse(np.eye(na) - plant_frf @ kf, loop_blocks(k, plant_frf))
+    return (kf @ so) * np.asarray(noise_std_m)[None, None, :]
+
+
+def current_noise_rms(controller_frf: np.ndarray, plant_frf: np.ndarray, noise_std_m: np.ndarray) -> np.ndarray:
+    """RMS control current [A] per axis that white sensor noise causes through the loop (Parseval over
+    :func:`noise_current_frf` on a uniform grid over (0, Nyquist))."""
+    t = noise_current_frf(controller_frf, plant_frf, noise_std_m)
     return np.sqrt(np.mean(np.sum(np.abs(t) ** 2, axis=2), axis=0))

@@ -3,8 +3,9 @@
 An identification's model update (``identification.json``'s ``update``,
 :meth:`ambid.fit.model_update.PhysicalUpdate.to_dict`) holds every physical parameter's estimate, the
 free ones' standard deviations, 95 % intervals (Student t) and correlation. The free parameters are
-drawn from that posterior as a multivariate Student t (in ln theta where the prior was stated in the
-logarithm, as the update estimated them; its degrees of freedom the smallest of the parameters' own);
+drawn from that posterior with their correlation and each its own Student t (the degrees of freedom its
+interval was read with; a Gaussian copula), in ln theta where the prior was stated in the logarithm, as
+the update estimated them;
 the parameters the data could not reach (a bending mode above the band) from their tolerance about the
 estimate (:mod:`ambid.plant.tolerances`): every plant a controller must hold. Nothing here reads the
 simulated truth.
@@ -39,7 +40,7 @@ class PlantUncertainty:
         free: the parameters the data identified.
         log: (k,) bool, those estimated in ln theta.
         cov: (k, k) their covariance in the estimation's coordinates (theta, or ln theta where ``log``).
-        dof: degrees of freedom of that covariance (inf: normal).
+        dof: (k,) each one's degrees of freedom (inf: normal).
         prior_only: (name, mean, sd, log) of each parameter drawn from its tolerance alone.
     """
 
@@ -49,7 +50,7 @@ class PlantUncertainty:
     free: tuple[str, ...]
     log: np.ndarray
     cov: np.ndarray
-    dof: float
+    dof: np.ndarray
     prior_only: tuple[tuple[str, float, float, bool], ...]
 
 
@@ -107,7 +108,7 @@ def plant_uncertainty(update: Mapping, rig: Rig) -> PlantUncertainty:
             mean = v   # the estimate stays the centre; the range's width is the spread
         if s > 0:
             prior_only.append((k, float(np.log(mean) if lg else mean), float(s), bool(lg)))
-    return PlantUncertainty(rig.rotor_model(), float(rig.dt), values, free, log, cov, float(min(dofs)),
+    return PlantUncertainty(rig.rotor_model(), float(rig.dt), values, free, log, cov, np.array(dofs),
                             tuple(prior_only))
 
 
@@ -128,12 +129,19 @@ def draw_parameters(unc: PlantUncertainty, n: int, rng: np.random.Generator) -> 
     """
     k = len(unc.free)
     x0 = np.array([np.log(unc.values[p]) if lg else unc.values[p] for p, lg in zip(unc.free, unc.log)])
-    # the covariance's square root by eigenvalues: a near-singular posterior (correlated lags) stays PSD
-    w, v = linalg.eigh(unc.cov)
+    sd = np.sqrt(np.diag(unc.cov))
+    corr = unc.cov / np.outer(np.where(sd > 0, sd, 1.0), np.where(sd > 0, sd, 1.0))
+    # the correlation's square root by eigenvalues: a near-singular posterior (correlated lags) stays PSD
+    w, v = linalg.eigh(corr)
     root = v * np.sqrt(np.clip(w, 0.0, None))
-    z = rng.standard_normal((n, k)) @ root.T
-    if np.isfinite(unc.dof):
-        z *= np.sqrt(unc.dof / rng.chisquare(unc.dof, size=(n, 1)))
+    g = rng.standard_normal((n, k)) @ root.T
+    g /= np.sqrt(np.clip(np.diag(root @ root.T), 1e-300, None))
+    # each marginal its own Student t, the correlation kept through the normal scores (a Gaussian copula)
+    heavy = np.isfinite(unc.dof)
+    z = g.copy()
+    if heavy.any():
+        z[:, heavy] = stats.t.ppf(stats.norm.cdf(g[:, heavy]), unc.dof[heavy])
+    z *= sd
     z[0] = 0.0
     x = x0 + z
     draws = []

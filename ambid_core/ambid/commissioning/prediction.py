@@ -16,9 +16,9 @@ interval claims to hold 95 % of the time. It differs from the loop's own peak by
   lines.
 
 :func:`predict_peak` simulates the verifying measurement this way for plants drawn from the posterior
-(a parametric bootstrap of the measurement and its fit), and reads the interval as a normal prediction
-interval of those samples (Student t of their count less one): the samples' spread holds both the plant's
-uncertainty and the measurement's. The loop's peak (all frequencies, no measurement) is given beside it.
+(a parametric bootstrap of the measurement and its fit), and reads the interval off the order statistics
+of those samples (ranks (n + 1) 0.025 and (n + 1) 0.975: a prediction interval whatever their
+distribution): the samples' spread holds both the plant's uncertainty and the measurement's. The loop's peak (all frequencies, no measurement) is given beside it.
 Nothing here reads the simulated truth.
 """
 
@@ -28,7 +28,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
 
 from ambid.commissioning.loops import input_sensitivity_frf, worst_peak
 from ambid.commissioning.plants import PlantUncertainty, draw_parameters, peak_grid, plant_set
@@ -94,7 +93,7 @@ class PeakPrediction:
     """A controller's predicted input-sensitivity peak.
 
     Attributes:
-        value: the predicted headline peak of the verifying identification (mean of the samples) [-].
+        value: the predicted headline peak of the verifying identification (median of the samples) [-].
         ci95: its 95 % prediction interval [lo, hi] [-].
         freq_hz: where the loop's peak lies at the estimate [Hz].
         axis: the axis of that peak.
@@ -104,7 +103,6 @@ class PeakPrediction:
         loop_ci95: the 2.5 and 97.5 % quantiles of the loop's peak over the drawn plants [-].
         loop_samples: (B,) the loop's peak of each drawn plant.
         stable_share: share of the drawn plants whose loop is stable [-].
-        dof: degrees of freedom of the interval (samples less one).
     """
 
     value: float
@@ -117,12 +115,11 @@ class PeakPrediction:
     loop_ci95: tuple[float, float]
     loop_samples: np.ndarray
     stable_share: float
-    dof: int
 
     def to_dict(self) -> dict:
         """``{value, ci95, freq_hz, axis, zones, loop: {...}, ...}`` for tune.json."""
         return dict(value=self.value, ci95=list(self.ci95), freq_hz=self.freq_hz, axis=self.axis,
-                    zones=self.zones, n_samples=int(self.samples.size), dof=self.dof,
+                    zones=self.zones, n_samples=int(self.samples.size),
                     loop=dict(value=self.loop_peak, ci95=list(self.loop_ci95)), stable_share=self.stable_share)
 
 
@@ -190,14 +187,12 @@ def predict_peak(unc: PlantUncertainty, controller: StateSpace, model: Measureme
             at_estimate = (float(mag.max()), float(grid[j[0]]), axes[j[1]] if axes else str(j[1]))
         samples.append(_measured_peak(k_lines, k_dense, ps.frf[0], model, rng))
     x = np.array(samples)
-    dof = x.size - 1
-    q = float(stats.t.ppf(0.975, dof))
-    mean, sd = float(x.mean()), float(x.std(ddof=1)) * np.sqrt(1 + 1 / x.size)
-    # zone probabilities from the same predictive distribution the interval is read from
-    t_draws = mean + sd * stats.t.rvs(dof, size=20000, random_state=np.random.default_rng([seed, 37]))
+    # a new draw lies between the order statistics at ranks (n + 1) p with probability p2 - p1, whatever the
+    # distribution (numpy's "weibull" positions): the interval is a distribution-free prediction interval
+    lo, hi = np.quantile(x, [0.025, 0.975], method="weibull")
     loops_a = np.array(loops)
-    return PeakPrediction(value=mean, ci95=(mean - q * sd, mean + q * sd), freq_hz=at_estimate[1],
-                          axis=at_estimate[2], zones=zone_probabilities(t_draws), samples=x,
+    return PeakPrediction(value=float(np.median(x)), ci95=(float(lo), float(hi)), freq_hz=at_estimate[1],
+                          axis=at_estimate[2], zones=zone_probabilities(x), samples=x,
                           loop_peak=at_estimate[0], loop_ci95=(float(np.quantile(loops_a, 0.025)),
                                                                  float(np.quantile(loops_a, 0.975))),
-                          loop_samples=loops_a, stable_share=stable / len(params), dof=dof)
+                          loop_samples=loops_a, stable_share=stable / len(params))
