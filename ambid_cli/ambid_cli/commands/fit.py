@@ -48,6 +48,8 @@ def _pct(x) -> str:
 
 def format_summary(s: dict) -> str:
     """Headline figures of an identification summary, a few lines of text."""
+    from ambid.frf.sensitivity import sensitivity_lines
+
     ex, fit, sens, noise = s["excitation"], s["fit"], s["sensitivity"], s["noise"]
     lines = [f"experiment {s['experiment_id']}: {ex['kind']} ({ex.get('mimo')}), {ex['n_excited_lines']} lines in "
              f"{s['band_hz'][0]:g}-{s['band_hz'][1]:g} Hz, {s['estimator']} estimator, "
@@ -63,14 +65,21 @@ def format_summary(s: dict) -> str:
     std = noise.get("output_noise_std_m") or []
     ci = noise.get("output_noise_std_ci95_m") or [None] * len(std)
     odd, even = noise.get("distortion_odd_db"), noise.get("distortion_even_db")
-    lines.append("output noise std [um] (95 % interval): "
-                 + ", ".join("-" if v is None else f"{v * 1e6:.4g}" + ("" if c is None or None in c else
-                                                                       f" ({c[0] * 1e6:.4g}..{c[1] * 1e6:.4g})")
-                             for v, c in zip(std, ci))
-                 + (f"; detection lines above noise: odd {max(odd):+.1f} dB, even {max(even):+.1f} dB (worst output)"
-                    if odd and even and None not in odd + even else ""))
+    units = set(s.get("output_units") or ["m"])
+    k, unit = (1e6, "um") if units == {"m"} else (1.0, "/".join(sorted(units)))
+    if any(v is not None for v in std):   # a record of one non-periodic excitation has no noise figure
+        lines.append(f"output noise std [{unit}] (95 % interval): "
+                     + ", ".join("-" if v is None else f"{v * k:.4g}" + ("" if c is None or None in c else
+                                                                         f" ({c[0] * k:.4g}..{c[1] * k:.4g})")
+                                 for v, c in zip(std, ci))
+                     + (f"; detection lines above noise: odd {max(odd):+.1f} dB, even {max(even):+.1f} dB (worst "
+                        "output)" if odd and even and None not in odd + even else ""))
     lines.append(f"model order {fit['order']} (chi2/dof {fit['chi2_per_dof']:.3g}); modes: "
                  + (", ".join(f"{m['freq_hz']:.5g} Hz / zeta {m['damping']:.3g}" for m in fit["modes"]) or "none"))
+    lines += _computational_lines(fit)
+    plant = [r for r in fit.get("real_poles") or [] if r.get("physical")]
+    if plant:
+        lines.append(f"unstable real pole at {plant[0]['pole_hz']:.4g} Hz: {plant[0]['reason']}")
     if s.get("max_mode_freq_error") is not None:
         lines.append(f"modes vs true: worst frequency error {_pct(s['max_mode_freq_error'])}, worst damping error "
                      f"{_pct(s['max_mode_damping_error'])}")
@@ -91,10 +100,11 @@ def format_summary(s: dict) -> str:
         lines.append(f"set mostly by their tolerances (the data tell little): {', '.join(upd['prior_dominated'])}")
     if "error" in upd:
         lines.append(f"model updating failed: {upd['error']}")
-    lines.append(f"peak input sensitivity {sens['worst_peak']:.3g} on {sens['worst_input']}: ISO 14839-3 zone "
-                 f"{sens['iso_zone']}" + ("" if sens.get("updated_peak") is None else
-                                          f"; updated model with the recorded controller {max(sens['updated_peak']):.3g},"
-                                          f" zone {sens['updated_iso_zone']}"))
+    lines += sensitivity_lines(sens)
+    lines += [f"data quality: {q['text']}" for q in (s.get("quality") or {}).get("findings", [])]
+    if sens.get("updated_peak") is not None:
+        lines.append(f"updated model with the recorded controller: sensitivity peak {max(sens['updated_peak']):.3g}, "
+                     f"zone {sens['updated_iso_zone']}")
     files = s["files"]
     lines.append(f"written: {files['model_npz']}, {files['model_json']}" +
                  (f", report {files['report']}" if "report" in files else ""))
@@ -102,10 +112,24 @@ def format_summary(s: dict) -> str:
     return "\n".join(lines)
 
 
+def _computational_lines(fit: dict) -> list[str]:
+    """One line on the fit's poles that are not modes (kept apart in identification.json), by reason."""
+    comp = fit.get("computational_poles") or []
+    if not comp:
+        return []
+    by: dict[str, int] = {}
+    for c in comp:
+        key = c["reason"].split(" (")[0].split(":")[0].replace("; computational", "")
+        by[key] = by.get(key, 0) + 1
+    return [f"{len(comp)} computational pole(s) kept apart, not modes (fit.computational_poles): "
+            + "; ".join(f"{n} {k}" for k, n in by.items())]
+
+
 def format_frf_summary(s: dict) -> str:
     """Headline figures of a measured FRF's fit, a few lines of text."""
     fit = s["fit"]
-    lines = [f"{s['source']} ({s['format']}): {len(s['outputs'])} outputs x {len(s['inputs'])} inputs, "
+    unit = f", {s['form']} [{s['unit']}]" if s.get("unit") else (f", {s['form']}" if s.get("form") else "")
+    lines = [f"{s['source']} ({s['format']}{unit}): {len(s['outputs'])} outputs x {len(s['inputs'])} inputs, "
              f"{s['n_lines']} frequencies in {s['band_hz'][0]:g}-{s['band_hz'][1]:g} Hz, variance "
              + ("given" if s["var_given"] else "not given"),
              f"model order {fit['order']} ("
@@ -118,6 +142,8 @@ def format_frf_summary(s: dict) -> str:
                      + f", zeta {m['damping']:.4g}" + (f" ({ci_z[0]:.3g}..{ci_z[1]:.3g})" if ci_z else ""))
     if not fit["modes"]:
         lines.append("  none in the band")
+    lines += _computational_lines(fit)
+    lines += [f"data quality: {q['text']}" for q in (s.get("quality") or {}).get("findings", [])]
     lines.append(f"intervals: {s['intervals']['modes']}")
     files = s["files"]
     lines.append(f"written: {files['model_npz']}, {files['model_json']}" +

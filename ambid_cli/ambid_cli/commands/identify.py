@@ -140,15 +140,10 @@ def format_headlines(s: dict, out: Path) -> str:
         moved = len(((s.get("excitation") or {}).get("synchronous") or {}).get("moved") or [])
         lines.append(f"  at speed: {moved} excited line(s) moved off k x {h1['freq_hz']:.1f} Hz; synchronous 1X "
                      f"response {max(h1['amplitude'][:ny]) * 1e6:.2f} um (largest output), kept out of the FRF")
-    sens = s.get("sensitivity")
-    if sens:
-        line = (f"  input sensitivity peak {sens['worst_peak']:.2f} at the excited lines ({sens['worst_input']}), "
-                f"ISO 14839-3 zone {sens['iso_zone']}")
-        if "model_peak" in sens:
-            line += f"; between the lines (fitted plant + controller) {max(sens['model_peak']):.2f}"
-            if "true_peak" in sens:
-                line += f", true loop {max(sens['true_peak']):.2f}"
-        lines.append(line)
+    from ambid.frf.sensitivity import sensitivity_lines
+
+    lines += [f"  {ln}" for ln in sensitivity_lines(s.get("sensitivity"))]
+    lines += [f"  data quality: {q['text']}" for q in (s.get("quality") or {}).get("findings", [])]
     timing = s.get("analysis_timing") or {}
     if "headline_after_last_period_s" in timing:
         lines.append(f"  results {timing['headline_after_last_period_s']:.1f} s after the last period; the report "

@@ -174,9 +174,14 @@ def read_run(folder: str | os.PathLike, rig: Rig | str | os.PathLike | None = No
                      arrays["sensitivity"], np.asarray(fitted.poles))
 
 
-def headline_peak(sensitivity: Mapping[str, Any]) -> float:
+def headline_peak(sensitivity: Mapping[str, Any]) -> float | None:
     """A run's measured input-sensitivity peak: the worst ``|S_jj|`` at the excited lines and between them on
-    the fitted model (identify's headline)."""
+    the fitted model (identify's headline, ``sensitivity.loop.peak``); None where the run shows none."""
+    loop = sensitivity.get("loop")
+    if isinstance(loop, Mapping) and loop.get("peak") is not None:
+        return float(loop["peak"])
+    if sensitivity.get("worst_peak") is None:
+        return None
     peaks = [float(sensitivity["worst_peak"])]
     if sensitivity.get("model_peak") is not None:
         peaks.append(float(np.max(sensitivity["model_peak"])))

@@ -30,10 +30,11 @@ from typing import Any
 
 import numpy as np
 
-from ambid.fit import fit_common_denominator, modal_summary, save_model_json, save_model_npz, stabilisation_diagram
+from ambid.fit import fit_common_denominator, save_model_json, save_model_npz, stabilisation_diagram
 from ambid.frf.frf_file import MeasuredFrf
+from ambid.frf.quality import record_quality
 from ambid.jsonable import to_jsonable
-from ambid.studies.identification import _mode_interval, select_order
+from ambid.studies.identification import select_order, split_modes
 
 __all__ = ["identify_frf", "INTERVALS_WITH_VAR", "INTERVALS_WITHOUT_VAR"]
 
@@ -91,33 +92,36 @@ def identify_frf(measured: MeasuredFrf, out_dir: str | os.PathLike, *, order: in
         rule = "given"
     # the file's variance as the entries' covariance (independent within a line): the intervals follow it
     row_cov = None if var is None else np.einsum("lij,jk->lijk", var, np.eye(nu)).astype(complex)
-    labels = dict(input_names=measured.input_names, output_names=measured.output_names)
+    labels = dict(input_names=measured.input_names, output_names=measured.output_names,
+                  input_units=measured.input_units, output_units=measured.output_units)
     fit = fit_common_denominator(f, g, w_var, order=int(order), delay_s=delay_s, row_covariance=row_cov, **labels)
-    summary_modes = modal_summary(fit.model)
-    prev = diagram.orders[diagram.orders < order]
-    prev_poles = diagram.poles_of(int(prev[-1])) if prev.size else np.zeros(0, complex)
+    # the modes the data shows, the computational poles apart with their reasons: as for a session
+    _, mode_rows, real, computational = split_modes(fit, diagram, int(order), f, g, var)
     modes = []
-    for m in summary_modes.modes:
-        if not band[0] <= m.freq_hz <= band[1]:
-            continue
-        row = dict(freq_hz=m.freq_hz, damping=m.damping,
-                   stable=bool(prev_poles.size and np.min(np.abs(np.abs(prev_poles) / (2 * np.pi) - m.freq_hz))
-                               <= 0.01 * m.freq_hz), **_mode_interval(fit, m.freq_hz, m.damping))
+    for row in mode_rows:
         if row.get("freq_hz_std") is not None:
             row["noise_only"] = var is not None
         modes.append(row)
-    real = [dict(pole_hz=r.pole_rad_s / (2 * np.pi), unstable=r.unstable) for r in summary_modes.real_poles]
+    quality = []
+    if measured.coherence is not None:   # the analyser's coherence: its low lines said, one line per pair
+        pairs = [f"{o}/{u}" for o in measured.output_names for u in measured.input_names]
+        quality = [q.to_dict() for q in record_quality(None, (), 1.0, f, measured.coherence.reshape(f.size, -1),
+                                                       pairs)]
     save_model_npz(out / "model.npz", fit.model)
     save_model_json(out / "model.json", fit.model)
     np.savez(out / "frf.npz", freq_hz=f, H=g, **({} if var is None else dict(var=var)),
+             **({} if measured.coherence is None else dict(coherence=measured.coherence)),
              outputs=np.array(measured.output_names), inputs=np.array(measured.input_names))
     summary: dict[str, Any] = dict(
-        source=measured.path, format=measured.kind, outputs=list(measured.output_names),
-        inputs=list(measured.input_names), n_lines=int(f.size), band_hz=list(band), var_given=var is not None,
+        source=measured.path, format=measured.kind, form=measured.form, unit=measured.unit,
+        output_units=list(measured.output_units), input_units=list(measured.input_units),
+        outputs=list(measured.output_names), inputs=list(measured.input_names), n_lines=int(f.size),
+        band_hz=list(band), var_given=var is not None,
         fit=dict(order=int(order), order_rule=rule, chi2_per_dof=fit.chi2_per_dof, delay_s=delay_s,
                  weights="the file's var" if var is not None else "each line by its mean |H|^2 (relative)",
                  orders_tried=diagram.orders, chi2_per_dof_by_order=diagram.chi2_per_dof, modes=modes,
-                 real_poles=real, refine_message=fit.message),
+                 computational_poles=computational, real_poles=real, refine_message=fit.message),
+        quality=dict(findings=quality),
         intervals=dict(modes=INTERVALS_WITH_VAR if var is not None else INTERVALS_WITHOUT_VAR),
         files=dict(model_npz=str(out / "model.npz"), model_json=str(out / "model.json"),
                    frf_npz=str(out / "frf.npz"), summary_json=str(out / "identification.json")),

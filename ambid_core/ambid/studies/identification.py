@@ -64,16 +64,19 @@ from ambid.excitation.design import ExcitationDesign
 from ambid.fit import (FitResult, StabilisationDiagram, fit_common_denominator, modal_summary, save_model_json,
                        save_model_npz, stabilisation_diagram)
 from ambid.fit.model_update import (PhysicalUpdate, bending_keys, closed_loop_noise_std, covers, excitation_slopes,
+                                    rig_channels,
                                     match_modes, nominal_parameters, nominal_update_parameters, parameter_prior,
                                     physical_discrete, physical_frf, physical_statespace, slopes_as_parameters,
                                     start_from_data, total_lag, true_parameters, unmodelled_mode,
                                     update_physical_model)
+from ambid.fit.physical_modes import judge_poles
 from ambid.fit.updating import NotIdentifiable, Prior
 from ambid.plant.tolerances import Z95
 from ambid.frf.directional import directional_frf, has_planes, whirl_of_residue
 from ambid.frf.levels import LineLevels, line_levels
 from ambid.frf.offline import frf_from_session, session_designs
-from ambid.frf.sensitivity import iso14839_zone
+from ambid.frf.quality import record_quality
+from ambid.frf.sensitivity import iso14839_zone, sensitivity_shown
 from ambid.frf.uncertainty import fit_weight_variance, row_covariance
 from ambid.frf.streaming import FrfResult, axis_tag
 from ambid.jsonable import to_jsonable
@@ -86,7 +89,7 @@ from ambid.session.blocks import read_samples
 from ambid.session.facts import controller_facts, controller_model, plant_facts
 from ambid.statespace import StateSpace
 
-__all__ = ["select_order", "frf_relative_error", "recorded_controller", "session_rig", "true_modes",
+__all__ = ["select_order", "split_modes", "frf_relative_error", "recorded_controller", "session_rig", "true_modes",
            "compare_modes", "FrfFit", "fit_frf", "update_rig", "identify_session", "SessionInputs",
            "read_session_inputs", "inputs_from_messages", "ReferenceModels", "reference_key", "reference_models"]
 
@@ -274,16 +277,21 @@ def _floored(v: np.ndarray) -> np.ndarray:
     return np.maximum(v, 1e-6 * np.median(v[v > 0]))
 
 
+def _session_fact(path: str, key: str, recover: bool) -> dict:
+    """One entry of the session's facts (``ambid.session`` metadata) as a dict; {} when it is not there."""
+    value = read_metadata(path, recover=recover).get("ambid.session", {}).get(key)
+    if isinstance(value, str):
+        try:
+            value = json.loads(value)
+        except json.JSONDecodeError:
+            value = None
+    return value if isinstance(value, dict) else {}
+
+
 def _nonlinear_magnets(path: str, recover: bool) -> bool:
     """Whether the simulated session ran the nonlinear magnets (the session config identify records; the
     plant node's default, linear, when the session does not say)."""
-    config = read_metadata(path, recover=recover).get("ambid.session", {}).get("config")
-    if isinstance(config, str):
-        try:
-            config = json.loads(config)
-        except json.JSONDecodeError:
-            config = None
-    return bool(config.get("nonlinear_magnets", False)) if isinstance(config, dict) else False
+    return bool(_session_fact(path, "config", recover).get("nonlinear_magnets", False))
 
 
 def _mode_interval(fit: FitResult, freq_hz: float, damping: float) -> dict:
@@ -327,8 +335,22 @@ def _update(rig: Rig, frf: FrfResult, var, band, modes, dt_s, nominal_overrides,
     """
     rotor = rig.rotor_model()
     not_covered = covers(rotor, frf.output_names, frf.input_names)
+    sub_notes = []
     if not_covered:
-        return None, None, [f"no physical model updating: {not_covered}"]
+        picked = rig_channels(rotor, frf.output_names, frf.input_names)
+        if picked is None:
+            return None, None, [f"no physical model updating: {not_covered}"]
+        # the channels the rig model describes; the others (accelerometers, probes along the shaft) left out
+        rows, cols, left = picked
+        frf = dataclasses.replace(frf, frf=frf.frf[:, rows][:, :, cols],
+                                  output_names=tuple(frf.output_names[i] for i in rows),
+                                  input_names=tuple(frf.input_names[j] for j in cols))
+        var = None if var is None else var[:, rows][:, :, cols]
+        row_cov = None if row_cov is None else row_cov[:, rows][:, :, cols][:, :, :, cols]
+        realisations = None if realisations is None else realisations[:, :, rows][:, :, :, cols]
+        sub_notes.append(f"physical model updating on the channels the rig model describes "
+                         f"({', '.join(frf.output_names)} / {', '.join(frf.input_names)}); left out: "
+                         f"{', '.join(left)} (not in the rig model)")
     nominal = nominal_update_parameters(rig)
     nominal.update({k: float(v) for k, v in (nominal_overrides or {}).items()})
     fitted = [(m.freq_hz, m.damping) for m in modes]
@@ -345,6 +367,7 @@ def _update(rig: Rig, frf: FrfResult, var, band, modes, dt_s, nominal_overrides,
     free = list(free)
     known = [k for k in free if k in nominal]
     bending, used, notes = match_modes(rotor, nominal, known, parameter_prior(rig, known, nominal)[0], fitted)
+    notes = sub_notes + notes
     # a support mode where the fit shows a mode that neither the nominal model nor its bending modes explain
     rest = [m for k, m in enumerate(modes) if k not in used]
     # resonance peak height of R / (s - p) is |R| / (zeta omega)
@@ -442,6 +465,8 @@ class FrfFit:
         weights, weights_kind: the variance the fit is weighted by, and what it is.
         row_cov: the covariance of a row's entries (the indirect estimator), or None.
         realisations: (M, L, Ny, Nu) the realisations' FRFs whose scatter joins the intervals, or None.
+        computational: the fit's complex poles that are not modes of the data, each with its reason
+            (:func:`split_modes`).
     """
 
     fit: FitResult
@@ -460,10 +485,55 @@ class FrfFit:
     weights_kind: str
     row_cov: np.ndarray | None
     realisations: np.ndarray | None
+    computational: list[dict] = dataclasses.field(default_factory=list)
+
+
+def split_modes(fit: FitResult, diagram: StabilisationDiagram, order: int, freq_hz: np.ndarray, G: np.ndarray,
+                noise_var: np.ndarray | None, *, plant_input_current: bool = False
+                ) -> tuple[list, list[dict], list[dict], list[dict]]:
+    """The fit's poles parted into the modes the data shows and the computational ones
+    (:func:`ambid.fit.physical_modes.judge_poles`), for ``ambid fit`` of a session and of an FRF file alike.
+
+    Returns:
+        (modes: the physical :class:`ambid.fit.Mode` by frequency; their rows: freq_hz, damping, stable (found
+        again within 1 % at the next lower order), the 95 % intervals; the real poles' rows: pole_hz (signed,
+        > 0 unstable), unstable, reason; the computational complex poles' rows: freq_hz, damping, reason).
+    """
+    summary_modes = modal_summary(fit.model)
+    prev = diagram.orders[diagram.orders < order]
+    prev_poles = diagram.poles_of(int(prev[-1])) if prev.size else np.zeros(0, complex)
+    verdicts = {v.index: v for v in judge_poles(fit.model, diagram, order, freq_hz, G, noise_var,
+                                                plant_input_current=plant_input_current)}
+    index = {complex(p): k for k, p in enumerate(fit.model.poles)}
+    modes, rows, computational = [], [], []
+    for m in summary_modes.modes:
+        v = verdicts[index[complex(m.pole_rad_s)]]
+        if not v.physical:
+            computational.append(dict(freq_hz=m.freq_hz, damping=m.damping, reason=v.reason,
+                                      stable_share=v.stable_share, snr=v.snr))
+            continue
+        modes.append(m)
+        rows.append(dict(freq_hz=m.freq_hz, damping=m.damping,
+                         stable=bool(prev_poles.size and np.min(np.abs(np.abs(prev_poles) / (2 * np.pi) - m.freq_hz))
+                                     <= 0.01 * m.freq_hz), **_mode_interval(fit, m.freq_hz, m.damping)))
+    real_rows = []
+    for r in summary_modes.real_poles:
+        v = verdicts[index[complex(r.pole_rad_s)]]
+        real_rows.append(dict(pole_hz=r.pole_rad_s / (2 * np.pi), unstable=r.unstable, physical=v.physical,
+                              reason=v.reason))
+    return modes, rows, real_rows, computational
+
+
+def _is_current(name: str) -> bool:
+    """A channel of the applied current (``u_<axis>``)."""
+    try:
+        return split_name(name)[0] == "u"
+    except ValueError:
+        return False
 
 
 def fit_frf(frf: FrfResult, sample_rate_hz: float, order: int | None = None, *, max_order: int = 32,
-            order_penalty: float = 2.0) -> FrfFit:
+            order_penalty: float = 2.0, units: Mapping[str, str] | None = None) -> FrfFit:
     """The common-denominator fit of an FRF, as :func:`identify_session` makes it (steps 2-3 of the module
     docstring): order selection on the stabilisation diagram unless ``order`` is given, a known delay of
     half a sample, the weights and interval covariance of the FRF's variance.
@@ -474,6 +544,8 @@ def fit_frf(frf: FrfResult, sample_rate_hz: float, order: int | None = None, *, 
         order: model order; None selects it (:func:`select_order`).
         max_order: highest order in the stabilisation diagram.
         order_penalty: criterion weight per parameter of the order rule (2: Akaike).
+        units: channel -> unit where the record says (an imported record's outputs of any kind); default m
+            for outputs, A for inputs.
 
     Raises:
         ValueError: too few lines for a parametric fit.
@@ -497,8 +569,10 @@ def fit_frf(frf: FrfResult, sample_rate_hz: float, order: int | None = None, *, 
 
     # --- parametric fit ---------------------------------------------------------------
     fit_delay = (1.0 / sample_rate_hz) / 2  # the zero-order hold: half a sample
+    units = dict(units or {})
     labels = dict(input_names=frf.input_names, output_names=frf.output_names,
-                  input_units=("A",) * len(frf.input_names), output_units=("m",) * len(frf.output_names))
+                  input_units=tuple(units.get(n, "A") for n in frf.input_names),
+                  output_units=tuple(units.get(n, "m") for n in frf.output_names))
     top = min(max_order, f.size - 1)
     orders = list(range(2, top + 1, 2))
     if not orders:
@@ -512,15 +586,9 @@ def fit_frf(frf: FrfResult, sample_rate_hz: float, order: int | None = None, *, 
         rule = "given"
     fit: FitResult = fit_common_denominator(f, frf.frf, w_var, order=int(order), delay_s=fit_delay,
                                             row_covariance=row_cov, realisations=realisations, **labels)
-    summary_modes = modal_summary(fit.model)
-    prev = diagram.orders[diagram.orders < order]
-    prev_poles = diagram.poles_of(int(prev[-1])) if prev.size else np.zeros(0, complex)
-    modes = [m for m in summary_modes.modes if band[0] <= m.freq_hz <= band[1]]
-    mode_rows = [dict(freq_hz=m.freq_hz, damping=m.damping,
-                      stable=bool(prev_poles.size and np.min(np.abs(np.abs(prev_poles) / (2 * np.pi) - m.freq_hz))
-                                  <= 0.01 * m.freq_hz), **_mode_interval(fit, m.freq_hz, m.damping))
-                 for m in modes]
-    real_rows = [dict(pole_hz=r.pole_rad_s / (2 * np.pi), unstable=r.unstable) for r in summary_modes.real_poles]
+    current_in = all(_is_current(n) for n in frf.input_names)
+    modes, mode_rows, real_rows, computational = split_modes(fit, diagram, int(order), f, frf.frf, var,
+                                                             plant_input_current=current_in)
     # the radial bearing planes among the channels (x and y of a bearing): forward and backward whirl told apart
     if has_planes(frf.output_names, frf.input_names):
         for m, row in zip(modes, mode_rows):
@@ -528,7 +596,7 @@ def fit_frf(frf: FrfResult, sample_rate_hz: float, order: int | None = None, *, 
             row["whirl"], row["forward_share"] = whirl_of_residue(fit.model.residues[k], frf.output_names,
                                                                   frf.input_names)
     return FrfFit(fit, int(order), rule, diagram, band, fit_delay, modes, mode_rows, real_rows, var, var_kind,
-                  band_var, w_var, w_kind, row_cov, realisations)
+                  band_var, w_var, w_kind, row_cov, realisations, computational)
 
 
 def update_rig(rig: Rig, frf: FrfResult, fitted: FrfFit, dt_s: float, nominal: Mapping[str, float] | None = None,
@@ -633,7 +701,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     f = frf.freq_hz
     if frf.gaps:
         notes.append(f"{len(frf.gaps)} gap(s) in the measurement; the periods they touch were left out")
-    mf = fit_frf(frf, design.fs_hz, order, max_order=max_order, order_penalty=order_penalty)
+    mf = fit_frf(frf, design.fs_hz, order, max_order=max_order, order_penalty=order_penalty, units=inputs.units)
     var, var_kind, band_var, w_var, w_kind = mf.var, mf.var_kind, mf.band_var, mf.weights, mf.weights_kind
     order, fit, modes, mode_rows, band, diagram = mf.order, mf.fit, mf.modes, mf.mode_rows, mf.band_hz, mf.diagram
     # the radial bearing planes among the channels (x and y of a bearing): forward and backward whirl told apart
@@ -746,7 +814,9 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
                             if lag is not None else "see update.parameters"))
     elif update_error:
         update_dict = dict(error=update_error)
-    worst = int(np.argmax(frf.sensitivity_peak))
+    # the experiment's samples, read once: what spoils them (said in the summary) and the report's figures
+    samples = _experiment_samples(path, chosen, design, frf, recover)
+    quality = _quality(samples, chosen, design, frf)
     summary: dict[str, Any] = dict(
         session=path, experiment_id=chosen["experiment_id"], estimator=frf.estimator,
         excitation=dict(kind=design.kind, mimo=design.options.get("mimo"), grid=design.options.get("grid"),
@@ -758,11 +828,13 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
                         measurement_time_s=design.measurement_time_s,
                         synchronous=design.options.get("synchronous")),
         band_hz=list(band), inputs=list(frf.input_names), outputs=list(frf.output_names),
+        input_units=list(fit.model.input_units), output_units=list(fit.model.output_units),
         controller=(recorded or (None, None))[1],
         simulated=simulated, frf_error=frf_error, noise=noise,
         fit=dict(order=int(order), order_rule=mf.order_rule, chi2_per_dof=fit.chi2_per_dof, delay_s=mf.delay_s,
                  weights=w_kind, orders_tried=diagram.orders, chi2_per_dof_by_order=diagram.chi2_per_dof,
-                 modes=mode_rows, real_poles=mf.real_rows, refine_message=fit.message),
+                 modes=mode_rows, computational_poles=mf.computational, real_poles=mf.real_rows,
+                 refine_message=fit.message),
         intervals=dict(
             noise_only=[] if var is not None and var_kind.startswith("var_total") else
             ["frf band", "parameters", "modes"],
@@ -798,11 +870,11 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         max_mode_freq_error=max((abs(r["freq_error"]) for r in modes_vs_true), default=None),
         max_mode_damping_error=max((abs(r["damping_error"]) for r in modes_vs_true), default=None),
         update=update_dict,
-        sensitivity=dict(peak=frf.sensitivity_peak, peak_hz=frf.sensitivity_peak_hz,
-                         worst_input=frf.input_names[worst], worst_peak=float(frf.sensitivity_peak[worst]),
-                         iso_zone=frf.iso_zone,
-                         **_model_sensitivity(fit.model, refs),
-                         **_updated_sensitivity(the_rig, upd, recorded, dt_s)),
+        quality=dict(findings=quality, coherence=dict(
+            min=float(np.nanmin(frf.coherence)) if np.size(frf.coherence) else None,
+            median=float(np.nanmedian(frf.coherence)) if np.size(frf.coherence) else None,
+            per_line="frf.npz: coherence (L, Ny), each output's multiple coherence with the excitation")),
+        sensitivity=_sensitivity_summary(frf, inputs, fit, refs, the_rig, upd, recorded, dt_s),
         files=dict(model_npz=str(out / "model.npz"), model_json=str(out / "model.json"),
                    frf_npz=str(out / "frf.npz"), summary_json=str(out / "identification.json")),
         notes=notes)
@@ -810,7 +882,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         on_summary(to_jsonable({**summary, "wall_s": time.perf_counter() - t0}))
     if report:
 
-        levels, window = _samples_for_report(path, chosen, design, frf, recover)
+        levels, window = _samples_for_report(samples, design, frf, int(chosen["start_index"]))
         dense = np.geomspace(max(band[0] / 1.5, 1e-3), min(band[1] * 1.5, 0.499 * design.fs_hz), 400)
         curves = {"fitted model": (dense, fit.model.freqresp(dense))}
         if the_rig is not None and not covers(the_rig.rotor_model(), frf.output_names, frf.input_names):
@@ -868,19 +940,36 @@ def _synchronous_dict(frf: FrfResult) -> dict | None:
                                                        s.amplitude_std)])
 
 
-def _samples_for_report(path: str, chosen: dict, design: ExcitationDesign, frf: FrfResult,
-                        recover: bool) -> tuple[LineLevels | None, dict | None]:
-    """Line levels of the whole experiment and a short time window of y, u, r."""
-
+def _experiment_samples(path: str, chosen: dict, design: ExcitationDesign, frf: FrfResult, recover: bool):
+    """The experiment's samples of the FRF's outputs, inputs and excitation (a SampleRange), or None."""
     topic = chosen["topic"].rstrip("/")[:-len(_DESIGN_TOPIC)] + _MEASUREMENT_TOPIC
     refs = [("r_" + n[2:]) if n.startswith("u_") else "r_" + n for n in frf.input_names]
     names = list(frf.output_names) + list(frf.input_names) + refs
     start = chosen["start_index"]
     total = min(chosen["total_samples"], design.total_samples)
     try:
-        data = read_samples(path, topic, start, start + total, names, recover=recover)
+        return read_samples(path, topic, start, start + total, names, recover=recover)
     except ValueError:
+        return None
+
+
+def _quality(data, chosen: dict, design: ExcitationDesign, frf: FrfResult) -> list[dict]:
+    """What spoils the record (:func:`ambid.frf.quality.record_quality`), one finding each; [] without samples."""
+    if data is None:
+        return []
+    ny, nu = len(frf.output_names), len(frf.input_names)
+    names = list(frf.output_names) + list(frf.input_names) + [f"r_{_axis(n)}" for n in frf.input_names]
+    found = record_quality(data.data, names, design.fs_hz, frf.freq_hz, frf.coherence, frf.output_names,
+                           names[ny + nu:], first_row=int(chosen["start_index"]))
+    return [q.to_dict() for q in found]
+
+
+def _samples_for_report(data, design: ExcitationDesign, frf: FrfResult, start: int
+                        ) -> tuple[LineLevels | None, dict | None]:
+    """Line levels of the whole experiment and a short time window of y, u, r."""
+    if data is None:
         return None, None
+    total = data.data.shape[0]
     ny, nu = len(frf.output_names), len(frf.input_names)
     levels = line_levels(data.data[:, :ny], design)
     w0 = design.n_transient_periods * design.n_per_period if design.kind != "stepped_sine" else 0
@@ -954,6 +1043,55 @@ def _model_sensitivity(model, refs: ReferenceModels) -> dict:
     return out
 
 
+def _sensitivity_summary(frf: FrfResult, inputs: SessionInputs, fit: FitResult, refs: ReferenceModels,
+                         rig: Rig | None, upd: PhysicalUpdate | None, recorded, dt_s: float) -> dict:
+    """The loop sensitivity the session shows, per excitation channel by where it was injected
+    (:func:`ambid.frf.sensitivity.sensitivity_shown`), and the headline: the worst peak over the measured lines
+    and the fitted model between them (with the recorded controller), its frequency and which of the two it came
+    from, and its ISO 14839-3 zone; one line per channel that shows none, saying why."""
+    units = inputs.units
+    shown = sensitivity_shown(frf.frf, frf.sensitivity, frf.output_names, frf.input_names, inputs.injected_at,
+                              [units.get(n, "m") for n in frf.output_names],
+                              [units.get(f"r_{_axis(n)}", "A") for n in frf.input_names])
+    f = frf.freq_hz
+    channels = []
+    for sh in shown:
+        row = dict(excitation=sh.excitation, injected_at=sh.injected_at, kind=sh.kind or None, why=sh.why)
+        if sh.values is not None:
+            mag = np.abs(sh.values)
+            k = int(np.argmax(mag))
+            row.update(peak=float(mag[k]), peak_hz=float(f[k]), iso_zone=iso14839_zone(float(mag[k])))
+        channels.append(row)
+    with_peak = [c for c in channels if "peak" in c]
+    out: dict[str, Any] = dict(channels=channels)
+    if all(sh.injected_at == "current" for sh in shown):
+        # ambid's own sessions: the input sensitivity at the lines, as before
+        worst = int(np.argmax(frf.sensitivity_peak))
+        out.update(peak=frf.sensitivity_peak, peak_hz=frf.sensitivity_peak_hz, worst_input=frf.input_names[worst],
+                   worst_peak=float(frf.sensitivity_peak[worst]), iso_zone=frf.iso_zone,
+                   **_model_sensitivity(fit.model, refs), **_updated_sensitivity(rig, upd, recorded, dt_s))
+    elif with_peak:
+        w = max(with_peak, key=lambda c: c["peak"])
+        out.update(worst_input=w["excitation"], worst_peak=w["peak"], peak_hz_worst=w["peak_hz"],
+                   iso_zone=w["iso_zone"])
+    else:
+        out.update(worst_input=None, worst_peak=None, iso_zone=None)
+    out["none"] = [c["why"] for c in channels if "peak" not in c]
+    # the headline: the loop's worst peak, over the measured lines and the fitted model between them
+    cands = [(c["peak"], c["peak_hz"], "the measured lines", c["excitation"]) for c in with_peak]
+    if out.get("model_peak") is not None:
+        mp = np.asarray(out["model_peak"], dtype=float)
+        k = int(np.argmax(mp))
+        cands.append((float(mp[k]), float(np.asarray(out["model_peak_hz"])[k]),
+                      "the fitted model between the lines (with the recorded controller)", frf.input_names[k]))
+    if cands:
+        peak, hz, source, chan = max(cands, key=lambda c: c[0])
+        out["loop"] = dict(peak=peak, peak_hz=hz, source=source, channel=chan, iso_zone=iso14839_zone(peak))
+    else:
+        out["loop"] = None
+    return out
+
+
 def _nominal_values(rig: Rig, nominal: Mapping[str, float] | None) -> dict[str, float]:
     return {**nominal_update_parameters(rig), **{k: float(v) for k, v in (nominal or {}).items()}}
 
@@ -1013,6 +1151,9 @@ class SessionInputs:
         plant_source: ``'sim'``, ``'hardware'`` or None.
         controller: the controller that ran, (discrete StateSpace y -> ic, facts), or None.
         nonlinear_magnets: the simulated plant ran the nonlinear magnets.
+        injected_at: excitation channel -> where the rig adds it ('current', 'reference', 'output'); an
+            imported record's MAP.yaml says (ambid's own sessions: current, the default).
+        units: channel -> unit, where an imported record says (outputs of any kind).
     """
 
     path: str
@@ -1022,6 +1163,8 @@ class SessionInputs:
     plant_source: str | None
     controller: tuple[StateSpace, dict] | None
     nonlinear_magnets: bool
+    injected_at: dict = dataclasses.field(default_factory=dict)
+    units: dict = dataclasses.field(default_factory=dict)
 
     def digest(self) -> str:
         """A hash of everything the identification reads from these inputs (equal digests: equal numbers)."""
@@ -1041,8 +1184,16 @@ def read_session_inputs(path: str | os.PathLike, estimator: str = "indirect", ex
     chosen = [d for d in designs if experiment_id is None or d["experiment_id"] == experiment_id][-1]
     namespace = chosen["topic"].rstrip("/")[:-len(_DESIGN_TOPIC)]
     facts, source = session_rig(path, namespace + _PLANT_TOPIC, recover=recover)
+    injected_at, units = _import_facts(path, recover)
     return SessionInputs(path, chosen, frf, facts, source, recorded_controller(path, recover),
-                         _nonlinear_magnets(path, recover))
+                         _nonlinear_magnets(path, recover), injected_at, units)
+
+
+def _import_facts(path: str, recover: bool) -> tuple[dict, dict]:
+    """(injected_at, units) an imported record's session facts carry ({} for ambid's own sessions)."""
+    facts = _session_fact(path, "import", recover)
+    injected, units = facts.get("injected_at"), facts.get("units")
+    return (dict(injected) if isinstance(injected, dict) else {}), (dict(units) if isinstance(units, dict) else {})
 
 
 def inputs_from_messages(path: str | os.PathLike, design_topic: str, design_msg: Any, plant_msg: Any,
