@@ -18,7 +18,7 @@ from ambid.control.closed_loop import close_loop, input_sensitivity, loop_robust
 from ambid.control.hinf import MixedSensitivityWeights, generalized_plant, mixed_sensitivity, reduce_controller, \
     with_delay
 from ambid.control.pid import PidParameters, pid_controller
-from ambid.control.structured import Notch, StructuredAxis, _tustin, structured_axis_frf, structured_controller
+from ambid.control.structured import Notch, StructuredAxis, bilinear_section, structured_axis_frf, structured_controller
 from ambid.fit import fit_common_denominator
 from ambid.fit.model_update import nominal_update_parameters, physical_discrete
 from ambid.frf.sensitivity import zone_probabilities
@@ -29,7 +29,7 @@ RIG = make_rig()
 DT = RIG.dt
 
 
-def test_structured_controller_is_its_transfer_function_tustin_mapped_and_delayed():
+def test_structured_controller_is_its_transfer_functionbilinear_section_mapped_and_delayed():
     p = StructuredAxis(kp_a_per_m=9000.0, ti_s=0.04, td_s=2e-3, derivative_filter_n=20.0, lead_zero_hz=150.0,
                        lead_pole_hz=600.0, lowpass_hz=3000.0, lowpass_damping=0.6,
                        notches=(Notch(927.0, 0.2, 0.05), Notch(1700.0, 1.0, 0.1)))
@@ -49,7 +49,7 @@ def test_structured_controller_is_its_transfer_function_tustin_mapped_and_delaye
     a = np.array([[0.0, 1.0], [-4e7, -900.0]])
     ref = signal.cont2discrete((a, np.array([[0.0], [1.0]]), np.array([[1.0, 2.0]]), np.array([[0.5]])), DT,
                                method="bilinear")
-    for x, y in zip(_tustin(a, np.array([[0.0], [1.0]]), np.array([[1.0, 2.0]]), np.array([[0.5]]), DT), ref):
+    for x, y in zip(bilinear_section(a, np.array([[0.0], [1.0]]), np.array([[1.0, 2.0]]), np.array([[0.5]]), DT), ref):
         assert np.allclose(x, y, rtol=1e-12, atol=1e-15)
     with pytest.raises(ValueError, match="depth"):
         Notch(900.0, 1.5, 0.1)

@@ -120,7 +120,7 @@ def _sections(p: StructuredAxis) -> list[tuple[np.ndarray, np.ndarray, np.ndarra
     return out
 
 
-def _tustin(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray, dt: float
+def bilinear_section(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray, dt: float
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The bilinear (Tustin) discretisation of a small section, as ``scipy.signal.cont2discrete(...,
     method="bilinear")`` computes it (an explicit inverse: tuning builds thousands of them)."""
@@ -133,7 +133,7 @@ def structured_axis(p: StructuredAxis, dt: float) -> StateSpace:
     """One axis, y [m] -> ic [A] (minus sign included, no delay), each section discretised by Tustin."""
     ss = None
     for a, b, c, d in _sections(p):
-        sec = StateSpace(*_tustin(a, b, c, d, dt), dt)
+        sec = StateSpace(*bilinear_section(a, b, c, d, dt), dt)
         ss = sec if ss is None else series(ss, sec)
     return ss._replace(c=-ss.c, d=-ss.d)
 
