@@ -32,6 +32,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="drawn plants every candidate must hold (default 100)")
     p.add_argument("--samples", type=positive_int, default=100,
                    help="simulated verifying measurements behind the prediction (default 100)")
+    p.add_argument("--evaluations", type=positive_int, default=600,
+                   help="objective evaluations per stage of the structured tuning (default 600)")
     p.add_argument("--seed", type=int, default=0, help="seed of the drawn plants and simulated measurements")
     p.add_argument("--no-report", action="store_true", help="skip the report page")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
@@ -82,7 +84,8 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise BadInput(str(exc)) from None
     kinds = tuple(KINDS) if args.kind == "best" else (args.kind,)
-    settings = TuneSettings(kinds=kinds, n_check=args.checks, n_prediction=max(args.samples, 3), seed=args.seed)
+    settings = TuneSettings(kinds=kinds, n_check=args.checks, n_prediction=max(args.samples, 3),
+                            max_evaluations=args.evaluations, seed=args.seed)
 
     def progress(line: str) -> None:
         if not args.quiet:

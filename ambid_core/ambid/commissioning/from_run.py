@@ -37,7 +37,7 @@ from ambid.plant.rig import Rig, load_rig, make_rig
 from ambid.plant.sensors import noise_std
 from ambid.session import iter_decoded, read_metadata
 from ambid.session.blocks import read_samples
-from ambid.session.facts import controller_facts, controller_model
+from ambid.session.facts import controller_facts, controller_model, plant_facts
 from ambid.statespace import StateSpace
 
 __all__ = ["RunInputs", "read_run", "headline_peak", "tune_run", "CLAIM"]
@@ -96,6 +96,10 @@ def _session_rig(path: str) -> dict | None:
             value = value.get("rig")
         if isinstance(value, dict) and value:
             return value
+    for msg, dec in iter_decoded(path):   # a session without the recorder's facts: its plant's description
+        if msg.topic.endswith("plant/description"):
+            rig = plant_facts(dec)["rig"]
+            return rig if isinstance(rig, dict) and rig else None
     return None
 
 
