@@ -29,6 +29,7 @@ COMMANDS = {
     "campaign": "campaign",
     "validate": "validate",
     "live": "live",
+    "tune": "tune",
 }
 
 
