@@ -265,7 +265,7 @@ def _link_section(sizes: dict, work: Path, figures: list) -> dict:
     ]
     for v, run in runs.items():
         t = run["target"]
-        when = "before" if v < 3 else "after"
+        when = ("before" if v < 3 else "after") + (f", SCHED_FIFO {run['priority']}" if run["priority"] else "")
         figures += [
             _at_least(f"C target at 10 kHz under the bridge, version {v} ({when}): samples/s", t["samples_per_wall_s"],
                       "1/s", 9_900, "9900"),
