@@ -68,6 +68,8 @@ def real_time_run(work: Path, version: int, seconds: float) -> dict:
         if proc.stdout.readline().startswith("RT_TARGET_LISTENING"):  # else it refused (exit code 2), at once
             break
         proc.communicate()
+    if proc.poll() is not None:
+        raise RuntimeError(f"the C target did not start: {proc.communicate()[1].strip()}")
     try:
         bridge = run_hardware(GraphConfig(sim_seconds=seconds, plant=link, rig=make_rig()), f"127.0.0.1:{port}", local)
         out, err = proc.communicate(timeout=30)
