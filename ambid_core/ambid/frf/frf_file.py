@@ -184,8 +184,11 @@ def _csv(p: Path, fix: str):
     try:
         x = np.array([[float(v) for v in ln.split(",")] for ln in body])
     except ValueError:
-        bad = next(k for k, ln in enumerate(body) if not _floats(ln))
-        raise FrfFileError(f"FRF file {p}: row {bad + 2} is not {len(head)} comma-separated numbers; {fix}") from None
+        bad = next((k for k, ln in enumerate(body) if not _floats(ln)), None)
+        if bad is not None:
+            raise FrfFileError(f"FRF file {p}: row {bad + 2} is not {len(head)} comma-separated numbers; "
+                               f"{fix}") from None
+        x = np.zeros((0, 0))  # numbers, in rows of unequal length (numpy refuses a ragged array): said below
     if x.ndim != 2 or x.shape[1] != len(head):
         widths = {len(ln.split(",")) for ln in body}
         raise FrfFileError(f"FRF file {p}: rows have {sorted(widths)} values for {len(head)} header columns (cut "
