@@ -63,7 +63,12 @@ def files(tmp_path_factory):
 @pytest.mark.parametrize("ext", ["npz", "mat", "csv", "uff"])
 def test_each_format_fits_the_plants_modes(files, ext, tmp_path):
     measured = read_frf_file(files / f"frf.{ext}")
-    assert measured.output_names == tuple(OUTS) and measured.input_names == tuple(INS)
+    if ext == "uff":   # UFF names a channel by its node and direction; the entity names are labels only
+        assert measured.output_names == tuple(f"{i + 1}+X" for i in range(len(OUTS)))
+        assert measured.input_names == tuple(f"{j + 1}+X" for j in range(len(INS)))
+        assert measured.form == "receptance" and measured.unit == "m/N"
+    else:
+        assert measured.output_names == tuple(OUTS) and measured.input_names == tuple(INS)
     assert (measured.var is None) == (ext == "uff")
     s = identify_frf(measured, tmp_path / "out", max_order=20, report=ext == "csv")
     fitted = [(m["freq_hz"], m["damping"], m) for m in s["fit"]["modes"]]
@@ -101,6 +106,14 @@ def _bad_files(d, good):
         data = (good / f"frf.{ext}").read_bytes()
         (d / f"truncated.{ext}").write_bytes(data[:len(data) // 3])
         out[f"truncated {ext}"] = (d / f"truncated.{ext}", "damaged|not|cut short|values for|no FRF")
+    # a CSV cut short, both ways on purpose (where a cut at a third of the bytes lands depends on the digits
+    # this machine's arithmetic wrote): the last row short but every value a number, and cut inside a number
+    rows = (good / "frf.csv").read_text().splitlines()
+    short = ",".join(rows[11].split(",")[:5])
+    (d / "short_row.csv").write_text("\n".join(rows[:11] + [short]) + "\n")
+    out["csv last row short, numeric"] = (d / "short_row.csv", r"row 12 has 5 values for \d+ header columns")
+    (d / "cut_number.csv").write_text("\n".join(rows[:11] + [short + ",1.5e"]))
+    out["csv cut inside a number"] = (d / "cut_number.csv", r"row 12 is not \d+ comma-separated numbers")
     np.savez(d / "rotor.npz", A=np.eye(2), B=np.ones((2, 1)), C=np.ones((1, 2)), D=np.zeros((1, 1)))
     out["wrong kind"] = (d / "rotor.npz", "has no 'freq_hz'")
     (d / "session.txt").write_text("hello")

@@ -104,10 +104,16 @@ def _case(name):
         cols["time"] = cols["time"].copy()
         cols["time"][500:] += 1 / FS
         rmap = {k: v for k, v in MAP.items() if k != "sample_rate_hz"}
-    elif name == "unknown output":
-        rmap = {**MAP, "outputs": {"disp_a": {"column": "x1"}}}  # not y_<axis> (any axis name is one)
-    elif name == "wrong unit":
-        rmap = {**MAP, "outputs": {**MAP["outputs"], "y_a_x": {"column": "x1", "unit": "V"}}}
+    elif name == "output without unit":
+        rmap = {**MAP, "outputs": {"disp_a": {"column": "x1"}}}  # any name is an output, with its unit
+    elif name == "unit not SI":
+        rmap = {**MAP, "outputs": {**MAP["outputs"], "y_a_x": {"column": "x1", "unit": "mm"}}}
+    elif name == "unknown unit":
+        rmap = {**MAP, "outputs": {**MAP["outputs"], "acc1": {"column": "x1", "unit": "furlong"}}}
+    elif name == "current in volts":
+        rmap = {**MAP, "excitation": {**MAP["excitation"], "r_a_x": {"column": "exc1", "unit": "V"}}}
+    elif name == "injection point":
+        rmap = {**MAP, "excitation": {**MAP["excitation"], "r_a_x": {"column": "exc1", "injected_at": "sensor"}}}
     elif name == "excitation axes":
         rmap = {**MAP, "excitation": {"r_a_x": {"column": "exc1"}}}
     return cols, rmap, kw
@@ -126,8 +132,11 @@ CASES = {  # case -> what the one line must say
     "name not in file": r"no channel 'x9' \(named in MAP.yaml",
     "rate vs time column": r"time column 'time' at row \d+ is .* but sample_rate_hz 1200 .*the column says 1000 Hz",
     "time gap": r"time column 'time' is not evenly spaced: row 501",
-    "unknown output": r"outputs name 'disp_a' is not an ambid output name y_<axis>",
-    "wrong unit": r"outputs.y_a_x: unit 'V' after scaling must be m",
+    "output without unit": r"outputs.disp_a has no unit \(and the file states none for 'x1'\); give unit:",
+    "unit not SI": r"outputs.y_a_x: unit 'mm' is not SI; give unit: m and scale: 0.001",
+    "unknown unit": r"outputs.acc1: unit 'furlong' after scaling must be m, m/s, m/s\^2, V",
+    "current in volts": r"excitation.r_a_x: unit 'V' after scaling must be A.*or injected_at: reference \| output",
+    "injection point": r"excitation.r_a_x.injected_at is 'sensor'; give current",
     "excitation axes": r"must name the same axes as currents",
 }
 
@@ -172,7 +181,8 @@ def test_damaged_mat_files(tmp_path, capsys):
 @pytest.mark.parametrize("text, expect", [
     ("", "is empty"), ("[1, 2]", "is not a mapping"), ("outputs: {", "is not YAML"),
     ("sample_rate_hz: 1000\nfoo: 1\n", "unknown key 'foo'"),
-    ("outputs: {y_a_x: x1}\n", "neither sample_rate_hz nor time_column"),
+    ("outputs: {y_a_x: x1}\ncurrents: {u_a_x: i1}\nexcitation: {r_a_x: exc1}\n",
+     "neither sample_rate_hz nor time_column"),
     ("sample_rate_hz: -5\n", "sample_rate_hz is -5"),
 ])
 def test_bad_map_files(tmp_path, text, expect, capsys):
@@ -266,3 +276,44 @@ def test_a_map_controller_at_another_sample_rate_is_named(tmp_path, capsys):
              dt=1e-4)   # made for a 10 kHz rig; the record is at 1 kHz
     line = _run(tmp_path, _csv(tmp_path / "d.csv", _columns(r, y, u)), {**MAP, "controller": "k.npz"}, capsys)
     assert "sample period 0.0001 s differs from the record's 0.001 s" in line, line
+
+
+def _lms(path, names, values, unit_terms, dt=1e-3, **extra):
+    """A MAT file of one LMS Test.Lab-style struct (as scipy writes a struct: the shape of the export, not one)."""
+    terms = [{"num": float(e), "den": 1.0, "quantity": q} for q, e in unit_terms]
+    sio.savemat(path, {"Signal": {
+        "x_values": {"start_value": 0.0, "increment": dt, "number_of_values": float(len(values))},
+        "y_values": {"values": values, "quantity": {"label": "x", "quantity_terms": np.array(terms, dtype=object),
+                                                    "unit_transformation": {"factor": 1.0}}},
+        "function_record": {"name": "x", "primary_channel": {"label": np.array(names, dtype=object)}}, **extra}})
+    return path
+
+
+@pytest.mark.parametrize("case, expect", [
+    ("lengths", r"has 800 rows but .* has 900; give files of the same recording"),
+    ("csv among several", r"a CSV record is read as one file"),
+    ("complex struct", r"'Signal'.y_values.values is complex \(a spectrum or FRF, not a time signal\)"),
+    ("unit against the file", r"column 'acc' is in m/s\^2 \(the file says so\) but MAP.yaml .* makes acc1 V"),
+    ("rate against the file", r"the file's time base says 1000 Hz but MAP.yaml .* gives sample_rate_hz 2000"),
+])
+def test_several_files_and_lms_structs_refused_in_one_line(tmp_path, case, expect, capsys):
+    """Records from an acquisition system's export: each refusal one line, exit 2, nothing written."""
+    r, y, u = _signals()
+    acc = [("LENGTH", 1), ("TIME", -2)]
+    a = _lms(tmp_path / "a.mat", ["acc"], y[:, :1] * (1j if case == "complex struct" else 1), acc)
+    cur_exc = np.column_stack([u[:, 0], r[:, 0]])[:800 if case == "lengths" else None]
+    b = _lms(tmp_path / "b.mat", ["cur", "exc"], cur_exc, [("CURRENT", 1)])
+    files = [a, _csv(tmp_path / "d.csv", _columns(r, y, u))] if case == "csv among several" else [a, b]
+    rmap = {"outputs": {"acc1": {"column": "acc", "unit": "V" if case == "unit against the file" else "m/s^2"}},
+            "currents": {"u_x": "cur"}, "excitation": {"r_x": "exc"}}
+    if case == "rate against the file":
+        rmap["sample_rate_hz"] = 2000
+    (tmp_path / "MAP.yaml").write_text(yaml.safe_dump(rmap))
+    out = tmp_path / "out" / "s.mcap"
+    out.parent.mkdir()
+    code = cli.main(["import", *map(str, files), "--map", str(tmp_path / "MAP.yaml"), "--out", str(out)])
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert code == 2 and "Traceback" not in err and len(lines) == 1, err
+    assert re.search(expect, lines[0]) and FIX.search(lines[0]), lines[0]
+    assert list(out.parent.iterdir()) == []

@@ -1,5 +1,8 @@
 """A rig file carrying ``controller:`` (a controller file of the user's) runs through ``ambid identify``, and the
-summary, the headline and the report say which controller ran."""
+summary, the headline and the report say which controller ran. The controller is issue 34's badly tuned PID
+(kp 20000 A/m, td 0.8 ms): its sensitivity peaks near 58 Hz, between the excited lines, and the headline's ISO
+zone is the loop's (the worst over the lines and the fitted model between them, the true loop's 4.87: zone C),
+not the lines' (zone B here)."""
 
 from __future__ import annotations
 
@@ -18,8 +21,8 @@ REPO = Path(__file__).resolve().parents[2]
 
 def test_identify_runs_the_rig_files_controller(ros_env, tmp_path):
     rig = make_rig()
-    # the user's controller: a PID of other gains, as a discrete state space in a .mat file beside the rig file
-    model = pid_controller(PidParameters(kp_a_per_m=14_000.0, td_s=1.7e-3), rig.dt)
+    # the user's controller: a badly tuned PID, as a discrete state space in a .mat file beside the rig file
+    model = pid_controller(PidParameters(kp_a_per_m=20_000.0, td_s=0.8e-3), rig.dt)
     from scipy import io as sio
 
     sio.savemat(tmp_path / "site_controller.mat", {"A": model.a, "B": model.b, "C": model.c, "D": model.d,
@@ -27,8 +30,8 @@ def test_identify_runs_the_rig_files_controller(ros_env, tmp_path):
     (tmp_path / "rig.yaml").write_text("name: site\ncontroller: site_controller.mat\n")
     out = tmp_path / "run"
     proc = subprocess.run([sys.executable, "-m", "ambid_cli.cli", "identify", "--rig", str(tmp_path / "rig.yaml"),
-                           "--out", str(out), "--band", "20", "400", "--resolution", "20", "--periods", "2",
-                           "--realisations", "1", "--transient-periods", "1", "--no-progress"],
+                           "--out", str(out), "--band", "20", "400", "--resolution", "5", "--periods", "4",
+                           "--realisations", "2", "--transient-periods", "1", "--no-progress"],
                           env=ros_env, cwd=REPO, capture_output=True, text=True, timeout=240)
     assert proc.returncode == 0, proc.stderr[-2000:]
     summary = json.loads((out / "summary.json").read_text())
@@ -42,3 +45,9 @@ def test_identify_runs_the_rig_files_controller(ros_env, tmp_path):
     assert summary["frf_error"]["median"] < 0.05
     assert os.path.getsize(out / "session.mcap") > 0
     assert np.isfinite(summary["fit"]["chi2_per_dof"])
+    # the headline's zone is the loop's, with its frequency and where it came from
+    loop = summary["sensitivity"]["loop"]
+    assert loop["iso_zone"] == "C" and 54 < loop["peak_hz"] < 62 and loop["source"].startswith("the fitted model")
+    assert summary["sensitivity"]["iso_zone"] != "C"          # the lines alone miss the peak
+    head = next(ln for ln in proc.stdout.splitlines() if "loop sensitivity peak" in ln)
+    assert "ISO 14839-3 zone C" in head and "from the fitted model between the lines" in head

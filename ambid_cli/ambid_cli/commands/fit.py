@@ -16,7 +16,7 @@ import math
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from ambid.identification.result import Identification, MeasuredFrfFit, OutputFiles, UpdateFigures
+    from ambid.identification.result import FitFigures, Identification, MeasuredFrfFit, OutputFiles, UpdateFigures
 
 HELP = ("identify a recorded session (FRF, fitted model and modes, updated physical parameters, report), or fit a "
         "measured FRF file (.npz, .mat, .csv, UFF 58)")
@@ -52,6 +52,7 @@ def _pct(x) -> str:
 
 def format_summary(s: Identification) -> str:
     """Headline figures of an identification, a few lines of text."""
+    from ambid.frf.sensitivity import sensitivity_lines
     from ambid.jsonable import to_jsonable
 
     ex, fit, sens, noise = s.excitation, s.fit, s.sensitivity, s.noise
@@ -70,22 +71,30 @@ def format_summary(s: Identification) -> str:
     std = to_jsonable(noise.output_noise_std_m) or []
     ci = to_jsonable(noise.output_noise_std_ci95_m) or [None] * len(std)
     odd, even = to_jsonable(noise.distortion_odd_db), to_jsonable(noise.distortion_even_db)
-    lines.append("output noise std [um] (95 % interval): "
-                 + ", ".join("-" if v is None else f"{v * 1e6:.4g}" + ("" if c is None or None in c else
-                                                                       f" ({c[0] * 1e6:.4g}..{c[1] * 1e6:.4g})")
-                             for v, c in zip(std, ci))
-                 + (f"; detection lines above noise: odd {max(odd):+.1f} dB, even {max(even):+.1f} dB (worst output)"
-                    if odd and even and None not in odd + even else ""))
+    units = set(s.output_units or ["m"])
+    k, unit = (1e6, "um") if units == {"m"} else (1.0, "/".join(sorted(units)))
+    if any(v is not None for v in std):   # a record of one non-periodic excitation has no noise figure
+        lines.append(f"output noise std [{unit}] (95 % interval): "
+                     + ", ".join("-" if v is None else f"{v * k:.4g}" + ("" if c is None or None in c else
+                                                                         f" ({c[0] * k:.4g}..{c[1] * k:.4g})")
+                                 for v, c in zip(std, ci))
+                     + (f"; detection lines above noise: odd {max(odd):+.1f} dB, even {max(even):+.1f} dB (worst "
+                        "output)" if odd and even and None not in odd + even else ""))
     lines.append(f"model order {fit.order} (chi2/dof {fit.chi2_per_dof:.3g}); modes: "
                  + (", ".join(f"{m.freq_hz:.5g} Hz / zeta {m.damping:.3g}" for m in fit.modes) or "none"))
+    lines += _computational_lines(fit)
+    plant = [r for r in fit.real_poles if r.physical]
+    if plant:
+        lines.append(f"unstable real pole at {plant[0].pole_hz:.4g} Hz: {plant[0].reason}")
     if s.max_mode_freq_error is not None:
         lines.append(f"modes vs true: worst frequency error {_pct(s.max_mode_freq_error)}, worst damping error "
                      f"{_pct(s.max_mode_damping_error)}")
     lines += _update_lines(s.update)
-    lines.append(f"peak input sensitivity {sens.worst_peak:.3g} on {sens.worst_input}: ISO 14839-3 zone "
-                 f"{sens.iso_zone}" + ("" if sens.updated_peak is None else
-                                       f"; updated model with the recorded controller {max(sens.updated_peak):.3g},"
-                                       f" zone {sens.updated_iso_zone}"))
+    lines += sensitivity_lines(sens)
+    lines += [f"data quality: {q['text']}" for q in s.quality.findings]
+    if sens.updated_peak is not None:
+        lines.append(f"updated model with the recorded controller: sensitivity peak {max(sens.updated_peak):.3g}, "
+                     f"zone {sens.updated_iso_zone}")
     lines.append(_written(s.files))
     lines += [f"note: {n}" for n in s.notes]
     return "\n".join(lines)
@@ -115,6 +124,19 @@ def _update_lines(upd: UpdateFigures | None) -> list[str]:
     return lines
 
 
+def _computational_lines(fit: FitFigures) -> list[str]:
+    """One line on the fit's poles that are not modes (kept apart in identification.json), by reason."""
+    comp = fit.computational_poles
+    if not comp:
+        return []
+    by: dict[str, int] = {}
+    for c in comp:
+        key = c.reason.split(" (")[0].split(":")[0].replace("; computational", "")
+        by[key] = by.get(key, 0) + 1
+    return [f"{len(comp)} computational pole(s) kept apart, not modes (fit.computational_poles): "
+            + "; ".join(f"{n} {k}" for k, n in by.items())]
+
+
 def _written(files: OutputFiles) -> str:
     return (f"written: {files.model_npz}, {files.model_json}" +
             (f", report {files.report}" if files.report is not None else ""))
@@ -123,7 +145,8 @@ def _written(files: OutputFiles) -> str:
 def format_frf_summary(s: MeasuredFrfFit) -> str:
     """Headline figures of a measured FRF's fit, a few lines of text."""
     fit = s.fit
-    lines = [f"{s.source} ({s.format}): {len(s.outputs)} outputs x {len(s.inputs)} inputs, "
+    unit = f", {s.form} [{s.unit}]" if s.unit else (f", {s.form}" if s.form else "")
+    lines = [f"{s.source} ({s.format}{unit}): {len(s.outputs)} outputs x {len(s.inputs)} inputs, "
              f"{s.n_lines} frequencies in {s.band_hz[0]:g}-{s.band_hz[1]:g} Hz, variance "
              + ("given" if s.var_given else "not given"),
              f"model order {fit.order} ("
@@ -136,6 +159,8 @@ def format_frf_summary(s: MeasuredFrfFit) -> str:
                      + f", zeta {m.damping:.4g}" + (f" ({ci_z[0]:.3g}..{ci_z[1]:.3g})" if ci_z else ""))
     if not fit.modes:
         lines.append("  none in the band")
+    lines += _computational_lines(fit)
+    lines += [f"data quality: {q['text']}" for q in s.quality.findings]
     lines.append(f"intervals: {s.intervals.modes}")
     lines.append(_written(s.files))
     lines += [f"note: {n}" for n in s.notes]

@@ -143,14 +143,10 @@ def format_headlines(s: IdentifyResult, out: Path) -> str:
         lines.append(f"  at speed: {moved} excited line(s) moved off k x {h1.freq_hz:.1f} Hz; synchronous 1X "
                      f"response {max(h1.amplitude[:len(ident.outputs)]) * 1e6:.2f} um (largest output), kept out "
                      "of the FRF")
-    sens = ident.sensitivity
-    line = (f"  input sensitivity peak {sens.worst_peak:.2f} at the excited lines ({sens.worst_input}), "
-            f"ISO 14839-3 zone {sens.iso_zone}")
-    if sens.model_peak is not None:
-        line += f"; between the lines (fitted plant + controller) {max(sens.model_peak):.2f}"
-        if sens.true_peak is not None:
-            line += f", true loop {max(sens.true_peak):.2f}"
-    lines.append(line)
+    from ambid.frf.sensitivity import sensitivity_lines
+
+    lines += [f"  {ln}" for ln in sensitivity_lines(ident.sensitivity)]
+    lines += [f"  data quality: {q['text']}" for q in ident.quality.findings]
     if "headline_after_last_period_s" in s.analysis_timing:
         lines.append(f"  results {s.analysis_timing['headline_after_last_period_s']:.1f} s after the last period; "
                      "the report follows")

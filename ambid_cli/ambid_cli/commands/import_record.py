@@ -17,7 +17,8 @@ HELP = "convert a rig's time records (CSV, MAT v5/v7.3, NPZ) and their MAP.yaml 
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("data", help="the record: .csv (header row), .mat (v5 or v7.3) or .npz")
+    p.add_argument("data", nargs="+", help="the record: .csv (header row), .mat (v5 or v7.3; LMS/Simcenter structs "
+                                           "too) or .npz; several .mat/.npz files of one recording side by side")
     p.add_argument("--map", required=True, help="MAP.yaml: sample rate or time column, outputs, currents, "
                                                 "excitation (+ controller, design)")
     p.add_argument("--out", required=True, help="session .mcap to write")
@@ -31,19 +32,19 @@ def run(args: argparse.Namespace) -> int:
     from ambid_cli.commands.inputs import BadInput, output_file
 
     out = output_file(args.out, "--out")
-    for given, what in ((args.data, "the record"), (args.map, "MAP.yaml")):   # --overwrite would replace it
+    for given, what in [(d, "the record") for d in args.data] + [(args.map, "MAP.yaml")]:   # --overwrite: replace
         if out.exists() and os.path.exists(given) and os.path.samefile(out, given):
             raise BadInput(f"--out {out} is {what} being imported; give a new .mcap file name")
     if out.exists() and not args.overwrite:
         raise BadInput(f"--out {out} exists; give a new file name or add --overwrite")
     try:
-        res = import_record(args.data, args.map, out)
+        res = import_record(args.data if len(args.data) > 1 else args.data[0], args.map, out)
     except RecordError as exc:
         raise BadInput(str(exc)) from None
     except OSError as exc:
-        raise BadInput(f"{args.data}: cannot be read ({exc.strerror or exc}); check the file") from None
+        raise BadInput(f"{' '.join(args.data)}: cannot be read ({exc.strerror or exc}); check the file") from None
     d = res.design
-    print(f"imported {res.n_rows} rows at {res.fs_hz:g} Hz from {args.data} "
+    print(f"imported {res.n_rows} rows at {res.fs_hz:g} Hz from {' + '.join(args.data)} "
           f"({res.bytes_read / 1e6:.3g} MB in {res.seconds:.3g} s, {res.bytes_read / 1e6 / res.seconds:.3g} MB/s; "
           f"peak memory {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB)")
     if d.kind == "recorded":

@@ -161,6 +161,20 @@ def covers(rotor: RotorModel, output_names: Sequence[str], input_names: Sequence
             f"{len(output_names)} x {len(input_names)} channels ({', '.join(output_names)} / {', '.join(input_names)})")
 
 
+def rig_channels(rotor: RotorModel, output_names: Sequence[str], input_names: Sequence[str]
+                 ) -> tuple[list[int], list[int], list[str]] | None:
+    """Where the rig model's channels are in an FRF that holds them all (and perhaps more: accelerometers,
+    probes along the shaft): (rows, columns) in the model's order, and the FRF's channels it leaves out; None
+    when the FRF lacks one of the model's channels."""
+    lay = rotor.layout
+    outs, ins = list(output_names), list(input_names)
+    if not (set(lay.outputs) <= set(outs) and set(lay.inputs) <= set(ins)):
+        return None
+    rows, cols = [outs.index(n) for n in lay.outputs], [ins.index(n) for n in lay.inputs]
+    left = [n for n in outs if n not in lay.outputs] + [n for n in ins if n not in lay.inputs]
+    return rows, cols, left
+
+
 def nominal_parameters(rig: Rig) -> dict[str, float]:
     """The analytical model's parameter values (nominal ki, ks, ideal sensors, no support mode, no delay).
 

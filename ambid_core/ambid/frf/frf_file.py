@@ -9,10 +9,20 @@ Formats, by suffix:
 * ``.csv``: a header row, then one row per frequency: ``freq_hz``,
   ``re(<out>/<in>)`` and ``im(<out>/<in>)`` for every output and input,
   optional ``var(<out>/<in>)`` for all of them;
-* ``.uff`` or ``.unv``: Universal File Format datasets 58 of function type 4
-  (frequency response function), one per response/reference pair, all on
-  the same abscissa [Hz]; a pair's names are its entity names, else node and
-  direction (``3+X``). UFF carries no variance.
+* ``.uff`` or ``.unv`` (ASCII or binary 58b): Universal File Format datasets
+  58 of function type 4 (frequency response function: receptance, mobility,
+  accelerance, as the data types of its ordinate and denominator say) or 5
+  (transmissibility), one per response/reference pair, all on the same
+  abscissa [Hz] as written. A channel is its node and direction (``3+X``), as
+  UFF identifies it; entity names are labels only (an analyser often writes
+  the test's name on every dataset). Units come from the header (the unit
+  labels where written, else the SI unit of the data type). UFF carries no
+  variance; the analyser's coherence (function type 6) is read where written.
+
+A first line at 0 Hz (any format) is left out with a note.
+
+Optional ``output_units`` and ``input_units`` (npz, mat) name each channel's
+unit; the fit, the modes and the report carry them.
 
 Whatever makes a file unusable (missing, a folder, empty, random bytes, cut
 short, another kind of file, wrong shapes, NaN) is a :class:`FrfFileError`
@@ -62,6 +72,10 @@ class MeasuredFrf:
         var: (n, ny, nu) variance of each entry [unit squared], or None when the file gives none.
         output_names, input_names: (ny,), (nu,).
         notes: what was assumed, a line each.
+        output_units, input_units: (ny,), (nu,) each channel's unit as the file says it ('' where it says none).
+        form: what H is: 'FRF', 'receptance', 'mobility', 'accelerance' or 'transmissibility'.
+        coherence: (n, ny, nu) the analyser's coherence of each response with each reference (UFF function
+            type 6; NaN where the file has none), or None.
     """
 
     path: str
@@ -72,6 +86,18 @@ class MeasuredFrf:
     output_names: tuple[str, ...]
     input_names: tuple[str, ...]
     notes: list[str] = field(default_factory=list)
+    output_units: tuple[str, ...] = ()
+    input_units: tuple[str, ...] = ()
+    form: str = "FRF"
+    coherence: np.ndarray | None = None
+
+    @property
+    def unit(self) -> str:
+        """H's unit, '<output unit>/<input unit>' where every output and every input share one; else ''."""
+        o, i = set(self.output_units), set(self.input_units)
+        if len(o) == 1 and len(i) == 1 and all(o | i):
+            return f"{o.pop()}/{i.pop()}"
+        return ""
 
 
 def is_frf_file(path: str | os.PathLike) -> bool:
@@ -97,18 +123,19 @@ def read_frf_file(path: str | os.PathLike) -> MeasuredFrf:
         raise FrfFileError(str(exc)) from None
     try:
         if suffix in (".npz", ".mat"):
-            freq, h, var, outs, ins, notes = _arrays(p, suffix, fix)
+            freq, h, var, outs, ins, notes, extra = _arrays(p, suffix, fix)
         elif suffix == ".csv":
             freq, h, var, outs, ins, notes = _csv(p, fix)
+            extra = {}
         else:
-            freq, h, var, outs, ins, notes = _uff(p, fix)
+            freq, h, var, outs, ins, notes, extra = _uff(p, fix)
     except PermissionError:
         raise FrfFileError(f"FRF file {p} cannot be read (permission denied); make it readable") from None
     except FrfFileError:
         raise
     except ValueError as exc:        # the shared readers' one-line messages
         raise FrfFileError(str(exc)) from None
-    return _checked(p, suffix.lstrip(".").replace("unv", "uff"), freq, h, var, outs, ins, notes, fix)
+    return _checked(p, suffix.lstrip(".").replace("unv", "uff"), freq, h, var, outs, ins, notes, fix, **extra)
 
 
 def _names(value, n: int, default: str, key: str, p: Path, fix: str) -> tuple[tuple[str, ...], list[str]]:
@@ -149,7 +176,12 @@ def _arrays(p: Path, suffix: str, fix: str):
         ins, n2 = _names(data.get("inputs"), h.shape[2], "u", "inputs", p, fix)
     else:
         outs, ins, n1, n2 = (), (), [], []
-    return freq, h, var, outs, ins, n1 + n2
+    extra = {}
+    for key in ("output_units", "input_units"):
+        if key in data:
+            extra[key] = tuple(str(np.asarray(v).reshape(-1)[0]).strip() if np.asarray(v).size else ""
+                               for v in np.asarray(data[key], dtype=object).reshape(-1))
+    return freq, h, var, outs, ins, n1 + n2, extra
 
 
 def _csv(p: Path, fix: str):
@@ -181,18 +213,16 @@ def _csv(p: Path, fix: str):
     body = rows[1:]
     if not body:
         raise FrfFileError(f"FRF file {p} has a header but no rows under it; {fix}")
-    try:
-        x = np.array([[float(v) for v in ln.split(",")] for ln in body])
-    except ValueError:
-        bad = next((k for k, ln in enumerate(body) if not _floats(ln)), None)
-        if bad is not None:
-            raise FrfFileError(f"FRF file {p}: row {bad + 2} is not {len(head)} comma-separated numbers; "
-                               f"{fix}") from None
-        x = np.zeros((0, 0))  # numbers, in rows of unequal length (numpy refuses a ragged array): said below
-    if x.ndim != 2 or x.shape[1] != len(head):
-        widths = {len(ln.split(",")) for ln in body}
-        raise FrfFileError(f"FRF file {p}: rows have {sorted(widths)} values for {len(head)} header columns (cut "
-                           f"short?); {fix}")
+    # each row checked for itself: a file cut short ends in a row that may still parse, only shorter
+    x = np.empty((len(body), len(head)))
+    for k, ln in enumerate(body):
+        values = _floats(ln)
+        if values is None:
+            raise FrfFileError(f"FRF file {p}: row {k + 2} is not {len(head)} comma-separated numbers; {fix}")
+        if len(values) != len(head):
+            raise FrfFileError(f"FRF file {p}: row {k + 2} has {len(values)} values for {len(head)} header columns "
+                               f"(cut short?); {fix}")
+        x[k] = values
     missing = [f"{k}({o}/{u})" for o in outs for u in ins for k in ("re", "im") if (k, o, u) not in cols]
     if missing:
         raise FrfFileError(f"FRF file {p}: no column {missing[0]} (every output/input pair needs re and im); {fix}")
@@ -214,12 +244,44 @@ def _csv(p: Path, fix: str):
     return x[:, head.index("freq_hz")], h, var, tuple(outs), tuple(ins), []
 
 
-def _floats(line: str) -> bool:
+def _floats(line: str) -> list[float] | None:
+    """The comma-separated numbers of ``line``, or None where one is not a number."""
     try:
-        [float(v) for v in line.split(",")]
+        return [float(v) for v in line.split(",")]
     except ValueError:
-        return False
-    return True
+        return None
+
+
+# UFF dataset 58: function types (record 6, field 1) that are ratios of a response to a reference
+_UFF_RATIOS = {4: "FRF", 5: "transmissibility"}
+# specific data types (records 8-10, field 1) -> (quantity, SI unit)
+_UFF_DATA = {1: ("general", ""), 2: ("stress", "Pa"), 3: ("strain", "m/m"), 5: ("temperature", "K"),
+             6: ("heat flux", "W/m^2"), 8: ("displacement", "m"), 9: ("reaction force", "N"), 11: ("velocity", "m/s"),
+             12: ("acceleration", "m/s^2"), 13: ("excitation force", "N"), 15: ("pressure", "Pa"),
+             16: ("mass", "kg"), 17: ("time", "s"), 18: ("frequency", "Hz"), 19: ("rpm", "rpm"),
+             20: ("order", ""), 21: ("sound pressure", "Pa"), 22: ("sound intensity", "W/m^2"),
+             23: ("sound power", "W")}
+# (response quantity, reference quantity) -> the FRF's name
+_FRF_FORMS = {("displacement", "force"): "receptance", ("velocity", "force"): "mobility",
+              ("acceleration", "force"): "accelerance"}
+
+
+def _uff_unit(s: dict, axis: str) -> tuple[str, str]:
+    """(quantity, unit) of one axis of a dataset 58 (``ordinate``, ``orddenom``, ``abscissa``): the unit label the
+    header writes where it writes one, else the SI unit of the specific data type."""
+    kind = int(s.get(f"{axis}_spec_data_type", 0) or 0)
+    quantity, si = _UFF_DATA.get(kind, ("unknown", ""))
+    label = str(s.get(f"{axis}_axis_units_lab", "") or "").strip()
+    unit = label if label and label.upper() != "NONE" else si
+    return quantity, unit.replace("m/s2", "m/s^2")
+
+
+def _uff_channel(s: dict, side: str) -> tuple[str, str]:
+    """(channel, label) of a dataset's response or reference: UFF names a channel by its node and direction
+    (``3+X``); the entity name is a free label (often the test's name on every dataset)."""
+    node, direction = int(s.get(f"{side}_node", 0) or 0), int(s.get(f"{side}_dir", 0) or 0)
+    ent = str(s.get(f"{side}_ent_name", "") or "").strip()
+    return f"{node}{_DIRECTIONS.get(direction, f'({direction})')}", "" if ent.upper() == "NONE" else ent
 
 
 def _uff(p: Path, fix: str):
@@ -234,26 +296,30 @@ def _uff(p: Path, fix: str):
         raise FrfFileError(f"FRF file {p} is not a readable Universal File ({type(exc).__name__}); {fix}") from None
     if isinstance(sets, dict):
         sets = [sets]
-    frf_sets = [s for s in sets if isinstance(s, dict) and s.get("type") == 58 and s.get("func_type") == 4]
+    frf_sets = [s for s in sets if isinstance(s, dict) and s.get("type") == 58 and s.get("func_type") in _UFF_RATIOS]
     if not frf_sets:
         kinds = sorted({f"{s.get('type')}/{s.get('func_type', '-')}" for s in sets if isinstance(s, dict)})
-        raise FrfFileError(f"FRF file {p} holds no dataset 58 of function type 4 (FRF); found dataset/function "
-                           f"types {kinds or 'none'}; {fix}")
-
-    def name(s: dict, side: str) -> str:
-        ent = str(s.get(f"{side}_ent_name", "")).strip()
-        if ent and ent.upper() != "NONE":
-            return ent
-        return f"{int(s.get(f'{side}_node', 0))}{_DIRECTIONS.get(int(s.get(f'{side}_dir', 0)), '?')}"
-
+        raise FrfFileError(f"FRF file {p} holds no dataset 58 of function type 4 (FRF) or 5 (transmissibility); "
+                           f"found dataset/function types {kinds or 'none'}; {fix}")
+    if len({int(s.get("func_type")) for s in frf_sets}) > 1:
+        raise FrfFileError(f"FRF file {p} mixes FRFs (function type 4) and transmissibilities (5); give one kind "
+                           "per file")
     outs: list[str] = []
     ins: list[str] = []
+    labels: dict[tuple[str, str], set[str]] = {}
+    units: dict[tuple[str, str], str] = {}
+    quantities: dict[tuple[str, str], str] = {}
     pairs = {}
     freq = None
     for s in frf_sets:
-        o, u = name(s, "rsp"), name(s, "ref")
+        (o, lo), (u, lu) = _uff_channel(s, "rsp"), _uff_channel(s, "ref")
         if (o, u) in pairs:
-            raise FrfFileError(f"FRF file {p}: two FRF datasets for response {o} / reference {u}; give one per pair")
+            raise FrfFileError(f"FRF file {p}: two FRF datasets for response {o} / reference {u} (node and "
+                               "direction); give one per pair")
+        x_kind, x_unit = _uff_unit(s, "abscissa")
+        if x_kind not in ("frequency", "unknown", "general") or x_unit not in ("Hz", ""):
+            raise FrfFileError(f"FRF file {p}: the dataset {o}/{u} has a {x_kind} abscissa [{x_unit}]; give FRFs "
+                               "over frequency in Hz")
         x = np.asarray(s.get("x"), dtype=float).reshape(-1)
         data = np.asarray(s.get("data")).reshape(-1)
         if x.size != data.size or x.size == 0:
@@ -264,6 +330,15 @@ def _uff(p: Path, fix: str):
         elif x.shape != freq.shape or not np.allclose(x, freq, rtol=1e-9, atol=0):
             raise FrfFileError(f"FRF file {p}: the dataset {o}/{u} is on other frequencies than the first; give "
                                "every pair on the same frequencies")
+        for key, lab in ((("response", o), lo), (("reference", u), lu)):
+            if lab:
+                labels.setdefault(key, set()).add(lab)
+        for ch, axis, side in ((o, "ordinate", "response"), (u, "orddenom", "reference")):
+            q, unit = _uff_unit(s, axis)
+            if units.setdefault((side, ch), unit) != unit:
+                raise FrfFileError(f"FRF file {p}: {side} {ch} is in {units[(side, ch)]} in one dataset and in "
+                                   f"{unit} in another; give one unit per channel")
+            quantities.setdefault((side, ch), q)
         pairs[(o, u)] = data
         outs += [o] if o not in outs else []
         ins += [u] if u not in ins else []
@@ -272,10 +347,41 @@ def _uff(p: Path, fix: str):
         raise FrfFileError(f"FRF file {p}: no FRF for response {lack[0][0]} / reference {lack[0][1]} (the matrix "
                            f"{len(outs)} x {len(ins)} needs every pair); {fix}")
     h = np.array([[pairs[(o, u)] for u in ins] for o in outs]).transpose(2, 0, 1)
-    return freq, h, None, tuple(outs), tuple(ins), []
+    func = _UFF_RATIOS[int(frf_sets[0]["func_type"])]
+    q_out = {quantities[("response", o)] for o in outs}
+    q_in = {"force" if "force" in quantities[("reference", u)] else quantities[("reference", u)] for u in ins}
+    form = func
+    if func == "FRF" and len(q_out) == 1 and len(q_in) == 1:
+        form = _FRF_FORMS.get((q_out.pop(), q_in.pop()), "FRF")
+    def listed(chs, side):
+        return ", ".join(f"{c} [{units[(side, c)] or '-'}]" for c in chs)
+
+    notes = [f"UFF 58 {func}s, {form}: outputs {listed(outs, 'response')}; inputs {listed(ins, 'reference')} "
+             "(channels by node and direction)"]
+    shared = set.intersection(*labels.values()) if labels and len(labels) == len(outs) + len(ins) else set()
+    if shared:
+        notes.append(f"entity name {sorted(shared)[0]!r} on every dataset: a label of the test, not a channel")
+    # the analyser's coherence of each response with each reference (function type 6), where it wrote one
+    coh = np.full(h.shape, np.nan)
+    for s in sets:
+        if not (isinstance(s, dict) and s.get("type") == 58 and s.get("func_type") == 6):
+            continue
+        (o, _), (u, _) = _uff_channel(s, "rsp"), _uff_channel(s, "ref")
+        x = np.asarray(s.get("x"), dtype=float).reshape(-1)
+        if o in outs and u in ins and x.shape == freq.shape and np.allclose(x, freq, rtol=1e-9, atol=0):
+            coh[:, outs.index(o), ins.index(u)] = np.abs(np.asarray(s.get("data")).reshape(-1))
+    coherence = None
+    if np.any(np.isfinite(coh)):
+        coherence = coh
+        notes.append(f"coherence read for {int(np.sum(np.all(np.isfinite(coh), axis=0)))} of {h.shape[1] * h.shape[2]} "
+                     "response/reference pairs")
+    return (freq, h, None, tuple(outs), tuple(ins), notes,
+            dict(output_units=tuple(units[("response", o)] for o in outs),
+                 input_units=tuple(units[("reference", u)] for u in ins), form=form, coherence=coherence))
 
 
-def _checked(p: Path, kind: str, freq, h, var, outs, ins, notes, fix) -> MeasuredFrf:
+def _checked(p: Path, kind: str, freq, h, var, outs, ins, notes, fix, output_units=None, input_units=None,
+             form: str = "FRF", coherence: np.ndarray | None = None) -> MeasuredFrf:
     if freq.ndim != 1 or freq.size < 2:
         raise FrfFileError(f"FRF file {p}: freq_hz has shape {freq.shape}; give a vector of n >= 2 frequencies")
     if h.ndim != 3 or h.shape[0] != freq.size or 0 in h.shape:
@@ -288,6 +394,14 @@ def _checked(p: Path, kind: str, freq, h, var, outs, ins, notes, fix) -> Measure
                            "magnitude")
     freq = freq.astype(float)
     h = h.astype(complex)
+    notes = list(notes)
+    if freq.size > 2 and freq[0] == 0:
+        # an analyser's first line is often 0 Hz: a static value (or NaN) that no model of the modes describes
+        freq, h = freq[1:], h[1:]
+        var = None if var is None or np.ndim(var) != 3 else np.asarray(var)[1:]
+        coherence = None if coherence is None else coherence[1:]
+        notes.append("the 0 Hz line is left out (a static value, often undefined, that no model of the modes "
+                     "describes)")
     for key, a in (("freq_hz", freq), ("H", h)):
         bad = np.argwhere(~np.isfinite(a))
         if bad.size:
@@ -307,5 +421,11 @@ def _checked(p: Path, kind: str, freq, h, var, outs, ins, notes, fix) -> Measure
         if bad.size:
             raise FrfFileError(f"FRF file {p}: var is {var[tuple(bad[0])]} at index {tuple(int(i) for i in bad[0])}; "
                                "give finite variances > 0 (or leave var out)")
+    for key, units, names in (("output_units", output_units, outs), ("input_units", input_units, ins)):
+        if units is not None and len(units) != len(names):
+            raise FrfFileError(f"FRF file {p}: '{key}' holds {len(units)} unit(s) for {len(names)} channels; give one "
+                               "unit per channel")
     return MeasuredFrf(path=os.fspath(p), kind=kind, freq_hz=freq, frf=h, var=var, output_names=tuple(outs),
-                       input_names=tuple(ins), notes=list(notes))
+                       input_names=tuple(ins), notes=list(notes),
+                       output_units=tuple(output_units or ("",) * len(outs)),
+                       input_units=tuple(input_units or ("",) * len(ins)), form=form, coherence=coherence)

@@ -11,16 +11,38 @@ sensitivity over frequency, as an absolute gain (not dB): zone A if
 peak < 3 (9.5 dB), B if < 4 (12 dB), C if < 5 (14 dB), else D. Each axis is
 the diagonal element S_ii measured with the other loops closed; the
 machine's zone is that of the worst axis.
+
+What a record shows depends on where the excitation entered the loop
+(:func:`sensitivity_shown`, per excitation channel r_a on axis a):
+
+* ``current`` (r added to the control current, u = ic + r; ambid's own
+  sessions): with the total current u_a measured, ``S_i = u / r`` is the
+  input sensitivity, line by line.
+* ``reference`` (r added to the controller's position reference, the error
+  e = r - y): the loop's sensitivity is ``S_o = e / r = 1 - y_a / r_a``, shown
+  only where the record holds the controller's own position sensor y_a in
+  the reference's unit. ``u / r`` is then K S_o, the controller times the
+  sensitivity, not a sensitivity; accelerometers or probes elsewhere on the
+  shaft show the plant, not the loop.
+* ``output`` (r added to the sensor signal the controller reads):
+  ``S_o = (y + r) / r = 1 + y_a / r_a`` with y_a that sensor before the
+  addition, in r's unit; likewise only where the record holds it.
+
+In every case ``y / r = G (u / r)``: the line's FRF from r to y is the
+measured plant times the measured u / r.
 """
 
 from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
 from ambid.frf.estimators import _cross, _matched, _right_divide
 
 __all__ = ["input_sensitivity", "sensitivity_diagonal", "sensitivity_peak", "iso14839_zone",
-           "input_sensitivity_from_models", "ZONE_LIMITS"]
+           "input_sensitivity_from_models", "ZONE_LIMITS", "ShownSensitivity", "sensitivity_shown"]
 
 # Upper peak-gain limits of zones A, B, C (ISO 14839-3); above the last is D.
 ZONE_LIMITS: tuple[tuple[str, float], ...] = (("A", 3.0), ("B", 4.0), ("C", 5.0))
@@ -96,3 +118,98 @@ def input_sensitivity_from_models(p_jw: np.ndarray, c_jw: np.ndarray) -> np.ndar
         raise ValueError(f"need p_jw (L, Ny, Nu) and c_jw (L, Nu, Ny), got {p_jw.shape} and {c_jw.shape}")
     eye = np.eye(p_jw.shape[2])
     return np.linalg.inv(eye + c_jw @ p_jw)
+
+
+@dataclass(frozen=True)
+class ShownSensitivity:
+    """The loop sensitivity one excitation channel shows, or why it shows none.
+
+    Attributes:
+        excitation: the excitation channel (``r_a_x``).
+        injected_at: 'current', 'reference' or 'output'.
+        kind: 'input' (S_i = u / r), 'output' (S_o from the controller's sensor), or '' (none).
+        values: (L,) complex S_aa at the lines, or None.
+        why: one line: what it is, or why there is none.
+    """
+
+    excitation: str
+    injected_at: str
+    kind: str
+    values: np.ndarray | None
+    why: str
+
+
+def _axis(name: str) -> str:
+    return name.split("_", 1)[1] if "_" in name else name
+
+
+def sensitivity_shown(G: np.ndarray, S_ur: np.ndarray, output_names: Sequence[str], input_names: Sequence[str],
+                      injected_at: Mapping[str, str] | None = None, output_units: Sequence[str] | None = None,
+                      excitation_units: Sequence[str] | None = None) -> list[ShownSensitivity]:
+    """Per excitation channel, the loop sensitivity the measured lines show (module docstring).
+
+    Args:
+        G: (L, Ny, Nu) the FRF u -> y.
+        S_ur: (L, Nu, Nu) the measured u / r (r -> u).
+        output_names: (Ny,) ``y_<name>``; input_names: (Nu,) ``u_<axis>`` (the excitation ``r_<axis>``).
+        injected_at: excitation name -> 'current' | 'reference' | 'output' (missing: current).
+        output_units: (Ny,) the outputs' units (None: all in m).
+        excitation_units: (Nu,) the excitation's units (None: A where injected at the current, m otherwise).
+
+    Returns:
+        One :class:`ShownSensitivity` per input, in order.
+    """
+    injected_at = dict(injected_at or {})
+    g, s_ur = np.asarray(G), np.asarray(S_ur)
+    out_units = list(output_units) if output_units is not None else ["m"] * len(output_names)
+    shown = []
+    for j, u in enumerate(input_names):
+        axis = _axis(u)
+        r = f"r_{axis}"
+        where = injected_at.get(r, "current")
+        r_unit = (list(excitation_units)[j] if excitation_units is not None else ("A" if where == "current" else "m"))
+        if where == "current":
+            shown.append(ShownSensitivity(r, where, "input", s_ur[:, j, j],
+                                          f"input sensitivity S_i = u/r of {u}: {r} is added to the control current "
+                                          "and the total current is measured"))
+            continue
+        own = f"y_{axis}"
+        sign = -1.0 if where == "reference" else 1.0
+        formula = "1 - y/r" if where == "reference" else "1 + y/r"
+        if own in output_names and out_units[list(output_names).index(own)] == r_unit:
+            i = list(output_names).index(own)
+            t = np.einsum("lk,lk->l", g[:, i, :], s_ur[:, :, j])    # y_a / r_a = G[a, :] (u / r)[:, a]
+            into = "position reference" if sign < 0 else "sensor signal"
+            shown.append(ShownSensitivity(r, where, "output", 1.0 + sign * t,
+                                          f"sensitivity S_o = {formula} at the controller's own sensor {own} "
+                                          f"[{r_unit}]: {r} is added to the {into}"))
+            continue
+        others = ", ".join(f"{n[2:]} [{un}]" for n, un in zip(output_names, out_units)) or "none"
+        place = "the controller's position reference" if where == "reference" else "the sensor signal"
+        shown.append(ShownSensitivity(
+            r, where, "", None,
+            f"no sensitivity for {r}: it is injected at {place} [{r_unit}], where the loop's sensitivity is {formula} "
+            f"at the controller's own position sensor {own} in {r_unit}, which this record does not hold "
+            f"(its outputs: {others}); u/r here is the controller times the sensitivity, not a sensitivity"))
+    return shown
+
+
+def sensitivity_lines(sens: Mapping | None) -> list[str]:
+    """What a summary's ``sensitivity`` says, as the headline prints it: the loop's worst peak with its frequency,
+    where it came from (the measured lines, or the fitted model between them) and its ISO 14839-3 zone; then one
+    line per excitation channel that shows no sensitivity, saying why."""
+    if not sens:
+        return []
+    lines = []
+    loop = sens.get("loop")
+    if loop:
+        lines.append(f"loop sensitivity peak {loop['peak']:.3g} at {loop['peak_hz']:.4g} Hz ({loop['channel']}, from "
+                     f"{loop['source']}): ISO 14839-3 zone {loop['iso_zone']}")
+        measured = sens.get("worst_peak")
+        if measured is not None and "fitted model" in loop["source"]:
+            lines.append(f"  at the measured lines {measured:.3g} (zone {sens.get('iso_zone')})"
+                         + ("" if sens.get("true_peak") is None else
+                            f"; the true loop {max(sens['true_peak']):.3g} (zone {sens.get('true_iso_zone')})"))
+    for why in sens.get("none") or []:
+        lines.append(why)
+    return lines

@@ -190,20 +190,22 @@ def vector_fit_poles(spectra: np.ndarray, weight: np.ndarray, bins: np.ndarray, 
         phi = _basis(poles, zeta, n_poly)                                       # (K, nf)
         sig = np.concatenate([_basis(poles, zeta, -1), np.ones((n_bins, 1))], axis=1)   # (K, ns): sigma's basis
         ns = sig.shape[1]
-        normal = np.zeros((ns, ns))
+        blocks = []
         for c in range(n_ch):
             q, _ = np.linalg.qr(_stack(w[:, c, None] * phi))                   # (2K, nf)
-            qc = q[:n_bins] + 1j * q[n_bins:]                                   # rows of Q as complex (K, nf)
-            # M_s = -[Re; Im](w Y_s sig): M^T M = Re sum_k |w Y|^2 sig^H sig (summed over records)
-            normal += np.real((sig.conj().T * power[:, c]) @ sig)
-            qm = np.real(np.matmul(np.swapaxes(qc.conj()[None] * wy[:, :, c, None], 1, 2), sig))   # Q^T M (sign-free)
-            qm = qm.reshape(-1, ns)
-            normal -= qm.T @ qm
+            m = _stack(wy[:, :, c, None] * sig[None])                           # (S, 2K, ns): [Re; Im](w Y_s sig)
+            # the numerators eliminated by projecting each record's M on the complement of Q, formed explicitly,
+            # and reduced to R by QR (per record, then stacked): the normal equations' M^T M - M^T Q Q^T M cancel
+            # to rounding where the model fits (noise-free data), and the poles then followed the last digits
+            proj = m - q @ (q.T @ m)
+            blocks.append(np.linalg.qr(np.linalg.qr(proj, mode="r").reshape(-1, ns), mode="r"))   # (ns, ns)
+        # the relaxation row, Re sum_k sigma(zeta_k) = K, weighted as one more equation
         row = np.real(sig.sum(axis=0))
-        normal += lam ** 2 * np.outer(row, row)
-        rhs = lam ** 2 * n_bins * row
-        scale = np.sqrt(np.maximum(np.diag(normal), 1e-300))
-        coef = np.linalg.lstsq(normal / np.outer(scale, scale), rhs / scale, rcond=1e-14)[0] / scale
+        a = np.concatenate(blocks + [lam * row[None]], axis=0)
+        rhs = np.zeros(a.shape[0])
+        rhs[-1] = lam * n_bins
+        scale = np.sqrt(np.maximum(np.sum(a ** 2, axis=0), 1e-300))
+        coef = np.linalg.lstsq(a / scale, rhs, rcond=None)[0] / scale
         poles = _sigma_zeros(poles, coef[:-1], coef[-1])
     return TransientModel(poles=poles, n_poly=int(n_poly))
 

@@ -32,8 +32,9 @@ import numpy as np
 
 from ambid.fit import fit_common_denominator, save_model_json, save_model_npz, stabilisation_diagram
 from ambid.frf.frf_file import MeasuredFrf
-from ambid.identification.model_fit import mode_rows, select_order
-from ambid.identification.result import FitFigures, IntervalNotes, MeasuredFrfFit, OutputFiles
+from ambid.frf.quality import record_quality
+from ambid.identification.model_fit import select_order, split_modes
+from ambid.identification.result import FitFigures, IntervalNotes, MeasuredFrfFit, OutputFiles, QualityFigures
 
 __all__ = ["identify_frf", "INTERVALS_WITH_VAR", "INTERVALS_WITHOUT_VAR"]
 
@@ -91,23 +92,34 @@ def identify_frf(measured: MeasuredFrf, out_dir: str | os.PathLike, *, order: in
         rule = "given"
     # the file's variance as the entries' covariance (independent within a line): the intervals follow it
     row_cov = None if var is None else np.einsum("lij,jk->lijk", var, np.eye(nu)).astype(complex)
-    labels = dict(input_names=measured.input_names, output_names=measured.output_names)
+    labels = dict(input_names=measured.input_names, output_names=measured.output_names,
+                  input_units=measured.input_units, output_units=measured.output_units)
     fit = fit_common_denominator(f, g, w_var, order=int(order), delay_s=delay_s, row_covariance=row_cov, **labels)
-    _, rows, real = mode_rows(fit, diagram, int(order), band)
+    # the modes the data shows, the computational poles apart with their reasons: as for a session
+    _, rows, real, computational = split_modes(fit, diagram, int(order), f, g, var)
     # the intervals hold the file's variance alone where it gave one
     rows = [r if r.interval is None or r.interval.freq_hz_std is None else
             replace(r, interval=replace(r.interval, noise_only=var is not None)) for r in rows]
+    quality = []
+    if measured.coherence is not None:   # the analyser's coherence: its low lines said, one line per pair
+        pairs = [f"{o}/{u}" for o in measured.output_names for u in measured.input_names]
+        quality = [q.to_dict() for q in record_quality(None, (), 1.0, f, measured.coherence.reshape(f.size, -1),
+                                                       pairs)]
     save_model_npz(out / "model.npz", fit.model)
     save_model_json(out / "model.json", fit.model)
     np.savez(out / "frf.npz", freq_hz=f, H=g, **({} if var is None else dict(var=var)),
+             **({} if measured.coherence is None else dict(coherence=measured.coherence)),
              outputs=np.array(measured.output_names), inputs=np.array(measured.input_names))
     result = MeasuredFrfFit(
-        source=measured.path, format=measured.kind, outputs=list(measured.output_names),
-        inputs=list(measured.input_names), n_lines=int(f.size), band_hz=list(band), var_given=var is not None,
+        source=measured.path, format=measured.kind, form=measured.form, unit=measured.unit,
+        output_units=list(measured.output_units), input_units=list(measured.input_units),
+        outputs=list(measured.output_names), inputs=list(measured.input_names), n_lines=int(f.size),
+        band_hz=list(band), var_given=var is not None,
         fit=FitFigures(order=int(order), order_rule=rule, chi2_per_dof=fit.chi2_per_dof, delay_s=delay_s,
                        weights="the file's var" if var is not None else "each line by its mean |H|^2 (relative)",
                        orders_tried=diagram.orders, chi2_per_dof_by_order=diagram.chi2_per_dof, modes=rows,
-                       real_poles=real, refine_message=fit.message),
+                       computational_poles=computational, real_poles=real, refine_message=fit.message),
+        quality=QualityFigures(findings=quality),
         intervals=IntervalNotes(modes=INTERVALS_WITH_VAR if var is not None else INTERVALS_WITHOUT_VAR),
         files=OutputFiles(model_npz=str(out / "model.npz"), model_json=str(out / "model.json"),
                           frf_npz=str(out / "frf.npz"), summary_json=str(out / "identification.json")),

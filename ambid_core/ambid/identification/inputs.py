@@ -45,6 +45,9 @@ class SessionInputs:
         plant_source: ``'sim'``, ``'hardware'`` or None.
         controller: the controller that ran, (discrete StateSpace y -> ic, facts), or None.
         nonlinear_magnets: the simulated plant ran the nonlinear magnets.
+        injected_at: excitation channel -> where the rig adds it ('current', 'reference', 'output'); an
+            imported record's MAP.yaml says (ambid's own sessions: current, the default).
+        units: channel -> unit, where an imported record says (outputs of any kind).
     """
 
     path: str
@@ -54,6 +57,8 @@ class SessionInputs:
     plant_source: str | None
     controller: tuple[StateSpace, dict] | None
     nonlinear_magnets: bool
+    injected_at: dict = dataclasses.field(default_factory=dict)
+    units: dict = dataclasses.field(default_factory=dict)
 
     @property
     def design(self) -> ExcitationDesign:
@@ -87,8 +92,9 @@ def read_session_inputs(path: str | os.PathLike, estimator: str = "indirect", ex
     chosen = [d for d in designs if experiment_id is None or d["experiment_id"] == experiment_id][-1]
     namespace = chosen["topic"].rstrip("/")[:-len(DESIGN_TOPIC)]
     facts, source = session_rig(path, namespace + PLANT_TOPIC, recover=recover)
+    injected_at, units = _import_facts(path, recover)
     return SessionInputs(path, chosen, frf, facts, source, recorded_controller(path, recover),
-                         _nonlinear_magnets(path, recover))
+                         _nonlinear_magnets(path, recover), injected_at, units)
 
 
 def inputs_from_messages(path: str | os.PathLike, design_topic: str, design_msg: Any, plant_msg: Any,
@@ -157,16 +163,23 @@ def _parsed(value: Any) -> Any:
     return value
 
 
+def _session_fact(path: str, key: str, recover: bool) -> dict:
+    """One entry of the session's facts (``ambid.session`` metadata) as a dict; {} when it is not there."""
+    value = _parsed(read_metadata(path, recover=recover).get("ambid.session", {}).get(key))
+    return value if isinstance(value, dict) else {}
+
+
 def _nonlinear_magnets(path: str, recover: bool) -> bool:
     """Whether the simulated session ran the nonlinear magnets (the session config identify records; the
     plant node's default, linear, when the session does not say)."""
-    config = read_metadata(path, recover=recover).get("ambid.session", {}).get("config")
-    if isinstance(config, str):
-        try:
-            config = json.loads(config)
-        except json.JSONDecodeError:
-            config = None
-    return bool(config.get("nonlinear_magnets", False)) if isinstance(config, dict) else False
+    return bool(_session_fact(path, "config", recover).get("nonlinear_magnets", False))
+
+
+def _import_facts(path: str, recover: bool) -> tuple[dict, dict]:
+    """(injected_at, units) an imported record's session facts carry ({} for ambid's own sessions)."""
+    facts = _session_fact(path, "import", recover)
+    injected, units = facts.get("injected_at"), facts.get("units")
+    return (dict(injected) if isinstance(injected, dict) else {}), (dict(units) if isinstance(units, dict) else {})
 
 
 def _controller_parts(controller: tuple[StateSpace, dict] | None) -> list | None:

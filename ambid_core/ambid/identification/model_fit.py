@@ -19,18 +19,21 @@ FRF stage's (:func:`ambid.identification.session_frf.frf_variances`).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import stats
 
+from ambid.channels import split_name
 from ambid.fit import FitResult, StabilisationDiagram, fit_common_denominator, modal_summary, stabilisation_diagram
+from ambid.fit.physical_modes import judge_poles
 from ambid.frf.directional import has_planes, whirl_of_residue
 from ambid.frf.streaming import FrfResult
-from ambid.identification.result import ModeInterval, ModeRow, RealPole
+from ambid.identification.result import ComputationalPole, ModeInterval, ModeRow, RealPole
 from ambid.identification.session_frf import FrfVariances, frf_variances
 
-__all__ = ["select_order", "FrfFit", "fit_frf", "mode_interval", "mode_rows"]
+__all__ = ["select_order", "FrfFit", "fit_frf", "mode_interval", "split_modes"]
 
 
 def select_order(diagram: StabilisationDiagram, band_hz: tuple[float, float], n_lines: int, n_entries: int,
@@ -88,20 +91,48 @@ def mode_interval(fit: FitResult, freq_hz: float, damping: float) -> ModeInterva
                         ci_dof=sd[2] if np.isfinite(sd[2]) else None, noise_only=False)
 
 
-def mode_rows(fit: FitResult, diagram: StabilisationDiagram, order: int, band_hz: tuple[float, float]
-              ) -> tuple[list, list[ModeRow], list[RealPole]]:
-    """The in-band modes of a fit (:class:`ambid.fit.Mode`), their rows (each found again within 1 % at the
-    next lower order of ``diagram``, or not; its interval) and the fit's real poles."""
+def split_modes(fit: FitResult, diagram: StabilisationDiagram, order: int, freq_hz: np.ndarray, G: np.ndarray,
+                noise_var: np.ndarray | None, *, plant_input_current: bool = False
+                ) -> tuple[list, list[ModeRow], list[RealPole], list[ComputationalPole]]:
+    """The fit's poles parted into the modes the data shows and the computational ones
+    (:func:`ambid.fit.physical_modes.judge_poles`), for ``ambid fit`` of a session and of an FRF file alike.
+
+    Returns:
+        (modes: the physical :class:`ambid.fit.Mode` by frequency; their rows: freq_hz, damping, stable (found
+        again within 1 % at the next lower order), the 95 % intervals; the real poles' rows: pole_hz (signed,
+        > 0 unstable), unstable, reason; the computational complex poles' rows: freq_hz, damping, reason).
+    """
     summary_modes = modal_summary(fit.model)
     prev = diagram.orders[diagram.orders < order]
     prev_poles = diagram.poles_of(int(prev[-1])) if prev.size else np.zeros(0, complex)
-    modes = [m for m in summary_modes.modes if band_hz[0] <= m.freq_hz <= band_hz[1]]
-    rows = [ModeRow(freq_hz=m.freq_hz, damping=m.damping,
-                    stable=bool(prev_poles.size and np.min(np.abs(np.abs(prev_poles) / (2 * np.pi) - m.freq_hz))
-                                <= 0.01 * m.freq_hz), interval=mode_interval(fit, m.freq_hz, m.damping))
-            for m in modes]
-    real = [RealPole(pole_hz=r.pole_rad_s / (2 * np.pi), unstable=r.unstable) for r in summary_modes.real_poles]
-    return modes, rows, real
+    verdicts = {v.index: v for v in judge_poles(fit.model, diagram, order, freq_hz, G, noise_var,
+                                                plant_input_current=plant_input_current)}
+    index = {complex(p): k for k, p in enumerate(fit.model.poles)}
+    modes, rows, computational = [], [], []
+    for m in summary_modes.modes:
+        v = verdicts[index[complex(m.pole_rad_s)]]
+        if not v.physical:
+            computational.append(ComputationalPole(freq_hz=m.freq_hz, damping=m.damping, reason=v.reason,
+                                                   stable_share=v.stable_share, snr=v.snr))
+            continue
+        modes.append(m)
+        rows.append(ModeRow(freq_hz=m.freq_hz, damping=m.damping,
+                            stable=bool(prev_poles.size and np.min(np.abs(np.abs(prev_poles) / (2 * np.pi) - m.freq_hz))
+                                        <= 0.01 * m.freq_hz), interval=mode_interval(fit, m.freq_hz, m.damping)))
+    real_rows = []
+    for r in summary_modes.real_poles:
+        v = verdicts[index[complex(r.pole_rad_s)]]
+        real_rows.append(RealPole(pole_hz=r.pole_rad_s / (2 * np.pi), unstable=r.unstable, physical=v.physical,
+                                  reason=v.reason))
+    return modes, rows, real_rows, computational
+
+
+def _is_current(name: str) -> bool:
+    """A channel of the applied current (``u_<axis>``)."""
+    try:
+        return split_name(name)[0] == "u"
+    except ValueError:
+        return False
 
 
 @dataclass(frozen=True)
@@ -119,6 +150,8 @@ class FrfFit:
             frequency, damping, stable (found again within 1 % at the next lower order), their 95 %
             intervals, and, where the channels hold a radial bearing's x and y, whirl and forward_share.
         real_rows: the real poles (:class:`ambid.identification.result.RealPole`).
+        computational: the fit's complex poles that are not modes of the data, each with its reason
+            (:func:`split_modes`).
         variances: what the fit was weighted by and its intervals are read from
             (:class:`ambid.identification.session_frf.FrfVariances`).
     """
@@ -132,6 +165,7 @@ class FrfFit:
     modes: list
     mode_rows: list[ModeRow]
     real_rows: list[RealPole]
+    computational: list[ComputationalPole]
     variances: FrfVariances
 
     def stable_modes(self) -> list:
@@ -146,7 +180,8 @@ class FrfFit:
 
 
 def fit_frf(frf: FrfResult, sample_rate_hz: float, order: int | None = None, *, max_order: int = 32,
-            order_penalty: float = 2.0, variances: FrfVariances | None = None) -> FrfFit:
+            order_penalty: float = 2.0, units: Mapping[str, str] | None = None,
+            variances: FrfVariances | None = None) -> FrfFit:
     """The common-denominator fit of an FRF, as :func:`ambid.identification.identify_session` makes it
     (module docstring): order selection on the stabilisation diagram unless ``order`` is given, a known
     delay of half a sample, the weights and interval covariance of the FRF's variance.
@@ -157,6 +192,8 @@ def fit_frf(frf: FrfResult, sample_rate_hz: float, order: int | None = None, *, 
         order: model order; None selects it (:func:`select_order`).
         max_order: highest order in the stabilisation diagram.
         order_penalty: criterion weight per parameter of the order rule (2: Akaike).
+        units: channel -> unit where the record says (an imported record's outputs of any kind); default m
+            for outputs, A for inputs.
         variances: the FRF's variances (:func:`ambid.identification.session_frf.frf_variances`), when the
             caller has them; default computed here.
 
@@ -167,8 +204,10 @@ def fit_frf(frf: FrfResult, sample_rate_hz: float, order: int | None = None, *, 
     band = (float(f.min()), float(f.max()))
     v = frf_variances(frf) if variances is None else variances
     fit_delay = (1.0 / sample_rate_hz) / 2  # the zero-order hold: half a sample
+    units = dict(units or {})
     labels = dict(input_names=frf.input_names, output_names=frf.output_names,
-                  input_units=("A",) * len(frf.input_names), output_units=("m",) * len(frf.output_names))
+                  input_units=tuple(units.get(n, "A") for n in frf.input_names),
+                  output_units=tuple(units.get(n, "m") for n in frf.output_names))
     top = min(max_order, f.size - 1)
     orders = list(range(2, top + 1, 2))
     if not orders:
@@ -182,11 +221,13 @@ def fit_frf(frf: FrfResult, sample_rate_hz: float, order: int | None = None, *, 
         rule = "given"
     fit: FitResult = fit_common_denominator(f, frf.frf, v.weights, order=int(order), delay_s=fit_delay,
                                             row_covariance=v.row_cov, realisations=v.realisations, **labels)
-    modes, rows, real_rows = mode_rows(fit, diagram, int(order), band)
+    current_in = all(_is_current(n) for n in frf.input_names)
+    modes, rows, real_rows, computational = split_modes(fit, diagram, int(order), f, frf.frf, v.var,
+                                                        plant_input_current=current_in)
     # the radial bearing planes among the channels (x and y of a bearing): forward and backward whirl told apart
     if has_planes(frf.output_names, frf.input_names):
         for i, m in enumerate(modes):
             k = int(np.argmin(np.abs(fit.model.poles - m.pole_rad_s)))
             whirl, share = whirl_of_residue(fit.model.residues[k], frf.output_names, frf.input_names)
             rows[i] = replace(rows[i], whirl=whirl, forward_share=share)
-    return FrfFit(fit, int(order), rule, diagram, band, fit_delay, modes, rows, real_rows, v)
+    return FrfFit(fit, int(order), rule, diagram, band, fit_delay, modes, rows, real_rows, computational, v)

@@ -32,6 +32,7 @@ from ambid.fit import save_model_json, save_model_npz
 from ambid.frf.streaming import FrfResult
 from ambid.identification.inputs import SessionInputs, read_session_inputs
 from ambid.identification.model_fit import FrfFit, fit_frf
+from ambid.identification.quality import experiment_samples, quality_figures
 from ambid.identification.references import ReferenceModels, reference_key, reference_models
 from ambid.identification.report import write_identification_report
 from ambid.identification.result import (ExcitationFacts, FitFigures, Identification, OutputFiles, UpdateFigures,
@@ -109,7 +110,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     measured = session_frf(frf)
     notes = list(measured.notes)
     fitted = fit_frf(frf, design.fs_hz, order, max_order=max_order, order_penalty=order_penalty,
-                     variances=measured.variances)
+                     units=inputs.units, variances=measured.variances)
     save_model_npz(out / "model.npz", fitted.fit.model)
     save_model_json(out / "model.json", fitted.fit.model)
     the_rig = _rig_of(rig, inputs.rig_facts)
@@ -133,16 +134,20 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     if updated.update is not None:
         figures, update_notes = update_figures(updated.update, the_rig, nominal, truth.parameters)
         notes += update_notes
+    # the experiment's samples, read once: what spoils them (said in the result) and the report's figures
+    samples = experiment_samples(path, inputs, recover)
     result = _result(path, out, inputs, measured, fitted, truth, figures, notes,
                      frf_error_figures(truth, frf, fitted, the_rig, updated.update, dt_s),
-                     sensitivity_figures(frf, fitted.fit.model, refs, the_rig, updated.update, recorded, dt_s))
+                     quality_figures(samples, inputs),
+                     sensitivity_figures(frf, inputs, fitted.fit.model, refs, the_rig, updated.update, recorded,
+                                         dt_s))
     if on_summary is not None:
         on_summary(replace(result, wall_s=time.perf_counter() - t0))
     if report:
         result = replace(result, files=replace(result.files, report=str(out / "report" / "index.html")),
                          wall_s=time.perf_counter() - t0)
         write_identification_report(out / "report", result, inputs, fitted, the_rig, updated.update, truth.g,
-                                    measured.directional, recover)
+                                    measured.directional, samples)
     result = replace(result, wall_s=time.perf_counter() - t0)
     (out / "identification.json").write_text(json.dumps(result.to_json(), indent=1))
     return result
@@ -170,25 +175,27 @@ def _references(references: ReferenceModels | Callable[[], ReferenceModels | Non
 
 
 def _result(path: str, out: Path, inputs: SessionInputs, measured: SessionFrf, fitted: FrfFit, truth: Truth,
-            update: UpdateFigures | None, notes: list[str], frf_error, sensitivity) -> Identification:
+            update: UpdateFigures | None, notes: list[str], frf_error, quality, sensitivity) -> Identification:
     """The stages' results as one :class:`Identification` (no report yet, no wall time)."""
     frf, fit, v = measured.frf, fitted.fit, measured.variances
     rows = list(truth.modes_vs_true)
     return Identification(
         session=path, experiment_id=inputs.experiment["experiment_id"], estimator=frf.estimator,
         excitation=ExcitationFacts.of(inputs.design), band_hz=list(fitted.band_hz), inputs=list(frf.input_names),
-        outputs=list(frf.output_names), controller=(inputs.controller or (None, None))[1],
+        outputs=list(frf.output_names), input_units=list(fit.model.input_units),
+        output_units=list(fit.model.output_units), controller=(inputs.controller or (None, None))[1],
         simulated=inputs.simulated, frf_error=frf_error, noise=measured.noise_figures(truth.noise),
         fit=FitFigures(order=int(fitted.order), order_rule=fitted.order_rule, chi2_per_dof=fit.chi2_per_dof,
                        delay_s=fitted.delay_s, weights=v.weights_kind, orders_tried=fitted.diagram.orders,
                        chi2_per_dof_by_order=fitted.diagram.chi2_per_dof, modes=fitted.mode_rows,
-                       real_poles=fitted.real_rows, refine_message=fit.message),
+                       computational_poles=fitted.computational, real_poles=fitted.real_rows,
+                       refine_message=fit.message),
         intervals=session_intervals(v.var_kind, v.weights_kind, v.var is not None and
                                     v.var_kind.startswith("var_total")),
         modes_vs_true=rows, synchronous=measured.synchronous_figures(),
         max_mode_freq_error=max((abs(r.freq_error) for r in rows), default=None),
         max_mode_damping_error=max((abs(r.damping_error) for r in rows), default=None),
-        update=update, sensitivity=sensitivity,
+        update=update, quality=quality, sensitivity=sensitivity,
         files=OutputFiles(model_npz=str(out / "model.npz"), model_json=str(out / "model.json"),
                           frf_npz=str(out / "frf.npz"), summary_json=str(out / "identification.json")),
         notes=notes)

@@ -23,7 +23,7 @@ from ambid.plant.rig import make_rig
 from ambid.plant.true_rig import true_linear_model, true_plant
 from ambid.statespace import StateSpace
 
-__all__ = ["ReferenceModels", "reference_key", "reference_models", "on_channels"]
+__all__ = ["ReferenceModels", "reference_key", "reference_models", "on_channels", "axis_of"]
 
 
 @dataclass(frozen=True)
@@ -130,7 +130,7 @@ def on_channels(model: StateSpace, freq_hz: np.ndarray, output_names: Sequence[s
     return np.ascontiguousarray(g[:, rows][:, :, cols])
 
 
-def _axis(name: str) -> str:
+def axis_of(name: str) -> str:
     """The axis of a channel name (``y_a_x``, ``ic_a_x``, ``u_a_x`` -> ``a_x``); another name as it is."""
     try:
         return split_name(name)[1]
@@ -145,8 +145,8 @@ def _aligned_controller(k: StateSpace, output_names: Sequence[str],
     channels are unnamed and the sizes agree; None when the two do not close one loop."""
     if not (k.input_names and k.output_names and output_names and input_names):
         return k if (k.n_inputs, k.n_outputs) == (len(output_names), len(input_names)) else None
-    ins, outs = [_axis(n) for n in k.input_names], [_axis(n) for n in k.output_names]
-    want_in, want_out = [_axis(n) for n in output_names], [_axis(n) for n in input_names]
+    ins, outs = [axis_of(n) for n in k.input_names], [axis_of(n) for n in k.output_names]
+    want_in, want_out = [axis_of(n) for n in output_names], [axis_of(n) for n in input_names]
     if sorted(ins) != sorted(want_in) or sorted(outs) != sorted(want_out):
         return None
     rows, cols = [outs.index(a) for a in want_out], [ins.index(a) for a in want_in]

@@ -14,14 +14,13 @@ import numpy as np
 from ambid.fit.model_update import PhysicalUpdate, covers, nominal_parameters, physical_frf
 from ambid.frf.directional import DirectionalFrf, directional_frf
 from ambid.frf.levels import LineLevels, line_levels
-from ambid.identification.inputs import MEASUREMENT_TOPIC, SessionInputs
+from ambid.identification.inputs import SessionInputs
 from ambid.identification.model_fit import FrfFit
 from ambid.identification.session_frf import band_kind
 from ambid.identification.references import on_channels
 from ambid.identification.result import Identification
 from ambid.plant.rig import Rig, make_rig
 from ambid.plant.true_rig import true_linear_model
-from ambid.recording.blocks import read_samples
 from ambid.report.html import write_report
 from ambid.report.rotor_figures import directional_frf_figure
 
@@ -30,7 +29,7 @@ __all__ = ["write_identification_report"]
 
 def write_identification_report(folder: Path, result: Identification, inputs: SessionInputs, fitted: FrfFit,
                                 rig: Rig | None, upd: PhysicalUpdate | None, true_g: np.ndarray | None,
-                                dfrf: DirectionalFrf | None, recover: bool = False) -> None:
+                                dfrf: DirectionalFrf | None, samples) -> None:
     """Write the report of ``result`` into ``folder`` (``index.html`` and its figures).
 
     Args:
@@ -42,12 +41,12 @@ def write_identification_report(folder: Path, result: Identification, inputs: Se
         upd: the update, or None.
         true_g: (L, Ny, Nu) the true FRF at the lines, or None.
         dfrf: the directional FRFs of the measurement, or None.
-        recover: read a session file a killed recorder left.
+        samples: the experiment's samples (:func:`ambid.identification.quality.experiment_samples`), or None.
     """
     frf, design = inputs.frf, inputs.design
     dt_s = 1.0 / design.fs_hz
     band, f, fit = fitted.band_hz, frf.freq_hz, fitted.fit
-    levels, window = _samples_for_report(result.session, inputs, recover)
+    levels, window = _samples_for_report(samples, inputs)
     dense = np.geomspace(max(band[0] / 1.5, 1e-3), min(band[1] * 1.5, 0.499 * design.fs_hz), 400)
     curves = {"fitted model": (dense, fit.model.freqresp(dense))}
     if rig is not None and not covers(rig.rotor_model(), frf.output_names, frf.input_names):
@@ -77,18 +76,12 @@ def write_identification_report(folder: Path, result: Identification, inputs: Se
                  band_kind=band_kind(fitted.variances.var_kind))
 
 
-def _samples_for_report(path: str, inputs: SessionInputs, recover: bool) -> tuple[LineLevels | None, dict | None]:
+def _samples_for_report(data, inputs: SessionInputs) -> tuple[LineLevels | None, dict | None]:
     """Line levels of the whole experiment and a short time window of y, u, r."""
-    frf, design, chosen = inputs.frf, inputs.design, inputs.experiment
-    topic = inputs.namespace() + MEASUREMENT_TOPIC
-    refs = [("r_" + n[2:]) if n.startswith("u_") else "r_" + n for n in frf.input_names]
-    names = list(frf.output_names) + list(frf.input_names) + refs
-    start = chosen["start_index"]
-    total = min(chosen["total_samples"], design.total_samples)
-    try:
-        data = read_samples(path, topic, start, start + total, names, recover=recover)
-    except ValueError:
+    if data is None:
         return None, None
+    frf, design, start = inputs.frf, inputs.design, int(inputs.experiment["start_index"])
+    total = data.data.shape[0]
     ny, nu = len(frf.output_names), len(frf.input_names)
     levels = line_levels(data.data[:, :ny], design)
     w0 = design.n_transient_periods * design.n_per_period if design.kind != "stepped_sine" else 0

@@ -8,7 +8,7 @@ files, the report page) see JSON; the command line reads attributes.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -17,6 +17,7 @@ from ambid.excitation.design import ExcitationDesign
 from ambid.jsonable import JsonRecord, json_field
 
 __all__ = ["ExcitationFacts", "FrfErrorFigures", "NoiseFigures", "ModeInterval", "ModeRow", "RealPole",
+           "ComputationalPole", "SensitivityChannel", "LoopSensitivity", "CoherenceFigures", "QualityFigures",
            "FitFigures", "ModeComparison", "ParameterPrior", "ParameterRow", "TotalLag", "UpdateFigures",
            "SensitivityFigures", "Harmonic", "SynchronousFigures", "IntervalNotes", "OutputFiles",
            "Identification", "MeasuredFrfFit", "session_intervals"]
@@ -124,10 +125,25 @@ class ModeRow(JsonRecord):
 
 @dataclass(frozen=True, eq=False)
 class RealPole(JsonRecord):
-    """A real pole of the fitted model: ``pole_hz`` signed (> 0: unstable) [Hz]."""
+    """A real pole of the fitted model: ``pole_hz`` signed (> 0: unstable) [Hz]; whether it is the plant's (a
+    physical pole) and why (:func:`ambid.fit.physical_modes.judge_poles`)."""
 
     pole_hz: float
     unstable: bool
+    physical: bool
+    reason: str
+
+
+@dataclass(frozen=True, eq=False)
+class ComputationalPole(JsonRecord):
+    """A complex pole of the fit that is not a mode of the data: frequency [Hz], damping ratio [-], why, the
+    share of the diagram's orders it is stable in and its level above the noise."""
+
+    freq_hz: float
+    damping: float
+    reason: str
+    stable_share: float | None
+    snr: float | None
 
 
 @dataclass(frozen=True, eq=False)
@@ -143,6 +159,7 @@ class FitFigures(JsonRecord):
     orders_tried: np.ndarray
     chi2_per_dof_by_order: np.ndarray
     modes: list[ModeRow]
+    computational_poles: list[ComputationalPole]
     real_poles: list[RealPole]
     refine_message: str
 
@@ -230,16 +247,47 @@ class UpdateFigures(JsonRecord):
 
 
 @dataclass(frozen=True, eq=False)
-class SensitivityFigures(JsonRecord):
-    """The input sensitivity: measured at the excited lines (peak per input, its line [Hz], the worst
-    input and its ISO 14839-3 zone); between the lines with the fitted plant (``model_*``); the true loop's
-    (``true_*``) and the updated model's (``updated_*``) where known."""
+class SensitivityChannel(JsonRecord):
+    """The sensitivity one excitation channel shows by where it is injected
+    (:func:`ambid.frf.sensitivity.sensitivity_shown`): its kind, or why none; its peak, line [Hz] and ISO
+    14839-3 zone where it shows one."""
 
-    peak: np.ndarray
-    peak_hz: np.ndarray
-    worst_input: str
-    worst_peak: float
+    excitation: str
+    injected_at: str
+    kind: str | None
+    why: str | None
+    peak: float | None = json_field(omit_none=True)
+    peak_hz: float | None = json_field(omit_none=True)
+    iso_zone: str | None = json_field(omit_none=True)
+
+
+@dataclass(frozen=True, eq=False)
+class LoopSensitivity(JsonRecord):
+    """The loop's worst sensitivity peak, over the measured lines and the fitted model between them: its
+    value, frequency [Hz], where it came from, the channel and its ISO 14839-3 zone."""
+
+    peak: float
+    peak_hz: float
+    source: str
+    channel: str
     iso_zone: str
+
+
+@dataclass(frozen=True, eq=False)
+class SensitivityFigures(JsonRecord):
+    """The loop sensitivity the session shows, per excitation channel by where it was injected (``channels``);
+    for ambid's own sessions (excitation at the current) the input sensitivity at the excited lines (peak per
+    input, its line [Hz], the worst input and its ISO 14839-3 zone), between the lines with the fitted plant
+    (``model_*``), the true loop's (``true_*``) and the updated model's (``updated_*``) where known; the
+    channels that show none (``none``, why) and the loop's worst peak (``loop``)."""
+
+    channels: list[SensitivityChannel]
+    peak: np.ndarray | None = json_field(omit_none=True)
+    peak_hz: np.ndarray | None = json_field(omit_none=True)
+    worst_input: str | None = None
+    worst_peak: float | None = None
+    peak_hz_worst: float | None = json_field(omit_none=True)
+    iso_zone: str | None = None
     model_peak: np.ndarray | None = json_field(omit_none=True)
     model_peak_hz: np.ndarray | None = json_field(omit_none=True)
     model_iso_zone: str | None = json_field(omit_none=True)
@@ -251,6 +299,27 @@ class SensitivityFigures(JsonRecord):
     updated_peak_hz: np.ndarray | None = json_field(omit_none=True)
     updated_iso_zone: str | None = json_field(omit_none=True)
     updated_note: str | None = json_field(omit_none=True)
+    none: list[str] = field(default_factory=list)
+    loop: LoopSensitivity | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class CoherenceFigures(JsonRecord):
+    """The FRF's coherence: its smallest and median value over the lines and outputs, and where the per-line
+    values are."""
+
+    min: float | None
+    median: float | None
+    per_line: str
+
+
+@dataclass(frozen=True, eq=False)
+class QualityFigures(JsonRecord):
+    """What spoils the record (:func:`ambid.frf.quality.record_quality`: clipping, saturation, dropouts, too
+    little excitation, low coherence; one finding each, with its text) and the coherence."""
+
+    findings: list[dict]
+    coherence: CoherenceFigures | None = json_field(omit_none=True)
 
 
 @dataclass(frozen=True, eq=False)
@@ -313,6 +382,8 @@ class Identification(JsonRecord):
         The excited lines' band [Hz].
     inputs, outputs : list of str
         The FRF's channels.
+    input_units, output_units : list of str
+        Their units (A and m for ambid's own sessions; an imported record's may say others).
     controller : dict or None
         The facts of the controller that ran (kind, n_states, delay_samples, parameters, ...).
     simulated : bool
@@ -329,6 +400,8 @@ class Identification(JsonRecord):
         The worst relative errors of ``modes_vs_true``.
     update : UpdateFigures or None
         None without a rig or when not asked for.
+    quality : QualityFigures
+        What spoils the record, and the coherence.
     sensitivity : SensitivityFigures
     files : OutputFiles
     notes : list of str
@@ -344,6 +417,8 @@ class Identification(JsonRecord):
     band_hz: list[float]
     inputs: list[str]
     outputs: list[str]
+    input_units: list[str]
+    output_units: list[str]
     controller: dict | None
     simulated: bool
     frf_error: FrfErrorFigures | None
@@ -355,6 +430,7 @@ class Identification(JsonRecord):
     max_mode_freq_error: float | None
     max_mode_damping_error: float | None
     update: UpdateFigures | None
+    quality: QualityFigures
     sensitivity: SensitivityFigures
     files: OutputFiles
     notes: list[str]
@@ -363,18 +439,24 @@ class Identification(JsonRecord):
 
 @dataclass(frozen=True, eq=False)
 class MeasuredFrfFit(JsonRecord):
-    """The fit of a measured FRF file (:func:`ambid.identification.measured.identify_frf`,
-    ``identification.json``): its source and format, channels, lines, whether it gave a variance, the fit,
-    what the intervals hold, the files, notes and wall time [s]."""
+    """The fit of a measured FRF file (:func:`ambid.identification.frf_file_fit.identify_frf`,
+    ``identification.json``): its source and format, the FRF's form and unit, channels and their units, lines,
+    whether it gave a variance, the fit, what spoils it, what the intervals hold, the files, notes and wall
+    time [s]."""
 
     source: str
     format: str
+    form: str | None
+    unit: str | None
+    output_units: list[str]
+    input_units: list[str]
     outputs: list[str]
     inputs: list[str]
     n_lines: int
     band_hz: list[float]
     var_given: bool
     fit: FitFigures
+    quality: QualityFigures
     intervals: IntervalNotes
     files: OutputFiles
     notes: list[str]

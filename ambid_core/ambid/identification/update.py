@@ -10,17 +10,18 @@ the updated model are stable with the controller that ran (which was: it was mea
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ambid.control.closed_loop import close_loop
 from ambid.fit.model_update import (PhysicalUpdate, bending_keys, covers, match_modes, nominal_update_parameters,
-                                    parameter_prior, physical_discrete, physical_statespace, start_from_data,
-                                    total_lag, unmodelled_mode, update_physical_model)
+                                    parameter_prior, physical_discrete, physical_statespace, rig_channels,
+                                    start_from_data, total_lag, unmodelled_mode, update_physical_model)
 from ambid.fit.updating import NotIdentifiable, Prior
 from ambid.frf.streaming import FrfResult
 from ambid.identification.model_fit import FrfFit
+from ambid.identification.session_frf import FrfVariances
 from ambid.identification.result import (Identification, ParameterPrior, ParameterRow, TotalLag,
                                          UpdateFigures)
 from ambid.plant.rig import Rig
@@ -77,9 +78,10 @@ def update_rig(rig: Rig, frf: FrfResult, fitted: FrfFit, dt_s: float, nominal: M
             the band and a support mode where the fit shows one.
     """
     rotor = rig.rotor_model()
-    not_covered = covers(rotor, frf.output_names, frf.input_names)
-    if not_covered:
-        return RigUpdate(None, None, [f"no physical model updating: {not_covered}"])
+    part = _on_the_rigs_channels(rotor, frf, fitted.variances)
+    if isinstance(part, str):
+        return RigUpdate(None, None, [f"no physical model updating: {part}"])
+    frf, v, sub_notes = part
     values = nominal_values(rig, nominal)
     modes = fitted.stable_modes()
     chosen = free is not None
@@ -87,6 +89,7 @@ def update_rig(rig: Rig, frf: FrfResult, fitted: FrfFit, dt_s: float, nominal: M
     known = [k for k in free if k in values]
     bending, used, notes = match_modes(rotor, values, known, parameter_prior(rig, known, values)[0],
                                        [(m.freq_hz, m.damping) for m in modes])
+    notes = sub_notes + notes
     _add_support_mode(rig, rotor, values, bending, [m for k, m in enumerate(modes) if k not in used],
                       fitted.band_hz)
     if not chosen and all(k in values for k in _SUPPORT_KEYS):
@@ -104,7 +107,6 @@ def update_rig(rig: Rig, frf: FrfResult, fitted: FrfFit, dt_s: float, nominal: M
     centre.update({name: float(prior.mean[k]) for k, name in enumerate(free) if np.isfinite(prior.std[k])})
     centre.update(bending)
     try:
-        v = fitted.variances
         start = start_from_data(rotor, frf.freq_hz, frf.frf, v.weights, centre, free, prior, dt_s)
         return RigUpdate(update_physical_model(rotor, frf.freq_hz, frf.frf, v.weights, start, free, dt_s,
                                                prior=prior, row_covariance=v.row_cov,
@@ -114,6 +116,26 @@ def update_rig(rig: Rig, frf: FrfResult, fitted: FrfFit, dt_s: float, nominal: M
                                 "them one under tolerances: in the rig file"), notes)
     except ValueError as exc:
         return RigUpdate(None, str(exc), notes)
+
+
+def _on_the_rigs_channels(rotor, frf: FrfResult, v: FrfVariances) -> tuple[FrfResult, FrfVariances, list[str]] | str:
+    """The FRF and its variances on the channels the rig model describes (the others, accelerometers or probes
+    along the shaft, left out and said in a note), or why none can be updated."""
+    not_covered = covers(rotor, frf.output_names, frf.input_names)
+    if not not_covered:
+        return frf, v, []
+    picked = rig_channels(rotor, frf.output_names, frf.input_names)
+    if picked is None:
+        return not_covered
+    rows, cols, left = picked
+    frf = replace(frf, frf=frf.frf[:, rows][:, :, cols], output_names=tuple(frf.output_names[i] for i in rows),
+                  input_names=tuple(frf.input_names[j] for j in cols))
+    v = replace(v, weights=None if v.weights is None else v.weights[:, rows][:, :, cols],
+                row_cov=None if v.row_cov is None else v.row_cov[:, rows][:, :, cols][:, :, :, cols],
+                realisations=None if v.realisations is None else v.realisations[:, :, rows][:, :, :, cols])
+    return frf, v, [f"physical model updating on the channels the rig model describes "
+                    f"({', '.join(frf.output_names)} / {', '.join(frf.input_names)}); left out: "
+                    f"{', '.join(left)} (not in the rig model)"]
 
 
 def _default_free(values: Mapping[str, float], band_hz: tuple[float, float]) -> list[str]:

@@ -7,8 +7,8 @@
 - :mod:`.exporter`: a session's time records and their MAP.yaml.
 """
 
-from .readers import CHUNK_ROWS, FORMATS, Record, RecordError, open_record, record_format
+from .readers import CHUNK_ROWS, FORMATS, Record, RecordError, open_record, open_records, record_format
 from .writers import WRITE_FORMATS, atomic_path, write_record
 
 __all__ = ["CHUNK_ROWS", "FORMATS", "WRITE_FORMATS", "Record", "RecordError", "atomic_path", "open_record",
-           "record_format", "write_record"]
+           "open_records", "record_format", "write_record"]

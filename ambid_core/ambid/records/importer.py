@@ -20,9 +20,11 @@ read a recorded session.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import tempfile
+from collections.abc import Sequence
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,7 +44,7 @@ from ambid.statespace import StateSpace
 
 from .arbitrary import RecordedExcitation
 from .mapping import RecordMap, load_map
-from .readers import CHUNK_ROWS, RecordError, open_record
+from .readers import CHUNK_ROWS, Record, RecordError, open_records
 from .writers import atomic_path
 
 __all__ = ["NAMESPACE", "ImportResult", "import_record"]
@@ -181,12 +183,46 @@ class _DesignCheck:
                               "design: out to find it from the record")
 
 
-def import_record(data: str | os.PathLike, record_map: str | os.PathLike | RecordMap,
+def _resolved(m: RecordMap, rec: Record) -> RecordMap:
+    """MAP.yaml's channels with the units and the rate the record file states where MAP.yaml gives none, and
+    checked against them where it gives both."""
+    chans = {}
+    for group in ("outputs", "currents", "excitation"):
+        out = []
+        for c in getattr(m, group):
+            said = rec.units.get(c.column, "")
+            plain = c.scale == 1.0 and c.offset == 0.0
+            if said and plain and c.unit and said != c.unit:
+                raise RecordError(f"{rec.path}: column '{c.column}' is in {said} (the file says so) but MAP.yaml "
+                                  f"{m.path} makes {c.key or c.name} {c.unit}; give unit: {said}, or the scale that "
+                                  f"turns {said} into {c.unit}")
+            unit = c.unit or (said if plain else "")
+            if not unit:
+                raise RecordError(f"{m.path}: {group}.{c.key or c.name} has no unit (and the file states none for "
+                                  f"'{c.column}'); give unit: (m, m/s, m/s^2, V, ...)")
+            out.append(dataclasses.replace(c, unit=unit))
+        chans[group] = tuple(out)
+    rate = m.sample_rate_hz
+    if rec.sample_period_s:
+        said = 1.0 / rec.sample_period_s
+        if rate is not None and abs(rate / said - 1) > 1e-6:
+            raise RecordError(f"{rec.path}: the file's time base says {said:g} Hz but MAP.yaml {m.path} gives "
+                              f"sample_rate_hz {rate:g}; give {said:g} or leave sample_rate_hz out")
+        if rate is None and m.time_column is None:
+            rate = said
+    if rate is None and m.time_column is None:
+        raise RecordError(f"{m.path}: neither sample_rate_hz nor time_column, and {rec.path} does not state its "
+                          "rate; give one of them")
+    return dataclasses.replace(m, sample_rate_hz=rate, **chans)
+
+
+def import_record(data: str | os.PathLike | Sequence[str | os.PathLike], record_map: str | os.PathLike | RecordMap,
                   out: str | os.PathLike, chunk_rows: int = CHUNK_ROWS) -> ImportResult:
     """Convert a rig's record into a session MCAP (module docstring).
 
     Args:
-        data: .csv, .mat (v5 or v7.3) or .npz record.
+        data: .csv, .mat (v5 or v7.3, LMS/Simcenter structs too) or .npz record, or several .mat/.npz files of
+            one recording (their channels side by side).
         record_map: MAP.yaml path or a parsed :class:`ambid.records.mapping.RecordMap`.
         out: session .mcap to write (replaced only once complete).
         chunk_rows: rows read at a time.
@@ -196,8 +232,9 @@ def import_record(data: str | os.PathLike, record_map: str | os.PathLike | Recor
     """
     t_start = time.perf_counter()
     m = record_map if isinstance(record_map, RecordMap) else load_map(record_map)
-    rec = open_record(data)
+    rec = open_records([data] if isinstance(data, (str, os.PathLike)) else list(data))
     rec.require(m.columns, f"MAP.yaml {m.path}")
+    m = _resolved(m, rec)
     cols = m.columns
     idx = {c: i for i, c in enumerate(cols)}
     y_cols = [idx[c.column] for c in m.outputs]
@@ -277,7 +314,7 @@ def _import(rec, m, out, cols, idx, sel, scale, offset, ny, nu, spool, chunk_row
         notes.append(f"excitation from row {start + 1} to {n_rows}: {n_rows - start} rows, band "
                      f"{design.band_hz[0]:g}-{design.band_hz[1]:g} Hz, {design.excited_lines.size} lines "
                      f"{fs * (2 * h + 1) / (n_rows - start):.3g} Hz apart (windows of {2 * h + 1} bins), "
-                     f"peak {', '.join(f'{p:.3g}' for p in design.peak_a)} A")
+                     f"peak {', '.join(f'{p:.3g} {c.unit}' for p, c in zip(design.peak_a, m.excitation))}")
         if m.transient_periods is not None:
             notes.append("transient_periods: in MAP.yaml is not used: the local polynomial method removes the "
                          "transient itself")
@@ -301,12 +338,21 @@ def _import(rec, m, out, cols, idx, sel, scale, offset, ny, nu, spool, chunk_row
     # ---- pass 2: write
     names = [c.name for c in m.channels]
     units = [c.unit for c in m.channels]
+    notes = list(rec.notes) + notes
+    where = {c.injected_at for c in m.excitation}
+    if where != {"current"}:
+        notes.append("excitation injected at the " + ", ".join(f"{c.injected_at} ({c.name} [{c.unit}])"
+                                                              for c in m.excitation)
+                     + ": the FRF through it is the plant's all the same (S_yr S_ur^-1)")
     dt = 1.0 / fs
     ns = NAMESPACE
     design_msg = _design_message(design, start, m.experiment_id)
     facts = {"excitation": {m.experiment_id: design_facts(SimpleNamespace(**design_msg))},
-             "import": {"record": os.path.abspath(rec.path), "map": os.path.abspath(m.path), "rows": n_rows,
-                        "reconstructed": not m.design, "estimator": estimator, "notes": notes}}
+             "import": {"record": " + ".join(os.path.abspath(x) for x in rec.path.split(" + ")),
+                        "map": os.path.abspath(m.path), "rows": n_rows,
+                        "reconstructed": not m.design, "estimator": estimator, "notes": notes,
+                        "injected_at": {c.name: c.injected_at for c in m.excitation},
+                        "units": {c.name: c.unit for c in m.channels}}}
     with atomic_path(out) as tmp:
         with SessionWriter(tmp, overwrite=True) as w:
             w.add_topic(f"{ns}/excitation/design", "ambid_msgs/msg/ExcitationDesign", [_LATCHED])
@@ -339,7 +385,7 @@ def _import(rec, m, out, cols, idx, sel, scale, offset, ny, nu, spool, chunk_row
             if len(carry):
                 _write_block(w, n_rows - len(carry), dt, names, units, carry, m.experiment_id)
     return ImportResult(str(out), n_rows, fs, design, start, not m.design, estimator, notes,
-                        os.path.getsize(rec.path), time.perf_counter() - t_start)
+                        sum(os.path.getsize(x) for x in rec.path.split(" + ")), time.perf_counter() - t_start)
 
 
 def _reason(exc: DesignNotFound) -> str:

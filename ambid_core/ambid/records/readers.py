@@ -36,7 +36,9 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["CHUNK_ROWS", "FORMATS", "Record", "RecordError", "open_record", "record_format"]
+from .lms_struct import read_lms_signals
+
+__all__ = ["CHUNK_ROWS", "FORMATS", "Record", "RecordError", "open_record", "open_records", "record_format"]
 
 #: rows per chunk: ~1 MB of float64 for 16 channels
 CHUNK_ROWS = 8192
@@ -121,6 +123,20 @@ class _ByteRows(_Source):
         self.reader.close()
 
 
+class _ArrayColumns(_Source):
+    """Columns already in memory (an LMS / Simcenter struct, read whole) -> (n, k) float64 in row chunks."""
+
+    def __init__(self, names, values: np.ndarray) -> None:
+        self.names, self.values, self.n_rows, self.pos = tuple(names), values, len(values), 0
+
+    def read(self, n: int) -> np.ndarray:
+        if self.pos + n > self.n_rows:
+            raise EOFError
+        out = self.values[self.pos:self.pos + n]
+        self.pos += n
+        return out
+
+
 class _Inflate:
     """A zlib stream (a MAT v5 miCOMPRESSED element) read forward in pieces, from its own file handle."""
 
@@ -184,6 +200,9 @@ class Record:
     _sources: list
     _csv: dict | None = None
     unusable: dict[str, str] = field(default_factory=dict)   # variables that cannot be a channel: why
+    units: dict[str, str] = field(default_factory=dict)       # channel -> SI unit, where the file says it
+    sample_period_s: float | None = None                      # where the file says it (an LMS struct's increment)
+    notes: list[str] = field(default_factory=list)            # what was read how, a line each
 
     def require(self, names: Sequence[str], what: str = "MAP.yaml") -> None:
         """:class:`RecordError` naming the first of ``names`` the file lacks."""
@@ -271,6 +290,43 @@ def open_record(path: str | os.PathLike) -> Record:
     if head.startswith(_MAT73_MAGIC) or head[:8] == b"\x89HDF\r\n\x1a\n":
         return _open_mat73(path)
     return _open_mat5(path, head)
+
+
+def open_records(paths: Sequence[str | os.PathLike]) -> Record:
+    """Several files of one recording as one record (an acquisition system that exports its signals in more
+    than one file): their channels side by side, every file of the same length and sample period.
+
+    Raises:
+        RecordError: as :func:`open_record`; a channel in two files; files of different lengths or rates; CSV
+            among several files.
+    """
+    paths = [os.fspath(p) for p in paths]
+    if len(paths) == 1:
+        return open_record(paths[0])
+    recs = [open_record(p) for p in paths]
+    csv = [r.path for r in recs if r.kind == "csv"]
+    if csv:
+        raise RecordError(f"{csv[0]}: a CSV record is read as one file; give its channels in one CSV, or the other "
+                          "files' as .mat or .npz")
+    seen: dict[str, str] = {}
+    for r in recs:
+        for n in r.names:
+            if n in seen:
+                raise RecordError(f"{r.path}: channel '{n}' is in {seen[n]} too; give every channel in one file")
+            seen[n] = r.path
+    lengths = {r.path: r.n_rows for r in recs}
+    if len(set(lengths.values())) > 1:
+        short = min(lengths, key=lengths.get)
+        raise RecordError(f"{short} has {lengths[short]} rows but {max(lengths, key=lengths.get)} has "
+                          f"{max(lengths.values())}; give files of the same recording (same samples)")
+    periods = {r.path: r.sample_period_s for r in recs if r.sample_period_s}
+    if len({round(v, 15) for v in periods.values()}) > 1:
+        rates = ", ".join(f"{p}: {1 / v:g} Hz" for p, v in periods.items())
+        raise RecordError(f"the files are sampled at different rates ({rates}); give files of one recording")
+    return Record(" + ".join(paths), recs[0].kind, tuple(seen), recs[0].n_rows,
+                  [f for r in recs for f in r._sources], unusable={k: v for r in recs for k, v in r.unusable.items()},
+                  units={k: v for r in recs for k, v in r.units.items()},
+                  sample_period_s=next(iter(periods.values()), None), notes=[n for r in recs for n in r.notes])
 
 
 def _matrix_names(path: str, numeric: dict, names: dict) -> list[tuple[str, list[str]]]:
@@ -555,7 +611,7 @@ def _open_mat73(path: str) -> Record:
 _MI = {1: "i1", 2: "u1", 3: "<i2", 4: "<u2", 5: "<i4", 6: "<u4", 7: "<f4", 9: "<f8", 12: "<i8", 13: "<u8"}
 _MI_MATRIX, _MI_COMPRESSED = 14, 15
 _MX_NUMERIC = set(range(6, 16))  # double .. uint64 class codes
-_MX_CHAR, _MX_CELL = 4, 1
+_MX_CHAR, _MX_CELL, _MX_STRUCT = 4, 1, 2
 
 
 def _tag(read) -> tuple[int, int, bytes | None]:
@@ -623,7 +679,7 @@ def _open_mat5(path: str, head: bytes) -> Record:
                           "saved (save -v7 or -v7.3)")
     from scipy.io import loadmat  # MAT v5 only
 
-    numeric, texts, unusable = {}, {}, {}
+    numeric, texts, unusable, structs = {}, {}, {}, []
     for off, n, compressed in _mat5_elements(path):
         r = _mat5_reader(path, off, n, compressed)
         try:
@@ -650,6 +706,8 @@ def _open_mat5(path: str, head: bytes) -> Record:
             numeric[name] = (rows, k, off, n, compressed, dtype, nbytes)
         elif cls in (_MX_CHAR, _MX_CELL):
             texts[name] = None
+        elif cls == _MX_STRUCT:
+            structs.append(name)
     names_lists = {}
     if texts:
         raw = loadmat(path, variable_names=list(texts), squeeze_me=True, chars_as_strings=True)
@@ -680,7 +738,27 @@ def _open_mat5(path: str, head: bytes) -> Record:
                 return _ByteColumns(c, r, d, _inflated_columns(path, o, nb, head, kk, r * size))
             return _ByteColumns(c, r, d, [_mat5_reader(path, o, nb, z, head + j * r * size) for j in range(kk)])
         sources.append((make, cols, rows))
-    return _record(path, "mat5", sources, unusable)
+    units, period, notes = {}, None, []
+    if structs:
+        # LMS Test.Lab / Simcenter Testlab exports: one struct per signal (x_values, y_values, channel names, units)
+        try:
+            signals = read_lms_signals(path, structs)
+        except ValueError as exc:
+            raise RecordError(str(exc)) from None
+        for sig in signals:
+            sources.append((lambda sig=sig: _ArrayColumns(sig.names, sig.values), sig.names, len(sig.values)))
+            units.update(dict.fromkeys(sig.names, sig.unit))
+            periods = {round(x.dt_s, 15) for x in signals}
+            if len(periods) > 1:
+                raise RecordError(f"{path}: the signals are sampled at different rates ("
+                                  f"{', '.join(f'{1 / p:g}' for p in sorted(periods))} Hz); give signals of one rate")
+            period = sig.dt_s
+            shown = f" (shown by Test.Lab in {sig.display})" if sig.display and sig.display != sig.unit else ""
+            notes.append(f"{sig.variable}: LMS/Simcenter struct, channels {', '.join(sig.names)} [{sig.unit or '-'}]"
+                         f"{shown}, {len(sig.values)} samples at {1 / sig.dt_s:g} Hz")
+    rec = _record(path, "mat5", sources, unusable)
+    rec.units, rec.sample_period_s, rec.notes = units, period, notes
+    return rec
 
 
 class _PRead:

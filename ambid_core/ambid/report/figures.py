@@ -76,7 +76,7 @@ def _wrapped_deg(g: np.ndarray) -> np.ndarray:
 def bode_matrix(freq_hz: np.ndarray, G: np.ndarray, std: np.ndarray | None,
                 curves: Mapping[str, tuple[np.ndarray, np.ndarray]], quantity: str = "magnitude",
                 path: str | Path | None = None, input_names: Sequence[str] = (),
-                output_names: Sequence[str] = ()) -> Figure:
+                output_names: Sequence[str] = (), row_units: Sequence[str] = ()) -> Figure:
     """Ny x Nu grid of the measured FRF (with a +-2 sigma band) and model curves.
 
     Args:
@@ -87,6 +87,7 @@ def bode_matrix(freq_hz: np.ndarray, G: np.ndarray, std: np.ndarray | None,
         quantity: 'magnitude' (dB re 1 m/A) or 'phase' (deg).
         path: PNG to write.
         input_names, output_names: channel labels.
+        row_units: (Ny,) each row's unit (e.g. 'm/s^2/A' for an accelerometer); default m/A.
     """
     if quantity not in ("magnitude", "phase"):
         raise ValueError(f"quantity must be 'magnitude' or 'phase', got {quantity!r}")
@@ -133,7 +134,8 @@ def bode_matrix(freq_hz: np.ndarray, G: np.ndarray, std: np.ndarray | None,
             if i == 0:
                 ax.set_title(f"from {ins[j]} [A]", fontsize=10)
             if j == 0:
-                ax.set_ylabel(f"{outs[i]}\n" + ("|G| [dB re 1 m/A]" if quantity == "magnitude" else "phase [deg]"))
+                unit = (list(row_units)[i] if i < len(row_units) and row_units[i] else "m/A")
+                ax.set_ylabel(f"{outs[i]}\n" + (f"|G| [dB re 1 {unit}]" if quantity == "magnitude" else "phase [deg]"))
             if i == ny - 1:
                 ax.set_xlabel("frequency [Hz]")
     title = "magnitude" if quantity == "magnitude" else "phase"

@@ -96,10 +96,20 @@ def _headline(s: Mapping[str, Any]) -> list[list[str]]:
          f"{_fmt(noise.get('distortion_odd_db'), '+.1f')} / {_fmt(noise.get('distortion_even_db'), '+.1f')}"],
         ["model order (rule)", f"{fit['order']} ({fit['order_rule']})"],
         ["fit chi2 / dof", _fmt(fit["chi2_per_dof"], ".3g")],
-        ["peak input sensitivity", f"{_fmt(sens['worst_peak'], '.3g')} on {sens['worst_input']} "
-                                   f"({_fmt(20 * math.log10(sens['worst_peak']), '.1f')} dB)"],
-        ["ISO 14839-3 zone", sens["iso_zone"]],
     ]
+    loop = sens.get("loop")
+    if loop:
+        rows += [["loop sensitivity peak (the worst over the measured lines and the fitted model between them)",
+                  f"{_fmt(loop['peak'], '.3g')} ({_fmt(20 * math.log10(loop['peak']), '.1f')} dB) at "
+                  f"{_fmt(loop['peak_hz'], '.4g')} Hz, {loop['channel']}, from {loop['source']}"]]
+    if sens.get("worst_peak") is not None:
+        rows += [["peak sensitivity at the measured lines", f"{_fmt(sens['worst_peak'], '.3g')} on "
+                  f"{sens['worst_input']} ({_fmt(20 * math.log10(sens['worst_peak']), '.1f')} dB)"]]
+    zone = (loop or {}).get("iso_zone", sens.get("iso_zone") if "loop" not in sens else None)
+    if zone is not None:
+        rows += [["ISO 14839-3 zone", zone]]
+    rows += [["no sensitivity", why] for why in sens.get("none") or []]
+    rows += [["data quality", q["text"]] for q in (s.get("quality") or {}).get("findings", [])]
     if s.get("max_mode_freq_error") is not None:
         rows.append(["worst mode frequency / damping error vs true",
                      f"{_pct(s['max_mode_freq_error'])} / {_pct(s['max_mode_damping_error'])}"])
@@ -120,6 +130,28 @@ def _pm(m: Mapping[str, Any], key: str, spec: str) -> str:
     """'+- half width' of a 95 % interval m[key + '_ci95'], or '-'."""
     ci = m.get(f"{key}_ci95")
     return "-" if ci is None else f"+- {_fmt((ci[1] - ci[0]) / 2, spec)}"
+
+
+def _row_units(s: Mapping[str, Any]) -> list[str]:
+    """Each FRF row's unit, '<output unit>/<input unit>' where every input shares one (else '')."""
+    ins = set(s.get("input_units") or ["A"])
+    return [f"{u}/{next(iter(ins))}" if len(ins) == 1 else "" for u in s.get("output_units") or []]
+
+
+def computational_section(s: Mapping[str, Any]) -> list[str]:
+    """The fit's poles that are not modes, apart from them, each with its reason; and the plant's unstable pole."""
+    fit = s["fit"]
+    comp = fit.get("computational_poles") or []
+    parts = []
+    if comp:
+        parts += ["<h3>Computational poles (not modes of the data)</h3>",
+                  _table(["frequency [Hz]", "damping ratio [-]", "why not a mode"],
+                         [[_fmt(c["freq_hz"], ".5g"), _fmt(c["damping"], ".4g"), html.escape(c["reason"])]
+                          for c in comp])]
+    plant = [r for r in fit.get("real_poles") or [] if r.get("physical")]
+    parts += [f"<p>Unstable real pole at {_fmt(r['pole_hz'], '.4g')} Hz: {html.escape(r['reason'])}</p>"
+              for r in plant]
+    return parts
 
 
 def _modes_rows(s: Mapping[str, Any]) -> list[list[str]]:
@@ -182,6 +214,7 @@ def render_index(summary: Mapping[str, Any], figure_list: list[tuple[str, str]])
               _table(["frequency [Hz]", "95 % CI", "damping ratio [-]", "95 % CI", "stable in diagram"] + whirl_col,
                      _modes_rows(summary)),
               "<p>" + html.escape(str((summary.get("intervals") or {}).get("modes", ""))) + "</p>"]
+    parts += computational_section(summary)
     if summary.get("synchronous"):
         parts += ["<h3>Synchronous response (disturbance lines at k x the rotation)</h3>",
                   _table(["harmonic", "frequency [Hz]"] + list(summary.get("outputs") or []),
@@ -265,7 +298,8 @@ def write_report(report_dir: str | Path, summary: Mapping[str, Any], *, frf: Frf
         f"with its +-2 sigma {sigma_kind} band, and {models}. The band covers the best linear approximation "
         "at this excitation level; the small-signal model at rest differs from it by the magnets' nonlinearity "
         "(the excitation stiffens them), a bias the band does not hold.",
-        lambda p: figures.bode_matrix(frf.freq_hz, frf.frf, std, curves, "magnitude", p, **names))
+        lambda p: figures.bode_matrix(frf.freq_hz, frf.frf, std, curves, "magnitude", p, **names,
+                                      row_units=_row_units(summary)))
     add("bode_phase.png", f"FRF matrix phase [deg], measured (dots) and {models}.",
         lambda p: figures.bode_matrix(frf.freq_hz, frf.frf, std, curves, "phase", p, **names))
     if true_frf is not None:
@@ -296,9 +330,12 @@ def write_report(report_dir: str | Path, summary: Mapping[str, Any], *, frf: Frf
         add("excitation.png", "Excitation design: line amplitudes of one period per input with its crest factor, "
             "the unexcited detection lines, and the period in time.",
             lambda p: figures.excitation(design, p))
-    add("input_sensitivity.png", "Input sensitivity |S_ii| (r -> u) per axis, measured; ISO 14839-3 zones A (< 3), "
-        "B (< 4), C (< 5) and D shaded.",
-        lambda p: figures.input_sensitivity(frf.freq_hz, frf.sensitivity, frf.input_names, p))
+    channels = (summary.get("sensitivity") or {}).get("channels") or []
+    if all(c.get("injected_at", "current") == "current" for c in channels):
+        # u / r is the input sensitivity only where r was added to the current (records.md, injection points)
+        add("input_sensitivity.png", "Input sensitivity |S_ii| (r -> u) per axis, measured; ISO 14839-3 zones A "
+            "(< 3), B (< 4), C (< 5) and D shaded.",
+            lambda p: figures.input_sensitivity(frf.freq_hz, frf.sensitivity, frf.input_names, p))
     if window is not None:
         add("time_records.png", "A short window of the recorded displacements y and currents u (applied) and r "
             "(excitation) in steady state.",

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ambid.report import figures
-from ambid.report.html import _CSS, _fmt, _modes_rows, _table
+from ambid.report.html import _CSS, _fmt, _modes_rows, _row_units, _table, computational_section
 
 if TYPE_CHECKING:
     from ambid.fit.order_selection import StabilisationDiagram
@@ -40,7 +40,8 @@ def write_measured_report(report_dir: str | Path, summary: Mapping[str, Any], fr
     shown = []
     band = "with its +-2 sigma band from the file's var, " if std is not None else "(the file gives no variance), "
     for quantity, name in (("magnitude", "bode_magnitude.png"), ("phase", "bode_phase.png")):
-        figures.bode_matrix(freq_hz, frf, std, curves, quantity, out / name, **names)
+        figures.bode_matrix(freq_hz, frf, std, curves, quantity, out / name, **names,
+                            row_units=_row_units(summary))
         shown.append((name, f"FRF matrix {quantity} from {summary['source']} (dots) {band}and the fitted model "
                             "(the axis label's unit is the file's)."))
     figures.stabilisation(diagram, freq_hz, frf, order, out / "stabilisation.png",
@@ -63,6 +64,7 @@ def write_measured_report(report_dir: str | Path, summary: Mapping[str, Any], fr
               _table(["frequency [Hz]", "95 % CI", "damping ratio [-]", "95 % CI", "stable in diagram"],
                      _modes_rows(summary)),
               "<p>" + html.escape(str(summary["intervals"]["modes"])) + "</p>"]
+    parts += computational_section(summary)
     reals = fit.get("real_poles") or []
     if reals:
         parts.append("<p>Real poles [Hz] (positive: unstable): "
