@@ -28,6 +28,7 @@ COMMANDS = {
     "campaign": "campaign",
     "validate": "validate",
     "live": "live",
+    "tune": "tune",
 }
 
 

@@ -69,3 +69,49 @@ def test_clipping_saturation_dropouts_and_thin_excitation_are_found_with_their_l
     assert all("\n" not in q.text for q in found)
     # a clean record: nothing to say
     assert record_quality(np.column_stack([y, r]), ["y_a", "r_a"], fs, lines[lines < 150]) == []
+
+
+def test_a_record_excited_at_the_reference_shows_the_loops_sensitivity_at_its_own_sensor(tmp_path):
+    """A levitated mass under a PD controller, simulated here (scipy only), excited by noise at the position
+    reference: imported with ``injected_at: reference``, ambid reports the sensitivity 1 - y/r at the controller's
+    own sensor, against 1 / (1 + G K) of the loop computed here; u / r (the controller times it) is not taken."""
+    import yaml
+    from scipy.signal import cont2discrete
+
+    from ambid.frf.sensitivity import iso14839_zone
+    from ambid.records.importer import import_record
+    from ambid.identification import identify_session
+
+    fs, n = 2000.0, 40000
+    m, ks, ki, kp, kd = 5.0, 1.0e5, 50.0, 4000.0, 5.0
+    a, b, c, _, _ = cont2discrete((np.array([[0, 1], [ks / m, 0]]), np.array([[0], [ki / m]]), np.eye(1, 2),
+                                   np.zeros((1, 1))), 1 / fs)
+    rng = np.random.default_rng(7)
+    spec = np.zeros(n // 2 + 1, complex)
+    band = (np.arange(spec.size) * fs / n >= 2) & (np.arange(spec.size) * fs / n <= 250)
+    spec[band] = np.exp(2j * np.pi * rng.random(band.sum()))
+    r = np.fft.irfft(spec, n)
+    r *= 2e-5 / r.std()
+    x, e_prev = np.zeros(2), 0.0
+    y, u = np.empty(n), np.empty(n)
+    for k in range(n):
+        y[k] = (c @ x)[0] + 5e-8 * rng.standard_normal()
+        e = r[k] - y[k]
+        u[k] = kp * e + kd * (e - e_prev) * fs
+        e_prev = e
+        x = a @ x + b[:, 0] * u[k]
+    np.savez(tmp_path / "rec.npz", y=y, u=u, r=r)
+    (tmp_path / "MAP.yaml").write_text(yaml.safe_dump({
+        "sample_rate_hz": fs, "outputs": {"y_x": {"column": "y", "unit": "m"}}, "currents": {"u_x": "u"},
+        "excitation": {"r_x": {"column": "r", "unit": "m", "injected_at": "reference"}}, "band_hz": [5, 200]}))
+    import_record(tmp_path / "rec.npz", tmp_path / "MAP.yaml", tmp_path / "s.mcap")
+    sens = identify_session(tmp_path / "s.mcap", tmp_path / "fit", report=False)["sensitivity"]
+    # the loop here: G(z) = c (zI - a)^-1 b, K(z) = kp + kd fs (1 - 1/z), S = 1 / (1 + G K)
+    f = np.linspace(5, 200, 4000)
+    z = np.exp(2j * np.pi * f / fs)
+    g = np.array([(c @ np.linalg.solve(zz * np.eye(2) - a, b))[0, 0] for zz in z])
+    s_true = np.abs(1 / (1 + g * (kp + kd * fs * (1 - 1 / z))))
+    ch = sens["channels"][0]
+    assert ch["injected_at"] == "reference" and ch["kind"] == "output" and sens["none"] == []
+    assert abs(ch["peak"] / s_true.max() - 1) < 0.05 and abs(ch["peak_hz"] - f[s_true.argmax()]) < 4, (ch, s_true.max())
+    assert sens["loop"]["iso_zone"] == iso14839_zone(float(s_true.max()))

@@ -43,6 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ambid.fit.common_denominator import RationalModel
+from ambid.fit.modes import _is_real
 from ambid.fit.order_selection import StabilisationDiagram
 
 __all__ = ["PoleVerdict", "judge_poles", "NEGATIVE_STIFFNESS"]
@@ -86,16 +87,18 @@ def _stable_share(p: complex, diagram: StabilisationDiagram, order: int, tol_fre
     if len(orders) < 2:     # too few orders fitted (a handful of lines) to tell a stable pole from a wandering one
         return float("nan")
     f, z = abs(p), -p.real / abs(p)
-    real = p.imag == 0
+    real = bool(_is_real(np.array([p]))[0])
     found = 0
     for n in orders:
         q = diagram.poles_of(n)
-        q = q[(q.imag == 0) == real]
+        q = q[_is_real(q) == real]
         if q.size == 0:
             continue
         fq, zq = np.abs(q), -q.real / np.abs(q)
         ok = np.abs(fq - f) <= tol_freq * f
-        if not real:
+        if real:    # an unstable real pole is not found again as a stable one
+            ok &= np.sign(q.real) == np.sign(p.real)
+        else:
             ok &= (np.sign(zq) == np.sign(z)) & (np.abs(zq) <= 2 * abs(z) + 1e-4) & (np.abs(zq) >= 0.5 * abs(z) - 1e-4)
         found += bool(np.any(ok))
     return found / len(orders)
@@ -154,8 +157,9 @@ def judge_poles(model: RationalModel, diagram: StabilisationDiagram, order: int,
     noise = np.maximum(noise, 1e-300)
     s = 2j * np.pi * f
     out: list[PoleVerdict] = []
-    complex_idx = [k for k in range(p_all.size) if p_all[k].imag > 0]
-    real_idx = [k for k in range(p_all.size) if p_all[k].imag == 0]
+    real = _is_real(p_all)     # as the modal summary tells them apart
+    complex_idx = [k for k in range(p_all.size) if not real[k] and p_all[k].imag > 0]
+    real_idx = [k for k in range(p_all.size) if real[k]]
     for k in sorted(complex_idx, key=lambda k: abs(p_all[k])):
         p = p_all[k]
         fk, zk = abs(p) / (2 * np.pi), -p.real / abs(p)
@@ -190,7 +194,7 @@ def judge_poles(model: RationalModel, diagram: StabilisationDiagram, order: int,
             reason = ""
         out.append(PoleVerdict(int(k), float(fk), float(zk), False, not reason, reason, float(share), snr))
     for k in sorted(real_idx, key=lambda k: p_all[k].real):
-        p = p_all[k]
+        p = complex(p_all[k].real)
         share = _stable_share(p, diagram, order, tol_freq)
         unstable = p.real > 0
         if unstable and plant_input_current and not share < min_stable_share:

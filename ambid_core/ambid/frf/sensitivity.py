@@ -41,11 +41,13 @@ import numpy as np
 
 from ambid.frf.estimators import _cross, _matched, _right_divide
 
-__all__ = ["input_sensitivity", "sensitivity_diagonal", "sensitivity_peak", "iso14839_zone",
-           "input_sensitivity_from_models", "ZONE_LIMITS", "ShownSensitivity", "sensitivity_shown"]
+__all__ = ["input_sensitivity", "sensitivity_diagonal", "sensitivity_peak", "iso14839_zone", "zone_probabilities",
+           "input_sensitivity_from_models", "ZONE_LIMITS", "ZONES", "ShownSensitivity", "sensitivity_shown"]
 
 # Upper peak-gain limits of zones A, B, C (ISO 14839-3); above the last is D.
 ZONE_LIMITS: tuple[tuple[str, float], ...] = (("A", 3.0), ("B", 4.0), ("C", 5.0))
+#: The zones, best first.
+ZONES: tuple[str, ...] = ("A", "B", "C", "D")
 
 
 def input_sensitivity(u: np.ndarray, r: np.ndarray) -> np.ndarray:
@@ -101,6 +103,22 @@ def iso14839_zone(peak: float) -> str:
         if peak < limit:
             return zone
     return "D"
+
+
+def zone_probabilities(peaks: np.ndarray) -> dict[str, float]:
+    """The probability of each ISO 14839-3 zone, the share of ``peaks`` (draws of a peak's distribution,
+    absolute gain) in it: the zone of :func:`iso14839_zone` with its confidence.
+
+    Examples:
+        >>> zone_probabilities(np.array([2.5, 2.9, 3.1, 4.2]))
+        {'A': 0.5, 'B': 0.25, 'C': 0.25, 'D': 0.0}
+    """
+    x = np.asarray(peaks, dtype=float).ravel()
+    if x.size == 0 or not np.all(np.isfinite(x)):
+        raise ValueError("zone_probabilities needs finite peak draws")
+    edges = [limit for _, limit in ZONE_LIMITS]
+    counts = np.bincount(np.searchsorted(edges, x, side="right"), minlength=len(ZONES))
+    return {z: float(c) / x.size for z, c in zip(ZONES, counts)}
 
 
 def input_sensitivity_from_models(p_jw: np.ndarray, c_jw: np.ndarray) -> np.ndarray:

@@ -107,10 +107,14 @@ def split_modes(fit: FitResult, diagram: StabilisationDiagram, order: int, freq_
     prev_poles = diagram.poles_of(int(prev[-1])) if prev.size else np.zeros(0, complex)
     verdicts = {v.index: v for v in judge_poles(fit.model, diagram, order, freq_hz, G, noise_var,
                                                 plant_input_current=plant_input_current)}
-    index = {complex(p): k for k, p in enumerate(fit.model.poles)}
+    poles = fit.model.poles
+
+    def index(pole: complex) -> int:   # the model's pole the summary's is (real poles: their real part)
+        return int(np.argmin(np.abs(poles - pole)))
+
     modes, rows, computational = [], [], []
     for m in summary_modes.modes:
-        v = verdicts[index[complex(m.pole_rad_s)]]
+        v = verdicts[index(m.pole_rad_s)]
         if not v.physical:
             computational.append(ComputationalPole(freq_hz=m.freq_hz, damping=m.damping, reason=v.reason,
                                                    stable_share=v.stable_share, snr=v.snr))
@@ -121,7 +125,7 @@ def split_modes(fit: FitResult, diagram: StabilisationDiagram, order: int, freq_
                                         <= 0.01 * m.freq_hz), interval=mode_interval(fit, m.freq_hz, m.damping)))
     real_rows = []
     for r in summary_modes.real_poles:
-        v = verdicts[index[complex(r.pole_rad_s)]]
+        v = verdicts[index(r.pole_rad_s)]
         real_rows.append(RealPole(pole_hz=r.pole_rad_s / (2 * np.pi), unstable=r.unstable, physical=v.physical,
                                   reason=v.reason))
     return modes, rows, real_rows, computational

@@ -1,0 +1,198 @@
+"""What the verifying identification will measure: the input-sensitivity peak of a new controller's loop,
+as an interval and ISO 14839-3 zone probabilities.
+
+The claim. ``identify`` run again with the new controller and the same experiment measures the input
+sensitivity and reports its headline peak: the worst ``|S_jj|`` over the axes, at the excited lines
+(``S = U R^-1``) and between them (the fitted model with the controller). That number is what the
+interval claims to hold 95 % of the time. It differs from the loop's own peak by
+
+* the plant the data allow: the updated physical model's posterior (:mod:`ambid.commissioning.plants`);
+* the verifying measurement's own noise: its indirect estimate is ``G + E S^-1`` and its sensitivity
+  ``S + S K E`` with ``E = V R^-1`` the sensor noise (and the magnets' stochastic distortion) over the
+  excitation; ``E``'s variance per output and line is read off the run's own FRF variance,
+  ``var(G_ij) = e_i^2 sum_k |(S^-1)_kj|^2`` with the run's sensitivity, so the new loop's ``S`` sets how
+  much of it reaches the new estimate;
+* the verifying fit: the common-denominator model of that noisy estimate, at the run's order, between the
+  lines.
+
+:func:`predict_peak` simulates the verifying measurement this way for plants drawn from the posterior
+(a parametric bootstrap of the measurement and its fit), and reads the interval off the order statistics
+of those samples (ranks (n + 1) 0.025 and (n + 1) 0.975: a prediction interval whatever their
+distribution): the samples' spread holds both the plant's uncertainty and the measurement's. The loop's peak (all frequencies, no measurement) is given beside it.
+Nothing here reads the simulated truth.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ambid.commissioning.loops import input_sensitivity_frf, worst_peak
+from ambid.commissioning.plants import PlantUncertainty, draw_parameters, peak_grid, plant_set
+from ambid.control.closed_loop import close_loop, residue_freqresp
+from ambid.fit import fit_common_denominator
+from ambid.frf.sensitivity import zone_probabilities
+from ambid.statespace import StateSpace
+
+__all__ = ["MeasurementModel", "measurement_model", "PeakPrediction", "predict_peak"]
+
+
+@dataclass(frozen=True)
+class MeasurementModel:
+    """How the run measured, which the verifying identification repeats.
+
+    Attributes:
+        freq_hz: (L,) the excited lines [Hz].
+        noise_var: (L, ny) variance of each output's error over the excitation, ``E = V R^-1``
+            [(m/A)^2] (module docstring).
+        order: the fitted model's order.
+        delay_s: the delay the fit takes as known [s] (half a sample).
+        poles: (order,) the run's fitted poles [rad/s]: the verifying fit's start.
+        n_dense: lines of the dense grid between the excited ones where identify looks for the peak.
+    """
+
+    freq_hz: np.ndarray
+    noise_var: np.ndarray
+    order: int
+    delay_s: float
+    poles: np.ndarray
+    n_dense: int = 8000
+
+    @property
+    def dense_hz(self) -> np.ndarray:
+        """The dense grid over the band [Hz], identify's (``np.linspace(lo, hi, n_dense)``)."""
+        return np.linspace(float(self.freq_hz.min()), float(self.freq_hz.max()), self.n_dense)
+
+
+def measurement_model(freq_hz: np.ndarray, var_g: np.ndarray, sensitivity: np.ndarray, order: int,
+                      delay_s: float, poles: np.ndarray, window: int = 3) -> MeasurementModel:
+    """The run's :class:`MeasurementModel` from its FRF's variance and measured sensitivity.
+
+    Args:
+        freq_hz: (L,) lines [Hz].
+        var_g: (L, ny, nu) the FRF's variance (noise and stochastic distortion; identify's band variance).
+        sensitivity: (L, nu, nu) the sensitivity the run measured.
+        order, delay_s, poles: the run's fit.
+        window: lines either side each output's noise level is averaged over.
+    """
+    v = np.asarray(var_g, dtype=float)
+    sinv = np.linalg.inv(np.asarray(sensitivity))
+    gain = np.sum(np.abs(sinv) ** 2, axis=1)                       # (L, nu): sum_k |Sinv_kj|^2
+    e2 = np.mean(v / gain[:, None, :], axis=2)                      # (L, ny)
+    kernel = np.ones(2 * window + 1)
+    norm = np.convolve(np.ones(e2.shape[0]), kernel, mode="same")
+    smooth = np.stack([np.convolve(e2[:, i], kernel, mode="same") / norm for i in range(e2.shape[1])], axis=1)
+    return MeasurementModel(np.asarray(freq_hz, dtype=float), smooth, int(order), float(delay_s),
+                            np.asarray(poles, dtype=complex))
+
+
+@dataclass(frozen=True)
+class PeakPrediction:
+    """A controller's predicted input-sensitivity peak.
+
+    Attributes:
+        value: the predicted headline peak of the verifying identification (median of the samples) [-].
+        ci95: its 95 % prediction interval [lo, hi] [-].
+        freq_hz: where the loop's peak lies at the estimate [Hz].
+        axis: the axis of that peak.
+        zones: probability of each ISO 14839-3 zone of the verifying measurement's peak.
+        samples: (B,) the simulated verifying measurements' peaks.
+        loop_peak: the loop's own peak at the estimate (all frequencies) [-].
+        loop_ci95: the 2.5 and 97.5 % quantiles of the loop's peak over the drawn plants [-].
+        loop_samples: (B,) the loop's peak of each drawn plant.
+        stable_share: share of the drawn plants whose loop is stable [-].
+    """
+
+    value: float
+    ci95: tuple[float, float]
+    freq_hz: float
+    axis: str
+    zones: dict[str, float]
+    samples: np.ndarray
+    loop_peak: float
+    loop_ci95: tuple[float, float]
+    loop_samples: np.ndarray
+    stable_share: float
+
+    def to_dict(self) -> dict:
+        """``{value, ci95, freq_hz, axis, zones, loop: {...}, ...}`` for tune.json."""
+        return dict(value=self.value, ci95=list(self.ci95), freq_hz=self.freq_hz, axis=self.axis,
+                    zones=self.zones, n_samples=int(self.samples.size),
+                    loop=dict(value=self.loop_peak, ci95=list(self.loop_ci95)), stable_share=self.stable_share)
+
+
+def _measured_peak(k_lines: np.ndarray, k_dense: np.ndarray, g_lines: np.ndarray, model: MeasurementModel,
+                   rng: np.random.Generator) -> float:
+    """One simulated verifying measurement's headline peak of the plant ``g_lines`` (L, ny, nu)."""
+    f = model.freq_hz
+    s = input_sensitivity_frf(k_lines, g_lines)                      # (L, nu, nu)
+    ny, nu = g_lines.shape[1:]
+    sd = np.sqrt(model.noise_var / 2)[:, :, None]
+    e = sd * (rng.standard_normal((f.size, ny, nu)) + 1j * rng.standard_normal((f.size, ny, nu)))
+    sinv = np.linalg.inv(s)
+    g_meas = g_lines + e @ sinv
+    kf = np.einsum("li,ij->lij", k_lines, np.eye(nu)) if k_lines.ndim == 2 else k_lines
+    s_meas = s + s @ kf @ e
+    var = model.noise_var[:, :, None] * np.sum(np.abs(sinv) ** 2, axis=1)[:, None, :]
+    var = np.broadcast_to(var.mean(axis=2, keepdims=True), var.shape)   # pooled over the inputs, as identify
+    fit = fit_common_denominator(f, g_meas, var, order=model.order, delay_s=model.delay_s,
+                                 initial_poles=model.poles, n_vf_iterations=5, max_refine_evaluations=40)
+    dense = model.dense_hz
+    model_peak = float(worst_peak(k_dense, fit.model.freqresp(dense)[None])[0])
+    line_peak = float(np.abs(np.diagonal(s_meas, axis1=1, axis2=2)).max())
+    return max(model_peak, line_peak)
+
+
+def predict_peak(unc: PlantUncertainty, controller: StateSpace, model: MeasurementModel, *, n_samples: int = 100,
+                 seed: int = 0, axes: Sequence[str] = ()) -> PeakPrediction:
+    """The verifying identification's headline peak with ``controller`` (module docstring).
+
+    Args:
+        unc: the run's updated physical model and its posterior.
+        controller: discrete y -> ic at the loop's sample period.
+        model: how the run measured (:func:`measurement_model`).
+        n_samples: simulated verifying measurements (plants drawn from the posterior).
+        seed: the random draws' seed.
+        axes: the axes' names, for the peak's axis.
+
+    Raises:
+        ValueError: the loop is unstable at the estimate.
+    """
+    rng = np.random.default_rng([seed, 36])
+    params = draw_parameters(unc, n_samples, rng)
+    est = plant_set(unc, params[:1], model.freq_hz)
+    grid = peak_grid(est.models)
+    k_grid = residue_freqresp(controller, grid)
+    k_lines = residue_freqresp(controller, model.freq_hz)
+    k_dense = residue_freqresp(controller, model.dense_hz)
+    samples, loops, stable = [], [], 0
+    at_estimate = None
+    for i, p in enumerate(params):
+        ps = plant_set(unc, [p], model.freq_hz)
+        plant = ps.models[0]
+        ok = bool(np.all(np.abs(close_loop(plant, controller).poles()) < 1.0))
+        if i == 0 and not ok:
+            raise ValueError("the loop with this controller is unstable on the updated model: no peak to predict")
+        stable += ok
+        if not ok:
+            continue
+        g_grid = residue_freqresp(plant, grid)
+        s = input_sensitivity_frf(k_grid, g_grid)
+        mag = np.abs(np.diagonal(s, axis1=1, axis2=2))
+        loops.append(float(mag.max()))
+        if i == 0:
+            j = np.unravel_index(np.argmax(mag), mag.shape)
+            at_estimate = (float(mag.max()), float(grid[j[0]]), axes[j[1]] if axes else str(j[1]))
+        samples.append(_measured_peak(k_lines, k_dense, ps.frf[0], model, rng))
+    x = np.array(samples)
+    # a new draw lies between the order statistics at ranks (n + 1) p with probability p2 - p1, whatever the
+    # distribution (numpy's "weibull" positions): the interval is a distribution-free prediction interval
+    lo, hi = np.quantile(x, [0.025, 0.975], method="weibull")
+    loops_a = np.array(loops)
+    return PeakPrediction(value=float(np.median(x)), ci95=(float(lo), float(hi)), freq_hz=at_estimate[1],
+                          axis=at_estimate[2], zones=zone_probabilities(x), samples=x,
+                          loop_peak=at_estimate[0], loop_ci95=(float(np.quantile(loops_a, 0.025)),
+                                                                 float(np.quantile(loops_a, 0.975))),
+                          loop_samples=loops_a, stable_share=stable / len(params))
