@@ -23,6 +23,7 @@ COMMANDS = {
     "compare": "compare",
     "bench": "bench",
     "target-model": "target_model",
+    "keygen": "keygen",
     "import": "import_record",
     "export": "export_record",
     "campaign": "campaign",

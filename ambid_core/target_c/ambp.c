@@ -1,4 +1,5 @@
-/* ambp: the target side of the ambid bridge protocol, version 1. See ambp.h and docs/bridge_protocol.md.
+/* ambp: the target side of the ambid bridge protocol, versions 3, 2 and 1. See ambp.h and
+ * docs/bridge_protocol.md.
  * C99, no heap, no OS calls; byte order written explicitly, so it runs on big-endian targets too. */
 #include "ambp.h"
 
@@ -34,8 +35,9 @@ uint32_t ambp_crc32(const uint8_t *data, size_t n) {
     return c ^ 0xFFFFFFFFu;
 }
 
-static const char *const reason_names[AMBP_N_REASONS] = {"ok", "oversized", "length", "magic", "version",
-                                                         "crc", "kind", "content", "foreign"};
+static const char *const reason_names[AMBP_N_REASONS] = {
+    "ok", "oversized", "length", "magic", "version", "crc", "kind", "content", "foreign",
+    "auth", "direction", "session", "replay", "duplicate"};
 
 const char *ambp_reason_name(int reason) {
     return (reason >= 0 && reason < AMBP_N_REASONS) ? reason_names[reason] : "unknown";
@@ -51,13 +53,20 @@ static int axes_valid(unsigned axes, uint8_t version) {
     return version == 1 ? axes == AMBP_V1_AXES : axes >= 1 && axes <= AMBP_MAX_AXES;
 }
 
-unsigned ambp_max_block(unsigned axes, unsigned value_bytes) {
+static unsigned overhead(unsigned version) {
+    return version >= AMBP_AUTH_VERSION ? AMBP_OVERHEAD_V3_BYTES : AMBP_OVERHEAD_BYTES;
+}
+static unsigned header_bytes(unsigned version) {
+    return version >= AMBP_AUTH_VERSION ? AMBP_HEADER_V3_BYTES : AMBP_HEADER_BYTES;
+}
+
+unsigned ambp_max_block(unsigned axes, unsigned value_bytes, unsigned version) {
     if (axes < 1 || axes > AMBP_MAX_AXES || (value_bytes != 8 && value_bytes != 4)) return 0;
-    unsigned most = (AMBP_MAX_DATAGRAM - AMBP_OVERHEAD_BYTES - AMBP_BLOCK_HEADER_BYTES) / (4u * axes * value_bytes + 1u);
+    unsigned most = (AMBP_MAX_DATAGRAM - overhead(version) - AMBP_BLOCK_HEADER_BYTES) / (4u * axes * value_bytes + 1u);
     return most < AMBP_MAX_MEAS_SAMPLES ? most : AMBP_MAX_MEAS_SAMPLES;
 }
 
-static size_t payload_size(const ambp_message *m) {
+static size_t payload_size(const ambp_message *m, uint8_t version) {
     switch (m->kind) {
     case AMBP_MEASUREMENT:
     case AMBP_EXCITATION: {
@@ -65,16 +74,20 @@ static size_t payload_size(const ambp_message *m) {
                      (m->kind == AMBP_MEASUREMENT ? 1u : 0u);
         return AMBP_BLOCK_HEADER_BYTES + (size_t)m->n_samples * per;
     }
-    case AMBP_HEARTBEAT: return 56;
+    case AMBP_HEARTBEAT: return version >= AMBP_AUTH_VERSION ? 72 : 56;
     case AMBP_COMMAND: return 32;
     case AMBP_ACK: return 16;
+    case AMBP_HELLO: return version >= AMBP_AUTH_VERSION ? AMBP_NONCE_BYTES : 0;
+    case AMBP_WELCOME: return version >= AMBP_AUTH_VERSION ? 2 * AMBP_NONCE_BYTES : 0;
     default: return 0;
     }
 }
 
-size_t ambp_encode(const ambp_message *m, uint8_t version, uint8_t *out, size_t cap) {
-    size_t pl = payload_size(m);
-    if (pl == 0) return 0;
+size_t ambp_encode(const ambp_message *m, uint8_t version, const ambp_hmac_key *key, uint8_t *out, size_t cap) {
+    size_t pl = payload_size(m, version);
+    const int sealed = version >= AMBP_AUTH_VERSION;
+    if (pl == 0 || (sealed && (key == NULL || (m->sender != AMBP_SENDER_BRIDGE && m->sender != AMBP_SENDER_TARGET))))
+        return 0;
     int block = m->kind == AMBP_MEASUREMENT || m->kind == AMBP_EXCITATION;
     if (block) {
         size_t nv = (size_t)m->n_samples * block_channels(m->kind, m->axes);
@@ -84,16 +97,19 @@ size_t ambp_encode(const ambp_message *m, uint8_t version, uint8_t *out, size_t 
         for (size_t i = 0; i < nv; i++)
             if (!isfinite(m->data[i])) return 0;
     }
-    size_t size = AMBP_OVERHEAD_BYTES + pl;
+    const size_t hb = header_bytes(version);
+    size_t size = overhead(version) + pl;
     if (size > AMBP_MAX_DATAGRAM || size > cap) return 0;
     memcpy(out, "AMBP", 4);
     out[4] = version;
     out[5] = m->kind;
     put16(out + 6, 0);
+    if (sealed) out[6] = m->sender;
     put32(out + 8, m->sequence);
     put16(out + 12, (uint16_t)pl);
     put16(out + 14, 0);
-    uint8_t *p = out + AMBP_HEADER_BYTES;
+    if (sealed) memcpy(out + 16, m->session, AMBP_SESSION_BYTES);
+    uint8_t *p = out + hb;
     memset(p, 0, pl);
     switch (m->kind) {
     case AMBP_MEASUREMENT:
@@ -120,6 +136,10 @@ size_t ambp_encode(const ambp_message *m, uint8_t version, uint8_t *out, size_t 
         put64(p + 8, m->sample_index); put64(p + 16, m->sent_end); put64(p + 24, m->excitation_next);
         put32(p + 32, m->next_measurement_sequence); put32(p + 36, m->rx_datagrams);
         put32(p + 40, m->rx_rejected); put32(p + 44, m->late_excitation_samples); put32(p + 48, m->overruns);
+        if (sealed) {
+            put32(p + 56, m->refused_auth); put32(p + 60, m->refused_session);
+            put32(p + 64, m->refused_replay); put32(p + 68, m->duplicates);
+        }
         break;
     case AMBP_COMMAND:
         put32(p, m->command_id); p[4] = m->code;
@@ -129,8 +149,22 @@ size_t ambp_encode(const ambp_message *m, uint8_t version, uint8_t *out, size_t 
         put32(p, m->command_id); p[4] = m->code; p[5] = m->result; p[6] = m->state;
         put64(p + 8, m->sample_index);
         break;
+    case AMBP_HELLO:
+        memcpy(p, m->bridge_nonce, AMBP_NONCE_BYTES);
+        break;
+    case AMBP_WELCOME:
+        memcpy(p, m->bridge_nonce, AMBP_NONCE_BYTES);
+        memcpy(p + AMBP_NONCE_BYTES, m->target_nonce, AMBP_NONCE_BYTES);
+        break;
     }
-    put32(out + AMBP_HEADER_BYTES + pl, ambp_crc32(out, AMBP_HEADER_BYTES + pl));
+    size_t body = hb + pl;
+    if (sealed) {
+        uint8_t tag[AMBP_SHA256_BYTES];
+        ambp_hmac(key, out, body, tag);
+        memcpy(out + body, tag, AMBP_TAG_BYTES);
+        body += AMBP_TAG_BYTES;
+    }
+    put32(out + body, ambp_crc32(out, body));
     return size;
 }
 
@@ -162,30 +196,55 @@ static int decode_block(const uint8_t *p, size_t pl, uint8_t version, ambp_messa
     return AMBP_OK;
 }
 
-int ambp_decode(const uint8_t *d, size_t n, uint8_t version, ambp_message *m) {
+int ambp_decode(const uint8_t *d, size_t n, uint8_t version, const ambp_hmac_key *key, ambp_message *m) {
+    const int sealed = version >= AMBP_AUTH_VERSION;
     if (n > AMBP_MAX_DATAGRAM) return AMBP_E_OVERSIZED;
     if (n < AMBP_OVERHEAD_BYTES) return AMBP_E_LENGTH;
     if (memcmp(d, "AMBP", 4) != 0) return AMBP_E_MAGIC;
     if (d[4] != version) return AMBP_E_VERSION;
+    if (n < overhead(version)) return AMBP_E_LENGTH;
     if (ambp_crc32(d, n - 4) != get32(d + n - 4)) return AMBP_E_CRC;
     size_t pl = get16(d + 12);
-    if (pl != n - AMBP_OVERHEAD_BYTES) return AMBP_E_LENGTH;
+    if (pl != n - overhead(version)) return AMBP_E_LENGTH;
     uint8_t kind = d[5];
-    if (kind < AMBP_MEASUREMENT || kind > AMBP_ACK) return AMBP_E_KIND;
-    const uint8_t *p = d + AMBP_HEADER_BYTES;
+    if (kind < AMBP_MEASUREMENT || kind > (sealed ? AMBP_WELCOME : AMBP_ACK)) return AMBP_E_KIND;
+    const size_t hb = header_bytes(version);
+    if (sealed) { /* the tag over header and payload, compared in constant time */
+        uint8_t tag[AMBP_SHA256_BYTES];
+        if (key == NULL) return AMBP_E_AUTH;
+        ambp_hmac(key, d, hb + pl, tag);
+        if (!ambp_equal_ct(tag, d + hb + pl, AMBP_TAG_BYTES)) return AMBP_E_AUTH;
+        m->sender = d[6];
+        memcpy(m->session, d + 16, AMBP_SESSION_BYTES);
+    } else {
+        m->sender = 0;
+        memset(m->session, 0, AMBP_SESSION_BYTES);
+    }
+    const uint8_t *p = d + hb;
     m->kind = kind;
     m->sequence = get32(d + 8);
     switch (kind) {
     case AMBP_MEASUREMENT:
     case AMBP_EXCITATION: return decode_block(p, pl, version, m);
+    case AMBP_HELLO:
+        if (pl != AMBP_NONCE_BYTES) return AMBP_E_LENGTH;
+        memcpy(m->bridge_nonce, p, AMBP_NONCE_BYTES);
+        return AMBP_OK;
+    case AMBP_WELCOME:
+        if (pl != 2 * AMBP_NONCE_BYTES) return AMBP_E_LENGTH;
+        memcpy(m->bridge_nonce, p, AMBP_NONCE_BYTES);
+        memcpy(m->target_nonce, p + AMBP_NONCE_BYTES, AMBP_NONCE_BYTES);
+        return AMBP_OK;
     case AMBP_HEARTBEAT:
-        if (pl != 56) return AMBP_E_LENGTH;
+        if (pl != (sealed ? 72u : 56u)) return AMBP_E_LENGTH;
         m->state = p[0]; m->safe_reason = p[1]; m->clock_running = p[2] != 0;
         m->axes = version == 1 ? 0 : p[3];
         m->sample_rate_hz = get32(p + 4);
         m->sample_index = get64(p + 8); m->sent_end = get64(p + 16); m->excitation_next = get64(p + 24);
         m->next_measurement_sequence = get32(p + 32); m->rx_datagrams = get32(p + 36);
         m->rx_rejected = get32(p + 40); m->late_excitation_samples = get32(p + 44); m->overruns = get32(p + 48);
+        m->refused_auth = sealed ? get32(p + 56) : 0; m->refused_session = sealed ? get32(p + 60) : 0;
+        m->refused_replay = sealed ? get32(p + 64) : 0; m->duplicates = sealed ? get32(p + 68) : 0;
         return AMBP_OK;
     case AMBP_COMMAND:
         if (pl != 32) return AMBP_E_LENGTH;
@@ -206,7 +265,7 @@ void ambp_default_config(ambp_config *cfg, uint32_t sample_rate_hz, uint8_t axes
     cfg->version = AMBP_VERSION;
     cfg->axes = axes;
     cfg->value_bytes = 8;
-    unsigned most = ambp_max_block(axes, 8);
+    unsigned most = ambp_max_block(axes, 8, AMBP_VERSION);
     cfg->block = (uint16_t)(most < 10u ? most : 10u);
     cfg->sample_rate_hz = sample_rate_hz;
     cfg->heartbeat_ns = 50000000u;
@@ -216,7 +275,7 @@ void ambp_default_config(ambp_config *cfg, uint32_t sample_rate_hz, uint8_t axes
 
 int ambp_target_init(ambp_target *t, const ambp_config *cfg, ambp_exc_slot *storage, uint32_t capacity,
                      uint64_t now_ns) {
-    unsigned most = ambp_max_block(cfg->axes, cfg->value_bytes);
+    unsigned most = ambp_max_block(cfg->axes, cfg->value_bytes, cfg->version);
     if (!axes_valid(cfg->axes, cfg->version) || most == 0 || cfg->block < 1 || cfg->block > most ||
         cfg->sample_rate_hz == 0 || cfg->heartbeat_ns == 0 || storage == NULL || capacity == 0)
         return -1;
@@ -227,18 +286,68 @@ int ambp_target_init(ambp_target *t, const ambp_config *cfg, ambp_exc_slot *stor
     for (uint32_t i = 0; i < capacity; i++) storage[i].index = AMBP_NO_INDEX;
     t->state = AMBP_IDLE;
     t->next_hb_ns = now_ns; /* the first poll announces the target */
+    t->agreed = cfg->version < AMBP_AUTH_VERSION; /* before version 3 there is no session to agree */
     return 0;
+}
+
+/* ---- version 3: key, fingerprint, session ------------------------------------------------------- */
+void ambp_key_fingerprint(const uint8_t *key, size_t n, char out[17]) {
+    static const char hex[] = "0123456789abcdef";
+    static const uint8_t prefix[] = "ambid link key"; /* and its NUL: 15 bytes */
+    ambp_sha256_ctx c;
+    uint8_t h[AMBP_SHA256_BYTES];
+    ambp_sha256_init(&c);
+    ambp_sha256_update(&c, prefix, sizeof prefix);
+    ambp_sha256_update(&c, key, n);
+    ambp_sha256_final(&c, h);
+    for (unsigned i = 0; i < 8; i++) {
+        out[2 * i] = hex[h[i] >> 4];
+        out[2 * i + 1] = hex[h[i] & 15u];
+    }
+    out[16] = 0;
+}
+
+void ambp_session_id(const ambp_hmac_key *key, const uint8_t nb[AMBP_NONCE_BYTES],
+                     const uint8_t nt[AMBP_NONCE_BYTES], uint8_t out[AMBP_SESSION_BYTES]) {
+    static const uint8_t label[] = "AMBP3 session"; /* and its NUL: 14 bytes */
+    uint8_t in[sizeof label + 2 * AMBP_NONCE_BYTES], mac[AMBP_SHA256_BYTES];
+    memcpy(in, label, sizeof label);
+    memcpy(in + sizeof label, nb, AMBP_NONCE_BYTES);
+    memcpy(in + sizeof label + AMBP_NONCE_BYTES, nt, AMBP_NONCE_BYTES);
+    ambp_hmac(key, in, sizeof in, mac);
+    memcpy(out, mac, AMBP_SESSION_BYTES);
+}
+
+int ambp_target_set_key(ambp_target *t, const uint8_t *key, size_t n, const uint8_t seed[32]) {
+    if (t->cfg.version < AMBP_AUTH_VERSION || n < AMBP_MIN_KEY_BYTES || n > AMBP_MAX_KEY_BYTES) return -1;
+    ambp_hmac_key_init(&t->key, key, n);
+    memcpy(t->nonce_seed, seed, sizeof t->nonce_seed);
+    t->keyed = 1;
+    return 0;
+}
+
+/* a target nonce never used before: HMAC(key, label | seed | count), the count never repeating in a run */
+static void next_nonce(ambp_target *t, uint8_t out[AMBP_NONCE_BYTES]) {
+    static const uint8_t label[] = "AMBP3 target nonce"; /* and its NUL: 19 bytes */
+    uint8_t in[sizeof label + 32 + 8], mac[AMBP_SHA256_BYTES];
+    memcpy(in, label, sizeof label);
+    memcpy(in + sizeof label, t->nonce_seed, 32);
+    put64(in + sizeof label + 32, t->nonces++);
+    ambp_hmac(&t->key, in, sizeof in, mac);
+    memcpy(out, mac, AMBP_NONCE_BYTES);
 }
 
 static void push_out(ambp_target *t, ambp_message *m) {
     m->sequence = t->seq[m->kind]++;
+    m->sender = AMBP_SENDER_TARGET;
+    if (m->kind != AMBP_WELCOME) memcpy(m->session, t->session, AMBP_SESSION_BYTES); /* a WELCOME names its own */
     if (t->out_count == AMBP_OUTBOX) { /* the caller did not drain: the oldest goes (counted) */
         t->out_head = (t->out_head + 1) % AMBP_OUTBOX;
         t->out_count--;
         t->tx_dropped++;
     }
     uint32_t slot = (t->out_head + t->out_count) % AMBP_OUTBOX;
-    size_t n = ambp_encode(m, t->cfg.version, t->out[slot], AMBP_MAX_DATAGRAM);
+    size_t n = ambp_encode(m, t->cfg.version, t->keyed ? &t->key : NULL, t->out[slot], AMBP_MAX_DATAGRAM);
     if (n == 0) { t->tx_dropped++; return; }
     t->out_len[slot] = (uint16_t)n;
     t->out_count++;
@@ -292,8 +401,13 @@ static void heartbeat(ambp_target *t, uint64_t now_ns) {
     m->late_excitation_samples = t->late_excitation;
     m->overruns = t->overruns;
     m->axes = t->cfg.axes;
-    push_out(t, m);
+    m->refused_auth = t->rx_rejected_by_reason[AMBP_E_AUTH];
+    m->refused_session = t->rx_rejected_by_reason[AMBP_E_SESSION];
+    m->refused_replay = t->rx_rejected_by_reason[AMBP_E_REPLAY];
+    m->duplicates = t->rx_rejected_by_reason[AMBP_E_DUPLICATE];
     t->next_hb_ns = now_ns + t->cfg.heartbeat_ns;
+    if (!t->agreed) return; /* version 3 before the session: nothing to seal it in */
+    push_out(t, m);
 }
 
 static void send_block(ambp_target *t) {
@@ -407,19 +521,98 @@ static void command(ambp_target *t, uint64_t now_ns) {
     heartbeat(t, now_ns);
 }
 
+/* version 3: the WELCOME to the HELLO in the scratch message; the same answer to the same bridge nonce */
+static void welcome(ambp_target *t) {
+    ambp_message *m = &t->scratch;
+    unsigned at = AMBP_PROPOSALS;
+    for (unsigned i = 0; i < AMBP_PROPOSALS; i++)
+        if (t->prop_used[i] && memcmp(t->prop_nb[i], m->bridge_nonce, AMBP_NONCE_BYTES) == 0) at = i;
+    if (at == AMBP_PROPOSALS) { /* a new proposal replaces the oldest */
+        at = t->prop_next++ % AMBP_PROPOSALS;
+        t->prop_used[at] = 1;
+        memcpy(t->prop_nb[at], m->bridge_nonce, AMBP_NONCE_BYTES);
+        next_nonce(t, t->prop_nt[at]);
+        ambp_session_id(&t->key, t->prop_nb[at], t->prop_nt[at], t->prop_session[at]);
+    }
+    memset(m, 0, offsetof(ambp_message, data));
+    m->kind = AMBP_WELCOME;
+    memcpy(m->bridge_nonce, t->prop_nb[at], AMBP_NONCE_BYTES);
+    memcpy(m->target_nonce, t->prop_nt[at], AMBP_NONCE_BYTES);
+    memcpy(m->session, t->prop_session[at], AMBP_SESSION_BYTES);
+    push_out(t, m);
+}
+
+/* version 3: what depends on the link's state (the sender, the session, the replay window), in the order
+ * of docs/bridge_protocol.md; *committed set when this datagram confirmed a proposed session */
+static int link_check(ambp_target *t, int *committed) {
+    static const uint8_t no_session[AMBP_SESSION_BYTES] = {0};
+    ambp_message *m = &t->scratch;
+    const uint8_t kind = m->kind;
+    if (m->sender != AMBP_SENDER_BRIDGE ||
+        !(kind == AMBP_EXCITATION || kind == AMBP_HEARTBEAT || kind == AMBP_COMMAND || kind == AMBP_HELLO))
+        return AMBP_E_DIRECTION;
+    if (kind == AMBP_HELLO) {
+        if (memcmp(m->session, no_session, AMBP_SESSION_BYTES) != 0) return AMBP_E_SESSION;
+        if (t->agreed) /* a late repeat of the agreed session's HELLO needs no answer; any other is refused */
+            return memcmp(m->bridge_nonce, t->agreed_bridge_nonce, AMBP_NONCE_BYTES) == 0 ? AMBP_OK : AMBP_E_SESSION;
+        welcome(t);
+        return AMBP_OK;
+    }
+    int prop = -1;
+    if (t->agreed) {
+        if (memcmp(m->session, t->session, AMBP_SESSION_BYTES) != 0) return AMBP_E_SESSION;
+    } else {
+        for (unsigned i = 0; i < AMBP_PROPOSALS; i++)
+            if (t->prop_used[i] && memcmp(m->session, t->prop_session[i], AMBP_SESSION_BYTES) == 0) prop = (int)i;
+        if (prop < 0) return AMBP_E_SESSION;
+    }
+    uint32_t *top = &t->win_top[kind];
+    uint64_t *bits = &t->win_bits[kind];
+    if (*bits == 0) { /* the kind's first datagram in the session */
+        *top = m->sequence;
+        *bits = 1;
+    } else {
+        uint32_t u = m->sequence - *top; /* the wrapping difference, in [-2^31, 2^31) */
+        int64_t diff = u < 0x80000000u ? (int64_t)u : (int64_t)u - 4294967296LL;
+        if (diff > 0) {
+            *bits = diff < (int64_t)AMBP_WINDOW ? (*bits << diff) | 1u : 1u;
+            *top = m->sequence;
+        } else {
+            uint64_t back = (uint64_t)(-diff);
+            if (back >= AMBP_WINDOW) return AMBP_E_REPLAY;
+            if ((*bits >> back) & 1u) return AMBP_E_DUPLICATE;
+            *bits |= (uint64_t)1 << back;
+        }
+    }
+    if (prop >= 0) { /* the bridge confirmed this proposal: the session, for the rest of the run */
+        t->agreed = 1;
+        memcpy(t->session, t->prop_session[prop], AMBP_SESSION_BYTES);
+        memcpy(t->agreed_bridge_nonce, t->prop_nb[prop], AMBP_NONCE_BYTES);
+        memset(t->prop_used, 0, sizeof t->prop_used);
+        *committed = 1;
+    }
+    return AMBP_OK;
+}
+
 int ambp_target_receive(ambp_target *t, const uint8_t *d, size_t n, int from_bridge, uint64_t now_ns) {
     if (!from_bridge) {
         t->rx_rejected_by_reason[AMBP_E_FOREIGN]++;
         return AMBP_E_FOREIGN;
     }
-    int why = ambp_decode(d, n, t->cfg.version, &t->scratch);
+    const int sealed = t->cfg.version >= AMBP_AUTH_VERSION;
+    int why = ambp_decode(d, n, t->cfg.version, t->keyed ? &t->key : NULL, &t->scratch);
+    if (why == AMBP_OK && t->scratch.kind == AMBP_EXCITATION && t->scratch.axes != t->cfg.axes)
+        why = AMBP_E_CONTENT; /* another rig's channels */
+    int committed = 0;
+    const uint8_t kind = t->scratch.kind; /* link_check may answer a HELLO in the scratch message */
+    if (why == AMBP_OK && sealed) why = link_check(t, &committed);
     if (why != AMBP_OK) {
         t->rx_rejected_by_reason[why]++;
         return why;
     }
-    if (t->scratch.kind == AMBP_EXCITATION && t->scratch.axes != t->cfg.axes) { /* another rig's channels */
-        t->rx_rejected_by_reason[AMBP_E_CONTENT]++;
-        return AMBP_E_CONTENT;
+    if (kind == AMBP_HELLO) { /* answered (link_check); not a sign of the bridge in the session */
+        t->rx++;
+        return AMBP_OK;
     }
     t->rx++;
     t->heard = 1;
@@ -433,6 +626,7 @@ int ambp_target_receive(ambp_target *t, const uint8_t *d, size_t n, int from_bri
         t->rx_rejected_by_reason[AMBP_E_KIND]++;
         break;
     }
+    if (committed) heartbeat(t, now_ns); /* the session is agreed: the bridge hears the target at once */
     return AMBP_OK;
 }
 

@@ -1,9 +1,12 @@
-/* ambp: the target side of the ambid bridge protocol, versions 2 and 1 (docs/bridge_protocol.md), in C99.
+/* ambp: the target side of the ambid bridge protocol, versions 3, 2 and 1 (docs/bridge_protocol.md), in C99.
  *
  * Portable core: no heap, no OS calls, no globals that change. The caller owns every byte: one
  * ambp_target struct of state, the excitation queue's storage, and the clock (monotonic
  * nanoseconds passed in). It fits a Simulink S-function, a Speedgoat model or a microcontroller;
  * the POSIX UDP program ambp_udp_target.c is one caller. See docs/target_c.md.
+ *
+ * Version 3 authenticates every datagram with the rig's key (HMAC-SHA-256, ambp_hmac.h) and binds it to a
+ * session agreed by a HELLO / WELCOME handshake: call ambp_target_set_key after ambp_target_init.
  *
  * A caller's loop, per sample k:
  *     ambp_target_receive()  for each datagram that arrived (from_bridge: its source is the bridge)
@@ -18,16 +21,29 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "ambp_hmac.h"
+
 #ifdef __cplusplus
 extern "C" {
 #endif
 
-#define AMBP_VERSION 2u               /* version 2: any number of axes (1..AMBP_MAX_AXES); version 1: four */
+#define AMBP_VERSION 3u               /* the default: version 3, authenticated; 2: any number of axes, unsealed;
+                                       * 1: four axes */
+#define AMBP_AUTH_VERSION 3u          /* version 3 and later: sealed (sender, session id, tag) */
 #define AMBP_V1_AXES 4u               /* version 1's channel sets carry exactly four axes */
 #define AMBP_MAX_AXES 8u
 #define AMBP_MAX_DATAGRAM 1472u       /* 1500-byte MTU minus IPv4 and UDP headers */
 #define AMBP_HEADER_BYTES 16u
 #define AMBP_OVERHEAD_BYTES 20u       /* header + CRC-32 trailer */
+#define AMBP_HEADER_V3_BYTES 24u      /* version 3: ... sender, reserved, ..., session id */
+#define AMBP_OVERHEAD_V3_BYTES 44u    /* version 3: header + tag + CRC-32 */
+#define AMBP_TAG_BYTES 16u            /* HMAC-SHA-256 truncated to 128 bits */
+#define AMBP_SESSION_BYTES 8u
+#define AMBP_NONCE_BYTES 16u
+#define AMBP_MIN_KEY_BYTES 16u
+#define AMBP_MAX_KEY_BYTES 64u
+#define AMBP_WINDOW 64u               /* sequence numbers per kind remembered below the highest accepted */
+#define AMBP_PROPOSALS 4u             /* sessions proposed (WELCOME sent) and not yet confirmed */
 #define AMBP_BLOCK_HEADER_BYTES 16u
 #define AMBP_NO_INDEX UINT64_MAX
 #define AMBP_MAX_MEAS_SAMPLES 84u     /* one axis at float32: (1472 - 36) / (4 * 4 + 1) */
@@ -36,7 +52,11 @@ extern "C" {
 #define AMBP_ACK_MEMORY 64u           /* command ids remembered, so a repeated command gets its first answer */
 #define AMBP_OUTBOX 8u                /* datagrams waiting for ambp_target_tx */
 
-enum ambp_kind { AMBP_MEASUREMENT = 1, AMBP_EXCITATION = 2, AMBP_HEARTBEAT = 3, AMBP_COMMAND = 4, AMBP_ACK = 5 };
+enum ambp_kind {
+    AMBP_MEASUREMENT = 1, AMBP_EXCITATION = 2, AMBP_HEARTBEAT = 3, AMBP_COMMAND = 4, AMBP_ACK = 5,
+    AMBP_HELLO = 6, AMBP_WELCOME = 7 /* version 3 */
+};
+enum ambp_sender { AMBP_SENDER_BRIDGE = 1, AMBP_SENDER_TARGET = 2 };
 enum ambp_state { AMBP_IDLE = 0, AMBP_RUNNING = 1, AMBP_SAFE = 2, AMBP_DONE = 3 };
 enum ambp_safe_reason { AMBP_SAFE_NONE = 0, AMBP_SAFE_COMMANDED = 1, AMBP_SAFE_BRIDGE_SILENT = 2 };
 enum ambp_command_code { AMBP_CMD_START = 1, AMBP_CMD_STOP = 2, AMBP_CMD_SAFE_STATE = 3, AMBP_CMD_EXPERIMENT = 4 };
@@ -44,10 +64,16 @@ enum ambp_ack_result { AMBP_ACK_OK = 0, AMBP_ACK_REFUSED = 1, AMBP_ACK_BAD_ARGUM
 enum ambp_sample_flag {
     AMBP_FLAG_CLIPPED = 1, AMBP_FLAG_LANDED = 2, AMBP_FLAG_SAFE_STATE = 8, AMBP_FLAG_EXCITATION_LATE = 16
 };
-/* why a datagram was refused (0: accepted), in the protocol's order of checks */
+/* why a datagram was refused (0: accepted); AUTH and the ones after it are version 3's */
 enum ambp_reason {
     AMBP_OK = 0, AMBP_E_OVERSIZED, AMBP_E_LENGTH, AMBP_E_MAGIC, AMBP_E_VERSION, AMBP_E_CRC, AMBP_E_KIND,
-    AMBP_E_CONTENT, AMBP_E_FOREIGN, AMBP_N_REASONS
+    AMBP_E_CONTENT, AMBP_E_FOREIGN,
+    AMBP_E_AUTH,      /* the tag is not the rig key's: forged, or another key */
+    AMBP_E_DIRECTION, /* sealed by this end's own role, or a kind the bridge never sends: reflected */
+    AMBP_E_SESSION,   /* of another session (or a HELLO once the session is agreed) */
+    AMBP_E_REPLAY,    /* a sequence older than the replay window */
+    AMBP_E_DUPLICATE, /* a sequence accepted before */
+    AMBP_N_REASONS
 };
 /* what the caller does with sample k (ambp_target_sample_begin) */
 enum ambp_sample_action {
@@ -79,18 +105,34 @@ typedef struct {
     /* block data, row-major n_samples x channels (4 na MEASUREMENT, na EXCITATION), and sample flags */
     double data[AMBP_MAX_VALUES];
     uint8_t sample_flags[AMBP_MAX_MEAS_SAMPLES];
+    /* version 3: the header's sender (enum ambp_sender) and session id; HELLO and WELCOME's nonces; the
+     * HEARTBEAT's refusals by reason */
+    uint8_t sender;
+    uint8_t session[AMBP_SESSION_BYTES];
+    uint8_t bridge_nonce[AMBP_NONCE_BYTES], target_nonce[AMBP_NONCE_BYTES];
+    uint32_t refused_auth, refused_session, refused_replay, duplicates;
 } ambp_message;
 
 uint32_t ambp_crc32(const uint8_t *data, size_t n);
 
 /* The datagram of m (version in the header) into out[cap]; returns its length, 0 when m is invalid
- * (unknown kind, n_samples 0 or too many, value_bytes not 4 or 8, NaN/Inf data) or cap too small. */
-size_t ambp_encode(const ambp_message *m, uint8_t version, uint8_t *out, size_t cap);
+ * (unknown kind or one the version lacks, n_samples 0 or too many, value_bytes not 4 or 8, NaN/Inf data),
+ * cap too small, or version 3 without a key. Version 3 seals it with key, m->sender and m->session. */
+size_t ambp_encode(const ambp_message *m, uint8_t version, const ambp_hmac_key *key, uint8_t *out, size_t cap);
 
-/* The message in datagram d[n] (checks in the protocol's order); returns AMBP_OK or the reason. */
-int ambp_decode(const uint8_t *d, size_t n, uint8_t version, ambp_message *m);
+/* The message in datagram d[n] (checks in the protocol's order; version 3 checks the tag under key);
+ * returns AMBP_OK or the reason. What depends on the link's state (sender, session, replay window) is the
+ * target's (ambp_target_receive). */
+int ambp_decode(const uint8_t *d, size_t n, uint8_t version, const ambp_hmac_key *key, ambp_message *m);
 
 const char *ambp_reason_name(int reason);
+
+/* the key's fingerprint: 16 hex digits of SHA-256("ambid link key\0" | key) and a NUL; the key never shows */
+void ambp_key_fingerprint(const uint8_t *key, size_t n, char out[17]);
+
+/* the session id both ends derive from the handshake's nonces: HMAC-SHA-256(key, label | nb | nt)[:8] */
+void ambp_session_id(const ambp_hmac_key *key, const uint8_t nb[AMBP_NONCE_BYTES],
+                     const uint8_t nt[AMBP_NONCE_BYTES], uint8_t out[AMBP_SESSION_BYTES]);
 
 /* excitation queue slot: r [A] of the sample `index` (AMBP_NO_INDEX: empty), the first axes values used */
 typedef struct {
@@ -134,6 +176,17 @@ typedef struct {
     /* timing */
     int heard;
     uint64_t last_rx_ns, next_hb_ns, safe_left;
+    /* version 3: the key, the nonces' seed and count, the session proposed and agreed, the replay windows */
+    int keyed, agreed;
+    ambp_hmac_key key;
+    uint8_t nonce_seed[32];
+    uint64_t nonces;
+    uint8_t session[AMBP_SESSION_BYTES], agreed_bridge_nonce[AMBP_NONCE_BYTES];
+    uint8_t prop_used[AMBP_PROPOSALS], prop_session[AMBP_PROPOSALS][AMBP_SESSION_BYTES];
+    uint8_t prop_nb[AMBP_PROPOSALS][AMBP_NONCE_BYTES], prop_nt[AMBP_PROPOSALS][AMBP_NONCE_BYTES];
+    uint32_t prop_next;
+    uint32_t win_top[8];
+    uint64_t win_bits[8];        /* bit i: win_top - i accepted; 0: nothing accepted of that kind yet */
     /* the MEASUREMENT datagram being filled: rows of y, u, ic, r (na each) */
     double rows[AMBP_MAX_VALUES];
     uint8_t row_flags[AMBP_MAX_MEAS_SAMPLES];
@@ -145,18 +198,26 @@ typedef struct {
     ambp_message scratch;        /* decode and encode buffer: nothing large on the caller's stack */
 } ambp_target;
 
-/* Defaults of the protocol document: version 2, float64, heartbeat 50 ms, timeout 0.5 s, and the
+/* Defaults of the protocol document: version AMBP_VERSION, float64, heartbeat 50 ms, timeout 0.5 s, and the
  * largest block of na axes up to 10 samples. */
 void ambp_default_config(ambp_config *cfg, uint32_t sample_rate_hz, uint8_t axes);
 
-/* Most samples one MEASUREMENT datagram of na axes carries at value_bytes 8 or 4 (0: none fits). */
-unsigned ambp_max_block(unsigned axes, unsigned value_bytes);
+/* Most samples one MEASUREMENT datagram of na axes carries at value_bytes 8 or 4 and the version's
+ * overhead (0: none fits). */
+unsigned ambp_max_block(unsigned axes, unsigned value_bytes, unsigned version);
 
 /* Returns 0, or -1 when cfg is invalid (axes out of range or not 4 in version 1, block out of range,
  * value_bytes, rate 0, capacity 0). The queue holds excitation for samples [k, k + capacity): more than
  * the bridge sends ahead. */
 int ambp_target_init(ambp_target *t, const ambp_config *cfg, ambp_exc_slot *storage, uint32_t capacity,
                      uint64_t now_ns);
+
+/* Version 3 (cfg.version 3): the rig's key (AMBP_MIN_KEY_BYTES..AMBP_MAX_KEY_BYTES) and 32 bytes of seed
+ * that differ at every start (e.g. from the OS's random source or a hardware RNG): the target's session
+ * nonces are HMAC(key, label | seed | count), so a seed used twice would let an old session be replayed.
+ * Call after ambp_target_init. Returns 0, or -1 (not version 3, or a key of another length). Until a
+ * session is agreed the target sends nothing but WELCOMEs. */
+int ambp_target_set_key(ambp_target *t, const uint8_t *key, size_t n, const uint8_t seed[32]);
 
 /* One received datagram. from_bridge = 0: another sender, dropped and counted. Returns the reason
  * it was refused, or AMBP_OK. */

@@ -5,7 +5,11 @@
  * rate paced by clock_nanosleep on absolute deadlines, and serves them over UDP to one hardware bridge
  * through the portable protocol core ambp.c. Options mirror python -m ambid.hardware.rt_target.
  *
- *   ambp_udp_target --model FILE --bind HOST:PORT --bridge HOST:PORT [--pace P] [--samples N] ...
+ *   ambp_udp_target --model FILE --bind HOST:PORT --bridge HOST:PORT --key-file KEY [--pace P] [--samples N] ...
+ *
+ * Protocol version 3 (the default) authenticates every datagram with the rig's key (--key-file, a file only
+ * its owner may read; `ambid keygen --out FILE` writes one); version 2 (--protocol-version 2, the bridge
+ * must ask for it too) is unauthenticated, and every start says so on stderr.
  *
  * Prints RT_TARGET_LISTENING host:port, and RT_TARGET_SUMMARY {json} on exit. Exit code 0 after a
  * DONE session, 1 otherwise, 2 for bad options or a bad model file (one line on stderr).
@@ -16,6 +20,7 @@
 
 #include <arpa/inet.h>
 #include <errno.h>
+#include <fcntl.h>
 #include <math.h>
 #include <netdb.h>
 #include <netinet/in.h>
@@ -209,6 +214,80 @@ static void load_model(const char *path, target_model *m) {
     fclose(r.f);
 }
 
+/* ---- the rig's key ------------------------------------------------------------------------------ */
+#define KEYGEN_FIX "write one with 'ambid keygen --out FILE' and give the bridge and the target the same file"
+
+/* The key of a key file only its owner may read: comment lines (#), blank lines, one line of 32 to 128 hex
+ * digits (docs/bridge_protocol.md). Anything else is one line on stderr and exit code 2. */
+static size_t load_key(const char *path, uint8_t key[AMBP_MAX_KEY_BYTES]) {
+    struct stat st;
+    if (stat(path, &st) != 0) {
+        if (errno == ENOENT) die2("key file %s does not exist; " KEYGEN_FIX, path);
+        die2("key file %s: %s; " KEYGEN_FIX, path, strerror(errno));
+    }
+    if (S_ISDIR(st.st_mode)) die2("key file %s is a folder; give the key file's path", path);
+    if (!S_ISREG(st.st_mode)) die2("key file %s is not a regular file; " KEYGEN_FIX, path);
+    if (st.st_mode & 077)
+        die2("key file %s may be read by group or others (mode %04o); a rig's key is secret: run 'chmod 600 %s'",
+             path, (unsigned)(st.st_mode & 07777), path);
+    if (st.st_size == 0) die2("key file %s is empty; " KEYGEN_FIX, path);
+    if (st.st_size > 4096)
+        die2("key file %s has %lld bytes, not a key file (at most 4096); " KEYGEN_FIX, path, (long long)st.st_size);
+    char text[4097];
+    int fd = open(path, O_RDONLY);
+    if (fd < 0) die2("key file %s: %s", path, strerror(errno));
+    ssize_t got = read(fd, text, 4096);
+    close(fd);
+    if (got < 0) die2("key file %s: %s", path, strerror(errno));
+    text[got] = 0;
+    for (ssize_t i = 0; i < got; i++)
+        if (text[i] == 0 || (unsigned char)text[i] > 127) die2("key file %s is not text (binary data); " KEYGEN_FIX, path);
+    size_t n = 0;
+    int lines = 0;
+    for (char *line = text, *next; line && *line; line = next) {
+        next = strchr(line, '\n');
+        if (next) *next++ = 0;
+        char *a = line, *b = line + strlen(line);
+        while (*a == ' ' || *a == '\t' || *a == '\r') a++;
+        while (b > a && (b[-1] == ' ' || b[-1] == '\t' || b[-1] == '\r')) *--b = 0;
+        if (*a == 0 || *a == '#') continue;
+        if (++lines > 1) continue;
+        size_t digits = (size_t)(b - a);
+        for (size_t i = 0; i < digits; i++)
+            if (!strchr("0123456789abcdefABCDEF", a[i]))
+                die2("key file %s: its key line is not an even number of hex digits; " KEYGEN_FIX, path);
+        if (digits % 2) die2("key file %s: its key line is not an even number of hex digits; " KEYGEN_FIX, path);
+        n = digits / 2;
+        if (n < AMBP_MIN_KEY_BYTES || n > AMBP_MAX_KEY_BYTES)
+            die2("key file %s holds a key of %zu bytes, a link key has %u to %u; " KEYGEN_FIX, path, n,
+                 AMBP_MIN_KEY_BYTES, AMBP_MAX_KEY_BYTES);
+        for (size_t i = 0; i < n; i++) {
+            unsigned v;
+            char pair[3] = {a[2 * i], a[2 * i + 1], 0};
+            sscanf(pair, "%2x", &v);
+            key[i] = (uint8_t)v;
+        }
+    }
+    ambp_wipe(text, sizeof text);
+    if (lines == 0) die2("key file %s holds no key (only comments or nothing); " KEYGEN_FIX, path);
+    if (lines > 1)
+        die2("key file %s holds %d lines besides comments, a key file one; " KEYGEN_FIX, path, lines);
+    return n;
+}
+
+/* 32 bytes the OS's random source gives, different at every start: the seed of the target's session nonces */
+static void random_seed(uint8_t seed[32]) {
+    int fd = open("/dev/urandom", O_RDONLY);
+    size_t got = 0;
+    while (fd >= 0 && got < 32) {
+        ssize_t r = read(fd, seed + got, 32 - got);
+        if (r <= 0) break;
+        got += (size_t)r;
+    }
+    if (fd >= 0) close(fd);
+    if (got < 32) die2("cannot read 32 random bytes from /dev/urandom (the session nonces' seed)");
+}
+
 /* ---- noise: splitmix64 + Marsaglia polar, a stream per seed ------------------------------------ */
 static uint64_t rng_state;
 static double spare;
@@ -246,7 +325,7 @@ static void matvec(const double *m, const double *x, double *out, int rows, int 
 
 /* ---- options ----------------------------------------------------------------------------------- */
 typedef struct {
-    const char *model, *bind, *bridge;
+    const char *model, *bind, *bridge, *key_file;
     double pace, heartbeat, bridge_timeout, safe_seconds, linger;
     long long samples, seed;
     int block, float32, hold, version, queue, priority;
@@ -295,10 +374,11 @@ static struct sockaddr_in opt_address(const char *name, const char *text) {
 }
 
 static const char *USAGE =
-    "usage: ambp_udp_target --model FILE --bind HOST:PORT --bridge HOST:PORT [--seed N] [--pace P] [--samples N]\n"
-    "  [--block N] [--float32] [--heartbeat S] [--bridge-timeout S] [--safe-seconds S] [--linger S]\n"
+    "usage: ambp_udp_target --model FILE --bind HOST:PORT --bridge HOST:PORT --key-file KEY [--seed N] [--pace P]\n"
+    "  [--samples N] [--block N] [--float32] [--heartbeat S] [--bridge-timeout S] [--safe-seconds S] [--linger S]\n"
     "  [--hold-for-excitation] [--protocol-version N] [--queue N] [--priority N]\n"
-    "  --pace 1 = real time (clock_nanosleep on absolute deadlines), 0 = free-running, p = 1/p of real time\n";
+    "  --pace 1 = real time (clock_nanosleep on absolute deadlines), 0 = free-running, p = 1/p of real time\n"
+    "  --key-file: the rig's key (protocol version 3); --protocol-version 2 runs unauthenticated, without it\n";
 
 static void parse_options(int argc, char **argv, options *o) {
     memset(o, 0, sizeof *o);
@@ -321,7 +401,7 @@ static void parse_options(int argc, char **argv, options *o) {
             die2("unexpected argument '%s'; options start with --, see --help", a);
         static const char *const with_value[] = {"--model", "--bind", "--bridge", "--seed", "--pace", "--samples",
             "--block", "--heartbeat", "--bridge-timeout", "--safe-seconds", "--linger", "--protocol-version",
-            "--queue", "--priority", NULL};
+            "--queue", "--priority", "--key-file", NULL};
         int known = 0;
         for (int k = 0; with_value[k]; k++) known |= !strcmp(a, with_value[k]);
         if (!known) die2("unknown option '%s'; see --help", a);
@@ -341,12 +421,21 @@ static void parse_options(int argc, char **argv, options *o) {
         else if (!strcmp(a, "--protocol-version")) o->version = (int)opt_int(a, v, 1, 255);
         else if (!strcmp(a, "--queue")) o->queue = (int)opt_int(a, v, 1024, 1 << 24);
         else if (!strcmp(a, "--priority")) o->priority = (int)opt_int(a, v, 1, 99);
+        else if (!strcmp(a, "--key-file")) o->key_file = v;
     }
     if (!o->model) die2("--model FILE is required; write one with './launch_scripts/ambid target-model --out FILE'");
     if (o->hold && o->pace != 0)
         die2("--hold-for-excitation needs --pace 0 (a real-time target cannot wait)");
     if (o->priority && o->pace == 0)
         die2("--priority needs --pace > 0 (a free-running loop at real-time priority would starve the host)");
+    if (o->version >= (int)AMBP_AUTH_VERSION && o->version != (int)AMBP_AUTH_VERSION)
+        die2("--protocol-version %d is not implemented; this build speaks 3, 2 and 1", o->version);
+    if (o->version == (int)AMBP_AUTH_VERSION && !o->key_file)
+        die2("protocol version 3 authenticates every datagram: give --key-file KEY (the rig's key; " KEYGEN_FIX
+             "), or run --protocol-version 2 on both ends for an unauthenticated link");
+    if (o->version < (int)AMBP_AUTH_VERSION && o->key_file)
+        die2("--key-file with --protocol-version %d: that version is unauthenticated; speak version 3 with the key, "
+             "or leave --key-file out", o->version);
 }
 
 /* ---- the program ------------------------------------------------------------------------------- */
@@ -358,12 +447,16 @@ int main(int argc, char **argv) {
     target_model m;
     load_model(o.model, &m);
     const int na = m.axes;
-    int most = (int)ambp_max_block((unsigned)na, o.float32 ? 4u : 8u);
+    int most = (int)ambp_max_block((unsigned)na, o.float32 ? 4u : 8u, (unsigned)o.version);
     if (o.block > most)
         die2("option --block = %d: at most %d samples of %d axes fit one datagram at %s", o.block, most, na,
              o.float32 ? "float32" : "float64");
     if (o.version == 1 && na != (int)AMBP_V1_AXES)
         die2("--protocol-version 1 carries %u axes, the model file has %d; speak version 2", AMBP_V1_AXES, na);
+    uint8_t key[AMBP_MAX_KEY_BYTES];
+    size_t key_len = o.key_file ? load_key(o.key_file, key) : 0;
+    char fingerprint[17] = "";
+    if (key_len) ambp_key_fingerprint(key, key_len, fingerprint);
     if (o.priority) { /* Linux-RT style: locked memory, SCHED_FIFO; the loop sleeps between samples */
         struct sched_param sp;
         memset(&sp, 0, sizeof sp);
@@ -408,6 +501,18 @@ int main(int argc, char **argv) {
 
     uint64_t t_now = now_ns();
     if (ambp_target_init(&t, &cfg, queue, (uint32_t)o.queue, t_now) != 0) die2("invalid protocol configuration");
+    if (key_len) {
+        uint8_t seed[32];
+        random_seed(seed);
+        if (ambp_target_set_key(&t, key, key_len, seed) != 0) die2("the key does not fit protocol version %d", o.version);
+        ambp_wipe(key, sizeof key); /* the core holds the key's HMAC pads only */
+        ambp_wipe(seed, sizeof seed);
+        fprintf(stderr, "ambp_udp_target: protocol version %d, authenticated with the key of fingerprint %s\n",
+                o.version, fingerprint);
+    } else {
+        fprintf(stderr, "ambp_udp_target: the link is unauthenticated (protocol version %d): any host on the rig "
+                "network can command the magnets; use protocol version 3 with --key-file\n", o.version);
+    }
     rng_state = (uint64_t)o.seed;
 
     int np = m.plant.n, nc = m.ctl.n;
@@ -530,8 +635,13 @@ int main(int argc, char **argv) {
     for (int i = 1; i < AMBP_N_REASONS; i++)
         printf("%s\"%s\": %u", i > 1 ? ", " : "", ambp_reason_name(i), t.rx_rejected_by_reason[i]);
     printf("}, \"late_excitation_samples\": %u, \"late_excitation_datagrams\": %u, "
-           "\"excitation_beyond_queue\": %u, \"tx_dropped\": %u, \"seed\": %lld}\n",
-           t.late_excitation, t.excitation_late_datagrams, t.excitation_beyond_queue, t.tx_dropped, o.seed);
+           "\"excitation_beyond_queue\": %u, \"tx_dropped\": %u, \"seed\": %lld, \"protocol_version\": %d, "
+           "\"authenticated\": %s, \"key_fingerprint\": \"%s\", \"session\": \"",
+           t.late_excitation, t.excitation_late_datagrams, t.excitation_beyond_queue, t.tx_dropped, o.seed, o.version,
+           key_len ? "true" : "false", fingerprint);
+    if (key_len && t.agreed)
+        for (unsigned i = 0; i < AMBP_SESSION_BYTES; i++) printf("%02x", t.session[i]);
+    printf("\"}\n");
     fflush(stdout);
     return t.state == AMBP_DONE ? 0 : 1;
 }

@@ -14,6 +14,12 @@ Session (parameter ``session``, docs/sessions.md): the bridge obeys only its ses
 excitation blocks (anyone else's are foreign: counted, named, never forwarded to the target) and stamps
 the id on all it publishes.
 
+Protocol version 3 (``key_file``: the rig's key) authenticates every datagram and binds it to the session
+its handshake agreed (``ambid.hardware.link_session``): forged, replayed and old datagrams are refused and
+counted by reason, with an event each, and the target's own refusals (from its heartbeat) are reported as
+``target_refused``. The key itself is never logged or published, only its fingerprint. Version 2 (asked for
+on both ends) is unauthenticated, which every start says.
+
 Datagrams from any address but ``target_host:target_port`` are dropped and
 counted; malformed ones (magic, version, CRC, length, and ``content``: enum
 fields out of range, indices beyond 2**40, a zero sample rate) are refused and
@@ -42,7 +48,10 @@ import time
 
 import numpy as np
 from ambid.hardware import bridge_protocol as bp
-from ambid.hardware.bridge_link import CommandQueue, ExcitationChunks, FlagRuns, content_error
+from ambid.hardware.bridge_link import (CommandQueue, ExcitationChunks, FlagRuns, content_error, refusals_text,
+                                        target_refusals)
+from ambid.hardware.link_key import read_key_file
+from ambid.hardware.link_session import LinkEnd, link_words, refusal_event
 from ambid.hardware.rt_target import parse_address
 from ambid.plant.analytical import analytical_model
 from ambid.plant.rig import Rig
@@ -71,7 +80,10 @@ class HardwareBridge(Node):
         local_host = declare(self, "local_host", "127.0.0.1", "local address to bind; 0.0.0.0 = all interfaces")
         local_port = declare(self, "local_port", 50002, "local UDP port; 0 = any free port", 0, 65535)
         self.version = declare(self, "protocol_version", bp.PROTOCOL_VERSION,
-                               "bridge protocol version; datagrams of any other are refused", 1, 255)
+                               "bridge protocol version; datagrams of any other are refused (3: authenticated, "
+                               "2: unauthenticated)", 1, 255)
+        key_file = declare(self, "key_file", "", "the rig's key file, mode 0600 (protocol version 3; 'ambid keygen "
+                           "--out FILE'); only its fingerprint is ever shown")
         rig_file = declare(self, "rig_file", "", "YAML rig parameter file describing the rig; empty = the default")
         self.timeout = declare(self, "target_timeout", 0.5, "silence after which the target is declared lost",
                                0.005, 3600.0, "s")
@@ -119,10 +131,21 @@ class HardwareBridge(Node):
         if self.version == 1 and self.na != bp.V1_AXES:
             raise ParameterError(f"hardware_bridge: protocol_version 1 carries {bp.V1_AXES} axes, the rig has "
                                  f"{self.na} ({' '.join(self.layout.axes)}); use protocol_version 2")
+        if (self.version >= bp.AUTHENTICATED_VERSION) != bool(key_file):
+            raise ParameterError(
+                f"hardware_bridge: protocol_version {self.version} authenticates every datagram and needs key_file "
+                "(the rig's key: 'ambid keygen --out FILE', the same file for the target), or set protocol_version 2 "
+                "on bridge and target for an unauthenticated link" if key_file == "" else
+                f"hardware_bridge: key_file with protocol_version {self.version}: that version is unauthenticated; "
+                "speak version 3 with the key, or leave key_file out")
+        try:
+            self.link = LinkEnd(bp.Sender.BRIDGE, self.version, read_key_file(key_file) if key_file else None, self.na)
+        except ValueError as exc:
+            raise ParameterError(f"hardware_bridge: {exc}") from None
         self.measurement_names = bp.block_channels(bp.Kind.MEASUREMENT, self.layout)
         self.measurement_units = tuple(u for sig in ("y", "u", "ic", "r") for u in self.layout.units(sig))
         self.excitation_names = bp.block_channels(bp.Kind.EXCITATION, self.layout)
-        self.chunk = min(self.chunk, bp.max_block_samples(bp.Kind.EXCITATION, 8, self.na))
+        self.chunk = min(self.chunk, bp.max_block_samples(bp.Kind.EXCITATION, 8, self.na, self.version))
 
         self.pub_block = self.identity.publisher(SampleBlock, "measurement", qos.BLOCKS)
         self.pub_desc = self.identity.publisher(PlantDescription, "plant/description", qos.LATCHED)
@@ -135,7 +158,6 @@ class HardwareBridge(Node):
         self.intake.subscribe(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
 
         self.assembler = bp.MeasurementAssembler(self.block_size, window, reorder_timeout)
-        self.seq = {k: 0 for k in bp.Kind}
         self.c = collections.Counter()  # counters for status and summary
         self.malformed = collections.Counter()  # by ProtocolError.reason
         self.hb: bp.Heartbeat | None = None  # newest heartbeat of the target
@@ -150,6 +172,7 @@ class HardwareBridge(Node):
         self.last_clock = 0
         self.state = SessionStatus.STATE_IDLE
         self.throttle: dict[str, list] = {}
+        self.target_refused: dict[str, int] = {}  # the target's refusals by reason, as its heartbeat last said
         self.started_wall = time.perf_counter()
         self.next_hb = self.next_status = 0.0
         self.summary: dict | None = None
@@ -176,6 +199,12 @@ class HardwareBridge(Node):
         self.timer = self.create_timer(TICK_S, self.tick)
         self.get_logger().info(f"bridge {self.local_address[0]}:{self.local_address[1]} <-> target "
                                f"{self.target_addr[0]}:{self.target_addr[1]}, protocol v{self.version}")
+        words = link_words(self.link, "hardware_bridge")
+        if self.link.authenticated:
+            self.get_logger().info(words)
+        else:  # every start says so
+            self.get_logger().warn(words)
+            self.event(SessionEvent.WARN, "unauthenticated_link", words)
 
     # --- set-up and tear-down ---------------------------------------------
     def publish_description(self) -> None:
@@ -208,16 +237,22 @@ class HardwareBridge(Node):
             self.inbox.append((data, addr, time.monotonic()))
 
     def send(self, msg) -> None:
+        """Send a message (its sequence number is the link's next of its kind)."""
+        self.send_datagram(self.link.pack(msg))
+
+    def send_datagram(self, datagram: bytes) -> None:
         try:
-            self.sock.sendto(bp.pack_datagram(msg, self.version), self.target_addr)
+            self.sock.sendto(datagram, self.target_addr)
         except OSError as exc:
             self.c["send_errors"] += 1
             self.event_throttled(SessionEvent.WARN, "send_failed", f"sending to the target failed: {exc}")
 
-    def next_seq(self, kind: bp.Kind) -> int:
-        s = self.seq[kind]
-        self.seq[kind] = (s + 1) % bp.SEQUENCE_MODULO
-        return s
+    def send_heartbeat(self) -> None:
+        self.send(bp.Heartbeat(0, bp.TargetState.RUNNING if self.connected else bp.TargetState.IDLE,
+                               sample_index=self.assembler.next_index or 0, rx_datagrams=self.c["datagrams"],
+                               rx_rejected=self.c["foreign"] + sum(self.malformed.values()), axes=self.na,
+                               refused_auth=self.malformed["auth"], refused_session=self.malformed["session"],
+                               refused_replay=self.malformed["replay"], duplicates=self.c["link_duplicates"]))
 
     # --- the periodic work ------------------------------------------------
     def tick(self) -> None:
@@ -248,10 +283,10 @@ class HardwareBridge(Node):
             self.queue_command(bp.CommandCode.STOP)
         if now >= self.next_hb:
             self.next_hb = now + self.hb_period
-            self.send(bp.Heartbeat(self.next_seq(bp.Kind.HEARTBEAT), bp.TargetState.RUNNING if self.connected
-                                   else bp.TargetState.IDLE, sample_index=self.assembler.next_index or 0,
-                                   rx_datagrams=self.c["datagrams"],
-                                   rx_rejected=self.c["foreign"] + sum(self.malformed.values()), axes=self.na))
+            if not self.link.established:  # version 3: the session is proposed until the target is heard in it
+                self.send_datagram(self.link.hello())
+            if self.link.sending_session is not None:
+                self.send_heartbeat()
         if now >= self.next_status:
             self.next_status = now + 0.5
             self.publish_status()
@@ -264,11 +299,12 @@ class HardwareBridge(Node):
                                  f"{self.target_addr[0]}:{self.target_addr[1]} is accepted")
             return
         try:
-            msg = bp.unpack_datagram(data, self.version, self.na)
+            msg = self.link.receive(data)
         except bp.ProtocolError as exc:
-            self.malformed[exc.reason] += 1
-            self.event_throttled(SessionEvent.WARN if exc.reason != "version" else SessionEvent.ERROR,
-                                 "malformed_datagram", f"refused a datagram from the target ({exc.reason}): {exc}")
+            self.on_refused(exc)
+            return
+        if isinstance(msg, bp.Welcome):  # version 3: confirm the session the target proposed
+            self.send_heartbeat()
             return
         if not isinstance(msg, (bp.Measurement, bp.Heartbeat, bp.Ack)):
             self.malformed["direction"] += 1  # refused, not counted received: nor a sign of a live target
@@ -304,6 +340,16 @@ class HardwareBridge(Node):
         else:
             self.on_ack(msg)
 
+    def on_refused(self, exc: bp.ProtocolError) -> None:
+        """A datagram from the target's address refused: counted by its reason, an event named for it."""
+        if exc.reason == "duplicate":
+            self.c["link_duplicates"] += 1
+        else:
+            self.malformed[exc.reason] += 1
+        severity = SessionEvent.ERROR if exc.reason in ("version", "auth", "session", "replay") else SessionEvent.WARN
+        self.event_throttled(severity, refusal_event(exc.reason),
+                             f"refused a datagram from the target's address ({exc.reason}): {exc}")
+
     def on_heartbeat(self, hb: bp.Heartbeat, t_rx: float) -> None:
         if self.hb_seq is not None:
             d = bp.seq_diff(hb.sequence, self.hb_seq)
@@ -314,6 +360,14 @@ class HardwareBridge(Node):
         self.hb_seq = hb.sequence
         old = self.hb
         self.hb = hb
+        now_refused = target_refusals(hb)
+        grown = {r: n - self.target_refused.get(r, 0) for r, n in now_refused.items()}
+        if any(n > 0 for n in grown.values()):
+            self.target_refused = now_refused
+            self.event(SessionEvent.ERROR if any(grown[r] for r in ("auth", "session", "replay")) else SessionEvent.WARN,
+                       "target_refused", f"the target refused datagrams sent to it as the bridge's since its last "
+                                         f"report: {refusals_text(grown)} (forged or replayed traffic on the rig "
+                                         "network, or duplicates on the way)")
         if not self.connected:
             self.connected = True
             self.state = SessionStatus.STATE_RUNNING
@@ -451,7 +505,7 @@ class HardwareBridge(Node):
         data, again = self.chunks.sent(first, now)
         self.c["excitation_resent"] += again
         self.c["excitation_datagrams"] += 1
-        self.send(bp.Excitation(self.next_seq(bp.Kind.EXCITATION), first, data))
+        self.send(bp.Excitation(0, first, data))
 
     def on_design(self, msg: ExcitationDesign) -> None:
         check_design(msg, self.dt)
@@ -473,7 +527,7 @@ class HardwareBridge(Node):
                        f"{bp.CommandCode(cmd.code).name} not acknowledged after {self.commands.retries} sends")
         for cid, cmd in send:
             self.c["commands_sent"] += 1
-            self.send(bp.Command(self.next_seq(bp.Kind.COMMAND), cid, cmd.code, *cmd.args))
+            self.send(bp.Command(0, cid, cmd.code, *cmd.args))
 
     # --- reporting --------------------------------------------------------
     def on_reject(self, topic: str, why: str) -> None:
@@ -513,7 +567,8 @@ class HardwareBridge(Node):
             "blocks": self.c["blocks"], "wall_s": wall,
             "datagrams_received": self.c["datagrams"], "datagrams_foreign": self.c["foreign"],
             "datagrams_malformed": sum(self.malformed.values()), "malformed_by_reason": dict(self.malformed),
-            "measurement_datagrams": self.c["measurement_datagrams"], "duplicates": a.duplicates,
+            "measurement_datagrams": self.c["measurement_datagrams"],
+            "duplicates": a.duplicates + self.c["link_duplicates"],
             "reordered": a.reordered, "late": a.late, "gaps": a.gaps, "missing_samples": a.missing_samples,
             "lost_measurement_datagrams": a.lost_datagrams, "heartbeats_lost": self.c["heartbeats_lost"],
             "silent_episodes": self.c["silent_episodes"], "silence_detected_after_s": self.silence_latency,
@@ -522,13 +577,17 @@ class HardwareBridge(Node):
             "messages_rejected": self.intake.total_rejected, **self.intake.figures(),
             "target_late_excitation_samples": hb.late_excitation_samples if hb else 0,
             "target_rx_rejected": hb.rx_rejected if hb else 0, "target_overruns": hb.overruns if hb else 0,
+            "protocol_version": self.version, "authenticated": self.link.authenticated,
+            "key_fingerprint": self.link.fingerprint(), "session": (self.link.session or b"").hex(),
+            "target_refused_by_reason": dict(self.target_refused),
         }
 
     def publish_status(self) -> None:
         f = self.figures()
         text = (f"target {f['target_state']}{' SILENT' if self.silent else ''} at sample {f['target_sample_index']}, "
                 f"published {f['samples_published']}, lost {f['missing_samples']} samples in {f['gaps']} gaps, "
-                f"malformed {f['datagrams_malformed']}, foreign {f['datagrams_foreign']}")
+                f"malformed {f['datagrams_malformed']}, foreign {f['datagrams_foreign']}"
+                + ("" if self.link.authenticated else ", UNAUTHENTICATED link"))
         self.pub_status.publish(status_msg(
             time_msg(f["samples"] * self.dt), self.get_fully_qualified_name(), self.state, f["samples"], -1.0,
             self.intake.total_received + self.c["datagrams"] + f["datagrams_malformed"] + f["datagrams_foreign"],

@@ -32,7 +32,7 @@ from ambid.control.kinds import ControllerDesign, checked_design
 from ambid.excitation import ExcitationDesign
 from ambid.excitation.spec import DesignSpec
 from ambid.frf.offline import data_channels
-from ambid.hardware.bridge_protocol import CommandCode
+from ambid.hardware.bridge_protocol import PROTOCOL_VERSION, CommandCode
 from ambid.identification.result import Identification
 from ambid.jsonable import JsonRecord, json_field
 from ambid.plant.rig import Rig, load_rig, make_rig
@@ -68,6 +68,8 @@ class SessionConfig:
     progress: bool = True
     hardware: str = ""      # HOST:PORT of a real-time target: hardware_bridge replaces plant_sim and the controller
     local_port: int = 0     # with hardware: the bridge's UDP port (0: any)
+    key_file: str = ""      # with hardware: the rig's key file (protocol version 3)
+    protocol_version: int = PROTOCOL_VERSION  # with hardware: 3 authenticated, 2 unauthenticated
     true_model: str = ""    # with hardware: the C target's model file, the truth the FRF is compared with
     session: int = 0        # the session's id (docs/sessions.md); 0: open nodes
     processes: bool = False  # every node its own process, supervised
@@ -242,7 +244,7 @@ def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None,
             host, port = parse_address(cfg.hardware)
             plant = add(HardwareBridge(**ns, rig=plan.rig, parameter_overrides=params({
                 "target_host": host, "target_port": port, "local_port": cfg.local_port, "autostart": False,
-                **rig_param, **session})))
+                "key_file": cfg.key_file, "protocol_version": cfg.protocol_version, **rig_param, **session})))
             # the target must answer before anything is written: a wrong address leaves no recording behind
             spin_until(lambda: plant.connected, 15, f"the real-time target at {cfg.hardware} (is it running and "
                                                     "sending to this bridge's port?); nothing was recorded")

@@ -66,6 +66,7 @@ def run_session_processes(cfg: SessionConfig, plan: SessionPlan | None = None, r
                 host, port = parse_address(cfg.hardware)
                 sup.start(plant_name, {"target_host": host, "target_port": port, "local_port": cfg.local_port,
                                        "autostart": False, "start_with_experiment": True, "stop_after_samples": total,
+                                       "key_file": cfg.key_file, "protocol_version": cfg.protocol_version,
                                        **rig_param, **session}, finishes=True)
             else:
                 sup.start(plant_name, {"sim_seconds": total / fs, "seed": cfg.seed,

@@ -156,14 +156,18 @@ $(grep -iE 'error|failed' "$log" | tail -n 12)"
 }
 
 ambid_build_target_c() {
-    # the C reference target (docs/target_c.md): the UDP example program and the protocol core as a
-    # shared library (the golden-datagram tests load it with ctypes); strict C99, warnings are errors
+    # the C reference target (docs/target_c.md): the UDP example program, the protocol's cost per datagram
+    # (ambp_bench, for 'ambid bench') and the protocol core as a shared library (the golden-datagram tests
+    # load it with ctypes); strict C99, warnings are errors
     local src="$AMBID_ROOT/ambid_core/target_c" out="$AMBID_WS/install/target_c" log="$AMBID_WS/target_c-build.log"
     local -a flags=(-std=c99 -O2 -Wall -Wextra -Wpedantic -Werror)
     command -v "${CC:-gcc}" >/dev/null 2>&1 || ambid_die "no C compiler (${CC:-gcc}) found; install gcc (e.g. 'apt-get install gcc'), then run './launch_scripts/ambid setup' again."
     mkdir -p "$out"
-    if ! { "${CC:-gcc}" "${flags[@]}" -o "$out/ambp_udp_target" "$src/ambp.c" "$src/ambp_udp_target.c" -lm &&
-        "${CC:-gcc}" "${flags[@]}" -fPIC -shared -o "$out/libambp.so" "$src/ambp.c" -lm; } >"$log" 2>&1; then
+    if ! { "${CC:-gcc}" "${flags[@]}" -o "$out/ambp_udp_target" "$src/ambp.c" "$src/ambp_hmac.c" \
+            "$src/ambp_udp_target.c" -lm &&
+        "${CC:-gcc}" "${flags[@]}" -o "$out/ambp_bench" "$src/ambp.c" "$src/ambp_hmac.c" "$src/ambp_bench.c" -lm &&
+        "${CC:-gcc}" "${flags[@]}" -fPIC -shared -o "$out/libambp.so" "$src/ambp.c" "$src/ambp_hmac.c" -lm; } \
+        >"$log" 2>&1; then
         rm -rf "$out"
         ambid_die "the C reference target did not compile (last lines below; full log $log). Fix the source named there, then run './launch_scripts/ambid setup' again.
 $(tail -n 12 "$log")"

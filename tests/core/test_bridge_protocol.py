@@ -11,7 +11,19 @@ import zlib
 import numpy as np
 import pytest
 from ambid.hardware import bridge_protocol as bp
+from ambid.hardware.link_key import LinkKey
 from ambid.hardware.rt_target import ExcitationBuffer, FaultInjector, Target, TargetConfig
+
+V2 = 2  # this module: the framing of versions 1 and 2 and the target's mechanics over them; version 3's sealed
+        # framing and sessions are test_target_c_codec.py's and test_link_drills.py's
+
+
+def pack(msg, version: int = V2, value_bytes: int = 8) -> bytes:
+    return bp.pack_datagram(msg, version, value_bytes)
+
+
+def unpack(d: bytes, version: int = V2, n_axes: int | None = None):
+    return bp.unpack_datagram(d, version, n_axes)
 
 
 def _measurement(seq=7, first=1234, n=10, seed=0):
@@ -44,38 +56,38 @@ def _same(a, b) -> bool:
 
 @pytest.mark.parametrize("msg", ALL_MESSAGES, ids=lambda m: type(m).__name__)
 def test_round_trip_every_kind(msg):
-    d = bp.pack_datagram(msg)
-    assert d[:4] == b"AMBP" and d[4] == bp.PROTOCOL_VERSION
+    d = pack(msg)
+    assert d[:4] == b"AMBP" and d[4] == V2
     assert len(d) <= bp.MAX_DATAGRAM_BYTES
     # the trailer is the IEEE CRC-32 of everything before it
     assert struct.unpack("<I", d[-4:])[0] == zlib.crc32(d[:-4])
-    assert _same(bp.unpack_datagram(d), msg)
+    assert _same(unpack(d), msg)
 
 
 def test_measurement_layout_and_float32():
     m = _measurement(n=10)
-    d = bp.pack_datagram(m)
+    d = pack(m)
     # 16 header + 16 block header + 10 x 16 float64 + 10 flags + 4 CRC
     assert len(d) == 16 + 16 + 1280 + 10 + 4 == 1326
     first, n, n_ch, axes, value_bytes, _ = struct.unpack_from("<QHHHBB", d, 16)
     assert (first, n, n_ch, axes, value_bytes) == (1234, 10, 16, 4, 8)   # version 2: the axes field
-    assert struct.unpack_from("<QHHHBB", bp.pack_datagram(m, version=1), 16)[3] == 1   # version 1: channel set 1
+    assert struct.unpack_from("<QHHHBB", pack(m, version=1), 16)[3] == 1   # version 1: channel set 1
     assert np.array_equal(np.frombuffer(d, "<f8", 160, 32).reshape(10, 16), m.data)
-    d32 = bp.pack_datagram(m, value_bytes=4)
+    d32 = pack(m, value_bytes=4)
     assert len(d32) == 16 + 16 + 640 + 10 + 4
-    back = bp.unpack_datagram(d32)
+    back = unpack(d32)
     assert back.data.dtype == np.float64
     assert np.array_equal(back.data, m.data.astype(np.float32).astype(float))
 
 
 def test_every_single_bit_error_is_refused_with_its_reason():
-    d = bp.pack_datagram(ALL_MESSAGES[2])
+    d = pack(ALL_MESSAGES[2])
     reasons = set()
     for bit in range(len(d) * 8):
         bad = bytearray(d)
         bad[bit // 8] ^= 1 << (bit % 8)
         with pytest.raises(bp.ProtocolError) as info:
-            bp.unpack_datagram(bytes(bad))
+            unpack(bytes(bad))
         expected = "magic" if bit < 32 else "version" if bit < 40 else "crc"
         assert info.value.reason == expected, bit
         reasons.add(info.value.reason)
@@ -83,53 +95,54 @@ def test_every_single_bit_error_is_refused_with_its_reason():
 
 
 def test_wrong_version_and_magic_are_refused():
-    d = bp.pack_datagram(ALL_MESSAGES[3], version=1)
+    d = pack(ALL_MESSAGES[3], version=1)
     with pytest.raises(bp.ProtocolError, match="protocol version 1, this end speaks version 2") as info:
-        bp.unpack_datagram(d)
+        unpack(d)
     assert info.value.reason == "version"
-    assert _same(bp.unpack_datagram(d, version=1), ALL_MESSAGES[3])
+    assert _same(unpack(d, version=1), ALL_MESSAGES[3])
     with pytest.raises(bp.ProtocolError, match="protocol version 3, this end speaks version 2"):
-        bp.unpack_datagram(bp.pack_datagram(ALL_MESSAGES[3], version=3))
-    body = b"XXXX" + bp.pack_datagram(ALL_MESSAGES[3])[4:-4]
+        unpack(bp.pack_datagram(ALL_MESSAGES[3], version=3,
+                                            seal=bp.Seal(LinkKey(bytes(32)), bp.Sender.BRIDGE, bytes(8))))
+    body = b"XXXX" + pack(ALL_MESSAGES[3])[4:-4]
     with pytest.raises(bp.ProtocolError) as info:
-        bp.unpack_datagram(body + struct.pack("<I", zlib.crc32(body)))
+        unpack(body + struct.pack("<I", zlib.crc32(body)))
     assert info.value.reason == "magic"
 
 
 def test_every_truncation_is_refused():
-    d = bp.pack_datagram(_measurement(n=3))
+    d = pack(_measurement(n=3))
     for size in range(len(d)):
         with pytest.raises(bp.ProtocolError) as info:
-            bp.unpack_datagram(d[:size])
+            unpack(d[:size])
         assert info.value.reason in ({"length"} if size < 20 else {"crc", "version", "magic"}), size
 
 
 def _reframe(payload: bytes, kind: bp.Kind, payload_len: int | None = None) -> bytes:
     """A datagram with a valid CRC around an arbitrary payload (what a buggy sender might produce)."""
-    head = bp.HEADER.pack(bp.MAGIC, bp.PROTOCOL_VERSION, kind, 0, 0, len(payload) if payload_len is None else
+    head = bp.HEADER.pack(bp.MAGIC, V2, kind, 0, 0, len(payload) if payload_len is None else
                           payload_len, 0)
     return head + payload + struct.pack("<I", zlib.crc32(head + payload))
 
 
 def test_consistent_but_invalid_content_is_refused():
-    good = bp.pack_datagram(_measurement(n=2))
+    good = pack(_measurement(n=2))
     payload = good[16:-4]
     with pytest.raises(bp.ProtocolError) as info:  # header length disagrees with the datagram
-        bp.unpack_datagram(_reframe(payload, bp.Kind.MEASUREMENT, len(payload) + 1))
+        unpack(_reframe(payload, bp.Kind.MEASUREMENT, len(payload) + 1))
     assert info.value.reason == "length"
     with pytest.raises(bp.ProtocolError) as info:  # one flag byte missing
-        bp.unpack_datagram(_reframe(payload[:-1], bp.Kind.MEASUREMENT))
+        unpack(_reframe(payload[:-1], bp.Kind.MEASUREMENT))
     assert info.value.reason == "length"
     nan = bytearray(payload)
     nan[16:24] = struct.pack("<d", float("nan"))
     with pytest.raises(bp.ProtocolError, match="NaN") as info:
-        bp.unpack_datagram(_reframe(bytes(nan), bp.Kind.MEASUREMENT))
+        unpack(_reframe(bytes(nan), bp.Kind.MEASUREMENT))
     assert info.value.reason == "content"
     with pytest.raises(bp.ProtocolError) as info:  # a measurement payload labelled EXCITATION
-        bp.unpack_datagram(_reframe(payload, bp.Kind.EXCITATION))
+        unpack(_reframe(payload, bp.Kind.EXCITATION))
     assert info.value.reason == "content"
     with pytest.raises(bp.ProtocolError) as info:
-        bp.unpack_datagram(_reframe(payload, 9))
+        unpack(_reframe(payload, 9))
     assert info.value.reason == "kind"
 
 
@@ -137,19 +150,20 @@ def test_consistent_but_invalid_content_is_refused():
 def test_version_2_carries_any_number_of_axes(n_axes):
     """Channels are data on the wire: a block says its axes; y, u, ic, r of each (measurement), r (excitation)."""
     rng = np.random.default_rng(n_axes)
-    n = bp.max_block_samples(bp.Kind.MEASUREMENT, 8, n_axes)
+    n = bp.max_block_samples(bp.Kind.MEASUREMENT, 8, n_axes, V2)
     assert n == (1472 - 36) // (32 * n_axes + 1)
+    assert bp.max_block_samples(bp.Kind.MEASUREMENT, 8, n_axes, 3) == (1472 - 60) // (32 * n_axes + 1)  # sealed
     m = bp.Measurement(5, 77, rng.standard_normal((n, 4 * n_axes)), rng.integers(0, 32, n).astype(np.uint8))
-    e = bp.Excitation(6, 80, rng.standard_normal((bp.max_block_samples(bp.Kind.EXCITATION, 8, n_axes), n_axes)))
+    e = bp.Excitation(6, 80, rng.standard_normal((bp.max_block_samples(bp.Kind.EXCITATION, 8, n_axes, V2), n_axes)))
     h = bp.Heartbeat(1, bp.TargetState.RUNNING, axes=n_axes)
     for msg in (m, e, h):
-        d = bp.pack_datagram(msg)
-        assert len(d) <= bp.MAX_DATAGRAM_BYTES and _same(bp.unpack_datagram(d, n_axes=n_axes), msg)
-    assert struct.unpack_from("<QHHHBB", bp.pack_datagram(m), 16)[2:4] == (4 * n_axes, n_axes)
-    assert bp.pack_datagram(h)[16 + 3] == n_axes           # heartbeat byte 3: the sender's axes
+        d = pack(msg)
+        assert len(d) <= bp.MAX_DATAGRAM_BYTES and _same(unpack(d, n_axes=n_axes), msg)
+    assert struct.unpack_from("<QHHHBB", pack(m), 16)[2:4] == (4 * n_axes, n_axes)
+    assert pack(h)[16 + 3] == n_axes           # heartbeat byte 3: the sender's axes
     # the other end runs another rig: refused by content, naming both
     with pytest.raises(bp.ProtocolError, match=f"of {n_axes} axes, this end runs 3") as info:
-        bp.unpack_datagram(bp.pack_datagram(m), n_axes=3)
+        unpack(pack(m), n_axes=3)
     assert info.value.reason == "content"
     assert bp.block_channels(bp.Kind.EXCITATION, __import__("ambid.channels").channels.FIVE_AXIS)[-1] == "r_z"
 
@@ -157,40 +171,41 @@ def test_version_2_carries_any_number_of_axes(n_axes):
 def test_version_1_is_the_four_radial_axes():
     m5 = bp.Measurement(1, 0, np.zeros((2, 20)), np.zeros(2, np.uint8))
     with pytest.raises(ValueError, match="version 1 must have shape"):
-        bp.pack_datagram(m5, version=1)
-    assert _same(bp.unpack_datagram(bp.pack_datagram(m5)), m5)     # version 2 carries it
-    hb = bp.pack_datagram(bp.Heartbeat(1, bp.TargetState.IDLE, axes=4), version=1)
-    assert hb[16 + 3] == 0 and bp.unpack_datagram(hb, version=1).axes == 0   # reserved in version 1
+        pack(m5, version=1)
+    assert _same(unpack(pack(m5)), m5)     # version 2 carries it
+    hb = pack(bp.Heartbeat(1, bp.TargetState.IDLE, axes=4), version=1)
+    assert hb[16 + 3] == 0 and unpack(hb, version=1).axes == 0   # reserved in version 1
     with pytest.raises(ValueError, match="1 to 8 axes"):
-        bp.pack_datagram(bp.Excitation(1, 0, np.zeros((2, 9))))
+        pack(bp.Excitation(1, 0, np.zeros((2, 9))))
 
 
 def test_oversized_datagrams():
-    n_max = bp.max_block_samples(bp.Kind.MEASUREMENT)   # of four axes
+    n_max = bp.max_block_samples(bp.Kind.MEASUREMENT, version=V2)   # of four axes
     assert n_max == (1472 - 20 - 16) // 129 == 11
-    assert len(bp.pack_datagram(_measurement(n=n_max))) <= bp.MAX_DATAGRAM_BYTES
+    assert bp.max_block_samples(bp.Kind.MEASUREMENT) == (1472 - 44 - 16) // 129 == 10  # version 3: sealed
+    assert len(pack(_measurement(n=n_max))) <= bp.MAX_DATAGRAM_BYTES
     with pytest.raises(ValueError, match="exceeds 1472 bytes"):
-        bp.pack_datagram(_measurement(n=n_max + 1))
-    assert len(bp.pack_datagram(_measurement(n=22), value_bytes=4)) <= 1472  # float32 carries twice as many
-    assert bp.max_block_samples(bp.Kind.EXCITATION) == (1472 - 36) // 32 == 44
+        pack(_measurement(n=n_max + 1))
+    assert len(pack(_measurement(n=22), value_bytes=4)) <= 1472  # float32 carries twice as many
+    assert bp.max_block_samples(bp.Kind.EXCITATION) == bp.max_block_samples(bp.Kind.EXCITATION, 8, 4, V2) == 44
     with pytest.raises(bp.ProtocolError) as info:
-        bp.unpack_datagram(bp.pack_datagram(_measurement(n=5)) + bytes(1472))
+        unpack(pack(_measurement(n=5)) + bytes(1472))
     assert info.value.reason == "oversized"
 
 
 def test_pack_refuses_bad_fields():
     with pytest.raises(ValueError, match="NaN"):
-        bp.pack_datagram(bp.Excitation(0, 0, np.full((2, 4), np.nan)))
+        pack(bp.Excitation(0, 0, np.full((2, 4), np.nan)))
     with pytest.raises(ValueError, match=r"shape \(n >= 1, 4\)"):   # version 1: four axes
-        bp.pack_datagram(bp.Excitation(0, 0, np.zeros((2, 3))), version=1)
+        pack(bp.Excitation(0, 0, np.zeros((2, 3))), version=1)
     with pytest.raises(ValueError, match=r"shape \(n >= 1, 4 x axes"):   # a measurement row is 4 per axis
-        bp.pack_datagram(bp.Measurement(0, 0, np.zeros((2, 7)), np.zeros(2)))
+        pack(bp.Measurement(0, 0, np.zeros((2, 7)), np.zeros(2)))
     with pytest.raises(ValueError, match="sequence"):
-        bp.pack_datagram(bp.Heartbeat(2**32, 0))
+        pack(bp.Heartbeat(2**32, 0))
     with pytest.raises(ValueError, match="first_index"):
-        bp.pack_datagram(bp.Excitation(0, -1, np.zeros((2, 4))))
+        pack(bp.Excitation(0, -1, np.zeros((2, 4))))
     with pytest.raises(ValueError, match="sample_flags"):
-        bp.pack_datagram(bp.Measurement(0, 0, np.zeros((2, 16)), np.zeros(3)))
+        pack(bp.Measurement(0, 0, np.zeros((2, 16)), np.zeros(3)))
 
 
 def test_seq_diff_wraps():
@@ -326,7 +341,8 @@ def test_assembler_start_drops_earlier_datagrams():
 # --- the simulated target's parts ---------------------------------------------
 
 def test_fault_injector_rates_and_accounting():
-    cfg = TargetConfig(drop=0.1, corrupt=0.05, duplicate=0.05, reorder=0.1, reorder_depth=2, fault_seed=3)
+    cfg = TargetConfig(drop=0.1, corrupt=0.05, duplicate=0.05, reorder=0.1, reorder_depth=2, fault_seed=3,
+                       protocol_version=V2)
     inj = FaultInjector(cfg, bp.Kind.MEASUREMENT)
     sent = [bytes(x) for x in np.random.default_rng(0).integers(0, 256, (4000, 44), dtype=np.uint8)]
     wire = [d for x in sent for d in inj.submit(x, 10)] + inj.flush()
@@ -403,7 +419,7 @@ class FakeBridge:
         self.last_heartbeat = 0.0
 
     def send(self, msg, to):
-        self.sock.sendto(bp.pack_datagram(msg), to)
+        self.sock.sendto(pack(msg), to)
 
     def command(self, to, cid, code, *args):
         self.send(bp.Command(self.seq, cid, code, *args), to)
@@ -417,7 +433,7 @@ class FakeBridge:
                 self.send(bp.Heartbeat(0, 0), heartbeat_to)
                 self.last_heartbeat = time.monotonic()
             try:
-                self.got.append(bp.unpack_datagram(self.sock.recv(2048)))
+                self.got.append(unpack(self.sock.recv(2048)))
             except TimeoutError:
                 pass
 
@@ -431,7 +447,7 @@ def target_session():
 
     def start(**kw):
         bridge = FakeBridge()
-        cfg = TargetConfig(bind="127.0.0.1:0", bridge=f"127.0.0.1:{bridge.addr[1]}", **kw)
+        cfg = TargetConfig(bind="127.0.0.1:0", bridge=f"127.0.0.1:{bridge.addr[1]}", **{"protocol_version": V2, **kw})
         tg = Target(cfg)
         th = threading.Thread(target=tg.run, daemon=True)
         th.start()
@@ -455,7 +471,7 @@ def test_target_serves_plant_sim_rows_with_excitation_at_its_index(target_sessio
     to = tg.address
     foreign = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     foreign.bind(("127.0.0.1", 0))
-    foreign.sendto(bp.pack_datagram(bp.Command(0, 1, bp.CommandCode.START)), to)  # not the bridge: ignored
+    foreign.sendto(pack(bp.Command(0, 1, bp.CommandCode.START)), to)  # not the bridge: ignored
     bridge.pump(lambda: tg.rx_foreign == 1)
     foreign.close()
     assert tg.state == bp.TargetState.IDLE and tg.k == 0

@@ -183,12 +183,23 @@ RANGE_REFUSALS = [  # values argparse cannot judge alone: the command's one line
     (["target-model", "--out", "{dir}/no_such_folder/m.txt"], "--out"),
     (["identify", "--hardware", "127.0.0.1:9", "--controller", "lqg"], "--controller with --hardware"),
     (["graph", "--hardware", "127.0.0.1:9", "--controller", "lqg"], "--controller with --hardware"),
+    (["identify", "--hardware", "127.0.0.1:9"], "--hardware needs --key-file"),
+    (["graph", "--hardware", "127.0.0.1:9"], "--hardware needs --key-file"),
+    (["identify", "--key-file", "{dir}/rig.key"], "--key-file without --hardware"),
+    (["graph", "--hardware", "127.0.0.1:9", "--key-file", "{dir}/no.key"], "no.key does not exist"),
+    (["identify", "--hardware", "127.0.0.1:9", "--key-file", "{random}"], "may be read by group or others"),
+    (["graph", "--hardware", "127.0.0.1:9", "--key-file", "{dir}"], "is a folder"),
+    (["identify", "--hardware", "127.0.0.1:9", "--protocol-version", "2", "--key-file", "{random}"],
+     "--key-file with --protocol-version 2"),
+    (["keygen", "--out", "{good}"], "exists"),
+    (["keygen", "--out", "{dir}/no_such_folder/rig.key"], "cannot write the key file"),
 ]
 
 
 @pytest.mark.parametrize("argv, names", RANGE_REFUSALS, ids=[" ".join(a[:2]) for a, _ in RANGE_REFUSALS])
 def test_impossible_values_get_one_line(files, argv, names, capsys):
     (files["dir"] / "cut_model.txt").write_text("ambid_target_model 1\ndt 0.0001\ncurrent_limit 3\n")
+    os.chmod(files["random"], 0o644)  # as a file is written with the usual umask: others may read it
     argv = [a.format(good=files["good"], dir=files["dir"], random=files["random"]) for a in argv]
     code, out = _run(argv, capsys)
     assert code == 2

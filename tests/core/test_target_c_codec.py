@@ -12,10 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from ambid.hardware import bridge_protocol as bp
+from ambid.hardware.link_key import LinkKey, key_fingerprint
 
 ROOT = Path(__file__).resolve().parents[2]
+V2 = 2  # the golden and malformed datagrams of version 2 (and 1) first; version 3's sealed ones below
 LIB = ROOT / "ros_ws" / "install" / "target_c" / "libambp.so"
-REASONS = ["ok", "oversized", "length", "magic", "version", "crc", "kind", "content", "foreign"]
+REASONS = ["ok", "oversized", "length", "magic", "version", "crc", "kind", "content", "foreign", "auth", "direction",
+           "session", "replay", "duplicate"]
 
 
 class Message(ctypes.Structure):
@@ -33,7 +36,17 @@ class Message(ctypes.Structure):
                 ("command_id", ctypes.c_uint32), ("code", ctypes.c_uint8), ("result", ctypes.c_uint8),
                 ("reserved1", ctypes.c_uint8), ("reserved2", ctypes.c_uint8), ("arg0", ctypes.c_uint64),
                 ("arg1", ctypes.c_uint64), ("arg2", ctypes.c_uint32), ("reserved3", ctypes.c_uint32),
-                ("data", ctypes.c_double * 359), ("sample_flags", ctypes.c_uint8 * 84)]
+                ("data", ctypes.c_double * 359), ("sample_flags", ctypes.c_uint8 * 84),
+                ("sender", ctypes.c_uint8), ("session", ctypes.c_uint8 * 8), ("bridge_nonce", ctypes.c_uint8 * 16),
+                ("target_nonce", ctypes.c_uint8 * 16), ("refused_auth", ctypes.c_uint32),
+                ("refused_session", ctypes.c_uint32), ("refused_replay", ctypes.c_uint32),
+                ("duplicates", ctypes.c_uint32)]
+
+
+class HmacKey(ctypes.Structure):
+    """ambp_hmac_key of ambp_hmac.h: two SHA-256 states."""
+
+    _fields_ = [("state", ctypes.c_uint64 * 28)]
 
 
 @pytest.fixture(scope="module")
@@ -41,23 +54,44 @@ def lib():
     assert LIB.is_file(), f"{LIB} is missing: run './launch_scripts/ambid setup' (it compiles the C target)"
     so = ctypes.CDLL(str(LIB))
     so.ambp_encode.restype = ctypes.c_size_t
-    so.ambp_encode.argtypes = [ctypes.POINTER(Message), ctypes.c_uint8, ctypes.c_char_p, ctypes.c_size_t]
+    so.ambp_encode.argtypes = [ctypes.POINTER(Message), ctypes.c_uint8, ctypes.POINTER(HmacKey), ctypes.c_char_p,
+                               ctypes.c_size_t]
     so.ambp_decode.restype = ctypes.c_int
-    so.ambp_decode.argtypes = [ctypes.c_char_p, ctypes.c_size_t, ctypes.c_uint8, ctypes.POINTER(Message)]
+    so.ambp_decode.argtypes = [ctypes.c_char_p, ctypes.c_size_t, ctypes.c_uint8, ctypes.POINTER(HmacKey),
+                               ctypes.POINTER(Message)]
+    so.ambp_hmac_key_init.argtypes = [ctypes.POINTER(HmacKey), ctypes.c_char_p, ctypes.c_size_t]
     so.ambp_crc32.restype = ctypes.c_uint32
     so.ambp_crc32.argtypes = [ctypes.c_char_p, ctypes.c_size_t]
     return so
 
 
-def c_encode(lib, m: Message, version: int = bp.PROTOCOL_VERSION) -> bytes:
+def pack(msg, version: int = V2, value_bytes: int = 8) -> bytes:
+    return bp.pack_datagram(msg, version, value_bytes)
+
+
+def unpack(d: bytes, version: int = V2):
+    return bp.unpack_datagram(d, version)
+
+
+def c_key(lib, secret: bytes | None) -> HmacKey | None:
+    """The C key of a secret (None: no key)."""
+    if secret is None:
+        return None
+    k = HmacKey()
+    lib.ambp_hmac_key_init(ctypes.byref(k), secret, len(secret))
+    return k
+
+
+def c_encode(lib, m: Message, version: int = V2, key: HmacKey | None = None) -> bytes:
     buf = ctypes.create_string_buffer(2048)
-    n = lib.ambp_encode(ctypes.byref(m), version, buf, len(buf))
+    n = lib.ambp_encode(ctypes.byref(m), version, None if key is None else ctypes.byref(key), buf, len(buf))
     return buf.raw[:n]
 
 
-def c_decode(lib, d: bytes, version: int = bp.PROTOCOL_VERSION) -> tuple[str, Message]:
+def c_decode(lib, d: bytes, version: int = V2, key: HmacKey | None = None) -> tuple[str, Message]:
     m = Message()
-    return REASONS[lib.ambp_decode(d, len(d), version, ctypes.byref(m))], m
+    return REASONS[lib.ambp_decode(d, len(d), version, None if key is None else ctypes.byref(key),
+                                   ctypes.byref(m))], m
 
 
 def to_c(msg, value_bytes: int = 8) -> Message:
@@ -133,22 +167,22 @@ def _golden():
 @pytest.mark.parametrize("msg,value_bytes", _golden(), ids=lambda x: type(x).__name__ if not isinstance(x, int)
                          else f"f{8 * x}")
 def test_golden_datagrams_are_byte_identical_both_ways(lib, msg, value_bytes):
-    py = bp.pack_datagram(msg, value_bytes=value_bytes)
+    py = pack(msg, value_bytes=value_bytes)
     c = c_encode(lib, to_c(msg, value_bytes))
     assert c == py  # C encodes the fields to Python's bytes
     reason, m = c_decode(lib, py)  # C decodes Python's bytes to the same fields ...
     assert reason == "ok"
     back = from_c(m)
-    expect = bp.unpack_datagram(py)  # (float32 values compared after Python's own rounding)
+    expect = unpack(py)  # (float32 values compared after Python's own rounding)
     for name in expect.__dataclass_fields__:
         a, b = getattr(back, name), getattr(expect, name)
         assert (np.array_equal(a, b) if isinstance(b, np.ndarray) else a == b), name
     assert c_encode(lib, m) == py  # ... and re-encodes them to the same bytes
-    assert bp.unpack_datagram(c_encode(lib, m)) is not None
+    assert unpack(c_encode(lib, m)) is not None
     assert lib.ambp_crc32(py[:-4], len(py) - 4) == zlib.crc32(py[:-4])
 
 
-def _reframe(payload: bytes, kind: int, payload_len: int | None = None, version: int = bp.PROTOCOL_VERSION,
+def _reframe(payload: bytes, kind: int, payload_len: int | None = None, version: int = V2,
              magic=b"AMBP") -> bytes:
     head = struct.pack("<4sBBHIHH", magic, version, kind, 0, 0, len(payload) if payload_len is None else payload_len,
                        0)
@@ -164,10 +198,10 @@ def _axes(block_payload: bytes, axes: int) -> bytes:
 
 def _malformed() -> list[bytes]:
     rng = np.random.default_rng(3)
-    meas = bp.pack_datagram(bp.Measurement(1, 10, rng.standard_normal((3, 16)), np.zeros(3, np.uint8)))
-    exc = bp.pack_datagram(bp.Excitation(1, 10, rng.standard_normal((5, 4))))
-    hb = bp.pack_datagram(bp.Heartbeat(1, 1))
-    cmd = bp.pack_datagram(bp.Command(1, 1, 1))
+    meas = pack(bp.Measurement(1, 10, rng.standard_normal((3, 16)), np.zeros(3, np.uint8)))
+    exc = pack(bp.Excitation(1, 10, rng.standard_normal((5, 4))))
+    hb = pack(bp.Heartbeat(1, 1))
+    cmd = pack(bp.Command(1, 1, 1))
     out = [meas + bytes(1472 - len(meas) + 1), bytes(19), b"", meas[:-1], exc[:20]]
     out += [meas[:i] for i in range(0, len(meas), 97)]  # truncations
     for bit in range(len(hb) * 8):  # every single-bit error
@@ -199,7 +233,7 @@ def test_malformed_datagrams_are_refused_for_the_reason_python_gives(lib):
     seen = set()
     for d in cases:
         with pytest.raises(bp.ProtocolError) as info:
-            bp.unpack_datagram(d)
+            unpack(d)
         reason, _ = c_decode(lib, d)
         assert reason == info.value.reason, (d[:24].hex(), len(d))
         seen.add(reason)
@@ -207,7 +241,7 @@ def test_malformed_datagrams_are_refused_for_the_reason_python_gives(lib):
     # version 1 (the four radial axes, channel sets 1 and 2) still decodes at a version-1 end, and is
     # refused by a version-2 one
     for msg in (bp.Measurement(1, 10, np.ones((3, 16)), np.zeros(3, np.uint8)), bp.Excitation(1, 10, np.ones((5, 4)))):
-        d1 = bp.pack_datagram(msg, version=1)
+        d1 = pack(msg, version=1)
         reason, m = c_decode(lib, d1, 1)
         assert reason == "ok" and m.axes == 4 and c_encode(lib, m, 1) == d1
         assert c_decode(lib, d1)[0] == "version"
@@ -226,3 +260,127 @@ def test_encode_refuses_what_the_protocol_cannot_carry(lib):
     assert c_encode(lib, m) == b""
     m.n_samples, m.value_bytes = 3, 2
     assert c_encode(lib, m) == b""
+
+
+# --- version 3: sealed datagrams --------------------------------------------------------------------------
+SECRET = bytes(range(100, 132))
+SESSION = bytes.fromhex("0123456789abcdef")
+
+
+def to_c_v3(msg, value_bytes: int, sender: int, session: bytes) -> Message:
+    if isinstance(msg, (bp.Hello, bp.Welcome)):
+        m = Message()
+        m.sequence = msg.sequence
+        m.kind = bp.kind_of(msg)
+        m.bridge_nonce[:] = list(msg.bridge_nonce)
+        if isinstance(msg, bp.Welcome):
+            m.target_nonce[:] = list(msg.target_nonce)
+    else:
+        m = to_c(msg, value_bytes)
+        if isinstance(msg, bp.Heartbeat):
+            for f in ("refused_auth", "refused_session", "refused_replay", "duplicates"):
+                setattr(m, f, getattr(msg, f))
+    m.sender = sender
+    m.session[:] = list(session)
+    return m
+
+
+def _golden_v3():
+    rng = np.random.default_rng(33)
+    most = bp.max_block_samples(bp.Kind.MEASUREMENT, 8, 4, 3)
+    return [
+        (bp.Measurement(2**32 - 1, 12345, rng.standard_normal((most, 16)), rng.integers(0, 32, most).astype(np.uint8)),
+         8, bp.Sender.TARGET),
+        (bp.Measurement(3, 0, rng.standard_normal((8, 20)), np.zeros(8, np.uint8)), 4, bp.Sender.TARGET),
+        (bp.Excitation(5, 2**40, rng.standard_normal((44, 4))), 8, bp.Sender.BRIDGE),
+        (bp.Heartbeat(7, bp.TargetState.RUNNING, 0, True, 10_000, 99, 90, bp.NO_INDEX, 3, 4, 5, 6, 7, 4, 11, 12, 13,
+                      14), 8, bp.Sender.TARGET),
+        (bp.Command(8, 42, bp.CommandCode.STOP), 8, bp.Sender.BRIDGE),
+        (bp.Ack(9, 42, bp.CommandCode.STOP, bp.AckResult.OK, bp.TargetState.DONE, 5), 8, bp.Sender.TARGET),
+        (bp.Hello(0, rng.bytes(16)), 8, bp.Sender.BRIDGE),
+        (bp.Welcome(1, rng.bytes(16), rng.bytes(16)), 8, bp.Sender.TARGET),
+    ]
+
+
+def test_version_3_datagrams_are_byte_identical_both_ways_and_sealed_alike(lib):
+    key, ckey = LinkKey(SECRET), c_key(lib, SECRET)
+    for msg, value_bytes, sender in _golden_v3():
+        session = bp.NO_SESSION if isinstance(msg, bp.Hello) else SESSION
+        py = bp.pack_datagram(msg, 3, value_bytes, bp.Seal(key, sender, session))
+        assert len(py) <= bp.MAX_DATAGRAM_BYTES
+        assert c_encode(lib, to_c_v3(msg, value_bytes, sender, session), 3, ckey) == py, type(msg).__name__
+        reason, m = c_decode(lib, py, 3, ckey)
+        assert reason == "ok" and m.sender == sender and bytes(m.session) == session
+        assert c_encode(lib, m, 3, ckey) == py  # every field decoded, the tag recomputed alike
+        env = bp.open_datagram(py, 3, None, key)
+        assert (env.sender, env.session) == (sender, session)
+        # the same fields under another key: a different tag, refused as not the key's on both sides
+        other = bp.pack_datagram(msg, 3, value_bytes, bp.Seal(LinkKey(SECRET[::-1]), sender, session))
+        assert other[:-20] == py[:-20] and other[-20:-4] != py[-20:-4]
+        assert c_decode(lib, other, 3, ckey)[0] == "auth"
+        with pytest.raises(bp.ProtocolError, match="not the rig key's") as info:
+            bp.open_datagram(other, 3, None, key)
+        assert info.value.reason == "auth"
+    assert c_encode(lib, to_c_v3(bp.Command(0, 1, 1), 8, bp.Sender.BRIDGE, SESSION), 3, None) == b""  # no key
+    assert c_encode(lib, to_c_v3(bp.Hello(0, bytes(16)), 8, bp.Sender.BRIDGE, SESSION), 2, ckey) == b""  # no HELLO
+    with pytest.raises(ValueError, match="authenticates every datagram"):
+        bp.pack_datagram(bp.Command(0, 1, 1), 3)
+
+
+def _reseal(key: LinkKey, d: bytes, tag: bytes | None = None) -> bytes:
+    """A version-3 datagram with its tag replaced (recomputed under ``key``, or ``tag``) and a valid CRC: a
+    forgery that passes every check before the tag."""
+    body = d[:-20]
+    tag = key.tag(body) if tag is None else tag
+    return body + tag + struct.pack("<I", zlib.crc32(body + tag))
+
+
+def _sealed(key: LinkKey, kind: int, payload: bytes) -> bytes:
+    """A sealed datagram of any payload: header, payload, tag, CRC, as the protocol frames them."""
+    body = bp.HEADER_V3.pack(bp.MAGIC, 3, kind, bp.Sender.BRIDGE, 0, 0, len(payload), 0, SESSION) + payload
+    body += key.tag(body)
+    return body + struct.pack("<I", zlib.crc32(body))
+
+
+def test_version_3_refusals_agree_between_c_and_python(lib):
+    key, ckey = LinkKey(SECRET), c_key(lib, SECRET)
+    seal = bp.Seal(key, bp.Sender.BRIDGE, SESSION)
+    exc = bp.pack_datagram(bp.Excitation(1, 10, np.ones((5, 4))), 3, seal=seal)
+    hb = bp.pack_datagram(bp.Heartbeat(1, 1, axes=4), 3, seal=seal)
+    cases = {
+        "auth": [_reseal(key, exc, bytes(16)),                       # no key: a zero tag, the CRC right
+                 _reseal(LinkKey(b"\x01" * 32), exc),                # another key
+                 _reseal(key, exc[:30] + b"\x07" + exc[31:], exc[-20:-4])],  # a payload byte changed, its old tag
+        "crc": [exc[:30] + bytes([exc[30] ^ 4]) + exc[31:]],
+        "version": [bp.pack_datagram(bp.Excitation(1, 10, np.ones((5, 4))), 2)],  # version 2 at a version-3 end
+        "length": [exc[:43], _sealed(key, bp.Kind.COMMAND, bytes(31)), _sealed(key, bp.Kind.HELLO, bytes(15))],
+        "kind": [_reseal(key, hb[:5] + b"\x08" + hb[6:])],
+        "content": [_reseal(key, exc[:36] + struct.pack("<H", 9) + exc[38:])],  # a block of 9 axes
+    }
+    for want, datagrams in cases.items():
+        for d in datagrams:
+            with pytest.raises(bp.ProtocolError) as info:
+                bp.open_datagram(d, 3, None, key)
+            assert info.value.reason == want, (want, info.value)
+            assert c_decode(lib, d, 3, ckey)[0] == want
+    # every single-bit error of a sealed datagram is caught by the CRC before the tag is computed
+    for bit in range(len(hb) * 8):
+        bad = bytearray(hb)
+        bad[bit // 8] ^= 1 << (bit % 8)
+        with pytest.raises(bp.ProtocolError) as info:
+            bp.open_datagram(bytes(bad), 3, None, key)
+        assert info.value.reason in ("crc", "magic", "version") and c_decode(lib, bytes(bad), 3, ckey)[0] == \
+            info.value.reason
+
+
+def test_key_fingerprint_and_session_id_are_computed_alike(lib):
+    lib.ambp_key_fingerprint.argtypes = [ctypes.c_char_p, ctypes.c_size_t, ctypes.c_char_p]
+    lib.ambp_session_id.argtypes = [ctypes.POINTER(HmacKey), ctypes.c_char_p, ctypes.c_char_p, ctypes.c_char_p]
+    for secret in (SECRET, bytes(16), b"\xff" * 64):
+        out = ctypes.create_string_buffer(17)
+        lib.ambp_key_fingerprint(secret, len(secret), out)
+        assert out.value.decode() == key_fingerprint(secret) == LinkKey(secret).fingerprint
+        nb, nt = bytes(range(16)), bytes(range(16, 32))
+        sid = ctypes.create_string_buffer(8)
+        lib.ambp_session_id(ctypes.byref(c_key(lib, secret)), nb, nt, sid)
+        assert sid.raw == bp.session_id(LinkKey(secret), nb, nt)

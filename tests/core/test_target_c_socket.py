@@ -1,5 +1,5 @@
 """The C example target (ambp_udp_target) over a real loopback socket, this test playing the bridge with the
-Python protocol module: sample-exact injection of excitation that arrives reordered, duplicated, lost,
+Python protocol module (version 3, the rig's key; tests/core/link_testbench.py): sample-exact injection of excitation that arrives reordered, duplicated, lost,
 corrupted, truncated or from a stranger; late excitation in real time; a silent bridge; idempotent commands;
 and bad options and model files refused with one line and exit code 2.
 
@@ -9,19 +9,20 @@ The plant and controller the target runs are checked against a simulation of the
 
 from __future__ import annotations
 
-import json
 import socket
 import subprocess
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 from ambid.hardware import bridge_protocol as bp
+from ambid.hardware.link_key import write_key_file
 from ambid.hardware.target_model import TargetModel, rig_target_model, write_target_model
 
-ROOT = Path(__file__).resolve().parents[2]
-BIN = ROOT / "ros_ws" / "install" / "target_c" / "ambp_udp_target"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from link_testbench import C_TARGET as BIN, LinkBridge  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +33,9 @@ def model_files(tmp_path_factory):
     quiet = TargetModel(m.plant, m.controller, m.current_limit_a, m.controller_limit_a, np.zeros(4))
     write_target_model(d / "quiet.txt", quiet)
     write_target_model(d / "rig.txt", m)
-    return {"quiet": d / "quiet.txt", "rig": d / "rig.txt", "model": quiet, "dir": d}
+    key = write_key_file(d / "rig.key")
+    return {"quiet": d / "quiet.txt", "rig": d / "rig.txt", "model": quiet, "dir": d, "key": key,
+            "key_args": ["--protocol-version", "3", "--key-file", str(d / "rig.key")]}
 
 
 def simulate(m: TargetModel, r: np.ndarray) -> np.ndarray:
@@ -50,96 +53,24 @@ def simulate(m: TargetModel, r: np.ndarray) -> np.ndarray:
     return out
 
 
-class Bridge:
-    """The bridge's end of the link: one socket, sequence numbers per kind, everything received kept."""
+class Bridge(LinkBridge):
+    """The test's bridge: version 3 with the rig's key, the C target started with the same key."""
 
-    def __init__(self) -> None:
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", 0))
-        self.sock.settimeout(0.02)
-        self.addr = self.sock.getsockname()
-        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        s.bind(("127.0.0.1", 0))
-        self.target = s.getsockname()
-        s.close()
-        self.seq = dict.fromkeys(bp.Kind, 0)
-        self.meas: list[bp.Measurement] = []
-        self.hbs: list[tuple[float, bp.Heartbeat]] = []
-        self.acks: list[bp.Ack] = []
+    def __init__(self, files: dict) -> None:
+        super().__init__(files["key"], 3, 4)
+        self.files = files
 
-    def start(self, model: Path, *args: str) -> subprocess.Popen:
-        self.proc = subprocess.Popen([str(BIN), "--model", str(model), "--bind", f"{self.target[0]}:{self.target[1]}",
-                                      "--bridge", f"{self.addr[0]}:{self.addr[1]}", *args],
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        self.wait_for(lambda: self.hbs, 5, "the first heartbeat")
-        return self.proc
-
-    def send(self, msg, raw: bytes | None = None) -> None:
-        if raw is None:
-            kind = {bp.Excitation: bp.Kind.EXCITATION, bp.Command: bp.Kind.COMMAND, bp.Heartbeat: bp.Kind.HEARTBEAT}
-            k = kind[type(msg)]
-            msg = type(msg)(self.seq[k], *[getattr(msg, f) for f in list(msg.__dataclass_fields__)[1:]])
-            self.seq[k] += 1
-            raw = bp.pack_datagram(msg)
-        self.sock.sendto(raw, self.target)
-
-    def pump(self, seconds: float = 0.0) -> None:
-        """Take what arrives for ``seconds`` (at least one receive, waiting up to 20 ms)."""
-        end = time.monotonic() + seconds
-        while True:
-            try:
-                data, _ = self.sock.recvfrom(2048)
-            except TimeoutError:
-                data = None
-            if data is not None:
-                msg = bp.unpack_datagram(data)
-                if isinstance(msg, bp.Measurement):
-                    self.meas.append(msg)
-                elif isinstance(msg, bp.Heartbeat):
-                    self.hbs.append((time.monotonic(), msg))
-                elif isinstance(msg, bp.Ack):
-                    self.acks.append(msg)
-            if time.monotonic() >= end:
-                return
-
-    def wait_for(self, pred, timeout: float, what: str) -> None:
-        end = time.monotonic() + timeout
-        while not pred():
-            assert time.monotonic() < end, f"timed out waiting for {what}"
-            self.pump()
-
-    def command(self, cid: int, code: int, *args: int) -> bp.Ack:
-        n = len(self.acks)
-        self.send(bp.Command(0, cid, code, *args))
-        self.wait_for(lambda: len(self.acks) > n, 5, f"the ACK of command {cid}")
-        return self.acks[n]
+    def start(self, model: Path, *args: str):
+        return super().start("c", *args, *self.files["key_args"], model=model)
 
     def finish(self, timeout: float = 20) -> tuple[int, dict]:
-        end = time.monotonic() + timeout
-        while self.proc.poll() is None:
-            assert time.monotonic() < end, "the target did not exit"
-            self.pump()
-        self.pump(0.05)
-        out, err = self.proc.communicate()
-        self.sock.close()
-        line = next(ln for ln in out.splitlines() if ln.startswith("RT_TARGET_SUMMARY "))
-        return self.proc.returncode, json.loads(line.split(" ", 1)[1])
-
-    def rows(self) -> tuple[np.ndarray, np.ndarray, int]:
-        """Rows and flags by sample index, from the measurement datagrams, and the first index."""
-        ms = sorted(self.meas, key=lambda m: m.first_index)
-        assert all(a.end_index == b.first_index for a, b in zip(ms, ms[1:])), "measurement is not contiguous"
-        return np.concatenate([m.data for m in ms]), np.concatenate([m.sample_flags for m in ms]), ms[0].first_index
-
-    def kill(self) -> None:
-        if getattr(self, "proc", None) and self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.communicate()
+        code, summary, _ = super().finish(timeout)
+        return code, summary
 
 
 @pytest.fixture
-def bridge():
-    b = Bridge()
+def bridge(model_files):
+    b = Bridge(model_files)
     yield b
     b.kill()
 
@@ -150,8 +81,8 @@ def test_excitation_reordered_duplicated_lost_and_malformed_is_applied_sample_ex
     bridge.start(model_files["quiet"], "--pace", "0", "--hold-for-excitation", "--samples", str(n),
                  "--linger", "0.2", "--bridge-timeout", "10")
     assert bridge.hbs[0][1].state == bp.TargetState.IDLE and bridge.hbs[0][1].sample_rate_hz == 10_000
-    # a version-1 START is refused as such (this target speaks version 2): the target stays idle
-    bridge.send(None, bp.pack_datagram(bp.Command(0, 99, bp.CommandCode.START), version=1))
+    # a version-1 START is refused as such (this target speaks version 3): the target stays idle
+    bridge.raw(bp.pack_datagram(bp.Command(0, 99, bp.CommandCode.START), version=1))
     ack = bridge.command(1, bp.CommandCode.EXPERIMENT, start, length, 1)
     assert ack.result == bp.AckResult.OK and ack.state == bp.TargetState.IDLE
     # the same command id again with other arguments: answered as the first time, not run again
@@ -162,12 +93,12 @@ def test_excitation_reordered_duplicated_lost_and_malformed_is_applied_sample_ex
     lost = start + 80
     for f in (260, 140, 100, 140, 220):  # reordered, one duplicated, the chunk at `lost` missing
         bridge.send(chunks[f])
-    good = bytearray(bp.pack_datagram(bp.Excitation(50, lost, chunks[lost].data)))
+    good = bytearray(bridge.link.pack(bp.Excitation(0, lost, chunks[lost].data)))
     good[100] ^= 0x10
-    bridge.send(None, bytes(good))  # corrupted: CRC
-    bridge.send(None, bp.pack_datagram(chunks[lost])[:15])  # truncated below header + CRC: length
+    bridge.raw(bytes(good))  # corrupted: CRC
+    bridge.raw(bridge.link.pack(chunks[lost])[:15])  # truncated below header + CRC: length
     stranger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    stranger.sendto(bp.pack_datagram(chunks[lost]), bridge.target)  # right bytes, wrong sender: foreign
+    stranger.sendto(bridge.link.pack(chunks[lost]), bridge.target)  # right bytes, wrong sender: foreign
     stranger.close()
     assert bridge.command(3, bp.CommandCode.START).result == bp.AckResult.OK
     # the target holds at the first missing sample and asks for it in its heartbeat
@@ -177,7 +108,8 @@ def test_excitation_reordered_duplicated_lost_and_malformed_is_applied_sample_ex
     code, s = bridge.finish()
     assert code == 0 and s["state"] == "done" and s["samples"] == n
     assert s["rx_rejected_by_reason"] == {"oversized": 0, "length": 1, "magic": 0, "version": 1, "crc": 1, "kind": 0,
-                                          "content": 0, "foreign": 1}
+                                          "content": 0, "foreign": 1, "auth": 0, "direction": 0, "session": 0,
+                                          "replay": 0, "duplicate": 0}
     assert s["late_excitation_samples"] == 0
     rows, flags, first = bridge.rows()
     assert first == 0 and len(rows) == n and not flags.any()
@@ -195,7 +127,7 @@ def test_excitation_reordered_duplicated_lost_and_malformed_is_applied_sample_ex
     assert sorted(m.sequence for m in bridge.meas) == list(range(n // 10)) == list(range(hb.next_measurement_sequence))
     assert [h.sequence for _, h in bridge.hbs] == list(range(len(bridge.hbs)))
     assert [a.sequence for a in bridge.acks] == list(range(len(bridge.acks)))
-    assert hb.rx_rejected == 4 and hb.excitation_next == bp.NO_INDEX
+    assert hb.rx_rejected == 4 and hb.excitation_next == bp.NO_INDEX and not bridge.refused
 
 
 def test_real_time_run_applies_r_zero_where_excitation_is_late_and_says_so(bridge, model_files):
@@ -233,7 +165,7 @@ def test_real_time_run_applies_r_zero_where_excitation_is_late_and_says_so(bridg
 def test_silent_bridge_sends_the_target_to_its_safe_state(bridge, model_files):
     timeout = 0.15
     bridge.start(model_files["rig"], "--pace", "1", "--bridge-timeout", str(timeout), "--safe-seconds", "0.01",
-                 "--linger", "0.2", "--float32", "--block", "22")  # the most samples float32 datagrams carry
+                 "--linger", "0.2", "--float32", "--block", "21")  # the most samples float32 datagrams carry
     assert bridge.command(1, bp.CommandCode.START).result == bp.AckResult.OK
     end = time.monotonic() + 0.3
     while time.monotonic() < end:
@@ -251,7 +183,7 @@ def test_silent_bridge_sends_the_target_to_its_safe_state(bridge, model_files):
     assert safe.sum() == 100 and safe[-100:].all()  # 0.01 s of landing at zero current, then the clock stops
     assert not rows[safe, 4:].any() and rows[~safe, 8:12].any()
     assert bridge.hbs[-1][1].state == bp.TargetState.SAFE and not bridge.hbs[-1][1].clock_running
-    assert {len(m.data) for m in bridge.meas[:-1]} == {22} and rows.dtype == float
+    assert {len(m.data) for m in bridge.meas[:-1]} == {21} and rows.dtype == float
     assert np.array_equal(rows, rows.astype(np.float32).astype(float))  # float32 on the wire
 
 
@@ -286,8 +218,8 @@ def test_bad_model_files_get_one_line_and_exit_code_2(model_files):
     d = model_files["dir"] / "bad"
     d.mkdir()
     for name, (path, words) in _bad_models(d, model_files["quiet"].read_text()).items():
-        p = subprocess.run([str(BIN), "--model", str(path), "--bind", "127.0.0.1:0"], capture_output=True, text=True,
-                           timeout=10)
+        p = subprocess.run([str(BIN), "--model", str(path), "--bind", "127.0.0.1:0", *model_files["key_args"]],
+                           capture_output=True, text=True, timeout=10)
         assert p.returncode == 2, (name, p.stderr)
         assert p.stdout == "" and len(p.stderr.splitlines()) == 1, (name, p.stderr)
         assert p.stderr.startswith("ambp_udp_target: ") and words in p.stderr, (name, p.stderr)
@@ -297,7 +229,7 @@ def test_bad_model_files_get_one_line_and_exit_code_2(model_files):
     ([], "--model FILE is required"),
     (["--model", "{m}", "--pace", "-1"], "--pace"),
     (["--model", "{m}", "--pace", "fast"], "--pace"),
-    (["--model", "{m}", "--block", "12"], "at most 11 samples"),
+    (["--model", "{m}", "--block", "11"], "at most 10 samples"),
     (["--model", "{m}", "--bind", "nonsense"], "--bind"),
     (["--model", "{m}", "--bridge", "127.0.0.1:70000"], "--bridge"),
     (["--model", "{m}", "--seed"], "needs a value"),
@@ -308,7 +240,7 @@ def test_bad_model_files_get_one_line_and_exit_code_2(model_files):
     (["--model", "{m}", "--priority", "0"], "--priority"),
 ])
 def test_bad_options_get_one_line_and_exit_code_2(model_files, args, words):
-    args = [a.format(m=model_files["quiet"]) for a in args]
+    args = model_files["key_args"] + [a.format(m=model_files["quiet"]) for a in args]
     p = subprocess.run([str(BIN), *args], capture_output=True, text=True, timeout=10)
     assert p.returncode == 2 and p.stdout == "" and len(p.stderr.splitlines()) == 1, p.stderr
     assert words in p.stderr, p.stderr

@@ -24,8 +24,11 @@ NODES = {"plant_sim": PlantSim, "position_controller": PositionController, "exci
 def test_parameter_file_holds_the_declared_defaults(ros, name, tmp_path):
     params = yaml.safe_load((CONFIG / f"{name}.yaml").read_text())["/**"]["ros__parameters"]
     kwargs = {"output": str(tmp_path / "r.mcap")} if name == "recorder" else {}
-    if name == "hardware_bridge":  # its default port may be taken on a shared machine: any free one
-        kwargs = {"local_port": 0}
+    if name == "hardware_bridge":  # its default port may be taken on a shared machine: any free one; a key file
+        from ambid.hardware.link_key import write_key_file
+
+        write_key_file(tmp_path / "rig.key")
+        kwargs = {"local_port": 0, "key_file": str(tmp_path / "rig.key")}
 
     node = NODES[name](namespace="/cfg", context=ros.context,
                        parameter_overrides=[Parameter(k, value=v) for k, v in kwargs.items()])

@@ -225,13 +225,18 @@ def test_recorder_killed_its_file_reads_with_recover(ros, ros_env, procs, tmp_pa
 
 
 def test_hardware_bridge_stopped(ros, ros_env, procs, tmp_path):
+    from ambid.hardware.link_key import write_key_file
+
     tp, lp = free_port(), free_port()
+    key = tmp_path / "rig.key"
+    write_key_file(key)
     # paced at a quarter of real time (a rig's target keeps its clock; free-running, the session's 12,300 samples
     # would pass in a fraction of a second, before the drill could stop the bridge in the middle)
     procs([sys.executable, "-m", "ambid.hardware.rt_target", "--bind", f"127.0.0.1:{tp}", "--bridge",
-           f"127.0.0.1:{lp}", "--pace", "4", "--samples", "100000", "--seed", "1"],
+           f"127.0.0.1:{lp}", "--pace", "4", "--samples", "100000", "--seed", "1", "--key-file", str(key)],
           env=ros_env, cwd=REPO / "ambid_core", stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     path, out, err, k, blocks = identify_drill(ros, ros_env, procs, tmp_path, "hardware_bridge", signal.SIGSTOP,
-                                               7000, "--hardware", f"127.0.0.1:{tp}", "--local-port", str(lp))
+                                               7000, "--hardware", f"127.0.0.1:{tp}", "--local-port", str(lp),
+                                               "--key-file", str(key))
     assert scan_session(path).complete
     assert_tiles(recorded_blocks(path), k)

@@ -412,8 +412,11 @@ def test_fuzz_frf_consumer(ros):
     assert consumer.intake.errors == 0
 
 
-def test_fuzz_hardware_bridge_topics_and_datagrams(ros):
+def test_fuzz_hardware_bridge_topics_and_datagrams(ros, tmp_path):
+    from ambid.hardware.link_key import write_key_file
+
     ns = "/fz_bridge"
+    key = write_key_file(tmp_path / "rig.key")
     fuzzer = ros.add(FuzzNode(ros.context, ns, PLAN["hardware_bridge"]))
     target_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     target_sock.bind(("127.0.0.1", 0))  # the fuzzer speaks from the configured target's own address
@@ -422,23 +425,37 @@ def test_fuzz_hardware_bridge_topics_and_datagrams(ros):
     tport = target_sock.getsockname()[1]
     bridge = ros.add(HardwareBridge(namespace=ns, context=ros.context, parameter_overrides=[
         Parameter("target_port", value=tport), Parameter("local_port", value=0),
-        Parameter("excitation_horizon", value=100_000)]))
+        Parameter("excitation_horizon", value=100_000), Parameter("key_file", value=str(tmp_path / "rig.key"))]))
     sent = fuzz_topics(ros, bridge, fuzzer, PLAN["hardware_bridge"], seed=7)
     check_accounting(ros, bridge, fuzzer, sent)
 
     rng = np.random.default_rng(8)
-    templates = [bp.pack_datagram(m) for m in (
-        bp.Heartbeat(1, bp.TargetState.RUNNING, sample_rate_hz=10_000, sample_index=5, sent_end=5),
-        bp.Ack(2, 1, 1, bp.AckResult.OK, bp.TargetState.RUNNING, 5),
-        bp.Measurement(3, FAR, np.zeros((10, 16)), np.zeros(10, np.uint8)),
-        bp.Excitation(4, FAR, np.zeros((10, 4))), bp.Command(5, 1, bp.CommandCode.START))]
+    # sealed with the rig's key (version 3), in a session the bridge never agreed (no target answered its HELLO)
+    session = bytes(range(8))
+    templates = [bp.pack_datagram(m, seal=bp.Seal(key, sender, session)) for m, sender in (
+        (bp.Heartbeat(1, bp.TargetState.RUNNING, sample_rate_hz=10_000, sample_index=5, sent_end=5),
+         bp.Sender.TARGET),
+        (bp.Ack(2, 1, 1, bp.AckResult.OK, bp.TargetState.RUNNING, 5), bp.Sender.TARGET),
+        (bp.Measurement(3, FAR, np.zeros((10, 16)), np.zeros(10, np.uint8)), bp.Sender.TARGET),
+        (bp.Excitation(4, FAR, np.zeros((10, 4))), bp.Sender.BRIDGE),
+        (bp.Command(5, 1, bp.CommandCode.START), bp.Sender.BRIDGE),
+        (bp.Welcome(6, bytes(16), bytes(16)), bp.Sender.TARGET))]
 
     def recrc(b: bytearray) -> bytes:
         b[-4:] = struct.pack("<I", zlib.crc32(bytes(b[:-4])))
         return bytes(b)
 
+    def reseal(b: bytearray) -> bytes:
+        b[-20:-4] = key.tag(bytes(b[:-20]))
+        return recrc(b)
+
     def datagram(i: int) -> bytes:
-        kind = i % 6
+        kind = i % 7
+        if kind == 6:  # forged: a changed field under the old tag, or a guessed tag; CRC right
+            b = bytearray(templates[int(rng.integers(0, len(templates)))])
+            b[int(rng.integers(4, len(b) - 20))] ^= int(rng.integers(1, 256)) if rng.random() < 0.5 else 0
+            b[-20:-4] = rng.bytes(16) if rng.random() < 0.5 else b[-20:-4]
+            return recrc(b)
         if kind == 0:
             return rng.integers(0, 256, int(rng.integers(0, 1600)), dtype=np.uint8).tobytes()
         b = bytearray(templates[int(rng.integers(0, len(templates)))])
@@ -449,21 +466,21 @@ def test_fuzz_hardware_bridge_topics_and_datagrams(ros):
         if kind == 2:  # truncated or oversized
             return bytes(b[:int(rng.integers(0, len(b)))]) if rng.random() < 0.5 else bytes(b) + bytes(1500)
         if kind == 3:  # another protocol version, CRC right
-            b[4] = int(rng.choice([0, 1, 3, 255]))   # 1: the other version this build knows, not the one spoken
+            b[4] = int(rng.choice([0, 1, 2, 255]))   # 1, 2: the other versions this build knows, not the one spoken
             return recrc(b)
-        if kind == 4:  # a kind only the bridge sends, or an unknown one, CRC right
+        if kind == 4:  # a kind only the bridge sends (sealed by the key), or an unknown one, CRC right
             if rng.random() < 0.7:
-                return recrc(bytearray(templates[int(rng.choice([3, 4]))]))
-            b[5] = int(rng.integers(6, 256))
-            return recrc(b)
-        # well-formed, CRC right, impossible content: a heartbeat state or ack result out of range
+                return templates[int(rng.choice([3, 4]))]
+            b[5] = int(rng.integers(8, 256))
+            return reseal(b)
+        # sealed, CRC right, impossible content: a heartbeat state or ack result out of range
         hb = bytearray(templates[0] if rng.random() < 0.6 else templates[1])
-        offset = bp.HEADER.size + (0 if hb[5] == bp.Kind.HEARTBEAT else 6)
+        offset = bp.HEADER_V3.size + (0 if hb[5] == bp.Kind.HEARTBEAT else 6)
         hb[offset] = int(rng.integers(4, 256))
-        return recrc(hb)
+        return reseal(hb)
 
     def bridge_count():
-        return bridge.c["datagrams"] + sum(bridge.malformed.values())
+        return bridge.c["datagrams"] + sum(bridge.malformed.values()) + bridge.c["link_duplicates"]
 
     def send_all(sock, n, counter, start):
         for i in range(0, n, 200):
@@ -483,8 +500,9 @@ def test_fuzz_hardware_bridge_topics_and_datagrams(ros):
           f"{bridge.c['datagrams']}, refused {dict(bridge.malformed)}; {DATAGRAMS_FOREIGN} foreign: "
           f"{f['datagrams_foreign']} dropped")
     # still works: a real target on that address runs a session to its end, nothing lost
+    assert bridge.malformed["auth"] > 0 and bridge.malformed["session"] > 0 and bridge.malformed["direction"] > 0
     tg = Target(TargetConfig(bind=f"127.0.0.1:{tport}", bridge=f"127.0.0.1:{bridge.local_address[1]}", seed=1,
-                             pace=1.0, samples=1500, linger=0.3))
+                             pace=1.0, samples=1500, linger=0.3, key_file=str(tmp_path / "rig.key")))
     result = {}
     th = threading.Thread(target=lambda: result.update(tg.run()), daemon=True)
     th.start()

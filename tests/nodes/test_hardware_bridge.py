@@ -1,4 +1,5 @@
-"""hardware_bridge over a real loopback UDP socket, talking to the simulated real-time target.
+"""hardware_bridge over a real loopback UDP socket, talking to the simulated real-time target, protocol version 3
+with the rig's key (KEY_FILE, written once for the module).
 
 The target runs as a separate process (``python -m ambid.hardware.rt_target``) in the lossless session and as
 a thread (same code, no second interpreter start-up) where faults are injected.
@@ -18,6 +19,7 @@ import time
 import numpy as np
 import pytest
 from ambid.hardware import bridge_protocol as bp
+from ambid.hardware.link_key import write_key_file
 from ambid.hardware.rt_target import SUMMARY_PREFIX, Target, TargetConfig
 from ambid_nodes.conversions import block_data
 from ambid_nodes.hardware_bridge import HardwareBridge
@@ -36,6 +38,14 @@ MEASUREMENT_NAMES, EXCITATION_NAMES = bp.block_channels(bp.Kind.MEASUREMENT, RAD
 
 NS = "/amb"
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+@pytest.fixture(scope="module")
+def key_file(tmp_path_factory) -> str:
+    """The rig's key file: the bridge's key_file and the target's --key-file."""
+    path = tmp_path_factory.mktemp("key") / "rig.key"
+    write_key_file(path)
+    return str(path)
 
 
 class Spy(Node):
@@ -61,7 +71,8 @@ class Spy(Node):
         return [e for e in self.events if e.code == code]
 
 
-def start_bridge(ros, **params):
+def start_bridge(ros, key_file: str, **params):
+    params.setdefault("key_file", key_file)
     tp, lp = free_port(), free_port()
     bridge = ros.add(HardwareBridge(namespace=NS, context=ros.context, parameter_overrides=[
         Parameter("target_port", value=tp), Parameter("local_port", value=lp),
@@ -124,12 +135,12 @@ def gap_ranges(spy):
 
 
 @pytest.mark.parametrize("flood", [False, True], ids=["quiet", "flooded"])
-def test_lossless_session_over_udp_records_the_plant_sim_rows(ros, tmp_path, flood):
+def test_lossless_session_over_udp_records_the_plant_sim_rows(ros, tmp_path, flood, key_file):
     """flooded (issue 21): right behind the genuine design and blocks, 2 x 2000 malformed and foreign
     messages on excitation and excitation/design, unpaced: the same rows, bit for bit."""
     assert MEASUREMENT_NAMES == PLANT_SIM_NAMES and EXCITATION_NAMES == ("r_a_x", "r_b_x", "r_a_y", "r_b_y")
     spy = ros.add(Spy(ros.context))
-    bridge, target, local = start_bridge(ros)
+    bridge, target, local = start_bridge(ros, key_file)
     ros.matched(spy, to=bridge)  # the spy hears the bridge from its first message
     n, seed, start, length = 2000, 11, 600, 800
     rng = np.random.default_rng(3)
@@ -154,7 +165,8 @@ def test_lossless_session_over_udp_records_the_plant_sim_rows(ros, tmp_path, flo
         assert ros.spin_until(lambda: bridge.intake.received["excitation"] >= 1000, timeout_s=30)
     assert ros.spin_until(lambda: sum(len(c[0]) for c in bridge.chunks.held.values()) == length, timeout_s=10)
     proc = subprocess.Popen([sys.executable, "-m", "ambid.hardware.rt_target", "--bind", target, "--bridge", local,
-                             "--seed", str(seed), "--pace", "1", "--samples", str(n), "--linger", "0.3"],
+                             "--seed", str(seed), "--pace", "1", "--samples", str(n), "--linger", "0.3",
+                             "--key-file", key_file],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             cwd=os.path.join(REPO, "ambid_core"))
     try:
@@ -187,10 +199,11 @@ def test_lossless_session_over_udp_records_the_plant_sim_rows(ros, tmp_path, flo
 
 
 @pytest.fixture
-def target_thread():
+def target_thread(key_file):
     running = []
 
     def start(**kw):
+        kw.setdefault("key_file", key_file if kw.get("protocol_version", bp.PROTOCOL_VERSION) >= 3 else "")
         tg = Target(TargetConfig(**kw))
         result = {}
         th = threading.Thread(target=lambda: result.update(tg.run()), daemon=True)
@@ -204,9 +217,9 @@ def target_thread():
         th.join(5)
 
 
-def test_injected_loss_reorder_duplication_and_corruption_are_reported_exactly(ros, target_thread):
+def test_injected_loss_reorder_duplication_and_corruption_are_reported_exactly(ros, target_thread, key_file):
     spy = ros.add(Spy(ros.context))
-    bridge, target, local = start_bridge(ros, reorder_window=8, reorder_timeout=1.0)
+    bridge, target, local = start_bridge(ros, key_file, reorder_window=8, reorder_timeout=1.0)
     ros.matched(spy, to=bridge)  # the spy hears the bridge from its first message
     n, seed = 3000, 5
     tg, th, res = target_thread(bind=target, bridge=local, seed=seed, pace=1.0, samples=n, linger=0.3,
@@ -220,7 +233,9 @@ def test_injected_loss_reorder_duplication_and_corruption_are_reported_exactly(r
     # every lost sample is accounted for, exactly: the target dropped or corrupted them, nothing else lost
     assert s["missing_samples"] == res["measurement_samples_dropped"] == 10 * (m["dropped"] + m["corrupted"])
     assert s["lost_measurement_datagrams"] == m["dropped"] + m["corrupted"]
-    assert s["duplicates"] == m["duplicated"]
+    # every duplicated datagram refused as such (the link's replay window sees all kinds: heartbeats and acks
+    # too), the measurement's never reaching the assembler
+    assert s["duplicates"] == sum(f["duplicated"] for f in faults.values())
     assert s["datagrams_malformed"] == sum(f["corrupted"] for f in faults.values())
     assert s["late"] == 0
     assert 0 < s["reordered"] <= m["reordered"]  # a datagram held behind a corrupted one is not seen reordered
@@ -245,10 +260,10 @@ def test_injected_loss_reorder_duplication_and_corruption_are_reported_exactly(r
     assert blocks[-1][4] & SampleBlock.FLAG_FINAL
 
 
-def test_silent_target_is_detected_and_sent_to_its_safe_state(ros, target_thread):
+def test_silent_target_is_detected_and_sent_to_its_safe_state(ros, target_thread, key_file):
     spy = ros.add(Spy(ros.context))
     timeout = 0.25
-    bridge, target, local = start_bridge(ros, target_timeout=timeout)
+    bridge, target, local = start_bridge(ros, key_file, target_timeout=timeout)
     ros.matched(spy, to=bridge)  # the spy hears the bridge from its first message
     tg, th, res = target_thread(bind=target, bridge=local, seed=2, pace=1.0, samples=0, linger=0.3,
                                 mute_at=400, mute_seconds=0.8, safe_seconds=0.01)
@@ -257,8 +272,8 @@ def test_silent_target_is_detected_and_sent_to_its_safe_state(ros, target_thread
     # stopped" heartbeat to the bridge and a forged SAFE_STATE command to the target change nothing
     forger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     forger.bind(("127.0.0.1", 0))
-    forger.sendto(bp.pack_datagram(bp.Heartbeat(10**6, bp.TargetState.DONE, sent_end=0)), bridge.local_address)
-    forger.sendto(bp.pack_datagram(bp.Command(0, 99, bp.CommandCode.SAFE_STATE)), tg.address)
+    forger.sendto(bp.pack_datagram(bp.Heartbeat(10**6, bp.TargetState.DONE, sent_end=0), 2), bridge.local_address)
+    forger.sendto(bp.pack_datagram(bp.Command(0, 99, bp.CommandCode.SAFE_STATE), 2), tg.address)
     assert ros.spin_until(lambda: bridge.c["foreign"] == 1 and tg.rx_foreign == 1, timeout_s=10)
     forger.close()
     assert ros.spin_until(lambda: spy.codes("foreign_datagram"), timeout_s=5)
@@ -296,13 +311,15 @@ def test_silent_target_is_detected_and_sent_to_its_safe_state(ros, target_thread
     assert blocks[-1][4] & SampleBlock.FLAG_FINAL
 
 
-def test_wrong_protocol_version_is_refused_and_counted(ros, target_thread):
-    with pytest.raises(ParameterError, match="protocol_version 3 is not implemented"):
+def test_wrong_protocol_version_is_refused_and_counted(ros, target_thread, key_file):
+    with pytest.raises(ParameterError, match="protocol_version 4 is not implemented"):
+        HardwareBridge(namespace=NS, context=ros.context, parameter_overrides=[Parameter("protocol_version", value=4)])
+    with pytest.raises(ParameterError, match="protocol_version 3 authenticates every datagram and needs key_file"):
         HardwareBridge(namespace=NS, context=ros.context, parameter_overrides=[Parameter("protocol_version", value=3)])
     with pytest.raises(ParameterError, match="unknown parameter"):
         HardwareBridge(namespace=NS, context=ros.context, parameter_overrides=[Parameter("no_such", value=1)])
     spy = ros.add(Spy(ros.context))
-    bridge, target, local = start_bridge(ros)
+    bridge, target, local = start_bridge(ros, key_file)
     ros.matched(spy, to=bridge)  # the spy hears the bridge from its first message
     tg, th, res = target_thread(bind=target, bridge=local, protocol_version=1)   # an old target, four axes
     assert ros.spin_until(lambda: bridge.malformed["version"] >= 3 and tg.rx_malformed >= 3, timeout_s=30)
@@ -310,5 +327,5 @@ def test_wrong_protocol_version_is_refused_and_counted(ros, target_thread):
     assert ros.spin_until(lambda: spy.codes("malformed_datagram"), timeout_s=5)
     e = spy.codes("malformed_datagram")[0]
     assert e.severity == SessionEvent.ERROR
-    assert "protocol version 1, this end speaks version 2" in e.text
+    assert "protocol version 1, this end speaks version 3" in e.text
     assert bridge.figures()["datagrams_malformed"] == bridge.malformed["version"]

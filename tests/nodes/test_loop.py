@@ -291,8 +291,13 @@ def test_graph_with_lqg_controller_levitates(ros_env):
     assert "LQG controller" in out.stdout and "rotor levitated" in out.stdout
 
 
-def test_graph_against_hardware_target_over_loopback(ros_env):
+def test_graph_against_hardware_target_over_loopback(ros_env, tmp_path):
     import socket
+
+    from ambid.hardware.link_key import write_key_file
+
+    key = tmp_path / "rig.key"
+    write_key_file(key)
 
     ports = []
     for _ in range(2):  # two free UDP ports
@@ -301,11 +306,12 @@ def test_graph_against_hardware_target_over_loopback(ros_env):
         ports.append(s.getsockname()[1])
         s.close()
     target = subprocess.Popen([sys.executable, "-m", "ambid.hardware.rt_target", "--bind", f"127.0.0.1:{ports[0]}",
-                               "--bridge", f"127.0.0.1:{ports[1]}", "--pace", "0", "--samples", "20000"],
+                               "--bridge", f"127.0.0.1:{ports[1]}", "--pace", "0", "--samples", "20000",
+                               "--key-file", str(key)],
                               env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         out = _cli(["graph", "--hardware", f"127.0.0.1:{ports[0]}", "--local-port", str(ports[1]),
-                    "--sim-seconds", "0.3"], ros_env)
+                    "--key-file", str(key), "--sim-seconds", "0.3"], ros_env)
         assert out.returncode == 0, out.stdout + out.stderr
         assert "lost 0 samples in 0 gaps" in out.stdout and "target running normally" in out.stdout
     finally:

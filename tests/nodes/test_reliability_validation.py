@@ -145,7 +145,7 @@ CASES = {
         ("measurement", meas_block(2**45), False, "out of range"),
         ("measurement", meas_block(0), True, ""),
     ]),
-    "hardware_bridge": (HardwareBridge, {"local_port": 0, "excitation_horizon": 10_000}, [
+    "hardware_bridge": (HardwareBridge, {"local_port": 0, "excitation_horizon": 10_000, "protocol_version": 2}, [
         ("excitation", exc_block(20_000), False, "horizon of 10000 samples"),
         ("excitation", exc_block(100, n=80), True, ""),
         ("excitation", exc_block(100, n=80), False, "repeat or overlap"),

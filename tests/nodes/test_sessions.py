@@ -308,7 +308,7 @@ def test_the_bridge_obeys_its_sessions_designs_only(ros):
 
     bridge = ros.add(HardwareBridge(namespace="/amb", context=ros.context, parameter_overrides=[
         Parameter("target_port", value=free_port()), Parameter("local_port", value=free_port()),
-        Parameter("session", value=0x5E55)]))
+        Parameter("session", value=0x5E55), Parameter("protocol_version", value=2)]))  # no target: no key needed
     other = ros.add(Node("next_door", namespace="/amb", context=ros.context))
     pub_design = other.create_publisher(ExcitationDesign, "excitation/design", qos.LATCHED)
     pub_exc = other.create_publisher(SampleBlock, "excitation", qos.BLOCKS)

@@ -20,7 +20,11 @@ Sections (each can be skipped):
   periods (the transient removed by one rational model of all the segments'
   transients), on the core loop (:mod:`ambid_cli.bench.settling`);
 * memory: peak memory of sessions of one kind, one six times longer
-  (:mod:`ambid_cli.bench.memory`).
+  (:mod:`ambid_cli.bench.memory`);
+* link: what the authenticated link (protocol version 3) costs the C reference
+  target beside version 2: CPU per datagram sealed and checked, and the target
+  at 10 kHz under the hardware bridge, its overruns and late samples
+  (:mod:`ambid_cli.bench.link`).
 
 The machine may be shared: the ratios (ours over bare, measured back to
 back) are the robust figures; the load average is recorded with them.
@@ -46,7 +50,7 @@ from ambid_cli.results_page import measured_on, write_section
 from ambid.jsonable import to_jsonable
 
 HELP = "measure loop throughput, identify real-time factor, offline rates and memory against the targets"
-SECTIONS = ("loop", "identify", "analysis", "live", "offline", "fit", "settling", "memory")
+SECTIONS = ("loop", "identify", "analysis", "live", "offline", "fit", "settling", "memory", "link")
 FACTOR = 6  # the long session of the memory figure is this many times longer
 
 # the sizes of a --quick run (the smoke test): every section, seconds each
@@ -64,6 +68,7 @@ QUICK = {
     "live_memory": {"band_hz": (50.0, 1000.0), "resolution_hz": 50.0, "n_periods": 1, "n_realisations": 1,
                     "n_transient_periods": 1},
     "settling": {"band_hz": (50.0, 1000.0), "resolution_hz": 50.0, "n_realisations": 1},
+    "link_seconds": 0.3, "link_repeats": 2000,
 }
 # the default sizes: the identify session and the offline file are the default identify experiment
 FULL = {
@@ -77,6 +82,7 @@ FULL = {
     "offline_memory_design": {"n_realisations": 1},
     "live_memory": {"resolution_hz": 10.0, "n_periods": 2, "n_realisations": 1, "n_transient_periods": 1},
     "settling": {},
+    "link_seconds": 5.0, "link_repeats": 20000,  # 5 s at 10 kHz: 50,000 samples on absolute deadlines per version
 }
 
 
@@ -243,9 +249,39 @@ def _memory_section(sizes: dict, work: Path, figures: list) -> dict:
     return res
 
 
+def _link_section(sizes: dict, work: Path, figures: list) -> dict:
+    from ambid_cli.bench.link import datagram_costs, real_time_run
+
+    cost = datagram_costs(4, sizes["link_repeats"])
+    runs = {v: real_time_run(work / "link", v, sizes["link_seconds"]) for v in (2, 3)}
+    v2, v3 = cost["v2"], cost["v3"]
+    figures += [
+        _figure("C target: MEASUREMENT datagram encoded, version 2 (before)", v2["encode_measurement_ns"] / 1e3, "us"),
+        _figure("C target: MEASUREMENT datagram encoded and sealed, version 3 (after)",
+                v3["encode_measurement_ns"] / 1e3, "us"),
+        _figure("C target: EXCITATION datagram decoded, version 2 (before)", v2["decode_excitation_ns"] / 1e3, "us"),
+        _figure("C target: EXCITATION datagram decoded and its tag checked, version 3 (after)",
+                v3["decode_excitation_ns"] / 1e3, "us"),
+    ]
+    for v, run in runs.items():
+        t = run["target"]
+        when = "before" if v < 3 else "after"
+        figures += [
+            _at_least(f"C target at 10 kHz under the bridge, version {v} ({when}): samples/s", t["samples_per_wall_s"],
+                      "1/s", 9_900, "9900"),
+            _at_most(f"C target at 10 kHz, version {v} ({when}): overruns", t["overruns"], "count", 0, "0"),
+            _figure(f"C target at 10 kHz, version {v} ({when}): samples started a period late", t["late_samples"],
+                    "count"),
+            _figure(f"C target at 10 kHz, version {v} ({when}): worst lateness", t["max_late_us"], "us"),
+        ]
+    return {"cost": cost, "runs": runs}
+
+
 def _format(value, unit: str) -> str:
     if value is None:
         return "n/a"
+    if unit == "count":
+        return f"{value:,.0f}"
     if unit in ("1/s",):
         return f"{value:,.0f} /s"
     if unit == "":
@@ -314,6 +350,7 @@ def run(args: argparse.Namespace) -> int:
         "fit": lambda: _fit_section(sizes, figures),
         "settling": lambda: _settling_section(sizes, figures),
         "memory": lambda: _memory_section(sizes, work, figures),
+        "link": lambda: _link_section(sizes, work, figures),
     }
     t_start = time.perf_counter()
     try:

@@ -6,8 +6,9 @@ import argparse
 import sys
 
 from ambid.control.kinds import describe_kinds
-from ambid_cli.commands.inputs import (add_live_options, add_run_options, address, checked_controller, controller,
-                                       count, free_port, no_controller_on_hardware, positive_float, rig_file)
+from ambid_cli.commands.inputs import (add_link_options, add_live_options, add_run_options, address,
+                                       checked_controller, controller, count, free_port, hardware_link,
+                                       no_controller_on_hardware, positive_float, rig_file)
 from ambid_cli.commands.session_report import (death_line, levitation_lines, live_line, print_foreign, session_of,
                                                 session_words)
 
@@ -31,12 +32,14 @@ def add_arguments(g: argparse.ArgumentParser) -> None:
                    help="run against a real-time target over the UDP bridge instead of plant_sim "
                         "(the target runs the fast loop; see docs/bridge_protocol.md)")
     g.add_argument("--local-port", type=count, default=0, help="with --hardware: local UDP port (default: any)")
+    add_link_options(g)
     add_live_options(g)
 
 
 def run(args: argparse.Namespace) -> int:
     rig = rig_file(args.rig)  # a bad rig file stops here, before any node starts
     no_controller_on_hardware(args)
+    hardware_link(args)  # a missing or bad key file stops here
     if args.live is None:
         return run_graph(args, rig)
     free_port(args.live_host, args.live)
@@ -107,6 +110,7 @@ def run_graph(args: argparse.Namespace, rig) -> int:
 
 def run_on_hardware(args: argparse.Namespace, rig) -> int:
     plant = {"rig_file": args.rig} if args.rig else {}
+    plant.update(hardware_link(args))  # the bridge's protocol_version and key_file
     session = session_of(args)
     cfg = GraphConfig(sim_seconds=args.sim_seconds, namespace=args.namespace, plant=plant, rig=rig, session=session)
     print(f"ambid graph: {session_words(session)}, hardware_bridge to the real-time target at {args.hardware}, "

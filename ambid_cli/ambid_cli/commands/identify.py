@@ -10,9 +10,10 @@ from typing import TYPE_CHECKING
 
 from ambid.control.kinds import describe_kinds
 
-from ambid_cli.commands.inputs import (BadInput, add_experiment_options, add_live_options, add_run_options,
-                                        add_session_options, address, checked_controller, controller, count,
-                                        experiment_spec, free_port, no_controller_on_hardware, output_dir, rig_file)
+from ambid_cli.commands.inputs import (BadInput, add_experiment_options, add_link_options, add_live_options,
+                                        add_run_options, add_session_options, address, checked_controller, controller,
+                                        count, experiment_spec, free_port, hardware_link, no_controller_on_hardware,
+                                        output_dir, rig_file)
 from ambid_cli.commands.session_report import (death_line, kept_out_line, levitation_lines, live_line,
                                                 print_foreign, session_of, session_words)
 from ambid_nodes.graph import DEFAULT_NAMESPACE
@@ -39,6 +40,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="identify a real-time target over the UDP bridge instead of the simulated rig (the target "
                         "runs plant and controller, e.g. the C reference target; see docs/bridge_protocol.md)")
     p.add_argument("--local-port", type=count, default=0, help="with --hardware: local UDP port (default: any)")
+    add_link_options(p)
     p.add_argument("--processes", action="store_true",
                    help="run each node as its own process, supervised: a node's death ends the run with one line "
                         "naming it and the sample (docs/sessions.md)")
@@ -69,12 +71,13 @@ def run(args: argparse.Namespace) -> int:
             read_target_model(args.true_model)
         except (OSError, ValueError, IndexError) as exc:
             raise BadInput(f"--true-model {exc}; give the file 'ambid target-model' wrote") from None
+    link = hardware_link(args)  # a missing or bad key file stops here
     if args.live is not None:
         free_port(args.live_host, args.live)
     session = session_of(args)
     cfg = SessionConfig(out_dir=args.out, experiment=spec, rig_file=args.rig, controller=args.controller,
                         nonlinear_magnets=not args.linear_magnets, estimator=args.estimator,
-                        hardware=args.hardware or "", local_port=args.local_port, true_model=args.true_model,
+                        hardware=args.hardware or "", local_port=args.local_port, true_model=args.true_model, **link,
                         progress=not args.no_progress and sys.stderr.isatty(), namespace=args.namespace,
                         session=session, processes=args.processes, live_port=args.live, live_host=args.live_host)
     try:

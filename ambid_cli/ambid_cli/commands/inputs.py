@@ -166,6 +166,42 @@ def controller(text: str) -> str:
                                      f"({', '.join(FILE_SUFFIXES)})")
 
 
+def add_link_options(p: argparse.ArgumentParser) -> None:
+    """--key-file and --protocol-version of a command that can run against a real-time target (--hardware)."""
+    p.add_argument("--key-file", default="", metavar="FILE",
+                   help="with --hardware: the rig's key file, the target's own (protocol version 3; "
+                        "'ambid keygen --out FILE' writes one)")
+    p.add_argument("--protocol-version", type=int, choices=(2, 3), default=3,
+                   help="with --hardware: 3 authenticates every datagram (default; needs --key-file), 2 is "
+                        "unauthenticated and only for a target that speaks nothing else")
+
+
+def hardware_link(args: argparse.Namespace) -> dict:
+    """The bridge's ``protocol_version`` and ``key_file`` parameters from --protocol-version and --key-file, the
+    key file read once here (a bad one stops the run before anything starts), else :class:`BadInput`."""
+    from ambid.hardware.link_key import KeyFileError, read_key_file
+
+    key_file, version = getattr(args, "key_file", ""), getattr(args, "protocol_version", 3)
+    if not getattr(args, "hardware", None):
+        if key_file:
+            raise BadInput("--key-file without --hardware: a simulated session has no link to authenticate")
+        return {}
+    if version >= 3 and not key_file:
+        raise BadInput("--hardware needs --key-file FILE: protocol version 3 authenticates every datagram with the "
+                       "rig's key ('ambid keygen --out FILE' writes one; give the target the same file), or "
+                       "--protocol-version 2 for a target that speaks only the unauthenticated version")
+    if version < 3 and key_file:
+        raise BadInput(f"--key-file with --protocol-version {version}: that version is unauthenticated; leave "
+                       "--key-file out, or speak version 3")
+    if key_file:
+        try:
+            read_key_file(key_file)
+        except KeyFileError as exc:
+            raise BadInput(str(exc)) from None
+        key_file = str(Path(key_file).resolve())
+    return {"protocol_version": version, "key_file": key_file}
+
+
 def no_controller_on_hardware(args: argparse.Namespace) -> None:
     """:class:`BadInput` for ``--controller`` beside ``--hardware``: the target closes the loop with its own
     controller, so the option would be ignored while the summary seems to say it ran."""

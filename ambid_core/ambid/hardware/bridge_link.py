@@ -5,7 +5,8 @@ re-sends and reports.
 - :class:`CommandQueue`: commands to the target, re-sent until acknowledged or given up;
 - :class:`ExcitationChunks`: excitation held in datagram-sized chunks until the target has applied it,
   re-sent where its heartbeat says it lacks some;
-- :class:`FlagRuns`: runs of samples a flag marks, reported once each when they end.
+- :class:`FlagRuns`: runs of samples a flag marks, reported once each when they end;
+- :func:`target_refusals`: what the target refused since its last heartbeat, by reason (version 3).
 
 The hardware_bridge node is these over ROS and a UDP socket; nothing here reads a clock or a socket
 (times are passed in).
@@ -173,3 +174,17 @@ class FlagRuns:
         """End the bit's open run at ``end`` (a gap or the session end); (start, end) or None."""
         start = self.open.pop(bit, None)
         return None if start is None else (start, end)
+
+
+TARGET_REFUSALS = {"auth": "refused_auth", "session": "refused_session", "replay": "refused_replay",
+                   "duplicate": "duplicates"}  # reason -> HEARTBEAT field (version 3)
+
+
+def target_refusals(hb: bp.Heartbeat) -> dict[str, int]:
+    """The target's refusals by reason as its heartbeat counts them (all 0 before version 3)."""
+    return {reason: int(getattr(hb, name)) for reason, name in TARGET_REFUSALS.items()}
+
+
+def refusals_text(grown: dict[str, int]) -> str:
+    """"auth 3, replay 1" of the reasons that grew."""
+    return ", ".join(f"{reason} {n}" for reason, n in grown.items() if n)

@@ -5,28 +5,39 @@ bridge's reassembly of the measurement stream. The wire format is
 documented in ``docs/bridge_protocol.md``; this module is its reference
 implementation.
 
-Every datagram: a 16-byte header, a payload whose layout depends on the
-kind, a CRC-32 (zlib/IEEE 802.3) trailer over header + payload.
-Little-endian, no padding, at most :data:`MAX_DATAGRAM_BYTES` bytes (one
-Ethernet frame without fragmentation)::
+Every datagram: a header, a payload whose layout depends on the kind, and a
+trailer. Little-endian, no padding, at most :data:`MAX_DATAGRAM_BYTES` bytes
+(one Ethernet frame without fragmentation). Version 3 (the default)::
 
-    header  <4sBBHIHH   magic b"AMBP", version, kind, flags (0), sequence, payload length, reserved (0)
-    payload             kind specific, see the ``*_LAYOUT`` structs
-    trailer <I          crc32(header + payload)
+    header  <4sBBBBIHH8s  magic b"AMBP", version 3, kind, sender (1 bridge, 2 target), reserved (0),
+                          sequence, payload length, reserved (0), session id (8 bytes; 0 in HELLO)
+    payload               kind specific, see the ``*_LAYOUT`` structs
+    trailer <16sI         tag = HMAC-SHA-256(key, header + payload)[:16], crc32(header + payload + tag)
+
+Versions 1 and 2 (unauthenticated)::
+
+    header  <4sBBHIHH     magic b"AMBP", version, kind, flags (0), sequence, payload length, reserved (0)
+    payload
+    trailer <I            crc32(header + payload)
 
 Sequence numbers are uint32, counted per sender and per kind, wrapping.
 
-Versions. Version 2 (the default) carries any number of axes (1 to
-:data:`MAX_AXES`): a block's ``axes`` field (offset 12) says how many, its
-channels are y, u, ic, r of every axis (MEASUREMENT, 4 na) or r (EXCITATION,
-na) in the rig's channel order, and a HEARTBEAT's byte 3 says the sender's
-axes. Version 1 carries the four radial axes only: channel sets 1 (16
-channels) and 2 (4), heartbeat byte 3 reserved. Each end speaks one version.
+Versions. Version 3 authenticates every datagram with the rig's key
+(:mod:`ambid.hardware.link_key`) and binds it to one session agreed by a
+HELLO / WELCOME handshake (:mod:`ambid.hardware.link_session`); its HEARTBEAT
+adds the sender's refusals by reason. Version 2 carries any number of axes
+(1 to :data:`MAX_AXES`): a block's ``axes`` field (offset 12 of the payload)
+says how many, its channels are y, u, ic, r of every axis (MEASUREMENT,
+4 na) or r (EXCITATION, na) in the rig's channel order, and a HEARTBEAT's
+byte 3 says the sender's axes; version 3 keeps all of that. Version 1 carries
+the four radial axes only: channel sets 1 (16 channels) and 2 (4), heartbeat
+byte 3 reserved. Each end speaks one version.
 """
 
 from __future__ import annotations
 
 import collections
+import hmac
 import math
 import struct
 import zlib
@@ -38,8 +49,9 @@ import numpy as np
 from ambid.channels import Layout
 
 MAGIC = b"AMBP"
-PROTOCOL_VERSION = 2
-SUPPORTED_VERSIONS = (1, 2)
+PROTOCOL_VERSION = 3         # authenticated; 2 and 1 only when both ends ask for them
+AUTHENTICATED_VERSION = 3  # this version and later carry a tag and a session id
+SUPPORTED_VERSIONS = (1, 2, 3)
 MAX_AXES = 8  # version 2: axes a block may carry
 V1_AXES = 4   # version 1: its channel sets carry exactly the four radial axes
 # 1500-byte Ethernet MTU minus the IPv4 (20) and UDP (8) headers: no IP fragmentation
@@ -47,9 +59,16 @@ MAX_DATAGRAM_BYTES = 1472
 SEQUENCE_MODULO = 2**32
 NO_INDEX = 2**64 - 1  # "none" in uint64 sample-index fields
 
-HEADER = struct.Struct("<4sBBHIHH")
-TRAILER = struct.Struct("<I")
+HEADER = struct.Struct("<4sBBHIHH")           # versions 1 and 2
+TRAILER = struct.Struct("<I")                   # versions 1 and 2: the CRC-32
 OVERHEAD_BYTES = HEADER.size + TRAILER.size
+TAG_BYTES = 16                                  # HMAC-SHA-256 truncated to 128 bits (RFC 2104 allows >= 80)
+SESSION_BYTES = 8
+HEADER_V3 = struct.Struct("<4sBBBBIHH8s")       # ... sender, reserved, ..., session id
+TRAILER_V3 = struct.Struct(f"<{TAG_BYTES}sI")   # tag, CRC-32
+OVERHEAD_BYTES_V3 = HEADER_V3.size + TRAILER_V3.size
+NO_SESSION = bytes(SESSION_BYTES)               # HELLO's session id: none agreed yet
+NONCE_BYTES = 16
 # block payloads (MEASUREMENT, EXCITATION): first_index, n_samples, n_channels, axes (version 2; version 1:
 # channel set), value_bytes, reserved
 BLOCK_LAYOUT = struct.Struct("<QHHHBB")
@@ -57,6 +76,11 @@ BLOCK_LAYOUT = struct.Struct("<QHHHBB")
 # sent_end, excitation_next, next_measurement_sequence, rx_datagrams, rx_rejected, late_excitation_samples,
 # overruns, reserved
 HEARTBEAT_LAYOUT = struct.Struct("<BBBBIQQQIIIIII")
+# version 3 appends the sender's refusals: refused_auth, refused_session, refused_replay, duplicates
+HEARTBEAT_V3_EXTRA = struct.Struct("<IIII")
+# HELLO (bridge -> target): bridge_nonce; WELCOME (target -> bridge): bridge_nonce, target_nonce
+HELLO_LAYOUT = struct.Struct(f"<{NONCE_BYTES}s")
+WELCOME_LAYOUT = struct.Struct(f"<{NONCE_BYTES}s{NONCE_BYTES}s")
 # command_id, code, reserved, reserved, arg0, arg1, arg2, reserved
 COMMAND_LAYOUT = struct.Struct("<IBBHQQII")
 # command_id, code, result, state, reserved, sample_index
@@ -71,6 +95,16 @@ class Kind(IntEnum):
     HEARTBEAT = 3    # both ways
     COMMAND = 4      # bridge -> target
     ACK = 5          # target -> bridge: answer to a COMMAND
+    HELLO = 6        # version 3, bridge -> target: a session proposed, with the bridge's nonce
+    WELCOME = 7      # version 3, target -> bridge: the session, with both nonces
+
+
+class Sender(IntEnum):
+    """Who sent a version-3 datagram (header byte 6, authenticated): a datagram reflected back to its sender
+    is refused (``direction``)."""
+
+    BRIDGE = 1
+    TARGET = 2
 
 
 class TargetState(IntEnum):
@@ -124,8 +158,11 @@ class ProtocolError(ValueError):
 
     Attributes:
         reason: one of ``length`` (truncated, or payload length disagrees),
-            ``oversized``, ``magic``, ``version``, ``crc``, ``kind``, ``content``
-            (NaN, wrong channel set, zero samples).
+            ``oversized``, ``magic``, ``version``, ``crc``, ``kind``, ``auth``
+            (version 3: the tag is not the key's), ``content`` (NaN, wrong channel
+            set, zero samples); and from the link's state
+            (:mod:`ambid.hardware.link_session`): ``direction``, ``session``,
+            ``replay``, ``duplicate``.
     """
 
     def __init__(self, reason: str, text: str) -> None:
@@ -195,6 +232,9 @@ class Heartbeat:
         overruns: target: times the real-time schedule fell behind.
         axes: version 2: the sender's axes (target: those it runs; bridge: its rig's); 0: not said
             (version 1).
+        refused_auth, refused_session, refused_replay, duplicates: version 3: datagrams the sender refused
+            with a wrong tag, of another session, older than its replay window, and seen before (0 before
+            version 3).
     """
 
     sequence: int
@@ -211,6 +251,10 @@ class Heartbeat:
     late_excitation_samples: int = 0
     overruns: int = 0
     axes: int = 0
+    refused_auth: int = 0
+    refused_session: int = 0
+    refused_replay: int = 0
+    duplicates: int = 0
 
 
 @dataclass(frozen=True)
@@ -237,15 +281,63 @@ class Ack:
     sample_index: int
 
 
-Message = Measurement | Excitation | Heartbeat | Command | Ack
+@dataclass(frozen=True)
+class Hello:
+    """HELLO (version 3, bridge -> target): the bridge proposes a session; ``bridge_nonce`` is fresh per bridge
+    run (NONCE_BYTES random bytes)."""
+
+    sequence: int
+    bridge_nonce: bytes
 
 
-def max_block_samples(kind: Kind, value_bytes: int = 8, n_axes: int = V1_AXES) -> int:
+@dataclass(frozen=True)
+class Welcome:
+    """WELCOME (version 3, target -> bridge): the target's answer to a HELLO, with its own fresh nonce; the
+    header carries the session id both derive from the two nonces (:func:`session_id`)."""
+
+    sequence: int
+    bridge_nonce: bytes
+    target_nonce: bytes
+
+
+Message = Measurement | Excitation | Heartbeat | Command | Ack | Hello | Welcome
+_KIND_OF = {Measurement: Kind.MEASUREMENT, Excitation: Kind.EXCITATION, Heartbeat: Kind.HEARTBEAT,
+            Command: Kind.COMMAND, Ack: Kind.ACK, Hello: Kind.HELLO, Welcome: Kind.WELCOME}
+
+
+def kind_of(msg: Message) -> Kind:
+    """The datagram kind of a message."""
+    return _KIND_OF[type(msg)]
+
+
+@dataclass(frozen=True)
+class Envelope:
+    """A received datagram: its message, and what a version-3 header says besides (``sender``: a
+    :class:`Sender`, ``session``: the SESSION_BYTES session id); 0 and b"" before version 3."""
+
+    message: Message
+    sender: int = 0
+    session: bytes = b""
+
+
+def overhead_bytes(version: int = PROTOCOL_VERSION) -> int:
+    """Header and trailer bytes of a datagram of ``version``."""
+    return OVERHEAD_BYTES_V3 if version >= AUTHENTICATED_VERSION else OVERHEAD_BYTES
+
+
+def session_id(key, bridge_nonce: bytes, target_nonce: bytes) -> bytes:
+    """The id (SESSION_BYTES) of the session agreed by a HELLO and its WELCOME: HMAC-SHA-256 under the rig's
+    key of a label and both nonces, truncated. Each end's own fresh nonce makes it differ from every earlier
+    session's, whatever the other end sent."""
+    return key.mac(b"AMBP3 session\0", bytes(bridge_nonce), bytes(target_nonce))[:SESSION_BYTES]
+
+
+def max_block_samples(kind: Kind, value_bytes: int = 8, n_axes: int = V1_AXES, version: int = PROTOCOL_VERSION) -> int:
     """Most samples one MEASUREMENT or EXCITATION datagram of ``n_axes`` axes can carry within
-    MAX_DATAGRAM_BYTES."""
+    MAX_DATAGRAM_BYTES at protocol ``version``."""
     n_ch = _SIGNALS_PER_AXIS[Kind(kind)] * int(n_axes)
     per_sample = n_ch * value_bytes + (1 if kind == Kind.MEASUREMENT else 0)
-    return (MAX_DATAGRAM_BYTES - OVERHEAD_BYTES - BLOCK_LAYOUT.size) // per_sample
+    return (MAX_DATAGRAM_BYTES - overhead_bytes(version) - BLOCK_LAYOUT.size) // per_sample
 
 
 def seq_diff(a: int, b: int) -> int:
@@ -259,21 +351,44 @@ def _check_uint(name: str, value: int, bits: int) -> int:
     return int(value)
 
 
-def _frame(kind: Kind, sequence: int, payload: bytes, version: int, n_axes: int = V1_AXES) -> bytes:
+@dataclass(frozen=True)
+class Seal:
+    """What a version-3 datagram is sealed with: the rig's key (a :class:`ambid.hardware.link_key.LinkKey`),
+    the sender and the session id (NO_SESSION in a HELLO)."""
+
+    key: object
+    sender: int
+    session: bytes = NO_SESSION
+
+    def __repr__(self) -> str:
+        return f"Seal(key={self.key!r}, sender={self.sender}, session={bytes(self.session).hex()})"
+
+
+def _frame(kind: Kind, sequence: int, payload: bytes, version: int, n_axes: int = V1_AXES,
+           seal: Seal | None = None) -> bytes:
     _check_uint("sequence", sequence, 32)
     _check_uint("version", version, 8)
-    size = OVERHEAD_BYTES + len(payload)
+    size = overhead_bytes(version) + len(payload)
     if size > MAX_DATAGRAM_BYTES:
         raise ValueError(f"{kind.name} datagram of {size} bytes exceeds {MAX_DATAGRAM_BYTES} bytes; "
-                         f"send fewer samples per datagram (at most {max_block_samples(kind, 8, n_axes)} at "
-                         "float64)")
-    head = HEADER.pack(MAGIC, version, kind, 0, sequence, len(payload), 0)
-    body = head + payload
+                         f"send fewer samples per datagram (at most {max_block_samples(kind, 8, n_axes, version)} "
+                         "at float64)")
+    if version < AUTHENTICATED_VERSION:
+        body = HEADER.pack(MAGIC, version, kind, 0, sequence, len(payload), 0) + payload
+        return body + TRAILER.pack(zlib.crc32(body))
+    if seal is None or seal.key is None:
+        raise ValueError(f"protocol version {version} authenticates every datagram: give the rig's key")
+    if seal.sender not in (Sender.BRIDGE, Sender.TARGET) or len(seal.session) != SESSION_BYTES:
+        raise ValueError(f"a version-{version} datagram needs a sender (1 bridge, 2 target) and an "
+                         f"{SESSION_BYTES}-byte session id, got {seal.sender!r} and {len(seal.session)} bytes")
+    body = HEADER_V3.pack(MAGIC, version, kind, seal.sender, 0, sequence, len(payload), 0, bytes(seal.session)) \
+        + payload
+    body += seal.key.tag(body, TAG_BYTES)
     return body + TRAILER.pack(zlib.crc32(body))
 
 
 def _pack_block(kind: Kind, sequence: int, first_index: int, data, sample_flags, version: int,
-                value_bytes: int) -> bytes:
+                value_bytes: int, seal: Seal | None) -> bytes:
     if value_bytes not in _VALUE_DTYPES:
         raise ValueError(f"value_bytes = {value_bytes!r}: use 8 (float64) or 4 (float32)")
     data = np.asarray(data, dtype=float)
@@ -296,25 +411,35 @@ def _pack_block(kind: Kind, sequence: int, first_index: int, data, sample_flags,
         if flags.shape != (data.shape[0],) or np.any((flags < 0) | (flags > 255)):
             raise ValueError(f"sample_flags must be (n,) = ({data.shape[0]},) values in [0, 255], got {flags.shape}")
         payload += flags.astype(np.uint8).tobytes()
-    return _frame(kind, sequence, payload, version, n_axes)
+    return _frame(kind, sequence, payload, version, n_axes, seal)
 
 
-def pack_datagram(msg: Message, version: int = PROTOCOL_VERSION, value_bytes: int = 8) -> bytes:
+def _nonce(name: str, value: bytes) -> bytes:
+    if not isinstance(value, (bytes, bytearray)) or len(value) != NONCE_BYTES:
+        raise ValueError(f"{name} must be {NONCE_BYTES} bytes")
+    return bytes(value)
+
+
+def pack_datagram(msg: Message, version: int = PROTOCOL_VERSION, value_bytes: int = 8,
+                  seal: Seal | None = None) -> bytes:
     """The datagram (bytes, at most MAX_DATAGRAM_BYTES) of one message.
 
     Args:
-        msg: a Measurement, Excitation, Heartbeat, Command or Ack.
+        msg: a Measurement, Excitation, Heartbeat, Command, Ack, Hello or Welcome (the last two: version 3).
         version: protocol version written into the header.
         value_bytes: 8 (float64) or 4 (float32) for the sample values of block kinds.
+        seal: version 3: the key, sender and session id the datagram is sealed with (required).
 
     Raises:
-        ValueError: a field out of range, data of the wrong shape or non-finite, or too many samples.
+        ValueError: a field out of range, data of the wrong shape or non-finite, too many samples, a kind the
+            version does not have, or version 3 without a seal.
     """
     if isinstance(msg, Measurement):
         return _pack_block(Kind.MEASUREMENT, msg.sequence, msg.first_index, msg.data, msg.sample_flags, version,
-                           value_bytes)
+                           value_bytes, seal)
     if isinstance(msg, Excitation):
-        return _pack_block(Kind.EXCITATION, msg.sequence, msg.first_index, msg.data, None, version, value_bytes)
+        return _pack_block(Kind.EXCITATION, msg.sequence, msg.first_index, msg.data, None, version, value_bytes,
+                           seal)
     if isinstance(msg, Heartbeat):
         payload = HEARTBEAT_LAYOUT.pack(
             _check_uint("state", msg.state, 8), _check_uint("safe_reason", msg.safe_reason, 8),
@@ -327,18 +452,31 @@ def pack_datagram(msg: Message, version: int = PROTOCOL_VERSION, value_bytes: in
             _check_uint("rx_rejected", msg.rx_rejected % SEQUENCE_MODULO, 32),
             _check_uint("late_excitation_samples", msg.late_excitation_samples % SEQUENCE_MODULO, 32),
             _check_uint("overruns", msg.overruns % SEQUENCE_MODULO, 32), 0)
-        return _frame(Kind.HEARTBEAT, msg.sequence, payload, version)
+        if version >= AUTHENTICATED_VERSION:
+            payload += HEARTBEAT_V3_EXTRA.pack(*(int(getattr(msg, f)) % SEQUENCE_MODULO for f in
+                                                 ("refused_auth", "refused_session", "refused_replay", "duplicates")))
+        return _frame(Kind.HEARTBEAT, msg.sequence, payload, version, seal=seal)
     if isinstance(msg, Command):
         payload = COMMAND_LAYOUT.pack(_check_uint("command_id", msg.command_id, 32), _check_uint("code", msg.code, 8),
                                       0, 0, _check_uint("arg0", msg.arg0, 64), _check_uint("arg1", msg.arg1, 64),
                                       _check_uint("arg2", msg.arg2, 32), 0)
-        return _frame(Kind.COMMAND, msg.sequence, payload, version)
+        return _frame(Kind.COMMAND, msg.sequence, payload, version, seal=seal)
     if isinstance(msg, Ack):
         payload = ACK_LAYOUT.pack(_check_uint("command_id", msg.command_id, 32), _check_uint("code", msg.code, 8),
                                   _check_uint("result", msg.result, 8), _check_uint("state", msg.state, 8), 0,
                                   _check_uint("sample_index", msg.sample_index, 64))
-        return _frame(Kind.ACK, msg.sequence, payload, version)
-    raise ValueError(f"cannot pack a {type(msg).__name__}; expected Measurement, Excitation, Heartbeat, Command or Ack")
+        return _frame(Kind.ACK, msg.sequence, payload, version, seal=seal)
+    if isinstance(msg, (Hello, Welcome)):
+        if version < AUTHENTICATED_VERSION:
+            raise ValueError(f"{type(msg).__name__.upper()} exists from protocol version {AUTHENTICATED_VERSION} on")
+        if isinstance(msg, Hello):
+            return _frame(Kind.HELLO, msg.sequence, HELLO_LAYOUT.pack(_nonce("bridge_nonce", msg.bridge_nonce)),
+                          version, seal=seal)
+        return _frame(Kind.WELCOME, msg.sequence, WELCOME_LAYOUT.pack(_nonce("bridge_nonce", msg.bridge_nonce),
+                                                                      _nonce("target_nonce", msg.target_nonce)),
+                      version, seal=seal)
+    raise ValueError(f"cannot pack a {type(msg).__name__}; expected Measurement, Excitation, Heartbeat, Command, "
+                     "Ack, Hello or Welcome")
 
 
 def _unpack_block(kind: Kind, sequence: int, payload: memoryview, version: int, n_axes: int | None):
@@ -380,54 +518,102 @@ def _unpack_block(kind: Kind, sequence: int, payload: memoryview, version: int, 
     return Measurement(sequence, first, data, flags)
 
 
-def unpack_datagram(datagram: bytes, version: int = PROTOCOL_VERSION, n_axes: int | None = None) -> Message:
-    """The message in one received datagram.
+_FIXED_LAYOUTS = {Kind.HEARTBEAT: HEARTBEAT_LAYOUT, Kind.COMMAND: COMMAND_LAYOUT, Kind.ACK: ACK_LAYOUT,
+                  Kind.HELLO: HELLO_LAYOUT, Kind.WELCOME: WELCOME_LAYOUT}
+
+
+def open_datagram(datagram: bytes, version: int = PROTOCOL_VERSION, n_axes: int | None = None,
+                  key=None) -> Envelope:
+    """The message in one received datagram, with its version-3 sender and session id.
+
+    The checks of docs/bridge_protocol.md in their order: size, magic, version, CRC, payload length, kind,
+    (version 3) the tag under ``key``, the kind's payload size, its content. What depends on the link's state
+    (the sender, the session, the replay window) is :mod:`ambid.hardware.link_session`'s.
 
     Args:
         datagram: the bytes received.
         version: the only protocol version accepted.
         n_axes: the axes this end runs (its rig's); a block of another number is refused (``content``).
             None accepts any.
+        key: version 3: the rig's :class:`ambid.hardware.link_key.LinkKey` (required).
 
     Raises:
         ProtocolError: the datagram is truncated, oversized, not of this protocol or version, corrupted
-            (CRC), of an unknown kind, or its content is invalid; ``reason`` says which.
+            (CRC), of an unknown kind, not sealed with this key (``auth``), or its content is invalid;
+            ``reason`` says which.
+        ValueError: version 3 without a key.
     """
     view = memoryview(datagram)
     size = len(view)
+    sealed = version >= AUTHENTICATED_VERSION
+    if sealed and key is None:
+        raise ValueError(f"protocol version {version} authenticates every datagram: give the rig's key")
+    head, overhead = (HEADER_V3, OVERHEAD_BYTES_V3) if sealed else (HEADER, OVERHEAD_BYTES)
     if size > MAX_DATAGRAM_BYTES:
         raise ProtocolError("oversized", f"datagram of {size} bytes exceeds the protocol's {MAX_DATAGRAM_BYTES}")
-    if size < OVERHEAD_BYTES:
-        raise ProtocolError("length", f"datagram of {size} bytes is shorter than header + CRC ({OVERHEAD_BYTES})")
-    magic, ver, kind, _, sequence, payload_len, _ = HEADER.unpack_from(view)
-    if magic != MAGIC:
-        raise ProtocolError("magic", f"magic {bytes(magic)!r}, expected {MAGIC!r}: not an ambid bridge datagram")
+    if size < OVERHEAD_BYTES:  # the shortest datagram of any version; version 3's own minimum once it is known
+        raise ProtocolError("length", f"datagram of {size} bytes is shorter than header + trailer ({overhead})")
+    if bytes(view[:4]) != MAGIC:
+        raise ProtocolError("magic", f"magic {bytes(view[:4])!r}, expected {MAGIC!r}: not an ambid bridge datagram")
+    ver = view[4]
     if ver != version:
         raise ProtocolError("version", f"protocol version {ver}, this end speaks version {version}: run matching "
                                        "bridge and target versions (parameter protocol_version)")
+    if size < overhead:
+        raise ProtocolError("length", f"datagram of {size} bytes is shorter than header + trailer ({overhead})")
     (crc,) = TRAILER.unpack_from(view, size - TRAILER.size)
     if zlib.crc32(view[:size - TRAILER.size]) != crc:
         raise ProtocolError("crc", f"CRC mismatch in a datagram of {size} bytes: corrupted in transit")
-    if payload_len != size - OVERHEAD_BYTES:
+    if sealed:
+        _, _, kind, sender, _, sequence, payload_len, _, session = head.unpack_from(view)
+    else:
+        _, _, kind, _, sequence, payload_len, _ = head.unpack_from(view)
+        sender, session = 0, b""
+    if payload_len != size - overhead:
         raise ProtocolError("length", f"header says {payload_len} payload bytes, the datagram has "
-                                      f"{size - OVERHEAD_BYTES}")
+                                      f"{size - overhead}")
     try:
         kind = Kind(kind)
     except ValueError:
         raise ProtocolError("kind", f"unknown datagram kind {kind}") from None
-    payload = view[HEADER.size:size - TRAILER.size]
+    if kind in (Kind.HELLO, Kind.WELCOME) and not sealed:
+        raise ProtocolError("kind", f"{kind.name} exists from protocol version {AUTHENTICATED_VERSION} on")
+    if sealed:
+        end = size - TRAILER_V3.size
+        if not hmac.compare_digest(key.tag(view[:end], TAG_BYTES), view[end:end + TAG_BYTES]):
+            raise ProtocolError("auth", f"{kind.name} datagram whose tag is not the rig key's (fingerprint "
+                                        f"{key.fingerprint}): forged, or sealed with another key")
+    payload = view[head.size:head.size + payload_len]
     if kind in _BLOCK_KINDS:
-        return _unpack_block(kind, sequence, payload, ver, n_axes)
-    layout = {Kind.HEARTBEAT: HEARTBEAT_LAYOUT, Kind.COMMAND: COMMAND_LAYOUT, Kind.ACK: ACK_LAYOUT}[kind]
-    if len(payload) != layout.size:
-        raise ProtocolError("length", f"{kind.name} payload of {len(payload)} bytes, expected {layout.size}")
-    f = layout.unpack(payload)
+        return Envelope(_unpack_block(kind, sequence, payload, ver, n_axes), sender, session)
+    layout = _FIXED_LAYOUTS[kind]
+    extra = HEARTBEAT_V3_EXTRA.size if kind == Kind.HEARTBEAT and sealed else 0
+    if len(payload) != layout.size + extra:
+        raise ProtocolError("length", f"{kind.name} payload of {len(payload)} bytes, expected {layout.size + extra}")
+    f = layout.unpack_from(payload)
     if kind == Kind.HEARTBEAT:
-        return Heartbeat(sequence, f[0], f[1], bool(f[2]), f[4], f[5], f[6], f[7], f[8], f[9], f[10], f[11], f[12],
-                         0 if ver == 1 else f[3])
-    if kind == Kind.COMMAND:
-        return Command(sequence, f[0], f[1], f[4], f[5], f[6])
-    return Ack(sequence, f[0], f[1], f[2], f[3], f[5])
+        refused = HEARTBEAT_V3_EXTRA.unpack_from(payload, layout.size) if extra else (0, 0, 0, 0)
+        msg = Heartbeat(sequence, f[0], f[1], bool(f[2]), f[4], f[5], f[6], f[7], f[8], f[9], f[10], f[11], f[12],
+                        0 if ver == 1 else f[3], *refused)
+    elif kind == Kind.COMMAND:
+        msg = Command(sequence, f[0], f[1], f[4], f[5], f[6])
+    elif kind == Kind.ACK:
+        msg = Ack(sequence, f[0], f[1], f[2], f[3], f[5])
+    elif kind == Kind.HELLO:
+        msg = Hello(sequence, f[0])
+    else:
+        msg = Welcome(sequence, f[0], f[1])
+    return Envelope(msg, sender, bytes(session))
+
+
+def unpack_datagram(datagram: bytes, version: int = PROTOCOL_VERSION, n_axes: int | None = None,
+                    key=None) -> Message:
+    """The message in one received datagram (:func:`open_datagram` without the envelope).
+
+    Raises:
+        ProtocolError: see :func:`open_datagram`; ``reason`` says why.
+    """
+    return open_datagram(datagram, version, n_axes, key).message
 
 
 # --- the bridge's side: reassembling the measurement stream -------------------

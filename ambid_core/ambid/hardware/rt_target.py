@@ -34,6 +34,13 @@ controller no longer applied), rows flagged FLAG_SAFE_STATE; after
 ``safe_seconds`` of simulated landing the clock stops. Datagrams from any
 address but the configured bridge are dropped and counted.
 
+Authentication: protocol version 3 seals every datagram with the rig's key
+(``key_file``) and accepts only those of the session its handshake agreed
+(:mod:`ambid.hardware.link_session`); a refused datagram is counted by
+reason (``rx_rejected_by_reason``: auth, session, replay, duplicate, ...),
+and the heartbeat tells the bridge. Version 2 (asked for by both ends) is
+unauthenticated, which ``main`` says on every start.
+
 Fault injection for tests (outgoing datagrams, reproducible by
 ``fault_seed``, one random stream per kind): ``drop``, ``corrupt`` (one bit
 flipped), ``duplicate``, ``reorder`` (held back behind the next 1 ..
@@ -49,6 +56,8 @@ from __future__ import annotations
 
 import argparse
 import bisect
+import collections
+import dataclasses
 import json
 import math
 import select
@@ -57,11 +66,14 @@ import socket
 import sys
 import threading
 import time
+import types
 from dataclasses import dataclass
 
 import numpy as np
 
 from ambid.hardware import bridge_protocol as bp
+from ambid.hardware.link_key import read_key_file
+from ambid.hardware.link_session import LinkEnd, link_words
 
 SUMMARY_PREFIX = "RT_TARGET_SUMMARY "
 MAX_BURST = 100          # samples between two looks at the socket
@@ -99,6 +111,7 @@ class TargetConfig:
     hold_for_excitation: bool = False
     linger: float = 1.0              # seconds to keep heart-beating once the clock stopped; 0 = until STOP
     protocol_version: int = bp.PROTOCOL_VERSION
+    key_file: str = ""               # the rig's key (protocol version 3)
     drop: float = 0.0
     corrupt: float = 0.0
     duplicate: float = 0.0
@@ -122,7 +135,8 @@ class TargetConfig:
             "block": (self.block, 1, bp.max_block_samples(bp.Kind.MEASUREMENT, value_bytes, 1)),
             "samples": (self.samples, 0, 2**62), "seed": (self.seed, 0, 2**63 - 1),
             "fault_seed": (self.fault_seed, 0, 2**63 - 1), "reorder_depth": (self.reorder_depth, 1, 100),
-            "protocol_version": (self.protocol_version, 1, 255), "mute_at": (self.mute_at, -1, 2**62),
+            "protocol_version": (self.protocol_version, 1, max(bp.SUPPORTED_VERSIONS)),
+            "mute_at": (self.mute_at, -1, 2**62),
         }
         for name, (v, lo, hi) in limits.items():
             if not (isinstance(v, (int, float)) and math.isfinite(v) and lo <= v <= hi):
@@ -131,6 +145,13 @@ class TargetConfig:
             raise ValueError("rt_target: drop + corrupt + duplicate + reorder must not exceed 1")
         if self.hold_for_excitation and self.pace != 0:
             raise ValueError("rt_target: hold_for_excitation needs pace 0 (a real-time target cannot wait)")
+        if self.protocol_version >= bp.AUTHENTICATED_VERSION and not self.key_file:
+            raise ValueError(f"rt_target: protocol version {self.protocol_version} authenticates every datagram: give "
+                             "--key-file KEY (the rig's key; 'ambid keygen --out FILE' writes one), or run "
+                             "--protocol-version 2 on both ends for an unauthenticated link")
+        if self.protocol_version < bp.AUTHENTICATED_VERSION and self.key_file:
+            raise ValueError(f"rt_target: --key-file with protocol version {self.protocol_version}: that version is "
+                             "unauthenticated; speak version 3 with the key, or leave --key-file out")
 
 
 class FaultInjector:
@@ -260,7 +281,8 @@ class Target:
     """One target session over a bound UDP socket. ``run()`` serves until the session ends.
 
     Attributes read by tests and tools: ``address`` (bound host, port), ``state``, ``k`` (samples
-    done), ``rx_foreign``, ``rx_malformed``, ``late_excitation``, ``overruns``, ``muted_at``.
+    done), ``rx_foreign``, ``rx_malformed``, ``refused`` (by reason), ``link``, ``late_excitation``,
+    ``overruns``, ``muted_at``.
     """
 
     def __init__(self, cfg: TargetConfig, stop: threading.Event | None = None) -> None:
@@ -279,10 +301,13 @@ class Target:
         if cfg.protocol_version == 1 and self.n_axes != bp.V1_AXES:
             raise ValueError(f"rt_target: protocol version 1 carries {bp.V1_AXES} axes, the rig has {self.n_axes}; "
                              "speak version 2 (--protocol-version 2)")
-        most = bp.max_block_samples(bp.Kind.MEASUREMENT, 4 if cfg.float32 else 8, self.n_axes)
+        most = bp.max_block_samples(bp.Kind.MEASUREMENT, 4 if cfg.float32 else 8, self.n_axes, cfg.protocol_version)
         if cfg.block > most:
             raise ValueError(f"rt_target: block = {cfg.block} samples of {self.n_axes} axes exceed a datagram; "
                              f"give at most {most}")
+        key = read_key_file(cfg.key_file) if cfg.key_file else None
+        self.value_bytes = 4 if cfg.float32 else 8
+        self.link = LinkEnd(bp.Sender.TARGET, cfg.protocol_version, key, self.n_axes, self.value_bytes)
         pid = PidParameters()
         self.ctl = ControllerStepper(pid_controller(pid, self.dt, self.rig.layout), pid.current_limit_a)
         self.bridge_addr = parse_address(cfg.bridge)
@@ -291,9 +316,7 @@ class Target:
         self.sock.bind(parse_address(cfg.bind))
         self.sock.setblocking(False)
         self.address = self.sock.getsockname()
-        self.value_bytes = 4 if cfg.float32 else 8
         self.faults = {k: FaultInjector(cfg, k) for k in bp.Kind}
-        self.seq = {k: 0 for k in bp.Kind}
         self.state = bp.TargetState.IDLE
         self.safe_reason = bp.SafeReason.NONE
         self.clock_running = False
@@ -302,7 +325,8 @@ class Target:
         self.excitation = ExcitationBuffer()
         self.ranges: dict[int, tuple[int, int]] = {}
         self.acks: dict[int, int] = {}  # command_id -> result, so a repeated command is answered alike
-        self.rx = self.rx_foreign = self.rx_malformed = 0
+        self.rx = self.rx_foreign = 0
+        self.refused: collections.Counter = collections.Counter()  # datagrams from the bridge refused, by reason
         self.late_excitation = self.overruns = 0
         self.safe_left = 0
         self.last_rx: float | None = None
@@ -318,12 +342,15 @@ class Target:
         self.row_flags: list[int] = []
         self.next_hb = 0.0
 
+    @property
+    def rx_malformed(self) -> int:
+        """Datagrams from the bridge's address refused (every reason)."""
+        return sum(self.refused.values())
+
     # --- sending ----------------------------------------------------------
     def _send(self, kind: bp.Kind, msg_fields: dict, n_samples: int = 0) -> None:
         cls = {bp.Kind.MEASUREMENT: bp.Measurement, bp.Kind.HEARTBEAT: bp.Heartbeat, bp.Kind.ACK: bp.Ack}[kind]
-        msg = cls(sequence=self.seq[kind], **msg_fields)
-        self.seq[kind] = (self.seq[kind] + 1) % bp.SEQUENCE_MODULO
-        data = bp.pack_datagram(msg, self.cfg.protocol_version, self.value_bytes)
+        data = self.link.pack(cls(sequence=0, **msg_fields))
         if self.muted_until is not None:
             if time.monotonic() < self.muted_until:
                 return  # muted: nothing leaves, as in a network outage (the sequence still counts)
@@ -338,15 +365,19 @@ class Target:
                 pass  # nobody listening yet: UDP is fire and forget
 
     def heartbeat(self) -> None:
+        self.next_hb = time.monotonic() + self.cfg.heartbeat
+        if not self.link.established:
+            return  # version 3 before the session: nothing to seal a heartbeat in
         nxt = self.excitation.first_missing(self.k, self.ranges.values()) if self.ranges else None
+        r = self.refused
         self._send(bp.Kind.HEARTBEAT, dict(
             state=self.state, safe_reason=self.safe_reason, clock_running=self.clock_running,
             sample_rate_hz=int(round(1 / self.dt)), sample_index=self.k, sent_end=self.sent_end,
             excitation_next=bp.NO_INDEX if nxt is None else nxt,
-            next_measurement_sequence=self.seq[bp.Kind.MEASUREMENT], rx_datagrams=self.rx,
+            next_measurement_sequence=self.link.seq[bp.Kind.MEASUREMENT], rx_datagrams=self.rx,
             rx_rejected=self.rx_foreign + self.rx_malformed, late_excitation_samples=self.late_excitation,
-            overruns=self.overruns, axes=self.n_axes))
-        self.next_hb = time.monotonic() + self.cfg.heartbeat
+            overruns=self.overruns, axes=self.n_axes, refused_auth=r["auth"], refused_session=r["session"],
+            refused_replay=r["replay"], duplicates=r["duplicate"]))
 
     def send_block(self) -> None:
         n = len(self.rows)
@@ -369,19 +400,27 @@ class Target:
             if addr != self.bridge_addr:
                 self.rx_foreign += 1
                 continue
+            agreed = self.link.established
             try:
-                msg = bp.unpack_datagram(data, self.cfg.protocol_version, self.n_axes)
-            except bp.ProtocolError:
-                self.rx_malformed += 1
+                msg = self.link.receive(data)
+            except bp.ProtocolError as exc:
+                self.refused[exc.reason] += 1
                 continue
             self.rx += 1
+            if isinstance(msg, bp.Hello):  # answered; not a sign of the bridge in the session
+                reply = self.link.welcome(msg)
+                if reply is not None:
+                    self._put([reply])
+                continue
             self.last_rx = time.monotonic()
             if isinstance(msg, bp.Excitation):
                 self.excitation.add(msg.first_index, msg.data, self.k)
             elif isinstance(msg, bp.Command):
                 self.command(msg)
             elif not isinstance(msg, bp.Heartbeat):
-                self.rx_malformed += 1  # MEASUREMENT or ACK never go to the target
+                self.refused["kind"] += 1  # MEASUREMENT or ACK never go to the target (version 2)
+            if not agreed and self.link.established:
+                self.heartbeat()  # the session is agreed: the bridge hears the target at once
 
     def command(self, c: bp.Command) -> None:
         result = self.acks.get(c.command_id)
@@ -544,6 +583,9 @@ class Target:
             "measurement_samples_dropped": m.samples_dropped,
             "faults": {k.name.lower(): inj.counts() for k, inj in self.faults.items()},
             "rx_datagrams": self.rx, "rx_foreign": self.rx_foreign, "rx_malformed": self.rx_malformed,
+            "rx_rejected_by_reason": dict(self.refused),
+            "protocol_version": self.cfg.protocol_version, "authenticated": self.link.authenticated,
+            "key_fingerprint": self.link.fingerprint(), "session": self.link.session.hex() if self.link.session else "",
             "late_excitation_samples": self.late_excitation,
             "late_excitation_datagrams": self.excitation.late_datagrams,
             "overruns": self.overruns, "seed": self.cfg.seed,
@@ -556,7 +598,8 @@ def serve(cfg: TargetConfig, stop: threading.Event | None = None) -> dict:
 
 
 def parse_args(argv: list[str] | None = None) -> TargetConfig:
-    d = TargetConfig()
+    # the defaults, read off the fields: a TargetConfig() itself would refuse version 3 without a key file
+    d = types.SimpleNamespace(**{f.name: f.default for f in dataclasses.fields(TargetConfig)})
     p = argparse.ArgumentParser(prog="python -m ambid.hardware.rt_target", description=__doc__.split("\n\n")[0])
     p.add_argument("--bind", default=d.bind, help="local host:port to listen on")
     p.add_argument("--bridge", default=d.bridge, help="host:port of the only bridge accepted")
@@ -576,7 +619,9 @@ def parse_args(argv: list[str] | None = None) -> TargetConfig:
                    help="free-running only: wait at an announced sample for its excitation instead of r = 0")
     p.add_argument("--linger", type=float, default=d.linger,
                    help="keep heart-beating this long after the clock stopped, then exit [s]; 0 = until STOP")
-    p.add_argument("--protocol-version", type=int, default=d.protocol_version, help="protocol version spoken")
+    p.add_argument("--protocol-version", type=int, default=d.protocol_version,
+                   help="protocol version spoken: 3 authenticated (needs --key-file), 2 unauthenticated")
+    p.add_argument("--key-file", default=d.key_file, help="the rig's key file (protocol version 3; 'ambid keygen')")
     for name in ("drop", "corrupt", "duplicate", "reorder"):
         p.add_argument(f"--{name}", type=float, default=0.0, help=f"probability to {name} an outgoing datagram")
     p.add_argument("--reorder-depth", type=int, default=d.reorder_depth,
@@ -597,6 +642,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: target.stop.set())
+    print(link_words(target.link, "rt_target"), file=sys.stderr, flush=True)
     print(f"RT_TARGET_LISTENING {target.address[0]}:{target.address[1]}", flush=True)
     summary = target.run()
     print(SUMMARY_PREFIX + json.dumps(summary), flush=True)
