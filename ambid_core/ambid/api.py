@@ -28,13 +28,15 @@ from ambid.fit import FitResult, to_statespace
 from ambid.fit.model_update import PhysicalUpdate
 from ambid.frf.offline import frf_from_session, session_designs
 from ambid.frf.streaming import FrfResult
+from ambid.identification.inputs import session_rig
+from ambid.identification.model_fit import FrfFit, fit_frf
+from ambid.identification.update import update_rig
 from ambid.plant.rig import Rig, make_rig
 from ambid.plant.rig import load_rig as _load_rig_file
 from ambid.records.importer import import_record as _import_record
 from ambid.records.mapping import RecordMap
-from ambid.session import NotASessionError, check_session_file, read_metadata
+from ambid.recording import NotASessionError, check_session_file, read_metadata
 from ambid.statespace import StateSpace
-from ambid.studies.identification import FrfFit, fit_frf, session_rig, update_rig
 
 __all__ = ["Session", "Frf", "Mode", "Model", "read_session", "estimate_frf", "fit_model", "update_model",
            "design_excitation", "import_record", "load_rig"]
@@ -141,7 +143,7 @@ class Model:
         Its continuous-time realisation, u [A] -> y [m] (the half-sample delay apart).
     fit : ambid.fit.FitResult
         Everything the fit knows (poles, residues, chi2/dof, covariance).
-    details : ambid.studies.identification.FrfFit
+    details : ambid.identification.model_fit.FrfFit
         The fit as identify ran it (diagram, weights, interval rows).
     """
 
@@ -170,7 +172,7 @@ def read_session(path: str | os.PathLike) -> Session:
     ------
     FileNotFoundError, IsADirectoryError
         No such file, or a folder.
-    ambid.session.NotASessionError
+    ambid.recording.NotASessionError
         Not an MCAP file, or one without an excitation experiment.
 
     Examples
@@ -256,10 +258,9 @@ def fit_model(frf: Frf, order: int | None = None, *, max_order: int = 32, order_
     True
     """
     mf = fit_frf(frf.result, frf.sample_rate_hz, order, max_order=max_order, order_penalty=order_penalty)
-    modes = tuple(Mode(r["freq_hz"], r["damping"],
-                       tuple(r["freq_hz_ci95"]) if r.get("freq_hz_ci95") else None,
-                       tuple(r["damping_ci95"]) if r.get("damping_ci95") else None,
-                       r["stable"], r.get("whirl")) for r in mf.mode_rows)
+    modes = tuple(Mode(r.freq_hz, r.damping, None if r.interval is None else tuple(r.interval.freq_hz_ci95),
+                       None if r.interval is None else tuple(r.interval.damping_ci95), r.stable, r.whirl)
+                  for r in mf.mode_rows)
     return Model(modes, mf.order, to_statespace(mf.fit.model), mf.fit, mf)
 
 
@@ -303,10 +304,10 @@ def update_model(frf: Frf, rig: Rig | str | os.PathLike | None = None, model: Mo
     if not isinstance(rig, Rig):
         rig = load_rig(rig)
     details = (model if model is not None else fit_model(frf)).details
-    upd, error, _notes = update_rig(rig, frf.result, details, 1.0 / frf.sample_rate_hz, start, free)
-    if upd is None:
-        raise ValueError(f"model updating failed: {error}")
-    return upd
+    updated = update_rig(rig, frf.result, details, 1.0 / frf.sample_rate_hz, start, free)
+    if updated.update is None:
+        raise ValueError(f"model updating failed: {updated.error}")
+    return updated.update
 
 
 def design_excitation(fs_hz: float | None = None, speed_rpm: float = 0.0, **terms) -> ExcitationDesign:

@@ -12,7 +12,7 @@ import math
 from collections.abc import Callable, Sequence
 
 import numpy as np
-from ambid.session.blocks import MAX_SAMPLE_INDEX
+from ambid.recording.blocks import MAX_SAMPLE_INDEX
 from builtin_interfaces.msg import Time
 from rclpy.serialization import deserialize_message
 

@@ -40,7 +40,7 @@ from ambid.excitation import ExcitationDesign
 from ambid.excitation.experiment import Experiment, place_experiment
 from ambid.excitation.spec import KINDS, DesignSpec
 from ambid.plant.rig import Rig
-from ambid.session.facts import design_fields
+from ambid.recording.facts import design_fields
 from rclpy.node import Node
 
 from ambid_msgs.msg import ExcitationDesign as DesignMsg

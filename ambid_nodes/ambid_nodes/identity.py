@@ -17,7 +17,7 @@ from __future__ import annotations
 import time
 from typing import Callable
 
-from ambid.session.identity import GID_BYTES, format_gid, format_session
+from ambid.session_id import GID_BYTES, format_gid, format_session
 from rclpy.node import Node
 
 from ambid_msgs.msg import SessionMember

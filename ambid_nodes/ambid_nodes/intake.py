@@ -34,7 +34,7 @@ import time
 from typing import Callable
 
 import numpy as np
-from ambid.session.identity import format_session
+from ambid.session_id import format_session
 from rclpy.node import Node
 
 from ambid_nodes import qos

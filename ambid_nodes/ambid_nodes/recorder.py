@@ -75,12 +75,12 @@ import sys
 import time
 
 import ambid
-from ambid.session import SessionWriteError
-from ambid.session.blocks import SAMPLE_BLOCK_TYPE, sample_block_session
-from ambid.session.identity import format_session
-from ambid.session.facts import FACT_TYPES, controller_facts, design_facts, plant_facts
-from ambid.session.recording import Recording
-from ambid.session.writer import available_compressions
+from ambid.recording import SessionWriteError
+from ambid.recording.blocks import SAMPLE_BLOCK_TYPE, sample_block_session
+from ambid.session_id import format_session
+from ambid.recording.facts import FACT_TYPES, controller_facts, design_facts, plant_facts
+from ambid.recording.in_progress import Recording
+from ambid.recording.writer import available_compressions
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy

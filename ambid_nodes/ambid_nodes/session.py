@@ -24,7 +24,7 @@ import json
 import multiprocessing
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Callable
 
@@ -33,9 +33,10 @@ from ambid.excitation import ExcitationDesign
 from ambid.excitation.spec import DesignSpec
 from ambid.frf.offline import data_channels
 from ambid.hardware.bridge_protocol import PROTOCOL_VERSION, CommandCode
-from ambid.jsonable import to_jsonable
+from ambid.identification.result import Identification
+from ambid.jsonable import JsonRecord, json_field
 from ambid.plant.rig import Rig, load_rig, make_rig
-from ambid.session.identity import format_session, new_session_id
+from ambid.session_id import format_session, new_session_id
 
 from rclpy.node import Node
 
@@ -188,7 +189,7 @@ def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None,
     ``report_foreign`` is told the foreign publishers found on the rig's topics before anything starts.
     ``live`` (a started :class:`ambid_nodes.live_view.LiveProcess`): the experiment starts once it listens
     and hears the measurement, so it shows the whole experiment. ``early``
-    (:class:`ambid.studies.early_analysis.EarlyAnalysis`): handed the session's inputs as they become known,
+    (:class:`ambid.identification.early.EarlyAnalysis`): handed the session's inputs as they become known,
     and the final FRF the moment the consumer has it, so the analysis runs while the graph closes.
     """
     import rclpy
@@ -366,7 +367,7 @@ def run_facts(answer, plant_summary: dict, recorder: dict, live_frf: dict, wall_
 class SessionMessages(Node):
     """A listener of the session's latched descriptions (its own session's only), the plant's, the controller's and the experiment's,
     kept as they come: the inputs of an early analysis, read as the recording's are
-    (:func:`ambid.studies.identification.inputs_from_messages`)."""
+    (:func:`ambid.identification.inputs.inputs_from_messages`)."""
 
     def __init__(self, session: int, **kwargs) -> None:
         super().__init__("identify_inputs", **kwargs)
@@ -388,8 +389,8 @@ class SessionMessages(Node):
         return {"plant", "design"} | ({"controller"} if controller else set()) <= set(self.last)
 
     def session_inputs(self, path, frf, nonlinear_magnets: bool):
-        """:class:`ambid.studies.identification.SessionInputs` of what was heard, with ``frf`` (or None)."""
-        from ambid.studies.identification import inputs_from_messages
+        """:class:`ambid.identification.inputs.SessionInputs` of what was heard, with ``frf`` (or None)."""
+        from ambid.identification.inputs import inputs_from_messages
 
         return inputs_from_messages(path, self.design_topic, self.last["design"], self.last.get("plant"),
                                     self.last.get("controller"), frf, nonlinear_magnets)
@@ -428,10 +429,11 @@ def _jsonable(cfg: SessionConfig) -> dict:
 
 
 def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None,
-                 report_foreign: Callable[[dict], None] | None = None, on_headline=None) -> dict:
+                 report_foreign: Callable[[dict], None] | None = None,
+                 on_headline: Callable[[IdentifyResult], None] | None = None) -> IdentifyResult:
     """The whole job: the recorded session on the graph, then the offline identification of it.
 
-    The analysis runs in a process of its own (:class:`ambid.studies.early_analysis.EarlyAnalysis`), started
+    The analysis runs in a process of its own (:class:`ambid.identification.early.EarlyAnalysis`), started
     with the session: what the measurement does not change is computed while it runs, the fit and the update
     start the moment the last period is in, while the graph and the recording close. ``on_headline`` is called
     with the summary as soon as the results are there, before the report is written (the numbers are those of
@@ -439,8 +441,8 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None,
 
     Writes ``out_dir/session.mcap``, ``out_dir/summary.json`` and ``out_dir/report/``.
     """
-    from ambid.studies.early_analysis import EarlyAnalysis, EarlyAnalysisFailed
-    from ambid.studies.identification import identify_session
+    from ambid.identification.early import EarlyAnalysis, EarlyAnalysisFailed
+    from ambid.identification.pipeline import identify_session
 
     true_model = None
     if cfg.true_model:
@@ -470,7 +472,7 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None,
         design: ExcitationDesign = run.pop("design")
         shown: dict = {}
 
-        def show(offline: dict) -> None:   # the headline, as soon as the results are there
+        def show(offline: Identification) -> None:   # the headline, as soon as the results are there
             shown["at"] = time.perf_counter()
             if on_headline is not None:
                 on_headline(_identify_summary(cfg, run, design, offline, _timing(run, shown)))
@@ -493,7 +495,7 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None,
         shown["done"] = time.perf_counter()
         if notes:   # the early inputs differed from the recording's: the results shown were replaced
             print("ambid identify: " + "; ".join(notes), file=sys.stderr)
-            offline = {**offline, "notes": list(offline.get("notes", [])) + notes}
+            offline = replace(offline, notes=list(offline.notes) + notes)
             show(offline)
         summary = _identify_summary(cfg, run, design, offline, _timing(run, shown))
     finally:
@@ -501,15 +503,15 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None,
             early.close()
         live_figures = live.stop() if live is not None else None
     if live_figures is not None:
-        summary["live"] = live_figures
-    (cfg.out_dir / "summary.json").write_text(json.dumps(to_jsonable(summary), indent=2))
+        summary = replace(summary, live=live_figures)
+    (cfg.out_dir / "summary.json").write_text(json.dumps(summary.to_json(), indent=2))
     return summary
 
 
 def _planned_inputs(cfg: SessionConfig, plan: SessionPlan):
     """The session's inputs as the plan foresees them (the rig's JSON as plant_sim publishes it, the
     controller's model, the design), without the FRF: what reference models can be computed from early."""
-    from ambid.studies.identification import SessionInputs
+    from ambid.identification.inputs import SessionInputs
 
     ctrl = None if plan.controller is None else (plan.controller.model, {})
     experiment = {"topic": "", "experiment_id": "", "start_index": 0, "total_samples": plan.design.total_samples,
@@ -532,39 +534,98 @@ def _timing(run: dict, shown: dict) -> dict:
     return out
 
 
-def _identify_summary(cfg: SessionConfig, run: dict, design: ExcitationDesign, offline: dict, timing: dict) -> dict:
-    rec = run["recorder"]
-    return {
-        "excitation": {
-            "kind": design.kind, "multi_input": design.options.get("mimo") if design.kind == "multisine" else None,
-            "grid": design.options.get("grid") if design.kind == "multisine" else None,
-            "phases": design.options.get("phases") if design.kind == "multisine" else None,
-            "lines": int(len(design.excited_lines)), "samples_per_period": int(design.n_per_period),
-            "periods": int(design.n_periods), "transient_periods": int(design.n_transient_periods),
-            "realisations": int(design.n_realisations), "experiments": int(design.n_experiments),
-            "crest_factor": [float(c) for c in design.crest_factor],
-            "rms_a": [float(v) for v in design.rms_a], "peak_a": [float(v) for v in design.peak_a],
-            "measurement_time_s": float(design.measurement_time_s), "seed": cfg.seed,
-        },
-        "sample_rate_hz": float(design.fs_hz),
-        "band_hz": list(cfg.experiment.band_hz),
-        "inputs": list(design.input_names),
-        "simulated_time_s": run["simulated_s"],
-        "wall_time_s": run["wall_s"],
-        "simulated_samples_per_wall_s": run["samples_per_wall_s"],
-        "real_time_factor": run["simulated_s"] / run["wall_s"],
-        "layout": run["layout"],
-        "state": run["plant"]["state"],
-        "levitated": run["plant"]["levitated"],
+def _identify_summary(cfg: SessionConfig, run: dict, design: ExcitationDesign, offline: Identification,
+                      timing: dict) -> IdentifyResult:
+    rec, plant = run["recorder"], run["plant"]
+    return IdentifyResult(
+        sample_rate_hz=float(design.fs_hz), simulated_time_s=run["simulated_s"], wall_time_s=run["wall_s"],
+        simulated_samples_per_wall_s=run["samples_per_wall_s"], real_time_factor=run["simulated_s"] / run["wall_s"],
+        layout=run["layout"], state=plant["state"], levitated=plant["levitated"],
         # lost loop messages the plant asked for again, and the answers that then came twice
-        "loop_recovery": {"resends": run["plant"].get("resends", 0),
-                          "duplicate_answers": run["plant"].get("duplicate_answers", 0)},
-        "live_frf": run["live_frf"],
-        **offline,
-        "analysis_timing": timing,
-        "recording": {"path": run["mcap_path"], "messages": rec.get("messages", rec.get("message_count")),
-                      "complete": rec.get("complete", True)},
-        "session": {"id": format_session(cfg.session), "foreign_publishers": run["foreign_publishers"],
-                    # what the recorder heard of other sources during the session and kept out, per topic
-                    "foreign_messages": rec.get("foreign", {})},
-    }
+        loop_recovery=LoopRecovery(resends=plant.get("resends", 0),
+                                   duplicate_answers=plant.get("duplicate_answers", 0)),
+        live_frf=run["live_frf"], identification=offline, analysis_timing=timing,
+        recording=RecordingFacts(path=run["mcap_path"], messages=rec.get("messages", rec.get("message_count")),
+                                 complete=rec.get("complete", True)),
+        # what the recorder heard of other sources during the session and kept out, per topic
+        session=SessionFacts(id=format_session(cfg.session), foreign_publishers=run["foreign_publishers"],
+                             foreign_messages=rec.get("foreign", {})))
+
+
+@dataclass(frozen=True, eq=False)
+class LoopRecovery(JsonRecord):
+    """Lost loop messages the plant asked for again, and the answers that then came twice."""
+
+    resends: int
+    duplicate_answers: int
+
+
+@dataclass(frozen=True, eq=False)
+class RecordingFacts(JsonRecord):
+    """The session's recording: its file, how many messages, whether it was closed completely."""
+
+    path: str
+    messages: int | None
+    complete: bool
+
+
+@dataclass(frozen=True, eq=False)
+class SessionFacts(JsonRecord):
+    """The session's id, the foreign publishers found before it started and what the recorder kept out."""
+
+    id: str
+    foreign_publishers: dict
+    foreign_messages: dict
+
+
+@dataclass(frozen=True, eq=False)
+class IdentifyResult(JsonRecord):
+    """What ``ambid identify`` made: the run on the graph and the identification of its recording
+    (``summary.json``; its keys are the run's, then the identification's, as the file has always had them).
+
+    Attributes:
+        sample_rate_hz: the plant's sample rate [Hz].
+        simulated_time_s, wall_time_s: the session's simulated and wall time [s].
+        simulated_samples_per_wall_s, real_time_factor: how fast it ran.
+        layout: how it ran (``composed``, ``processes``, ``hardware bridge to HOST:PORT``).
+        state, levitated: how the plant ended.
+        loop_recovery: lost loop messages asked for again.
+        live_frf: the FRF consumer's last figures (relative_noise_std, periods, realisations, iso_zone,
+            sensitivity_peak).
+        identification: the identification of the recording
+            (:class:`ambid.identification.result.Identification`).
+        analysis_timing: wall seconds from the last period to the headline and the report.
+        recording: the recording's facts.
+        session: the session's id and the foreign publishers.
+        live: the live view's figures, when it ran.
+    """
+
+    sample_rate_hz: float
+    simulated_time_s: float
+    wall_time_s: float
+    simulated_samples_per_wall_s: float
+    real_time_factor: float
+    layout: str
+    state: str
+    levitated: bool | None
+    loop_recovery: LoopRecovery
+    live_frf: dict
+    identification: Identification
+    analysis_timing: dict
+    recording: RecordingFacts
+    session: SessionFacts
+    live: dict | None = json_field(omit_none=True)
+
+    def json_items(self) -> dict:
+        ident = self.identification.json_items()
+        out = {"excitation": ident["excitation"], "sample_rate_hz": self.sample_rate_hz, "band_hz": ident["band_hz"],
+               "inputs": ident["inputs"]}
+        out.update((f.name, getattr(self, f.name)) for f in fields(self)
+                   if f.name in ("simulated_time_s", "wall_time_s", "simulated_samples_per_wall_s",
+                                 "real_time_factor", "layout", "state", "levitated", "loop_recovery", "live_frf"))
+        for k, v in ident.items():
+            out.setdefault(k, v)
+        out.update(analysis_timing=self.analysis_timing, recording=self.recording, session=self.session)
+        if self.live is not None:
+            out["live"] = self.live
+        return out

@@ -16,8 +16,8 @@ import json
 import sys
 import time
 
-from ambid.session import scan_session
-from ambid.session.identity import new_session_id
+from ambid.recording import scan_session
+from ambid.session_id import new_session_id
 
 from ambid_nodes.graph import died_summary, preflight
 from ambid_nodes.session import (NodeDied, ProgressBar, SessionConfig, SessionPlan, _hardware_summary, _jsonable,

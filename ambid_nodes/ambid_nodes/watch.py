@@ -17,7 +17,7 @@ import json
 
 import numpy as np
 from ambid.plant.levitation import LevitationMonitor
-from ambid.session.blocks import decode_sample_block, sample_block_session
+from ambid.recording.blocks import decode_sample_block, sample_block_session
 from rclpy.node import Node
 
 from ambid_msgs.msg import SampleBlock, SessionEvent, SessionStatus

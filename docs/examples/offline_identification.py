@@ -2,7 +2,7 @@
 
 A rig that logs its displacements, control currents and the excitation added
 to them can be identified offline. Here the "rig" is ambid's simulator, run
-in plain Python (ambid.studies.comparison's closed loop), so the script runs
+in plain Python (ambid.control.simulated_loop's closed loop), so the script runs
 anywhere ``pip install ./ambid_core`` does; with a real rig, start at step 2
 with its record and a MAP.yaml.
 
@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 import ambid
-from ambid.studies.comparison import levitate, run_loop
+from ambid.control.simulated_loop import levitate, run_loop
 
 AXES = ("a_x", "b_x", "a_y", "b_y")
 

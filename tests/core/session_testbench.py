@@ -10,8 +10,8 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from ambid.session import SessionWriter
-from ambid.session.ros2_schema import load_message_schema
+from ambid.recording import SessionWriter
+from ambid.recording.ros2_schema import load_message_schema
 from mcap_ros2._dynamic import serialize_dynamic
 
 MSG_DIR = Path(__file__).resolve().parents[2] / "ambid_msgs" / "msg"

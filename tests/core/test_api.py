@@ -17,7 +17,7 @@ import pytest
 import ambid
 from ambid import api
 from ambid.plant.true_rig import true_linear_model
-from ambid.studies.identification import identify_session, true_modes
+from ambid.identification import identify_session, true_modes
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "docs" / "examples" / "offline_identification.py"

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from ambid.plant.rig import make_rig
 from ambid.plant.true_rig import true_linear_model
-from ambid.studies.campbell import critical_speeds, first_bending, model_modes, predicted_branches
+from ambid.identification.campbell import critical_speeds, first_bending, model_modes, predicted_branches
 
 BAND = (100.0, 1000.0)
 

@@ -1,4 +1,4 @@
-"""ambid.studies.comparison on a tiny preset: structure, the orthogonal-versus-stepped claim, estimator bias,
+"""ambid.comparison.thesis on a tiny preset: structure, the orthogonal-versus-stepped claim, estimator bias,
 nonlinear distortions, the lock-step loop's order and the error measure."""
 
 import copy
@@ -10,8 +10,9 @@ import pytest
 from ambid.control.pid import PidParameters, pid_controller
 from ambid.excitation import design_stepped_sine
 from ambid.plant.rig import make_rig
-from ambid.studies.comparison import (METHODS, PARTS, ComparePreset, comparison_markdown, frf_error, levitate,
-                                      run_comparison, run_loop, settling_time)
+from ambid.comparison.thesis import METHODS, PARTS, ComparePreset, comparison_markdown, run_comparison, settling_time
+from ambid.control.simulated_loop import levitate, run_loop
+from ambid.frf.accuracy import frf_relative_error as frf_error
 
 # every part, shrunk: the stepped sine on every 5th line (time extrapolated), two multisine realisations,
 # one estimator realisation, the nonlinear runs at 40 Hz resolution

@@ -1,4 +1,4 @@
-"""Coverage bookkeeping of ``ambid validate`` (ambid.studies.coverage) and the excitation-level truth
+"""Coverage bookkeeping of ``ambid validate`` (ambid.validation.coverage) and the excitation-level truth
 of the magnets (ambid.fit.model_update.excitation_slopes)."""
 
 import numpy as np
@@ -8,7 +8,7 @@ from ambid.excitation.spec import build_design
 from ambid.fit.model_update import closed_loop_noise_std, excitation_slopes
 from ambid.plant.rig import make_rig
 from ambid.plant.true_rig import levitated_plant, true_linear_model
-from ambid.studies.coverage import FRF_NOMINAL, clopper_pearson, coverage_table, frf_record
+from ambid.validation.coverage import FRF_NOMINAL, clopper_pearson, coverage_table, frf_record
 from scipy import linalg, stats
 
 
@@ -190,7 +190,7 @@ def test_validate_does_not_reuse_a_seed_run_under_another_controller(tmp_path):
 
 
 def test_with_bla_truth_moves_the_claimed_truth_and_keeps_the_rig_at_rest_beside_it():
-    from ambid.studies.coverage import with_bla_truth
+    from ambid.validation.coverage import with_bla_truth
 
     # two seeds whose intervals hold the BLA's value (1.0) and miss the rig at rest (0.0)
     rec = lambda v: dict(frf={}, noise=None, intervals={
@@ -215,7 +215,7 @@ def test_with_bla_truth_moves_the_claimed_truth_and_keeps_the_rig_at_rest_beside
 
 def test_at_own_excitation_moves_only_the_magnets_slopes_by_the_sessions_own_excitation():
     from ambid.fit.model_update import slopes_as_parameters
-    from ambid.studies.bla_truth import SLOPES, at_own_excitation
+    from ambid.validation.bla_truth import SLOPES, at_own_excitation
 
     bla = {"ki_n_per_a": 179.0, "ks_n_per_m": 8.7e5, "ks_b_over_a": 0.998, "delay_s": 5e-5, "total_lag_s": 1.7e-4}
     # a session whose grid stiffens the magnets more than the seeds' mean does
@@ -237,7 +237,7 @@ def test_noise_free_twin_is_the_loop_without_noise_and_the_bla_of_linear_magnets
     # the magnets' law they move by the magnets' slopes at the excitation level (Bussgang) and more
     from ambid.control.pid import PidParameters
     from ambid.fit.model_update import nominal_update_parameters, total_lag, true_parameters
-    from ambid.studies.bla_truth import Twin, bla_parameters, noise_free_twin, variance_on
+    from ambid.validation.bla_truth import Twin, bla_parameters, noise_free_twin, variance_on
 
     rig, ctl = loop
     d = build_design("multisine", (10.0, 1000.0), 5.0, 10_000.0, peak_current_a=0.4, n_periods=1,
@@ -271,7 +271,7 @@ def test_drawn_nominal_rig_states_the_drawn_values_and_never_the_truth():
     # validate's nominal model: the true rig missed by one draw from each tolerance, written as a rig file
     from ambid.fit.model_update import nominal_update_parameters
     from ambid.plant.tolerances import Z95
-    from ambid.studies.coverage import draw_nominal_rig
+    from ambid.validation.coverage import draw_nominal_rig
 
     rig = make_rig()
     for seed in range(3):

@@ -1,4 +1,4 @@
-"""identify's analysis started early (ambid.studies.early_analysis) gives the numbers of the recording's analysis.
+"""identify's analysis started early (ambid.identification.early) gives the numbers of the recording's analysis.
 
 A simulated session of the default rig (two realisations, the plant described as simulated) is analysed
 twice: by identify_session on the file, and by the worker process fed as identify feeds it -- reference
@@ -16,8 +16,8 @@ import pytest
 from ambid.channels import RADIAL
 from ambid.excitation import design_multisine
 from ambid.plant.rig import make_rig
-from ambid.studies.early_analysis import EarlyAnalysis
-from ambid.studies.identification import (identify_session, inputs_from_messages, read_session_inputs,
+from ambid.identification.early import EarlyAnalysis
+from ambid.identification import (identify_session, inputs_from_messages, read_session_inputs,
                                           reference_key, reference_models)
 from session_testbench import design_message, plant_message, simulate_closed_loop, write_session
 

@@ -18,7 +18,8 @@ from ambid.frf.streaming import FrfStream
 from ambid.plant.rig import load_rig, make_rig
 from ambid.plant.sensors import runout_table
 from ambid.plant.true_rig import true_linear_model
-from ambid.studies.comparison import frf_error, true_frf
+from ambid.frf.accuracy import frf_relative_error as frf_error
+from ambid.plant.true_rig import true_frf
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from session_testbench import simulate_closed_loop  # noqa: E402

@@ -13,7 +13,7 @@ import scipy.io as sio
 
 import lpm_testbench as tb
 from ambid.frf.frf_file import FrfFileError, read_frf_file
-from ambid.studies.frf_fit import identify_frf
+from ambid.identification.frf_file_fit import identify_frf
 from ambid_cli import cli
 
 OUTS = [f"y_{a}" for a in tb.AXES]

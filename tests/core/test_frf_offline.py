@@ -8,14 +8,14 @@ import json
 import struct
 
 import ambid.frf.offline as offline
-import ambid.session.blocks as blocks
+import ambid.recording.blocks as blocks
 import numpy as np
 import pytest
 from ambid.excitation import design_multisine
 from ambid.frf.offline import frf_from_arrays, frf_from_files, frf_from_session, session_designs
 from ambid.frf.streaming import FrfStream
-from ambid.session import iter_decoded
-from ambid.session.blocks import SampleBlockReader
+from ambid.recording import iter_decoded
+from ambid.recording.blocks import SampleBlockReader
 from frf_testbench import FS, loop_model, simulate
 from scipy.io import savemat
 from session_testbench import SAMPLE_BLOCK, block_message, design_message, encoder, write_session
@@ -180,7 +180,7 @@ def test_blocks_of_other_namespaces_and_bad_blocks_are_left_alone(rec, tmp_path)
     d, x = rec["design"], rec["x"]
     blocks = _blocks(x, 1000)
     path = tmp_path / "two_namespaces.mcap"
-    from ambid.session import SessionWriter
+    from ambid.recording import SessionWriter
     from session_testbench import DEFS, EXCITATION_DESIGN
 
     def block_bytes(first, data):

@@ -1,4 +1,4 @@
-"""ambid.studies.identification: the whole offline job on a simulated session, and its pieces.
+"""ambid.identification: the whole offline job on a simulated session, and its pieces.
 
 The session is a core-level closed loop of the default rig (true rig: housing mode, sensor filter, delay,
 ki and ks off their nominal values) with the default PID, excited by an orthogonal random-odd multisine on
@@ -20,7 +20,8 @@ from ambid.frf.levels import line_levels
 from ambid.frf.sensitivity import iso14839_zone
 from ambid.plant.rig import make_rig
 from ambid.plant.true_rig import true_linear_model
-from ambid.studies.identification import (compare_modes, frf_relative_error, identify_session, select_order,
+from ambid.frf.accuracy import frf_relative_error
+from ambid.identification import (compare_modes, identify_session, select_order,
                                           session_rig, true_modes)
 from ambid_cli.commands import fit as fit_command
 from ambid_cli.commands.inputs import BadInput

@@ -12,7 +12,7 @@ from scipy import signal
 import lpm_testbench as tb
 from ambid.frf.offline import frf_from_session
 from ambid.records.importer import import_record
-from ambid.studies.identification import identify_session
+from ambid.identification import identify_session
 from ambid_cli import cli
 
 GAIN_Y, GAIN_U = 2.0e4, 0.5          # sensor [V/m], current monitor and excitation input [V/A]

@@ -252,7 +252,7 @@ def test_a_complex_mat_channel_is_refused(tmp_path, capsys):
 
 @pytest.mark.parametrize("style", ["tabs, decimal comma", "quoted"])
 def test_tab_separated_and_quoted_csv_import_as_the_plain_one(tmp_path, style, capsys):
-    from ambid.session.blocks import iter_sample_blocks
+    from ambid.recording.blocks import iter_sample_blocks
 
     r, y, u = _signals()
     plain = _csv(tmp_path / "plain.csv", _columns(r, y, u)).read_text()

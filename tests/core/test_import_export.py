@@ -12,7 +12,7 @@ import pytest
 import yaml
 from ambid.excitation import design_multisine
 from ambid.frf.offline import frf_from_session, session_designs
-from ambid.studies.identification import identify_session
+from ambid.identification import identify_session
 from ambid_cli import cli
 from rig_records_testbench import AXES, FS, KP, closed_loop, multisine, true_modes, write_logger_csv, write_matlab73
 from session_testbench import design_message, write_session

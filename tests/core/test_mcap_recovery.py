@@ -10,7 +10,7 @@ import textwrap
 from pathlib import Path
 
 import pytest
-from ambid.session import (IncompleteSessionError, SessionWriteError, SessionWriter, iter_decoded, iter_messages,
+from ambid.recording import (IncompleteSessionError, SessionWriteError, SessionWriter, iter_decoded, iter_messages,
                            scan_session)
 from mcap.reader import make_reader
 
@@ -70,7 +70,7 @@ def test_truncated_files_give_every_complete_chunk(tmp_path):
 CHILD = textwrap.dedent(
     """
     import struct, sys, time
-    from ambid.session import SessionWriter
+    from ambid.recording import SessionWriter
 
     def payload(i):
         text = f"message {i:08d}".encode()

@@ -5,7 +5,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from ambid.session.ros2_schema import (DEFINITION_SEPARATOR, full_message_definition, load_message_schema,
+from ambid.recording.ros2_schema import (DEFINITION_SEPARATOR, full_message_definition, load_message_schema,
                                        nested_type_names, normalize_type_name, read_type_hash, split_full_definition)
 from mcap_ros2._dynamic import generate_dynamic, serialize_dynamic
 

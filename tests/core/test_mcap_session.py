@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 import yaml
-from ambid.session import (IncompleteSessionError, QosProfile, SessionWriter, format_inspection, inspect_session,
+from ambid.recording import (IncompleteSessionError, QosProfile, SessionWriter, format_inspection, inspect_session,
                            iter_decoded, iter_messages, read_metadata, scan_session)
-from ambid.session.writer import parse_qos_profiles, qos_profile_from, serialize_qos_profiles
+from ambid.recording.writer import parse_qos_profiles, qos_profile_from, serialize_qos_profiles
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
 from mcap.records import SummaryOffset

@@ -1,6 +1,6 @@
 """A measurement without settling periods: identify's experiment with --transient-periods 0 keeps the default's FRF
 error (within 1.15x, same seed) once each segment's transient is removed by the local polynomial method, on a
-shorter session (10 Hz lines, two realisations) of the loop identify runs (ambid.studies.comparison.run_loop, the
+shorter session (10 Hz lines, two realisations) of the loop identify runs (ambid.control.simulated_loop.run_loop, the
 plant and controller code of the nodes), against the true rig's sampled small-signal FRF."""
 
 from __future__ import annotations
@@ -14,7 +14,9 @@ from ambid.channels import Layout
 from ambid.excitation.spec import DesignSpec
 from ambid.frf.streaming import FrfStream
 from ambid.plant.rig import make_rig
-from ambid.studies.comparison import frf_error, levitate, run_loop, true_frf
+from ambid.control.simulated_loop import levitate, run_loop
+from ambid.frf.accuracy import frf_relative_error as frf_error
+from ambid.plant.true_rig import true_frf
 
 
 def _error(design, x, g0) -> float:

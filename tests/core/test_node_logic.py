@@ -83,9 +83,9 @@ def test_experiment_placement_refuses_what_the_plant_cannot_run(change, words):
 
 
 def test_recording_counts_follows_block_ends_keeps_log_time_and_writes_changed_facts(tmp_path):
-    from ambid.session import iter_messages, read_metadata
-    from ambid.session.blocks import encode_sample_block
-    from ambid.session.recording import Recording
+    from ambid.recording import iter_messages, read_metadata
+    from ambid.recording.blocks import encode_sample_block
+    from ambid.recording.in_progress import Recording
 
     rec = Recording(str(tmp_path / "s" / "r.mcap"), chunk_size=1 << 20, flush_period_s=1.0, compression="zstd",
                     fsync=False, overwrite=False)

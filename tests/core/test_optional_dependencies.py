@@ -61,7 +61,7 @@ def test_the_simulator_and_controller_without_numba_give_the_same_numbers():
 def test_reading_the_frf_and_the_fit_need_no_matplotlib(tmp_path):
     code = BLOCK.format(blocked={"matplotlib", "numba"}) + """
 import json, sys
-import ambid.session, ambid.frf.offline, ambid.fit, ambid.fit.order_selection, ambid.studies.identification
+import ambid.recording, ambid.frf.offline, ambid.fit, ambid.fit.order_selection, ambid.identification
 print(json.dumps({"matplotlib": "matplotlib" in sys.modules}))
 """
     assert _run(code) == {"matplotlib": False}

@@ -37,7 +37,7 @@ def _lscf_stable(freq_hz, H, lo, hi, top=60, last=6):
 def beam_fit(tmp_path_factory):
     pytest.importorskip("pyuff")
     from ambid.frf.frf_file import read_frf_file
-    from ambid.studies.frf_fit import identify_frf
+    from ambid.identification.frf_file_fit import identify_frf
 
     measured = read_frf_file(BEAM)
     out = tmp_path_factory.mktemp("beam")
@@ -99,7 +99,7 @@ PUBLISHED_FLEXIBLE_HZ = (100.0, 162.0, 212.0)
 @pytest.fixture(scope="module")
 def amb_fit(tmp_path_factory):
     from ambid.records.importer import import_record
-    from ambid.studies.identification import identify_session
+    from ambid.identification import identify_session
 
     d = tmp_path_factory.mktemp("amb")
     res = import_record([AMB / "Sweep_Time_Anregung.mat", AMB / "Sweep_Time_Ausgang.mat"], AMB / "MAP.yaml",

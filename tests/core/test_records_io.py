@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import scipy.io as sio
 from ambid.records import open_record, write_record
-from ambid.session.blocks import decode_sample_block, encode_sample_block
+from ambid.recording.blocks import decode_sample_block, encode_sample_block
 from rig_records_testbench import write_logger_csv, write_matlab73
 from session_testbench import SAMPLE_BLOCK, block_message, encoder
 

@@ -16,7 +16,9 @@ from ambid.frf.offline import frf_from_arrays
 from ambid.frf.sensitivity import iso14839_zone
 from ambid.plant.rig import make_rig
 from ambid.plant.true_rig import true_linear_model
-from ambid.studies.comparison import frf_error, levitate, run_loop, true_frf
+from ambid.control.simulated_loop import levitate, run_loop
+from ambid.frf.accuracy import frf_relative_error as frf_error
+from ambid.plant.true_rig import true_frf
 
 INPUTS = ("u_a_x", "u_b_x", "u_a_y", "u_b_y")
 AXES = ("a_x", "b_x", "a_y", "b_y")

@@ -80,7 +80,7 @@ def test_a_record_excited_at_the_reference_shows_the_loops_sensitivity_at_its_ow
 
     from ambid.frf.sensitivity import iso14839_zone
     from ambid.records.importer import import_record
-    from ambid.studies.identification import identify_session
+    from ambid.identification import identify_session
 
     fs, n = 2000.0, 40000
     m, ks, ki, kp, kd = 5.0, 1.0e5, 50.0, 4000.0, 5.0

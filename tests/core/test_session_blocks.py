@@ -1,4 +1,4 @@
-"""ambid.session.blocks: hand-written SampleBlock CDR reader against mcap_ros2's encoder and decoder."""
+"""ambid.recording.blocks: hand-written SampleBlock CDR reader against mcap_ros2's encoder and decoder."""
 
 import sys
 import time
@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from ambid.session import SessionWriter, inspect_session, iter_messages
-from ambid.session.blocks import (SAMPLE_BLOCK_TYPE, block_spans, decode_sample_block, encode_sample_block,
+from ambid.recording import SessionWriter, inspect_session, iter_messages
+from ambid.recording.blocks import (SAMPLE_BLOCK_TYPE, block_spans, decode_sample_block, encode_sample_block,
                                   iter_sample_blocks, read_samples, sample_block_session, sample_block_span,
                                   sample_block_topics, sample_index_report)
 from mcap_ros2._dynamic import serialize_dynamic

@@ -20,8 +20,8 @@ from ambid.control.stepper import ControllerStepper
 from ambid.plant.levitation import LevitationMonitor
 from ambid.plant.rig import make_rig
 from ambid.plant.simulator import PlantSimulator
-from ambid.session import iter_messages, scan_session
-from ambid.session.blocks import decode_sample_block
+from ambid.recording import iter_messages, scan_session
+from ambid.recording.blocks import decode_sample_block
 from ambid_cli import cli
 from rclpy.node import Node
 

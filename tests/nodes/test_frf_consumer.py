@@ -11,7 +11,7 @@ from ambid.excitation import design_multisine
 from ambid.frf.offline import frf_from_session
 from ambid.plant.rig import make_rig
 from ambid.plant.true_rig import true_linear_model
-from ambid.session import SessionWriter
+from ambid.recording import SessionWriter
 from ambid_nodes.conversions import block_msg
 from ambid_nodes.excitation_generator import ExcitationGenerator
 from ambid_nodes.frf_consumer import FrfConsumer

@@ -28,7 +28,7 @@ from ambid.hardware import bridge_protocol as bp
 from ambid.hardware.rt_target import Target, TargetConfig
 from ambid.plant.analytical import analytical_model
 from ambid.plant.rig import make_rig
-from ambid.session import scan_session
+from ambid.recording import scan_session
 from ambid_nodes.conversions import block_msg, float_array, statespace_to_msg
 from ambid_nodes.excitation_generator import ExcitationGenerator
 from ambid_nodes.frf_consumer import FrfConsumer

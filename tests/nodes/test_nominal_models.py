@@ -5,7 +5,7 @@ hold what they claim, and nothing is frozen or fails -- also where the nominal l
 controller that ran.
 
 What the intervals claim is the parameters of the rig's best linear approximation at the session's
-excitation level (ambid.studies.bla_truth): computed here from noise-free twins of the session (the
+excitation level (ambid.validation.bla_truth): computed here from noise-free twins of the session (the
 simulated rig, the same controller and excitation level, 16 random-phase designs), the magnets' slopes
 moved to the session's own excitation (at_own_excitation), never from the session's estimate. Each twin carries a session's stochastic nonlinear distortion (its parameters scatter
 by up to 1.3 claimed standard deviations about the BLA's, ambid validate's noise_free rows), so the mean of
@@ -60,7 +60,7 @@ def _twin(seed: int, out_dir: Path) -> tuple[np.ndarray, np.ndarray, dict]:
     from ambid.excitation.spec import DesignSpec
     from ambid.fit.model_update import excitation_slopes, slopes_as_parameters
     from ambid.plant.rig import make_rig
-    from ambid.studies.bla_truth import noise_free_twin
+    from ambid.validation.bla_truth import noise_free_twin
     from ambid_nodes.session import SessionConfig, plan_session
 
     rig = make_rig()
@@ -104,11 +104,11 @@ def _holds(ci, std, value) -> bool:
 
 @pytest.fixture(scope="module")
 def bla(session, twin_jobs):
-    """The BLA parameters the session's intervals claim (ambid.studies.bla_truth), from N_TWINS noise-free
+    """The BLA parameters the session's intervals claim (ambid.validation.bla_truth), from N_TWINS noise-free
     twins: designs 1 .. N_TWINS of identify's default experiment (the session's is design 1), each weighted by
     the session's fit variance carried to its lines."""
     from ambid.plant.rig import make_rig
-    from ambid.studies.bla_truth import SLOPES, Twin, at_own_excitation, bla_parameters, variance_on
+    from ambid.validation.bla_truth import SLOPES, Twin, at_own_excitation, bla_parameters, variance_on
 
     jobs, out = twin_jobs
     # this process takes, from the last, the twins the worker has not begun; the worker's come as they end
@@ -128,7 +128,7 @@ def bla(session, twin_jobs):
 
 
 def test_wrong_nominal_models_give_the_same_update(session, bla, tmp_path):
-    from ambid.studies.identification import identify_session
+    from ambid.identification import identify_session
 
     ref = session["summary"]["update"]          # started from the rig that was simulated
     assert ref["success"] and not ref.get("error")

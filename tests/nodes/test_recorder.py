@@ -20,9 +20,9 @@ import numpy as np
 import pytest
 import rclpy
 import yaml
-from ambid.session import SessionWriter, iter_decoded, iter_messages, read_metadata, scan_session
-from ambid.session.blocks import decode_sample_block
-from ambid.session.writer import parse_qos_profiles
+from ambid.recording import SessionWriter, iter_decoded, iter_messages, read_metadata, scan_session
+from ambid.recording.blocks import decode_sample_block
+from ambid.recording.writer import parse_qos_profiles
 from ambid_cli import cli
 from ambid_cli.commands import inspect as inspect_cmd
 from ambid_nodes.conversions import block_msg

@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 from ambid.channels import RADIAL
 from ambid.frf.offline import frf_from_session
-from ambid.session import iter_messages, read_metadata, scan_session
-from ambid.session.blocks import decode_sample_block
+from ambid.recording import iter_messages, read_metadata, scan_session
+from ambid.recording.blocks import decode_sample_block
 from ambid_nodes.conversions import block_msg
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message

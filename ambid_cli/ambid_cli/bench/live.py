@@ -115,7 +115,8 @@ def analysis_figures(work: Path, overrides: dict) -> dict:
         in this process: the old path, whose time all came after the session) with its ``before_parts_s``.
     """
     from ambid.excitation.spec import DesignSpec
-    from ambid.studies import identification as ident
+    from ambid.identification import model_fit, pipeline, report
+    from ambid.jsonable import to_jsonable
 
     from ambid_nodes.session import SessionConfig, run_identify
 
@@ -123,30 +124,33 @@ def analysis_figures(work: Path, overrides: dict) -> dict:
     cfg = SessionConfig(out_dir=out, progress=False, experiment=DesignSpec(**overrides))
     shown = {}
     summary = run_identify(cfg, on_headline=lambda s: shown.setdefault("summary", s))
-    timing = dict(summary.get("analysis_timing") or {})
+    timing = dict(summary.analysis_timing)
     # before: the recording analysed after the session, in this process, where its time goes
     parts: dict[str, float] = {}
     originals = {}
-    for name in ("read_session_inputs", "reference_models", "stabilisation_diagram", "fit_common_denominator",
-                 "_update", "write_report"):
-        originals[name] = fn = getattr(ident, name)
+    for module, name, label in ((pipeline, "read_session_inputs", "read_session_inputs"),
+                                (pipeline, "reference_models", "reference_models"),
+                                (model_fit, "stabilisation_diagram", "stabilisation_diagram"),
+                                (model_fit, "fit_common_denominator", "fit_common_denominator"),
+                                (pipeline, "update_rig", "_update"), (report, "write_report", "write_report")):
+        originals[module, name] = fn = getattr(module, name)
 
-        def timed(*a, _fn=fn, _name=name, **k):
+        def timed(*a, _fn=fn, _name=label, **k):
             t = time.perf_counter()
             try:
                 return _fn(*a, **k)
             finally:
                 parts[_name] = parts.get(_name, 0.0) + time.perf_counter() - t
-        setattr(ident, name, timed)
+        setattr(module, name, timed)
     try:
         t0 = time.perf_counter()
-        before = ident.identify_session(summary["recording"]["path"], work / "analysis_before",
-                                        estimator=cfg.estimator)
+        before = pipeline.identify_session(summary.recording.path, work / "analysis_before", estimator=cfg.estimator)
         before_s = time.perf_counter() - t0
     finally:
-        for name, fn in originals.items():
-            setattr(ident, name, fn)
-    same = all(before.get(k) == shown.get("summary", {}).get(k)
-               for k in ("frf_error", "fit", "update", "sensitivity", "noise", "modes_vs_true"))
+        for (module, name), fn in originals.items():
+            setattr(module, name, fn)
+    early = shown["summary"].identification if "summary" in shown else None
+    same = early is not None and all(to_jsonable(getattr(before, k)) == to_jsonable(getattr(early, k))
+                                     for k in ("frf_error", "fit", "update", "sensitivity", "noise", "modes_vs_true"))
     return {**timing, "before_s": before_s, "before_parts_s": parts, "same_numbers": same,
-            "state": summary.get("state"), "session_samples_per_s": summary.get("simulated_samples_per_wall_s")}
+            "state": summary.state, "session_samples_per_s": summary.simulated_samples_per_wall_s}

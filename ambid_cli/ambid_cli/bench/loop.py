@@ -14,7 +14,7 @@ import statistics
 import time
 
 from ambid.plant.rig import make_rig
-from ambid.session.identity import new_session_id
+from ambid.session_id import new_session_id
 
 from ambid_cli.bench.pingpong import run_pingpong_composed, run_pingpong_processes
 

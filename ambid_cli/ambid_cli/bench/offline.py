@@ -26,7 +26,7 @@ from ambid.excitation import ExcitationDesign
 from ambid.excitation.spec import DesignSpec
 from ambid.plant.rig import make_rig
 from ambid.plant.true_rig import true_linear_model
-from ambid.session import SessionWriter, iter_messages
+from ambid.recording import SessionWriter, iter_messages
 from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
 
@@ -157,7 +157,7 @@ def offline_figures(path: str | os.PathLike, samples: int, repeats: int = 3) -> 
     Returns:
         dict reader -> {``s`` (median wall time), ``mb_per_s`` (file MB per s), ``samples_per_s``}
         for ``mcap_bare`` (the mcap library's iter_messages, nothing done with the data),
-        ``session_iter`` (:func:`ambid.session.iter_messages`, all topics) and ``frf``
+        ``session_iter`` (:func:`ambid.recording.iter_messages`, all topics) and ``frf``
         (:func:`ambid.frf.offline.frf_from_session`), plus ``ratio_frf_to_bare`` (rate of frf over
         mcap_bare, median over rounds), ``ratio_frf_to_session_iter`` (the same over ambid's own
         reader: what the FRF costs beyond reading with it) and ``file_bytes``.

@@ -5,7 +5,7 @@ rational model of all the segments' transients, :mod:`ambid.frf.transient_model`
 Before: identify's default experiment (:class:`ambid.excitation.spec.DesignSpec`, 3 settling periods per segment)
 and its median FRF error against the true rig. After: the same experiment without settling periods, run with
 more realisations than the default; its measurement time at equal error is the shortest prefix of whole
-realisations whose error is at most the default's (:func:`ambid.studies.comparison.realisation_ladder`), and, as one
+realisations whose error is at most the default's (:func:`ambid.comparison.thesis.realisation_ladder`), and, as one
 step's error is a draw of the noise, by the law ``error = c / sqrt(time)`` fitted to each whole ladder.
 Both from the same levitated state and seed, with the nonlinear magnets identify runs.
 """
@@ -19,7 +19,9 @@ import numpy as np
 
 from ambid.excitation.spec import DesignSpec
 from ambid.plant.rig import make_rig
-from ambid.studies.comparison import levitate, realisation_ladder, run_loop, true_frf
+from ambid.comparison.thesis import realisation_ladder
+from ambid.control.simulated_loop import levitate, run_loop
+from ambid.plant.true_rig import true_frf
 
 
 def settling_figures(overrides: dict | None = None, extra_realisations: int = 2) -> dict:

@@ -7,7 +7,7 @@ stops half way continues where it stopped: a speed whose summary.json is there a
 again (the settings must be the same; ``DIR/campaign.json`` keeps them). The speeds' sessions run as tasks
 on Dask distributed (:mod:`ambid_cli.sessions_on_dask`: a local cluster of this machine's cores, or
 ``--scheduler ADDRESS``), each on its own ROS domain. At the end ``DIR/campbell.json``
-(:mod:`ambid.studies.campbell`) and ``DIR/report/`` (campbell.png, index.html).
+(:mod:`ambid.identification.campbell`) and ``DIR/report/`` (campbell.png, index.html).
 """
 
 from __future__ import annotations
@@ -78,7 +78,7 @@ def _done(folder: Path) -> dict | None:
     return s if isinstance(s, dict) and s.get("state", "done") == "done" and "fit" in s else None
 
 
-def _identify_speed(cfg, rig, controller) -> tuple[dict, float]:
+def _identify_speed(cfg, rig, controller) -> tuple:
     """One speed's identify session (a Dask task): its summary and wall time [s]."""
     from ambid_nodes.session import plan_session, run_identify
 
@@ -90,8 +90,8 @@ def _identify_speed(cfg, rig, controller) -> tuple[dict, float]:
 def run(args: argparse.Namespace) -> int:
     import yaml
 
+    from ambid.identification.campbell import campbell_summary, campbell_table, write_campbell_report
     from ambid.jsonable import to_jsonable
-    from ambid.studies.campbell import campbell_summary, campbell_table, write_campbell_report
     from ambid_nodes.session import SessionConfig
 
     spec = experiment_spec(args)
@@ -147,14 +147,14 @@ def run(args: argparse.Namespace) -> int:
                         print(f"ambid campaign: {rpm:.0f} rpm failed: {exc}", file=sys.stderr)
                         continue
                     summary, walls[rpm] = result
-                    if summary.get("state", "done") != "done":
+                    if summary.state != "done":
                         failed.append(rpm)
-                        print(f"ambid campaign: {rpm:.0f} rpm did not finish ({summary.get('state')}); see "
+                        print(f"ambid campaign: {rpm:.0f} rpm did not finish ({summary.state}); see "
                               f"{_speed_dir(out, rpm)}", file=sys.stderr)
                         continue
-                    fb = [m for m in summary["fit"]["modes"] if m.get("whirl")]
+                    fb = [m for m in summary.identification.fit.modes if m.whirl]
                     print(f"ambid campaign: {rpm:.0f} rpm done in {walls[rpm]:.1f} s; modes "
-                          + ", ".join(f"{m['freq_hz']:.1f} Hz {m['whirl'][0]}" for m in fb[:8]), file=sys.stderr)
+                          + ", ".join(f"{m.freq_hz:.1f} Hz {m.whirl[0]}" for m in fb[:8]), file=sys.stderr)
                     runs[rpm] = summary
         except KeyboardInterrupt:
             print("ambid campaign: interrupted; run the same command again to continue (finished speeds are kept)",

@@ -1,6 +1,6 @@
 """ambid compare: the thesis's comparisons of excitations and estimators (never imports rclpy).
 
-Runs :func:`ambid.studies.comparison.run_comparison` on the simulated rig and writes
+Runs :func:`ambid.comparison.thesis.run_comparison` on the simulated rig and writes
 to ``--out``: ``compare.json`` (every number), ``compare.md`` (one table per
 comparison with a line of interpretation) and four PNG figures:
 ``measurement_time.png``, ``frf_error_methods.png``,
@@ -34,7 +34,7 @@ def add_arguments(g: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ambid.studies.comparison import comparison_markdown, run_comparison
+    from ambid.comparison.thesis import comparison_markdown, run_comparison
 
     parts = tuple(p.strip() for p in args.parts.split(",") if p.strip())
     bad = sorted(set(parts) - set(PARTS))

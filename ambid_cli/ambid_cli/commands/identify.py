@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ambid.control.kinds import describe_kinds
 
@@ -16,6 +17,9 @@ from ambid_cli.commands.inputs import (BadInput, add_experiment_options, add_lin
 from ambid_cli.commands.session_report import (death_line, kept_out_line, levitation_lines, live_line,
                                                 print_foreign, session_of, session_words)
 from ambid_nodes.graph import DEFAULT_NAMESPACE
+
+if TYPE_CHECKING:
+    from ambid_nodes.session import IdentifyResult
 
 HELP = "identify the simulated rig end to end (graph, experiment, recording, FRF, fit, report)"
 
@@ -84,8 +88,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"ambid identify: {session_words(session)}, {layout}, namespace {args.namespace}, ROS_DOMAIN_ID "
           f"{session_domain_id()}", file=sys.stderr, flush=True)
 
-    def headline(summary: dict) -> None:   # printed as soon as the results are there; the report follows
-        kept_out = kept_out_line("identify", (summary.get("session") or {}).get("foreign_messages", {}))
+    def headline(summary: IdentifyResult) -> None:   # printed as soon as the results are there; the report follows
+        kept_out = kept_out_line("identify", summary.session.foreign_messages)
         if kept_out:
             print(kept_out, file=sys.stderr, flush=True)
         print(format_headlines(summary, args.out), flush=True)
@@ -105,54 +109,50 @@ def run(args: argparse.Namespace) -> int:
     except (ValueError, RuntimeError) as exc:
         print(f"ambid identify: {exc}", file=sys.stderr)
         return 1
-    live = summary.get("live")
-    if live:
-        print("  " + live_line(live))
-    return 0 if summary.get("state", "done") == "done" else 1
+    if summary.live:
+        print("  " + live_line(summary.live))
+    return 0 if summary.state == "done" else 1
 
 
-def format_headlines(s: dict, out: Path) -> str:
-    lines = [f"ambid identify: done in {s['wall_time_s']:.1f} s wall for {s['simulated_time_s']:.2f} s simulated "
-             f"({s['simulated_samples_per_wall_s']:.0f} samples/s, {s['layout']})"]
-    ctrl = s.get("controller")
+def format_headlines(s: IdentifyResult, out: Path) -> str:
+    ident = s.identification
+    lines = [f"ambid identify: done in {s.wall_time_s:.1f} s wall for {s.simulated_time_s:.2f} s simulated "
+             f"({s.simulated_samples_per_wall_s:.0f} samples/s, {s.layout})"]
+    ctrl = ident.controller
     if ctrl:
         what = (ctrl.get("parameters") or {}).get("file", "") if ctrl["kind"] == "file" else ""
         lines.append(f"  controller: {ctrl['kind']}{' ' + what if what else ''} ({ctrl['n_states']} states)")
-    err = s.get("frf_error")
+    err = ident.frf_error
     if err:
-        lines.append(f"  FRF error vs the true rig: median {100 * err['median']:.2f} %, worst excited line "
-                     f"{100 * err['worst']:.2f} % (at {err['worst_at_hz']:.0f} Hz)")
-    fit = s.get("fit")
-    if fit:
-        modes = ", ".join(f"{m['freq_hz']:.1f} Hz (zeta {m['damping']:.4f}"
-                          + (f", {m['whirl']}" if m.get("whirl") and m["whirl"] != "standing" else "") + ")"
-                          for m in fit["modes"][:5])
-        lines.append(f"  fitted model: order {fit['order']}, modes {modes}")
-    upd = (s.get("update") or {}).get("parameters", {})
+        lines.append(f"  FRF error vs the true rig: median {100 * err.median:.2f} %, worst excited line "
+                     f"{100 * err.worst:.2f} % (at {err.worst_at_hz:.0f} Hz)")
+    fit = ident.fit
+    modes = ", ".join(f"{m.freq_hz:.1f} Hz (zeta {m.damping:.4f}"
+                      + (f", {m.whirl}" if m.whirl and m.whirl != "standing" else "") + ")"
+                      for m in fit.modes[:5])
+    lines.append(f"  fitted model: order {fit.order}, modes {modes}")
+    upd = (ident.update.parameters if ident.update is not None else None) or {}
     for name in ("ki_n_per_a", "ks_n_per_m"):
         if name in upd:
             p = upd[name]
-            true, rest = p.get("true"), p.get("true_small_signal")
-            lines.append(f"  updated {name}: {p['value']:.5g} {p['unit']} (95 % CI {p['ci95'][0]:.5g}..{p['ci95'][1]:.5g})"
-                         + (f", true {true:.5g}" if true is not None else "")
-                         + (f" at this excitation ({rest:.5g} at rest)" if rest is not None else ""))
-    sync = s.get("synchronous")
-    if sync and sync.get("harmonics"):
-        h1 = sync["harmonics"][0]
-        ny = len(s.get("outputs") or [])
-        moved = len(((s.get("excitation") or {}).get("synchronous") or {}).get("moved") or [])
-        lines.append(f"  at speed: {moved} excited line(s) moved off k x {h1['freq_hz']:.1f} Hz; synchronous 1X "
-                     f"response {max(h1['amplitude'][:ny]) * 1e6:.2f} um (largest output), kept out of the FRF")
+            lines.append(f"  updated {name}: {p.value:.5g} {p.unit} (95 % CI {p.ci95[0]:.5g}..{p.ci95[1]:.5g})"
+                         + (f", true {p.true:.5g}" if p.true is not None else "")
+                         + (f" at this excitation ({p.true_small_signal:.5g} at rest)"
+                            if p.true_small_signal is not None else ""))
+    sync = ident.synchronous
+    if sync and sync.harmonics:
+        h1 = sync.harmonics[0]
+        moved = len((ident.excitation.synchronous or {}).get("moved") or [])
+        lines.append(f"  at speed: {moved} excited line(s) moved off k x {h1.freq_hz:.1f} Hz; synchronous 1X "
+                     f"response {max(h1.amplitude[:len(ident.outputs)]) * 1e6:.2f} um (largest output), kept out "
+                     "of the FRF")
     from ambid.frf.sensitivity import sensitivity_lines
 
-    lines += [f"  {ln}" for ln in sensitivity_lines(s.get("sensitivity"))]
-    lines += [f"  data quality: {q['text']}" for q in (s.get("quality") or {}).get("findings", [])]
-    timing = s.get("analysis_timing") or {}
-    if "headline_after_last_period_s" in timing:
-        lines.append(f"  results {timing['headline_after_last_period_s']:.1f} s after the last period; the report "
-                     "follows")
+    lines += [f"  {ln}" for ln in sensitivity_lines(ident.sensitivity)]
+    lines += [f"  data quality: {q['text']}" for q in ident.quality.findings]
+    if "headline_after_last_period_s" in s.analysis_timing:
+        lines.append(f"  results {s.analysis_timing['headline_after_last_period_s']:.1f} s after the last period; "
+                     "the report follows")
     lines += [f"  summary: {out / 'summary.json'}", f"  report:  {out / 'report' / 'index.html'}",
-              f"  session: {s['recording']['path']} ({s['recording']['messages']} messages)"]
+              f"  session: {s.recording.path} ({s.recording.messages} messages)"]
     return "\n".join(lines)
-
-

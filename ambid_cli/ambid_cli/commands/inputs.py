@@ -32,7 +32,7 @@ def session_file(path: str | os.PathLike, recover: bool = False) -> str:
     With ``recover`` a file whose end is missing is fine (the reader takes
     what is complete); an empty or non-MCAP file never is.
     """
-    from ambid.session import NotASessionError, check_session_file
+    from ambid.recording import NotASessionError, check_session_file
 
     path = os.fspath(path)
     try:
@@ -131,7 +131,7 @@ def address(text: str) -> str:
 
 def session_id(text: str) -> int:
     """A ``--session`` value (argparse type): a session id as ambid prints it (hex)."""
-    from ambid.session.identity import check_session_id
+    from ambid.session_id import check_session_id
 
     try:
         return check_session_id(text)

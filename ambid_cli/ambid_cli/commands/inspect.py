@@ -15,9 +15,9 @@ import argparse
 import json
 from typing import Any
 
-from ambid.session import IncompleteSessionError, format_inspection, inspect_session, iter_decoded
-from ambid.session.blocks import SAMPLE_BLOCK_TYPE, sample_index_report
-from ambid.session.facts import FACT_TYPES, controller_facts, design_facts, design_summary, plant_facts, rig_summary
+from ambid.recording import IncompleteSessionError, format_inspection, inspect_session, iter_decoded
+from ambid.recording.blocks import SAMPLE_BLOCK_TYPE, sample_index_report
+from ambid.recording.facts import FACT_TYPES, controller_facts, design_facts, design_summary, plant_facts, rig_summary
 
 HELP = "inspect a recorded MCAP session: topics, rates, sample gaps, design and rig"
 SESSION_RECORD = "ambid.session"
@@ -83,7 +83,7 @@ def session_facts(path: str, report: dict) -> dict[str, Any]:
 def describe(path: str, recover: bool = False) -> dict[str, Any]:
     """The inspection report of one session (JSON-able dict).
 
-    Keys of :func:`ambid.session.inspect_session` (with ``sample_index``
+    Keys of :func:`ambid.recording.inspect_session` (with ``sample_index``
     computed from the block headers), plus ``facts`` (:func:`session_facts`)
     and ``recovery`` ({complete, recovered_messages, valid_bytes, file_bytes,
     problem}).
@@ -104,7 +104,7 @@ def describe(path: str, recover: bool = False) -> dict[str, Any]:
 
 
 def _valid_bytes(path: str) -> int:
-    from ambid.session import scan_session
+    from ambid.recording import scan_session
 
     return scan_session(path).valid_bytes
 

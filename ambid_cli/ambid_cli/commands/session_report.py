@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import sys
 
-from ambid.session.identity import format_session, new_session_id
+from ambid.session_id import format_session, new_session_id
 
 
 def session_of(args) -> int:

@@ -4,23 +4,23 @@ Runs ``ambid identify``'s session (the same graph, design and offline
 identification, the report left out) once per seed; the seed sets the sensor
 noise and the multisine's random phases. Each seed's update starts from a
 nominal rig drawn from the tolerances around the simulated one, as a data
-sheet misses a real rig (:func:`ambid.studies.coverage.draw_nominal_rig`;
+sheet misses a real rig (:func:`ambid.validation.coverage.draw_nominal_rig`;
 ``seed_NNN/nominal_rig.yaml``, and per seed in coverage.json); the update
 never sees the truth. Each seed also simulates its noise-free twin (the same
 rig, controller and design without sensor noise,
-:func:`ambid.studies.bla_truth.noise_free_twin`). Each finished seed leaves
+:func:`ambid.validation.bla_truth.noise_free_twin`). Each finished seed leaves
 ``DIR/seeds/seed_NNN/record.json`` (what it claimed beside the true rig's
-values, :func:`ambid.studies.coverage.seed_record`); a later run with the same
+values, :func:`ambid.validation.coverage.seed_record`); a later run with the same
 options reuses those, so a stopped run loses only the sessions under way.
 The updated parameters' intervals claim the parameters of the rig's best
 linear approximation at the excitation level: validate computes them from all
-seeds' twins (:func:`ambid.studies.bla_truth.bla_parameters`), moves the
+seeds' twins (:func:`ambid.validation.bla_truth.bla_parameters`), moves the
 magnets' slopes to each seed's own excitation
-(:func:`ambid.studies.bla_truth.at_own_excitation`) and measures the coverage
+(:func:`ambid.validation.bla_truth.at_own_excitation`) and measures the coverage
 against them, the rig's values at rest beside them.
 Sessions run as tasks on Dask distributed (:mod:`ambid_cli.sessions_on_dask`):
 a local cluster of this machine's cores, or ``--scheduler ADDRESS``. Writes
-``DIR/coverage.json`` (:func:`ambid.studies.coverage.coverage_table`) and
+``DIR/coverage.json`` (:func:`ambid.validation.coverage.coverage_table`) and
 ``DIR/coverage.png``.
 """
 
@@ -94,11 +94,12 @@ def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_m
 
     from ambid.excitation.spec import DesignSpec
     from ambid.fit.model_update import total_lag
+    from ambid.identification.pipeline import identify_session
+    from ambid.identification.update import refit_parameters
     from ambid.jsonable import to_jsonable
     from ambid.plant.rig import load_rig, make_rig
-    from ambid.studies.bla_truth import noise_free_twin
-    from ambid.studies.coverage import draw_nominal_rig, frf_record, seed_record
-    from ambid.studies.identification import identify_session, refit_parameters
+    from ambid.validation.bla_truth import noise_free_twin
+    from ambid.validation.coverage import draw_nominal_rig, frf_record, seed_record
 
     from ambid_nodes.session import SessionConfig, plan_session, run_session_composed
 
@@ -144,7 +145,7 @@ def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_m
             if f"parameter:{name}" in rec["intervals"]:
                 rec["intervals"][f"parameter:{name}"]["noise_free"] = value
         if "derived:total_lag_s" in rec["intervals"]:
-            values = {k: v["value"] for k, v in summary["update"]["parameters"].items()}
+            values = {k: v.value for k, v in summary.update.parameters.items()}
             rec["intervals"]["derived:total_lag_s"]["noise_free"] = total_lag({**values, **refit})
     rec.update(seed=seed, fingerprint=fingerprint, wall_s=time.perf_counter() - t0)
     tmp = out / "record.json.tmp"
@@ -164,10 +165,10 @@ def reusable_record(path: Path, fingerprint: str) -> dict | None:
 
 
 def bla_estimands(seeds_dir: Path, records: dict[int, dict], rig_path: str) -> tuple[dict[int, dict], list[dict]]:
-    """The BLA parameters each seed's intervals claim (:func:`ambid.studies.bla_truth.bla_parameters`): the seeds
+    """The BLA parameters each seed's intervals claim (:func:`ambid.validation.bla_truth.bla_parameters`): the seeds
     of one model structure (the update's parameters and free ones) share one pooled estimand, their noise-free
     twins pooled (each seed's own twin among them, one in N), and each seed's magnets' slopes moved from it by
-    its own excitation (:func:`ambid.studies.bla_truth.at_own_excitation`).
+    its own excitation (:func:`ambid.validation.bla_truth.at_own_excitation`).
 
     Returns:
         (seed -> estimand, [{seeds, names, free, parameters: the pooled estimand, slopes_mean: the seeds'
@@ -176,7 +177,7 @@ def bla_estimands(seeds_dir: Path, records: dict[int, dict], rig_path: str) -> t
     import numpy as np
 
     from ambid.plant.rig import load_rig, make_rig
-    from ambid.studies.bla_truth import SLOPES, Twin, at_own_excitation, bla_parameters
+    from ambid.validation.bla_truth import SLOPES, Twin, at_own_excitation, bla_parameters
 
     rig = load_rig(rig_path) if rig_path else make_rig()
     groups: dict[tuple, list[int]] = {}
@@ -205,7 +206,7 @@ def bla_estimands(seeds_dir: Path, records: dict[int, dict], rig_path: str) -> t
 
 
 def run(args: argparse.Namespace) -> int:
-    from ambid.studies.coverage import coverage_figure, coverage_table, with_bla_truth
+    from ambid.validation.coverage import coverage_figure, coverage_table, with_bla_truth
 
     # a bad rig or controller file, or a controller that cannot hold the rig, stops here before any session
     checked_controller(args.controller, rig_file(args.rig))

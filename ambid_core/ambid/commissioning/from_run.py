@@ -35,9 +35,9 @@ from ambid.jsonable import to_jsonable
 from ambid.plant.analytical import analytical_model
 from ambid.plant.rig import Rig, load_rig, make_rig
 from ambid.plant.sensors import noise_std
-from ambid.session import iter_decoded, read_metadata
-from ambid.session.blocks import read_samples
-from ambid.session.facts import controller_facts, controller_model, plant_facts
+from ambid.recording import iter_decoded, read_metadata
+from ambid.recording.blocks import read_samples
+from ambid.recording.facts import controller_facts, controller_model, plant_facts
 from ambid.statespace import StateSpace
 
 __all__ = ["RunInputs", "read_run", "headline_peak", "tune_run", "CLAIM"]

@@ -38,8 +38,8 @@ from ambid.frf.arrays_io import load_arrays, stack_channels
 from ambid.frf.lpm import local_frf
 from ambid.frf.sensitivity import iso14839_zone, sensitivity_peak
 from ambid.frf.streaming import ESTIMATORS, FrfResult, FrfStream, axis_tag, match_inputs
-from ambid.session.blocks import SampleBlockReader, read_samples
-from ambid.session.reader import Ros2Decoder, iter_messages, iter_raw
+from ambid.recording.blocks import SampleBlockReader, read_samples
+from ambid.recording.reader import Ros2Decoder, iter_messages, iter_raw
 
 __all__ = ["data_channels", "load_design", "frf_from_arrays", "frf_from_files", "frf_from_session", "frf_of_record",
            "local_frf_result", "session_designs"]

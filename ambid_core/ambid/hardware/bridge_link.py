@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ambid.hardware import bridge_protocol as bp
-from ambid.session.blocks import MAX_SAMPLE_INDEX
+from ambid.recording.blocks import MAX_SAMPLE_INDEX
 
 
 def content_error(msg) -> str:

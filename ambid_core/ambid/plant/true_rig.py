@@ -343,3 +343,8 @@ def true_linear_model(rig: Rig, discrete: bool = False, pade_order: int = 2, pla
     b = np.vstack([g1, np.eye(na)])
     c = np.hstack([c_out, np.zeros((c_out.shape[0], na))])
     return StateSpace(a, b, c, np.zeros((c_out.shape[0], na)), rig.dt, **names)
+
+
+def true_frf(rig: Rig, freq_hz: np.ndarray) -> np.ndarray:
+    """The true rig's sampled small-signal FRF u -> y at ``freq_hz`` (L,) [Hz], shape (L, na, na) [m/A]."""
+    return true_linear_model(rig, discrete=True).freqresp(np.asarray(freq_hz, dtype=float))

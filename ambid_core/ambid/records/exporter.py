@@ -20,9 +20,9 @@ import numpy as np
 
 from ambid.control.user_controller import save_controller
 from ambid.frf.offline import session_designs
-from ambid.session.blocks import block_spans, iter_sample_blocks
-from ambid.session.facts import controller_model
-from ambid.session.reader import iter_decoded
+from ambid.recording.blocks import block_spans, iter_sample_blocks
+from ambid.recording.facts import controller_model
+from ambid.recording.reader import iter_decoded
 from ambid.statespace import StateSpace
 
 from .mapping import MapChannel, RecordMap, map_yaml

@@ -36,10 +36,10 @@ from ambid.channels import Layout
 from ambid.control.user_controller import load_controller
 from ambid.excitation.design import ExcitationDesign
 from ambid.excitation.reconstruct import DesignFinder, DesignNotFound
-from ambid.session.blocks import encode_sample_block
-from ambid.session.cdr import encode_message
-from ambid.session.facts import controller_facts, design_facts, design_fields
-from ambid.session.writer import QosProfile, SessionWriter
+from ambid.recording.blocks import encode_sample_block
+from ambid.recording.cdr import encode_message
+from ambid.recording.facts import controller_facts, design_facts, design_fields
+from ambid.recording.writer import QosProfile, SessionWriter
 from ambid.statespace import StateSpace
 
 from .arbitrary import RecordedExcitation

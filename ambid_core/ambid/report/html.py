@@ -200,7 +200,7 @@ def render_index(summary: Mapping[str, Any], figure_list: list[tuple[str, str]])
     """The index.html text: headline table, modes, parameters, figures with captions.
 
     Args:
-        summary: the dict :func:`ambid.studies.identification.identify_session` returns.
+        summary: the dict :func:`ambid.identification.identify_session` returns.
         figure_list: [(PNG file name, caption)].
     """
     parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>ambid identification report</title>"

@@ -1,4 +1,4 @@
-"""The report of a measured FRF fitted from a file (:func:`ambid.studies.frf_fit.identify_frf`): ``DIR/index.html``."""
+"""The report of a measured FRF fitted from a file (:func:`ambid.identification.frf_file_fit.identify_frf`): ``DIR/index.html``."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ def write_measured_report(report_dir: str | Path, summary: Mapping[str, Any], fr
 
     Args:
         report_dir: folder (created).
-        summary: :func:`ambid.studies.frf_fit.identify_frf`'s summary.
+        summary: :func:`ambid.identification.frf_file_fit.identify_frf`'s summary.
         freq_hz, frf: (L,), (L, Ny, Nu) the file's FRF [its unit].
         std: (L, Ny, Nu) its standard deviation, or None.
         diagram, order: the stabilisation diagram and the chosen order.

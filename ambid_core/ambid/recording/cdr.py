@@ -1,9 +1,9 @@
 """CDR bytes of any ROS 2 message from a dict of its fields, without rclpy.
 
-The definitions come from the install prefixes (:func:`ambid.session.ros2_schema.load_message_schema`),
+The definitions come from the install prefixes (:func:`ambid.recording.ros2_schema.load_message_schema`),
 the encoding from mcap_ros2, so a message written here reads back as the
 node's would. SampleBlocks, which carry the data, have their own fast encoder
-(:func:`ambid.session.blocks.encode_sample_block`).
+(:func:`ambid.recording.blocks.encode_sample_block`).
 """
 
 from __future__ import annotations

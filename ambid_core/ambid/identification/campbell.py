@@ -1,6 +1,6 @@
 """A measured Campbell diagram: identified modes against rotor speed, beside the model's prediction.
 
-One identification per speed (:func:`ambid.studies.identification.identify_session` summaries) is
+One identification per speed (``ambid identify``'s summaries, as summary.json holds them) is
 gathered here into ``campbell.json``: per speed the identified modes with their whirl direction, the
 true rig's (simulated sessions), the first bending mode's forward and backward frequencies identified
 against true, with identify's 95 % intervals and whether they hold the truth; over a dense speed grid the analytical model's whirl branches and the critical speeds

@@ -40,8 +40,8 @@ from typing import Any, Iterable, Iterator, Sequence
 import numpy as np
 
 # one gap/overlap rule for every sample-index report (inspect_session's, fed here from headers)
-from ambid.session.inspect import gap_report
-from ambid.session.reader import SessionMessage, iter_messages, scan_session
+from ambid.recording.inspect import gap_report
+from ambid.recording.reader import SessionMessage, iter_messages, scan_session
 
 __all__ = [
     "SAMPLE_BLOCK_TYPE",
@@ -236,7 +236,7 @@ def decode_sample_block(cdr: bytes | memoryview) -> SampleBlockData:
 def sample_block_session(cdr: bytes | memoryview) -> int:
     """The ``session_id`` of a serialized SampleBlock (0 if it has none: recorded before sessions had ids),
     walking past its data unread. (A live message's id is its last 8 bytes:
-    :func:`ambid.session.identity.session_of`; this walk also reads old recordings right.)
+    :func:`ambid.session_id.session_of`; this walk also reads old recordings right.)
 
     Raises:
         ValueError: on truncated bytes or an unsupported encapsulation.
@@ -376,7 +376,7 @@ def iter_sample_blocks(
         path: session ``.mcap``.
         topic: full topic name, e.g. ``"/amb/measurement"``.
         recover: read a file a killed writer left (see
-            :func:`ambid.session.iter_messages`).
+            :func:`ambid.recording.iter_messages`).
 
     Yields:
         ``(message, block)``; ``block.data`` views ``message.data``.

@@ -66,7 +66,7 @@ def inspect_session(
         path: session ``.mcap``.
         recover: accept a file without footer (killed writer); only complete
             chunks are counted. Without it, an incomplete file raises
-            :class:`~ambid.session.reader.IncompleteSessionError`.
+            :class:`~ambid.recording.reader.IncompleteSessionError`.
         sample_index: extractors keyed by topic name or by type name
             (``pkg/msg/Type``; a topic key wins), each returning
             ``(first_index, n_samples)`` of a decoded message; those topics

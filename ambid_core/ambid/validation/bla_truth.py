@@ -35,7 +35,7 @@ from ambid.fit.updating import Prior
 from ambid.frf.streaming import FrfResult, FrfStream
 from ambid.plant.rig import Rig
 from ambid.statespace import StateSpace
-from ambid.studies.comparison import levitate, run_loop
+from ambid.control.simulated_loop import levitate, run_loop
 
 __all__ = ["SLOPES", "Twin", "noise_free_twin", "variance_on", "bla_parameters", "at_own_excitation"]
 
@@ -63,7 +63,7 @@ def noise_free_twin(rig: Rig, controller: StateSpace, current_limit_a: float, de
                     nonlinear_magnets: bool = True, estimator: str = "indirect") -> FrfResult:
     """The FRF of ``rig`` without sensor noise under ``controller`` and ``design``, simulated here.
 
-    The loop of :func:`ambid.studies.comparison.run_loop` (the plant node's simulator and the controller
+    The loop of :func:`ambid.control.simulated_loop.run_loop` (the plant node's simulator and the controller
     node's stepper, sample by sample): what ``ambid identify`` measures on the same rig and design without
     noise, to the last bit, in seconds instead of a ROS session.
 

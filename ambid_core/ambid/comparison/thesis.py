@@ -51,29 +51,25 @@ small-signal FRF (:func:`ambid.plant.true_rig.true_linear_model`).
 
 from __future__ import annotations
 
-import copy
 import math
 import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ambid.channels import Layout
 from ambid.control.closed_loop import close_loop
-from ambid.control.pid import PidParameters, pid_controller
-from ambid.control.stepper import ControllerStepper
+from ambid.control.simulated_loop import LoopRecord, LoopStart, levitate, run_loop
 from ambid.excitation import ExcitationDesign, design_multisine, design_noise, design_stepped_sine, design_swept_sine
+from ambid.frf.accuracy import frf_relative_error
 from ambid.frf.estimators import stepped_sine_frf
 from ambid.frf.periods import period_spectra, split_periods
 from ambid.frf.streaming import ESTIMATORS, FrfResult, FrfStream
 from ambid.plant.rig import Rig, make_rig
-from ambid.plant.simulator import PlantSimulator
-from ambid.plant.true_rig import true_linear_model
+from ambid.plant.true_rig import true_frf, true_linear_model
 from ambid.statespace import StateSpace
 
-__all__ = ["ComparePreset", "PRESETS", "PARTS", "METHODS", "LoopStart", "LoopRecord", "true_frf", "frf_error",
-           "settling_time", "levitate", "run_loop", "realisation_ladder", "compare_methods", "compare_estimators",
-           "compare_odd_full", "run_comparison", "comparison_markdown"]
+__all__ = ["ComparePreset", "PRESETS", "PARTS", "METHODS", "settling_time", "realisation_ladder", "compare_methods",
+           "compare_estimators", "compare_odd_full", "run_comparison", "comparison_markdown"]
 
 PARTS = ("methods", "estimators", "odd_full")
 METHODS = ("stepped_sine", "swept_sine", "noise", "multisine_one_at_a_time", "multisine_orthogonal",
@@ -186,35 +182,7 @@ PRESETS: dict[str, ComparePreset] = {
 }
 
 
-# ---------------------------------------------------------------- reference, error, settling
-
-def true_frf(rig: Rig, freq_hz: np.ndarray) -> np.ndarray:
-    """The true rig's sampled small-signal FRF u -> y at ``freq_hz`` (L,) [Hz], shape (L, na, na) [m/A]."""
-    return true_linear_model(rig, discrete=True).freqresp(np.asarray(freq_hz, dtype=float))
-
-
-def frf_error(frf: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """Relative error of an FRF matrix per line, ||G - G_ref||_F / ||G_ref||_F.
-
-    The matrix norm keeps the structurally zero x-y couplings of a rotor at
-    standstill from dominating, as an element-wise ratio would.
-
-    Args:
-        frf: estimate (L, Ny, Nu).
-        reference: true FRF, same shape.
-
-    Returns:
-        (L,) relative error [-]; NaN where the estimate is not finite.
-    """
-    frf, reference = np.asarray(frf), np.asarray(reference)
-    if frf.shape != reference.shape or frf.ndim != 3:
-        raise ValueError(f"frf and reference must share the shape (L, Ny, Nu), got {frf.shape} and "
-                         f"{reference.shape}")
-    finite = np.all(np.isfinite(frf), axis=(1, 2))
-    diff = np.where(finite[:, None, None], frf - reference, 0.0)
-    err = np.linalg.norm(diff, axis=(1, 2)) / np.linalg.norm(reference, axis=(1, 2))
-    return np.where(finite, err, np.nan)
-
+# ---------------------------------------------------------------- settling
 
 def _median(x) -> float:
     x = np.asarray(x, dtype=float)
@@ -254,123 +222,6 @@ def settling_time(rig: Rig, controller: StateSpace, f_max_hz: float, n_time_cons
             "pole_hz": float(abs(slow.imag) / (2 * np.pi))}
 
 
-# ---------------------------------------------------------------- the lock-step loop
-
-@dataclass(frozen=True)
-class LoopStart:
-    """A levitated, settled plant and controller every experiment is copied from.
-
-    Copies include the noise generator's state: every experiment sees the
-    same sensor-noise sequence (common random numbers, so the methods differ
-    by their excitation only).
-
-    Attributes:
-        sim: the plant simulator (experiments deep-copy it).
-        ctl: the controller stepper (likewise).
-        liftoff_s: simulated time spent lifting off and settling [s].
-        nonlinear_magnets: whether the plant uses eq. 2.14.
-    """
-
-    sim: PlantSimulator
-    ctl: ControllerStepper
-    liftoff_s: float
-    nonlinear_magnets: bool
-
-
-@dataclass(frozen=True)
-class LoopRecord:
-    """What one experiment measured.
-
-    Attributes:
-        y: (n, na) sensor displacements [m].
-        u: (n, na) current references u = ic + r [A] (before the amplifier limit).
-        r: (n, na) excitation [A].
-        n_clipped: samples where the amplifiers saturated.
-        n_contact: samples where the rotor touched the backup bearings.
-        wall_s: wall time of the loop [s].
-        layout: the rig's axes, the columns' order.
-    """
-
-    y: np.ndarray
-    u: np.ndarray
-    r: np.ndarray
-    n_clipped: int
-    n_contact: int
-    wall_s: float
-    layout: Layout
-
-    def columns(self) -> np.ndarray:
-        """(n, 3 na) [y, u, r], the column order of an :class:`ambid.frf.streaming.FrfStream`."""
-        return np.hstack([self.y, self.u, self.r])
-
-
-def levitate(rig: Rig, seed: int = 0, nonlinear_magnets: bool = False, liftoff_s: float = 0.5,
-             controller: tuple[StateSpace, float] | None = None) -> LoopStart:
-    """Lift the rotor off its backup bearings under the default PID (or ``controller``) and let it settle.
-
-    Args:
-        rig: rig parameters.
-        seed: sensor-noise seed.
-        nonlinear_magnets: use the full magnet law (eq. 2.14).
-        liftoff_s: simulated time [s], > 0.
-        controller: (discrete controller y -> ic, its current limit [A]); None: the default PID.
-
-    Raises:
-        ValueError if the rotor touches the retainer in the second half of that time.
-    """
-    if not (math.isfinite(liftoff_s) and liftoff_s > 0):
-        raise ValueError(f"liftoff_s must be finite and > 0, got {liftoff_s!r}")
-    sim = PlantSimulator(rig, seed=seed, nonlinear_magnets=nonlinear_magnets)
-    if controller is None:
-        pid = PidParameters()
-        controller = (pid_controller(pid, rig.dt, rig.layout), pid.current_limit_a)
-    ctl = ControllerStepper(*controller)
-    n = int(round(liftoff_s / rig.dt))
-    for k in range(n):
-        _, contact = sim.step(ctl.step(sim.output()))
-        if contact and k >= n // 2:
-            raise ValueError(f"levitate: the rotor still touches the backup bearings after {k * rig.dt:.3f} s; "
-                             "lengthen liftoff_s or check the rig and controller")
-    return LoopStart(sim, ctl, float(liftoff_s), bool(nonlinear_magnets))
-
-
-def run_loop(start: LoopStart, r: np.ndarray) -> LoopRecord:
-    """Run one experiment from a copy of ``start``, sample by sample in the plant_sim order.
-
-    Args:
-        start: the levitated state (not modified).
-        r: (n, na) excitation [A] added to the control currents, in the rig layout's order.
-
-    Returns:
-        :class:`LoopRecord`.
-    """
-    r = np.asarray(r, dtype=float)
-    layout = start.sim.layout
-    na = len(layout)
-    if r.ndim != 2 or r.shape[1] != na or not np.all(np.isfinite(r)):
-        raise ValueError(f"run_loop: r must be finite with shape (n, {na}) [A], got shape {r.shape}")
-    sim, ctl = copy.deepcopy(start.sim), copy.deepcopy(start.ctl)
-    n = r.shape[0]
-    ys: list = [None] * n
-    us: list = [None] * n
-    output, control, step = sim.output, ctl.step, sim.step
-    n_clip = n_contact = 0
-    t0 = time.perf_counter()
-    for k, rk in enumerate(r.tolist()):
-        y = output()
-        ic = control(y)
-        u = [a + b for a, b in zip(ic, rk)]
-        clipped, contact = step(u)
-        ys[k] = y
-        us[k] = u
-        n_clip += clipped
-        n_contact += contact
-    wall = time.perf_counter() - t0
-    y_arr = np.array(ys, dtype=float).reshape(n, na)
-    u_arr = np.array(us, dtype=float).reshape(n, na)
-    return LoopRecord(y_arr, u_arr, r, int(n_clip), int(n_contact), wall, layout)
-
-
 # ---------------------------------------------------------------- estimates from records
 
 def _stream_estimate(design: ExcitationDesign, record: LoopRecord, n_samples: int,
@@ -395,7 +246,7 @@ def realisation_ladder(design: ExcitationDesign, record: LoopRecord, g_ref: np.n
     for m in range(1, design.n_realisations + 1):
         n = design.segment_start(m, 0) if m < design.n_realisations else design.total_samples
         res = _stream_estimate(design, record, n)
-        err = frf_error(res.frf[np.isin(res.lines, lines)], g_ref)
+        err = frf_relative_error(res.frf[np.isin(res.lines, lines)], g_ref)
         steps.append({"realisations": m, "measurement_time_s": n / design.fs_hz, "median_error": _median(err),
                       "error_per_line": err.tolist()})
     return steps
@@ -425,7 +276,7 @@ def _stepped_ladder(design: ExcitationDesign, record: LoopRecord, g_ref: np.ndar
             recs = {k: [np.stack([getattr(record, k)[a:a + int(n)] for a in starts[m]])
                         for m, n in enumerate(n_keep)] for k in ("y", "u", "r")}
             g = stepped_sine_frf(recs["y"], recs["u"], design.freq_hz, fs, (pt * period).tolist(), recs["r"])
-            err = frf_error(g, g_ref)
+            err = frf_relative_error(g, g_ref)
             steps.append({"settle_s": float(s), "cycles": int(c),
                           "measurement_time_s": float(ne * n_keep.sum() / fs),
                           "median_error": _median(err), "error_per_line": err.tolist()})
@@ -615,7 +466,7 @@ def compare_estimators(preset: ComparePreset, rig: Rig, start: LoopStart | None 
     towards = {name: _fraction_towards(results[name].frf, g_ref, minus_inv_c) for name in ("h1", "indirect")}
     estimators = {}
     for name, res in results.items():
-        err = frf_error(res.frf, g_ref)
+        err = frf_relative_error(res.frf, g_ref)
         estimators[name] = {"label": ESTIMATOR_LABELS[name], "error_per_line": err.tolist(),
                             "median_error": _median(err), "max_error": float(np.nanmax(err))}
     return {"freq_hz": d.freq_hz.tolist(), "peak_a": preset.estimator_peak_a,
@@ -671,7 +522,7 @@ def compare_odd_full(preset: ComparePreset, rig: Rig, start: LoopStart | None = 
         t0 = time.perf_counter()
         rec = run_loop(start, d.samples(0, d.total_samples))
         res = _stream_estimate(d, rec, d.total_samples)
-        err = frf_error(res.frf, true_frf(rig, res.freq_hz))
+        err = frf_relative_error(res.frf, true_frf(rig, res.freq_hz))
         mag2 = np.abs(res.frf) ** 2
         big = mag2 > 1e-3 * mag2.max(axis=(1, 2), keepdims=True)  # leave out the structurally zero x-y elements
         fits[grid] = (res.lines, err)

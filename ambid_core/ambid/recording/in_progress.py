@@ -1,7 +1,7 @@
 """A session being recorded: the MCAP writer and the bookkeeping a recorder keeps beside it.
 
 :class:`Recording` takes each message's CDR bytes as received, stamps it with
-a log time kept non-decreasing, writes it (:class:`ambid.session.writer.SessionWriter`),
+a log time kept non-decreasing, writes it (:class:`ambid.recording.writer.SessionWriter`),
 counts it per topic, follows the end index of every SampleBlock topic, and
 keeps the session facts (rig, plant and controller descriptions, excitation
 designs) written as MCAP metadata ``ambid.session`` whenever they change. A
@@ -14,8 +14,8 @@ from __future__ import annotations
 import os
 import time
 
-from ambid.session.blocks import sample_block_span
-from ambid.session.writer import SessionWriteError, SessionWriter
+from ambid.recording.blocks import sample_block_span
+from ambid.recording.writer import SessionWriteError, SessionWriter
 
 #: experiments whose design is kept in the session facts (each fact update rewrites them all)
 MAX_DESIGN_FACTS = 1000

@@ -6,14 +6,14 @@
 1. :meth:`~EarlyAnalysis.prepare`, as soon as the rig, the controller and the
    experiment are decided (before the graph starts): the worker computes what
    the analysis compares with and the measurement does not change
-   (:func:`ambid.studies.identification.reference_models`: the simulated rig's
+   (:func:`ambid.identification.references.reference_models`: the simulated rig's
    true models, the noise through its loop, the magnets' slopes at this
    excitation, the controller between the lines) on a thread of its own while
    the measurement runs on the other core. They are used only if their key
    matches the inputs the session then recorded;
 2. :meth:`~EarlyAnalysis.analyse`, the moment the FRF consumer has the final
    estimate (the last period measured): the worker fits and updates
-   (:func:`ambid.studies.identification.identify_session` on those inputs,
+   (:func:`ambid.identification.identify_session` on those inputs,
    the reference models waited for only after the update) while the caller
    closes the graph and the recording; :meth:`summary`
    returns the summary before the report is written;
@@ -35,8 +35,10 @@ import time
 import traceback
 from typing import Any
 
-from ambid.studies.identification import (SessionInputs, identify_session, read_session_inputs, reference_key,
-                                          reference_models)
+from ambid.identification.inputs import SessionInputs, read_session_inputs
+from ambid.identification.pipeline import identify_session
+from ambid.identification.references import reference_key, reference_models
+from ambid.identification.result import Identification
 
 __all__ = ["EarlyAnalysis", "EarlyAnalysisFailed"]
 
@@ -67,7 +69,7 @@ class EarlyAnalysis:
 
     def prepare(self, inputs: SessionInputs, freq_hz, output_names, input_names) -> None:
         """The session's inputs without the FRF (``inputs.frf`` None), its lines and the FRF's channels
-        (:func:`ambid.studies.identification.reference_models`)."""
+        (:func:`ambid.identification.references.reference_models`)."""
         self._send(("prepare", inputs, freq_hz, tuple(output_names), tuple(input_names)))
         self.times["prepare"] = time.perf_counter()
 
@@ -81,15 +83,15 @@ class EarlyAnalysis:
         """The session file is complete: the worker may check its inputs against it and write the report."""
         self._send(("closed",))
 
-    def summary(self, timeout_s: float = 600.0) -> tuple[dict, dict]:
-        """The summary before the report (:func:`identify_session`'s, JSON-safe), and how it was made
+    def summary(self, timeout_s: float = 600.0) -> tuple[Identification, dict]:
+        """The result before the report (:func:`identify_session`'s), and how it was made
         (``references_s``: their computing time, ``references_used``: the session was the planned one)."""
         out = self._expect("summary", timeout_s)
         self.times["summary"] = time.perf_counter()
         return out
 
-    def result(self, timeout_s: float = 600.0) -> tuple[dict, list[str]]:
-        """The final summary (report written) and what the worker noted (an inputs mismatch)."""
+    def result(self, timeout_s: float = 600.0) -> tuple[Identification, list[str]]:
+        """The final result (report written) and what the worker noted (an inputs mismatch)."""
         out = self._expect("done", timeout_s)
         self.times["done"] = time.perf_counter()
         return out
@@ -170,7 +172,7 @@ def _analyse(conn, out_dir: str, options: dict, inputs: SessionInputs, prep: thr
 
     started, cpu0 = time.perf_counter(), time.process_time()
 
-    def on_summary(summary: dict) -> None:
+    def on_summary(summary: Identification) -> None:
         models = refs.get("models")
         used = models is not None and models.key == reference_key(inputs, inputs.frf.freq_hz,
                                                                     inputs.frf.output_names, inputs.frf.input_names)

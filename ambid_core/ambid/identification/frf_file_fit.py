@@ -1,8 +1,8 @@
 """Fit a measured FRF handed over as a file (:mod:`ambid.frf.frf_file`): order, model, modes with intervals, report.
 
 The same common-denominator fit as a session's identification
-(:mod:`ambid.studies.identification`): the stabilisation diagram, the order
-by :func:`ambid.studies.identification.select_order`, the fit at that order,
+(:mod:`ambid.identification.model_fit`): the stabilisation diagram, the order
+by :func:`ambid.identification.model_fit.select_order`, the fit at that order,
 the modes in the band with their 95 % intervals, the state-space export and
 a report. What differs is what a file can say about its noise:
 
@@ -25,16 +25,16 @@ from __future__ import annotations
 import json
 import os
 import time
+from dataclasses import replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from ambid.fit import fit_common_denominator, save_model_json, save_model_npz, stabilisation_diagram
 from ambid.frf.frf_file import MeasuredFrf
 from ambid.frf.quality import record_quality
-from ambid.jsonable import to_jsonable
-from ambid.studies.identification import select_order, split_modes
+from ambid.identification.model_fit import select_order, split_modes
+from ambid.identification.result import FitFigures, IntervalNotes, MeasuredFrfFit, OutputFiles, QualityFigures
 
 __all__ = ["identify_frf", "INTERVALS_WITH_VAR", "INTERVALS_WITHOUT_VAR"]
 
@@ -49,7 +49,7 @@ INTERVALS_WITHOUT_VAR = ("the file gives no variance: the fit weighs each line b
 
 def identify_frf(measured: MeasuredFrf, out_dir: str | os.PathLike, *, order: int | None = None,
                  max_order: int = 32, order_penalty: float = 2.0, delay_s: float = 0.0,
-                 report: bool = True) -> dict:
+                 report: bool = True) -> MeasuredFrfFit:
     """Fit the FRF of a file and write model.npz, model.json, frf.npz, identification.json and report/.
 
     Args:
@@ -62,9 +62,9 @@ def identify_frf(measured: MeasuredFrf, out_dir: str | os.PathLike, *, order: in
         report: write the HTML report.
 
     Returns:
-        JSON-safe summary (also ``identification.json``): source, format, outputs, inputs,
-        n_lines, band_hz, var_given, fit (order, order_rule, chi2_per_dof, delay_s, weights,
-        modes with freq_hz_ci95 and damping_ci95, real_poles), intervals, files, notes, wall_s.
+        The :class:`ambid.identification.result.MeasuredFrfFit` (also ``identification.json``): source,
+        format, outputs, inputs, n_lines, band_hz, var_given, fit (order, order_rule, chi2_per_dof, delay_s,
+        weights, modes with their 95 % intervals, real_poles), intervals, files, notes, wall_s.
     """
     t0 = time.perf_counter()
     out = Path(out_dir)
@@ -96,12 +96,10 @@ def identify_frf(measured: MeasuredFrf, out_dir: str | os.PathLike, *, order: in
                   input_units=measured.input_units, output_units=measured.output_units)
     fit = fit_common_denominator(f, g, w_var, order=int(order), delay_s=delay_s, row_covariance=row_cov, **labels)
     # the modes the data shows, the computational poles apart with their reasons: as for a session
-    _, mode_rows, real, computational = split_modes(fit, diagram, int(order), f, g, var)
-    modes = []
-    for row in mode_rows:
-        if row.get("freq_hz_std") is not None:
-            row["noise_only"] = var is not None
-        modes.append(row)
+    _, rows, real, computational = split_modes(fit, diagram, int(order), f, g, var)
+    # the intervals hold the file's variance alone where it gave one
+    rows = [r if r.interval is None or r.interval.freq_hz_std is None else
+            replace(r, interval=replace(r.interval, noise_only=var is not None)) for r in rows]
     quality = []
     if measured.coherence is not None:   # the analyser's coherence: its low lines said, one line per pair
         pairs = [f"{o}/{u}" for o in measured.output_names for u in measured.input_names]
@@ -112,29 +110,28 @@ def identify_frf(measured: MeasuredFrf, out_dir: str | os.PathLike, *, order: in
     np.savez(out / "frf.npz", freq_hz=f, H=g, **({} if var is None else dict(var=var)),
              **({} if measured.coherence is None else dict(coherence=measured.coherence)),
              outputs=np.array(measured.output_names), inputs=np.array(measured.input_names))
-    summary: dict[str, Any] = dict(
+    result = MeasuredFrfFit(
         source=measured.path, format=measured.kind, form=measured.form, unit=measured.unit,
         output_units=list(measured.output_units), input_units=list(measured.input_units),
         outputs=list(measured.output_names), inputs=list(measured.input_names), n_lines=int(f.size),
         band_hz=list(band), var_given=var is not None,
-        fit=dict(order=int(order), order_rule=rule, chi2_per_dof=fit.chi2_per_dof, delay_s=delay_s,
-                 weights="the file's var" if var is not None else "each line by its mean |H|^2 (relative)",
-                 orders_tried=diagram.orders, chi2_per_dof_by_order=diagram.chi2_per_dof, modes=modes,
-                 computational_poles=computational, real_poles=real, refine_message=fit.message),
-        quality=dict(findings=quality),
-        intervals=dict(modes=INTERVALS_WITH_VAR if var is not None else INTERVALS_WITHOUT_VAR),
-        files=dict(model_npz=str(out / "model.npz"), model_json=str(out / "model.json"),
-                   frf_npz=str(out / "frf.npz"), summary_json=str(out / "identification.json")),
+        fit=FitFigures(order=int(order), order_rule=rule, chi2_per_dof=fit.chi2_per_dof, delay_s=delay_s,
+                       weights="the file's var" if var is not None else "each line by its mean |H|^2 (relative)",
+                       orders_tried=diagram.orders, chi2_per_dof_by_order=diagram.chi2_per_dof, modes=rows,
+                       computational_poles=computational, real_poles=real, refine_message=fit.message),
+        quality=QualityFigures(findings=quality),
+        intervals=IntervalNotes(modes=INTERVALS_WITH_VAR if var is not None else INTERVALS_WITHOUT_VAR),
+        files=OutputFiles(model_npz=str(out / "model.npz"), model_json=str(out / "model.json"),
+                          frf_npz=str(out / "frf.npz"), summary_json=str(out / "identification.json")),
         notes=notes)
     if report:
         from ambid.report.measured import write_measured_report
 
         dense = np.geomspace(max(band[0] / 1.2, 1e-3), band[1] * 1.2, 400)
-        summary["files"]["report"] = str(out / "report" / "index.html")
-        write_measured_report(out / "report", to_jsonable(summary), f, g, None if var is None else np.sqrt(var),
+        result = replace(result, files=replace(result.files, report=str(out / "report" / "index.html")))
+        write_measured_report(out / "report", result.to_json(), f, g, None if var is None else np.sqrt(var),
                               diagram, int(order), {"fitted model": (dense, fit.model.freqresp(dense))},
                               measured.output_names, measured.input_names)
-    summary["wall_s"] = time.perf_counter() - t0
-    summary = to_jsonable(summary)
-    (out / "identification.json").write_text(json.dumps(summary, indent=1))
-    return summary
+    result = replace(result, wall_s=time.perf_counter() - t0)
+    (out / "identification.json").write_text(json.dumps(result.to_json(), indent=1))
+    return result

@@ -26,9 +26,9 @@ zero-order hold (:func:`ambid.plant.true_rig.true_linear_model`), and the
 same model with the magnets' slopes at the excitation level; the updated
 parameters' truth is what their intervals claim, the parameters of the rig's
 best linear approximation at this excitation level (:func:`with_bla_truth`,
-:mod:`ambid.studies.bla_truth`), with the rig's values at rest
+:mod:`ambid.validation.bla_truth`), with the rig's values at rest
 (:func:`ambid.fit.model_update.true_parameters`) beside it in ``at_rest``; the
-modes' the true rig's poles (:func:`ambid.studies.identification.compare_modes`);
+modes' the true rig's poles (:func:`ambid.identification.truth.compare_modes`);
 the noise level's the sensor noise through the true closed loop
 (:func:`ambid.fit.model_update.closed_loop_noise_std`). A ``pooled`` row
 counts every parameter and mode interval of every seed as one case.
@@ -48,6 +48,8 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from ambid.identification.result import Identification
+from ambid.jsonable import to_jsonable
 from ambid.plant.rig import Rig
 from ambid.plant.tolerances import tolerance_for
 
@@ -106,12 +108,12 @@ def _interval_rows(prefix: str, items: Sequence[Mapping[str, Any]]) -> dict:
     return out
 
 
-def seed_record(summary: Mapping[str, Any], G: np.ndarray, truths: Mapping[str, np.ndarray],
+def seed_record(identification: Identification, G: np.ndarray, truths: Mapping[str, np.ndarray],
                 variances: Mapping[str, np.ndarray]) -> dict:
     """Everything one session claims, beside the truth, in a JSON-safe dict.
 
     Args:
-        summary: ``identify_session``'s summary of the session.
+        identification: ``identify_session``'s result for the session.
         G: (L, Ny, Nu) measured FRF.
         truths: truth name -> (L, Ny, Nu) true FRF (e.g. the small-signal
             model and the one at the excitation level).
@@ -119,9 +121,9 @@ def seed_record(summary: Mapping[str, Any], G: np.ndarray, truths: Mapping[str, 
 
     Returns:
         dict with ``frf`` (:func:`frf_record`), ``intervals`` (name -> value,
-        std, ci95, true, noise_only) for the updated parameters reported as
-        identified (``parameter:<name>``, with ``true_at_rest``: the rig's value at rest; ``true`` is the
-        summary's until :func:`with_bla_truth` sets the BLA's), the total lag
+        std, ci95, true, noise_only) for the updated free parameters
+        (``parameter:<name>``, with ``true_at_rest``: the rig's value at rest; ``true`` is the
+        identification's until :func:`with_bla_truth` sets the BLA's), the total lag
         (``derived:total_lag_s``) and the fitted modes with an
         interval (``mode_freq:<k>``, ``mode_damping:<k>``), ``model`` (the
         update's parameter ``names`` and ``free`` ones: its structure), ``noise``
@@ -130,34 +132,40 @@ def seed_record(summary: Mapping[str, Any], G: np.ndarray, truths: Mapping[str, 
         None where the session has no truth).
     """
     items = []
-    upd = summary.get("update") or {}
-    for name, row in (upd.get("parameters") or {}).items():
-        if row.get("free") and row.get("identified", True):
-            items.append(dict(name=f"parameter:{name}", value=row["value"], std=row.get("std"),
-                              ci95=row.get("ci95"), true=row.get("true"), noise_only=row.get("noise_only"),
-                              true_at_rest=row.get("true_small_signal", row.get("true"))))
-    lag = upd.get("total_lag")
-    if lag and lag.get("true") is not None:
-        items.append(dict(name="derived:total_lag_s", value=lag["value"], std=lag["std"], ci95=lag["ci95"],
-                          true=lag["true"], noise_only=False, true_at_rest=lag["true"]))
-    for k, m in enumerate(summary.get("modes_vs_true") or []):
-        for q, tq in (("freq_hz", "true_freq_hz"), ("damping", "true_damping")):
-            if m.get(f"{q}_std") is not None:
-                items.append(dict(name=f"mode_{q}:{m['true_freq_hz']:.0f}Hz", value=m[q], std=m[f"{q}_std"], ci95=m[f"{q}_ci95"], true=m[tq],
-                                  noise_only=m.get("noise_only")))
-    nz = summary.get("noise") or {}
-    noise = nz.get("output_noise_std_m")
+    upd = identification.update
+    params = (upd.parameters if upd is not None else None) or {}
+    for name, row in params.items():
+        if row.free:
+            items.append(dict(name=f"parameter:{name}", value=row.value, std=row.std, ci95=row.ci95, true=row.true,
+                              noise_only=None,
+                              true_at_rest=row.true if row.true_small_signal is None else row.true_small_signal))
+    lag = None if upd is None else upd.total_lag
+    if lag is not None and lag.true is not None:
+        items.append(dict(name="derived:total_lag_s", value=lag.value, std=lag.std, ci95=lag.ci95,
+                          true=lag.true, noise_only=False, true_at_rest=lag.true))
+    for m in identification.modes_vs_true:
+        iv = m.interval
+        if iv is None:
+            continue
+        for q, value, std, ci95, true in (("freq_hz", m.freq_hz, iv.freq_hz_std, iv.freq_hz_ci95, m.true_freq_hz),
+                                          ("damping", m.damping, iv.damping_std, iv.damping_ci95, m.true_damping)):
+            if std is not None:
+                items.append(dict(name=f"mode_{q}:{m.true_freq_hz:.0f}Hz", value=value, std=std, ci95=ci95,
+                                  true=true, noise_only=iv.noise_only))
+    items = to_jsonable(items)   # as the identification's JSON holds them (NaN: none)
+    nz = identification.noise.to_json()
+    noise = nz["output_noise_std_m"]
     frf = {f"{kind} vs {truth}": row for truth, gt in truths.items()
            for kind, row in frf_record(G, gt, variances).items()}
     noise_interval = None
-    if all(nz.get(k) is not None for k in ("output_noise_std_sd_m", "output_noise_std_ci95_m",
-                                          "true_output_noise_std_m")):
+    if all(nz[k] is not None for k in ("output_noise_std_sd_m", "output_noise_std_ci95_m",
+                                      "true_output_noise_std_m")):
         noise_interval = dict(value=[float(x) for x in noise], std=[float(x) for x in nz["output_noise_std_sd_m"]],
                               ci95=[[float(c) for c in ci] for ci in nz["output_noise_std_ci95_m"]],
                               true=[float(x) for x in nz["true_output_noise_std_m"]])
     model = None
-    if upd.get("parameters"):
-        model = dict(names=sorted(upd["parameters"]), free=list(upd.get("free") or []))
+    if params:
+        model = dict(names=sorted(params), free=list(upd.free or []))
     return dict(frf=frf, intervals=_interval_rows("", items), model=model,
                 noise=None if noise is None else [float(x) for x in noise], noise_interval=noise_interval)
 
@@ -165,7 +173,7 @@ def seed_record(summary: Mapping[str, Any], G: np.ndarray, truths: Mapping[str, 
 def with_bla_truth(record: Mapping[str, Any], bla: Mapping[str, float]) -> dict:
     """``record`` with each updated parameter's and the total lag's truth set to what the interval claims:
     the parameters of the rig's best linear approximation at this excitation level, ``bla``
-    (:func:`ambid.studies.bla_truth.bla_parameters`: name -> value, ``total_lag_s``). The rig's value at
+    (:func:`ambid.validation.bla_truth.bla_parameters`: name -> value, ``total_lag_s``). The rig's value at
     rest stays in ``true_at_rest``; a parameter ``bla`` lacks keeps its truth."""
     out = dict(record)
     intervals = {}

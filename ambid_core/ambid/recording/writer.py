@@ -5,7 +5,7 @@ info``, Foxglove and the ``mcap`` tools open it:
 
 - header profile ``ros2``;
 - one schema per type: encoding ``ros2msg``, data = full .msg text with its
-  dependencies appended (:mod:`ambid.session.ros2_schema`);
+  dependencies appended (:mod:`ambid.recording.ros2_schema`);
 - one channel per topic: message encoding ``cdr``, metadata
   ``offered_qos_profiles`` (YAML, rosbag2 metadata version 9 layout) and
   ``topic_type_hash`` (``RIHS01_...``);
@@ -21,7 +21,7 @@ when it reaches ``chunk_size_bytes`` or spans ``chunk_max_duration_ns`` of log
 time (or on :meth:`SessionWriter.flush`), and each closed chunk and its
 message indexes are written and flushed to the operating system at once
 (``os.fsync`` too with ``fsync=True``). A writer killed with SIGKILL therefore
-loses at most its open chunk; :func:`ambid.session.reader.scan_session`
+loses at most its open chunk; :func:`ambid.recording.reader.scan_session`
 and ``recover=True`` read the rest.
 
 Pure Python (mcap, PyYAML); nothing here imports rclpy.
