@@ -260,7 +260,7 @@ def test_identify_hardware_under_forged_and_replayed_traffic_gives_the_same_frf_
         assert bytes.fromhex(secret_hex) not in data and secret_hex.encode() not in data, f
     assert secret_hex not in rec["stdout"] and rec["target"]["key_fingerprint"] in rec["stdout"]
     # the recorded session's events name the bridge's refusals and the target's, by reason
-    from ambid.session.reader import iter_decoded
+    from ambid.recording.reader import iter_decoded
 
     events = [e for _, e in iter_decoded(tmp_path / "hw" / "session.mcap", "/amb/events")]
     codes = {e.code for e in events}
