@@ -132,6 +132,24 @@ def test_lms_records_of_an_amb_rig_import_with_their_names_units_and_injection_p
     assert set(model["output_units"]) == {"m/s^2"} and model["input_units"] == ["A"]
 
 
+
+def test_inspect_gives_the_excitation_in_its_own_unit(amb_fit):
+    """The sweep is injected at the position reference in V: ``ambid inspect`` says its rms in V, not in A."""
+    import re
+
+    import scipy.io as sio
+
+    from ambid_cli.commands.inspect import describe, format_report
+
+    _, _, d = amb_fit
+    line = next(ln for ln in format_report(describe(str(d / "amb.mcap"))).splitlines()
+                if ln.startswith("  excitation  ") and " rms " in ln)
+    m = re.search(r"rms ([0-9.e+-]+) V$", line)
+    assert m, line
+    sweep = sio.loadmat(AMB / "Sweep_Time_Ausgang.mat", squeeze_me=True, struct_as_record=False)["Signal_1"]
+    assert float(m.group(1)) == pytest.approx(np.sqrt(np.mean(sweep.y_values.values ** 2)), rel=0.01)
+
+
 def test_amb_rig_modes_against_an_independent_fit_and_the_published_values(amb_fit):
     _, summary, _ = amb_fit
     stable = _welch_indirect_lscf()
@@ -182,7 +200,7 @@ def test_an_analysers_coherence_is_read_and_its_low_lines_said(tmp_path, capsys)
     assert said == ["data quality: low coherence on 1+X/2+X (below 0.5, lowest 0.3) at 51 of 1000 lines: 600-650 Hz"]
 
 
-RING = REAL / "skrf_ring_slot_vna" / "ring slot measured.s1p"
+RING = REAL / "skrf_ring_slot_vna" / "ring_slot_measured.s1p"
 
 
 @pytest.fixture(scope="module")
