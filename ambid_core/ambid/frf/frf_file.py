@@ -17,7 +17,10 @@ Formats, by suffix:
   UFF identifies it; entity names are labels only (an analyser often writes
   the test's name on every dataset). Units come from the header (the unit
   labels where written, else the SI unit of the data type). UFF carries no
-  variance; the analyser's coherence (function type 6) is read where written.
+  variance; the analyser's coherence (function type 6) is read where written;
+* ``.s1p``, ``.s2p``, ... (Touchstone version 1, as a vector network analyser
+  writes it): an N-port's S, Y or Z parameters, one FRF per port pair
+  (:mod:`ambid.frf.touchstone`).
 
 A first line at 0 Hz (any format) is left out with a note.
 
@@ -39,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from ambid.array_file import check_file, read_arrays
+from ambid.frf.touchstone import TOUCHSTONE_FIX, is_touchstone, read_touchstone
 from ambid.text_file import read_text
 
 __all__ = ["FRF_SUFFIXES", "FrfFileError", "MeasuredFrf", "read_frf_file", "is_frf_file"]
@@ -66,14 +70,15 @@ class MeasuredFrf:
 
     Attributes:
         path: the file.
-        kind: 'npz', 'mat', 'csv' or 'uff'.
+        kind: 'npz', 'mat', 'csv', 'uff' or 'touchstone'.
         freq_hz: (n,) frequencies, increasing [Hz].
         frf: (n, ny, nu) complex H [the file's unit].
         var: (n, ny, nu) variance of each entry [unit squared], or None when the file gives none.
         output_names, input_names: (ny,), (nu,).
         notes: what was assumed, a line each.
         output_units, input_units: (ny,), (nu,) each channel's unit as the file says it ('' where it says none).
-        form: what H is: 'FRF', 'receptance', 'mobility', 'accelerance' or 'transmissibility'.
+        form: what H is: 'FRF', 'receptance', 'mobility', 'accelerance', 'transmissibility', or a network's
+            'S-parameters', 'impedance' or 'admittance'.
         coherence: (n, ny, nu) the analyser's coherence of each response with each reference (UFF function
             type 6; NaN where the file has none), or None.
     """
@@ -102,7 +107,7 @@ class MeasuredFrf:
 
 def is_frf_file(path: str | os.PathLike) -> bool:
     """Whether ``path`` names an FRF file by its suffix (a session is ``.mcap``)."""
-    return Path(path).suffix.lower() in FRF_SUFFIXES
+    return Path(path).suffix.lower() in FRF_SUFFIXES or is_touchstone(path)
 
 
 def read_frf_file(path: str | os.PathLike) -> MeasuredFrf:
@@ -113,10 +118,10 @@ def read_frf_file(path: str | os.PathLike) -> MeasuredFrf:
     """
     p = Path(path)
     suffix = p.suffix.lower()
-    if suffix not in FRF_SUFFIXES:
-        raise FrfFileError(f"{p}: '{suffix or p.name}' is not an FRF file type ({', '.join(FRF_SUFFIXES)}); give an "
-                           ".npz, .mat, .csv or UFF 58 file, or a session .mcap")
-    fix = _FIX[suffix]
+    if not is_frf_file(p):
+        raise FrfFileError(f"{p}: '{suffix or p.name}' is not an FRF file type ({', '.join(FRF_SUFFIXES)}, .sNp); "
+                           "give an .npz, .mat, .csv, UFF 58 or Touchstone file, or a session .mcap")
+    fix = TOUCHSTONE_FIX if is_touchstone(p) else _FIX[suffix]
     try:
         check_file(p, "FRF file", fix)
     except ValueError as exc:
@@ -127,6 +132,9 @@ def read_frf_file(path: str | os.PathLike) -> MeasuredFrf:
         elif suffix == ".csv":
             freq, h, var, outs, ins, notes = _csv(p, fix)
             extra = {}
+        elif is_touchstone(p):
+            freq, h, outs, ins, notes, extra = read_touchstone(p)
+            var, suffix = None, ".touchstone"
         else:
             freq, h, var, outs, ins, notes, extra = _uff(p, fix)
     except PermissionError:
