@@ -127,7 +127,6 @@ OPTION_VALUES = [  # argv, the option the error names
     (["fit", "{good}", "--out", "{dir}/o", "--estimator", "bogus"], "--estimator"),
     (["fit", "{good}", "--out", "{dir}/o", "--order", "-3"], "--order"),
     (["fit", "{good}", "--out", "{dir}/o", "--max-order", "x"], "--max-order"),
-    (["inspect", "{good}", "--bogus"], "--bogus"),
     (["identify", "--periods", "0"], "--periods"),
     (["identify", "--seed", "x"], "--seed"),
     (["identify", "--peak-current", "-0.4"], "--peak-current"),
@@ -235,6 +234,7 @@ def test_a_run_the_amplifier_would_refuse_is_refused_before_any_node_starts(file
     (["identfy"], "ambid: unknown command 'identfy'; did you mean 'identify'?"),
     (["desing", "--out", "x"], "ambid: unknown command 'desing'; did you mean 'design'?"),
     (["bogus"], "ambid: unknown command 'bogus' ('ambid --help' lists the commands)"),
+    (["inspect", "{good}", "--bogus"], "ambid inspect: unknown option '--bogus' ('ambid inspect --help' lists"),
     (["identify", "--peak-curent", "0.4"], "ambid identify: unknown option '--peak-curent'; did you mean "
                                            "'--peak-current'?"),
     (["fit", "{good}", "--out", "{dir}/typo", "--no-reprot"], "ambid fit: unknown option '--no-reprot'; did you "
