@@ -294,28 +294,8 @@ def local_frf(y: np.ndarray, u: np.ndarray, r: np.ndarray | None = None, *, fs_h
     d2 = np.ones((n_lines, ne * w))                                         # |D(s)|^2 at each stacked bin
     d_poly = np.ones((n_lines, w), complex)
     if method != "lpm":
-        nz = z.shape[2]
-        psi = proj @ (zw[..., None] * k_t[None, None, :, None, 1:]).reshape(ne, n_lines, w, nz * degree)
-        psi = np.moveaxis(psi, 0, 1).reshape(n_lines, ne * w, nz, degree)
-        scale = np.sqrt(np.maximum(np.mean(np.abs(resid) ** 2, axis=1), 1e-300))     # (L, Nz)
-        p_x = np.eye(ne * w)[None] - xs @ xp
-        d = _denominator(resid, (p_x @ psi.reshape(n_lines, ne * w, nz * degree)).reshape(psi.shape), scale)
-        zd = zs + (psi @ d[:, None, :, None])[..., 0]                       # D(s) Z, transient projected out
-        theta_r = xp @ zd
-        dp = 1.0 + k_t[:, 1:] @ d[..., None]                                # (L, w, 1)
-        dp = dp[..., 0]
-        d2_r = np.tile(np.abs(dp) ** 2, (1, ne))
-        resid_r = (zd - xs @ theta_r) / np.sqrt(d2_r)[..., None]           # the residual D V, back to V
-        weight = 1.0 / scale[:, None, :] ** 2
-        use = np.full(n_lines, method == "lrm")
-        if method == "auto":
-            use = _rational_pays(np.sum(np.abs(resid) ** 2 * weight, axis=(1, 2)),
-                                 np.sum(np.abs(resid_r) ** 2 * weight, axis=(1, 2)), degree, q - degree, z.shape[2])
-        theta = np.where(use[:, None, None], theta_r, theta)
-        resid = np.where(use[:, None, None], resid_r, resid)
-        d2 = np.where(use[:, None], d2_r, d2)
-        d_poly = np.where(use[:, None], dp, d_poly)
-        q_line = np.where(use, q - degree, q)
+        theta, resid, d2, d_poly, q_line = _rational_where_it_pays(
+            method, proj, zw, k_t, zs, xs, xp, theta, resid, d2, d_poly, q_line, degree, q)
     c_v = (np.swapaxes(resid, 1, 2) @ resid.conj()) / q_line[:, None, None]
     # the errors of theta are xp (D V): its covariance is xp diag|D|^2 xp^H times C_V
     q_full = (xp * d2[:, None, :]) @ np.swapaxes(xp.conj(), -1, -2)
@@ -340,6 +320,40 @@ def local_frf(y: np.ndarray, u: np.ndarray, r: np.ndarray | None = None, *, fs_h
                     rational=q_line < q, method=method, degree=int(degree),
                     half_width=h, n_samples=n, n_experiments=ne, output_names=tuple(output_names),
                     input_names=tuple(input_names))
+
+
+def _rational_where_it_pays(method: str, proj: np.ndarray, zw: np.ndarray, k_t: np.ndarray, zs: np.ndarray,
+                            xs: np.ndarray, xp: np.ndarray, theta: np.ndarray, resid: np.ndarray, d2: np.ndarray,
+                            d_poly: np.ndarray, q_line: np.ndarray, degree: int, q: int) -> tuple:
+    """The local rational method's estimate where it is used (every line for 'lrm', where it pays for 'auto').
+
+    Returns theta, residual, |D|^2 at each stacked bin, D over the window and degrees of freedom per line.
+    """
+    ne, n_lines, w = zw.shape[:3]
+    n_stack = ne * w
+    nz = zw.shape[3]
+    psi = proj @ (zw[..., None] * k_t[None, None, :, None, 1:]).reshape(ne, n_lines, w, nz * degree)
+    psi = np.moveaxis(psi, 0, 1).reshape(n_lines, n_stack, nz, degree)
+    scale = np.sqrt(np.maximum(np.mean(np.abs(resid) ** 2, axis=1), 1e-300))     # (L, Nz)
+    p_x = np.eye(n_stack)[None] - xs @ xp
+    d = _denominator(resid, (p_x @ psi.reshape(n_lines, n_stack, nz * degree)).reshape(psi.shape), scale)
+    zd = zs + (psi @ d[:, None, :, None])[..., 0]                       # D(s) Z, transient projected out
+    theta_r = xp @ zd
+    dp = 1.0 + k_t[:, 1:] @ d[..., None]                                # (L, w, 1)
+    dp = dp[..., 0]
+    d2_r = np.tile(np.abs(dp) ** 2, (1, ne))
+    resid_r = (zd - xs @ theta_r) / np.sqrt(d2_r)[..., None]           # the residual D V, back to V
+    weight = 1.0 / scale[:, None, :] ** 2
+    use = np.full(n_lines, method == "lrm")
+    if method == "auto":
+        use = _rational_pays(np.sum(np.abs(resid) ** 2 * weight, axis=(1, 2)),
+                             np.sum(np.abs(resid_r) ** 2 * weight, axis=(1, 2)), degree, q - degree, zw.shape[3])
+    theta = np.where(use[:, None, None], theta_r, theta)
+    resid = np.where(use[:, None, None], resid_r, resid)
+    d2 = np.where(use[:, None], d2_r, d2)
+    d_poly = np.where(use[:, None], dp, d_poly)
+    q_line = np.where(use, q - degree, q)
+    return theta, resid, d2, d_poly, q_line
 
 
 def _denominator(zbar: np.ndarray, psibar: np.ndarray, scale: np.ndarray) -> np.ndarray:
