@@ -37,7 +37,7 @@ SHARED_IDENTIFY = "./launch_scripts/ambid identify"
 
 _FENCE = re.compile(r"^(\s*)```\s*([\w+-]*)\s*$")
 _MARKER = re.compile(r"^\s*<!--\s*([a-z ]+?)\s*:\s*(.*?)\s*-->\s*$")
-_COMMAND = re.compile(r"^(\./)?(launch_scripts/|ros_ws/)|^(python|pip|source|rm|export|for|cd|ros2|dask|echo)\b")
+_COMMAND = re.compile(r"^(\./)?(launch_scripts/|ros_ws/)|^(python|pip|source|rm|export|for|cd|ros2|dask|echo|mkdir)\b")
 
 
 @dataclass

@@ -200,3 +200,12 @@ def test_commands_md_lists_every_command() -> None:
     table = (REPO / "docs" / "commands.md").read_text()
     missing = [c for c in COMMANDS if f"| `ambid {c}" not in table]
     assert not missing, f"docs/commands.md lacks a row for {missing}"
+
+
+def test_performance_md_describes_every_bench_section() -> None:
+    """docs/performance.md's table has a row for every section ``ambid bench`` runs."""
+    from ambid_cli.commands.bench import SECTIONS
+
+    table = (REPO / "docs" / "performance.md").read_text()
+    missing = [s for s in SECTIONS if f"| `{s}` |" not in table]
+    assert not missing, f"docs/performance.md lacks a row for the bench sections {missing}"
