@@ -257,3 +257,39 @@ def test_ring_slot_one_resonance_and_no_pole_fitted_to_the_analysers_ripple(ring
     comp = summary["fit"]["computational_poles"]
     ripple = [c for c in comp if c["freq_hz"] > 100e9 and c["damping"] > 0]
     assert ripple and all(c["reason"].startswith("below the noise") for c in ripple), ripple
+
+
+def test_bode_axes_carry_each_files_units(beam_fit, ring_fit):
+    """The report's Bode matrix labels its rows and columns in the file's units: the beam's accelerance in
+    m/s^2/N from hammers in N, the ring slot's S11 dimensionless (not m/A from A, as a session's)."""
+    from ambid.report import figures
+    from ambid.report.html import frf_column_units, frf_row_units
+
+    for (measured, summary, *_), row, col in ((beam_fit, "|G| [dB re 1 m/s^2/N]", "from 1+X [N]"),
+                                              (ring_fit, "|G| [dB]", "from a1 [-]")):
+        fig = figures.bode_matrix(measured.freq_hz, measured.frf, None, {}, "magnitude",
+                                  input_names=measured.input_names, output_names=measured.output_names,
+                                  row_units=frf_row_units(summary), col_units=frf_column_units(summary))
+        ax = fig.axes[0]
+        assert ax.get_ylabel().endswith(row) and ax.get_title() == col, (ax.get_ylabel(), ax.get_title())
+
+
+def test_uff_164_units_are_honoured(beam_fit, tmp_path):
+    """The beam's datasets written by pyuff in mm (dataset 164: length factor 1000, the values 1000 x larger) read
+    back as the SI file: UFF's factors convert the file's units to SI by division."""
+    import pyuff
+
+    from ambid.frf.frf_file import read_frf_file
+
+    measured, _, _ = beam_fit
+    sets = pyuff.UFF(str(BEAM)).read_sets()
+    units = dict(type=164, units_code=5, units_description="mm (milli newton)", temp_mode=1, length=1000.0,
+                 force=1.0, temp=1.0, temp_offset=273.15)
+    in_mm = [dict(s, data=np.asarray(s["data"]) * 1000.0, ordinate_axis_units_lab="mm/s^2") for s in sets]
+    path = tmp_path / "beam_mm.uff"
+    writer = pyuff.UFF(str(path))
+    writer.write_sets([units] + in_mm, mode="overwrite")
+    again = read_frf_file(path)
+    np.testing.assert_allclose(again.frf, measured.frf, rtol=1e-5)
+    assert again.output_units == ("m/s^2",) and again.input_units == ("N", "N", "N")
+    assert any("dataset 164" in n and "length factor 1000" in n and "converted to SI" in n for n in again.notes)

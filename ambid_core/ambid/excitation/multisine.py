@@ -24,7 +24,8 @@ T_k T_k^H = Nu I (T_k / sqrt(Nu) is unitary).
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import minimize
+
+from ambid.disk_cache import cached_array
 
 MIMO_MULTISINE = ("orthogonal", "one_at_a_time")
 PHASES = ("random", "schroeder", "crest_optimised")
@@ -127,11 +128,25 @@ def optimise_crest_phases(n: int, lines: np.ndarray, amplitudes: np.ndarray,
         max_iterations: conjugate-gradient iterations per p.
 
     Returns:
-        (L,) phases [rad] with the lowest crest factor found.
+        (L,) phases [rad] with the lowest crest factor found: computed once per set of arguments and
+        kept on disk (:mod:`ambid.disk_cache`, the same array to the bit), as it costs seconds and a
+        design repeats run after run.
     """
     lines = np.asarray(lines)
     amps = np.asarray(amplitudes, dtype=float)
     shifts = np.zeros(1) if shifts is None else np.unique(np.mod(np.asarray(shifts, float), np.pi))
+    initial = np.asarray(initial_phases, dtype=float)
+    return cached_array("crest_phases", __file__,
+                        (n, lines, amps, initial, shifts, n_clip_iterations, tuple(p_schedule), max_iterations),
+                        lambda: _optimise(n, lines, amps, initial, shifts, n_clip_iterations, p_schedule,
+                                          max_iterations))
+
+
+def _optimise(n: int, lines: np.ndarray, amps: np.ndarray, initial_phases: np.ndarray, shifts: np.ndarray,
+              n_clip_iterations: int, p_schedule: tuple[int, ...], max_iterations: int) -> np.ndarray:
+    """:func:`optimise_crest_phases` computed."""
+    from scipy.optimize import minimize
+
     rms = np.sqrt(np.sum(amps**2) / 2)
 
     def peak(ph: np.ndarray) -> float:
