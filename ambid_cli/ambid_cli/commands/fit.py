@@ -185,12 +185,22 @@ def _run_frf_file(args: argparse.Namespace) -> int:
         raise BadInput(f"{', '.join(session_only)} apply to a session, not to an FRF file; leave them out")
     if not (args.delay >= 0 and args.delay < 1):
         raise BadInput(f"--delay {args.delay} s; give the measurement's pure delay in seconds, >= 0 and < 1")
+    shown = []
+
+    def show(summary: MeasuredFrfFit) -> None:   # the figures at once; the report is written after them
+        if not args.json:
+            print(format_frf_summary(summary) + ("" if args.no_report else "\nwriting the report ..."), flush=True)
+            shown.append(True)
+
     try:
         summary = identify_frf(measured, args.out, order=args.order, max_order=args.max_order, delay_s=args.delay,
-                               report=not args.no_report)
+                               report=not args.no_report, on_summary=show)
     except ValueError as exc:
         raise BadInput(str(exc)) from None
-    print(json.dumps(summary.to_json(), indent=1) if args.json else format_frf_summary(summary))
+    if args.json:
+        print(json.dumps(summary.to_json(), indent=1))
+    elif not args.no_report:
+        print(f"report written: {summary.files.report}")
     return 0
 
 
