@@ -52,7 +52,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ambid_nodes.graph import session_domain_id
+    from ambid_nodes.running.domain import session_domain_id
     from ambid_nodes.session import NodeDied, SessionConfig, plan_session, run_identify
 
     spec = experiment_spec(args)

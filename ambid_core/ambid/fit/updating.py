@@ -54,6 +54,11 @@ class Prior:
             where ``log``; inf: no prior on that parameter (flat).
         log: (p,) bool: the prior is normal in ln(theta) (theta > 0); those
             parameters are estimated in ln(theta), their intervals too.
+
+    Examples
+    --------
+    >>> Prior.flat(2)                     # no prior: least squares
+    Prior(mean=array([0., 0.]), std=array([inf, inf]), log=array([False, False]))
     """
 
     mean: np.ndarray
@@ -231,6 +236,18 @@ def update_parameters(model: Callable[[np.ndarray], StateSpace | np.ndarray], th
     Raises:
         ValueError: bad shapes, non-finite values, or (:class:`NotIdentifiable`)
             parameters without a prior that the data cannot identify.
+
+    Examples
+    --------
+    The gain and corner frequency of a first-order lag, fitted to its exact FRF from a start of one each:
+
+    >>> import numpy as np
+    >>> f = np.linspace(1.0, 10.0, 20)
+    >>> def lag(theta):                   # theta: gain, corner [Hz] -> FRF (L, 1, 1)
+    ...     return (theta[0] / (1j * f / theta[1] + 1))[:, None, None]
+    >>> fit = update_parameters(lag, [1.0, 1.0], f, lag(np.array([2.0, 3.0])), names=["gain", "corner_hz"])
+    >>> fit.names, np.round(fit.theta, 6), fit.success
+    (('gain', 'corner_hz'), array([2., 3.]), True)
     """
     th0, nm, pm, ps, lg, sc = _checked_parameters(theta0, names, prior, scales)
     p = th0.size
