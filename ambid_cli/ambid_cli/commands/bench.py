@@ -254,7 +254,7 @@ def _link_section(sizes: dict, work: Path, figures: list) -> dict:
     from ambid_cli.bench.link import datagram_costs, python_datagram_costs, real_time_run
 
     cost = datagram_costs(4, sizes["link_repeats"])
-    py_cost = python_datagram_costs(4, max(1, sizes["link_repeats"] // 10))  # about 100 times the C's cost
+    py_cost = python_datagram_costs(4, max(5, sizes["link_repeats"] // 4))  # a fraction of a second
     runs = {v: real_time_run(work / "link", v, sizes["link_seconds"]) for v in (2, 3)}
     v2, v3 = cost["v2"], cost["v3"]
     figures += [
