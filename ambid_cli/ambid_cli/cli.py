@@ -2,15 +2,19 @@
 
 Each subcommand is a module of ``ambid_cli.commands`` with ``HELP``,
 ``add_arguments(parser)`` and ``run(args) -> int``; it is imported only when
-it runs, so ``ambid design`` never loads rclpy.
+it runs, so ``ambid design`` never loads rclpy, and ``ambid --help`` reads
+each module's ``HELP`` from its source without importing it.
 """
 
 from __future__ import annotations
 
 import argparse
+import ast
+import difflib
 import importlib
 import signal
 import sys
+from pathlib import Path
 
 # subcommand -> module in ambid_cli.commands
 COMMANDS = {
@@ -31,6 +35,53 @@ COMMANDS = {
     "live": "live",
     "tune": "tune",
 }
+# what launch_scripts/ambid answers itself, before Python runs
+SCRIPT_COMMANDS = {
+    "setup": "create the environment (venv, ROS 2 wheels, colcon build, compiled kernels); a no-op when it is ready",
+    "test": "run the test suite (pytest; extra arguments go to pytest)",
+}
+
+
+def command_help(module: str) -> str:
+    """The ``HELP`` string of ``ambid_cli.commands.<module>``, read from its source (nothing imported)."""
+    path = Path(__file__).resolve().parent / "commands" / f"{module}.py"
+    try:
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+    except (OSError, SyntaxError):
+        return ""
+    for node in tree.body:
+        if (isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "HELP" for t in node.targets)
+                and isinstance(node.value, ast.Constant) and isinstance(node.value.value, str)):
+            return node.value.value
+    return ""
+
+
+def overview() -> str:
+    """``ambid --help``: every command with one line each."""
+    rows = [(cmd, command_help(module)) for cmd, module in COMMANDS.items()]
+    rows += list(SCRIPT_COMMANDS.items())
+    w = max(len(cmd) for cmd, _ in rows)
+    lines = ["usage: ambid COMMAND [options]   (ambid COMMAND --help: that command's options)", "",
+             "system identification of AMB rotor systems on ROS 2", "", "commands:"]
+    lines += [f"  {cmd:<{w}}  {text}" for cmd, text in rows]
+    return "\n".join(lines)
+
+
+def did_you_mean(word: str, choices) -> str:
+    """'; did you mean X?' for the closest of ``choices`` to ``word``, else ''."""
+    close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.6)
+    return f"; did you mean '{close[0]}'?" if close else ""
+
+
+def _unknown_options(parser: argparse.ArgumentParser, command: str, extras: list[str]) -> str:
+    """One line naming the first argument ``parser`` did not take, with the closest option it has."""
+    options = [s for action in parser._actions for s in action.option_strings]  # noqa: SLF001 - argparse has no API
+    word = next((e for e in extras if e.startswith("-")), extras[0])
+    name = word.split("=", 1)[0]
+    if not name.startswith("-"):
+        return f"ambid {command}: unexpected argument '{word}'; 'ambid {command} --help' lists what it takes"
+    return (f"ambid {command}: unknown option '{name}'{did_you_mean(name, options)} "
+            f"('ambid {command} --help' lists the options)")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -38,18 +89,25 @@ def main(argv: list[str] | None = None) -> int:
     # children ignore SIGINT and Python would inherit that: every command's runs end cleanly on it
     signal.signal(signal.SIGINT, signal.default_int_handler)
     argv = sys.argv[1:] if argv is None else argv
+    name = argv[0] if argv else None
+    if name in (None, "-h", "--help", "help"):
+        print(overview())
+        return 0
+    if name not in COMMANDS:
+        what = "option" if name.startswith("-") else "command"
+        print(f"ambid: unknown {what} '{name}'{did_you_mean(name, [*COMMANDS, *SCRIPT_COMMANDS])} "
+              "('ambid --help' lists the commands)", file=sys.stderr)
+        return 2
     parser = argparse.ArgumentParser(prog="ambid", description="system identification of AMB rotor systems on ROS 2")
     sub = parser.add_subparsers(dest="command", required=True)
-    name = argv[0] if argv else None
-    for cmd, module in COMMANDS.items():
-        if cmd == name:
-            mod = importlib.import_module(f"ambid_cli.commands.{module}")
-            p = sub.add_parser(cmd, help=mod.HELP)
-            mod.add_arguments(p)
-            p.set_defaults(func=mod.run)
-        else:
-            sub.add_parser(cmd)
-    args = parser.parse_args(argv)  # a bad option value: argparse's usage and one line, exit code 2
+    mod = importlib.import_module(f"ambid_cli.commands.{COMMANDS[name]}")
+    p = sub.add_parser(name, help=mod.HELP, description=mod.HELP)
+    mod.add_arguments(p)
+    p.set_defaults(func=mod.run)
+    args, extras = parser.parse_known_args(argv)  # a bad option value: argparse's usage and one line, exit code 2
+    if extras:
+        print(_unknown_options(p, name, extras), file=sys.stderr)
+        return 2
     from ambid_cli.commands.inputs import BadInput
 
     try:

@@ -37,7 +37,7 @@ import sys
 
 import numpy as np
 from ambid.excitation import ExcitationDesign
-from ambid.excitation.experiment import Experiment, place_experiment
+from ambid.excitation.experiment import WORKING_CURRENT_A, Experiment, place_experiment
 from ambid.excitation.spec import KINDS, DesignSpec
 from ambid.plant.rig import Rig
 from ambid.recording.facts import design_fields
@@ -97,7 +97,7 @@ class ExcitationGenerator(Node):
                                                                 "automatically chosen start", 0, 100_000_000)
         self.current_limit = declare(self, "current_limit", 0.0, "amplifier current limit for the headroom check; "
                                                                  "0 = the plant's (plant/description)", 0.0, 1e3, "A")
-        self.working_current = declare(self, "working_current", 1.0, "controller's peak working current (gravity "
+        self.working_current = declare(self, "working_current", WORKING_CURRENT_A, "controller's peak working current (gravity "
                                                                      "and regulation) for the headroom check",
                                        0.0, 1e3, "A")
         session = declare(self, *SESSION_PARAMETER)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass, field
 from typing import Callable
@@ -11,8 +10,7 @@ from ambid.control.kinds import ControllerDesign
 from ambid.plant.rig import Rig
 
 from ambid_nodes.node_main import spin_until_done
-
-DEFAULT_NAMESPACE = "/amb"
+from ambid_nodes.running.domain import DEFAULT_NAMESPACE, session_domain_id
 
 
 @dataclass
@@ -34,14 +32,6 @@ class GraphConfig:
     controller_design: ControllerDesign | None = None
     session: int = 0  # the session's id (docs/sessions.md); 0: open nodes
     report_foreign: Callable[[dict], None] | None = None  # told the foreign publishers found before the start
-
-
-def session_domain_id() -> int:
-    """ROS_DOMAIN_ID if set, else one derived from this process, so sessions don't cross-talk."""
-    env = os.environ.get("ROS_DOMAIN_ID")
-    if env:
-        return int(env)
-    return 100 + os.getpid() % 100
 
 
 def run_composed(cfg: GraphConfig) -> dict:

@@ -75,6 +75,118 @@ class HardwareBridge(Node):
     def __init__(self, *, rig: Rig | None = None, **kwargs) -> None:
         """``rig``: the rig a composed run parsed once (else the ``rig_file`` parameter's)."""
         super().__init__("hardware_bridge", **kwargs)
+        (target_host, target_port, local_host, local_port, key_file, rig_file, window, reorder_timeout, rcvbuf,
+         session) = self._declare_parameters()
+        self.identity = SessionIdentity(self, session)
+        if self.version not in bp.SUPPORTED_VERSIONS:
+            raise ParameterError(f"hardware_bridge: protocol_version {self.version} is not implemented; "
+                                 f"this build speaks {list(bp.SUPPORTED_VERSIONS)}")
+        try:
+            self.target_addr = parse_address(f"{target_host}:{target_port}")
+            local = parse_address(f"{local_host}:{local_port}")
+        except ValueError as exc:
+            raise ParameterError(f"hardware_bridge: {exc}") from None
+        self.rig = node_rig(self, rig_file, rig)
+        self.dt = self.rig.dt
+        # the rig's axes: the channels of every datagram and block (y, u, ic, r of each; r going out)
+        self.layout = self.rig.layout
+        self.na = len(self.layout)
+        self._open_link(key_file)
+        self.measurement_names = bp.block_channels(bp.Kind.MEASUREMENT, self.layout)
+        self.measurement_units = tuple(u for sig in ("y", "u", "ic", "r") for u in self.layout.units(sig))
+        self.excitation_names = bp.block_channels(bp.Kind.EXCITATION, self.layout)
+        self.chunk = min(self.chunk, bp.max_block_samples(bp.Kind.EXCITATION, 8, self.na, self.version))
+
+        self.pub_block = self.identity.publisher(SampleBlock, "measurement", qos.BLOCKS)
+        self.pub_desc = self.identity.publisher(PlantDescription, "plant/description", qos.LATCHED)
+        self.pub_status = self.identity.publisher(SessionStatus, "status", qos.STATUS)
+        self.pub_event = self.identity.publisher(SessionEvent, "events", qos.EVENTS)
+        self.pub_clock = self.create_publisher(Clock, "/clock", qos.CLOCK)
+        self.intake = Intake(self, self.on_reject, self.on_handler_error, self.identity, self.on_foreign)
+        self.identity.announce([self.pub_block, self.pub_desc, self.pub_status, self.pub_event, self.pub_clock])
+        self.intake.subscribe(SampleBlock, "excitation", self.on_excitation, qos.BLOCKS)
+        self.intake.subscribe(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
+
+        self._init_run_state(window, reorder_timeout)
+        self._open_socket(local, rcvbuf)
+        self.publish_description()
+        self.timer = self.create_timer(TICK_S, self.tick)
+        self.get_logger().info(f"bridge {self.local_address[0]}:{self.local_address[1]} <-> target "
+                               f"{self.target_addr[0]}:{self.target_addr[1]}, protocol v{self.version}")
+        words = link_words(self.link, "hardware_bridge")
+        if self.link.authenticated:
+            self.get_logger().info(words)
+        else:  # every start says so
+            self.get_logger().warn(words)
+            self.event(SessionEvent.WARN, "unauthenticated_link", words)
+
+    # --- set-up and tear-down ---------------------------------------------
+
+
+
+
+    def _open_socket(self, local: tuple, rcvbuf: int) -> None:
+        """Bind the UDP socket and start the thread that empties it."""
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
+        try:
+            self.sock.bind(local)
+        except OSError as exc:
+            self.sock.close()
+            raise ParameterError(f"hardware_bridge: cannot bind {local[0]}:{local[1]}: {exc}") from None
+        self.local_address = self.sock.getsockname()
+        self.sock.settimeout(0.1)
+        # a thread only moves datagrams from the kernel into a queue (with their arrival time), so a busy
+        # executor never lets the socket buffer overflow; all protocol logic runs in the timer
+        self.inbox: collections.deque = collections.deque()
+        self.closing = threading.Event()
+        self.reader = threading.Thread(target=self.read_socket, name="hardware_bridge_rx", daemon=True)
+        self.reader.start()
+
+    def _init_run_state(self, window: int, reorder_timeout: float) -> None:
+        """Counters, the target's last word, the excitation and commands held."""
+        self.assembler = bp.MeasurementAssembler(self.block_size, window, reorder_timeout)
+        self.c = collections.Counter()  # counters for status and summary
+        self.malformed = collections.Counter()  # by ProtocolError.reason
+        self.hb: bp.Heartbeat | None = None  # newest heartbeat of the target
+        self.hb_seq: int | None = None
+        self.connected = self.silent = False
+        self.last_rx: float | None = None
+        self.silence_latency: list[float] = []
+        self.chunks = ExcitationChunks(self.chunk)  # excitation held until the target applied it
+        self.slots: dict[str, int] = {}
+        self.commands = CommandQueue(self.retry_s, self.retries)
+        self.runs = FlagRuns()  # runs of flagged samples, each reported when it ends
+        self.last_clock = 0
+        self.state = SessionStatus.STATE_IDLE
+        self.throttle: dict[str, list] = {}
+        self.target_refused: dict[str, int] = {}  # the target's refusals by reason, as its heartbeat last said
+        self.started_wall = time.perf_counter()
+        self.next_hb = self.next_status = 0.0
+        self.summary: dict | None = None
+        self.finished = Future()
+        self.start_state = "waiting"  # start_with_experiment: waiting -> experiment (queued) -> sent
+        self.stop_sent = False
+
+    def _open_link(self, key_file: str) -> None:
+        """The link's protocol version and key, checked against the rig's axes."""
+        if self.version == 1 and self.na != bp.V1_AXES:
+            raise ParameterError(f"hardware_bridge: protocol_version 1 carries {bp.V1_AXES} axes, the rig has "
+                                 f"{self.na} ({' '.join(self.layout.axes)}); use protocol_version 2")
+        if (self.version >= bp.AUTHENTICATED_VERSION) != bool(key_file):
+            raise ParameterError(
+                f"hardware_bridge: protocol_version {self.version} authenticates every datagram and needs key_file "
+                "(the rig's key: 'ambid keygen --out FILE', the same file for the target), or set protocol_version 2 "
+                "on bridge and target for an unauthenticated link" if key_file == "" else
+                f"hardware_bridge: key_file with protocol_version {self.version}: that version is unauthenticated; "
+                "speak version 3 with the key, or leave key_file out")
+        try:
+            self.link = LinkEnd(bp.Sender.BRIDGE, self.version, read_key_file(key_file) if key_file else None, self.na)
+        except ValueError as exc:
+            raise ParameterError(f"hardware_bridge: {exc}") from None
+
+    def _declare_parameters(self) -> tuple:
+        """The node's typed parameters; those only the set-up reads are returned."""
         target_host = declare(self, "target_host", "127.0.0.1", "address of the real-time target")
         target_port = declare(self, "target_port", 50001, "UDP port of the real-time target", 1, 65535)
         local_host = declare(self, "local_host", "127.0.0.1", "local address to bind; 0.0.0.0 = all interfaces")
@@ -114,99 +226,8 @@ class HardwareBridge(Node):
                          "net.core.rmem_max)", 65536, 1 << 30, "bytes")
         session = declare(self, *SESSION_PARAMETER)
         refuse_unknown(self)
-        self.identity = SessionIdentity(self, session)
-        if self.version not in bp.SUPPORTED_VERSIONS:
-            raise ParameterError(f"hardware_bridge: protocol_version {self.version} is not implemented; "
-                                 f"this build speaks {list(bp.SUPPORTED_VERSIONS)}")
-        try:
-            self.target_addr = parse_address(f"{target_host}:{target_port}")
-            local = parse_address(f"{local_host}:{local_port}")
-        except ValueError as exc:
-            raise ParameterError(f"hardware_bridge: {exc}") from None
-        self.rig = node_rig(self, rig_file, rig)
-        self.dt = self.rig.dt
-        # the rig's axes: the channels of every datagram and block (y, u, ic, r of each; r going out)
-        self.layout = self.rig.layout
-        self.na = len(self.layout)
-        if self.version == 1 and self.na != bp.V1_AXES:
-            raise ParameterError(f"hardware_bridge: protocol_version 1 carries {bp.V1_AXES} axes, the rig has "
-                                 f"{self.na} ({' '.join(self.layout.axes)}); use protocol_version 2")
-        if (self.version >= bp.AUTHENTICATED_VERSION) != bool(key_file):
-            raise ParameterError(
-                f"hardware_bridge: protocol_version {self.version} authenticates every datagram and needs key_file "
-                "(the rig's key: 'ambid keygen --out FILE', the same file for the target), or set protocol_version 2 "
-                "on bridge and target for an unauthenticated link" if key_file == "" else
-                f"hardware_bridge: key_file with protocol_version {self.version}: that version is unauthenticated; "
-                "speak version 3 with the key, or leave key_file out")
-        try:
-            self.link = LinkEnd(bp.Sender.BRIDGE, self.version, read_key_file(key_file) if key_file else None, self.na)
-        except ValueError as exc:
-            raise ParameterError(f"hardware_bridge: {exc}") from None
-        self.measurement_names = bp.block_channels(bp.Kind.MEASUREMENT, self.layout)
-        self.measurement_units = tuple(u for sig in ("y", "u", "ic", "r") for u in self.layout.units(sig))
-        self.excitation_names = bp.block_channels(bp.Kind.EXCITATION, self.layout)
-        self.chunk = min(self.chunk, bp.max_block_samples(bp.Kind.EXCITATION, 8, self.na, self.version))
+        return target_host, target_port, local_host, local_port, key_file, rig_file, window, reorder_timeout, rcvbuf, session
 
-        self.pub_block = self.identity.publisher(SampleBlock, "measurement", qos.BLOCKS)
-        self.pub_desc = self.identity.publisher(PlantDescription, "plant/description", qos.LATCHED)
-        self.pub_status = self.identity.publisher(SessionStatus, "status", qos.STATUS)
-        self.pub_event = self.identity.publisher(SessionEvent, "events", qos.EVENTS)
-        self.pub_clock = self.create_publisher(Clock, "/clock", qos.CLOCK)
-        self.intake = Intake(self, self.on_reject, self.on_handler_error, self.identity, self.on_foreign)
-        self.identity.announce([self.pub_block, self.pub_desc, self.pub_status, self.pub_event, self.pub_clock])
-        self.intake.subscribe(SampleBlock, "excitation", self.on_excitation, qos.BLOCKS)
-        self.intake.subscribe(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
-
-        self.assembler = bp.MeasurementAssembler(self.block_size, window, reorder_timeout)
-        self.c = collections.Counter()  # counters for status and summary
-        self.malformed = collections.Counter()  # by ProtocolError.reason
-        self.hb: bp.Heartbeat | None = None  # newest heartbeat of the target
-        self.hb_seq: int | None = None
-        self.connected = self.silent = False
-        self.last_rx: float | None = None
-        self.silence_latency: list[float] = []
-        self.chunks = ExcitationChunks(self.chunk)  # excitation held until the target applied it
-        self.slots: dict[str, int] = {}
-        self.commands = CommandQueue(self.retry_s, self.retries)
-        self.runs = FlagRuns()  # runs of flagged samples, each reported when it ends
-        self.last_clock = 0
-        self.state = SessionStatus.STATE_IDLE
-        self.throttle: dict[str, list] = {}
-        self.target_refused: dict[str, int] = {}  # the target's refusals by reason, as its heartbeat last said
-        self.started_wall = time.perf_counter()
-        self.next_hb = self.next_status = 0.0
-        self.summary: dict | None = None
-        self.finished = Future()
-        self.start_state = "waiting"  # start_with_experiment: waiting -> experiment (queued) -> sent
-        self.stop_sent = False
-
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
-        try:
-            self.sock.bind(local)
-        except OSError as exc:
-            self.sock.close()
-            raise ParameterError(f"hardware_bridge: cannot bind {local[0]}:{local[1]}: {exc}") from None
-        self.local_address = self.sock.getsockname()
-        self.sock.settimeout(0.1)
-        # a thread only moves datagrams from the kernel into a queue (with their arrival time), so a busy
-        # executor never lets the socket buffer overflow; all protocol logic runs in the timer
-        self.inbox: collections.deque = collections.deque()
-        self.closing = threading.Event()
-        self.reader = threading.Thread(target=self.read_socket, name="hardware_bridge_rx", daemon=True)
-        self.reader.start()
-        self.publish_description()
-        self.timer = self.create_timer(TICK_S, self.tick)
-        self.get_logger().info(f"bridge {self.local_address[0]}:{self.local_address[1]} <-> target "
-                               f"{self.target_addr[0]}:{self.target_addr[1]}, protocol v{self.version}")
-        words = link_words(self.link, "hardware_bridge")
-        if self.link.authenticated:
-            self.get_logger().info(words)
-        else:  # every start says so
-            self.get_logger().warn(words)
-            self.event(SessionEvent.WARN, "unauthenticated_link", words)
-
-    # --- set-up and tear-down ---------------------------------------------
     def publish_description(self) -> None:
         r, lay = self.rig, self.layout
         self.pub_desc.publish(PlantDescription(

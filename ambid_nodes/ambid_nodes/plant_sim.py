@@ -137,28 +137,7 @@ class PlantSim(Node):
         """``rig``: the rig a composed run parsed once (else the ``rig_file`` parameter's)."""
         super().__init__("plant_sim", **kwargs)
         self.fqn = self.get_fully_qualified_name()
-        rig_file = declare(self, "rig_file", "", "YAML rig parameter file; empty = the default rig")
-        self.seed = declare(self, "seed", 0, "seed of the sensor noise", 0, 2**31 - 1)
-        nonlinear = declare(self, "nonlinear_magnets", False, "use the nonlinear magnet force, eq. 2.14")
-        self.sim_seconds = declare(self, "sim_seconds", 0.0, "simulated time to run; 0 = until stopped",
-                                   0.0, 1e6, "s")
-        self.block_size = declare(self, "block_size", 1000, "samples per measurement block", 1, 100_000)
-        self.clock_every = declare(self, "clock_every", 100, "samples between /clock messages", 1, 100_000)
-        self.timeout = declare(self, "controller_timeout", 2.0,
-                               "wall time without an answer before the controller is declared lost",
-                               0.01, 3600.0, "s")
-        self.exc_timeout = declare(self, "excitation_timeout", 5.0,
-                                   "wall time waiting for an excitation block a design says is due before the "
-                                   "session fails", 0.01, 3600.0, "s")
-        self.resend_after = declare(self, "resend_after", 0.02,
-                                    "wall time the loop may stand still before the plant sends y[k - 1] and y[k] "
-                                    "again (a lost message is recovered; the controller answers them again)",
-                                    0.001, 60.0, "s")
-        self.horizon = declare(self, "excitation_horizon", 1_000_000,
-                               "most samples an excitation block may lie ahead of the plant (memory bound)",
-                               1, 1_000_000_000)
-        session = declare(self, *SESSION_PARAMETER)
-        refuse_unknown(self)
+        rig_file, nonlinear, session = self._declare_parameters()
         self.identity = SessionIdentity(self, session)
         self.rig = node_rig(self, rig_file, rig)
         self.sim = PlantSimulator(self.rig, seed=self.seed, nonlinear_magnets=nonlinear)
@@ -179,21 +158,12 @@ class PlantSim(Node):
         self.fast = BoundKernel(plant_kernel, N_PK)
         self.fast_step = self.fast.call
         self.fast.set(LOOP_LIMIT, self.last_k)
+        self._create_topics()
+        self._create_loop_state()
 
-        self.pub_y = self.create_publisher(Sample, "displacement", qos.LOOP)
-        self.publish_y_raw = raw_publisher(self.pub_y)
-        publisher = self.identity.publisher  # its messages carry the session's id
-        self.pub_block = publisher(SampleBlock, "measurement", qos.BLOCKS)
-        self.pub_desc = publisher(PlantDescription, "plant/description", qos.LATCHED)
-        self.pub_status = publisher(SessionStatus, "status", qos.STATUS)
-        self.pub_event = publisher(SessionEvent, "events", qos.EVENTS)
-        self.pub_clock = self.create_publisher(Clock, "/clock", qos.CLOCK)
-        self.publish_clock_raw = raw_publisher(self.pub_clock)
-        self.intake = Intake(self, self.on_reject, self.on_handler_error, self.identity, self.on_foreign)
-        self.ic_tally = self.intake.tally("control_current")
-        self.intake.subscribe(SampleBlock, "excitation", self.on_excitation, qos.BLOCKS)
-        self.intake.subscribe(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
-
+    def _create_loop_state(self) -> None:
+        """The loop's state: the compiled path's buffers, the loop entry, the controller's GID, the timers."""
+        na = self.na
         self.k = 0
         # currents received for samples k and k + 1 (a pipelined controller answers one ahead), in order
         self.ic_ready: list[list[float]] = []
@@ -249,6 +219,48 @@ class PlantSim(Node):
         self.create_timer(STATUS_PERIOD_S, self.status_when_idle)
         self.identity.announce([self.pub_y, self.pub_block, self.pub_desc, self.pub_status, self.pub_event,
                                 self.pub_clock])
+
+    def _create_topics(self) -> None:
+        """Publishers, intake and subscriptions (the loop entry comes with the loop state)."""
+        self.pub_y = self.create_publisher(Sample, "displacement", qos.LOOP)
+        self.publish_y_raw = raw_publisher(self.pub_y)
+        publisher = self.identity.publisher  # its messages carry the session's id
+        self.pub_block = publisher(SampleBlock, "measurement", qos.BLOCKS)
+        self.pub_desc = publisher(PlantDescription, "plant/description", qos.LATCHED)
+        self.pub_status = publisher(SessionStatus, "status", qos.STATUS)
+        self.pub_event = publisher(SessionEvent, "events", qos.EVENTS)
+        self.pub_clock = self.create_publisher(Clock, "/clock", qos.CLOCK)
+        self.publish_clock_raw = raw_publisher(self.pub_clock)
+        self.intake = Intake(self, self.on_reject, self.on_handler_error, self.identity, self.on_foreign)
+        self.ic_tally = self.intake.tally("control_current")
+        self.intake.subscribe(SampleBlock, "excitation", self.on_excitation, qos.BLOCKS)
+        self.intake.subscribe(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
+
+    def _declare_parameters(self) -> tuple:
+        """The node's typed parameters; (rig_file, nonlinear_magnets, session)."""
+        rig_file = declare(self, "rig_file", "", "YAML rig parameter file; empty = the default rig")
+        self.seed = declare(self, "seed", 0, "seed of the sensor noise", 0, 2**31 - 1)
+        nonlinear = declare(self, "nonlinear_magnets", False, "use the nonlinear magnet force, eq. 2.14")
+        self.sim_seconds = declare(self, "sim_seconds", 0.0, "simulated time to run; 0 = until stopped",
+                                   0.0, 1e6, "s")
+        self.block_size = declare(self, "block_size", 1000, "samples per measurement block", 1, 100_000)
+        self.clock_every = declare(self, "clock_every", 100, "samples between /clock messages", 1, 100_000)
+        self.timeout = declare(self, "controller_timeout", 2.0,
+                               "wall time without an answer before the controller is declared lost",
+                               0.01, 3600.0, "s")
+        self.exc_timeout = declare(self, "excitation_timeout", 5.0,
+                                   "wall time waiting for an excitation block a design says is due before the "
+                                   "session fails", 0.01, 3600.0, "s")
+        self.resend_after = declare(self, "resend_after", 0.02,
+                                    "wall time the loop may stand still before the plant sends y[k - 1] and y[k] "
+                                    "again (a lost message is recovered; the controller answers them again)",
+                                    0.001, 60.0, "s")
+        self.horizon = declare(self, "excitation_horizon", 1_000_000,
+                               "most samples an excitation block may lie ahead of the plant (memory bound)",
+                               1, 1_000_000_000)
+        session = declare(self, *SESSION_PARAMETER)
+        refuse_unknown(self)
+        return rig_file, nonlinear, session
 
     def regate(self) -> None:
         """Open the loop pump's gate while it may take the next control message: the loop

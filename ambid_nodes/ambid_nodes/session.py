@@ -18,24 +18,18 @@ it acts only on that session's messages, and the recording holds only them.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import json
 import multiprocessing
 import sys
 import time
-from dataclasses import asdict, dataclass, field, fields, replace
-from pathlib import Path
+from dataclasses import dataclass, fields, replace
 from typing import Callable
 
-from ambid.control.kinds import ControllerDesign, checked_design
 from ambid.excitation import ExcitationDesign
-from ambid.excitation.spec import DesignSpec
 from ambid.frf.offline import data_channels
-from ambid.hardware.bridge_protocol import PROTOCOL_VERSION, CommandCode
+from ambid.hardware.bridge_protocol import CommandCode
 from ambid.identification.result import Identification
 from ambid.jsonable import JsonRecord, json_field
-from ambid.plant.rig import Rig, load_rig, make_rig
 from ambid.session_id import format_session, new_session_id
 
 from rclpy.node import Node
@@ -43,127 +37,15 @@ from rclpy.node import Node
 from ambid_msgs.msg import ControllerDescription, PlantDescription
 from ambid_msgs.msg import ExcitationDesign as DesignMessage
 from ambid_nodes import qos
-from ambid_nodes.graph import DEFAULT_NAMESPACE, preflight, session_domain_id
+from ambid_nodes.graph import preflight
 from ambid_nodes.node_main import gc_frozen
+from ambid_nodes.running.domain import session_domain_id
+# the plan and its parts live in ambid_nodes.running.plan; the command line takes them from here, beside the
+# entry points (run_identify, run_session_composed)
+from ambid_nodes.running.plan import (LIFT_OFF_S, NodeDied, ProgressBar, SessionConfig, SessionPlan,  # noqa: F401
+                                      config_json, hardware_summary, plan_session, run_facts, session_samples)
 
-LIFT_OFF_S = 0.5  # levitate and settle before the experiment starts
 SETTLE_S = 0.2  # wall time for the status and events the nodes publish as the run ends, once the data is in
-
-
-@dataclass
-class SessionConfig:
-    """What to run. Defaults: the main job of ``ambid identify``; the experiment's are
-    :class:`ambid.excitation.spec.DesignSpec`'s (the one home of the experiment's defaults)."""
-
-    out_dir: Path = Path("identify")
-    # the excitation experiment; its seed also seeds the sensor noise, so one seed makes the session
-    experiment: DesignSpec = field(default_factory=DesignSpec)
-    rig_file: str = ""
-    controller: str = ""  # a kind or a controller file; empty: the rig file's controller, else pid
-    nonlinear_magnets: bool = True
-    estimator: str = "indirect"
-    # at speed a multisine steers clear of the synchronous harmonics; None: the rig's rotor_speed_rpm
-    speed_rpm: float | None = None
-    namespace: str = DEFAULT_NAMESPACE
-    progress: bool = True
-    hardware: str = ""      # HOST:PORT of a real-time target: hardware_bridge replaces plant_sim and the controller
-    local_port: int = 0     # with hardware: the bridge's UDP port (0: any)
-    key_file: str = ""      # with hardware: the rig's key file (protocol version 3)
-    protocol_version: int = PROTOCOL_VERSION  # with hardware: 3 authenticated, 2 unauthenticated
-    true_model: str = ""    # with hardware: the C target's model file, the truth the FRF is compared with
-    session: int = 0        # the session's id (docs/sessions.md); 0: open nodes
-    processes: bool = False  # every node its own process, supervised
-    live_port: int | None = None    # a Foxglove live view on this port (0: any free one); None: none
-    live_host: str = "127.0.0.1"    # the address the live view binds
-    extra: dict = field(default_factory=dict)
-
-    @property
-    def seed(self) -> int:
-        return self.experiment.seed
-
-    def design(self, fs_hz: float, rig_speed_rpm: float = 0.0, inputs: Sequence[str] = ()) -> ExcitationDesign:
-        """The experiment's design at the plant's rate, on the plant's currents ``inputs`` unless the experiment
-        names its own; at speed (a multisine only) steered clear of the synchronous harmonics."""
-        speed = rig_speed_rpm if self.speed_rpm is None else self.speed_rpm
-        return self.experiment.build(fs_hz, speed if self.experiment.kind == "multisine" else 0.0,
-                                     *([inputs] if inputs else []))
-
-
-@dataclass(frozen=True)
-class SessionPlan:
-    """What a session runs, each decided once per run and handed to the nodes that need it.
-
-    Attributes:
-        rig: the rig, its file parsed once (plant_sim, position_controller, excitation_generator and the
-            hardware bridge take this object instead of parsing ``rig_file`` each).
-        controller: the position controller, designed and checked against the rig once; None where a
-            real-time target closes the loop.
-        design: the excitation experiment's design, built once (the generator builds none of its own).
-    """
-
-    rig: Rig
-    controller: ControllerDesign | None
-    design: ExcitationDesign
-
-
-class NodeDied(RuntimeError):
-    """A node of a processes-layout session died before its run was over (ambid_nodes.supervisor).
-
-    Attributes:
-        death: {node, how, sample_index, simulated_s, consequence}.
-        mcap_path: the recording.
-        complete: the recording was closed completely (else ``ambid inspect --recover`` reads it).
-        messages: messages recorded (as the recorder or the file says).
-        figures: the levitation figures up to there (``ambid.plant.levitation``).
-    """
-
-    def __init__(self, death: dict, mcap_path: str, complete: bool, messages: int | None, figures: dict) -> None:
-        super().__init__(f"{death['node']} {death['how']} at sample {death['sample_index']}")
-        self.death, self.mcap_path, self.complete, self.messages, self.figures = (death, mcap_path, complete,
-                                                                                   messages, figures)
-
-
-def plan_session(cfg: SessionConfig, rig: Rig | None = None, controller: ControllerDesign | None = None
-                 ) -> SessionPlan:
-    """The plan of ``cfg``: ``rig`` (None: ``cfg.rig_file`` parsed, or the default rig) and ``controller``
-    (None: ``cfg.controller`` designed and checked) as given, the design built. ValueError or OSError
-    names what cannot be used."""
-    rig = rig if rig is not None else (load_rig(cfg.rig_file) if cfg.rig_file else make_rig())
-    if controller is None and not cfg.hardware:
-        controller = checked_design(cfg.controller, rig)
-    return SessionPlan(rig, controller, cfg.design(1.0 / rig.dt, float(rig.rotor_speed_rpm), rig.layout.inputs))
-
-
-class ProgressBar:
-    """One terminal line: simulated time, periods done, current FRF noise level."""
-
-    def __init__(self, enabled: bool, stream=sys.stderr) -> None:
-        self.enabled = enabled
-        self.stream = stream
-        self.last = 0.0
-
-    def show(self, fraction: float, text: str, force: bool = False) -> None:
-        now = time.monotonic()
-        if not self.enabled or (not force and now - self.last < 0.25):
-            return
-        self.last = now
-        n = 30
-        done = int(round(max(0.0, min(1.0, fraction)) * n))
-        self.stream.write(f"\r[{'#' * done}{'.' * (n - done)}] {100 * fraction:5.1f}% {text}\x1b[K")
-        self.stream.flush()
-
-    def close(self) -> None:
-        if self.enabled:
-            self.stream.write("\n")
-            self.stream.flush()
-
-
-def session_samples(design: ExcitationDesign, fs: float) -> tuple[int, int]:
-    """(the experiment's first sample index, the session's samples): lift-off, the experiment, and one
-    block of tail so the last period is measured. A free-running target can be told the count
-    (ambp_udp_target --samples) so it stops where the session does."""
-    start_index = int(round(LIFT_OFF_S * fs))
-    return start_index, start_index + design.total_samples + 1000
 
 
 def start_live(cfg: SessionConfig):
@@ -192,92 +74,135 @@ def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None,
     (:class:`ambid.identification.early.EarlyAnalysis`): handed the session's inputs as they become known,
     and the final FRF the moment the consumer has it, so the analysis runs while the graph closes.
     """
-    import rclpy
-    from rclpy.experimental import EventsExecutor
-    from rclpy.parameter import Parameter
+    run = _Composed(cfg, plan_session(cfg) if plan is None else plan)
+    try:
+        foreign = preflight(run.executor, cfg.namespace, run.context, report_foreign)
+        plant, recorder, generator, consumer, inputs = run.add_nodes(early is not None)
+        run.wait_readers(plant, recorder, generator, live)
+        answer = run.start_experiment(plant, recorder, generator)
 
-    from ambid_msgs.srv import StartExperiment
-    from ambid_nodes.excitation_generator import ExcitationGenerator
-    from ambid_nodes.frf_consumer import FrfConsumer
-    from ambid_nodes.hardware_bridge import HardwareBridge
-    from ambid_nodes.plant_sim import PlantSim
-    from ambid_nodes.position_controller import PositionController
-    from ambid_nodes.recorder import Recorder
+        def analyse_early() -> None:
+            if inputs is not None and not early.analysing and answer.experiment_id in consumer.results:
+                early.analyse(inputs.session_inputs(run.mcap_path, consumer.results[answer.experiment_id],
+                                                    cfg.nonlinear_magnets))
 
-    plan = plan_session(cfg) if plan is None else plan
-    design = plan.design
-    fs = 1.0 / plan.rig.dt
-    start_index, total = session_samples(design, fs)
-    mcap_path = cfg.out_dir / "session.mcap"
+        plant_summary = run.until_finished(plant, consumer, analyse_early)
+        rec = run.close_recording(plant, recorder, consumer, plant_summary, answer, analyse_early)
+        return run_facts(answer, plant_summary, rec, _live_figures(consumer.results[answer.experiment_id]),
+                         time.perf_counter() - run.wall0, f"hardware bridge to {cfg.hardware}" if cfg.hardware
+                         else "composed", run.plan.design, run.mcap_path, foreign,
+                         consumer.finished_at.get(answer.experiment_id))
+    finally:
+        run.shutdown()
 
+
+class _Composed:
+    """One composed run's executor and nodes, and its stages in the order :func:`run_session_composed` runs them."""
+
+    def __init__(self, cfg: SessionConfig, plan: SessionPlan) -> None:
+        import rclpy
+        from rclpy.experimental import EventsExecutor
+
+        self.cfg, self.plan = cfg, plan
+        self.fs = 1.0 / plan.rig.dt
+        self.start_index, self.total = session_samples(plan.design, self.fs)
+        self.mcap_path = cfg.out_dir / "session.mcap"
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=session_domain_id())
+        self.executor = EventsExecutor(context=self.context)
+        self.nodes: list = []
+        self.wall0 = time.perf_counter()
+        self.session = {"session": cfg.session or new_session_id()}  # every session has an id, given or fresh
+        # said, not parsed again: the nodes get plan.rig
+        self.rig_param = {"rig_file": cfg.rig_file} if cfg.rig_file else {}
+        self.ns = dict(namespace=cfg.namespace, context=self.context)
+
+    @staticmethod
     def params(d: dict) -> list:
+        from rclpy.parameter import Parameter
+
         return [Parameter(k, value=v) for k, v in d.items()]
 
-    rig_param = {"rig_file": cfg.rig_file} if cfg.rig_file else {}  # said, not parsed again: the nodes get plan.rig
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=session_domain_id())
-    executor = EventsExecutor(context=context)
-    nodes = []
-    bar = ProgressBar(cfg.progress)
-    wall0 = time.perf_counter()
-
-    def add(node):
-        nodes.append(node)
-        executor.add_node(node)
+    def add(self, node):
+        self.nodes.append(node)
+        self.executor.add_node(node)
         return node
 
-    def spin_until(pred, timeout_s: float, what: str) -> None:
+    def spin_until(self, pred, timeout_s: float, what: str) -> None:
         end = time.monotonic() + timeout_s
         while not pred():
             if time.monotonic() > end:
                 raise RuntimeError(f"identify: timed out after {timeout_s:g} s waiting for {what}")
-            executor.spin_once(timeout_sec=0.05)
+            self.executor.spin_once(timeout_sec=0.05)
 
-    try:
-        foreign = preflight(executor, cfg.namespace, context, report_foreign)
-        session = {"session": cfg.session or new_session_id()}  # every session has an id, given or fresh
-        ns = dict(namespace=cfg.namespace, context=context)
+    def add_nodes(self, with_inputs: bool) -> tuple:
+        """Plant (or the bridge to the target), recorder, generator, consumer, and the inputs' listener."""
+        from ambid_nodes.excitation_generator import ExcitationGenerator
+        from ambid_nodes.frf_consumer import FrfConsumer
+        from ambid_nodes.plant_sim import PlantSim
+        from ambid_nodes.recorder import Recorder
+
+        cfg, plan, ns, params, session, rig_param = (self.cfg, self.plan, self.ns, self.params, self.session,
+                                                     self.rig_param)
         if cfg.hardware:
-            # the target runs plant and controller; it starts only once it knows the experiment (below)
-            from ambid.hardware.rt_target import parse_address
-
-            host, port = parse_address(cfg.hardware)
-            plant = add(HardwareBridge(**ns, rig=plan.rig, parameter_overrides=params({
-                "target_host": host, "target_port": port, "local_port": cfg.local_port, "autostart": False,
-                "key_file": cfg.key_file, "protocol_version": cfg.protocol_version, **rig_param, **session})))
-            # the target must answer before anything is written: a wrong address leaves no recording behind
-            spin_until(lambda: plant.connected, 15, f"the real-time target at {cfg.hardware} (is it running and "
-                                                    "sending to this bridge's port?); nothing was recorded")
+            plant = self.add_bridge()
         cfg.out_dir.mkdir(parents=True, exist_ok=True)
-        recorder = add(Recorder(**ns, parameter_overrides=params({
-            "output": str(mcap_path), "overwrite": True,
-            "session_facts": json.dumps({"session": "identify", "config": _jsonable(cfg)}), **session})))
+        recorder = self.add(Recorder(**ns, parameter_overrides=params({
+            "output": str(self.mcap_path), "overwrite": True,
+            "session_facts": json.dumps({"session": "identify", "config": config_json(cfg)}), **session})))
         if not cfg.hardware:
-            plant = add(PlantSim(**ns, rig=plan.rig, parameter_overrides=params({
-                "sim_seconds": total / fs, "seed": cfg.seed, "nonlinear_magnets": cfg.nonlinear_magnets,
+            plant = self.add(PlantSim(**ns, rig=plan.rig, parameter_overrides=params({
+                "sim_seconds": self.total / self.fs, "seed": cfg.seed, "nonlinear_magnets": cfg.nonlinear_magnets,
                 **rig_param, **session})))
-        generator = add(ExcitationGenerator(**ns, rig=plan.rig, parameter_overrides=params({
-            "start_margin": start_index, **rig_param, **session})))
-        consumer = add(FrfConsumer(**ns, parameter_overrides=params({"estimator": cfg.estimator, **session})))
-        inputs = add(SessionMessages(session["session"], **ns)) if early is not None else None
-        # every reader of the measurement and of the (latched) design must be matched before the plant runs:
-        # this process's own (the recorder's once it has found the topic), and a live view's, whose process
-        # discovers ours late on a loaded machine (a design it got after the experiment's blocks had passed
-        # would leave it no FRF to show)
+        generator = self.add(ExcitationGenerator(**ns, rig=plan.rig, parameter_overrides=params({
+            "start_margin": self.start_index, **rig_param, **session})))
+        consumer = self.add(FrfConsumer(**ns, parameter_overrides=params({"estimator": cfg.estimator, **session})))
+        inputs = self.add(SessionMessages(session["session"], **ns)) if with_inputs else None
+        return plant, recorder, generator, consumer, inputs
+
+    def add_bridge(self):
+        """The bridge to the target, which runs plant and controller; it starts once it knows the experiment."""
+        from ambid.hardware.rt_target import parse_address
+        from ambid_nodes.hardware_bridge import HardwareBridge
+
+        cfg = self.cfg
+        host, port = parse_address(cfg.hardware)
+        plant = self.add(HardwareBridge(**self.ns, rig=self.plan.rig, parameter_overrides=self.params({
+            "target_host": host, "target_port": port, "local_port": cfg.local_port, "autostart": False,
+            "key_file": cfg.key_file, "protocol_version": cfg.protocol_version, **self.rig_param, **self.session})))
+        # the target must answer before anything is written: a wrong address leaves no recording behind
+        self.spin_until(lambda: plant.connected, 15, f"the real-time target at {cfg.hardware} (is it running and "
+                                                     "sending to this bridge's port?); nothing was recorded")
+        return plant
+
+    def wait_readers(self, plant, recorder, generator, live) -> None:
+        """Every reader of the measurement and of the (latched) design matched before the plant runs.
+
+        This process's own (the recorder's once it has found the topic), and a live view's, whose process
+        discovers ours late on a loaded machine (a design it got after the experiment's blocks had passed
+        would leave it no FRF to show).
+        """
         remote = 0
         if live is not None:
             print(f"ambid: live view on {live.wait_ready()} (docs/live.md)", file=sys.stderr, flush=True)
             remote = 1
         for pub, who in ((plant.pub_block, "the measurement"), (generator.pub_design, "the excitation design")):
             topic = pub.topic_name
-            spin_until(lambda pub=pub, topic=topic: topic in recorder.subs and
-                       pub.get_subscription_count() >= local_readers(nodes, topic) + remote, 30,
-                       f"every reader of {who}" + (" (the live view among them)" if remote else ""))
-        spin_until(lambda: generator.plant_known, 30, "the plant description at the generator")
+            self.spin_until(lambda pub=pub, topic=topic: topic in recorder.subs and
+                            pub.get_subscription_count() >= local_readers(self.nodes, topic) + remote, 30,
+                            f"every reader of {who}" + (" (the live view among them)" if remote else ""))
+        self.spin_until(lambda: generator.plant_known, 30, "the plant description at the generator")
+
+    def start_experiment(self, plant, recorder, generator):
+        """Hand the design to the generator, then start the target or add the controller; the service's answer."""
+        from ambid_msgs.srv import StartExperiment
+        from ambid_nodes.position_controller import PositionController
+
+        cfg, spin_until = self.cfg, self.spin_until
         client = recorder.create_client(StartExperiment, "start_experiment")
         spin_until(client.service_is_ready, 30, "the start_experiment service")
-        future = client.call_async(StartExperiment.Request(start_index=start_index,
-                                                           design_json=json.dumps(design.to_dict())))
+        future = client.call_async(StartExperiment.Request(start_index=self.start_index,
+                                                           design_json=json.dumps(self.plan.design.to_dict())))
         spin_until(future.done, 30, "the start_experiment answer")
         answer = future.result()
         if not answer.accepted:
@@ -289,17 +214,19 @@ def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None,
                        "idle, and sending to this bridge's port?)")
             plant.queue_command(CommandCode.START)
         else:
-            add(PositionController(**ns, rig=plan.rig, design=plan.controller, parameter_overrides=params({
-                **rig_param, "controller": cfg.controller, **session})))
-        stop_sent = False
-        def analyse_early() -> None:
-            if inputs is not None and not early.analysing and answer.experiment_id in consumer.results:
-                early.analyse(inputs.session_inputs(mcap_path, consumer.results[answer.experiment_id],
-                                                    cfg.nonlinear_magnets))
+            self.add(PositionController(**self.ns, rig=self.plan.rig, design=self.plan.controller,
+                                        parameter_overrides=self.params({
+                                            **self.rig_param, "controller": cfg.controller, **self.session})))
+        return answer
 
+    def until_finished(self, plant, consumer, analyse_early: Callable[[], None]) -> dict:
+        """Spin until the plant's run ends, showing progress; the plant's summary."""
+        cfg, total, fs = self.cfg, self.total, self.fs
+        bar = ProgressBar(cfg.progress)
+        stop_sent = False
         with gc_frozen():
             while not plant.finished.done():
-                executor.spin_until_future_complete(plant.finished, timeout_sec=0.25)
+                self.executor.spin_until_future_complete(plant.finished, timeout_sec=0.25)
                 analyse_early()
                 if cfg.hardware:
                     k = plant.figures()["samples_published"]
@@ -309,59 +236,42 @@ def run_session_composed(cfg: SessionConfig, plan: SessionPlan | None = None,
                 else:
                     k = plant.k
                 st = _consumer_text(consumer)
-                rate = k / max(time.perf_counter() - wall0, 1e-9)
+                rate = k / max(time.perf_counter() - self.wall0, 1e-9)
                 bar.show(k / total, f"sim {k / fs:6.2f}/{total / fs:.2f} s  {rate / 1000:5.1f}k samples/s  {st}")
         bar.show(1.0, "simulation done, closing the recording", force=True)
         bar.close()
         plant_summary = plant.finished.result()
         if cfg.hardware:
-            plant_summary = _hardware_summary(plant_summary, total, fs, time.perf_counter() - wall0)
-        # let the recorder and the consumer take the last blocks, then what the nodes said at the end
+            plant_summary = hardware_summary(plant_summary, total, fs, time.perf_counter() - self.wall0)
+        return plant_summary
+
+    def close_recording(self, plant, recorder, consumer, plant_summary: dict, answer,
+                        analyse_early: Callable[[], None]) -> dict:
+        """Let the recorder and the consumer take the last blocks, then what the nodes said at the end."""
         meas = plant.pub_block.topic_name
-        n_blocks = (plant.figures()["blocks"] if cfg.hardware else -(-plant_summary["samples"] // plant.block_size))
-        spin_until(lambda: recorder.counts.get(meas, 0) >= n_blocks, 30, "the last measurement block at the recorder")
+        n_blocks = (plant.figures()["blocks"] if self.cfg.hardware
+                    else -(-plant_summary["samples"] // plant.block_size))
+        self.spin_until(lambda: recorder.counts.get(meas, 0) >= n_blocks, 30,
+                        "the last measurement block at the recorder")
         failure = plant_summary.get("failure")
         if failure:  # the run stopped short, no estimate will come: keep the recording, say why
             recorder.close()
             raise RuntimeError(f"the plant ended the session failed ({failure['code']}): {failure['text']}; "
-                               f"the recording so far is in {mcap_path}")
-        spin_until(lambda: answer.experiment_id in consumer.results, 30, "the final FRF estimate")
+                               f"the recording so far is in {self.mcap_path}")
+        self.spin_until(lambda: answer.experiment_id in consumer.results, 30, "the final FRF estimate")
         analyse_early()
         end = time.monotonic() + SETTLE_S
         while time.monotonic() < end:
-            executor.spin_once(timeout_sec=0.02)
-        rec = recorder.close()
-        return run_facts(answer, plant_summary, rec, _live_figures(consumer.results[answer.experiment_id]),
-                         time.perf_counter() - wall0, f"hardware bridge to {cfg.hardware}" if cfg.hardware
-                         else "composed", design, mcap_path, foreign,
-                         consumer.finished_at.get(answer.experiment_id))
-    finally:
-        executor.shutdown()
-        for n in nodes:
+            self.executor.spin_once(timeout_sec=0.02)
+        return recorder.close()
+
+    def shutdown(self) -> None:
+        import rclpy
+
+        self.executor.shutdown()
+        for n in self.nodes:
             n.destroy_node()
-        rclpy.shutdown(context=context)
-
-
-def run_facts(answer, plant_summary: dict, recorder: dict, live_frf: dict, wall_s: float, layout: str,
-              design: ExcitationDesign, mcap_path, foreign: dict, final_estimate_at: float | None = None) -> dict:
-    """What a session's run returns for its offline identification (either layout); ``final_estimate_at``:
-    when the consumer had the final FRF (time.perf_counter), where known."""
-    return {
-        "experiment_id": answer.experiment_id,
-        "start_index": answer.start_index,
-        "plant": plant_summary,
-        "recorder": recorder,
-        "live_frf": live_frf,
-        "wall_s": wall_s,
-        "simulated_s": plant_summary["simulated_s"],
-        "samples_per_wall_s": plant_summary["samples"] / wall_s,
-        "loop_samples_per_wall_s": plant_summary["samples_per_wall_s"],
-        "layout": layout,
-        "design": design,
-        "mcap_path": str(mcap_path),
-        "foreign_publishers": foreign,
-        "final_estimate_at": final_estimate_at,
-    }
+        rclpy.shutdown(context=self.context)
 
 
 class SessionMessages(Node):
@@ -396,17 +306,6 @@ class SessionMessages(Node):
                                     self.last.get("controller"), frf, nonlinear_magnets)
 
 
-def _hardware_summary(bridge: dict, total: int, fs: float, wall_s: float) -> dict:
-    """The bridge's summary in the terms of plant_sim's (samples, state, failure), with its figures kept."""
-    out = {**bridge, "simulated_s": bridge["samples"] / fs, "samples_per_wall_s": bridge["samples"] / wall_s,
-           "levitated": None}  # the target keeps the rotor up; the bridge cannot tell
-    if bridge["state"] != "done" or bridge["samples"] < total:
-        out["failure"] = {"code": "target", "text": (
-            f"the target ended {bridge['target_state']} after {bridge['samples']} of {total} samples "
-            f"(silent episodes {bridge['silent_episodes']}, {bridge['missing_samples']} samples lost)")}
-    return out
-
-
 def _consumer_text(consumer) -> str:
     f = consumer.figures()
     if not f:
@@ -420,12 +319,6 @@ def _live_figures(result) -> dict:
     return {"relative_noise_std": float(result.relative_noise_std), "periods": int(result.n_periods),
             "realisations": int(result.n_realisations), "iso_zone": result.iso_zone,
             "sensitivity_peak": [float(v) for v in result.sensitivity_peak]}
-
-
-def _jsonable(cfg: SessionConfig) -> dict:
-    d = asdict(cfg)
-    d["out_dir"] = str(cfg.out_dir)
-    return d
 
 
 def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None,

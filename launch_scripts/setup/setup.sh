@@ -5,6 +5,8 @@
 #                  sourced ROS 2 Jazzy) and builds ros_ws with colcon; a fast
 #                  no-op when the stamps match.
 # ambid_activate   exports the environment every subcommand runs in.
+# ambid_warm_caches compiles the per-sample kernels and designs identify's default experiment once,
+#                  so the user's first run does not (ambid_cli/ambid_cli/warm_caches.py).
 #
 # Every step either completes and writes its stamp, or fails with one message
 # naming the cause and the fix and removes what it half-built, so the next run
@@ -192,6 +194,8 @@ ambid_activate() {
             2>/dev/null | sha256sum | cut -c1-16)"
         export NUMBA_CACHE_DIR="$AMBID_ROOT/.numba_cache/$kernels"
     fi
+    # results computed once and kept (ambid.disk_cache: the multisine's crest-factor phases), per checkout
+    export AMBID_CACHE_DIR="${AMBID_CACHE_DIR:-$AMBID_ROOT/.cache}"
     # small matrices everywhere: BLAS threads only contend for the cores (10-50x slower seen)
     export OPENBLAS_NUM_THREADS="${OPENBLAS_NUM_THREADS:-1}" OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}"
     # safe default: DDS discovery stays on this host unless the user opens it
@@ -204,9 +208,28 @@ ambid_activate() {
     export PYTHONPATH="$AMBID_ROOT/ambid_core:$AMBID_ROOT/ambid_nodes:$AMBID_ROOT/ambid_cli${PYTHONPATH:+:$PYTHONPATH}"
 }
 
+ambid_warm_caches() {
+    # the stamp lives in the kernel cache (one folder per version of the kernel sources): a cache removed or
+    # a kernel changed is filled again; so is the design cache when the design's code or its folder changed
+    local want stamp="$NUMBA_CACHE_DIR/.ambid-warm-stamp" log="$AMBID_WS/warm-caches.log"
+    want="$AMBID_CACHE_DIR $(ambid_hash_files "$AMBID_ROOT"/ambid_core/ambid/excitation/*.py \
+        "$AMBID_ROOT/ambid_core/ambid/disk_cache.py" "$AMBID_ROOT/ambid_core/ambid/plant/rig.py" \
+        "$AMBID_ROOT/ambid_cli/ambid_cli/warm_caches.py" "$AMBID_WS/install/.ambid-build-stamp")"
+    if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
+        return 0
+    fi
+    # not fatal: without it the first run compiles and designs for itself (and says so)
+    if (cd "$AMBID_ROOT" && python -m ambid_cli.warm_caches 2> >(tee "$log" >&2)); then
+        mkdir -p "$NUMBA_CACHE_DIR" && printf '%s\n' "$want" >"$stamp"
+    else
+        ambid_say "could not fill the kernel and design caches (log $log); the first run fills them instead"
+    fi
+}
+
 ambid_setup() {
     ambid_setup_venv
     ambid_activate
     ambid_build_ws
     ambid_activate
+    ambid_warm_caches
 }

@@ -127,7 +127,6 @@ OPTION_VALUES = [  # argv, the option the error names
     (["fit", "{good}", "--out", "{dir}/o", "--estimator", "bogus"], "--estimator"),
     (["fit", "{good}", "--out", "{dir}/o", "--order", "-3"], "--order"),
     (["fit", "{good}", "--out", "{dir}/o", "--max-order", "x"], "--max-order"),
-    (["inspect", "{good}", "--bogus"], "--bogus"),
     (["identify", "--periods", "0"], "--periods"),
     (["identify", "--seed", "x"], "--seed"),
     (["identify", "--peak-current", "-0.4"], "--peak-current"),
@@ -217,6 +216,37 @@ def test_bad_input_loses_nothing_already_written(files, capsys):
     assert [p.name for p in out.iterdir()] == ["summary.json"]
     assert (out / "summary.json").read_text() == '{"kept": true}'
     assert open(files["good"], "rb").read(8) == b"\x89MCAP0\r\n"  # the inputs are only read
+
+
+def test_a_run_the_amplifier_would_refuse_is_refused_before_any_node_starts(files, capsys):
+    # 5 A of excitation + the 1 A working current over the rig's 3 A: the excitation generator would refuse
+    # it once the graph runs (exit 1, a session left behind); identify and design refuse it first
+    for command in ("identify", "design"):
+        out = files["dir"] / f"over_{command}"
+        code, printed = _run([command, "--peak-current", "5", "--resolution", "20", "--out", str(out)], capsys)
+        assert code == 2 and printed.out == ""
+        line = _one_line(printed.err, command, "exceeds the amplifier's 3 A limit on u_a_x, u_b_x, u_a_y, u_b_y")
+        assert "give --peak-current 2 or less" in line
+        assert not out.exists()
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["identfy"], "ambid: unknown command 'identfy'; did you mean 'identify'?"),
+    (["desing", "--out", "x"], "ambid: unknown command 'desing'; did you mean 'design'?"),
+    (["bogus"], "ambid: unknown command 'bogus' ('ambid --help' lists the commands)"),
+    (["inspect", "{good}", "--bogus"], "ambid inspect: unknown option '--bogus' ('ambid inspect --help' lists"),
+    (["identify", "--peak-curent", "0.4"], "ambid identify: unknown option '--peak-curent'; did you mean "
+                                           "'--peak-current'?"),
+    (["fit", "{good}", "--out", "{dir}/typo", "--no-reprot"], "ambid fit: unknown option '--no-reprot'; did you "
+                                                              "mean '--no-report'?"),
+    (["design", "--bnad", "10", "500"], "ambid design: unknown option '--bnad'; did you mean '--band'?"),
+])
+def test_mistyped_commands_and_options_get_did_you_mean(files, argv, says, capsys):
+    argv = [a.format(good=files["good"], dir=files["dir"]) for a in argv]
+    code, out = _run(argv, capsys)
+    lines = [ln for ln in out.err.splitlines() if ln.strip()]
+    assert code == 2 and len(lines) == 1 and lines[0].startswith(says), out.err
+    assert not (files["dir"] / "typo").exists()
 
 
 # ambid import: the record (each format) and MAP.yaml, as a missing file, a folder, empty, random bytes

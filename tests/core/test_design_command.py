@@ -50,16 +50,20 @@ def test_preview_runs_without_rclpy_and_writes_what_it_reports(tmp_path):
     assert (tmp_path / "design.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_headroom_refusal_is_reported_with_exit_code_1(tmp_path, capsys):
-    args = parse(["--peak-current", "2.5", "--resolution", "20", "--no-plan", "--no-figure", "--out", str(tmp_path)])
-    assert cmd.run(args) == 1
-    out = capsys.readouterr().out
-    design = ExcitationDesign.from_dict(json.loads((tmp_path / "design.json").read_text()))
-    with pytest.raises(ValueError) as refusal:
-        check_headroom(design, 3.0, 1.0)
-    assert f"headroom: REFUSED, {refusal.value}" in out
-    assert "measurement time 4.2 s (42000 samples)" in out  # 4 experiments x 3 x (3 + 4) periods x N = 500
-    assert not (tmp_path / "design.png").exists()
+def test_headroom_refusal_is_one_line_exit_2_and_writes_nothing(tmp_path, capsys):
+    out_dir = tmp_path / "refused"
+    args = parse(["--peak-current", "2.5", "--resolution", "20", "--no-plan", "--out", str(out_dir)])
+    assert cmd.run(args) == 2
+    out = capsys.readouterr()
+    assert out.out == "" and not out_dir.exists()
+    # 2.5 A + the 1 A working current > the rig's 3 A on every input
+    lines = out.err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("ambid design: headroom: REFUSED")
+    assert "give --peak-current 2 or less" in lines[0] and "u_a_x, u_b_x, u_a_y, u_b_y" in lines[0]
+    # at the edge it fits: 2 A + 1 A working current is the 3 A limit
+    args = parse(["--peak-current", "2", "--resolution", "20", "--no-plan", "--no-figure", "--out", str(out_dir)])
+    assert cmd.run(args) == 0
+    assert "headroom: fits the 3 A amplifier limit" in capsys.readouterr().out
 
 
 def test_bad_terms_give_a_clear_error(tmp_path, capsys):

@@ -1,5 +1,5 @@
 """ambid fit FRF_FILE: the test plant's FRF (tests/core/lpm_testbench.py, not ambid's), written by the test itself
-as .npz, .mat, .csv and UFF 58, fits with modes within 0.5 % (frequency) and 10 % (damping) of the plant's; bad
+as .npz, .mat, .csv, UFF 58 and Touchstone (.s4p, by scikit-rf), fits with modes within 0.5 % (frequency) and 10 % (damping) of the plant's; bad
 files get one line naming the problem and the fix, exit code 2, never a traceback."""
 
 from __future__ import annotations
@@ -57,19 +57,31 @@ def files(tmp_path_factory):
                                     inputs=np.array(INS, dtype=object)))
     _write_csv(d / "frf.csv", f, h, var)
     _write_uff(d / "frf.uff", f, h)
+    _write_touchstone(d / "frf.s4p", f, h)
     return d
 
 
-@pytest.mark.parametrize("ext", ["npz", "mat", "csv", "uff"])
+def _write_touchstone(path, f, h):
+    """The square FRF as a 4-port's S parameters, written by scikit-rf (the format's other implementation)."""
+    import skrf
+
+    skrf.Network(frequency=skrf.Frequency.from_f(f, unit="Hz"), s=h).write_touchstone(
+        str(path.with_suffix("")), form="ri")
+
+
+@pytest.mark.parametrize("ext", ["npz", "mat", "csv", "uff", "s4p"])
 def test_each_format_fits_the_plants_modes(files, ext, tmp_path):
     measured = read_frf_file(files / f"frf.{ext}")
-    if ext == "uff":   # UFF names a channel by its node and direction; the entity names are labels only
+    if ext == "s4p":   # a network's ports: S_ij is the wave leaving port i over the wave entering port j
+        assert measured.output_names == ("b1", "b2", "b3", "b4") and measured.input_names == ("a1", "a2", "a3", "a4")
+        assert measured.form == "S-parameters" and measured.kind == "touchstone"
+    elif ext == "uff":   # UFF names a channel by its node and direction; the entity names are labels only
         assert measured.output_names == tuple(f"{i + 1}+X" for i in range(len(OUTS)))
         assert measured.input_names == tuple(f"{j + 1}+X" for j in range(len(INS)))
         assert measured.form == "receptance" and measured.unit == "m/N"
     else:
         assert measured.output_names == tuple(OUTS) and measured.input_names == tuple(INS)
-    assert (measured.var is None) == (ext == "uff")
+    assert (measured.var is None) == (ext in ("uff", "s4p"))
     s = identify_frf(measured, tmp_path / "out", max_order=20, report=ext == "csv")
     fitted = [(m["freq_hz"], m["damping"], m) for m in s["fit"]["modes"]]
     for f0, z0 in tb.true_modes((20.0, 800.0)):
@@ -78,7 +90,8 @@ def test_each_format_fits_the_plants_modes(files, ext, tmp_path):
         # the intervals are there, and not absurdly narrow: the truth within 5 of their sigmas
         assert m["freq_hz_std"] > 0 and abs(f - f0) < 5 * m["freq_hz_std"] + 1e-9 * f0, (ext, m)
         assert abs(z - z0) < 5 * m["damping_std"], (ext, m)
-    assert s["intervals"]["modes"].startswith("95 % intervals" if ext != "uff" else "the file gives no variance")
+    assert s["intervals"]["modes"].startswith("95 % intervals" if ext not in ("uff", "s4p") else
+                                              "the file gives no variance")
     if ext == "csv":
         assert (tmp_path / "out" / "report" / "index.html").exists()
 
@@ -98,7 +111,7 @@ def _bad_files(d, good):
     out["missing"] = (d / "none.npz", "does not exist")
     (d / "folder.npz").mkdir()
     out["folder"] = (d / "folder.npz", "is a folder")
-    for ext in ("npz", "mat", "csv", "uff"):
+    for ext in ("npz", "mat", "csv", "uff", "s4p"):
         (d / f"empty.{ext}").write_bytes(b"")
         out[f"empty {ext}"] = (d / f"empty.{ext}", "is empty")
         (d / f"random.{ext}").write_bytes(np.random.default_rng(1).bytes(3000))
@@ -132,6 +145,12 @@ def _bad_files(d, good):
     out["magnitude"] = (d / "real.npz", "H is real")
     np.savez(d / "order.npz", freq_hz=f[::-1], H=h)
     out["descending"] = (d / "order.npz", "increasing")
+    (d / "hybrid.s2p").write_text("# GHz H RI R 50\n1 0 0 0 0 0 0 0 0\n2 0 0 0 0 0 0 0 0\n")
+    out["touchstone hybrid"] = (d / "hybrid.s2p", "hybrid")
+    (d / "v2.s1p").write_text("[Version] 2.0\n# GHz S RI R 50\n1 0.5 0\n")
+    out["touchstone v2"] = (d / "v2.s1p", "version 2")
+    (d / "ports.s3p").write_text((good / "frf.s4p").read_text())
+    out["touchstone ports"] = (d / "ports.s3p", "not a whole number of rows")
     np.savez(d / "names.npz", freq_hz=f, H=h, outputs=["a", "b"])
     out["names"] = (d / "names.npz", "'outputs' holds 2 name")
     return out

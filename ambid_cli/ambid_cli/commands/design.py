@@ -20,8 +20,9 @@ from pathlib import Path
 HELP = "preview an excitation design: figures, headroom, measurement times, spectrum plot"
 
 from ambid.excitation.spec import GRIDS, KINDS, MIMOS, PHASES, SPACINGS, build_design, prbs_clock  # noqa: F401 - re-exported
-from ambid_cli.commands.inputs import (D, add_experiment_options, add_session_options, count, experiment_spec,
-                                       output_dir, positive_float, positive_int)
+from ambid.excitation.experiment import WORKING_CURRENT_A
+from ambid_cli.commands.inputs import (D, BadInput, add_experiment_options, add_session_options, check_amplifier, count,
+                                       experiment_spec, output_dir, positive_float, positive_int)
 
 
 # ---- the command ------------------------------------------------------------
@@ -43,8 +44,8 @@ def add_arguments(g: argparse.ArgumentParser) -> None:
                    help=f"synchronous harmonics kept clear (default {D.n_harmonics})")
     g.add_argument("--guard-bins", type=count, default=D.guard_bins,
                    help=f"bins kept free each side of a harmonic (default {D.guard_bins})")
-    g.add_argument("--working-current", type=positive_float, default=1.0,
-                   help="controller's peak working current [A] for the headroom check (default 1.0)")
+    g.add_argument("--working-current", type=positive_float, default=WORKING_CURRENT_A,
+                   help=f"controller's peak working current [A] for the headroom check (default {WORKING_CURRENT_A:g})")
     g.add_argument("--no-plan", action="store_true", help="skip the stepped/swept/multisine time table")
     g.add_argument("--no-figure", action="store_true", help="skip design.png (quicker)")
     g.add_argument("--out", default="design", help="directory for design.png and design.json (default design/)")
@@ -62,7 +63,7 @@ def _plan(spec, fs_hz: float, inputs) -> list:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ambid.excitation import check_headroom, describe, format_plan, plot_design
+    from ambid.excitation import describe, format_plan, plot_design
     from ambid.excitation.synchronous import describe_steering
     from ambid.plant.rig import load_rig, make_rig
 
@@ -80,13 +81,15 @@ def run(args: argparse.Namespace) -> int:
         print(f"ambid design: {exc}", file=sys.stderr)
         return 2
     limit = float(rig.current_limit_a)
-    try:
-        margin = check_headroom(design, limit, args.working_current)
-        headroom = {"ok": True, "text": f"headroom: fits the {limit:g} A amplifier limit with a working current "
-                                        f"of {args.working_current:g} A; smallest margin {margin.min():.3g} A",
-                    "margin_a": margin.tolist()}
-    except ValueError as exc:
-        headroom = {"ok": False, "text": f"headroom: REFUSED, {exc}", "margin_a": None}
+    try:  # refused: one line, exit code 2, nothing written (identify refuses the same design before it starts)
+        check_amplifier(design, limit, args.working_current)
+    except BadInput as exc:
+        print(f"ambid design: headroom: REFUSED, {exc}", file=sys.stderr)
+        return 2
+    margin = limit - args.working_current - design.peak_a
+    headroom = {"ok": True, "text": f"headroom: fits the {limit:g} A amplifier limit with a working current "
+                                    f"of {args.working_current:g} A; smallest margin {margin.min():.3g} A",
+                "margin_a": margin.tolist()}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     png = None if args.no_figure else plot_design(design, out / "design.png")
@@ -117,4 +120,4 @@ def run(args: argparse.Namespace) -> int:
             print(f"\nfigure: {png}")
         print(f"design: {out / 'design.json'} (start it with the excitation generator's "
               "start_experiment service, design_json = this file's text)")
-    return 0 if headroom["ok"] else 1
+    return 0

@@ -3,7 +3,7 @@
 A session (.mcap): FRF, order selection, fitted model (state space as .npz
 and JSON), modes, physical-model updating and the HTML report, all written
 to ``--out`` (:func:`ambid.identification.identify_session`).
-An FRF file (.npz, .mat, .csv, UFF 58 .uff/.unv; :mod:`ambid.frf.frf_file`):
+An FRF file (.npz, .mat, .csv, UFF 58 .uff/.unv, Touchstone .sNp; :mod:`ambid.frf.frf_file`):
 the same fit, the modes with their intervals and a report
 (:func:`ambid.identification.frf_file_fit.identify_frf`). The headline figures are printed.
 """
@@ -28,8 +28,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from ambid_cli.commands.inputs import positive_int
 
     p.add_argument("file", help="session .mcap file, or a measured FRF: .npz/.mat (freq_hz, H (n, ny, nu), optional "
-                                "var, outputs, inputs), .csv (freq_hz, re(<out>/<in>), im(<out>/<in>) [, var(..)]) or "
-                                "UFF 58 (.uff, .unv)")
+                                "var, outputs, inputs), .csv (freq_hz, re(<out>/<in>), im(<out>/<in>) [, var(..)]), "
+                                "UFF 58 (.uff, .unv) or Touchstone (.s1p, .s2p, ...)")
     p.add_argument("--out", required=True, help="output folder (model.npz, model.json, frf.npz, "
                                                 "identification.json, report/index.html)")
     p.add_argument("--estimator", default="indirect", choices=ESTIMATORS, help="FRF estimator (default indirect)")
@@ -185,12 +185,22 @@ def _run_frf_file(args: argparse.Namespace) -> int:
         raise BadInput(f"{', '.join(session_only)} apply to a session, not to an FRF file; leave them out")
     if not (args.delay >= 0 and args.delay < 1):
         raise BadInput(f"--delay {args.delay} s; give the measurement's pure delay in seconds, >= 0 and < 1")
+    shown = []
+
+    def show(summary: MeasuredFrfFit) -> None:   # the figures at once; the report is written after them
+        if not args.json:
+            print(format_frf_summary(summary) + ("" if args.no_report else "\nwriting the report ..."), flush=True)
+            shown.append(True)
+
     try:
         summary = identify_frf(measured, args.out, order=args.order, max_order=args.max_order, delay_s=args.delay,
-                               report=not args.no_report)
+                               report=not args.no_report, on_summary=show)
     except ValueError as exc:
         raise BadInput(str(exc)) from None
-    print(json.dumps(summary.to_json(), indent=1) if args.json else format_frf_summary(summary))
+    if args.json:
+        print(json.dumps(summary.to_json(), indent=1))
+    elif not args.no_report:
+        print(f"report written: {summary.files.report}")
     return 0
 
 

@@ -11,8 +11,8 @@ from typing import TYPE_CHECKING
 from ambid.control.kinds import describe_kinds
 
 from ambid_cli.commands.inputs import (BadInput, add_experiment_options, add_link_options, add_live_options,
-                                        add_run_options, add_session_options, address, checked_controller, controller,
-                                        count, experiment_spec, free_port, hardware_link, no_controller_on_hardware,
+                                        add_run_options, add_session_options, address, check_amplifier,
+                                        checked_controller, controller, count, experiment_spec, free_port, hardware_link, no_controller_on_hardware,
                                         output_dir, rig_file)
 from ambid_cli.commands.session_report import (death_line, kept_out_line, levitation_lines, live_line,
                                                 print_foreign, session_of, session_words)
@@ -52,7 +52,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ambid_nodes.graph import session_domain_id
+    from ambid_nodes.running.domain import session_domain_id
     from ambid_nodes.session import NodeDied, SessionConfig, plan_session, run_identify
 
     spec = experiment_spec(args)
@@ -84,6 +84,9 @@ def run(args: argparse.Namespace) -> int:
         plan = plan_session(cfg, rig, ctrl)  # the design, made once
     except ValueError as exc:
         raise BadInput(str(exc)) from None
+    from ambid.excitation.experiment import WORKING_CURRENT_A
+
+    check_amplifier(plan.design, float(plan.rig.current_limit_a), WORKING_CURRENT_A)  # the generator's refusal, now
     layout = "separate processes" if args.processes else "one process"
     print(f"ambid identify: {session_words(session)}, {layout}, namespace {args.namespace}, ROS_DOMAIN_ID "
           f"{session_domain_id()}", file=sys.stderr, flush=True)

@@ -258,6 +258,23 @@ _SPEC_OPTIONS = {"kind": "kind", "band": "band_hz", "resolution": "resolution_hz
                  "settle": "settle_s", "cycles": "n_cycles", "harmonics": "n_harmonics", "guard_bins": "guard_bins"}
 
 
+def check_amplifier(design, current_limit_a: float, working_current_a: float) -> None:
+    """BadInput when ``design``'s peak plus the controller's working current exceeds the amplifier's limit
+    (:func:`ambid.excitation.check_headroom`): the refusal the excitation generator would give once the
+    nodes run, given before anything starts, in the command's terms."""
+    import numpy as np
+    from ambid.excitation import check_headroom
+
+    try:
+        check_headroom(design, current_limit_a, working_current_a)
+    except ValueError:
+        over = [n for n, pk in zip(design.input_names, design.peak_a) if pk + working_current_a > current_limit_a]
+        left = max(current_limit_a - working_current_a, 0.0)
+        raise BadInput(f"the excitation peak {float(np.max(design.peak_a)):.3g} A plus the controller's working "
+                       f"current {working_current_a:g} A exceeds the amplifier's {current_limit_a:g} A limit on "
+                       f"{', '.join(over)}; give --peak-current {left:.3g} or less") from None
+
+
 def experiment_spec(args: argparse.Namespace, **terms) -> DesignSpec:
     """The DesignSpec of the options ``args`` holds (DesignSpec's defaults for those it does not) and
     ``terms``; the band is checked (:func:`check_band`)."""

@@ -75,9 +75,18 @@ def session_facts(path: str, report: dict) -> dict[str, Any]:
         "plant": {k: v for k, v in plant.items() if k != "rig"},
         "controller": controller,
         # the full designs (amplitudes, phases) stay in report["metadata"]
-        "excitation": {eid: {k: v for k, v in d.items() if k != "design"} for eid, d in designs.items()
-                       if isinstance(d, dict)},
+        "excitation": {eid: dict({k: v for k, v in d.items() if k != "design"},
+                                 excitation_units=_excitation_units(d, facts.get("import")))
+                       for eid, d in designs.items() if isinstance(d, dict)},
     }
+
+
+def _excitation_units(design: dict, imported: Any) -> list[str]:
+    """The unit of each excitation channel of ``design``: an imported record's MAP.yaml units (an excitation
+    injected at the reference is in V or m), else A (ambid's own sessions add it to the current)."""
+    units = imported.get("units", {}) if isinstance(imported, dict) else {}
+    names = design.get("input_names") or []
+    return [str(units.get("r_" + str(n).split("_", 1)[-1], "A")) for n in names]
 
 
 def describe(path: str, recover: bool = False) -> dict[str, Any]:

@@ -620,101 +620,123 @@ def comparison_markdown(result: dict) -> str:
              "elsewhere. Errors: median over the lines of ||G - G_true||_F / ||G_true||_F, G_true the true "
              "rig's sampled small-signal FRF. Wall time of this run: "
              f"{result['wall_s']:.1f} s.", ""]
-    if "methods" in result:
-        m = result["methods"]
-        st = m["settling"]
-        lines += ["## Excitation methods", "",
-                  f"Band {p['band_hz'][0]:g}-{p['band_hz'][1]:g} Hz, {p['resolution_hz']:g} Hz resolution, "
-                  f"{len(m['lines'])} lines, full FRF matrix, peak {m['peak_current_a']:g} A per input, "
-                  f"indirect estimator. Settling after every change of excitation: "
-                  f"{p['settle_time_constants']:g} x {1e3 * st['time_constant_s']:.1f} ms (slowest closed-loop "
-                  f"pole below {p['band_hz'][1]:g} Hz, {_pole(st['pole_hz'])}) = {1e3 * st['settle_s']:.0f} ms. "
-                  f"Measurement time to the target = the shortest prefix of the run whose error is at most "
-                  f"{_pct(m['target_error'])}.", "",
-                  "| method | measurement time to target | error there | time per line | best error (at time) "
-                  "| wall time | clipped samples |", "| --- | --- | --- | --- | --- | --- | --- |"]
-        for name, e in m["methods"].items():
-            extra = " (extrapolated)" if e["time_extrapolated"] else ""
-            t = _sec(e["time_to_target_s"]) + extra if e["reached_target"] else "not reached"
-            lines.append(f"| {e['label']} | {t} | {_pct(e['error_at_target'])} | {_sec(e['time_per_line_s'])} "
-                         f"| {_pct(e['best_error'])} ({_sec(e['best_time_s'])}) | {e['wall_s']:.1f} s "
-                         f"| {e['clipped_samples']} |")
-        ns = m["methods"].get("multisine_orthogonal_no_settling")
-        ms = m["methods"].get("multisine_orthogonal")
-        if ns and ms:
-            if ns["reached_target"] and ms["reached_target"]:
-                lines += ["", f"Without settling periods, its transient removed by the local polynomial method, the "
-                              f"orthogonal multisine reaches the target in {_sec(ns['time_to_target_s'])} against "
-                              f"{_sec(ms['time_to_target_s'])} with them ({ms['time_to_target_s'] / ns['time_to_target_s']:.2f} "
-                              f"times faster; errors {_pct(ns['error_at_target'])} and {_pct(ms['error_at_target'])})."]
-            else:
-                lines += ["", f"Without settling periods the orthogonal multisine's best error is "
-                              f"{_pct(ns['best_error'])} ({_sec(ns['best_time_s'])}), with them {_pct(ms['best_error'])} "
-                              f"({_sec(ms['best_time_s'])})."]
-        c = m["orthogonal_vs_stepped"]
-        if c is None:
-            lines += ["", "Stepped sine or orthogonal multisine not run: no time ratio."]
-        elif c["target_ratio"] is not None:
-            tuned = m["methods"]["stepped_sine"]["tuned_settle"]
-            text = (f"The orthogonal multisine reaches the {_pct(m['target_error'])} target "
-                    f"{c['target_ratio']:.1f} times faster than the stepped sine "
-                    f"({'meets' if c['claim_holds'] else 'misses'} the {c['claim_ratio']:g}x claim)")
-            eq = c["equal_error"]
-            if eq and eq["ratio"] is not None:
-                text += (f"; to match the stepped sine's own {_pct(eq['stepped_error'])} it needs "
-                         f"{_sec(eq['orthogonal_time_s'])}, {eq['ratio']:.1f} times less")
-            elif eq:
-                text += (f"; its run is too short to match the stepped sine's own {_pct(eq['stepped_error'])} "
-                         "(no equal-error ratio)")
-            if c["tuned_ratio"] is not None:
-                step = tuned["step_at_target"]
-                text += (f"; a stepped sine whose wait is tuned after the fact ({1e3 * step['settle_s']:.0f} ms, "
-                         f"{step['cycles']} cycles) still takes {c['tuned_ratio']:.1f} times longer")
-            lines += ["", text + "."]
-        else:
-            lines += ["", "The orthogonal multisine or the stepped sine did not reach the target within its "
-                          "run: no time ratio (claim not shown)."]
-        lines.append("")
-    if "estimators" in result:
-        e = result["estimators"]
-        lines += ["## Estimators in closed loop", "",
-                  f"Orthogonal random-phase multisine, peak {e['peak_a']:g} A (small, so the fed-back sensor "
-                  f"noise matters), M = {e['n_realisations']}, P = {e['n_periods']}, "
-                  f"{_sec(e['measurement_time_s'])}; median fed-back noise / excitation in u: "
-                  f"{_median(e['noise_to_excitation']):.2f}.", "",
-                  "| estimator | median error | largest error |", "| --- | --- | --- |"]
-        for v in e["estimators"].values():
-            lines.append(f"| {v['label']} | {_pct(v['median_error'])} | {_pct(v['max_error'])} |")
-        est = e["estimators"]
-        best = min(est, key=lambda k: est[k]["median_error"])
-        lines += ["", f"The {est[best]['label']} estimator is the most accurate; H1's error is "
-                      f"{est['h1']['median_error'] / est['indirect']['median_error']:.1f} times the indirect "
-                      f"one's: it has moved a median {_median(e['h1_fraction_towards_minus_inv_c']):.2f} of the way "
-                      f"from G towards -1/C (closed form n^2/(1+n^2): "
-                      f"{_median(e['h1_fraction_predicted']):.2f}; indirect: "
-                      f"{_median(e['indirect_fraction_towards_minus_inv_c']):+.2f}).", ""]
-    if "odd_full" in result:
-        o = result["odd_full"]
-        lines += ["## Odd versus full multisine under the magnets' nonlinearity", "",
-                  f"Nonlinear magnet force (eq. 2.14), orthogonal random-phase multisines, peak {o['peak_a']:g} A, "
-                  f"band {o['band_hz'][0]:g}-{o['band_hz'][1]:g} Hz at {o['resolution_hz']:g} Hz; error against "
-                  "the rig linearised at its operating point.", "",
-                  "| grid | lines | median error | on common lines | rel. noise std | rel. total std "
-                  "| var total / var noise | odd distortion | even distortion | clipped samples |",
-                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
-        for g in o["grids"].values():
-            dist = g.get("distortion")
-            odd = f"{dist['odd_db_max']:.1f} dB" if dist else "not visible"
-            even = f"{dist['even_db_max']:.1f} dB" if dist else "not visible"
-            lines.append(f"| {g['label']} | {g['n_lines']} | {_pct(g['median_error'])} "
-                         f"| {_pct(g['median_error_common_lines'])} | {_pct(g['relative_noise_std'])} "
-                         f"| {_pct(g['relative_total_std'])} | {g['variance_ratio']:.2f} | {odd} | {even} "
-                         f"| {g['clipped_samples']} |")
-        ro = o["grids"]["random_odd"].get("distortion")
-        if ro:
-            lines += ["", f"Distortion levels are the largest over the outputs, in dB above the noise floor at the "
-                          f"detection lines: the random-odd grid shows even distortions at {ro['even_db_max']:.1f} dB "
-                          f"and odd ones at {ro['odd_db_max']:.1f} dB, which the full grid mixes into its FRF "
-                          "unseen."]
-        lines.append("")
+    for key, section in (("methods", _methods_section), ("estimators", _estimators_section),
+                         ("odd_full", _odd_full_section)):
+        if key in result:
+            lines += section(result)
     return "\n".join(lines)
+
+
+def _methods_section(result: dict) -> list[str]:
+    """The excitation methods' table and the time ratios."""
+    p = result["preset"]
+    m = result["methods"]
+    lines: list[str] = []
+    st = m["settling"]
+    lines += ["## Excitation methods", "",
+              f"Band {p['band_hz'][0]:g}-{p['band_hz'][1]:g} Hz, {p['resolution_hz']:g} Hz resolution, "
+              f"{len(m['lines'])} lines, full FRF matrix, peak {m['peak_current_a']:g} A per input, "
+              f"indirect estimator. Settling after every change of excitation: "
+              f"{p['settle_time_constants']:g} x {1e3 * st['time_constant_s']:.1f} ms (slowest closed-loop "
+              f"pole below {p['band_hz'][1]:g} Hz, {_pole(st['pole_hz'])}) = {1e3 * st['settle_s']:.0f} ms. "
+              f"Measurement time to the target = the shortest prefix of the run whose error is at most "
+              f"{_pct(m['target_error'])}.", "",
+              "| method | measurement time to target | error there | time per line | best error (at time) "
+              "| wall time | clipped samples |", "| --- | --- | --- | --- | --- | --- | --- |"]
+    for name, e in m["methods"].items():
+        extra = " (extrapolated)" if e["time_extrapolated"] else ""
+        t = _sec(e["time_to_target_s"]) + extra if e["reached_target"] else "not reached"
+        lines.append(f"| {e['label']} | {t} | {_pct(e['error_at_target'])} | {_sec(e['time_per_line_s'])} "
+                     f"| {_pct(e['best_error'])} ({_sec(e['best_time_s'])}) | {e['wall_s']:.1f} s "
+                     f"| {e['clipped_samples']} |")
+    ns = m["methods"].get("multisine_orthogonal_no_settling")
+    ms = m["methods"].get("multisine_orthogonal")
+    if ns and ms:
+        if ns["reached_target"] and ms["reached_target"]:
+            lines += ["", f"Without settling periods, its transient removed by the local polynomial method, the "
+                          f"orthogonal multisine reaches the target in {_sec(ns['time_to_target_s'])} against "
+                          f"{_sec(ms['time_to_target_s'])} with them ({ms['time_to_target_s'] / ns['time_to_target_s']:.2f} "
+                          f"times faster; errors {_pct(ns['error_at_target'])} and {_pct(ms['error_at_target'])})."]
+        else:
+            lines += ["", f"Without settling periods the orthogonal multisine's best error is "
+                          f"{_pct(ns['best_error'])} ({_sec(ns['best_time_s'])}), with them {_pct(ms['best_error'])} "
+                          f"({_sec(ms['best_time_s'])})."]
+    c = m["orthogonal_vs_stepped"]
+    if c is None:
+        lines += ["", "Stepped sine or orthogonal multisine not run: no time ratio."]
+    elif c["target_ratio"] is not None:
+        tuned = m["methods"]["stepped_sine"]["tuned_settle"]
+        text = (f"The orthogonal multisine reaches the {_pct(m['target_error'])} target "
+                f"{c['target_ratio']:.1f} times faster than the stepped sine "
+                f"({'meets' if c['claim_holds'] else 'misses'} the {c['claim_ratio']:g}x claim)")
+        eq = c["equal_error"]
+        if eq and eq["ratio"] is not None:
+            text += (f"; to match the stepped sine's own {_pct(eq['stepped_error'])} it needs "
+                     f"{_sec(eq['orthogonal_time_s'])}, {eq['ratio']:.1f} times less")
+        elif eq:
+            text += (f"; its run is too short to match the stepped sine's own {_pct(eq['stepped_error'])} "
+                     "(no equal-error ratio)")
+        if c["tuned_ratio"] is not None:
+            step = tuned["step_at_target"]
+            text += (f"; a stepped sine whose wait is tuned after the fact ({1e3 * step['settle_s']:.0f} ms, "
+                     f"{step['cycles']} cycles) still takes {c['tuned_ratio']:.1f} times longer")
+        lines += ["", text + "."]
+    else:
+        lines += ["", "The orthogonal multisine or the stepped sine did not reach the target within its "
+                      "run: no time ratio (claim not shown)."]
+    lines.append("")
+    return lines
+
+
+def _estimators_section(result: dict) -> list[str]:
+    """The closed-loop estimators' table and why H1 is biased."""
+    p = result["preset"]
+    e = result["estimators"]
+    lines: list[str] = []
+    lines += ["## Estimators in closed loop", "",
+              f"Orthogonal random-phase multisine, peak {e['peak_a']:g} A (small, so the fed-back sensor "
+              f"noise matters), M = {e['n_realisations']}, P = {e['n_periods']}, "
+              f"{_sec(e['measurement_time_s'])}; median fed-back noise / excitation in u: "
+              f"{_median(e['noise_to_excitation']):.2f}.", "",
+              "| estimator | median error | largest error |", "| --- | --- | --- |"]
+    for v in e["estimators"].values():
+        lines.append(f"| {v['label']} | {_pct(v['median_error'])} | {_pct(v['max_error'])} |")
+    est = e["estimators"]
+    best = min(est, key=lambda k: est[k]["median_error"])
+    lines += ["", f"The {est[best]['label']} estimator is the most accurate; H1's error is "
+                  f"{est['h1']['median_error'] / est['indirect']['median_error']:.1f} times the indirect "
+                  f"one's: it has moved a median {_median(e['h1_fraction_towards_minus_inv_c']):.2f} of the way "
+                  f"from G towards -1/C (closed form n^2/(1+n^2): "
+                  f"{_median(e['h1_fraction_predicted']):.2f}; indirect: "
+                  f"{_median(e['indirect_fraction_towards_minus_inv_c']):+.2f}).", ""]
+    return lines
+
+
+def _odd_full_section(result: dict) -> list[str]:
+    """Odd versus full multisine grids under the magnets' nonlinearity."""
+    p = result["preset"]
+    o = result["odd_full"]
+    lines: list[str] = []
+    lines += ["## Odd versus full multisine under the magnets' nonlinearity", "",
+              f"Nonlinear magnet force (eq. 2.14), orthogonal random-phase multisines, peak {o['peak_a']:g} A, "
+              f"band {o['band_hz'][0]:g}-{o['band_hz'][1]:g} Hz at {o['resolution_hz']:g} Hz; error against "
+              "the rig linearised at its operating point.", "",
+              "| grid | lines | median error | on common lines | rel. noise std | rel. total std "
+              "| var total / var noise | odd distortion | even distortion | clipped samples |",
+              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for g in o["grids"].values():
+        dist = g.get("distortion")
+        odd = f"{dist['odd_db_max']:.1f} dB" if dist else "not visible"
+        even = f"{dist['even_db_max']:.1f} dB" if dist else "not visible"
+        lines.append(f"| {g['label']} | {g['n_lines']} | {_pct(g['median_error'])} "
+                     f"| {_pct(g['median_error_common_lines'])} | {_pct(g['relative_noise_std'])} "
+                     f"| {_pct(g['relative_total_std'])} | {g['variance_ratio']:.2f} | {odd} | {even} "
+                     f"| {g['clipped_samples']} |")
+    ro = o["grids"]["random_odd"].get("distortion")
+    if ro:
+        lines += ["", f"Distortion levels are the largest over the outputs, in dB above the noise floor at the "
+                      f"detection lines: the random-odd grid shows even distortions at {ro['even_db_max']:.1f} dB "
+                      f"and odd ones at {ro['odd_db_max']:.1f} dB, which the full grid mixes into its FRF "
+                      "unseen."]
+    lines.append("")
+    return lines

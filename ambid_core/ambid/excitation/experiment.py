@@ -17,6 +17,9 @@ import numpy as np
 
 from ambid.excitation.design import ExcitationDesign, check_headroom
 
+# the controller's peak working current (gravity and regulation) the headroom check assumes unless told [A]:
+# the excitation generator's default, and what identify and design check a run against before it starts
+WORKING_CURRENT_A = 1.0
 
 @dataclass
 class Experiment:

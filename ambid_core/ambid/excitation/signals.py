@@ -21,7 +21,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.signal import fftconvolve, firwin, kaiserord
 
 # Feedback lags of maximal-length LFSRs (primitive trinomials/pentanomials):
 # a[t] = XOR over lags L of a[t - L]. Period 2^n - 1 is checked by the tests.
@@ -41,6 +40,11 @@ def mls(order: int) -> np.ndarray:
 
     Returns:
         (2^n - 1,) bool bits; 2^(n-1) of them are True.
+
+    Examples
+    --------
+    >>> mls(3).astype(int)             # period 2**3 - 1
+    array([1, 1, 1, 0, 0, 1, 0])
     """
     if order not in MLS_TAPS:
         raise ValueError(f"MLS order must be an integer in [2, 23], got {order!r}")
@@ -70,6 +74,11 @@ def binary_levels(bits: np.ndarray) -> tuple[float, float]:
 
     Returns:
         (high, low) levels [-].
+
+    Examples
+    --------
+    >>> binary_levels(mls(3))             # (high, low): a zero-mean signal of peak 1
+    (0.75, -1.0)
     """
     c1 = int(np.count_nonzero(bits))
     c0 = bits.size - c1
@@ -83,6 +92,12 @@ def binary_waveform(bits: np.ndarray, clock_divider: int = 1) -> np.ndarray:
 
     Returns:
         (clock_divider * bits.size,) float.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> binary_waveform(np.array([1, 0, 1]), clock_divider=2)
+    array([ 0.5,  0.5, -1. , -1. ,  0.5,  0.5])
     """
     high, low = binary_levels(bits)
     return np.repeat(np.where(bits, high, low), clock_divider)
@@ -181,6 +196,8 @@ def noise_filter_spec(band_hz: tuple[float, float], fs_hz: float,
     f_lo, f_hi = float(band_hz[0]), float(band_hz[1])
     gaps = [f_hi - f_lo, fs_hz / 2 - f_hi] + ([f_lo] if f_lo > 0 else [])
     width = 0.5 * min(gaps)
+    from scipy.signal import kaiserord  # scipy.signal costs ~0.3 s to import: only where a noise design needs it
+
     n_taps, beta = kaiserord(60.0, width / (fs_hz / 2))
     n_taps = min(n_taps | 1, max_taps | 1)  # odd length: a type I filter can pass any band
     if f_lo > 0:
@@ -193,6 +210,8 @@ def noise_filter_spec(band_hz: tuple[float, float], fs_hz: float,
 
 def noise_taps(spec: dict, fs_hz: float) -> np.ndarray:
     """FIR taps (T,) from a ``noise_filter_spec`` dict."""
+    from scipy.signal import firwin
+
     return firwin(spec["n_taps"], spec["cutoffs_hz"], window=("kaiser", spec["beta"]),
                   pass_zero=spec["pass_zero"], fs=fs_hz)
 
@@ -223,6 +242,8 @@ def filtered_noise(taps: np.ndarray, key: tuple[int, ...], start: int, stop: int
     white = np.concatenate([np.random.default_rng((*key, j)).standard_normal((chunk, n_channels))
                             for j in range(j0, j1 + 1)])
     white = white[lo - j0 * chunk:stop - j0 * chunk]
+    from scipy.signal import fftconvolve
+
     return fftconvolve(white, taps[:, None], axes=0)[start - lo:stop - lo]
 
 

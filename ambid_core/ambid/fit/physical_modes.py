@@ -22,9 +22,11 @@ it, by four checks, the first that fails naming the reason:
    FRF's noise there by ``min_snr``, summed over the outputs and inputs: its
    standard deviation where the data gives a variance; else the larger of the
    fit's residual about the model and the scatter of the FRF, with the pole's
-   own part taken out, about a local quadratic over +-4 lines (a model of high
+   own part taken out, about a local quadratic over +-12 lines (a model of high
    order takes the noise into its spurious poles, so its residual alone
-   understates the noise; a real mode leaves a smooth remainder).
+   understates the noise; a real mode leaves a smooth remainder; a window of
+   25 lines, not a handful, so that a pole fitted to a ripple a few lines wide,
+   a VNA's or an analyser's, cannot take up the window's whole scatter).
 
 The common denominator makes a pole shared by every output and input, and the
 fourth check is made over all of them together: a mode carried by one entry's
@@ -104,7 +106,7 @@ def _stable_share(p: complex, diagram: StabilisationDiagram, order: int, tol_fre
     return found / len(orders)
 
 
-def _local_scatter(f: np.ndarray, x: np.ndarray, idx: np.ndarray, half: int = 4, deg: int = 2) -> np.ndarray:
+def _local_scatter(f: np.ndarray, x: np.ndarray, idx: np.ndarray, half: int = 12, deg: int = 2) -> np.ndarray:
     """At the lines ``idx``: the rms scatter of x (L, E) about a local polynomial of degree ``deg`` in frequency over
     +-``half`` lines (degrees of freedom counted), summed over the entries as a norm."""
     out = np.empty(idx.size)
@@ -176,8 +178,10 @@ def judge_poles(model: RationalModel, diagram: StabilisationDiagram, order: int,
         if noise_var is None:
             # no variance: the model's residual holds too little of the noise where the order is high (the poles
             # that model the noise take it in), so the scatter of the FRF with this pole's own part taken out,
-            # about a local quadratic over +-4 lines, stands for the noise too (Pintelon & Schoukens' local
+            # about a local quadratic over +-12 lines, stands for the noise too (Pintelon & Schoukens' local
             # polynomial idea): a real mode leaves a smooth remainder, a pole fitted to ripple leaves the ripple
+            # beside it (over +-4 lines a pole fitted to a dip of 2-3 lines left a smooth remainder: a VNA's
+            # ring-slot measurement printed two such poles at 103 and 106 GHz)
             level = np.maximum(level, _local_scatter(f, (g - contrib).reshape(f.size, -1), np.flatnonzero(near)))
         snr = float(np.max(c[near] / np.maximum(level, 1e-300)))
         if zk <= 0:

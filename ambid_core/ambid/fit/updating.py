@@ -54,6 +54,11 @@ class Prior:
             where ``log``; inf: no prior on that parameter (flat).
         log: (p,) bool: the prior is normal in ln(theta) (theta > 0); those
             parameters are estimated in ln(theta), their intervals too.
+
+    Examples
+    --------
+    >>> Prior.flat(2)                     # no prior: least squares
+    Prior(mean=array([0., 0.]), std=array([inf, inf]), log=array([False, False]))
     """
 
     mean: np.ndarray
@@ -231,7 +236,71 @@ def update_parameters(model: Callable[[np.ndarray], StateSpace | np.ndarray], th
     Raises:
         ValueError: bad shapes, non-finite values, or (:class:`NotIdentifiable`)
             parameters without a prior that the data cannot identify.
+
+    Examples
+    --------
+    The gain and corner frequency of a first-order lag, fitted to its exact FRF from a start of one each:
+
+    >>> import numpy as np
+    >>> f = np.linspace(1.0, 10.0, 20)
+    >>> def lag(theta):                   # theta: gain, corner [Hz] -> FRF (L, 1, 1)
+    ...     return (theta[0] / (1j * f / theta[1] + 1))[:, None, None]
+    >>> fit = update_parameters(lag, [1.0, 1.0], f, lag(np.array([2.0, 3.0])), names=["gain", "corner_hz"])
+    >>> fit.names, np.round(fit.theta, 6), fit.success
+    (('gain', 'corner_hz'), array([2., 3.]), True)
     """
+    th0, nm, pm, ps, lg, sc = _checked_parameters(theta0, names, prior, scales)
+    p = th0.size
+    f, g, w = _checked_data(freq_hz, G, var)
+    lb, ub = _checked_bounds(bounds, th0)
+    _check_options(covariance, row_covariance, g.shape, rcond)
+    xc = _Scaled(lg, sc)
+    xlb, xub = xc.bounds(lb, ub)
+    has_prior = np.isfinite(ps)
+    xm = np.where(lg, np.log(np.where(lg, pm, 1.0)), pm / sc)
+    xs = np.where(lg, ps, ps / sc)
+    # a normal prior's term in V: (x - m)^2 / (2 s^2), a real residual of variance 1/2 like the data's
+    jp = np.where(has_prior, 1.0 / (np.sqrt(2.0) * xs), 0.0)
+
+    def resid_data(x: np.ndarray) -> np.ndarray:
+        e = w * (_frf(model, xc.to_theta(x), f, g.shape) - g)
+        return np.concatenate([e.real.ravel(), e.imag.ravel()])
+
+    def resid(x: np.ndarray) -> np.ndarray:
+        return np.concatenate([resid_data(x), (jp * np.where(has_prior, x - xm, 0.0))[has_prior]])
+
+    prior_rows = np.diag(jp)[has_prior]
+    x, nfev, ok, msg, r, jac = _optimise(resid_data, resid, xc.to_x(th0), (xlb, xub), prior_rows, nm, rcond,
+                                         covariance_only, not has_prior.all(), max_evaluations)
+    sv, vt = _check_rank(np.vstack([jac, prior_rows]), nm, rcond, "at the optimum")
+    cost = float(r @ r)
+    bread = (vt.T / sv**2) @ vt                       # (J^T J + P / 2)^-1
+    cov_data, data_dof = _data_covariance(covariance, jac, r, g, w, row_covariance, bread, p,
+                                          scale_covariance, cost)
+    cov_data, dofs, inflation = ((cov_data, np.full(p, data_dof), 1.0) if realisations is None
+                                 else _inflated(realisations, w, jac, bread, cov_data, data_dof))
+    # the prior's part: its score (x* - m) / s^2 has covariance P, B (P / 4) B in the units of V
+    cov_prior = bread @ np.diag(jp**2 / 2) @ bread
+    cov_x = cov_data + cov_prior
+    # the prior's part is known exactly: the variance's degrees of freedom grow with its share
+    dofs = combined_dof(np.diag(cov_data), dofs, np.diag(cov_prior))
+    std_x = np.sqrt(np.diag(cov_x))
+    theta = xc.to_theta(x)
+    jt = np.where(lg, theta, sc)                       # d theta / d x
+    cov = cov_x * jt[:, None] * jt[None, :]
+    std = np.sqrt(np.diag(cov))
+    corr = cov / np.outer(std, std)
+    half = stats.t.ppf(0.975, dofs) * std_x
+    ci = np.column_stack([xc.to_theta(x - half), xc.to_theta(x + half)])
+    ratio = np.where(has_prior, std_x / np.where(has_prior, xs, 1.0), np.nan)
+    return UpdateResult(names=nm, theta=theta, theta0=th0, std=std, ci95=ci, covariance=cov, correlation=corr,
+                        cost=cost, n_residuals=r.size, jacobian_singular_values=sv, success=ok,
+                        message=msg, n_evaluations=nfev, inflation=inflation, prior_ratio=ratio,
+                        variance_dof=dofs, log=lg)
+
+
+def _checked_parameters(theta0, names, prior, scales) -> tuple:
+    """Start values, names, prior (mean, std, log) and scales, checked; each (p,)."""
     th0 = np.asarray(theta0, dtype=float).ravel()
     p = th0.size
     if p == 0 or not np.all(np.isfinite(th0)):
@@ -249,59 +318,22 @@ def update_parameters(model: Callable[[np.ndarray], StateSpace | np.ndarray], th
     sc = np.where(th0 != 0, np.abs(th0), 1.0) if scales is None else np.asarray(scales, dtype=float).ravel()
     if sc.shape != (p,) or not np.all(np.isfinite(sc)) or np.any(sc <= 0):
         raise ValueError(f"scales must be {p} finite values > 0")
-    sc = np.where(lg, 1.0, sc)
-    f = np.asarray(freq_hz, dtype=float).ravel()
-    g = np.asarray(G)
-    if g.ndim != 3 or g.shape[0] != f.size:
-        raise ValueError(f"G must be (L, Ny, Nu) with L = len(freq_hz) = {f.size}, got {g.shape}")
-    if not (np.all(np.isfinite(f)) and np.all(np.isfinite(g))):
-        raise ValueError("freq_hz and G must be finite")
-    if var is None:
-        w = np.ones(g.shape)
-    else:
-        v = np.asarray(var, dtype=float)
-        if v.shape != g.shape or not np.all(np.isfinite(v)) or np.any(v <= 0):
-            raise ValueError(f"var must be finite, > 0 and of shape {g.shape}")
-        w = 1.0 / np.sqrt(v)
-    if bounds is None:
-        lb, ub = np.full(p, -np.inf), np.full(p, np.inf)
-    else:
-        lb, ub = (np.broadcast_to(np.asarray(b, dtype=float), (p,)).copy() for b in bounds)
-        if np.any(lb >= ub) or np.any(th0 < lb) or np.any(th0 > ub):
-            raise ValueError("bounds must satisfy lower < upper with theta0 inside")
+    return th0, nm, pm, ps, lg, np.where(lg, 1.0, sc)
+
+
+def _check_options(covariance: str, row_covariance, shape: tuple[int, ...], rcond: float) -> None:
     if covariance not in ("jacobian", "sandwich", "rows"):
         raise ValueError(f"covariance must be 'jacobian', 'sandwich' or 'rows', got {covariance!r}")
-    if covariance == "rows" and (row_covariance is None or np.shape(row_covariance) != g.shape + g.shape[-1:]):
-        raise ValueError(f"covariance='rows' needs row_covariance of shape {g.shape + g.shape[-1:]}")
+    if covariance == "rows" and (row_covariance is None or np.shape(row_covariance) != shape + shape[-1:]):
+        raise ValueError(f"covariance='rows' needs row_covariance of shape {shape + shape[-1:]}")
     if not (0 < rcond < 1):
         raise ValueError(f"rcond must be in (0, 1), got {rcond}")
 
-    # x: theta / scale, or ln theta for a log prior
-    def to_x(th: np.ndarray) -> np.ndarray:
-        return np.where(lg, np.log(np.where(lg, th, 1.0)), th / sc)
 
-    def to_theta(x: np.ndarray) -> np.ndarray:
-        return np.where(lg, np.exp(np.where(lg, x, 0.0)), x * sc)
-
-    with np.errstate(divide="ignore"):
-        xlb = np.where(lg, np.log(np.maximum(lb, 0.0)), lb / sc)
-    xub = np.where(lg, np.log(np.where(lg & (ub > 0), ub, 1.0)), ub / sc)
-    xub = np.where(lg & ~(ub > 0), np.inf, xub)
-    has_prior = np.isfinite(ps)
-    xm = np.where(lg, np.log(np.where(lg, pm, 1.0)), pm / sc)
-    xs = np.where(lg, ps, ps / sc)
-    # a normal prior's term in V: (x - m)^2 / (2 s^2), a real residual of variance 1/2 like the data's
-    jp = np.where(has_prior, 1.0 / (np.sqrt(2.0) * xs), 0.0)
-
-    def resid_data(x: np.ndarray) -> np.ndarray:
-        e = w * (_frf(model, to_theta(x), f, g.shape) - g)
-        return np.concatenate([e.real.ravel(), e.imag.ravel()])
-
-    def resid(x: np.ndarray) -> np.ndarray:
-        return np.concatenate([resid_data(x), (jp * np.where(has_prior, x - xm, 0.0))[has_prior]])
-
-    x0 = to_x(th0)
-    prior_rows = np.diag(jp)[has_prior]
+def _optimise(resid_data: Callable, resid: Callable, x0: np.ndarray, xbounds: tuple, prior_rows: np.ndarray,
+              nm: tuple[str, ...], rcond: float, covariance_only: bool, check_start: bool,
+              max_evaluations: int) -> tuple:
+    """The MAP estimate in x from x0: (x, evaluations, success, message, data residual, its Jacobian)."""
     with single_threaded_blas():
         r0 = resid_data(x0)
         if not np.all(np.isfinite(r0)):
@@ -309,58 +341,90 @@ def update_parameters(model: Callable[[np.ndarray], StateSpace | np.ndarray], th
         if covariance_only:
             x, nfev, ok, msg = x0, 1, True, "covariance at the given values"
         else:
-            if not has_prior.all():
+            if check_start:
                 # fail early (and cheaply) when the start already shows a parameter combination without effect
                 _check_rank(np.vstack([_central_jacobian(resid_data, x0), prior_rows]), nm, rcond, "at the start")
-            res = optimize.least_squares(resid, x0, bounds=(xlb, xub), method="trf", x_scale=1.0,
+            res = optimize.least_squares(resid, x0, bounds=xbounds, method="trf", x_scale=1.0,
                                          max_nfev=max_evaluations, xtol=1e-12, ftol=1e-12, gtol=1e-12)
             x, nfev, ok, msg = res.x, int(res.nfev), bool(res.success), str(res.message)
-        r = resid_data(x)
-        jac = _central_jacobian(resid_data, x)
-    sv, vt = _check_rank(np.vstack([jac, prior_rows]), nm, rcond, "at the optimum")
+        return x, nfev, ok, msg, resid_data(x), _central_jacobian(resid_data, x)
+
+
+def _checked_data(freq_hz, G, var) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Lines (L,) [Hz], FRF (L, Ny, Nu) and its residual weights 1/sqrt(var), checked."""
+    f = np.asarray(freq_hz, dtype=float).ravel()
+    g = np.asarray(G)
+    if g.ndim != 3 or g.shape[0] != f.size:
+        raise ValueError(f"G must be (L, Ny, Nu) with L = len(freq_hz) = {f.size}, got {g.shape}")
+    if not (np.all(np.isfinite(f)) and np.all(np.isfinite(g))):
+        raise ValueError("freq_hz and G must be finite")
+    if var is None:
+        return f, g, np.ones(g.shape)
+    v = np.asarray(var, dtype=float)
+    if v.shape != g.shape or not np.all(np.isfinite(v)) or np.any(v <= 0):
+        raise ValueError(f"var must be finite, > 0 and of shape {g.shape}")
+    return f, g, 1.0 / np.sqrt(v)
+
+
+def _checked_bounds(bounds, th0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper bounds (p,) in parameter units (infinite when None)."""
+    p = th0.size
+    if bounds is None:
+        return np.full(p, -np.inf), np.full(p, np.inf)
+    lb, ub = (np.broadcast_to(np.asarray(b, dtype=float), (p,)).copy() for b in bounds)
+    if np.any(lb >= ub) or np.any(th0 < lb) or np.any(th0 > ub):
+        raise ValueError("bounds must satisfy lower < upper with theta0 inside")
+    return lb, ub
+
+
+@dataclass(frozen=True)
+class _Scaled:
+    """The optimiser's coordinates x: theta / scale, or ln theta for a log prior."""
+
+    lg: np.ndarray
+    sc: np.ndarray
+
+    def to_x(self, th: np.ndarray) -> np.ndarray:
+        return np.where(self.lg, np.log(np.where(self.lg, th, 1.0)), th / self.sc)
+
+    def to_theta(self, x: np.ndarray) -> np.ndarray:
+        return np.where(self.lg, np.exp(np.where(self.lg, x, 0.0)), x * self.sc)
+
+    def bounds(self, lb: np.ndarray, ub: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        lg, sc = self.lg, self.sc
+        with np.errstate(divide="ignore"):
+            xlb = np.where(lg, np.log(np.maximum(lb, 0.0)), lb / sc)
+        xub = np.where(lg, np.log(np.where(lg & (ub > 0), ub, 1.0)), ub / sc)
+        return xlb, np.where(lg & ~(ub > 0), np.inf, xub)
+
+
+def _data_covariance(covariance: str, jac: np.ndarray, r: np.ndarray, g: np.ndarray, w: np.ndarray,
+                     row_covariance, bread: np.ndarray, p: int, scale_covariance: bool,
+                     cost: float) -> tuple[np.ndarray, float]:
+    """The data's part of the covariance of x (p, p) and its degrees of freedom."""
     n_res = r.size
     dof = n_res - p
-    cost = float(r @ r)
-    bread = (vt.T / sv**2) @ vt                       # (J^T J + P / 2)^-1
+    n_lines = g.shape[0]
+    half_n = n_res // 2
     if covariance == "rows":
-        half_n = n_res // 2
         jr, ji = (a.reshape(g.shape + (p,)) for a in (jac[:half_n], jac[half_n:]))
         cov_data = line_sandwich(jr, ji, (r[:half_n] + 1j * r[half_n:]).reshape(g.shape), w,
                                  np.asarray(row_covariance), bread, p)
-        data_dof = float(max(f.size - p, 1))
-    elif covariance == "sandwich":
-        n_lines = f.size
+        return cov_data, float(max(n_lines - p, 1))
+    if covariance == "sandwich":
         contrib = jac * r[:, None]
-        half_n = n_res // 2
         score = (contrib[:half_n] + contrib[half_n:]).reshape(n_lines, -1, p).sum(axis=1)   # (L, p)
         cov_data = bread @ (score.T @ score) @ bread * n_res / max(dof, 1)
-        data_dof = float(max(n_lines - p, 1))
-    else:
-        cov_data = bread @ (jac.T @ jac) @ bread * (cost / max(dof, 1) if scale_covariance else 0.5)
-        data_dof = float(max(dof, 1)) if scale_covariance else np.inf
-    inflation, dofs = 1.0, np.full(p, data_dof)
-    if realisations is not None:
-        gm = np.asarray(realisations)
-        dev = w * (gm - gm.mean(axis=0))
-        d = np.concatenate([dev.real.reshape(len(gm), -1), dev.imag.reshape(len(gm), -1)], axis=1)
-        factors, dofs = realisation_inflation(d @ jac @ bread, cov_data, data_dof)
-        cov_data = cov_data * np.sqrt(np.outer(factors, factors))
-        inflation = float(np.sqrt(factors.max()))
-    # the prior's part: its score (x* - m) / s^2 has covariance P, B (P / 4) B in the units of V
-    cov_prior = bread @ np.diag(jp**2 / 2) @ bread
-    cov_x = cov_data + cov_prior
-    # the prior's part is known exactly: the variance's degrees of freedom grow with its share
-    dofs = combined_dof(np.diag(cov_data), dofs, np.diag(cov_prior))
-    std_x = np.sqrt(np.diag(cov_x))
-    theta = to_theta(x)
-    jt = np.where(lg, theta, sc)                       # d theta / d x
-    cov = cov_x * jt[:, None] * jt[None, :]
-    std = np.sqrt(np.diag(cov))
-    corr = cov / np.outer(std, std)
-    half = stats.t.ppf(0.975, dofs) * std_x
-    ci = np.column_stack([to_theta(x - half), to_theta(x + half)])
-    ratio = np.where(has_prior, std_x / np.where(has_prior, xs, 1.0), np.nan)
-    return UpdateResult(names=nm, theta=theta, theta0=th0, std=std, ci95=ci, covariance=cov, correlation=corr,
-                        cost=cost, n_residuals=n_res, jacobian_singular_values=sv, success=ok,
-                        message=msg, n_evaluations=nfev, inflation=inflation, prior_ratio=ratio,
-                        variance_dof=dofs, log=lg)
+        return cov_data, float(max(n_lines - p, 1))
+    cov_data = bread @ (jac.T @ jac) @ bread * (cost / max(dof, 1) if scale_covariance else 0.5)
+    return cov_data, (float(max(dof, 1)) if scale_covariance else np.inf)
+
+
+def _inflated(realisations, w: np.ndarray, jac: np.ndarray, bread: np.ndarray, cov_data: np.ndarray,
+              data_dof: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """The data's covariance widened by the scatter of the realisations, its dofs and the inflation."""
+    gm = np.asarray(realisations)
+    dev = w * (gm - gm.mean(axis=0))
+    d = np.concatenate([dev.real.reshape(len(gm), -1), dev.imag.reshape(len(gm), -1)], axis=1)
+    factors, dofs = realisation_inflation(d @ jac @ bread, cov_data, data_dof)
+    return cov_data * np.sqrt(np.outer(factors, factors)), dofs, float(np.sqrt(factors.max()))

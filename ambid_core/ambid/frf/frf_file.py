@@ -17,7 +17,12 @@ Formats, by suffix:
   UFF identifies it; entity names are labels only (an analyser often writes
   the test's name on every dataset). Units come from the header (the unit
   labels where written, else the SI unit of the data type). UFF carries no
-  variance; the analyser's coherence (function type 6) is read where written.
+  variance; the analyser's coherence (function type 6) is read where written;
+  a units dataset 164 that is not SI (a file in mm, in, lbf) has its
+  factors applied, so the FRF is in SI and says so in a note;
+* ``.s1p``, ``.s2p``, ... (Touchstone version 1, as a vector network analyser
+  writes it): an N-port's S, Y or Z parameters, one FRF per port pair
+  (:mod:`ambid.frf.touchstone`).
 
 A first line at 0 Hz (any format) is left out with a note.
 
@@ -39,6 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from ambid.array_file import check_file, read_arrays
+from ambid.frf.touchstone import TOUCHSTONE_FIX, is_touchstone, read_touchstone
 from ambid.text_file import read_text
 
 __all__ = ["FRF_SUFFIXES", "FrfFileError", "MeasuredFrf", "read_frf_file", "is_frf_file"]
@@ -66,14 +72,15 @@ class MeasuredFrf:
 
     Attributes:
         path: the file.
-        kind: 'npz', 'mat', 'csv' or 'uff'.
+        kind: 'npz', 'mat', 'csv', 'uff' or 'touchstone'.
         freq_hz: (n,) frequencies, increasing [Hz].
         frf: (n, ny, nu) complex H [the file's unit].
         var: (n, ny, nu) variance of each entry [unit squared], or None when the file gives none.
         output_names, input_names: (ny,), (nu,).
         notes: what was assumed, a line each.
         output_units, input_units: (ny,), (nu,) each channel's unit as the file says it ('' where it says none).
-        form: what H is: 'FRF', 'receptance', 'mobility', 'accelerance' or 'transmissibility'.
+        form: what H is: 'FRF', 'receptance', 'mobility', 'accelerance', 'transmissibility', or a network's
+            'S-parameters', 'impedance' or 'admittance'.
         coherence: (n, ny, nu) the analyser's coherence of each response with each reference (UFF function
             type 6; NaN where the file has none), or None.
     """
@@ -102,7 +109,7 @@ class MeasuredFrf:
 
 def is_frf_file(path: str | os.PathLike) -> bool:
     """Whether ``path`` names an FRF file by its suffix (a session is ``.mcap``)."""
-    return Path(path).suffix.lower() in FRF_SUFFIXES
+    return Path(path).suffix.lower() in FRF_SUFFIXES or is_touchstone(path)
 
 
 def read_frf_file(path: str | os.PathLike) -> MeasuredFrf:
@@ -113,10 +120,10 @@ def read_frf_file(path: str | os.PathLike) -> MeasuredFrf:
     """
     p = Path(path)
     suffix = p.suffix.lower()
-    if suffix not in FRF_SUFFIXES:
-        raise FrfFileError(f"{p}: '{suffix or p.name}' is not an FRF file type ({', '.join(FRF_SUFFIXES)}); give an "
-                           ".npz, .mat, .csv or UFF 58 file, or a session .mcap")
-    fix = _FIX[suffix]
+    if not is_frf_file(p):
+        raise FrfFileError(f"{p}: '{suffix or p.name}' is not an FRF file type ({', '.join(FRF_SUFFIXES)}, .sNp); "
+                           "give an .npz, .mat, .csv, UFF 58 or Touchstone file, or a session .mcap")
+    fix = TOUCHSTONE_FIX if is_touchstone(p) else _FIX[suffix]
     try:
         check_file(p, "FRF file", fix)
     except ValueError as exc:
@@ -127,6 +134,9 @@ def read_frf_file(path: str | os.PathLike) -> MeasuredFrf:
         elif suffix == ".csv":
             freq, h, var, outs, ins, notes = _csv(p, fix)
             extra = {}
+        elif is_touchstone(p):
+            freq, h, outs, ins, notes, extra = read_touchstone(p)
+            var, suffix = None, ".touchstone"
         else:
             freq, h, var, outs, ins, notes, extra = _uff(p, fix)
     except PermissionError:
@@ -261,19 +271,48 @@ _UFF_DATA = {1: ("general", ""), 2: ("stress", "Pa"), 3: ("strain", "m/m"), 5: (
              16: ("mass", "kg"), 17: ("time", "s"), 18: ("frequency", "Hz"), 19: ("rpm", "rpm"),
              20: ("order", ""), 21: ("sound pressure", "Pa"), 22: ("sound intensity", "W/m^2"),
              23: ("sound power", "W")}
+# specific data type -> its dimension as (length, force) exponents, time in s (UFF 164's factors convert L and F)
+_UFF_DIMENSION = {2: (-2, 1), 3: (0, 0), 8: (1, 0), 9: (0, 1), 11: (1, 0), 12: (1, 0), 13: (0, 1), 15: (-2, 1),
+                  16: (-1, 1), 21: (-2, 1)}
 # (response quantity, reference quantity) -> the FRF's name
 _FRF_FORMS = {("displacement", "force"): "receptance", ("velocity", "force"): "mobility",
               ("acceleration", "force"): "accelerance"}
 
 
-def _uff_unit(s: dict, axis: str) -> tuple[str, str]:
+def _uff_unit(s: dict, axis: str, si: bool = False) -> tuple[str, str]:
     """(quantity, unit) of one axis of a dataset 58 (``ordinate``, ``orddenom``, ``abscissa``): the unit label the
-    header writes where it writes one, else the SI unit of the specific data type."""
+    header writes where it writes one, else (or where ``si``: the values were converted to SI by dataset 164)
+    the SI unit of the specific data type."""
     kind = int(s.get(f"{axis}_spec_data_type", 0) or 0)
-    quantity, si = _UFF_DATA.get(kind, ("unknown", ""))
+    quantity, si_unit = _UFF_DATA.get(kind, ("unknown", ""))
     label = str(s.get(f"{axis}_axis_units_lab", "") or "").strip()
-    unit = label if label and label.upper() != "NONE" else si
+    unit = label if label and label.upper() != "NONE" and not (si and si_unit) else si_unit
     return quantity, unit.replace("m/s2", "m/s^2")
+
+
+def _uff_units_164(sets: list) -> tuple[float, float, str] | None:
+    """(length factor, force factor, description) of the file's units dataset 164, or None where it has none or its
+    units are SI. UFF's factors convert the file's units to SI by division (1000 for a length in mm)."""
+    for s in sets:
+        if isinstance(s, dict) and s.get("type") == 164:
+            lf, ff = float(s.get("length", 1.0) or 1.0), float(s.get("force", 1.0) or 1.0)
+            if np.isclose(lf, 1.0, rtol=1e-9) and np.isclose(ff, 1.0, rtol=1e-9):
+                return None
+            return lf, ff, str(s.get("units_description", "") or "").strip()
+    return None
+
+
+def _uff_to_si(s: dict, units164: tuple[float, float, str] | None) -> float | None:
+    """The factor turning a dataset 58's ordinate / denominator into SI per dataset 164 (1.0 without one), or None
+    where a data type's dimension is unknown (general, unknown) and 164 says the file is not in SI."""
+    if units164 is None:
+        return 1.0
+    lf, ff, _ = units164
+    dims = [_UFF_DIMENSION.get(int(s.get(f"{axis}_spec_data_type", 0) or 0)) for axis in ("ordinate", "orddenom")]
+    if None in dims:
+        return None
+    (a_out, b_out), (a_in, b_in) = dims
+    return (lf ** a_in * ff ** b_in) / (lf ** a_out * ff ** b_out)
 
 
 def _uff_channel(s: dict, side: str) -> tuple[str, str]:
@@ -304,6 +343,7 @@ def _uff(p: Path, fix: str):
     if len({int(s.get("func_type")) for s in frf_sets}) > 1:
         raise FrfFileError(f"FRF file {p} mixes FRFs (function type 4) and transmissibilities (5); give one kind "
                            "per file")
+    units164 = _uff_units_164(sets)
     outs: list[str] = []
     ins: list[str] = []
     labels: dict[tuple[str, str], set[str]] = {}
@@ -333,8 +373,14 @@ def _uff(p: Path, fix: str):
         for key, lab in ((("response", o), lo), (("reference", u), lu)):
             if lab:
                 labels.setdefault(key, set()).add(lab)
+        to_si = _uff_to_si(s, units164)
+        if to_si is None:
+            raise FrfFileError(f"FRF file {p}: dataset 164 gives units '{units164[2]}' (not SI), and the dataset "
+                               f"{o}/{u} has a quantity of no known dimension; give data types (displacement, "
+                               "velocity, acceleration, force, ...) or write the file in SI")
+        data = data * to_si
         for ch, axis, side in ((o, "ordinate", "response"), (u, "orddenom", "reference")):
-            q, unit = _uff_unit(s, axis)
+            q, unit = _uff_unit(s, axis, si=units164 is not None)
             if units.setdefault((side, ch), unit) != unit:
                 raise FrfFileError(f"FRF file {p}: {side} {ch} is in {units[(side, ch)]} in one dataset and in "
                                    f"{unit} in another; give one unit per channel")
@@ -358,6 +404,9 @@ def _uff(p: Path, fix: str):
 
     notes = [f"UFF 58 {func}s, {form}: outputs {listed(outs, 'response')}; inputs {listed(ins, 'reference')} "
              "(channels by node and direction)"]
+    if units164 is not None:
+        notes.append(f"dataset 164: the file's units are '{units164[2] or 'user defined'}' (length factor "
+                     f"{units164[0]:g}, force factor {units164[1]:g}); the FRFs are converted to SI")
     shared = set.intersection(*labels.values()) if labels and len(labels) == len(outs) + len(ins) else set()
     if shared:
         notes.append(f"entity name {sorted(shared)[0]!r} on every dataset: a label of the test, not a channel")

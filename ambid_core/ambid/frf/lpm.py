@@ -135,12 +135,26 @@ class LocalFrf:
 
 
 def dof_of(half_width: int, degree: int, n_refs: int, n_experiments: int = 1) -> int:
-    """Residual degrees of freedom q of a window: ``Ne (2 h + 1 - (R + 1)) - (R + 1) Nx``."""
+    """Residual degrees of freedom q of a window: ``Ne (2 h + 1 - (R + 1)) - (R + 1) Nx``.
+
+    Examples
+    --------
+    >>> dof_of(3, 2, 1)                # 7 bins less 3 coefficients each for G and the transient
+    1
+    """
     return n_experiments * (2 * half_width + 1 - (degree + 1)) - (degree + 1) * n_refs
 
 
 def half_width_for(degree: int, n_refs: int, n_experiments: int = 1, dof: int = DEFAULT_DOF) -> int:
-    """The smallest half width h whose window leaves at least ``dof`` degrees of freedom."""
+    """The smallest half width h whose window leaves at least ``dof`` degrees of freedom.
+
+    Examples
+    --------
+    >>> half_width_for(2, 1), half_width_for(2, 4)
+    (7, 11)
+    >>> dof_of(half_width_for(2, 4), 2, 4) >= DEFAULT_DOF
+    True
+    """
     h = 1
     while dof_of(h, degree, n_refs, n_experiments) < dof:
         h += 1
@@ -153,6 +167,11 @@ def f_quantile(level: float, dof) -> np.ndarray | float:
     ``|dG|^2 / var`` follows F(2, 2q) when var is estimated with q complex
     degrees of freedom independently of G (least squares, Gaussian noise).
     ``dof`` may be an array (one q per line).
+
+    Examples
+    --------
+    >>> round(float(f_quantile(0.95, 10)), 4)
+    3.4928
     """
     q = np.asarray(dof)
     if not 0 < level < 1 or np.any(q < 1):
@@ -210,6 +229,11 @@ def window_centres(n_samples: int, fs_hz: float, band_hz: tuple[float, float] | 
 
     Raises:
         ValueError: the band holds fewer bins than one window.
+
+    Examples
+    --------
+    >>> window_centres(1000, 1000.0, (10.0, 50.0), 3)   # windows of 7 bins of 1 Hz, none overlapping
+    array([13, 20, 27, 34, 41])
     """
     n, h = int(n_samples), int(half_width)
     w = 2 * h + 1
@@ -294,28 +318,8 @@ def local_frf(y: np.ndarray, u: np.ndarray, r: np.ndarray | None = None, *, fs_h
     d2 = np.ones((n_lines, ne * w))                                         # |D(s)|^2 at each stacked bin
     d_poly = np.ones((n_lines, w), complex)
     if method != "lpm":
-        nz = z.shape[2]
-        psi = proj @ (zw[..., None] * k_t[None, None, :, None, 1:]).reshape(ne, n_lines, w, nz * degree)
-        psi = np.moveaxis(psi, 0, 1).reshape(n_lines, ne * w, nz, degree)
-        scale = np.sqrt(np.maximum(np.mean(np.abs(resid) ** 2, axis=1), 1e-300))     # (L, Nz)
-        p_x = np.eye(ne * w)[None] - xs @ xp
-        d = _denominator(resid, (p_x @ psi.reshape(n_lines, ne * w, nz * degree)).reshape(psi.shape), scale)
-        zd = zs + (psi @ d[:, None, :, None])[..., 0]                       # D(s) Z, transient projected out
-        theta_r = xp @ zd
-        dp = 1.0 + k_t[:, 1:] @ d[..., None]                                # (L, w, 1)
-        dp = dp[..., 0]
-        d2_r = np.tile(np.abs(dp) ** 2, (1, ne))
-        resid_r = (zd - xs @ theta_r) / np.sqrt(d2_r)[..., None]           # the residual D V, back to V
-        weight = 1.0 / scale[:, None, :] ** 2
-        use = np.full(n_lines, method == "lrm")
-        if method == "auto":
-            use = _rational_pays(np.sum(np.abs(resid) ** 2 * weight, axis=(1, 2)),
-                                 np.sum(np.abs(resid_r) ** 2 * weight, axis=(1, 2)), degree, q - degree, z.shape[2])
-        theta = np.where(use[:, None, None], theta_r, theta)
-        resid = np.where(use[:, None, None], resid_r, resid)
-        d2 = np.where(use[:, None], d2_r, d2)
-        d_poly = np.where(use[:, None], dp, d_poly)
-        q_line = np.where(use, q - degree, q)
+        theta, resid, d2, d_poly, q_line = _rational_where_it_pays(
+            method, proj, zw, k_t, zs, xs, xp, theta, resid, d2, d_poly, q_line, degree, q)
     c_v = (np.swapaxes(resid, 1, 2) @ resid.conj()) / q_line[:, None, None]
     # the errors of theta are xp (D V): its covariance is xp diag|D|^2 xp^H times C_V
     q_full = (xp * d2[:, None, :]) @ np.swapaxes(xp.conj(), -1, -2)
@@ -340,6 +344,40 @@ def local_frf(y: np.ndarray, u: np.ndarray, r: np.ndarray | None = None, *, fs_h
                     rational=q_line < q, method=method, degree=int(degree),
                     half_width=h, n_samples=n, n_experiments=ne, output_names=tuple(output_names),
                     input_names=tuple(input_names))
+
+
+def _rational_where_it_pays(method: str, proj: np.ndarray, zw: np.ndarray, k_t: np.ndarray, zs: np.ndarray,
+                            xs: np.ndarray, xp: np.ndarray, theta: np.ndarray, resid: np.ndarray, d2: np.ndarray,
+                            d_poly: np.ndarray, q_line: np.ndarray, degree: int, q: int) -> tuple:
+    """The local rational method's estimate where it is used (every line for 'lrm', where it pays for 'auto').
+
+    Returns theta, residual, |D|^2 at each stacked bin, D over the window and degrees of freedom per line.
+    """
+    ne, n_lines, w = zw.shape[:3]
+    n_stack = ne * w
+    nz = zw.shape[3]
+    psi = proj @ (zw[..., None] * k_t[None, None, :, None, 1:]).reshape(ne, n_lines, w, nz * degree)
+    psi = np.moveaxis(psi, 0, 1).reshape(n_lines, n_stack, nz, degree)
+    scale = np.sqrt(np.maximum(np.mean(np.abs(resid) ** 2, axis=1), 1e-300))     # (L, Nz)
+    p_x = np.eye(n_stack)[None] - xs @ xp
+    d = _denominator(resid, (p_x @ psi.reshape(n_lines, n_stack, nz * degree)).reshape(psi.shape), scale)
+    zd = zs + (psi @ d[:, None, :, None])[..., 0]                       # D(s) Z, transient projected out
+    theta_r = xp @ zd
+    dp = 1.0 + k_t[:, 1:] @ d[..., None]                                # (L, w, 1)
+    dp = dp[..., 0]
+    d2_r = np.tile(np.abs(dp) ** 2, (1, ne))
+    resid_r = (zd - xs @ theta_r) / np.sqrt(d2_r)[..., None]           # the residual D V, back to V
+    weight = 1.0 / scale[:, None, :] ** 2
+    use = np.full(n_lines, method == "lrm")
+    if method == "auto":
+        use = _rational_pays(np.sum(np.abs(resid) ** 2 * weight, axis=(1, 2)),
+                             np.sum(np.abs(resid_r) ** 2 * weight, axis=(1, 2)), degree, q - degree, zw.shape[3])
+    theta = np.where(use[:, None, None], theta_r, theta)
+    resid = np.where(use[:, None, None], resid_r, resid)
+    d2 = np.where(use[:, None], d2_r, d2)
+    d_poly = np.where(use[:, None], dp, d_poly)
+    q_line = np.where(use, q - degree, q)
+    return theta, resid, d2, d_poly, q_line
 
 
 def _denominator(zbar: np.ndarray, psibar: np.ndarray, scale: np.ndarray) -> np.ndarray:

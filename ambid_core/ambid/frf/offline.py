@@ -360,35 +360,9 @@ def frf_from_session(path: str | os.PathLike, estimator: str = "indirect",
                 else:
                     pending = start(key, entry)
             continue
-        try:
-            block = readers.setdefault(topic, SampleBlockReader())(msg.data)
-        except (ValueError, struct.error):  # unreadable: what follows on this topic is not exact
-            seen_end[topic] = sys.maxsize
-            if pending is not None and pending.topic == topic:
-                pending.exact = False
-            continue
-        seen_end[topic] = max(seen_end.get(topic, 0), block[0] + len(block[3]))
-        block_names.setdefault(topic, list(block[2]))
-        if pending is not None and pending.exact and pending.topic == topic:
-            try:
-                fed = pending.feed.block(*block)
-                if fed is not None:
-                    pending.feed.stream.add(*fed)
-            except ValueError:  # raised again by the second pass if this is the experiment
-                pending.exact = False
+        _take_block(topic, msg.data, readers, seen_end, block_names, pending)
 
-    found = designs.final()
-    if not found:
-        raise ValueError(f"{os.fspath(path)} holds no '{_DESIGN_TOPIC}' message: no experiment to "
-                         "estimate (record the excitation/design topic)")
-    if experiment_id is None:
-        chosen = found[-1]
-    else:
-        match = [d for d in found if d["experiment_id"] == experiment_id]
-        if not match:
-            raise ValueError(f"no experiment {experiment_id!r} in {os.fspath(path)}; recorded: "
-                             f"{[d['experiment_id'] for d in found]}")
-        chosen = match[-1]
+    chosen = _chosen(designs.final(), experiment_id, path)
     key = (chosen["topic"], chosen["experiment_id"])
     topic = _measurement_topic(chosen["topic"])
     if topic not in seen_end:
@@ -404,6 +378,42 @@ def frf_from_session(path: str | os.PathLike, estimator: str = "indirect",
     stream = FrfStream(d, ys, u_names, r_names, start_index=chosen["start_index"],
                        total_samples=min(chosen["total_samples"], d.total_samples))
     return _run(stream, _session_blocks(path, topic, stream, recover), estimator)
+
+
+def _take_block(topic: str, data: bytes, readers: dict, seen_end: dict, block_names: dict,
+                pending: _Pending | None) -> None:
+    """One measurement block of the pass: note how far the topic goes, feed the followed experiment."""
+    try:
+        block = readers.setdefault(topic, SampleBlockReader())(data)
+    except (ValueError, struct.error):  # unreadable: what follows on this topic is not exact
+        seen_end[topic] = sys.maxsize
+        if pending is not None and pending.topic == topic:
+            pending.exact = False
+        return
+    seen_end[topic] = max(seen_end.get(topic, 0), block[0] + len(block[3]))
+    block_names.setdefault(topic, list(block[2]))
+    if pending is not None and pending.exact and pending.topic == topic:
+        try:
+            fed = pending.feed.block(*block)
+            if fed is not None:
+                pending.feed.stream.add(*fed)
+        except ValueError:  # raised again by the second pass if this is the experiment
+            pending.exact = False
+
+
+def _chosen(found: list[dict], experiment_id: str | None, path) -> dict:
+    """The experiment asked for (default the last one recorded) among the designs found."""
+    if not found:
+        raise ValueError(f"{os.fspath(path)} holds no '{_DESIGN_TOPIC}' message: no experiment to "
+                         "estimate (record the excitation/design topic)")
+    if experiment_id is None:
+        return found[-1]
+    match = [d for d in found if d["experiment_id"] == experiment_id]
+    if not match:
+        raise ValueError(f"no experiment {experiment_id!r} in {os.fspath(path)}; recorded: "
+                         f"{[d['experiment_id'] for d in found]}")
+    return match[-1]
+
 
 # ------------------------------------------------------------------ records that do not repeat
 

@@ -32,7 +32,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
 
 from ambid.frf.estimators import _matched, _records, _right_divide, per_period_frf
 
@@ -249,6 +248,8 @@ def noise_std_interval(segment_variances: np.ndarray, level: float = 0.95) -> tu
         return np.full(n_ch, np.nan), np.full((n_ch, 2), np.nan)
     mean = v.mean(axis=0)
     sd_mean = v.std(axis=0, ddof=1) / np.sqrt(s)
+    from scipy import stats  # scipy.stats takes ~0.5 s to import: every command that reads an FRF imports this
+
     half = stats.t.ppf(0.5 + level / 2, s - 1) * sd_mean
     ci = np.sqrt(np.clip(np.stack([mean - half, mean + half], axis=1), 0.0, None))
     return sd_mean / (2 * np.sqrt(mean)), ci

@@ -25,6 +25,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -49,7 +50,7 @@ INTERVALS_WITHOUT_VAR = ("the file gives no variance: the fit weighs each line b
 
 def identify_frf(measured: MeasuredFrf, out_dir: str | os.PathLike, *, order: int | None = None,
                  max_order: int = 32, order_penalty: float = 2.0, delay_s: float = 0.0,
-                 report: bool = True) -> MeasuredFrfFit:
+                 report: bool = True, on_summary: Callable[[MeasuredFrfFit], None] | None = None) -> MeasuredFrfFit:
     """Fit the FRF of a file and write model.npz, model.json, frf.npz, identification.json and report/.
 
     Args:
@@ -60,6 +61,8 @@ def identify_frf(measured: MeasuredFrf, out_dir: str | os.PathLike, *, order: in
         order_penalty: the order rule's weight per parameter (2: Akaike).
         delay_s: a known pure delay of the measurement [s] (0 for an analyser's FRF).
         report: write the HTML report.
+        on_summary: called with the result before the report is written (its ``files.report`` already
+            names the page to come), so a caller can show the figures at once.
 
     Returns:
         The :class:`ambid.identification.result.MeasuredFrfFit` (also ``identification.json``): source,
@@ -125,10 +128,13 @@ def identify_frf(measured: MeasuredFrf, out_dir: str | os.PathLike, *, order: in
                           frf_npz=str(out / "frf.npz"), summary_json=str(out / "identification.json")),
         notes=notes)
     if report:
+        result = replace(result, files=replace(result.files, report=str(out / "report" / "index.html")))
+    if on_summary is not None:
+        on_summary(replace(result, wall_s=time.perf_counter() - t0))
+    if report:
         from ambid.report.measured import write_measured_report
 
         dense = np.geomspace(max(band[0] / 1.2, 1e-3), band[1] * 1.2, 400)
-        result = replace(result, files=replace(result.files, report=str(out / "report" / "index.html")))
         write_measured_report(out / "report", result.to_json(), f, g, None if var is None else np.sqrt(var),
                               diagram, int(order), {"fitted model": (dense, fit.model.freqresp(dense))},
                               measured.output_names, measured.input_names)

@@ -113,15 +113,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
                      units=inputs.units, variances=measured.variances)
     save_model_npz(out / "model.npz", fitted.fit.model)
     save_model_json(out / "model.json", fitted.fit.model)
-    the_rig = _rig_of(rig, inputs.rig_facts)
-    if the_rig is None:
-        notes.append("no rig in the session and none given: no nominal model, no updating")
-    if true_model is None and the_rig is not None and not inputs.simulated:
-        notes.append("not a simulated session: no true model to compare with")
-    updated = RigUpdate(None)
-    if update and the_rig is not None:
-        updated = update_rig(the_rig, frf, fitted, dt_s, nominal, update_free)
-        notes += updated.notes + ([f"model updating failed: {updated.error}"] if updated.error else [])
+    the_rig, updated = _update_stage(rig, inputs, true_model, update, fitted, dt_s, nominal, update_free, notes)
     # the truths, after the fit and the update: reference models still in the making meanwhile are waited for
     # only now
     refs = _references(references, inputs, frf)
@@ -152,6 +144,21 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     (out / "identification.json").write_text(json.dumps(result.to_json(), indent=1))
     return result
 
+
+def _update_stage(rig, inputs: SessionInputs, true_model: StateSpace | None, update: bool, fitted, dt_s: float,
+                  nominal: Mapping[str, float] | None, update_free: Sequence[str] | None,
+                  notes: list[str]) -> tuple[Rig | None, RigUpdate]:
+    """The rig (given or recorded) and its physical-model update; what could not be done goes to ``notes``."""
+    the_rig = _rig_of(rig, inputs.rig_facts)
+    if the_rig is None:
+        notes.append("no rig in the session and none given: no nominal model, no updating")
+    if true_model is None and the_rig is not None and not inputs.simulated:
+        notes.append("not a simulated session: no true model to compare with")
+    updated = RigUpdate(None)
+    if update and the_rig is not None:
+        updated = update_rig(the_rig, inputs.frf, fitted, dt_s, nominal, update_free)
+        notes += updated.notes + ([f"model updating failed: {updated.error}"] if updated.error else [])
+    return the_rig, updated
 
 def _rig_of(rig: Rig | str | os.PathLike | Mapping | None, facts: dict | None) -> Rig | None:
     """The rig given (a Rig, a file or parameters), else the one the session recorded, else None."""

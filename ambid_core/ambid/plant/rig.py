@@ -544,6 +544,16 @@ def make_rig(overrides: dict[str, Any] | None = None, name: str = "ambid-default
 
     Raises:
         ValueError naming the field and its allowed range.
+
+    Examples
+    --------
+    >>> rig = make_rig()                  # the built-in rig
+    >>> rig.dt, rig.layout.axes
+    (0.0001, ('a_x', 'b_x', 'a_y', 'b_y'))
+    >>> round(rig.rotor_mass_kg, 2)
+    34.06
+    >>> make_rig({"sample_rate_hz": 20_000.0}).dt
+    5e-05
     """
     overrides = dict(overrides or {})
     name = str(overrides.pop("name", name))

@@ -48,9 +48,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from scipy import io as sio
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import connected_components
 
 from ambid.array_file import read_arrays
 from ambid.plant.modal import undamped_modes
@@ -175,6 +172,9 @@ def _coupled_to(seeds: np.ndarray, matrices: list[np.ndarray]) -> np.ndarray:
         if scale > 0:  # round-off in a code's assembly is not a coupling
             link |= np.abs(mat) > 1e-10 * scale
     link |= link.T
+    from scipy.sparse import csr_matrix  # scipy.sparse and scipy.io load in ~0.4 s: only for a rotor file
+    from scipy.sparse.csgraph import connected_components
+
     _, label = connected_components(csr_matrix(link), directed=False)
     return np.isin(label, np.unique(label[seeds]))
 
@@ -310,6 +310,8 @@ def save_rotor(path: str | Path, model: RotorModel) -> None:
     if path.suffix == ".npz":
         np.savez(path, **data)
     elif path.suffix == ".mat":
+        from scipy import io as sio
+
         sio.savemat(path, data)
     else:
         raise ValueError(f"save_rotor: unknown extension {path.suffix!r}; use .npz or .mat")

@@ -174,6 +174,10 @@ def design_summary(design: Mapping[str, Any]) -> str:
     band_text = f"{band[0]:g}-{band[1]:g} Hz" if band else "no lines"
     fs = design.get("sample_rate_hz") or math.nan
     rms = design.get("rms_a") or []
+    # each excitation channel's unit where the caller knows it (an imported record's, injected at the reference,
+    # is in V or m), else A: ambid's own sessions add the excitation to the current
+    units = list(design.get("excitation_units") or []) or ["A"] * len(rms)
+    rms_text = ", ".join(f"{r:.3g} {u}" for r, u in zip(rms, units + ["A"] * len(rms))) or "-"
     return (
         f"{design.get('experiment_id', '?')}: {design.get('kind', '?')} ({design.get('multi_input', '')}) "
         f"on {', '.join(design.get('input_names', [])) or '-'}, {band_text}, "
@@ -181,5 +185,5 @@ def design_summary(design: Mapping[str, Any]) -> str:
         f"P={design.get('n_periods', 0)}+{design.get('n_transient_periods', 0)} transient, "
         f"M={design.get('n_realisations', 0)}, Ne={design.get('n_experiments', 0)}, "
         f"samples {design.get('start_index', 0)}+{design.get('total_samples', 0)} "
-        f"({design.get('total_samples', 0) / fs:.3g} s), rms {', '.join(f'{r:.3g}' for r in rms) or '-'} A"
+        f"({design.get('total_samples', 0) / fs:.3g} s), rms {rms_text}"
     )

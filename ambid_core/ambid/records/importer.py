@@ -253,6 +253,28 @@ def import_record(data: str | os.PathLike | Sequence[str | os.PathLike], record_
 
 
 def _import(rec, m, out, cols, idx, sel, scale, offset, ny, nu, spool, chunk_rows, t_start) -> ImportResult:
+    n_rows, fs, first_on, finder, anyway, not_periodic = _spool(rec, m, cols, idx, sel, scale, offset, ny, nu,
+                                                               spool, chunk_rows)
+    design, start, estimator, notes = _which_design(rec, m, n_rows, fs, first_on, finder, anyway, not_periodic)
+    controller = None
+    if m.controller:
+        try:
+            # the controller closes the loop on the record's axes: y of each in, its current out
+            controller = load_controller(m.controller, 1.0 / fs, "the record's",
+                                         Layout.from_names(c.name for c in m.outputs))
+        except ValueError as exc:
+            raise RecordError(str(exc)) from None
+    notes = _write_session(rec, m, out, spool, chunk_rows, ny, nu, n_rows, fs, design, start, estimator, notes,
+                           controller)
+    return ImportResult(str(out), n_rows, fs, design, start, not m.design, estimator, notes,
+                        sum(os.path.getsize(x) for x in rec.path.split(" + ")), time.perf_counter() - t_start)
+
+
+def _spool(rec, m, cols, idx, sel, scale, offset, ny, nu, spool, chunk_rows) -> tuple:
+    """Pass 1: check the record, look for the periodic design and spool the scaled rows.
+
+    Returns (rows, sample rate [Hz], first excited row, design finder, recorded excitation, why not periodic).
+    """
     tcheck = _TimeCheck(m, rec.path) if m.time_column else None
     finder = None if m.design else DesignFinder([f"u_{c.name[2:]}" for c in m.currents], 1.0,
                                                 m.transient_periods, m.band_hz)
@@ -291,6 +313,14 @@ def _import(rec, m, out, cols, idx, sel, scale, offset, ny, nu, spool, chunk_row
     if first_on is None:
         raise RecordError(f"{rec.path}: the excitation columns ({', '.join(c.column for c in m.excitation)}) are "
                           "zero in every row; check the excitation: columns in MAP.yaml")
+    return n_rows, fs, first_on, finder, anyway, not_periodic
+
+
+def _which_design(rec, m, n_rows, fs, first_on, finder, anyway, not_periodic) -> tuple:
+    """The experiment the record holds: the periodic design found, the recorded excitation, or the given design.
+
+    Returns (design, first row, estimator sentence, notes).
+    """
     notes: list[str] = []
     found = None
     if finder is not None:
@@ -327,15 +357,12 @@ def _import(rec, m, out, cols, idx, sel, scale, offset, ny, nu, spool, chunk_row
         notes.append(f"design from {m.design}: experiment from row {start + 1} (the excitation's first non-zero row)")
         estimator = (f"estimator: the design's own ({design.kind}), as for a session ambid recorded: the design was "
                      "given")
-    controller = None
-    if m.controller:
-        try:
-            # the controller closes the loop on the record's axes: y of each in, its current out
-            controller = load_controller(m.controller, 1.0 / fs, "the record's",
-                                         Layout.from_names(c.name for c in m.outputs))
-        except ValueError as exc:
-            raise RecordError(str(exc)) from None
-    # ---- pass 2: write
+    return design, start, estimator, notes
+
+
+def _write_session(rec, m, out, spool, chunk_rows, ny, nu, n_rows, fs, design, start, estimator, notes,
+                   controller) -> list[str]:
+    """Pass 2: write the session MCAP (design, controller, facts, blocks) from the spool; the notes written."""
     names = [c.name for c in m.channels]
     units = [c.unit for c in m.channels]
     notes = list(rec.notes) + notes
@@ -384,9 +411,8 @@ def _import(rec, m, out, cols, idx, sel, scale, offset, ny, nu, spool, chunk_row
                 carry = x[k:]
             if len(carry):
                 _write_block(w, n_rows - len(carry), dt, names, units, carry, m.experiment_id)
-    return ImportResult(str(out), n_rows, fs, design, start, not m.design, estimator, notes,
-                        sum(os.path.getsize(x) for x in rec.path.split(" + ")), time.perf_counter() - t_start)
 
+    return notes
 
 def _reason(exc: DesignNotFound) -> str:
     """Why the excitation is not a periodic design, without the fix (the LPM needs none)."""

@@ -76,7 +76,8 @@ def _wrapped_deg(g: np.ndarray) -> np.ndarray:
 def bode_matrix(freq_hz: np.ndarray, G: np.ndarray, std: np.ndarray | None,
                 curves: Mapping[str, tuple[np.ndarray, np.ndarray]], quantity: str = "magnitude",
                 path: str | Path | None = None, input_names: Sequence[str] = (),
-                output_names: Sequence[str] = (), row_units: Sequence[str] = ()) -> Figure:
+                output_names: Sequence[str] = (), row_units: Sequence[str] = (),
+                col_units: Sequence[str] = ()) -> Figure:
     """Ny x Nu grid of the measured FRF (with a +-2 sigma band) and model curves.
 
     Args:
@@ -87,7 +88,8 @@ def bode_matrix(freq_hz: np.ndarray, G: np.ndarray, std: np.ndarray | None,
         quantity: 'magnitude' (dB re 1 m/A) or 'phase' (deg).
         path: PNG to write.
         input_names, output_names: channel labels.
-        row_units: (Ny,) each row's unit (e.g. 'm/s^2/A' for an accelerometer); default m/A.
+        row_units: (Ny,) each row's unit (e.g. 'm/s^2/A' for an accelerometer, '' dimensionless); default m/A.
+        col_units: (Nu,) each input's unit (N for a hammer, '' dimensionless); default A.
     """
     if quantity not in ("magnitude", "phase"):
         raise ValueError(f"quantity must be 'magnitude' or 'phase', got {quantity!r}")
@@ -132,10 +134,12 @@ def bode_matrix(freq_hz: np.ndarray, G: np.ndarray, std: np.ndarray | None,
             else:
                 ax.yaxis.set_major_locator(MaxNLocator(5))
             if i == 0:
-                ax.set_title(f"from {ins[j]} [A]", fontsize=10)
+                cu = list(col_units)[j] if j < len(col_units) else "A"
+                ax.set_title(f"from {ins[j]} [{cu or '-'}]", fontsize=10)
             if j == 0:
-                unit = (list(row_units)[i] if i < len(row_units) and row_units[i] else "m/A")
-                ax.set_ylabel(f"{outs[i]}\n" + (f"|G| [dB re 1 {unit}]" if quantity == "magnitude" else "phase [deg]"))
+                unit = list(row_units)[i] if i < len(row_units) else "m/A"
+                db = f"[dB re 1 {unit}]" if unit else "[dB]"
+                ax.set_ylabel(f"{outs[i]}\n" + (f"|G| {db}" if quantity == "magnitude" else "phase [deg]"))
             if i == ny - 1:
                 ax.set_xlabel("frequency [Hz]")
     title = "magnitude" if quantity == "magnitude" else "phase"

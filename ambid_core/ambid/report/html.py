@@ -18,7 +18,7 @@ if TYPE_CHECKING:
     from ambid.frf.levels import LineLevels
     from ambid.frf.streaming import FrfResult
 
-__all__ = ["write_report", "render_index"]
+__all__ = ["write_report", "render_index", "frf_row_units", "frf_column_units"]
 
 _CSS = """
 body { font-family: sans-serif; max-width: 1200px; margin: 2em auto; color: #222; }
@@ -132,10 +132,39 @@ def _pm(m: Mapping[str, Any], key: str, spec: str) -> str:
     return "-" if ci is None else f"+- {_fmt((ci[1] - ci[0]) / 2, spec)}"
 
 
-def _row_units(s: Mapping[str, Any]) -> list[str]:
-    """Each FRF row's unit, '<output unit>/<input unit>' where every input shares one (else '')."""
+def frf_row_units(s: Mapping[str, Any]) -> list[str]:
+    """Each FRF row's unit, for the Bode matrices' labels.
+
+    Parameters
+    ----------
+    s : Mapping
+        An identification summary (``output_units``, ``input_units``; a session without them: A in).
+
+    Returns
+    -------
+    list of str
+        (Ny,) ``'<output unit>/<input unit>'`` where every input shares one, else ''; '' too where both are
+        dimensionless (a network's S parameters).
+    """
     ins = set(s.get("input_units") or ["A"])
-    return [f"{u}/{next(iter(ins))}" if len(ins) == 1 else "" for u in s.get("output_units") or []]
+    return [(f"{u}/{next(iter(ins))}" if u or next(iter(ins)) else "") if len(ins) == 1 else ""
+            for u in s.get("output_units") or []]
+
+
+def frf_column_units(s: Mapping[str, Any]) -> list[str]:
+    """Each FRF column's (input's) unit, for the Bode matrices' titles.
+
+    Parameters
+    ----------
+    s : Mapping
+        An identification summary (``input_units``, ``inputs``).
+
+    Returns
+    -------
+    list of str
+        (Nu,) A for a session's currents, the file's unit for an FRF file (N for a hammer, '' dimensionless).
+    """
+    return list(s.get("input_units") or ["A"] * len(s.get("inputs") or []))
 
 
 def computational_section(s: Mapping[str, Any]) -> list[str]:
@@ -299,9 +328,10 @@ def write_report(report_dir: str | Path, summary: Mapping[str, Any], *, frf: Frf
         "at this excitation level; the small-signal model at rest differs from it by the magnets' nonlinearity "
         "(the excitation stiffens them), a bias the band does not hold.",
         lambda p: figures.bode_matrix(frf.freq_hz, frf.frf, std, curves, "magnitude", p, **names,
-                                      row_units=_row_units(summary)))
+                                      row_units=frf_row_units(summary), col_units=frf_column_units(summary)))
     add("bode_phase.png", f"FRF matrix phase [deg], measured (dots) and {models}.",
-        lambda p: figures.bode_matrix(frf.freq_hz, frf.frf, std, curves, "phase", p, **names))
+        lambda p: figures.bode_matrix(frf.freq_hz, frf.frf, std, curves, "phase", p, **names,
+                                      col_units=frf_column_units(summary)))
     if true_frf is not None:
         errs = {"measured": _relative_error(frf.frf, true_frf)}
         errs.update({label: _relative_error(g, true_frf) for label, g in (line_models or {}).items()})

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ambid.report import figures
-from ambid.report.html import _CSS, _fmt, _modes_rows, _row_units, _table, computational_section
+from ambid.report.html import _CSS, frf_column_units, _fmt, _modes_rows, frf_row_units, _table, computational_section
 
 if TYPE_CHECKING:
     from ambid.fit.order_selection import StabilisationDiagram
@@ -41,7 +41,7 @@ def write_measured_report(report_dir: str | Path, summary: Mapping[str, Any], fr
     band = "with its +-2 sigma band from the file's var, " if std is not None else "(the file gives no variance), "
     for quantity, name in (("magnitude", "bode_magnitude.png"), ("phase", "bode_phase.png")):
         figures.bode_matrix(freq_hz, frf, std, curves, quantity, out / name, **names,
-                            row_units=_row_units(summary))
+                            row_units=frf_row_units(summary), col_units=frf_column_units(summary))
         shown.append((name, f"FRF matrix {quantity} from {summary['source']} (dots) {band}and the fitted model "
                             "(the axis label's unit is the file's)."))
     figures.stabilisation(diagram, freq_hz, frf, order, out / "stabilisation.png",
