@@ -11,6 +11,7 @@ import itertools
 import os
 import re
 import signal
+import socket
 import subprocess
 import sys
 import textwrap
@@ -122,10 +123,19 @@ def _run(argv: list[str], cwd: Path) -> Ran:
     return Ran(proc.returncode, out, err)
 
 
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
 def _bash(script: str, cwd: Path) -> Ran:
     # a doc's /tmp/ is the doc's own scratch folder's tmp/ (two runs of the suite never share a key file)
     (cwd / "tmp").mkdir(exist_ok=True)
     script = re.sub(r"(?<![\w.])/tmp/", f"{cwd}/tmp/", script)
+    # and its loopback UDP ports are free ones (two runs of the suite at once never cross their datagrams)
+    for port in sorted(set(re.findall(r"127\.0\.0\.1:(\d{4,5})\b", script))):
+        script = re.sub(rf"\b{port}\b", str(_free_udp_port()), script)
     return _run(["bash", "-e", "-o", "pipefail", "-c", "trap 'kill $(jobs -p) 2>/dev/null || true' EXIT\n"
                  + checkout_paths(script)], cwd)
 
