@@ -39,6 +39,13 @@ def split_name(name: str) -> tuple[str, str]:
 
     Raises:
         ValueError: the name has no known prefix (:data:`SIGNALS`) or no axis.
+
+    Examples
+    --------
+    >>> split_name("y_a_x")
+    ('y', 'a_x')
+    >>> split_name("u_z")
+    ('u', 'z')
     """
     prefix, sep, axis = name.partition("_")
     if not sep or prefix not in SIGNALS or not axis:
@@ -48,13 +55,25 @@ def split_name(name: str) -> tuple[str, str]:
 
 
 def bearing_of(axis: str) -> str:
-    """The bearing (or plane) an axis belongs to: ``"a_x"`` -> ``"a"``; ``"z"`` -> ``"z"``."""
+    """The bearing (or plane) an axis belongs to: ``"a_x"`` -> ``"a"``; ``"z"`` -> ``"z"``.
+
+    Examples
+    --------
+    >>> bearing_of("a_x"), bearing_of("b_y")
+    ('a', 'b')
+    """
     head, sep, tail = axis.rpartition("_")
     return head if sep and tail in _DIRECTIONS else axis
 
 
 def direction_of(axis: str) -> str:
-    """``"x"``, ``"y"`` (radial) or ``"z"`` (axial) for the conventional names; ``""`` for others."""
+    """``"x"``, ``"y"`` (radial) or ``"z"`` (axial) for the conventional names; ``""`` for others.
+
+    Examples
+    --------
+    >>> direction_of("a_x"), direction_of("b_y")
+    ('x', 'y')
+    """
     if axis in _DIRECTIONS:
         return axis
     head, sep, tail = axis.rpartition("_")
@@ -67,6 +86,18 @@ class Layout:
 
     Attributes:
         axes: axis names in session order, e.g. ``("a_x", "b_x", "a_y", "b_y")``.
+
+    Examples
+    --------
+    >>> layout = Layout.from_names(["y_a_x", "y_a_y", "y_b_x", "y_b_y"])
+    >>> layout.axes
+    ('a_x', 'a_y', 'b_x', 'b_y')
+    >>> layout.inputs
+    ('u_a_x', 'u_a_y', 'u_b_x', 'u_b_y')
+    >>> layout.bearings, layout.radial_pairs
+    (('a', 'b'), ((0, 1), (2, 3)))
+    >>> layout.index("b_x"), layout.units("y")
+    (2, ('m', 'm', 'm', 'm'))
     """
 
     axes: tuple[str, ...]

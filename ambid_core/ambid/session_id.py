@@ -31,13 +31,35 @@ def new_session_id() -> int:
 
 
 def format_session(session_id: int) -> str:
-    """A session id as it is printed and given back to ``--session``: hex, at least 8 digits (``3fa9c01b``)."""
+    """A session id as it is printed and given back to ``--session``: hex, at least 8 digits (``3fa9c01b``).
+
+    Examples
+    --------
+    >>> format_session(0x3fa9c01b)
+    '3fa9c01b'
+    >>> format_session(0x2a)
+    '0000002a'
+    >>> format_session(0)
+    'none'
+    """
     return f"{int(session_id):08x}" if session_id else "none"
 
 
 def check_session_id(text: str | int) -> int:
     """The session id ``text`` names (1-16 hex digits as printed, or an int), in (0, 2**63) (a ROS integer
-    parameter is int64); ValueError with the fix."""
+    parameter is int64); ValueError with the fix.
+
+    Examples
+    --------
+    >>> check_session_id("3fa9c01b") == 0x3fa9c01b
+    True
+    >>> check_session_id(42)
+    42
+    >>> check_session_id("0")
+    Traceback (most recent call last):
+        ...
+    ValueError: session id '0' is not valid: give 1-16 hex digits ...
+    """
     if isinstance(text, int) and not isinstance(text, bool) and 0 < text < 2**63:
         return text
     if isinstance(text, str) and _HEX.fullmatch(text) and 0 < int(text, 16) < 2**63:
@@ -47,5 +69,11 @@ def check_session_id(text: str | int) -> int:
 
 
 def format_gid(gid: bytes | bytearray | list[int] | tuple[int, ...]) -> str:
-    """A publisher GID as rclpy prints it (``01.0f.2a....``), for naming a publisher the graph does not."""
+    """A publisher GID as rclpy prints it (``01.0f.2a....``), for naming a publisher the graph does not.
+
+    Examples
+    --------
+    >>> format_gid(bytes(range(4)))
+    '00.01.02.03'
+    """
     return ".".join(f"{int(b):02x}" for b in bytes(gid)[:GID_BYTES])

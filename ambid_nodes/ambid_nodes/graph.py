@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass, field
 from typing import Callable
@@ -11,8 +10,7 @@ from ambid.control.kinds import ControllerDesign
 from ambid.plant.rig import Rig
 
 from ambid_nodes.node_main import spin_until_done
-
-DEFAULT_NAMESPACE = "/amb"
+from ambid_nodes.running.domain import DEFAULT_NAMESPACE, session_domain_id
 
 
 @dataclass
@@ -34,14 +32,6 @@ class GraphConfig:
     controller_design: ControllerDesign | None = None
     session: int = 0  # the session's id (docs/sessions.md); 0: open nodes
     report_foreign: Callable[[dict], None] | None = None  # told the foreign publishers found before the start
-
-
-def session_domain_id() -> int:
-    """ROS_DOMAIN_ID if set, else one derived from this process, so sessions don't cross-talk."""
-    env = os.environ.get("ROS_DOMAIN_ID")
-    if env:
-        return int(env)
-    return 100 + os.getpid() % 100
 
 
 def run_composed(cfg: GraphConfig) -> dict:
@@ -136,11 +126,11 @@ def run_processes(cfg: GraphConfig) -> dict:
     the plant's summary if it ended its run, else from the measurement blocks this process heard) and
     ``death``: {node, how, sample_index, consequence}.
     """
-    from ambid.plant.rig import load_rig, make_rig
+    from ambid.plant.rig import rig_or_default
 
     from ambid_nodes.supervisor import NodeGone, supervise, supervised, wait_for
 
-    rig = cfg.rig or (load_rig(cfg.plant["rig_file"]) if cfg.plant.get("rig_file") else make_rig())
+    rig = cfg.rig or rig_or_default(cfg.plant.get("rig_file"))
     n_total = int(round(cfg.sim_seconds / rig.dt))
     with supervised(cfg.namespace, cfg.session, rig.backup_clearance_m, n_total // 2,
                     int(round(0.5 / rig.dt))) as (executor, sup, watch):

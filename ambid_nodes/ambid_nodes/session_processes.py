@@ -20,8 +20,8 @@ from ambid.recording import scan_session
 from ambid.session_id import new_session_id
 
 from ambid_nodes.graph import died_summary, preflight
-from ambid_nodes.session import (NodeDied, ProgressBar, SessionConfig, SessionPlan, _hardware_summary, _jsonable,
-                                 plan_session, run_facts, session_samples)
+from ambid_nodes.running.plan import (NodeDied, ProgressBar, SessionConfig, SessionPlan, config_json,
+                                      hardware_summary, plan_session, run_facts, session_samples)
 from ambid_nodes.supervisor import (SETTLE_S, NodeGone, Supervisor, spin, stopped_words, supervise, supervised,
                                     wait_for)
 
@@ -59,7 +59,7 @@ def run_session_processes(cfg: SessionConfig, plan: SessionPlan | None = None, r
         try:
             sup.start("recorder", {"output": str(mcap_path), "overwrite": True, "status_period": RECORDER_STATUS_S,
                                    **session,
-                                   "session_facts": json.dumps({"session": "identify", "config": _jsonable(cfg)})})
+                                   "session_facts": json.dumps({"session": "identify", "config": config_json(cfg)})})
             if cfg.hardware:
                 from ambid.hardware.rt_target import parse_address
 
@@ -110,7 +110,7 @@ def run_session_processes(cfg: SessionConfig, plan: SessionPlan | None = None, r
                 raise RuntimeError(f"{plant_name} exited with code {sup.nodes[plant_name].proc.returncode} without a "
                                    "summary")
             if cfg.hardware:
-                plant_summary = _hardware_summary(plant_summary, total, fs, time.perf_counter() - wall0)
+                plant_summary = hardware_summary(plant_summary, total, fs, time.perf_counter() - wall0)
             failure = plant_summary.get("failure")
             if not failure:
                 spin_until(lambda: watch.event("frf_done") is not None or watch.event("no_estimate") is not None,

@@ -190,7 +190,7 @@ def supervised(namespace: str, session: int, clearance_m: float, settle_samples:
     import rclpy
     from rclpy.experimental import EventsExecutor
 
-    from ambid_nodes.graph import session_domain_id
+    from ambid_nodes.running.domain import session_domain_id
     from ambid_nodes.watch import SessionWatch
 
     context = rclpy.Context()

@@ -132,6 +132,56 @@ def test_core_never_imports_ros_or_the_nodes():
             assert top not in ("rclpy", "rosidl_runtime_py", "ambid_msgs", "ambid_nodes", "ambid_cli"), (m, target)
 
 
+def _project_edges() -> dict[str, set[str]]:
+    """Every import between the modules of core, nodes and command line, those inside functions too."""
+    known = {**CORE_MODULES, **NODE_MODULES, **CLI_MODULES}
+    edges: dict[str, set[str]] = {m: set() for m in known}
+    for m, p in known.items():
+        for target, _ in _imports(m, p, known):
+            if target in known and target != m:
+                edges[m].add(target)
+    return edges
+
+
+def test_no_import_circle_anywhere_in_the_project():
+    """No circle between modules of core, nodes and command line (an import inside a function counts: it
+    hides a circle from Python's start-up, not from the reader); the core's folders are held above."""
+    assert _cycles(_project_edges()) == []
+
+
+def test_the_layers_point_one_way_command_line_nodes_core():
+    rank = {"ambid": 0, "ambid_nodes": 1, "ambid_cli": 2}
+    up = [(m, t) for m, targets in _project_edges().items() for t in targets
+          if rank[t.split(".")[0]] > rank[m.split(".")[0]]]
+    assert up == []
+
+
+def test_the_check_sees_an_import_inside_a_function(tmp_path):
+    """The circle the nodes once had (graph <-> supervisor) was hidden in a function: the walk finds such."""
+    a, b = tmp_path / "pkg" / "a.py", tmp_path / "pkg" / "b.py"
+    a.parent.mkdir()
+    a.write_text("def f():\n    from pkg.b import g\n    return g\n")
+    b.write_text("import pkg.a\n")
+    known = {"pkg.a": a, "pkg.b": b}
+    edges = {m: {t for t, _ in _imports(m, p, known) if t in known and t != m} for m, p in known.items()}
+    assert _cycles(edges) == [["pkg.a", "pkg.b"]]
+
+
+LONGEST_FUNCTION = 100  # lines from its def to its last line, docstring included
+
+
+def test_no_function_over_100_lines_in_the_core_or_the_nodes():
+    """A long function is split into named stages (docs/architecture.md); this keeps it so."""
+    long = []
+    for p in list(CORE_MODULES.values()) + list(NODE_MODULES.values()):
+        for node in ast.walk(ast.parse(p.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                n = node.end_lineno - node.lineno + 1
+                if n > LONGEST_FUNCTION:
+                    long.append(f"{p.relative_to(ROOT)}:{node.lineno} {node.name} ({n} lines)")
+    assert long == []
+
+
 def test_the_nodes_never_import_the_command_line():
     # imports point one way: command line -> nodes -> core
     for m, p in NODE_MODULES.items():

@@ -293,3 +293,32 @@ def test_uff_164_units_are_honoured(beam_fit, tmp_path):
     np.testing.assert_allclose(again.frf, measured.frf, rtol=1e-5)
     assert again.output_units == ("m/s^2",) and again.input_units == ("N", "N", "N")
     assert any("dataset 164" in n and "length factor 1000" in n and "converted to SI" in n for n in again.notes)
+
+
+STRIPLINE = REAL / "skrf_stripline_resonator_vna" / "resonator_36mm.s2p"
+
+
+def test_stripline_resonator_modes_against_lscf_and_the_q_factor_fit(tmp_path):
+    """A Keysight PNA-X's 2-port measurement of a stripline resonator: the two resonances ambid prints are the
+    stable poles of sdypy-EMA's LSCF on S21 and where scikit-rf's Q-factor fit of S21 puts them (as scikit-rf's
+    example fits them); none printed that is not there."""
+    skrf = pytest.importorskip("skrf")
+    from skrf.qfactor import Qfactor
+
+    from ambid.frf.frf_file import read_frf_file
+    from ambid.identification.frf_file_fit import identify_frf
+
+    measured = read_frf_file(STRIPLINE)
+    assert measured.output_names == ("b1", "b2") and measured.frf.shape == (401, 2, 2)
+    summary = identify_frf(measured, tmp_path / "fit", report=False)
+    printed = np.array([m["freq_hz"] for m in summary["fit"]["modes"]])
+    network = skrf.Network(str(STRIPLINE))
+    np.testing.assert_allclose(measured.frf, network.s, rtol=1e-12)
+    stable = _lscf_stable(network.f, network.s[:, 1, 0][None], 1.02e9, 4.9e9, top=40)
+    extra = [f for f in printed if np.min(np.abs(stable - f)) > 0.001 * f]
+    missing = [f for f in stable if np.min(np.abs(printed - f)) > 0.001 * f]
+    assert extra == [] and missing == [] and printed.size == 2, (printed, stable)
+    for f, band in zip(printed, ("1.75-2.25GHz", "3.75-4.25GHz")):
+        q = Qfactor(network[band].s21, res_type="transmission")
+        q.fit()
+        assert abs(f - q.f_L) / q.f_L < 5e-4, (f, q.f_L)

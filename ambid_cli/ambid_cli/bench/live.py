@@ -37,7 +37,7 @@ def _cpu_s(pid: int) -> float | None:
 def _session(out_dir: Path, overrides: dict, live: bool) -> dict:
     from ambid.excitation.spec import DesignSpec
 
-    from ambid_nodes.graph import session_domain_id
+    from ambid_nodes.running.domain import session_domain_id
     from ambid_nodes.live_view import LiveProcess
     from ambid_nodes.session import SessionConfig, run_session_composed
 

@@ -112,7 +112,7 @@ def memory_figures(work_dir: str | os.PathLike, design_kwargs: dict, live_overri
         ``live`` is {``available``: False, ``reason``} when the session runner is missing.
     """
     from ambid_cli.bench.offline import make_design, write_simulated_session
-    from ambid_nodes.graph import session_domain_id
+    from ambid_nodes.running.domain import session_domain_id
 
     work_dir = Path(work_dir)
     try:

@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     from ambid_cli.heartbeat import current
 
     phases = current()
-    from ambid_nodes.graph import session_domain_id
+    from ambid_nodes.running.domain import session_domain_id
     from ambid_nodes.session import NodeDied, SessionConfig, plan_session, run_identify
 
     spec = experiment_spec(args)

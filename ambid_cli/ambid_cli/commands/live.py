@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     if args.port is None:
         raise BadInput("give the PORT to serve on (e.g. 'ambid live 8765'), or --layout FILE")
     free_port(args.live_host, args.port, "PORT")
-    from ambid_nodes.graph import session_domain_id
+    from ambid_nodes.running.domain import session_domain_id
     from ambid_nodes.supervisor import ros_args
 
     print(f"ambid live: the session in namespace {args.namespace} on ROS_DOMAIN_ID {session_domain_id()}; in "

@@ -48,6 +48,11 @@ def n_per_period(fs_hz: float, resolution_hz: float) -> int:
     Raises:
         ValueError: if fs/resolution is not an integer (to 1e-9 relative); the
             message names resolutions that work.
+
+    Examples
+    --------
+    >>> n_per_period(10_000.0, 5.0)    # 5 Hz resolution at 10 kHz
+    2000
     """
     fs = _finite("fs_hz", fs_hz)
     res = _finite("resolution_hz", resolution_hz)
@@ -81,6 +86,11 @@ def band_bins(band_hz: tuple[float, float], fs_hz: float, n: int) -> tuple[int, 
 
     Raises:
         ValueError: NaN, wrong order, band reaching Nyquist, or no bin inside.
+
+    Examples
+    --------
+    >>> band_bins((10.0, 500.0), 10_000.0, 2000)   # bins of 5 Hz
+    (2, 100)
     """
     if len(band_hz) != 2:
         raise ValueError(f"band_hz must be (f_lo, f_hi) in Hz, got {band_hz!r}")
@@ -130,6 +140,12 @@ def log_lines(candidates: np.ndarray, n_lines: int) -> np.ndarray:
         (L,) sorted subset of ``candidates`` starting at its first, with
         L = min(n_lines, K) or slightly more (when no ratio gives exactly
         n_lines).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> log_lines(np.arange(1, 100), 5)   # five of 1..99, about evenly spaced in log
+    array([ 1,  3, 10, 31, 94])
     """
     cand = np.asarray(candidates, dtype=np.int64)
     if n_lines < 1:
@@ -162,6 +178,13 @@ def line_set(k_lo: int, k_hi: int, grid: str = "random_odd", spacing: str = "lin
 
     Returns:
         (L,) int64 sorted excited lines.
+
+    Examples
+    --------
+    >>> line_set(2, 20, "full")
+    array([ 2,  3,  4,  5,  6,  7,  8,  9, 10, 11, 12, 13, 14, 15, 16, 17, 18, 19, 20])
+    >>> line_set(2, 20, "odd")
+    array([ 3,  5,  7,  9, 11, 13, 15, 17, 19])
     """
     if grid not in GRIDS:
         raise ValueError(f"grid must be one of {GRIDS}, got {grid!r}")
@@ -198,6 +221,15 @@ def detection_lines(excited: np.ndarray, k_lo: int, k_hi: int) -> tuple[np.ndarr
 
     Returns:
         (odd, even): int64 arrays of the non-excited odd and even lines.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> odd_free, even = detection_lines(np.array([3, 7, 9, 13, 15, 17]), 2, 20)
+    >>> odd_free                          # odd bins left out: they show odd distortions
+    array([ 5, 11, 19])
+    >>> even                              # even bins: they show even distortions
+    array([ 2,  4,  6,  8, 10, 12, 14, 16, 18, 20])
     """
     rest = np.setdiff1d(np.arange(k_lo, k_hi + 1, dtype=np.int64), excited)
     return rest[rest % 2 == 1], rest[rest % 2 == 0]

@@ -40,6 +40,11 @@ def mls(order: int) -> np.ndarray:
 
     Returns:
         (2^n - 1,) bool bits; 2^(n-1) of them are True.
+
+    Examples
+    --------
+    >>> mls(3).astype(int)             # period 2**3 - 1
+    array([1, 1, 1, 0, 0, 1, 0])
     """
     if order not in MLS_TAPS:
         raise ValueError(f"MLS order must be an integer in [2, 23], got {order!r}")
@@ -69,6 +74,11 @@ def binary_levels(bits: np.ndarray) -> tuple[float, float]:
 
     Returns:
         (high, low) levels [-].
+
+    Examples
+    --------
+    >>> binary_levels(mls(3))             # (high, low): a zero-mean signal of peak 1
+    (0.75, -1.0)
     """
     c1 = int(np.count_nonzero(bits))
     c0 = bits.size - c1
@@ -82,6 +92,12 @@ def binary_waveform(bits: np.ndarray, clock_divider: int = 1) -> np.ndarray:
 
     Returns:
         (clock_divider * bits.size,) float.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> binary_waveform(np.array([1, 0, 1]), clock_divider=2)
+    array([ 0.5,  0.5, -1. , -1. ,  0.5,  0.5])
     """
     high, low = binary_levels(bits)
     return np.repeat(np.where(bits, high, low), clock_divider)

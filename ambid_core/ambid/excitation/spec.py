@@ -64,6 +64,11 @@ def prbs_clock(band_hz: tuple[float, float], resolution_hz: float, fs_hz: float)
     The clock divider d is the largest keeping band_hz[1] <= fs / (3 d)
     (hold loss <= 1.65 dB); the order is the smallest whose period
     d (2^order - 1) samples gives a resolution at least as fine as asked.
+
+    Examples
+    --------
+    >>> prbs_clock((10.0, 1000.0), 5.0, 10_000.0)     # (register order, clock divider)
+    (10, 3)
     """
     f_hi, res = float(band_hz[1]), float(resolution_hz)
     if not (math.isfinite(f_hi) and math.isfinite(res)) or f_hi <= 0 or res <= 0:
@@ -156,6 +161,15 @@ class DesignSpec:
         ``inputs``: the plant's currents, excited when ``input_names`` is empty (the rig's
         ``layout.inputs``; the default rig's four radial ones unless given).
         Raises ValueError naming the bad term (band above Nyquist, resolution not dividing fs, ...).
+
+        Examples
+        --------
+        The default experiment narrowed to 10-100 Hz with one realisation, built for one input at 1 kHz:
+
+        >>> spec = DesignSpec(band_hz=(10.0, 100.0), n_realisations=1, n_transient_periods=1)
+        >>> d = spec.build(1000.0, inputs=("u_a_x",))
+        >>> d.kind, d.n_per_period, d.input_names, d.total_samples
+        ('multisine', 200, ('u_a_x',), 1000)
         """
         kind = self.kind
         if kind not in KINDS:

@@ -33,7 +33,13 @@ DEFAULT_MAX_PERIOD_CHANGE = 0.25
 
 
 def harmonic_bins(speed_rpm: float, fs_hz: float, n: int, n_harmonics: int) -> np.ndarray:
-    """Bin positions k f_rot N / fs of the harmonics k = 1..n_harmonics, (n_harmonics,) float [bins]."""
+    """Bin positions k f_rot N / fs of the harmonics k = 1..n_harmonics, (n_harmonics,) float [bins].
+
+    Examples
+    --------
+    >>> harmonic_bins(6000.0, 10_000.0, 2000, 3)   # 100 Hz and its harmonics, bins of 5 Hz
+    array([20., 40., 60.])
+    """
     return np.arange(1, int(n_harmonics) + 1) * (float(speed_rpm) / 60.0) * int(n) / float(fs_hz)
 
 
@@ -85,7 +91,14 @@ class SteeredLines:
 
 def guarded(bins: np.ndarray, harmonics: np.ndarray, guard_bins: int) -> np.ndarray:
     """Which of ``bins`` lie within guard_bins (plus the half bin a harmonic between lines leaks into) of a
-    harmonic bin position, (len(bins),) bool."""
+    harmonic bin position, (len(bins),) bool.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> guarded(np.array([18, 19, 20, 21, 25]), np.array([20.0]), 1)   # within one bin of the harmonic
+    array([False,  True,  True,  True, False])
+    """
     b = np.asarray(bins, dtype=float)[:, None]
     h = np.asarray(harmonics, dtype=float)[None, :]
     on_bin = np.abs(h - np.round(h)) < 1e-6

@@ -135,12 +135,26 @@ class LocalFrf:
 
 
 def dof_of(half_width: int, degree: int, n_refs: int, n_experiments: int = 1) -> int:
-    """Residual degrees of freedom q of a window: ``Ne (2 h + 1 - (R + 1)) - (R + 1) Nx``."""
+    """Residual degrees of freedom q of a window: ``Ne (2 h + 1 - (R + 1)) - (R + 1) Nx``.
+
+    Examples
+    --------
+    >>> dof_of(3, 2, 1)                # 7 bins less 3 coefficients each for G and the transient
+    1
+    """
     return n_experiments * (2 * half_width + 1 - (degree + 1)) - (degree + 1) * n_refs
 
 
 def half_width_for(degree: int, n_refs: int, n_experiments: int = 1, dof: int = DEFAULT_DOF) -> int:
-    """The smallest half width h whose window leaves at least ``dof`` degrees of freedom."""
+    """The smallest half width h whose window leaves at least ``dof`` degrees of freedom.
+
+    Examples
+    --------
+    >>> half_width_for(2, 1), half_width_for(2, 4)
+    (7, 11)
+    >>> dof_of(half_width_for(2, 4), 2, 4) >= DEFAULT_DOF
+    True
+    """
     h = 1
     while dof_of(h, degree, n_refs, n_experiments) < dof:
         h += 1
@@ -153,6 +167,11 @@ def f_quantile(level: float, dof) -> np.ndarray | float:
     ``|dG|^2 / var`` follows F(2, 2q) when var is estimated with q complex
     degrees of freedom independently of G (least squares, Gaussian noise).
     ``dof`` may be an array (one q per line).
+
+    Examples
+    --------
+    >>> round(float(f_quantile(0.95, 10)), 4)
+    3.4928
     """
     q = np.asarray(dof)
     if not 0 < level < 1 or np.any(q < 1):
@@ -210,6 +229,11 @@ def window_centres(n_samples: int, fs_hz: float, band_hz: tuple[float, float] | 
 
     Raises:
         ValueError: the band holds fewer bins than one window.
+
+    Examples
+    --------
+    >>> window_centres(1000, 1000.0, (10.0, 50.0), 3)   # windows of 7 bins of 1 Hz, none overlapping
+    array([13, 20, 27, 34, 41])
     """
     n, h = int(n_samples), int(half_width)
     w = 2 * h + 1

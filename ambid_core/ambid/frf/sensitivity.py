@@ -95,7 +95,13 @@ def sensitivity_peak(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def iso14839_zone(peak: float) -> str:
-    """ISO 14839-3 zone of a peak sensitivity (absolute gain): A < 3 <= B < 4 <= C < 5 <= D."""
+    """ISO 14839-3 zone of a peak sensitivity (absolute gain): A < 3 <= B < 4 <= C < 5 <= D.
+
+    Examples
+    --------
+    >>> iso14839_zone(2.5), iso14839_zone(3.5), iso14839_zone(4.5), iso14839_zone(6.0)
+    ('A', 'B', 'C', 'D')
+    """
     peak = float(peak)
     if not np.isfinite(peak) or peak < 0:
         raise ValueError(f"peak must be a finite gain >= 0 (absolute, not dB), got {peak}")

@@ -35,7 +35,18 @@ _PARAMETERS = {"S": ("b", "", "a", "", "S-parameters"), "Z": ("V", "V", "I", "A"
 
 
 def is_touchstone(path: str | Path) -> bool:
-    """Whether ``path`` names a Touchstone file by its suffix (``.s1p``, ``.s2p``, ... ``.s99p``)."""
+    """Whether ``path`` names a Touchstone file by its suffix.
+
+    Parameters
+    ----------
+    path : str or Path
+        A file name.
+
+    Returns
+    -------
+    bool
+        True for ``.s1p``, ``.s2p``, ... ``.s99p`` (any case).
+    """
     m = _SUFFIX.match(Path(path).suffix)
     return bool(m) and int(m.group(1)) > 0
 

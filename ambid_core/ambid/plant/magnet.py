@@ -26,6 +26,14 @@ class MagnetPair:
         bias_current_a: bias current ib [A].
         pole_angle_rad: half angle between the poles of one magnet, alpha
             [rad] (22.5 deg for an eight-pole bearing).
+
+    Examples
+    --------
+    A pair of 200 turns, 4.5 cm^2 poles, 0.6 mm gap and 3 A bias: current and position stiffness.
+
+    >>> pair = MagnetPair(200, 4.5e-4, 6e-4, 3.0)
+    >>> round(float(pair.ki), 1), round(float(pair.ks) / 1e3, 1)    # [N/A], [kN/m]
+    (174.1, 870.7)
     """
 
     n_turns: float

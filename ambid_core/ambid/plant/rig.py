@@ -544,6 +544,16 @@ def make_rig(overrides: dict[str, Any] | None = None, name: str = "ambid-default
 
     Raises:
         ValueError naming the field and its allowed range.
+
+    Examples
+    --------
+    >>> rig = make_rig()                  # the built-in rig
+    >>> rig.dt, rig.layout.axes
+    (0.0001, ('a_x', 'b_x', 'a_y', 'b_y'))
+    >>> round(rig.rotor_mass_kg, 2)
+    34.06
+    >>> make_rig({"sample_rate_hz": 20_000.0}).dt
+    5e-05
     """
     overrides = dict(overrides or {})
     name = str(overrides.pop("name", name))
@@ -579,6 +589,20 @@ def make_rig(overrides: dict[str, Any] | None = None, name: str = "ambid-default
 def _beside(rig_path: Path, name: Any) -> Path:
     p = Path(str(name))
     return p if p.is_absolute() else rig_path.parent / p
+
+
+def rig_or_default(path: str | Path | None) -> Rig:
+    """The rig of the YAML file ``path``, or the built-in rig where ``path`` is empty or None.
+
+    The one home of "this rig file, or the built-in rig": every option and parameter that names a rig file
+    (``--rig``, ``rig_file``) is read through it.
+
+    Examples
+    --------
+    >>> rig_or_default("").name, rig_or_default(None).dt
+    ('ambid-default', 0.0001)
+    """
+    return load_rig(path) if path else make_rig()
 
 
 def load_rig(path: str | Path) -> Rig:

@@ -133,15 +133,37 @@ def _pm(m: Mapping[str, Any], key: str, spec: str) -> str:
 
 
 def frf_row_units(s: Mapping[str, Any]) -> list[str]:
-    """Each FRF row's unit, '<output unit>/<input unit>' where every input shares one (else ''; '' too where both
-    are dimensionless, as a network's S parameters are)."""
+    """Each FRF row's unit, for the Bode matrices' labels.
+
+    Parameters
+    ----------
+    s : Mapping
+        An identification summary (``output_units``, ``input_units``; a session without them: A in).
+
+    Returns
+    -------
+    list of str
+        (Ny,) ``'<output unit>/<input unit>'`` where every input shares one, else ''; '' too where both are
+        dimensionless (a network's S parameters).
+    """
     ins = set(s.get("input_units") or ["A"])
     return [(f"{u}/{next(iter(ins))}" if u or next(iter(ins)) else "") if len(ins) == 1 else ""
             for u in s.get("output_units") or []]
 
 
 def frf_column_units(s: Mapping[str, Any]) -> list[str]:
-    """Each FRF column's (input's) unit: A for a session's currents, the file's for an FRF file (N for a hammer)."""
+    """Each FRF column's (input's) unit, for the Bode matrices' titles.
+
+    Parameters
+    ----------
+    s : Mapping
+        An identification summary (``input_units``, ``inputs``).
+
+    Returns
+    -------
+    list of str
+        (Nu,) A for a session's currents, the file's unit for an FRF file (N for a hammer, '' dimensionless).
+    """
     return list(s.get("input_units") or ["A"] * len(s.get("inputs") or []))
 
 
