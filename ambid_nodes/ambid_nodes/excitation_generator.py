@@ -41,16 +41,14 @@ from ambid.excitation.experiment import WORKING_CURRENT_A, Experiment, place_exp
 from ambid.excitation.spec import KINDS, DesignSpec
 from ambid.plant.rig import Rig
 from ambid.recording.facts import design_fields
-from rclpy.node import Node
 
 from ambid_msgs.msg import ExcitationDesign as DesignMsg
 from ambid_msgs.msg import PlantDescription, SampleBlock, SessionEvent, SessionStatus
 from ambid_msgs.srv import StartExperiment, StopExperiment
 from ambid_nodes import qos
 from ambid_nodes.conversions import BadMessage, block_data, block_msg, check_plant_description, status_msg, time_msg
-from ambid_nodes.identity import SESSION_PARAMETER, SessionIdentity
-from ambid_nodes.intake import Intake
-from ambid_nodes.parameters import ParameterError, declare, node_rig, refuse_unknown
+from ambid_nodes.session_node import SessionNode
+from ambid_nodes.parameters import ParameterError, declare, node_rig
 
 STATUS_PERIOD_S = 0.5
 
@@ -59,7 +57,7 @@ D = DesignSpec()  # the parameters' defaults: the experiment identify runs
 AUTO = "auto"  # inputs: [auto] = every current of the plant (as frf_consumer's channels)
 
 
-class ExcitationGenerator(Node):
+class ExcitationGenerator(SessionNode):
     def __init__(self, *, rig: Rig | None = None, **kwargs) -> None:
         """``rig``: the rig a composed run parsed once (else the ``rig_file`` parameter's)."""
         super().__init__("excitation_generator", **kwargs)
@@ -100,9 +98,7 @@ class ExcitationGenerator(Node):
         self.working_current = declare(self, "working_current", WORKING_CURRENT_A, "controller's peak working current (gravity "
                                                                      "and regulation) for the headroom check",
                                        0.0, 1e3, "A")
-        session = declare(self, *SESSION_PARAMETER)
-        refuse_unknown(self)
-        self.identity = SessionIdentity(self, session)
+        self.join_session()
         if self.lookahead < 2 * self.block_size:
             raise ParameterError(f"excitation_generator: lookahead {self.lookahead} must be at least twice "
                                  f"block_size {self.block_size} (the plant waits for each block)")
@@ -128,7 +124,7 @@ class ExcitationGenerator(Node):
         self.pub_block = self.identity.publisher(SampleBlock, "excitation", qos.BLOCKS)
         self.pub_status = self.identity.publisher(SessionStatus, "status", qos.STATUS)
         self.pub_event = self.identity.publisher(SessionEvent, "events", qos.EVENTS)
-        self.intake = Intake(self, self.on_reject, self.on_handler_error, self.identity, self.on_foreign)
+        self.make_intake()
         self.identity.announce([self.pub_design, self.pub_block, self.pub_status, self.pub_event])
         self.intake.subscribe(PlantDescription, "plant/description", self.on_plant, qos.LATCHED)
         self.intake.subscribe(SampleBlock, "measurement", self.on_measurement, qos.BLOCKS)
@@ -290,21 +286,12 @@ class ExcitationGenerator(Node):
         self.publish_status()
 
     # --- reporting -------------------------------------------------------------
-    def on_reject(self, topic: str, why: str) -> None:
-        self.event(SessionEvent.WARN, "rejected_message", why)
+    def event_index(self) -> int:
+        return self.progress
 
-    def on_foreign(self, topic: str, why: str) -> None:
-        self.event(SessionEvent.WARN, "foreign_message", why)
-
-    def on_handler_error(self, topic: str, why: str) -> None:
-        self.event(SessionEvent.ERROR, "handler_error", why)
-
-    def event(self, severity: int, code: str, text: str) -> None:
+    def log_event(self, severity: int, code: str, text: str) -> None:
         if severity >= SessionEvent.WARN and code != "rejected_message":
             self.get_logger().warn(text)
-        self.pub_event.publish(SessionEvent(stamp=time_msg(self.progress * self.dt), sample_index=self.progress,
-                                            severity=severity, node=self.get_fully_qualified_name(), code=code,
-                                            text=text))
 
     def publish_status(self) -> None:
         exp = self.exp or self.last
@@ -326,9 +313,7 @@ class ExcitationGenerator(Node):
             self.intake.total_received, self.intake.total_rejected, text, figures))
 
 
-def main(args=None) -> int:
-    from ambid_nodes.node_main import run_single
-    return run_single(ExcitationGenerator, args)
+main = ExcitationGenerator.main  # the console script: SessionNode.main
 
 
 if __name__ == "__main__":

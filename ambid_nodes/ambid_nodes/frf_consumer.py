@@ -43,22 +43,20 @@ from ambid.excitation import ExcitationDesign as Design
 from ambid.frf.offline import data_channels
 from ambid.frf.streaming import ESTIMATORS, FrfResult, FrfStream, loop_consistency, match_inputs
 from ambid.statespace import StateSpace
-from rclpy.node import Node
 
 from ambid_msgs.msg import (ControllerDescription, ExcitationDesign, FrfEstimate, PlantDescription, SampleBlock,
                             SessionEvent, SessionStatus)
 from ambid_nodes import qos
 from ambid_nodes.conversions import (BadMessage, block_data, check_controller_description, check_design,
                                      check_plant_description, float_array, statespace_from_msg, status_msg, time_msg)
-from ambid_nodes.identity import SESSION_PARAMETER, SessionIdentity
-from ambid_nodes.intake import Intake
-from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
+from ambid_nodes.session_node import SessionNode
+from ambid_nodes.parameters import ParameterError, declare
 
 
 AUTO = "auto"  # a channel parameter taken from the data
 
 
-class FrfConsumer(Node):
+class FrfConsumer(SessionNode):
     def __init__(self, **kwargs) -> None:
         super().__init__("frf_consumer", **kwargs)
         self.estimator = declare(self, "estimator", "indirect", "FRF estimator: " + " | ".join(ESTIMATORS))
@@ -70,9 +68,7 @@ class FrfConsumer(Node):
         self.references = list(declare(self, "references", [AUTO],
                                        "excitation channels r, one per entry of inputs, same order; [auto]: the "
                                        "design's r_<axis> [A]"))
-        session = declare(self, *SESSION_PARAMETER)
-        refuse_unknown(self)
-        self.identity = SessionIdentity(self, session)
+        self.join_session()
         if self.estimator not in ESTIMATORS:
             raise ParameterError(f"frf_consumer: estimator '{self.estimator}' is not one of {list(ESTIMATORS)}")
         for name, names in (("outputs", self.outputs), ("inputs", self.inputs), ("references", self.references)):
@@ -88,7 +84,7 @@ class FrfConsumer(Node):
         self.pub_frf = self.identity.publisher(FrfEstimate, "frf", qos.LATCHED)
         self.pub_status = self.identity.publisher(SessionStatus, "status", qos.STATUS)
         self.pub_event = self.identity.publisher(SessionEvent, "events", qos.EVENTS)
-        self.intake = Intake(self, self.on_reject, self.on_handler_error, self.identity, self.on_foreign)
+        self.make_intake()
         self.identity.announce([self.pub_frf, self.pub_status, self.pub_event])
         self.intake.subscribe(SampleBlock, "measurement", self.on_measurement, qos.BLOCKS)
         self.intake.subscribe(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
@@ -363,20 +359,8 @@ class FrfConsumer(Node):
             time_msg(self.index * self.dt), self.get_fully_qualified_name(), self.state, self.index, progress,
             self.intake.total_received, self.intake.total_rejected, text, {**f, **counts}))
 
-    def on_reject(self, topic: str, why: str) -> None:
-        self.event(SessionEvent.WARN, "rejected_message", why)
-
-    def on_foreign(self, topic: str, why: str) -> None:
-        self.event(SessionEvent.WARN, "foreign_message", why)
-
-    def on_handler_error(self, topic: str, why: str) -> None:
-        self.event(SessionEvent.ERROR, "handler_error", why)
-
-    def event(self, severity: int, code: str, text: str) -> None:
-        self.pub_event.publish(SessionEvent(stamp=time_msg(self.index * self.dt), sample_index=self.index,
-                                            severity=severity, node=self.get_fully_qualified_name(), code=code,
-                                            text=text))
-
+    def event_index(self) -> int:
+        return self.index
 
 def _json_float(x: float) -> float | None:
     """A float for JSON, None for NaN/inf (JSON has no NaN)."""
@@ -384,9 +368,7 @@ def _json_float(x: float) -> float | None:
     return x if math.isfinite(x) else None
 
 
-def main(args=None) -> int:
-    from ambid_nodes.node_main import run_single
-    return run_single(FrfConsumer, args)
+main = FrfConsumer.main  # the console script: SessionNode.main
 
 
 if __name__ == "__main__":

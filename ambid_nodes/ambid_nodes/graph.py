@@ -126,11 +126,11 @@ def run_processes(cfg: GraphConfig) -> dict:
     the plant's summary if it ended its run, else from the measurement blocks this process heard) and
     ``death``: {node, how, sample_index, consequence}.
     """
-    from ambid.plant.rig import load_rig, make_rig
+    from ambid.plant.rig import rig_or_default
 
     from ambid_nodes.supervisor import NodeGone, supervise, supervised, wait_for
 
-    rig = cfg.rig or (load_rig(cfg.plant["rig_file"]) if cfg.plant.get("rig_file") else make_rig())
+    rig = cfg.rig or rig_or_default(cfg.plant.get("rig_file"))
     n_total = int(round(cfg.sim_seconds / rig.dt))
     with supervised(cfg.namespace, cfg.session, rig.backup_clearance_m, n_total // 2,
                     int(round(0.5 / rig.dt))) as (executor, sup, watch):

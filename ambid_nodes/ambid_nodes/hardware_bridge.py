@@ -55,7 +55,6 @@ from ambid.hardware.link_session import LinkEnd, link_words, refusal_event
 from ambid.hardware.rt_target import parse_address
 from ambid.plant.analytical import analytical_model
 from ambid.plant.rig import Rig
-from rclpy.node import Node
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 
@@ -63,21 +62,19 @@ from ambid_msgs.msg import ExcitationDesign, PlantDescription, SampleBlock, Sess
 from ambid_nodes import qos
 from ambid_nodes.conversions import (block_msg, check_design, check_excitation_block, statespace_to_msg, status_msg,
                                      time_msg)
-from ambid_nodes.identity import SESSION_PARAMETER, SessionIdentity
-from ambid_nodes.intake import Intake
-from ambid_nodes.parameters import ParameterError, declare, node_rig, refuse_unknown
+from ambid_nodes.session_node import SessionNode
+from ambid_nodes.parameters import ParameterError, declare, node_rig
 
 TICK_S = 0.005  # period of the timer that processes received datagrams and supervises the target
 EVENT_THROTTLE_S = 1.0
 
 
-class HardwareBridge(Node):
+class HardwareBridge(SessionNode):
     def __init__(self, *, rig: Rig | None = None, **kwargs) -> None:
         """``rig``: the rig a composed run parsed once (else the ``rig_file`` parameter's)."""
         super().__init__("hardware_bridge", **kwargs)
-        (target_host, target_port, local_host, local_port, key_file, rig_file, window, reorder_timeout, rcvbuf,
-         session) = self._declare_parameters()
-        self.identity = SessionIdentity(self, session)
+        (target_host, target_port, local_host, local_port, key_file, rig_file, window, reorder_timeout,
+         rcvbuf) = self._declare_parameters()
         if self.version not in bp.SUPPORTED_VERSIONS:
             raise ParameterError(f"hardware_bridge: protocol_version {self.version} is not implemented; "
                                  f"this build speaks {list(bp.SUPPORTED_VERSIONS)}")
@@ -102,7 +99,7 @@ class HardwareBridge(Node):
         self.pub_status = self.identity.publisher(SessionStatus, "status", qos.STATUS)
         self.pub_event = self.identity.publisher(SessionEvent, "events", qos.EVENTS)
         self.pub_clock = self.create_publisher(Clock, "/clock", qos.CLOCK)
-        self.intake = Intake(self, self.on_reject, self.on_handler_error, self.identity, self.on_foreign)
+        self.make_intake()
         self.identity.announce([self.pub_block, self.pub_desc, self.pub_status, self.pub_event, self.pub_clock])
         self.intake.subscribe(SampleBlock, "excitation", self.on_excitation, qos.BLOCKS)
         self.intake.subscribe(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
@@ -186,7 +183,7 @@ class HardwareBridge(Node):
             raise ParameterError(f"hardware_bridge: {exc}") from None
 
     def _declare_parameters(self) -> tuple:
-        """The node's typed parameters; those only the set-up reads are returned."""
+        """The node's typed parameters, then the session joined; those only the set-up reads are returned."""
         target_host = declare(self, "target_host", "127.0.0.1", "address of the real-time target")
         target_port = declare(self, "target_port", 50001, "UDP port of the real-time target", 1, 65535)
         local_host = declare(self, "local_host", "127.0.0.1", "local address to bind; 0.0.0.0 = all interfaces")
@@ -224,9 +221,8 @@ class HardwareBridge(Node):
                                1, 1_000_000_000)
         rcvbuf = declare(self, "receive_buffer", 4 * 1024 * 1024, "UDP receive buffer (capped by "
                          "net.core.rmem_max)", 65536, 1 << 30, "bytes")
-        session = declare(self, *SESSION_PARAMETER)
-        refuse_unknown(self)
-        return target_host, target_port, local_host, local_port, key_file, rig_file, window, reorder_timeout, rcvbuf, session
+        self.join_session()
+        return target_host, target_port, local_host, local_port, key_file, rig_file, window, reorder_timeout, rcvbuf
 
     def publish_description(self) -> None:
         r, lay = self.rig, self.layout
@@ -551,19 +547,8 @@ class HardwareBridge(Node):
             self.send(bp.Command(0, cid, cmd.code, *cmd.args))
 
     # --- reporting --------------------------------------------------------
-    def on_reject(self, topic: str, why: str) -> None:
-        self.event(SessionEvent.WARN, "rejected_message", why)
-
-    def on_foreign(self, topic: str, why: str) -> None:
-        self.event(SessionEvent.WARN, "foreign_message", why)
-
-    def on_handler_error(self, topic: str, why: str) -> None:
-        self.event(SessionEvent.ERROR, "handler_error", why)
-
-    def event(self, severity: int, code: str, text: str, index: int | None = None) -> None:
-        k = (self.assembler.next_index or 0) if index is None else index
-        self.pub_event.publish(SessionEvent(stamp=time_msg(k * self.dt), sample_index=k, severity=severity,
-                                            node=self.get_fully_qualified_name(), code=code, text=text))
+    def event_index(self) -> int:
+        return self.assembler.next_index or 0
 
     def event_throttled(self, severity: int, code: str, text: str) -> None:
         """At most one event per code and second; the next one says how many were folded into it."""
@@ -622,9 +607,7 @@ class HardwareBridge(Node):
         self.finished.set_result(self.summary)
 
 
-def main(args=None) -> int:
-    from ambid_nodes.node_main import run_single
-    return run_single(HardwareBridge, args)
+main = HardwareBridge.main  # the console script: SessionNode.main
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ambid.plant.rig import Rig, load_rig, make_rig
+from ambid.plant.rig import Rig, rig_or_default
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
 
@@ -52,6 +52,6 @@ def node_rig(node: Node, rig_file: str, rig: Rig | None = None) -> Rig:
     if rig is not None:
         return rig
     try:
-        return load_rig(rig_file) if rig_file else make_rig()
+        return rig_or_default(rig_file)
     except (ValueError, OSError) as exc:
         raise ParameterError(f"{node.get_name()}: parameter 'rig_file': {exc}") from None

@@ -70,7 +70,6 @@ from ambid.plant.excitation_schedule import ExcitationSchedule
 from ambid.plant.levitation import LevitationMonitor
 from ambid.plant.rig import Rig
 from ambid.plant.simulator import PlantSimulator
-from rclpy.node import Node
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 
@@ -78,15 +77,15 @@ from ambid_msgs.msg import ExcitationDesign, PlantDescription, Sample, SampleBlo
 from ambid_nodes import qos
 from ambid_nodes.conversions import (BadMessage, block_msg, check_design, check_excitation_block, statespace_to_msg,
                                      status_msg, time_msg)
-from ambid_nodes.identity import SESSION_PARAMETER, LoopPartner, SessionIdentity
-from ambid_nodes.intake import Intake
+from ambid_nodes.identity import LoopPartner
+from ambid_nodes.session_node import SessionNode
 from ambid_nodes.loop_call import BoundKernel, ContextWord
 from ambid_nodes.loop_kernels import (LOOP_COUNT, LOOP_GATE, LOOP_K, LOOP_LIMIT, LOOP_NO_LIMIT, LOOP_OUT, N_PK,
                                       PK_BLOCK_START, PK_CLOCK_EVERY, PK_FREE_UNTIL, PK_LOOP, PK_R, PK_R_FIRST,
                                       PK_WORK, PLANT_AFTER, PLANT_CLIPPED, PLANT_CONTACT, PLANT_KIND, PLANT_LOOKUP,
                                       PLANT_STEPPED, plant_kernel, plant_loop_vector, sample_buffer)
 from ambid_nodes.loop_pump import NOT_RUN, GatingState, LoopEntry
-from ambid_nodes.parameters import declare, node_rig, refuse_unknown
+from ambid_nodes.parameters import declare, node_rig
 from ambid_nodes.raw_publish import raw_publisher
 from ambid_nodes.sample_codec import decode_sample, encode_clock, encode_sample
 
@@ -126,7 +125,7 @@ class KernelSchedule(ExcitationSchedule):
         self.fast.bind(PK_R, value, np.float64, self.n_channels, writes=False)
 
 
-class PlantSim(Node):
+class PlantSim(SessionNode):
     # what the compiled path reads lives in its context (loop_call): the sample index k the plant
     # steps next, and the excitation schedule's block in use (KernelSchedule)
     k = ContextWord("fast", LOOP_K)
@@ -137,8 +136,7 @@ class PlantSim(Node):
         """``rig``: the rig a composed run parsed once (else the ``rig_file`` parameter's)."""
         super().__init__("plant_sim", **kwargs)
         self.fqn = self.get_fully_qualified_name()
-        rig_file, nonlinear, session = self._declare_parameters()
-        self.identity = SessionIdentity(self, session)
+        rig_file, nonlinear = self._declare_parameters()
         self.rig = node_rig(self, rig_file, rig)
         self.sim = PlantSimulator(self.rig, seed=self.seed, nonlinear_magnets=nonlinear)
         self.sim_work = self.sim.work
@@ -231,13 +229,13 @@ class PlantSim(Node):
         self.pub_event = publisher(SessionEvent, "events", qos.EVENTS)
         self.pub_clock = self.create_publisher(Clock, "/clock", qos.CLOCK)
         self.publish_clock_raw = raw_publisher(self.pub_clock)
-        self.intake = Intake(self, self.on_reject, self.on_handler_error, self.identity, self.on_foreign)
+        self.make_intake()
         self.ic_tally = self.intake.tally("control_current")
         self.intake.subscribe(SampleBlock, "excitation", self.on_excitation, qos.BLOCKS)
         self.intake.subscribe(ExcitationDesign, "excitation/design", self.on_design, qos.LATCHED)
 
     def _declare_parameters(self) -> tuple:
-        """The node's typed parameters; (rig_file, nonlinear_magnets, session)."""
+        """The node's typed parameters, then the session joined; (rig_file, nonlinear_magnets)."""
         rig_file = declare(self, "rig_file", "", "YAML rig parameter file; empty = the default rig")
         self.seed = declare(self, "seed", 0, "seed of the sensor noise", 0, 2**31 - 1)
         nonlinear = declare(self, "nonlinear_magnets", False, "use the nonlinear magnet force, eq. 2.14")
@@ -258,9 +256,8 @@ class PlantSim(Node):
         self.horizon = declare(self, "excitation_horizon", 1_000_000,
                                "most samples an excitation block may lie ahead of the plant (memory bound)",
                                1, 1_000_000_000)
-        session = declare(self, *SESSION_PARAMETER)
-        refuse_unknown(self)
-        return rig_file, nonlinear, session
+        self.join_session()
+        return rig_file, nonlinear
 
     def regate(self) -> None:
         """Open the loop pump's gate while it may take the next control message: the loop
@@ -552,28 +549,18 @@ class PlantSim(Node):
                    "applied saturated, recorded as commanded and flagged FLAG_CLIPPED; reduce the excitation",
                    index=first)
 
-    def on_reject(self, topic: str, why: str) -> None:
-        self.event(SessionEvent.WARN, "rejected_message", why)
-
-    def on_foreign(self, topic: str, why: str) -> None:
-        self.event(SessionEvent.WARN, "foreign_message", why)
-
     def on_foreign_gid(self, topic: str):
         """The report of a loop topic's foreign publisher (its messages are counted in C)."""
         return lambda gid: self.intake.foreign(topic, gid=gid, count=False)
-
-    def on_handler_error(self, topic: str, why: str) -> None:
-        self.event(SessionEvent.ERROR, "handler_error", why)
 
     def fatal(self, code: str, text: str) -> None:
         """The event that ends the run, kept for the summary."""
         self.failure = {"code": code, "text": text, "sample_index": self.k}
         self.event(SessionEvent.FATAL, code, text)
 
-    def event(self, severity: int, code: str, text: str, index: int | None = None) -> None:
-        k = self.k if index is None else index
-        self.pub_event.publish(SessionEvent(stamp=time_msg(k * self.dt), sample_index=k, severity=severity,
-                                            node=self.fqn, code=code, text=text))
+
+    def event_index(self) -> int:
+        return self.k
 
     def figures(self) -> dict:
         wall = (self.finished_wall or time.perf_counter()) - (self.started_wall or time.perf_counter())
@@ -615,9 +602,7 @@ class PlantSim(Node):
         self.finished.set_result(self.summary)
 
 
-def main(args=None) -> int:
-    from ambid_nodes.node_main import run_single
-    return run_single(PlantSim, args)
+main = PlantSim.main  # the console script: SessionNode.main
 
 
 if __name__ == "__main__":

@@ -53,21 +53,20 @@ from ambid.control.kinds import ControllerDesign, checked_design, describe_kinds
 from ambid.control.pid import PidParameters
 from ambid.control.stepper import ControllerStepper
 from ambid.plant.rig import Rig
-from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile
 
 from ambid_msgs.msg import ControllerDescription, Sample, SessionEvent, SessionStatus
 from ambid_nodes import qos
 from ambid_nodes.conversions import BadMessage, statespace_to_msg, status_msg, time_msg
-from ambid_nodes.intake import Intake
+from ambid_nodes.session_node import SessionNode
 from ambid_nodes.loop_call import BoundKernel, ContextWord
 from ambid_nodes.loop_kernels import (CK_LEAD, CK_LIMIT, CK_MAT, CK_N, CK_P, CK_Q, CK_SLOTS, CK_STATUS_EVERY, CK_WORK,
                                       CONTROLLER_STATUS,
                                       LOOP_COUNT, LOOP_GATE, LOOP_K, LOOP_LIMIT, LOOP_NO_LIMIT, LOOP_OUT, N_CK,
                                       controller_kernel, sample_buffer)
-from ambid_nodes.identity import SESSION_PARAMETER, LoopPartner, SessionIdentity
+from ambid_nodes.identity import LoopPartner
 from ambid_nodes.loop_pump import NOT_RUN, GatingState, LoopEntry
-from ambid_nodes.parameters import ParameterError, declare, node_rig, refuse_unknown
+from ambid_nodes.parameters import ParameterError, declare, node_rig
 from ambid_nodes.raw_publish import raw_publisher
 from ambid_nodes.sample_codec import decode_sample, encode_sample
 
@@ -75,7 +74,7 @@ STATUS_EVERY = 10_000  # samples between status messages
 RUNNING = SessionStatus.STATE_RUNNING  # read once: rosidl constants are class properties
 
 
-class PositionController(Node):
+class PositionController(SessionNode):
     # the next displacement index awaited (None: no session), in the compiled path's context
     expected = ContextWord("fast", LOOP_K, none=-1)
     state = GatingState()  # each assignment sets the loop pump's gate (regate)
@@ -108,9 +107,7 @@ class PositionController(Node):
         self.timeout = declare(self, "plant_timeout", 2.0,
                                "wall time without a displacement before the running plant is declared lost",
                                0.01, 3600.0, "s")
-        session = declare(self, *SESSION_PARAMETER)
-        refuse_unknown(self)
-        self.identity = SessionIdentity(self, session)
+        self.join_session()
         self.rig = node_rig(self, rig_file, rig)
         if design is None:
             try:
@@ -148,7 +145,7 @@ class PositionController(Node):
         self.pub_desc = publisher(ControllerDescription, "controller/description", qos.LATCHED)
         self.pub_status = publisher(SessionStatus, "status", qos.STATUS)
         self.pub_event = publisher(SessionEvent, "events", qos.EVENTS)
-        self.intake = Intake(self, self.on_reject, self.on_handler_error, self.identity, self.on_foreign)
+        self.make_intake()
         self.y_tally = self.intake.tally("displacement")
         self.y_tally.count_also(self.fast.context[LOOP_COUNT:LOOP_COUNT + 1])
         # displacement: the loop pump runs controller_kernel, publishes the answer and counts in compiled code
@@ -326,20 +323,16 @@ class PositionController(Node):
         self.reset_stepper()  # zero state, zero current
         self.publish_status()
 
-    def on_reject(self, topic: str, why: str) -> None:
-        self.event(SessionEvent.WARN, "rejected_message", why, self.expected or 0)
+    @property
+    def dt(self) -> float:
+        return self.rig.dt
 
-    def on_foreign(self, topic: str, why: str) -> None:
-        self.event(SessionEvent.WARN, "foreign_message", why, self.expected or 0)
+    def event_index(self) -> int:
+        return self.expected or 0
 
-    def on_handler_error(self, topic: str, why: str) -> None:
-        self.event(SessionEvent.ERROR, "handler_error", why, self.expected or 0)
-
-    def event(self, severity: int, code: str, text: str, k: int) -> None:
+    def log_event(self, severity: int, code: str, text: str) -> None:
         if severity >= SessionEvent.ERROR:
             self.get_logger().error(text)
-        self.pub_event.publish(SessionEvent(stamp=time_msg(k * self.rig.dt), sample_index=k, severity=severity,
-                                            node=self.get_fully_qualified_name(), code=code, text=text))
 
     def status_when_idle(self) -> None:
         # while the loop runs, status goes out every STATUS_EVERY samples; otherwise when the counters moved
@@ -363,9 +356,7 @@ class PositionController(Node):
             f"{states[self.state]}, sample {k}, {self.design.kind}, rejected {self.intake.total_rejected}", f))
 
 
-def main(args=None) -> int:
-    from ambid_nodes.node_main import run_single
-    return run_single(PositionController, args)
+main = PositionController.main  # the console script: SessionNode.main
 
 
 if __name__ == "__main__":

@@ -167,6 +167,21 @@ def test_the_check_sees_an_import_inside_a_function(tmp_path):
     assert _cycles(edges) == [["pkg.a", "pkg.b"]]
 
 
+LONGEST_FUNCTION = 100  # lines from its def to its last line, docstring included
+
+
+def test_no_function_over_100_lines_in_the_core_or_the_nodes():
+    """A long function is split into named stages (docs/architecture.md); this keeps it so."""
+    long = []
+    for p in list(CORE_MODULES.values()) + list(NODE_MODULES.values()):
+        for node in ast.walk(ast.parse(p.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                n = node.end_lineno - node.lineno + 1
+                if n > LONGEST_FUNCTION:
+                    long.append(f"{p.relative_to(ROOT)}:{node.lineno} {node.name} ({n} lines)")
+    assert long == []
+
+
 def test_the_nodes_never_import_the_command_line():
     # imports point one way: command line -> nodes -> core
     for m, p in NODE_MODULES.items():

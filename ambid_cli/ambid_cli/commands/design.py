@@ -65,12 +65,12 @@ def _plan(spec, fs_hz: float, inputs) -> list:
 def run(args: argparse.Namespace) -> int:
     from ambid.excitation import describe, format_plan, plot_design
     from ambid.excitation.synchronous import describe_steering
-    from ambid.plant.rig import load_rig, make_rig
+    from ambid.plant.rig import rig_or_default
 
     spec = experiment_spec(args, input_names=tuple(s.strip() for s in args.inputs.split(",") if s.strip()))
     output_dir(args.out)
     try:
-        rig = load_rig(args.rig) if args.rig else make_rig()
+        rig = rig_or_default(args.rig)
         fs_hz = float(rig.sample_rate_hz)
         speed = float(rig.rotor_speed_rpm) if args.speed_rpm is None else args.speed_rpm
         if not (speed >= 0 and speed < 1e6):

@@ -76,12 +76,10 @@ def output_file(path: str | os.PathLike, option: str) -> Path:
 def rig_file(path: str | os.PathLike | None):
     """The rig of a ``--rig`` file (None: the default rig), loaded now so a bad file stops the command
     before anything starts."""
-    from ambid.plant.rig import load_rig, make_rig
+    from ambid.plant.rig import rig_or_default
 
-    if not path:
-        return make_rig()
     try:
-        rig = load_rig(path)
+        rig = rig_or_default(path)
     except (ValueError, OSError) as exc:
         raise BadInput(str(exc)) from None
     if rig.rotor_import is not None:

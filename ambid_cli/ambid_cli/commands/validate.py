@@ -97,7 +97,7 @@ def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_m
     from ambid.identification.pipeline import identify_session
     from ambid.identification.update import refit_parameters
     from ambid.jsonable import to_jsonable
-    from ambid.plant.rig import load_rig, make_rig
+    from ambid.plant.rig import load_rig, rig_or_default
     from ambid.validation.bla_truth import noise_free_twin
     from ambid.validation.coverage import draw_nominal_rig, frf_record, seed_record
 
@@ -107,7 +107,7 @@ def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_m
     out = Path(seed_dir)
     out.mkdir(parents=True, exist_ok=True)
     # identify's session (the experiment's defaults) at this seed; the rig parsed once in this worker
-    rig = load_rig(rig_path) if rig_path else make_rig()
+    rig = rig_or_default(rig_path)
     # the nominal model this seed's update starts from: the simulated rig missed by a draw from its tolerances
     nominal, drawn = draw_nominal_rig(rig, np.random.default_rng([seed, 26]))
     nominal_path = out / "nominal_rig.yaml"
@@ -176,10 +176,10 @@ def bla_estimands(seeds_dir: Path, records: dict[int, dict], rig_path: str) -> t
     """
     import numpy as np
 
-    from ambid.plant.rig import load_rig, make_rig
+    from ambid.plant.rig import rig_or_default
     from ambid.validation.bla_truth import SLOPES, Twin, at_own_excitation, bla_parameters
 
-    rig = load_rig(rig_path) if rig_path else make_rig()
+    rig = rig_or_default(rig_path)
     groups: dict[tuple, list[int]] = {}
     for s, rec in sorted(records.items()):
         twin = seeds_dir / f"seed_{s:03d}" / "noise_free" / "frf.npz"

@@ -257,10 +257,7 @@ def update_parameters(model: Callable[[np.ndarray], StateSpace | np.ndarray], th
     xc = _Scaled(lg, sc)
     xlb, xub = xc.bounds(lb, ub)
     has_prior = np.isfinite(ps)
-    xm = np.where(lg, np.log(np.where(lg, pm, 1.0)), pm / sc)
-    xs = np.where(lg, ps, ps / sc)
-    # a normal prior's term in V: (x - m)^2 / (2 s^2), a real residual of variance 1/2 like the data's
-    jp = np.where(has_prior, 1.0 / (np.sqrt(2.0) * xs), 0.0)
+    xm, xs, jp = xc.prior(pm, ps, has_prior)
 
     def resid_data(x: np.ndarray) -> np.ndarray:
         e = w * (_frf(model, xc.to_theta(x), f, g.shape) - g)
@@ -284,19 +281,26 @@ def update_parameters(model: Callable[[np.ndarray], StateSpace | np.ndarray], th
     cov_x = cov_data + cov_prior
     # the prior's part is known exactly: the variance's degrees of freedom grow with its share
     dofs = combined_dof(np.diag(cov_data), dofs, np.diag(cov_prior))
+    theta, std, ci, cov, corr, ratio = _in_parameter_units(xc, x, cov_x, dofs, has_prior, xs)
+    return UpdateResult(names=nm, theta=theta, theta0=th0, std=std, ci95=ci, covariance=cov, correlation=corr,
+                        cost=cost, n_residuals=r.size, jacobian_singular_values=sv, success=ok,
+                        message=msg, n_evaluations=nfev, inflation=inflation, prior_ratio=ratio,
+                        variance_dof=dofs, log=lg)
+
+
+def _in_parameter_units(xc: _Scaled, x: np.ndarray, cov_x: np.ndarray, dofs: np.ndarray, has_prior: np.ndarray,
+                        xs: np.ndarray) -> tuple:
+    """theta, its std, 95 % intervals (Student's t), covariance and correlation, and the prior ratio, from x."""
     std_x = np.sqrt(np.diag(cov_x))
     theta = xc.to_theta(x)
-    jt = np.where(lg, theta, sc)                       # d theta / d x
+    jt = np.where(xc.lg, theta, xc.sc)                 # d theta / d x
     cov = cov_x * jt[:, None] * jt[None, :]
     std = np.sqrt(np.diag(cov))
     corr = cov / np.outer(std, std)
     half = stats.t.ppf(0.975, dofs) * std_x
     ci = np.column_stack([xc.to_theta(x - half), xc.to_theta(x + half)])
     ratio = np.where(has_prior, std_x / np.where(has_prior, xs, 1.0), np.nan)
-    return UpdateResult(names=nm, theta=theta, theta0=th0, std=std, ci95=ci, covariance=cov, correlation=corr,
-                        cost=cost, n_residuals=r.size, jacobian_singular_values=sv, success=ok,
-                        message=msg, n_evaluations=nfev, inflation=inflation, prior_ratio=ratio,
-                        variance_dof=dofs, log=lg)
+    return theta, std, ci, cov, corr, ratio
 
 
 def _checked_parameters(theta0, names, prior, scales) -> tuple:
@@ -389,6 +393,13 @@ class _Scaled:
 
     def to_theta(self, x: np.ndarray) -> np.ndarray:
         return np.where(self.lg, np.exp(np.where(self.lg, x, 0.0)), x * self.sc)
+
+    def prior(self, pm: np.ndarray, ps: np.ndarray, has_prior: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The prior's mean and std in x, and its residual's weight 1 / (sqrt(2) s) (0 without a prior)."""
+        xm = np.where(self.lg, np.log(np.where(self.lg, pm, 1.0)), pm / self.sc)
+        xs = np.where(self.lg, ps, ps / self.sc)
+        # a normal prior's term in V: (x - m)^2 / (2 s^2), a real residual of variance 1/2 like the data's
+        return xm, xs, np.where(has_prior, 1.0 / (np.sqrt(2.0) * xs), 0.0)
 
     def bounds(self, lb: np.ndarray, ub: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         lg, sc = self.lg, self.sc

@@ -323,6 +323,21 @@ def _uff_channel(s: dict, side: str) -> tuple[str, str]:
     return f"{node}{_DIRECTIONS.get(direction, f'({direction})')}", "" if ent.upper() == "NONE" else ent
 
 
+def _uff_coherence(sets: list, outs: list[str], ins: list[str], freq: np.ndarray,
+                   shape: tuple[int, ...]) -> np.ndarray | None:
+    """The analyser's coherence (L, Ny, Nu) of each response with each reference (function type 6), NaN where
+    it wrote none; None where it wrote none at all."""
+    coh = np.full(shape, np.nan)
+    for s in sets:
+        if not (isinstance(s, dict) and s.get("type") == 58 and s.get("func_type") == 6):
+            continue
+        (o, _), (u, _) = _uff_channel(s, "rsp"), _uff_channel(s, "ref")
+        x = np.asarray(s.get("x"), dtype=float).reshape(-1)
+        if o in outs and u in ins and x.shape == freq.shape and np.allclose(x, freq, rtol=1e-9, atol=0):
+            coh[:, outs.index(o), ins.index(u)] = np.abs(np.asarray(s.get("data")).reshape(-1))
+    return coh if np.any(np.isfinite(coh)) else None
+
+
 def _uff(p: Path, fix: str):
     try:
         import pyuff
@@ -410,18 +425,9 @@ def _uff(p: Path, fix: str):
     shared = set.intersection(*labels.values()) if labels and len(labels) == len(outs) + len(ins) else set()
     if shared:
         notes.append(f"entity name {sorted(shared)[0]!r} on every dataset: a label of the test, not a channel")
-    # the analyser's coherence of each response with each reference (function type 6), where it wrote one
-    coh = np.full(h.shape, np.nan)
-    for s in sets:
-        if not (isinstance(s, dict) and s.get("type") == 58 and s.get("func_type") == 6):
-            continue
-        (o, _), (u, _) = _uff_channel(s, "rsp"), _uff_channel(s, "ref")
-        x = np.asarray(s.get("x"), dtype=float).reshape(-1)
-        if o in outs and u in ins and x.shape == freq.shape and np.allclose(x, freq, rtol=1e-9, atol=0):
-            coh[:, outs.index(o), ins.index(u)] = np.abs(np.asarray(s.get("data")).reshape(-1))
-    coherence = None
-    if np.any(np.isfinite(coh)):
-        coherence = coh
+    coherence = _uff_coherence(sets, outs, ins, freq, h.shape)
+    if coherence is not None:
+        coh = coherence
         notes.append(f"coherence read for {int(np.sum(np.all(np.isfinite(coh), axis=0)))} of {h.shape[1] * h.shape[2]} "
                      "response/reference pairs")
     return (freq, h, None, tuple(outs), tuple(ins), notes,

@@ -289,12 +289,12 @@ class Target:
         # imported here: the bridge node imports parse_address from this module without the simulator
         from ambid.control.pid import PidParameters, pid_controller
         from ambid.control.stepper import ControllerStepper
-        from ambid.plant.rig import load_rig, make_rig
+        from ambid.plant.rig import rig_or_default
         from ambid.plant.simulator import PlantSimulator
 
         self.cfg = cfg
         self.stop = stop or threading.Event()
-        self.rig = load_rig(cfg.rig_file) if cfg.rig_file else make_rig()
+        self.rig = rig_or_default(cfg.rig_file)
         self.dt = self.rig.dt
         self.sim = PlantSimulator(self.rig, seed=cfg.seed, nonlinear_magnets=cfg.nonlinear_magnets)
         self.n_axes = len(self.rig.layout)

@@ -591,6 +591,20 @@ def _beside(rig_path: Path, name: Any) -> Path:
     return p if p.is_absolute() else rig_path.parent / p
 
 
+def rig_or_default(path: str | Path | None) -> Rig:
+    """The rig of the YAML file ``path``, or the built-in rig where ``path`` is empty or None.
+
+    The one home of "this rig file, or the built-in rig": every option and parameter that names a rig file
+    (``--rig``, ``rig_file``) is read through it.
+
+    Examples
+    --------
+    >>> rig_or_default("").name, rig_or_default(None).dt
+    ('ambid-default', 0.0001)
+    """
+    return load_rig(path) if path else make_rig()
+
+
 def load_rig(path: str | Path) -> Rig:
     """Rig from a YAML file of ``name: value`` pairs (any subset of :data:`RIG_FIELDS`).
 

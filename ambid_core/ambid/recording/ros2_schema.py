@@ -101,6 +101,12 @@ def ament_prefixes(ament_prefix_path: str | None = None) -> list[Path]:
     return [Path(p) for p in text.split(os.pathsep) if p]
 
 
+#: the message definitions this library carries (``share/<pkg>/msg/*.msg`` as rosidl installs them): the
+#: last place searched, so the core reads and writes sessions where no ROS workspace is sourced
+#: (``pip install ./ambid_core``); ``ambid_msgs/msg`` is their one source (a symlink here, copied into the wheel)
+PACKAGED_PREFIX = Path(__file__).resolve().parent.parent / "interfaces"
+
+
 def split_type_name(type_name: str) -> tuple[str, str, str]:
     """Split ``pkg/msg/Type`` or ``pkg/Type`` into ``(pkg, "msg", Type)``.
 
@@ -188,13 +194,14 @@ def find_interface_file(type_name: str, extension: str, prefixes: Sequence[Path]
     Args:
         type_name: ``pkg/msg/Type`` or ``pkg/Type``.
         extension: ``".msg"`` or ``".json"``.
-        prefixes: install prefixes; ``None`` uses ``AMENT_PREFIX_PATH``.
+        prefixes: install prefixes; ``None`` uses ``AMENT_PREFIX_PATH``, then the definitions
+            this library carries (:data:`PACKAGED_PREFIX`).
 
     Raises:
         FileNotFoundError: naming the type, the file and the prefixes searched.
     """
     pkg, ns, name = split_type_name(type_name)
-    search = ament_prefixes() if prefixes is None else [Path(p) for p in prefixes]
+    search = [*ament_prefixes(), PACKAGED_PREFIX] if prefixes is None else [Path(p) for p in prefixes]
     for prefix in search:
         candidate = prefix / "share" / pkg / ns / f"{name}{extension}"
         if candidate.is_file():

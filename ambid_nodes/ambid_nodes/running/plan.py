@@ -18,7 +18,7 @@ from ambid.control.kinds import ControllerDesign, checked_design
 from ambid.excitation import ExcitationDesign
 from ambid.excitation.spec import DesignSpec
 from ambid.hardware.bridge_protocol import PROTOCOL_VERSION
-from ambid.plant.rig import Rig, load_rig, make_rig
+from ambid.plant.rig import Rig, rig_or_default
 
 from ambid_nodes.running.domain import DEFAULT_NAMESPACE
 
@@ -103,7 +103,7 @@ def plan_session(cfg: SessionConfig, rig: Rig | None = None, controller: Control
     """The plan of ``cfg``: ``rig`` (None: ``cfg.rig_file`` parsed, or the default rig) and ``controller``
     (None: ``cfg.controller`` designed and checked) as given, the design built. ValueError or OSError
     names what cannot be used."""
-    rig = rig if rig is not None else (load_rig(cfg.rig_file) if cfg.rig_file else make_rig())
+    rig = rig if rig is not None else rig_or_default(cfg.rig_file)
     if controller is None and not cfg.hardware:
         controller = checked_design(cfg.controller, rig)
     return SessionPlan(rig, controller, cfg.design(1.0 / rig.dt, float(rig.rotor_speed_rpm), rig.layout.inputs))
