@@ -40,19 +40,28 @@ def read_arrays(path: str | os.PathLike, what: str, fix: str,
                 suffixes: tuple[str, ...] = (".npz", ".mat"), complex_names: tuple[str, ...] = ()) -> dict[str, Any]:
     """The named values in ``path``, read whole.
 
-    Args:
-        path: the file; its suffix (one of ``suffixes``) says the format.
-        what: what the file is, for messages ("rotor file", "controller file").
-        fix: the fix a message ends with ("give A, B, C, D and dt ...").
-        suffixes: the formats accepted, from ``.npz``, ``.mat``, ``.yaml``, ``.yml``.
-        complex_names: the values that may be complex (a measured FRF); any other complex value is refused.
+    Parameters
+    ----------
+    path
+        the file; its suffix (one of ``suffixes``) says the format.
+    what
+        what the file is, for messages ("rotor file", "controller file").
+    fix
+        the fix a message ends with ("give A, B, C, D and dt ...").
+    suffixes
+        the formats accepted, from ``.npz``, ``.mat``, ``.yaml``, ``.yml``.
+    complex_names
+        the values that may be complex (a measured FRF); any other complex value is refused.
 
-    Returns:
-        name -> value: numpy arrays (``.mat``: 2-D as MATLAB holds them, also
-        from v7.3), or what YAML holds under each key.
+    Returns
+    -------
+    name -> value: numpy arrays (``.mat``: 2-D as MATLAB holds them, also
+    from v7.3), or what YAML holds under each key.
 
-    Raises:
-        ValueError: one line naming the file, what is wrong with it and ``fix``.
+    Raises
+    ------
+    ValueError
+        one line naming the file, what is wrong with it and ``fix``.
     """
     path = Path(path)
     suffix = path.suffix.lower()

@@ -37,8 +37,10 @@ _DIRECTIONS = ("x", "y", "z")
 def split_name(name: str) -> tuple[str, str]:
     """``"y_a_x"`` -> ``("y", "a_x")``: a channel name's signal prefix and axis.
 
-    Raises:
-        ValueError: the name has no known prefix (:data:`SIGNALS`) or no axis.
+    Raises
+    ------
+    ValueError
+        the name has no known prefix (:data:`SIGNALS`) or no axis.
 
     Examples
     --------
@@ -84,8 +86,10 @@ def direction_of(axis: str) -> str:
 class Layout:
     """The ordered axes of a session, and the channel names that follow from them.
 
-    Attributes:
-        axes: axis names in session order, e.g. ``("a_x", "b_x", "a_y", "b_y")``.
+    Attributes
+    ----------
+    axes
+        axis names in session order, e.g. ``("a_x", "b_x", "a_y", "b_y")``.
 
     Examples
     --------
@@ -180,8 +184,10 @@ class Layout:
     def from_names(cls, names: Iterable[str]) -> "Layout":
         """The layout of channel names of one signal, e.g. ``["y_a_x", "y_b_x"]`` -> axes (a_x, b_x).
 
-        Raises:
-            ValueError: a name is not <signal>_<axis>, or the names mix signals.
+        Raises
+        ------
+        ValueError
+            a name is not <signal>_<axis>, or the names mix signals.
         """
         parts = [split_name(n) for n in names]
         signals = {p for p, _ in parts}

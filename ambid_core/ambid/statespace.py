@@ -19,14 +19,22 @@ from scipy import linalg, signal
 class StateSpace:
     """x' = A x + B u, y = C x + D u (dt = 0) or x[k+1] = A x[k] + B u[k] (dt > 0).
 
-    Attributes:
-        a: (n, n) state matrix.
-        b: (n, m) input matrix.
-        c: (p, n) output matrix.
-        d: (p, m) feed-through matrix.
-        dt: sample period [s]; 0 for continuous time.
-        input_names, output_names: channel names (len m and p).
-        input_units, output_units: SI units of the channels (e.g. "A", "m").
+    Attributes
+    ----------
+    a
+        (n, n) state matrix.
+    b
+        (n, m) input matrix.
+    c
+        (p, n) output matrix.
+    d
+        (p, m) feed-through matrix.
+    dt
+        sample period [s]; 0 for continuous time.
+    input_names, output_names
+        channel names (len m and p).
+    input_units, output_units
+        SI units of the channels (e.g. "A", "m").
 
     Examples
     --------

@@ -15,15 +15,22 @@ __all__ = ["read_text"]
 def read_text(path: str | os.PathLike, what: str = "", fix: str = "", binary: str = "is not text (binary data)") -> str:
     """The UTF-8 text of ``path``.
 
-    Args:
-        path: the file.
-        what: what the file is, for messages ("rig file"); "" names the path alone.
-        fix: the fix a message ends with, after "; " ("" for none).
-        binary: what the message says of a file that is not UTF-8 text.
+    Parameters
+    ----------
+    path
+        the file.
+    what
+        what the file is, for messages ("rig file"); "" names the path alone.
+    fix
+        the fix a message ends with, after "; " ("" for none).
+    binary
+        what the message says of a file that is not UTF-8 text.
 
-    Raises:
-        ValueError: "<what> <path> does not exist", "... is a folder" or "... <binary>",
-            then "; <fix>".
+    Raises
+    ------
+    ValueError
+        "<what> <path> does not exist", "... is a folder" or "... <binary>",
+        then "; <fix>".
     """
     name = f"{what} {os.fspath(path)}" if what else os.fspath(path)
     tail = f"; {fix}" if fix else ""

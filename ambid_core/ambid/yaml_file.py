@@ -42,8 +42,10 @@ NumberLoader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT, list("-+01
 def load_yaml(text: str) -> Any:
     """The YAML ``text`` parsed with numbers as people write them (module docstring).
 
-    Raises:
-        yaml.YAMLError: the text is not YAML (the caller names the file; :func:`read_yaml` does).
+    Raises
+    ------
+    yaml.YAMLError
+        the text is not YAML (the caller names the file; :func:`read_yaml` does).
     """
     return yaml.load(text, Loader=NumberLoader)  # noqa: S506 - a safe loader
 
@@ -51,18 +53,26 @@ def load_yaml(text: str) -> Any:
 def read_yaml(path: str | os.PathLike, what: str, fix: str, allow_empty: bool = True) -> Any:
     """The YAML content of a user's file, numbers as people write them.
 
-    Args:
-        path: the file.
-        what: what the file is, for messages ("rig file"); "" names the path alone.
-        fix: the fix a message ends with, after "; " ("" for none).
-        allow_empty: False refuses a file of nothing but white space ("... is empty").
+    Parameters
+    ----------
+    path
+        the file.
+    what
+        what the file is, for messages ("rig file"); "" names the path alone.
+    fix
+        the fix a message ends with, after "; " ("" for none).
+    allow_empty
+        False refuses a file of nothing but white space ("... is empty").
 
-    Returns:
-        What the file holds (None for a file without a document, e.g. comments only).
+    Returns
+    -------
+    What the file holds (None for a file without a document, e.g. comments only).
 
-    Raises:
-        ValueError: one line: the file is missing, a folder, binary, empty (``allow_empty`` False) or not
-            YAML (with the line), then "; <fix>".
+    Raises
+    ------
+    ValueError
+        one line: the file is missing, a folder, binary, empty (``allow_empty`` False) or not
+        YAML (with the line), then "; <fix>".
     """
     text = read_text(path, what, fix, binary="is not YAML text (binary data)")
     name = f"{what} {os.fspath(path)}" if what else os.fspath(path)

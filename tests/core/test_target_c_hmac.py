@@ -96,3 +96,39 @@ def test_tag_comparison_looks_at_every_byte(lib):
         b[i] ^= 0x80
         assert lib.ambp_equal_ct(a, bytes(b), 16) == 0
     assert lib.ambp_equal_ct(a, b"\xff" * 16, 0) == 1
+
+
+def test_comparison_takes_the_same_time_wherever_the_tags_differ(lib):
+    # an early exit (memcmp) would answer a difference in the first byte in nanoseconds and the same buffers
+    # in milliseconds; ambp_equal_ct reads every byte whatever it has found. 4 MiB make one comparison a few
+    # milliseconds, the shortest of several runs each (interleaved, on a busy machine) compares like with like.
+    import time
+
+    n = 1 << 22
+    a = bytes(n)
+    cases = {"equal": a, "first byte": b"\x01" + bytes(n - 1),
+             "middle byte": bytes(n // 2) + b"\x01" + bytes(n // 2 - 1), "last byte": bytes(n - 1) + b"\x01"}
+    best = dict.fromkeys(cases, float("inf"))
+    for _ in range(9):
+        for name, b in cases.items():
+            t0 = time.perf_counter()
+            same = lib.ambp_equal_ct(a, b, n)
+            best[name] = min(best[name], time.perf_counter() - t0)
+            assert same == (name == "equal"), name
+    assert max(best.values()) < 2.0 * min(best.values()), best
+
+
+def test_the_protocol_core_allocates_nothing_and_calls_no_os(lib):
+    # libambp.so is the core a target links (ambp.c, ambp_hmac.c): what it imports from the C library is all
+    # it can call. Only memory copies and maths: no allocator, no clock, no socket, no file.
+    import shutil
+    import subprocess
+
+    assert shutil.which("nm"), "nm (binutils, which gcc brings) is missing"
+    out = subprocess.run(["nm", "-D", "--undefined-only", str(LIB)], capture_output=True, text=True, check=True)
+    imported = {line.split()[-1].split("@")[0] for line in out.stdout.splitlines()
+                if line.split() and line.split()[0] == "U"}
+    allowed = {"memcpy", "memmove", "memset", "memcmp", "__stack_chk_fail", "__memcpy_chk", "__memset_chk",
+               "__memmove_chk"} | {"sqrt", "sin", "cos", "exp", "log", "pow", "fabs", "floor", "ceil", "round",
+                                   "lround", "llround", "fmod", "nan", "isnan"}
+    assert imported and imported <= allowed, sorted(imported - allowed)

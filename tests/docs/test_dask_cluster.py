@@ -30,10 +30,17 @@ def _cluster_blocks():
     return table, scheduler, workers, campaign
 
 
+#: the sessions' ROS domains 231 and 232 (workers 0 and 1): tests/nodes' campaign and validate hold 215..230
+#: and may run at the same time under pytest-xdist
+DOMAIN_BASE = ("--domain-base", "231")
+
+
 def _script(block, port: int) -> str:
-    # the doc's host and port are the only things changed: this host, a port free now
-    return checkout_paths("\n".join(commands(block))).replace("SCHEDULER_HOST", "127.0.0.1").replace(
+    # the doc's host and port are the only things changed (this host, a port free now), and the campaign's
+    # ROS domains named so they stay clear of the suite's other Dask sessions
+    script = checkout_paths("\n".join(commands(block))).replace("SCHEDULER_HOST", "127.0.0.1").replace(
         "8786", str(port))
+    return script + (" " + " ".join(DOMAIN_BASE) if "--scheduler" in script else "")
 
 
 def _start(script: str, cwd: Path, log: Path) -> subprocess.Popen:
@@ -92,7 +99,8 @@ def test_campaign_on_a_cluster_started_as_the_doc_says(tmp_path):
     assert "Registered to" in worker_log
     # the same options on the local cluster give the same campaign
     cmd = commands(campaign)[0]
-    local_cmd = cmd.split(" --scheduler")[0].replace("campaign_cluster", "campaign_local") + " --jobs 2"
+    local_cmd = (cmd.split(" --scheduler")[0].replace("campaign_cluster", "campaign_local") + " --jobs 2 "
+                 + " ".join(DOMAIN_BASE))
     local = subprocess.run(["bash", "-e", "-c", checkout_paths(local_cmd)], cwd=wd, env=ros_env,
                            capture_output=True, text=True, timeout=900)
     assert local.returncode == 0, local.stderr[-3000:]

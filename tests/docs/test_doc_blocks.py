@@ -91,10 +91,18 @@ class Docs:
         return ran
 
 
+def _domain_id() -> int:
+    """A ROS domain of 1..200 in this pytest-xdist worker's residue class (as tests/nodes/conftest.py takes
+    them), so no test on another worker holds it while a block runs."""
+    worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0")[2:] or 0)
+    workers = max(1, int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")))
+    slots = max(1, 200 // workers)
+    offset = int(os.environ.get("PYTEST_XDIST_TESTRUNUID", "") or "%x" % (os.getpid() * 37), 16) % 200
+    return 1 + (offset + worker + workers * ((slots // 2 + next(_domain)) % slots)) % (workers * slots)
+
+
 def _env() -> dict[str, str]:
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    env["ROS_DOMAIN_ID"] = str(1 + (os.getpid() * 37 + 101 + next(_domain)) % 200)
-    return env
+    return dict(os.environ, PYTHONUNBUFFERED="1", ROS_DOMAIN_ID=str(_domain_id()))
 
 
 def _run(argv: list[str], cwd: Path) -> Ran:

@@ -53,6 +53,10 @@ def test_quick_bench_reports_every_figure_as_a_positive_number(ros, tmp_path, ca
     link = report["sections"]["link"]
     assert link["cost"]["v3"]["encode_measurement_ns"] > link["cost"]["v2"]["encode_measurement_ns"]
     assert link["cost"]["v3"]["measurement_bytes"] == link["cost"]["v2"]["measurement_bytes"] + 24
+    # the Python side packs and opens the same datagrams, byte for byte as long
+    for v in ("v2", "v3"):
+        assert {k: link["python_cost"][v][k] for k in ("measurement_bytes", "excitation_bytes")} == \
+            {k: link["cost"][v][k] for k in ("measurement_bytes", "excitation_bytes")}
     for v, run in link["runs"].items():
         assert run["bridge"]["protocol_version"] == int(v) and run["bridge"]["authenticated"] == (int(v) == 3)
         assert run["target"]["state"] == "done" and run["bridge"]["missing_samples"] == 0

@@ -13,7 +13,9 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def _campaign(env, out, *speeds, extra=()):
+    # its sessions' domains 223..230: test_validate_command's are 215..222 (the two may run at once)
     return subprocess.run([sys.executable, "-m", "ambid_cli.cli", "campaign", "--speeds-rpm", *speeds,
+                           "--domain-base", "223",
                            "--rig", str(REPO / "rigs" / "spinning.yaml"), "--out", str(out), "--realisations", "1",
                            "--no-progress", *(extra or ("--resolution", "10"))],
                           env=env, cwd=REPO, capture_output=True, text=True, timeout=300)

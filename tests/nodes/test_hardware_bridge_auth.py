@@ -177,3 +177,21 @@ def test_key_file_parameter_is_checked(ros, tmp_path):
                            "is a folder")):
         with pytest.raises(ParameterError, match=re.escape(words)):
             HardwareBridge(namespace=NS, context=ros.context, parameter_overrides=params)
+
+
+def test_version_2_bridge_says_on_every_start_that_the_link_is_unauthenticated(ros):
+    # version 2 runs only when asked for (protocol_version 2, no key); each start warns, in the session's events
+    # as in the log, not only the first: one listener hears one warning per start
+    spy = ros.add(Spy(ros.context))
+    for start in (1, 2):
+        bridge = ros.add(HardwareBridge(namespace=NS, context=ros.context, parameter_overrides=[
+            Parameter("target_port", value=free_port()), Parameter("local_port", value=0),
+            Parameter("protocol_version", value=2)]))
+        ros.matched(spy, to=bridge)
+        assert ros.spin_until(lambda: len(spy.codes("unauthenticated_link")) == start, timeout_s=10), spy.events
+        warn = spy.codes("unauthenticated_link")[-1]
+        assert warn.severity == SessionEvent.WARN and "unauthenticated (protocol version 2)" in warn.text, warn
+        assert not bridge.link.authenticated
+        ros.retire(bridge)
+    ros.spin_until(lambda: False, 0.5, scale=False)
+    assert len(spy.codes("unauthenticated_link")) == 2, spy.events  # once per start, not repeated

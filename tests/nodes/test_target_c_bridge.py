@@ -172,9 +172,9 @@ def test_identify_hardware_gives_the_c_target_the_accuracy_of_the_simulated_rig(
 
 
 def test_the_c_target_runs_the_five_axis_model_over_the_bridge(tmp_path, key_file):
-    """rigs/five_axis.yaml's model in the C target: protocol version 2 carries its five axes (y, u, ic, r of
-    a_x b_x a_y b_y z); the graph levitates on all five and identify measures the 5 x 5 FRF of the model the
-    target runs."""
+    """rigs/five_axis.yaml's model in the C target: the protocol (version 3, like 2) carries its five axes (y, u,
+    ic, r of a_x b_x a_y b_y z); the graph levitates on all five and identify measures the 5 x 5 FRF of the model
+    the target runs."""
     rig_file = ROOT / "rigs" / "five_axis.yaml"
     from ambid.plant.rig import load_rig
 

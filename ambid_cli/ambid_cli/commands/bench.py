@@ -25,7 +25,8 @@ Sections (each can be skipped):
   time to the answer and to the end, the longest silence, identify's time beyond its session
   (:mod:`ambid_cli.bench.commands`);
 * link: what the authenticated link (protocol version 3) costs the C reference
-  target beside version 2: CPU per datagram sealed and checked, and the target
+  target and the Python bridge beside version 2: CPU per datagram sealed and
+  checked, and the C target
   at 10 kHz under the hardware bridge, its overruns and late samples
   (:mod:`ambid_cli.bench.link`).
 
@@ -275,9 +276,10 @@ def _memory_section(sizes: dict, work: Path, figures: list) -> dict:
 
 
 def _link_section(sizes: dict, work: Path, figures: list) -> dict:
-    from ambid_cli.bench.link import datagram_costs, real_time_run
+    from ambid_cli.bench.link import datagram_costs, python_datagram_costs, real_time_run
 
     cost = datagram_costs(4, sizes["link_repeats"])
+    py_cost = python_datagram_costs(4, max(5, sizes["link_repeats"] // 4))  # a fraction of a second
     runs = {v: real_time_run(work / "link", v, sizes["link_seconds"]) for v in (2, 3)}
     v2, v3 = cost["v2"], cost["v3"]
     figures += [
@@ -288,6 +290,13 @@ def _link_section(sizes: dict, work: Path, figures: list) -> dict:
         _figure("C target: EXCITATION datagram decoded and its tag checked, version 3 (after)",
                 v3["decode_excitation_ns"] / 1e3, "us"),
     ]
+    for v, when in (("v2", "version 2 (before)"), ("v3", "version 3 (after)")):
+        figures += [
+            _figure(f"Python bridge/target: MEASUREMENT datagram packed, {when}", py_cost[v]["encode_measurement_ns"]
+                    / 1e3, "us"),
+            _figure(f"Python bridge/target: EXCITATION datagram opened, {when}", py_cost[v]["decode_excitation_ns"]
+                    / 1e3, "us"),
+        ]
     for v, run in runs.items():
         t = run["target"]
         when = ("before" if v < 3 else "after") + (f", SCHED_FIFO {run['priority']}" if run["priority"] else "")
@@ -299,7 +308,7 @@ def _link_section(sizes: dict, work: Path, figures: list) -> dict:
                     "count"),
             _figure(f"C target at 10 kHz, version {v} ({when}): worst lateness", t["max_late_us"], "us"),
         ]
-    return {"cost": cost, "runs": runs}
+    return {"cost": cost, "python_cost": py_cost, "runs": runs}
 
 
 def _format(value, unit: str) -> str:

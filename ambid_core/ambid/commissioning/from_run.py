@@ -22,13 +22,14 @@ import numpy as np
 
 from ambid.channels import direction_of
 from ambid.commissioning.limits import CurrentBudget
-from ambid.commissioning.plants import PlantUncertainty, draw_parameters, plant_set, plant_uncertainty
+from ambid.commissioning.plants import PlantUncertainty, draw_parameters, moved, plant_set, plant_uncertainty
 from ambid.commissioning.prediction import MeasurementModel, measurement_model
 from ambid.commissioning.tuning import TuneResult, TuneSettings, tune
 from ambid.control.closed_loop import residue_freqresp
 from ambid.control.pid import PidParameters
 from ambid.control.structured import StructuredAxis
 from ambid.control.user_controller import save_controller
+from ambid.excitation.design import ExcitationDesign
 from ambid.fit import load_model_npz
 from ambid.frf.sensitivity import iso14839_zone
 from ambid.jsonable import to_jsonable
@@ -40,7 +41,7 @@ from ambid.recording.blocks import read_samples
 from ambid.recording.facts import controller_facts, controller_model, plant_facts
 from ambid.statespace import StateSpace
 
-__all__ = ["RunInputs", "read_run", "headline_peak", "tune_run", "CLAIM"]
+__all__ = ["RunInputs", "read_run", "operating_point", "headline_peak", "tune_run", "CLAIM"]
 
 #: what predicted_peak's interval claims (tune.json, docs/uncertainty.md)
 CLAIM = ("95 % prediction interval of the input-sensitivity peak that ambid identify measures with this controller "
@@ -62,6 +63,9 @@ class RunInputs:
         static_a: (na,) the mean control current per axis during the run [A], or None.
         freq_hz, var_g, sensitivity: the FRF's lines, variance and measured sensitivity.
         poles: the fitted model's poles [rad/s].
+        design: the run's (last) periodic excitation design, or None.
+        nonlinear_magnets: the run's magnets are nonlinear (a simulated session with linear ones says so; a
+            recorded one is real).
     """
 
     folder: Path
@@ -74,6 +78,8 @@ class RunInputs:
     var_g: np.ndarray
     sensitivity: np.ndarray
     poles: np.ndarray
+    design: ExcitationDesign | None = None
+    nonlinear_magnets: bool = True
 
 
 def _run_folder(folder: Path) -> Path:
@@ -129,6 +135,53 @@ def _static_current(path: str, summary: Mapping, axes: tuple[str, ...]) -> np.nd
     return data.data.mean(axis=0)
 
 
+def _design(path: str) -> ExcitationDesign | None:
+    from ambid.frf.offline import session_designs
+
+    try:
+        designs = session_designs(path)
+    except (ValueError, OSError):
+        return None
+    d = designs[-1]["design"] if designs else None
+    return d if d is not None and d.is_periodic else None
+
+
+def _nonlinear(path: str) -> bool:
+    config = read_metadata(path).get("ambid.session", {}).get("config")
+    try:
+        config = json.loads(config) if isinstance(config, str) else config
+    except json.JSONDecodeError:
+        config = None
+    return not isinstance(config, dict) or bool(config.get("nonlinear_magnets", True))
+
+
+def operating_point(inputs: RunInputs, unc: PlantUncertainty) -> Callable[[StateSpace], PlantUncertainty] | None:
+    """The run's posterior carried to where another controller's loop holds the magnets, or None (no
+    controller or design recorded, or linear magnets).
+
+    A linear model fitted to data taken with an excitation estimates the magnets' slopes averaged over the
+    excursions that excitation causes through the loop (:func:`ambid.fit.model_update.excitation_slopes`), so
+    a new controller, with the same excitation, meets slightly other slopes: ki and ks move by the ratio of the
+    nominal rig's slopes under the new loop to those under the run's (the nominal model gives the ratio; the
+    data keep the level).
+    """
+    if inputs.controller is None or inputs.design is None or not inputs.nonlinear_magnets:
+        return None
+    from ambid.fit.model_update import excitation_slopes, slopes_as_parameters
+
+    rig, design = inputs.rig, inputs.design
+    try:
+        ran = slopes_as_parameters(*excitation_slopes(rig, inputs.controller[0], design), rig.layout)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+
+    def at(controller: StateSpace) -> PlantUncertainty:
+        new = slopes_as_parameters(*excitation_slopes(rig, controller, design), rig.layout)
+        return moved(unc, {k: new[k] / ran[k] for k in ran if ran[k] != 0})
+
+    return at
+
+
 def read_run(folder: str | os.PathLike, rig: Rig | str | os.PathLike | None = None) -> RunInputs:
     """The :class:`RunInputs` of a run's folder (module docstring).
 
@@ -174,8 +227,10 @@ def read_run(folder: str | os.PathLike, rig: Rig | str | os.PathLike | None = No
         if value is None or not np.all(np.isfinite(value)):
             raise ValueError(f"{paths['frf.npz']} has no usable {key}: tuning needs the FRF's variance and the "
                              "measured sensitivity (a session with repeated periods, excited at the currents)")
+    has_session = bool(session) and Path(session).is_file()
     return RunInputs(run, summary, the_rig, source, controller, static, arrays["freq_hz"], var,
-                     arrays["sensitivity"], np.asarray(fitted.poles))
+                     arrays["sensitivity"], np.asarray(fitted.poles), _design(session) if has_session else None,
+                     _nonlinear(session) if has_session else True)
 
 
 def headline_peak(sensitivity: Mapping[str, Any]) -> float | None:
@@ -279,7 +334,7 @@ def tune_run(folder: str | os.PathLike, out_dir: str | os.PathLike, *, rig: Rig 
     running, facts = inputs.controller if inputs.controller is not None else (None, None)
     layout = inputs.rig.layout
     result: TuneResult = tune(unc, measurement, layout, _budget(inputs, unc), _starts(inputs.rig, facts), running,
-                              facts, analytical_model(inputs.rig), settings, progress)
+                              facts, analytical_model(inputs.rig), settings, progress, operating_point(inputs, unc))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     chosen = result.chosen

@@ -14,7 +14,7 @@ simulated truth.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import linalg, stats
@@ -26,7 +26,7 @@ from ambid.plant.rotor_model import RotorModel
 from ambid.plant.tolerances import tolerance_for
 from ambid.statespace import StateSpace
 
-__all__ = ["PlantUncertainty", "plant_uncertainty", "draw_parameters", "PlantSet", "plant_set", "peak_grid"]
+__all__ = ["PlantUncertainty", "plant_uncertainty", "moved", "draw_parameters", "PlantSet", "plant_set", "peak_grid"]
 
 
 @dataclass(frozen=True)
@@ -110,6 +110,22 @@ def plant_uncertainty(update: Mapping, rig: Rig) -> PlantUncertainty:
             prior_only.append((k, float(np.log(mean) if lg else mean), float(s), bool(lg)))
     return PlantUncertainty(rig.rotor_model(), float(rig.dt), values, free, log, cov, np.array(dofs),
                             tuple(prior_only))
+
+
+def moved(unc: PlantUncertainty, ratios: Mapping[str, float]) -> PlantUncertainty:
+    """``unc`` with the estimates of ``ratios``' parameters multiplied by them, the spread kept: the posterior
+    carried to another operating point (the magnets' slopes under another loop,
+    :func:`ambid.commissioning.from_run.operating_point`).
+
+    Examples:
+        >>> from ambid.plant.rig import make_rig
+        >>> update = {"free": ["ki_n_per_a"], "parameters": {
+        ...     "ki_n_per_a": {"value": 175.0, "std": 0.5, "ci95": [174.0, 176.0], "free": True}}}
+        >>> moved(plant_uncertainty(update, make_rig()), {"ki_n_per_a": 1.01}).values["ki_n_per_a"]
+        176.75
+    """
+    values = {k: v * float(ratios.get(k, 1.0)) for k, v in unc.values.items()}
+    return replace(unc, values=values)
 
 
 def draw_parameters(unc: PlantUncertainty, n: int, rng: np.random.Generator) -> list[dict[str, float]]:

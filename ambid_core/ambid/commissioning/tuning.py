@@ -141,7 +141,8 @@ def _check(k: StateSpace, models: Sequence[StateSpace], grid: np.ndarray, frf: n
 def tune(unc: PlantUncertainty, measurement: MeasurementModel, layout: Layout, budget: CurrentBudget,
          starts: Sequence[Sequence[StructuredAxis]], running: StateSpace | None = None,
          running_parameters: dict | None = None, nominal: StateSpace | None = None,
-         settings: TuneSettings = TuneSettings(), progress: Callable[[str], None] | None = None) -> TuneResult:
+         settings: TuneSettings = TuneSettings(), progress: Callable[[str], None] | None = None,
+         operating_point: Callable[[StateSpace], PlantUncertainty] | None = None) -> TuneResult:
     """Design, check, choose and predict (module docstring).
 
     Args:
@@ -157,6 +158,8 @@ def tune(unc: PlantUncertainty, measurement: MeasurementModel, layout: Layout, b
             drawing lacks (and identify's own check before a run, on that model, passes).
         settings: how hard to work.
         progress: called with a line per step.
+        operating_point: the posterior where a controller's loop holds the plant in the verifying run (the
+            magnets' slopes move with the excursions the loop lets the excitation cause); default ``unc``.
 
     Raises:
         ValueError: no candidate holds every check plant within the budget.
@@ -218,7 +221,8 @@ def tune(unc: PlantUncertainty, measurement: MeasurementModel, layout: Layout, b
     if chosen.kind == "running":
         notes.append("no designed controller beats the running one on the drawn plants: it is kept")
     say(f"chosen: {chosen.kind}; predicting its measured peak ({settings.n_prediction} simulated measurements)")
-    prediction = predict_peak(unc, chosen.model, measurement, n_samples=settings.n_prediction, seed=settings.seed,
+    at = unc if operating_point is None or chosen.kind == "running" else operating_point(chosen.model)
+    prediction = predict_peak(at, chosen.model, measurement, n_samples=settings.n_prediction, seed=settings.seed,
                               axes=layout.axes)
     before = None
     if running is not None and chosen.kind != "running":

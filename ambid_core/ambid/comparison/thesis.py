@@ -88,30 +88,50 @@ CLAIM_RATIO = 10.0
 class ComparePreset:
     """How thorough a comparison is.
 
-    Attributes:
-        name: preset name.
-        band_hz: (f_lo, f_hi) band of the methods and estimator comparisons [Hz].
-        resolution_hz: line spacing [Hz]; fs / resolution must be an integer.
-        peak_current_a: peak excitation current per input, methods comparison [A].
-        target_error: target median relative FRF error [-] ("same target accuracy").
-        multisine_periods: steady-state periods per multisine / sweep segment.
-        max_realisations: longest ladder of the realisation-based methods.
-        noise_blocks: N-sample blocks per noise realisation (> 4: four
-            independent inputs need more blocks than inputs).
-        stepped_cycles: ladder of measured cycles per stepped-sine line (increasing).
-        stepped_tuned_settle_s: shorter settling waits tried after the fact
-            for the stepped sine [s] (increasing, below the rule's wait).
-        stepped_line_stride: measure every k-th line of the stepped sine and
-            extrapolate its time to the full line set (1 = every line).
-        settle_time_constants: settling wait in time constants of the
-            slowest closed-loop pole below the band's upper edge [-].
-        estimator_peak_a: peak excitation of the estimator comparison [A].
-        estimator_realisations, estimator_periods: M and P of that multisine.
-        nonlinear_peak_a: peak excitation of the odd-versus-full comparison [A].
-        nonlinear_realisations, nonlinear_periods: M (>= 2) and P (>= 2) there.
-        nonlinear_band_hz, nonlinear_resolution_hz: band and resolution there [Hz].
-        liftoff_s: simulated lift-off and settling before the experiments [s].
-        seed: seed of the sensor noise and of every random design choice.
+    Attributes
+    ----------
+    name
+        preset name.
+    band_hz
+        (f_lo, f_hi) band of the methods and estimator comparisons [Hz].
+    resolution_hz
+        line spacing [Hz]; fs / resolution must be an integer.
+    peak_current_a
+        peak excitation current per input, methods comparison [A].
+    target_error
+        target median relative FRF error [-] ("same target accuracy").
+    multisine_periods
+        steady-state periods per multisine / sweep segment.
+    max_realisations
+        longest ladder of the realisation-based methods.
+    noise_blocks
+        N-sample blocks per noise realisation (> 4: four
+        independent inputs need more blocks than inputs).
+    stepped_cycles
+        ladder of measured cycles per stepped-sine line (increasing).
+    stepped_tuned_settle_s
+        shorter settling waits tried after the fact
+        for the stepped sine [s] (increasing, below the rule's wait).
+    stepped_line_stride
+        measure every k-th line of the stepped sine and
+        extrapolate its time to the full line set (1 = every line).
+    settle_time_constants
+        settling wait in time constants of the
+        slowest closed-loop pole below the band's upper edge [-].
+    estimator_peak_a
+        peak excitation of the estimator comparison [A].
+    estimator_realisations, estimator_periods
+        M and P of that multisine.
+    nonlinear_peak_a
+        peak excitation of the odd-versus-full comparison [A].
+    nonlinear_realisations, nonlinear_periods
+        M (>= 2) and P (>= 2) there.
+    nonlinear_band_hz, nonlinear_resolution_hz
+        band and resolution there [Hz].
+    liftoff_s
+        simulated lift-off and settling before the experiments [s].
+    seed
+        seed of the sensor noise and of every random design choice.
     """
 
     name: str
@@ -197,15 +217,21 @@ def settling_time(rig: Rig, controller: StateSpace, f_max_hz: float, n_time_cons
     Only poles whose frequency is at most ``f_max_hz`` count (a lightly
     damped mode far above the band is hardly excited by it).
 
-    Args:
-        rig: rig parameters (the true rig's small-signal model closes the loop).
-        controller: discrete y -> ic controller at rig.dt.
-        f_max_hz: highest pole frequency considered [Hz] (the band's upper edge).
-        n_time_constants: wait in time constants, > 0.
+    Parameters
+    ----------
+    rig
+        rig parameters (the true rig's small-signal model closes the loop).
+    controller
+        discrete y -> ic controller at rig.dt.
+    f_max_hz
+        highest pole frequency considered [Hz] (the band's upper edge).
+    n_time_constants
+        wait in time constants, > 0.
 
-    Returns:
-        {"settle_s", "time_constant_s", "pole_hz"}: the wait [s], the slowest
-        time constant [s] and that pole's frequency [Hz].
+    Returns
+    -------
+    {"settle_s", "time_constant_s", "pole_hz"}: the wait [s], the slowest
+    time constant [s] and that pole's frequency [Hz].
     """
     if not (math.isfinite(n_time_constants) and n_time_constants > 0):
         raise ValueError(f"n_time_constants must be finite and > 0, got {n_time_constants!r}")
@@ -336,18 +362,24 @@ def compare_methods(preset: ComparePreset, rig: Rig, start: LoopStart | None = N
                     methods: tuple[str, ...] = METHODS) -> dict:
     """The excitation methods at the same peak current, settling rule and target accuracy.
 
-    Args:
-        preset: the comparison's settings.
-        rig: rig parameters.
-        start: levitated state to start every experiment from (default: lift off now).
-        methods: subset of :data:`METHODS` to run (the time ratio needs
-            'stepped_sine' and 'multisine_orthogonal').
+    Parameters
+    ----------
+    preset
+        the comparison's settings.
+    rig
+        rig parameters.
+    start
+        levitated state to start every experiment from (default: lift off now).
+    methods
+        subset of :data:`METHODS` to run (the time ratio needs
+        'stepped_sine' and 'multisine_orthogonal').
 
-    Returns:
-        JSON-safe dict: ``freq_hz`` and ``lines`` (the common lines),
-        ``target_error``, ``settling`` (:func:`settling_time`), ``methods``
-        (name -> design figures, ladder, time to target, wall time, clipped
-        and contact samples) and ``orthogonal_vs_stepped`` (None without both methods).
+    Returns
+    -------
+    JSON-safe dict: ``freq_hz`` and ``lines`` (the common lines),
+    ``target_error``, ``settling`` (:func:`settling_time`), ``methods``
+    (name -> design figures, ladder, time to target, wall time, clipped
+    and contact samples) and ``orthogonal_vs_stepped`` (None without both methods).
     """
     unknown = sorted(set(methods) - set(METHODS))
     if unknown or not methods:
@@ -432,16 +464,17 @@ def _orthogonal_vs_stepped(methods: dict) -> dict:
 def compare_estimators(preset: ComparePreset, rig: Rig, start: LoopStart | None = None) -> dict:
     """Every closed-loop estimator on one orthogonal random-phase multisine with a small excitation.
 
-    Returns:
-        JSON-safe dict: ``freq_hz``, ``estimators`` (name -> label, error per
-        line, median and largest error), ``noise_to_excitation`` n per line
-        (RMS period-to-period scatter of u's spectra over their mean: the
-        noise fed back into u against the excitation's part),
-        ``h1_fraction_towards_minus_inv_c`` per line (how far H1 has moved
-        from G towards -C^-1, :func:`_fraction_towards`; the same for the
-        indirect estimator), ``h1_fraction_predicted`` = n^2 / (1 + n^2)
-        (the single-input closed form of H1's bias for white noise on y),
-        ``coherence_median`` (y with r).
+    Returns
+    -------
+    JSON-safe dict: ``freq_hz``, ``estimators`` (name -> label, error per
+    line, median and largest error), ``noise_to_excitation`` n per line
+    (RMS period-to-period scatter of u's spectra over their mean: the
+    noise fed back into u against the excitation's part),
+    ``h1_fraction_towards_minus_inv_c`` per line (how far H1 has moved
+    from G towards -C^-1, :func:`_fraction_towards`; the same for the
+    indirect estimator), ``h1_fraction_predicted`` = n^2 / (1 + n^2)
+    (the single-input closed form of H1's bias for white noise on y),
+    ``coherence_median`` (y with r).
     """
     start = start or levitate(rig, preset.seed, False, preset.liftoff_s)
     fs = 1.0 / rig.dt
@@ -495,15 +528,16 @@ def _fraction_towards(frf: np.ndarray, g_ref: np.ndarray, target: np.ndarray) ->
 def compare_odd_full(preset: ComparePreset, rig: Rig, start: LoopStart | None = None) -> dict:
     """Full-grid and random-odd orthogonal multisines on the nonlinear magnets at a large excitation.
 
-    Returns:
-        JSON-safe dict: ``grids`` with ``full`` and ``random_odd``, each with
-        its lines, FRF error per line and median (against the true rig
-        linearised at the operating point; also the median over the lines both
-        grids excite), median relative noise and total standard deviations of
-        G, their variance ratio (about 1 for a linear system), and for
-        random-odd the ``distortion`` at the detection lines (odd and even
-        levels per output [dB above the noise floor] and the mean output
-        powers per line [m^2] at excited, odd and even detection lines).
+    Returns
+    -------
+    JSON-safe dict: ``grids`` with ``full`` and ``random_odd``, each with
+    its lines, FRF error per line and median (against the true rig
+    linearised at the operating point; also the median over the lines both
+    grids excite), median relative noise and total standard deviations of
+    G, their variance ratio (about 1 for a linear system), and for
+    random-odd the ``distortion`` at the detection lines (odd and even
+    levels per output [dB above the noise floor] and the mean output
+    powers per line [m^2] at excited, odd and even detection lines).
     """
     start = start or levitate(rig, preset.seed, True, preset.liftoff_s)
     if not start.nonlinear_magnets:
@@ -563,14 +597,20 @@ def run_comparison(preset: ComparePreset | str = "quick", rig: Rig | None = None
                    parts: tuple[str, ...] = PARTS, methods: tuple[str, ...] = METHODS) -> dict:
     """Run the comparisons of a preset on a rig (default :func:`ambid.plant.rig.make_rig`).
 
-    Args:
-        preset: a :class:`ComparePreset` or the name of one in :data:`PRESETS`.
-        rig: rig parameters.
-        parts: any of :data:`PARTS`.
-        methods: the methods compared (see :func:`compare_methods`).
+    Parameters
+    ----------
+    preset
+        a :class:`ComparePreset` or the name of one in :data:`PRESETS`.
+    rig
+        rig parameters.
+    parts
+        any of :data:`PARTS`.
+    methods
+        the methods compared (see :func:`compare_methods`).
 
-    Returns:
-        JSON-safe dict with ``preset``, ``rig``, ``loop``, one entry per part and ``wall_s``.
+    Returns
+    -------
+    JSON-safe dict with ``preset``, ``rig``, ``loop``, one entry per part and ``wall_s``.
     """
     if isinstance(preset, str):
         if preset not in PRESETS:

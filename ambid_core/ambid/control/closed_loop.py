@@ -138,15 +138,23 @@ def input_sensitivity(plant: StateSpace, controller: StateSpace, freq_hz: np.nda
 class LoopRobustness:
     """Robustness figures of a closed loop, per axis (plant input channel).
 
-    Attributes:
-        sensitivity_peak: max |S_jj| over frequency, (m,) [-].
-        peak_freq_hz: where it occurs, (m,) [Hz].
-        zone: ISO 14839-3 zone of the worst axis ("A".."D").
-        gain_margin_low: largest gain factor < 1 at which axis j's loop
-            (others closed) loses stability, (m,) (0 if none).
-        gain_margin_high: smallest such factor > 1, (m,) (inf if none).
-        phase_margin_deg: smallest phase margin over the gain crossovers, (m,) [deg].
-        max_singular_peak: peak of the largest singular value of S_i [-].
+    Attributes
+    ----------
+    sensitivity_peak
+        max |S_jj| over frequency, (m,) [-].
+    peak_freq_hz
+        where it occurs, (m,) [Hz].
+    zone
+        ISO 14839-3 zone of the worst axis ("A".."D").
+    gain_margin_low
+        largest gain factor < 1 at which axis j's loop
+        (others closed) loses stability, (m,) (0 if none).
+    gain_margin_high
+        smallest such factor > 1, (m,) (inf if none).
+    phase_margin_deg
+        smallest phase margin over the gain crossovers, (m,) [deg].
+    max_singular_peak
+        peak of the largest singular value of S_i [-].
     """
 
     sensitivity_peak: np.ndarray
@@ -175,10 +183,14 @@ def robustness_grid(loop: StateSpace, f_lo_hz: float = 1.0, n_grid: int = 4000) 
 def loop_robustness(plant: StateSpace, controller: StateSpace, f_lo_hz: float = 1.0) -> LoopRobustness:
     """Sensitivity peaks, ISO zone and loop-at-a-time margins of a stable closed loop.
 
-    Args:
-        plant: u -> y model (continuous: discretised with a zero-order hold).
-        controller: discrete y -> ic model.
-        f_lo_hz: lowest frequency considered [Hz].
+    Parameters
+    ----------
+    plant
+        u -> y model (continuous: discretised with a zero-order hold).
+    controller
+        discrete y -> ic model.
+    f_lo_hz
+        lowest frequency considered [Hz].
     """
     loop = close_loop(_discrete(plant, controller.dt), controller)
     if not loop.is_stable():

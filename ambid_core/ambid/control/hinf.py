@@ -37,14 +37,22 @@ _MICRO = 1e6   # displacements in micrometres inside the synthesis
 class MixedSensitivityWeights:
     """The weights of the mixed-sensitivity problem (module docstring); the same on every axis.
 
-    Attributes:
-        sensitivity_peak: the input-sensitivity peak the design asks for, s_max [-].
-        effort_a: the controller current the noise and the roll-off weight may cost, i_e [A].
-        effort_corner_hz: where the controller must start to roll off [Hz].
-        effort_rolloff: W_e's gain far above the corner [-].
-        compliance_m_per_a: the displacement per current allowed at low frequency [m/A].
-        compliance_corner_hz: above it the compliance weight falls off [Hz].
-        noise_m: the sensors' noise std per sample, sigma [m].
+    Attributes
+    ----------
+    sensitivity_peak
+        the input-sensitivity peak the design asks for, s_max [-].
+    effort_a
+        the controller current the noise and the roll-off weight may cost, i_e [A].
+    effort_corner_hz
+        where the controller must start to roll off [Hz].
+    effort_rolloff
+        W_e's gain far above the corner [-].
+    compliance_m_per_a
+        the displacement per current allowed at low frequency [m/A].
+    compliance_corner_hz
+        above it the compliance weight falls off [Hz].
+    noise_m
+        the sensors' noise std per sample, sigma [m].
     """
 
     sensitivity_peak: float = 2.0
@@ -76,12 +84,16 @@ def _first_order(num: tuple[float, float], den: tuple[float, float], dt: float) 
 def generalized_plant(plant: StateSpace, w: MixedSensitivityWeights) -> tuple[StateSpace, int, int]:
     """The discrete generalised plant of the module docstring, inputs [d; n; v], outputs [z1; z2; z3; y_m].
 
-    Args:
-        plant: discrete u (na) [A] -> y (na) [m], D = 0.
-        w: the weights.
+    Parameters
+    ----------
+    plant
+        discrete u (na) [A] -> y (na) [m], D = 0.
+    w
+        the weights.
 
-    Returns:
-        (P, number of control inputs, number of measurements).
+    Returns
+    -------
+    (P, number of control inputs, number of measurements).
     """
     if plant.dt <= 0 or np.any(plant.d):
         raise ValueError("mixed_sensitivity needs a discrete, strictly proper plant")
@@ -156,21 +168,31 @@ def mixed_sensitivity(plant: StateSpace, weights: MixedSensitivityWeights, gamma
                       ) -> tuple[StateSpace, float]:
     """The H-infinity mixed-sensitivity controller of ``plant`` (module docstring), gamma bisected.
 
-    Args:
-        plant: discrete u (na) [A] -> y (na) [m], D = 0 (e.g. :func:`ambid.fit.model_update.physical_discrete`).
-        weights: the problem's weights.
-        gamma_max: the largest gamma tried; no controller there is a refusal.
-        gamma_tol: the bisection stops when the bracket is this narrow (relative).
-        max_steps: most synthesis calls of the bisection.
-        backoff: the controller is synthesised at this factor above the smallest gamma found.
+    Parameters
+    ----------
+    plant
+        discrete u (na) [A] -> y (na) [m], D = 0 (e.g. :func:`ambid.fit.model_update.physical_discrete`).
+    weights
+        the problem's weights.
+    gamma_max
+        the largest gamma tried; no controller there is a refusal.
+    gamma_tol
+        the bisection stops when the bracket is this narrow (relative).
+    max_steps
+        most synthesis calls of the bisection.
+    backoff
+        the controller is synthesised at this factor above the smallest gamma found.
 
-    Returns:
-        (controller y (na) [m] -> v (na) [A] before the computational delay, D != 0 in general: it runs as
-        :func:`with_delay`; the gamma achieved).
+    Returns
+    -------
+    (controller y (na) [m] -> v (na) [A] before the computational delay, D != 0 in general: it runs as
+    :func:`with_delay`; the gamma achieved).
 
-    Raises:
-        ValueError: no controller up to ``gamma_max`` (the weights ask too much of this plant), or the
-            problem is ill posed (a weight or the plant violates the synthesis' rank conditions).
+    Raises
+    ------
+    ValueError
+        no controller up to ``gamma_max`` (the weights ask too much of this plant), or the
+        problem is ill posed (a weight or the plant violates the synthesis' rank conditions).
     """
     from slycot.exceptions import SlycotParameterError
 
@@ -215,8 +237,10 @@ def reduce_controller(k: StateSpace, order: int) -> StateSpace:
     """Balanced truncation of ``k``'s stable part to ``order`` states in all (its unstable part kept whole;
     SLICOT AB09MD, square root, with equilibration).
 
-    Raises:
-        ValueError: ``order`` is below the number of unstable poles.
+    Raises
+    ------
+    ValueError
+        ``order`` is below the number of unstable poles.
     """
     from slycot import ab09md
 

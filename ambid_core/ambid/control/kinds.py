@@ -33,12 +33,18 @@ from ambid.statespace import StateSpace
 class ControllerDesign:
     """A designed position controller, ready to step.
 
-    Attributes:
-        kind: the name it was designed under.
-        model: discrete state space, y (na) [m] -> ic (na) [A] on the rig's axes, computational delay included.
-        current_limit_a: saturation of ic [A].
-        delay_samples: computational delay [samples].
-        parameters: JSON-able design parameters (they travel in the controller description).
+    Attributes
+    ----------
+    kind
+        the name it was designed under.
+    model
+        discrete state space, y (na) [m] -> ic (na) [A] on the rig's axes, computational delay included.
+    current_limit_a
+        saturation of ic [A].
+    delay_samples
+        computational delay [samples].
+    parameters
+        JSON-able design parameters (they travel in the controller description).
     """
 
     kind: str
@@ -114,18 +120,24 @@ def design_file(path: str | Path, rig: Rig, pid: PidParameters) -> ControllerDes
 def design_controller(spec: str | Mapping | None, rig: Rig, pid: PidParameters | None = None) -> ControllerDesign:
     """The controller ``spec`` names, for ``rig``.
 
-    Args:
-        spec: a kind of :data:`CONTROLLER_KINDS`, a controller file (.npz, .mat,
-            .yaml), a rig file's mapping ({kind: ..., parameters} or
-            {file: ...}), or None/"" for the rig's own ``controller:`` (the
-            PID when the rig names none).
-        rig: the rig (sample period, models).
-        pid: the PID's gains and the current limit of every kind (default
-            PidParameters()).
+    Parameters
+    ----------
+    spec
+        a kind of :data:`CONTROLLER_KINDS`, a controller file (.npz, .mat,
+        .yaml), a rig file's mapping ({kind: ..., parameters} or
+        {file: ...}), or None/"" for the rig's own ``controller:`` (the
+        PID when the rig names none).
+    rig
+        the rig (sample period, models).
+    pid
+        the PID's gains and the current limit of every kind (default
+        PidParameters()).
 
-    Raises:
-        ValueError: an unknown kind (the message lists the known ones), a
-            bad file or parameter (named).
+    Raises
+    ------
+    ValueError
+        an unknown kind (the message lists the known ones), a
+        bad file or parameter (named).
     """
     pid = PidParameters() if pid is None else pid
     if spec is None or spec == "":

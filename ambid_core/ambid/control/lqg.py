@@ -39,32 +39,44 @@ from ambid.statespace import StateSpace, delay, series
 class LqgParameters:
     """Weights and noise levels of the LQG design (Bryson-style scales, SI units).
 
-    Attributes:
-        displacement_scale_m: sensor displacement that costs as much as
-            ``current_scale_a`` of control current [m].
-        current_scale_a: control current scale [A].
-        state_weight: weight of every (scaled) state besides y, keeps the
-            Riccati equation well posed [-].
-        input_noise_a: process noise at each current input, std per sample [A].
-        disturbance_drift_a: random-walk std per sample of the input
-            disturbance (sets how fast the integral action acts) [A].
-        state_noise: process noise on every design-model state, std per
-            sample relative to the state's size for a unit current pulse
-            [-]; > 0 keeps the estimator from cancelling the plant's lightly
-            damped zeros (noise through the inputs only would, as in loop
-            transfer recovery, and that is fragile).
-        measurement_noise_m: sensor noise std [m]; None takes the rig's
-            ``sensor_noise_m`` (at least 0.05 um).
-        n_bending: bending modes per plane in the design model; None takes
-            the rig's ``bending_modes``.
-        delay_samples: computational delay [samples], >= 1.
-        regulate: "bearings" weights the rotor displacement at the bearing
-            planes (collocated with the forces: robust), "sensors" the
-            measured displacements.
-        resonance_weight: weight of the lightly damped modes' amplitudes
-            relative to the displacement cost [-]; > 0 makes the controller
-            damp the bending modes instead of notching them (a notch lags
-            below its frequency, which destabilises the housing mode).
+    Attributes
+    ----------
+    displacement_scale_m
+        sensor displacement that costs as much as
+        ``current_scale_a`` of control current [m].
+    current_scale_a
+        control current scale [A].
+    state_weight
+        weight of every (scaled) state besides y, keeps the
+        Riccati equation well posed [-].
+    input_noise_a
+        process noise at each current input, std per sample [A].
+    disturbance_drift_a
+        random-walk std per sample of the input
+        disturbance (sets how fast the integral action acts) [A].
+    state_noise
+        process noise on every design-model state, std per
+        sample relative to the state's size for a unit current pulse
+        [-]; > 0 keeps the estimator from cancelling the plant's lightly
+        damped zeros (noise through the inputs only would, as in loop
+        transfer recovery, and that is fragile).
+    measurement_noise_m
+        sensor noise std [m]; None takes the rig's
+        ``sensor_noise_m`` (at least 0.05 um).
+    n_bending
+        bending modes per plane in the design model; None takes
+        the rig's ``bending_modes``.
+    delay_samples
+        computational delay [samples], >= 1.
+    regulate
+        "bearings" weights the rotor displacement at the bearing
+        planes (collocated with the forces: robust), "sensors" the
+        measured displacements.
+    resonance_weight
+        weight of the lightly damped modes' amplitudes
+        relative to the displacement cost [-]; > 0 makes the controller
+        damp the bending modes instead of notching them (a notch lags
+        below its frequency, which destabilises the housing mode).
     """
 
     displacement_scale_m: float = 100e-6
@@ -112,18 +124,24 @@ def lqg_controller(rig: Rig, params: LqgParameters | None = None) -> StateSpace:
     """Discrete LQG controller y (na) [m] -> ic (na) [A] on the rig's axes, minus sign and computational
     delay included.
 
-    Args:
-        rig: rig whose analytical model is the design model.
-        params: weights and noise levels; None takes the defaults.
+    Parameters
+    ----------
+    rig
+        rig whose analytical model is the design model.
+    params
+        weights and noise levels; None takes the defaults.
 
-    Returns:
-        StateSpace, dt = rig.dt, D = 0 (ic[k] depends on y[k-1] and older);
-        states: predicted design-model state, the disturbance estimate, then
-        (delay_samples - 1) x na output-delay states.
+    Returns
+    -------
+    StateSpace, dt = rig.dt, D = 0 (ic[k] depends on y[k-1] and older);
+    states: predicted design-model state, the disturbance estimate, then
+    (delay_samples - 1) x na output-delay states.
 
-    Raises:
-        ValueError: a Riccati equation has no stabilising solution (the
-            weights or noise levels are degenerate).
+    Raises
+    ------
+    ValueError
+        a Riccati equation has no stabilising solution (the
+        weights or noise levels are degenerate).
     """
     p = LqgParameters() if params is None else params
     plant = lqg_design_model(rig, p)

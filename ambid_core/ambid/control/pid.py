@@ -29,16 +29,26 @@ class PidParameters:
     the whole rotor mass on one magnet pair: it takes its own proportional
     gain and derivative time, the rest as the radial axes.
 
-    Attributes:
-        kp_a_per_m: proportional gain [A/m].
-        ti_s: integral time [s].
-        td_s: derivative time [s].
-        derivative_filter_n: derivative filter ratio N [-] (lead up to N).
-        lowpass_hz: first-order low-pass corner [Hz].
-        delay_samples: computational delay [samples].
-        current_limit_a: saturation of ic [A].
-        axial_kp_a_per_m: proportional gain of an axial axis [A/m].
-        axial_td_s: derivative time of an axial axis [s].
+    Attributes
+    ----------
+    kp_a_per_m
+        proportional gain [A/m].
+    ti_s
+        integral time [s].
+    td_s
+        derivative time [s].
+    derivative_filter_n
+        derivative filter ratio N [-] (lead up to N).
+    lowpass_hz
+        first-order low-pass corner [Hz].
+    delay_samples
+        computational delay [samples].
+    current_limit_a
+        saturation of ic [A].
+    axial_kp_a_per_m
+        proportional gain of an axial axis [A/m].
+    axial_td_s
+        derivative time of an axial axis [s].
     """
 
     kp_a_per_m: float = 12_000.0

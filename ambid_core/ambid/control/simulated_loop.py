@@ -32,11 +32,16 @@ class LoopStart:
     same sensor-noise sequence (common random numbers, so the methods differ
     by their excitation only).
 
-    Attributes:
-        sim: the plant simulator (experiments deep-copy it).
-        ctl: the controller stepper (likewise).
-        liftoff_s: simulated time spent lifting off and settling [s].
-        nonlinear_magnets: whether the plant uses eq. 2.14.
+    Attributes
+    ----------
+    sim
+        the plant simulator (experiments deep-copy it).
+    ctl
+        the controller stepper (likewise).
+    liftoff_s
+        simulated time spent lifting off and settling [s].
+    nonlinear_magnets
+        whether the plant uses eq. 2.14.
     """
 
     sim: PlantSimulator
@@ -49,14 +54,22 @@ class LoopStart:
 class LoopRecord:
     """What one experiment measured.
 
-    Attributes:
-        y: (n, na) sensor displacements [m].
-        u: (n, na) current references u = ic + r [A] (before the amplifier limit).
-        r: (n, na) excitation [A].
-        n_clipped: samples where the amplifiers saturated.
-        n_contact: samples where the rotor touched the backup bearings.
-        wall_s: wall time of the loop [s].
-        layout: the rig's axes, the columns' order.
+    Attributes
+    ----------
+    y
+        (n, na) sensor displacements [m].
+    u
+        (n, na) current references u = ic + r [A] (before the amplifier limit).
+    r
+        (n, na) excitation [A].
+    n_clipped
+        samples where the amplifiers saturated.
+    n_contact
+        samples where the rotor touched the backup bearings.
+    wall_s
+        wall time of the loop [s].
+    layout
+        the rig's axes, the columns' order.
     """
 
     y: np.ndarray
@@ -105,12 +118,16 @@ def levitate(rig: Rig, seed: int = 0, nonlinear_magnets: bool = False, liftoff_s
 def run_loop(start: LoopStart, r: np.ndarray) -> LoopRecord:
     """Run one experiment from a copy of ``start``, sample by sample in the plant_sim order.
 
-    Args:
-        start: the levitated state (not modified).
-        r: (n, na) excitation [A] added to the control currents, in the rig layout's order.
+    Parameters
+    ----------
+    start
+        the levitated state (not modified).
+    r
+        (n, na) excitation [A] added to the control currents, in the rig layout's order.
 
-    Returns:
-        :class:`LoopRecord`.
+    Returns
+    -------
+    :class:`LoopRecord`.
     """
     r = np.asarray(r, dtype=float)
     layout = start.sim.layout

@@ -24,9 +24,10 @@ from ambid.compiled import F8, I8, VEC, add_columns, njit
 def statespace_work(n: int, p: int, q: int, matrices: list[np.ndarray]) -> tuple[np.ndarray, list[int]]:
     """A controller work vector (module docstring) holding the step matrices, each (q + n, n + p).
 
-    Returns:
-        w: float64 work vector, state, input and output zero.
-        offsets: where each matrix (transposed) starts in w.
+    Returns
+    -------
+    w: float64 work vector, state, input and output zero.
+    offsets: where each matrix (transposed) starts in w.
     """
     head = n + p + 2 * q + n  # x, y, output, scratch
     offsets, blocks, at = [], [], head
@@ -45,11 +46,16 @@ def statespace_step(w: np.ndarray, n: int, p: int, q: int, mat: int, limit: floa
     """One step of a discrete state-space model with output saturation, in place:
     [out; x[k+1]] = m [x; y], out clipped to [-limit, limit].
 
-    Args:
-        w: controller work vector (module docstring), y already in place.
-        n, p, q: number of states, inputs, outputs.
-        mat: offset of the step matrix m.T in w.
-        limit: output saturation.
+    Parameters
+    ----------
+    w
+        controller work vector (module docstring), y already in place.
+    n, p, q
+        number of states, inputs, outputs.
+    mat
+        offset of the step matrix m.T in w.
+    limit
+        output saturation.
     """
     o = n + p
     out = w[o + q:o + 2 * q + n]  # the scratch

@@ -21,9 +21,12 @@ class ControllerStepper(KernelOwner):
     ``step_ahead(y[k])`` returns ic[k+1], the sequence ``step`` gives one
     sample later.
 
-    Args:
-        model: discrete controller, y (p) [m] -> ic (q) [A].
-        current_limit_a: output saturation [A].
+    Parameters
+    ----------
+    model
+        discrete controller, y (p) [m] -> ic (q) [A].
+    current_limit_a
+        output saturation [A].
     """
 
     _UNPICKLED = ("_step",)  # the compiled kernel, bound again in a copy
@@ -63,8 +66,10 @@ class ControllerStepper(KernelOwner):
         :attr:`n_inputs` p and :attr:`n_outputs` q; y at w[n:n + p], the output at w[n + p:n + p + q]);
         ``ahead``: the matrix of ``step_ahead``.
 
-        Raises:
-            ValueError: ``ahead`` and the controller has feedthrough.
+        Raises
+        ------
+        ValueError
+            ``ahead`` and the controller has feedthrough.
         """
         mat = self._mat_ahead if ahead else self._mat
         if mat < 0:
@@ -88,8 +93,10 @@ class ControllerStepper(KernelOwner):
         """Set the state to the equilibrium that outputs ``ic_a`` (m,) [A] for the constant input
         ``y_m`` (p,) [m] (default 0), e.g. an integrator already carrying the gravity current.
 
-        Raises:
-            ValueError: no such equilibrium (the controller has no integral action on these channels).
+        Raises
+        ------
+        ValueError
+            no such equilibrium (the controller has no integral action on these channels).
         """
         m = self.model
         ic = np.asarray(ic_a, dtype=float).reshape(m.n_outputs)
@@ -118,8 +125,10 @@ class ControllerStepper(KernelOwner):
         """ic = C x [A] of the present state, saturated (q floats); for a strictly proper controller
         this is what the next ``step`` returns.
 
-        Raises:
-            ValueError: the controller has feedthrough (D != 0).
+        Raises
+        ------
+        ValueError
+            the controller has feedthrough (D != 0).
         """
         if not self._proper:
             raise ValueError("current_output needs a strictly proper controller (D = 0): its output "
@@ -132,8 +141,10 @@ class ControllerStepper(KernelOwner):
         """Update the state with y[k] [m] (p floats) and return the next output ic[k+1] = C x[k+1] [A]
         (q floats), saturated (a strictly proper controller; ``step(y[k+1])`` would return the same).
 
-        Raises:
-            ValueError: the controller has feedthrough (D != 0).
+        Raises
+        ------
+        ValueError
+            the controller has feedthrough (D != 0).
         """
         mat = self._mat_ahead
         if mat < 0:

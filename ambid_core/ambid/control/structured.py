@@ -26,10 +26,14 @@ from ambid.statespace import StateSpace, block_diag, delay, series
 class Notch:
     """One notch filter.
 
-    Attributes:
-        freq_hz: centre frequency [Hz].
-        depth: gain at the centre, zeta_zero / zeta_pole, in (0, 1] [-] (1: no notch).
-        width: damping ratio of its poles, its relative half-width [-].
+    Attributes
+    ----------
+    freq_hz
+        centre frequency [Hz].
+    depth
+        gain at the centre, zeta_zero / zeta_pole, in (0, 1] [-] (1: no notch).
+    width
+        damping ratio of its poles, its relative half-width [-].
     """
 
     freq_hz: float
@@ -49,15 +53,24 @@ class Notch:
 class StructuredAxis:
     """One axis of the structured controller (module docstring).
 
-    Attributes:
-        kp_a_per_m: proportional gain [A/m].
-        ti_s: integral time [s].
-        td_s: derivative time [s] (0: no derivative).
-        derivative_filter_n: derivative filter ratio n [-].
-        lead_zero_hz, lead_pole_hz: the lead/lag's zero and pole [Hz] (equal: none; zero below pole: lead).
-        lowpass_hz: second-order low-pass corner [Hz].
-        lowpass_damping: its damping ratio [-].
-        notches: the notch filters.
+    Attributes
+    ----------
+    kp_a_per_m
+        proportional gain [A/m].
+    ti_s
+        integral time [s].
+    td_s
+        derivative time [s] (0: no derivative).
+    derivative_filter_n
+        derivative filter ratio n [-].
+    lead_zero_hz, lead_pole_hz
+        the lead/lag's zero and pole [Hz] (equal: none; zero below pole: lead).
+    lowpass_hz
+        second-order low-pass corner [Hz].
+    lowpass_damping
+        its damping ratio [-].
+    notches
+        the notch filters.
     """
 
     kp_a_per_m: float
@@ -142,13 +155,14 @@ def structured_axis_frf(p: StructuredAxis, freq_hz: np.ndarray, dt: float) -> np
     """Frequency response of :func:`structured_axis` with the computational delay of ``delay_samples`` = 1,
     (L,) complex [A/m]: each section at s = j 2/dt tan(pi f dt) (Tustin's exact map), times -z^-1.
 
-    Examples:
-        >>> import numpy as np
-        >>> p = StructuredAxis(kp_a_per_m=12000.0)
-        >>> f = np.array([50.0, 400.0])
-        >>> k = structured_controller([p], 1e-4, Layout(("a_x",)))
-        >>> bool(np.allclose(structured_axis_frf(p, f, 1e-4), k.freqresp(f)[:, 0, 0]))
-        True
+    Examples
+    --------
+    >>> import numpy as np
+    >>> p = StructuredAxis(kp_a_per_m=12000.0)
+    >>> f = np.array([50.0, 400.0])
+    >>> k = structured_controller([p], 1e-4, Layout(("a_x",)))
+    >>> bool(np.allclose(structured_axis_frf(p, f, 1e-4), k.freqresp(f)[:, 0, 0]))
+    True
     """
     f = np.asarray(freq_hz, dtype=float)
     s = 1j * (2.0 / dt) * np.tan(np.pi * f * dt)

@@ -97,9 +97,11 @@ def load_controller(path: str | Path, dt_s: float, whose: str = "the rig's", lay
 
     ``whose`` names the sample period ``dt_s`` in a refusal ("the rig's", "the record's").
 
-    Raises:
-        ValueError: one line naming the file, what is wrong and the fix (missing, unreadable, a key
-            missing, wrong shapes, NaN/Inf, a sample period other than the rig's).
+    Raises
+    ------
+    ValueError
+        one line naming the file, what is wrong and the fix (missing, unreadable, a key
+        missing, wrong shapes, NaN/Inf, a sample period other than the rig's).
     """
     path = Path(path)
     data = _read(path)

@@ -76,34 +76,53 @@ def _float_array(x: Any) -> np.ndarray:
 class ExcitationDesign:
     """A designed excitation; build it with the ``design_*`` functions.
 
-    Attributes:
-        kind: one of KINDS.
-        fs_hz: sample rate [Hz].
-        n_per_period: N, samples per period; lines are DFT bins of N.
-        n_periods: P, steady-state periods per segment (stepped sine: the
-            minimum measured cycles per line; see ``segment_layout``).
-        n_transient_periods: Pt, transient periods per segment (stepped
-            sine: 0; its settling is per line in ``segment_layout``).
-        n_realisations: M (stepped sine: the number of lines).
-        n_experiments: Ne.
-        input_names: (Nu,) names of the inputs.
-        excited_lines: (L,) int DFT bins carrying the excitation (for
-            'prbs' every line with power; for 'dibs' the lines the power was
-            concentrated on; for 'swept_sine' and 'noise' the band's lines).
-        detection_lines_odd, detection_lines_even: unexcited odd and even
-            lines within the band (empty where a kind has none).
-        amplitudes_a: (Nu, L) amplitude of each line per input [A] (for
-            'noise' the expected RMS line amplitude of one N-block).
-        phasors: (M, Ne, Nu, L) complex phase factors for 'multisine'
-            (0 where an input is not excited), else None; the matrix over
-            (input, experiment) at line l is ``phasors[m, :, :, l].T``.
-        peak_a, rms_a: (Nu,) peak and RMS of each input while excited [A]
-            (noise: RMS before clipping).
-        crest_factor: (Nu,) peak / RMS, worst period [-].
-        band_hz: (f_lo, f_hi) band of interest [Hz].
-        seed: integer seed the random choices came from (None if none).
-        options: JSON-safe design choices (grid, spacing, phases, mimo, ...).
-        source: JSON-safe kind-specific data that regenerates the waveform.
+    Attributes
+    ----------
+    kind
+        one of KINDS.
+    fs_hz
+        sample rate [Hz].
+    n_per_period
+        N, samples per period; lines are DFT bins of N.
+    n_periods
+        P, steady-state periods per segment (stepped sine: the
+        minimum measured cycles per line; see ``segment_layout``).
+    n_transient_periods
+        Pt, transient periods per segment (stepped
+        sine: 0; its settling is per line in ``segment_layout``).
+    n_realisations
+        M (stepped sine: the number of lines).
+    n_experiments
+        Ne.
+    input_names
+        (Nu,) names of the inputs.
+    excited_lines
+        (L,) int DFT bins carrying the excitation (for
+        'prbs' every line with power; for 'dibs' the lines the power was
+        concentrated on; for 'swept_sine' and 'noise' the band's lines).
+    detection_lines_odd, detection_lines_even
+        unexcited odd and even
+        lines within the band (empty where a kind has none).
+    amplitudes_a
+        (Nu, L) amplitude of each line per input [A] (for
+        'noise' the expected RMS line amplitude of one N-block).
+    phasors
+        (M, Ne, Nu, L) complex phase factors for 'multisine'
+        (0 where an input is not excited), else None; the matrix over
+        (input, experiment) at line l is ``phasors[m, :, :, l].T``.
+    peak_a, rms_a
+        (Nu,) peak and RMS of each input while excited [A]
+        (noise: RMS before clipping).
+    crest_factor
+        (Nu,) peak / RMS, worst period [-].
+    band_hz
+        (f_lo, f_hi) band of interest [Hz].
+    seed
+        integer seed the random choices came from (None if none).
+    options
+        JSON-safe design choices (grid, spacing, phases, mimo, ...).
+    source
+        JSON-safe kind-specific data that regenerates the waveform.
     """
 
     kind: str
@@ -282,12 +301,16 @@ class ExcitationDesign:
     def samples(self, start: int, n: int) -> np.ndarray:
         """Excitation for sample offsets [start, start + n) of the experiment.
 
-        Args:
-            start: first sample offset, >= 0.
-            n: number of samples, >= 0, start + n <= total_samples.
+        Parameters
+        ----------
+        start
+            first sample offset, >= 0.
+        n
+            number of samples, >= 0, start + n <= total_samples.
 
-        Returns:
-            (n, Nu) excitation [A]; contiguous calls join without gap or overlap.
+        Returns
+        -------
+        (n, Nu) excitation [A]; contiguous calls join without gap or overlap.
         """
         start, n = int(start), int(n)
         if start < 0 or n < 0 or start + n > self.total_samples:
@@ -322,9 +345,10 @@ class ExcitationDesign:
     def reference_spectrum(self, m: int, e: int) -> np.ndarray:
         """Complex line amplitudes of segment (m, e) over one N-sample window.
 
-        Returns:
-            (Nu, L) complex: 2/N * DFT of N steady-state samples at the
-            excited lines [A] (a multisine gives amplitudes_a * phasors[m, e]).
+        Returns
+        -------
+        (Nu, L) complex: 2/N * DFT of N steady-state samples at the
+        excited lines [A] (a multisine gives amplitudes_a * phasors[m, e]).
         """
         if not self.is_periodic:
             raise ValueError("a noise design has no fixed reference spectrum; measure r instead")
@@ -386,18 +410,25 @@ def check_headroom(design: ExcitationDesign, current_limit_a: float | np.ndarray
                    working_current_a: float | np.ndarray) -> np.ndarray:
     """Refuse a design whose peak plus the working current exceeds the current limit.
 
-    Args:
-        design: the excitation design.
-        current_limit_a: amplifier current limit, scalar or (Nu,) [A].
-        working_current_a: controller's peak working (control) current,
-            scalar or (Nu,) [A], >= 0.
+    Parameters
+    ----------
+    design
+        the excitation design.
+    current_limit_a
+        amplifier current limit, scalar or (Nu,) [A].
+    working_current_a
+        controller's peak working (control) current,
+        scalar or (Nu,) [A], >= 0.
 
-    Returns:
-        (Nu,) margin limit - working - excitation peak [A] (all >= 0).
+    Returns
+    -------
+    (Nu,) margin limit - working - excitation peak [A] (all >= 0).
 
-    Raises:
-        ValueError: naming each input that lacks headroom and the largest
-            peak_current_a it can take.
+    Raises
+    ------
+    ValueError
+        naming each input that lacks headroom and the largest
+        peak_current_a it can take.
     """
     nu = design.n_inputs
     limit = np.broadcast_to(np.asarray(current_limit_a, dtype=float), (nu,))

@@ -225,19 +225,27 @@ def design_stepped_sine(band_hz: tuple[float, float], resolution_hz: float, fs_h
     at least ``n_cycles`` measured cycles, both whole periods of the sine's
     exact sample period N / gcd(N, k) (layout in ``ExcitationDesign``).
 
-    Args:
-        band_hz, resolution_hz, fs_hz, input_names, peak_current_a: as in
-            ``design_multisine``.
-        settle_s: settling wait per line [s], >= 0.
-        n_cycles: minimum cycles measured per line, >= 1.
-        grid: 'full' or 'odd'.
-        spacing, n_lines, amplitude_shape: as in ``design_multisine``.
-        lines: explicit DFT bins to measure (e.g. a multisine's
-            ``excited_lines``, for a like-for-like comparison); they must lie
-            in the band; ``grid``, ``spacing`` and ``n_lines`` are then unused.
+    Parameters
+    ----------
+    band_hz, resolution_hz, fs_hz, input_names, peak_current_a
+        as in
+        ``design_multisine``.
+    settle_s
+        settling wait per line [s], >= 0.
+    n_cycles
+        minimum cycles measured per line, >= 1.
+    grid
+        'full' or 'odd'.
+    spacing, n_lines, amplitude_shape
+        as in ``design_multisine``.
+    lines
+        explicit DFT bins to measure (e.g. a multisine's
+        ``excited_lines``, for a like-for-like comparison); they must lie
+        in the band; ``grid``, ``spacing`` and ``n_lines`` are then unused.
 
-    Returns:
-        ExcitationDesign of kind 'stepped_sine' (M = L lines, Ne = Nu).
+    Returns
+    -------
+    ExcitationDesign of kind 'stepped_sine' (M = L lines, Ne = Nu).
     """
     names, peaks = _inputs(input_names, peak_current_a)
     n, k_lo, k_hi = _common(band_hz, resolution_hz, fs_hz)
@@ -351,17 +359,26 @@ def design_prbs(fs_hz: float, order: int, input_names: Sequence[str],
     all ``excited_lines``; the hold shapes them like sinc). Realisations are
     seeded cyclic shifts of the sequence.
 
-    Args:
-        fs_hz: sample rate [Hz].
-        order: LFSR order, 2..23.
-        input_names, peak_current_a: as in ``design_multisine``.
-        clock_divider: samples per bit, >= 1.
-        n_periods, n_realisations, n_transient_periods: as in ``design_multisine``.
-        mimo: 'one_at_a_time' or 'orthogonal' (Hadamard signs; Nu a power of 2).
-        seed: seed of the realisations' shifts.
+    Parameters
+    ----------
+    fs_hz
+        sample rate [Hz].
+    order
+        LFSR order, 2..23.
+    input_names, peak_current_a
+        as in ``design_multisine``.
+    clock_divider
+        samples per bit, >= 1.
+    n_periods, n_realisations, n_transient_periods
+        as in ``design_multisine``.
+    mimo
+        'one_at_a_time' or 'orthogonal' (Hadamard signs; Nu a power of 2).
+    seed
+        seed of the realisations' shifts.
 
-    Returns:
-        ExcitationDesign of kind 'prbs'.
+    Returns
+    -------
+    ExcitationDesign of kind 'prbs'.
     """
     names, peaks = _inputs(input_names, peak_current_a)
     fs_hz = float(fs_hz)
@@ -440,20 +457,29 @@ def design_noise(band_hz: tuple[float, float], resolution_hz: float, fs_hz: floa
     N-sample blocks ("periods", N = fs / resolution) are what the FRF
     estimator averages (windowed: noise leaks).
 
-    Args:
-        band_hz, resolution_hz, fs_hz, input_names, peak_current_a: as in
-            ``design_multisine``; band_hz[0] = 0 gives low-pass noise.
-        n_periods: steady-state blocks per segment.
-        n_realisations: independent noise records.
-        n_transient_periods: blocks discarded at each segment start (>= the
-            filter length is advisable).
-        mimo: 'simultaneous' (independent noise on every input, Ne = 1) or
-            'one_at_a_time' (Ne = Nu).
-        crest_factor: peak / RMS, > 1.
-        seed: noise seed.
+    Parameters
+    ----------
+    band_hz, resolution_hz, fs_hz, input_names, peak_current_a
+        as in
+        ``design_multisine``; band_hz[0] = 0 gives low-pass noise.
+    n_periods
+        steady-state blocks per segment.
+    n_realisations
+        independent noise records.
+    n_transient_periods
+        blocks discarded at each segment start (>= the
+        filter length is advisable).
+    mimo
+        'simultaneous' (independent noise on every input, Ne = 1) or
+        'one_at_a_time' (Ne = Nu).
+    crest_factor
+        peak / RMS, > 1.
+    seed
+        noise seed.
 
-    Returns:
-        ExcitationDesign of kind 'noise'.
+    Returns
+    -------
+    ExcitationDesign of kind 'noise'.
     """
     names, peaks = _inputs(input_names, peak_current_a)
     n, k_lo, k_hi = _common(band_hz, resolution_hz, fs_hz)

@@ -25,14 +25,22 @@ WORKING_CURRENT_A = 1.0
 class Experiment:
     """A running experiment: its design, where it lies on the plant's clock, how far it is published.
 
-    Attributes:
-        experiment_id: its name.
-        design: the excitation.
-        start: plant sample index of the design's offset 0.
-        total: samples, cut by :meth:`stop`.
-        columns: (Nu,) the excitation channel of each design input.
-        next_offset: first offset not yet published.
-        blocks: blocks published.
+    Attributes
+    ----------
+    experiment_id
+        its name.
+    design
+        the excitation.
+    start
+        plant sample index of the design's offset 0.
+    total
+        samples, cut by :meth:`stop`.
+    columns
+        (Nu,) the excitation channel of each design input.
+    next_offset
+        first offset not yet published.
+    blocks
+        blocks published.
     """
 
     experiment_id: str
@@ -75,15 +83,23 @@ def place_experiment(experiment_id: str, design: ExcitationDesign, *, fs_hz: flo
                      start_index: int = 0) -> Experiment:
     """``design`` as an experiment on a plant, or ValueError saying why it cannot run there.
 
-    Args:
-        fs_hz: the plant's sample rate [Hz]; the design's must be the same.
-        current_names: the plant's currents; the design's inputs must be among them.
-        current_limit_a: amplifier limit per current (same order) or one for all [A].
-        working_current_a: the controller's peak working current, for the headroom check [A].
-        excitation_names: the excitation channels; input ``u_<axis>`` is excited through ``r_<axis>``.
-        progress: the next sample the plant applies; the experiment starts at least ``margin``
-            samples later, and not before ``after`` (the previous experiment's end).
-        start_index: the start asked for; 0 = the earliest safe one.
+    Parameters
+    ----------
+    fs_hz
+        the plant's sample rate [Hz]; the design's must be the same.
+    current_names
+        the plant's currents; the design's inputs must be among them.
+    current_limit_a
+        amplifier limit per current (same order) or one for all [A].
+    working_current_a
+        the controller's peak working current, for the headroom check [A].
+    excitation_names
+        the excitation channels; input ``u_<axis>`` is excited through ``r_<axis>``.
+    progress
+        the next sample the plant applies; the experiment starts at least ``margin``
+        samples later, and not before ``after`` (the previous experiment's end).
+    start_index
+        the start asked for; 0 = the earliest safe one.
     """
     if abs(design.fs_hz - fs_hz) > 1e-9 * fs_hz:
         raise ValueError(f"the design's sample rate {design.fs_hz:g} Hz differs from the plant's "

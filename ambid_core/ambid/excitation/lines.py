@@ -38,16 +38,22 @@ def _finite(name: str, value: float) -> float:
 def n_per_period(fs_hz: float, resolution_hz: float) -> int:
     """Samples per period N = fs / resolution, which must be an integer.
 
-    Args:
-        fs_hz: sample rate [Hz], > 0.
-        resolution_hz: frequency resolution = line spacing fs/N [Hz], > 0.
+    Parameters
+    ----------
+    fs_hz
+        sample rate [Hz], > 0.
+    resolution_hz
+        frequency resolution = line spacing fs/N [Hz], > 0.
 
-    Returns:
-        N [samples].
+    Returns
+    -------
+    N [samples].
 
-    Raises:
-        ValueError: if fs/resolution is not an integer (to 1e-9 relative); the
-            message names resolutions that work.
+    Raises
+    ------
+    ValueError
+        if fs/resolution is not an integer (to 1e-9 relative); the
+        message names resolutions that work.
 
     Examples
     --------
@@ -76,16 +82,23 @@ def n_per_period(fs_hz: float, resolution_hz: float) -> int:
 def band_bins(band_hz: tuple[float, float], fs_hz: float, n: int) -> tuple[int, int]:
     """First and last DFT bin inside a band.
 
-    Args:
-        band_hz: (f_lo, f_hi) [Hz], 0 <= f_lo < f_hi < fs/2.
-        fs_hz: sample rate [Hz].
-        n: samples per period N.
+    Parameters
+    ----------
+    band_hz
+        (f_lo, f_hi) [Hz], 0 <= f_lo < f_hi < fs/2.
+    fs_hz
+        sample rate [Hz].
+    n
+        samples per period N.
 
-    Returns:
-        (k_lo, k_hi): bins with f_lo <= k fs/N <= f_hi, k_lo >= 1, k_hi < N/2.
+    Returns
+    -------
+    (k_lo, k_hi): bins with f_lo <= k fs/N <= f_hi, k_lo >= 1, k_hi < N/2.
 
-    Raises:
-        ValueError: NaN, wrong order, band reaching Nyquist, or no bin inside.
+    Raises
+    ------
+    ValueError
+        NaN, wrong order, band reaching Nyquist, or no bin inside.
 
     Examples
     --------
@@ -132,14 +145,18 @@ def log_lines(candidates: np.ndarray, n_lines: int) -> np.ndarray:
     (the low end) every candidate is taken and above that the lines are
     log-spaced. The ratio is the largest giving at least n_lines lines.
 
-    Args:
-        candidates: (K,) sorted unique positive integer lines to choose from.
-        n_lines: wanted number of lines (>= 1).
+    Parameters
+    ----------
+    candidates
+        (K,) sorted unique positive integer lines to choose from.
+    n_lines
+        wanted number of lines (>= 1).
 
-    Returns:
-        (L,) sorted subset of ``candidates`` starting at its first, with
-        L = min(n_lines, K) or slightly more (when no ratio gives exactly
-        n_lines).
+    Returns
+    -------
+    (L,) sorted subset of ``candidates`` starting at its first, with
+    L = min(n_lines, K) or slightly more (when no ratio gives exactly
+    n_lines).
 
     Examples
     --------
@@ -167,17 +184,25 @@ def line_set(k_lo: int, k_hi: int, grid: str = "random_odd", spacing: str = "lin
              rng: np.random.Generator | None = None) -> np.ndarray:
     """Excited lines of a grid within bins [k_lo, k_hi].
 
-    Args:
-        k_lo, k_hi: first and last admissible bin (1 <= k_lo <= k_hi).
-        grid: 'full', 'odd' or 'random_odd'.
-        spacing: 'linear' (all grid lines) or 'log' (about ``n_lines``
-            quasi-log lines of the grid; default 100).
-        n_lines: number of lines for log spacing; must be None for linear.
-        group_size: random-odd group length (>= 2).
-        rng: random generator for the random-odd choice.
+    Parameters
+    ----------
+    k_lo, k_hi
+        first and last admissible bin (1 <= k_lo <= k_hi).
+    grid
+        'full', 'odd' or 'random_odd'.
+    spacing
+        'linear' (all grid lines) or 'log' (about ``n_lines``
+        quasi-log lines of the grid; default 100).
+    n_lines
+        number of lines for log spacing; must be None for linear.
+    group_size
+        random-odd group length (>= 2).
+    rng
+        random generator for the random-odd choice.
 
-    Returns:
-        (L,) int64 sorted excited lines.
+    Returns
+    -------
+    (L,) int64 sorted excited lines.
 
     Examples
     --------
@@ -215,12 +240,16 @@ def line_set(k_lo: int, k_hi: int, grid: str = "random_odd", spacing: str = "lin
 def detection_lines(excited: np.ndarray, k_lo: int, k_hi: int) -> tuple[np.ndarray, np.ndarray]:
     """Unexcited lines within [k_lo, k_hi], split by parity.
 
-    Args:
-        excited: (L,) excited lines.
-        k_lo, k_hi: band bins.
+    Parameters
+    ----------
+    excited
+        (L,) excited lines.
+    k_lo, k_hi
+        band bins.
 
-    Returns:
-        (odd, even): int64 arrays of the non-excited odd and even lines.
+    Returns
+    -------
+    (odd, even): int64 arrays of the non-excited odd and even lines.
 
     Examples
     --------
@@ -238,14 +267,18 @@ def detection_lines(excited: np.ndarray, k_lo: int, k_hi: int) -> tuple[np.ndarr
 def shape_amplitudes(amplitude_shape: AmplitudeShape, freq_hz: np.ndarray) -> np.ndarray:
     """Relative amplitude of each line from a user shape.
 
-    Args:
-        amplitude_shape: None (flat), a callable ``f(freq_hz) -> (L,)``, or a
-            table ``(freq_hz, amplitude)`` of two equal-length sequences
-            (linear interpolation, constant beyond its ends).
-        freq_hz: (L,) line frequencies [Hz].
+    Parameters
+    ----------
+    amplitude_shape
+        None (flat), a callable ``f(freq_hz) -> (L,)``, or a
+        table ``(freq_hz, amplitude)`` of two equal-length sequences
+        (linear interpolation, constant beyond its ends).
+    freq_hz
+        (L,) line frequencies [Hz].
 
-    Returns:
-        (L,) amplitudes, max 1, all > 0 and finite.
+    Returns
+    -------
+    (L,) amplitudes, max 1, all > 0 and finite.
     """
     f = np.asarray(freq_hz, dtype=float)
     if amplitude_shape is None:

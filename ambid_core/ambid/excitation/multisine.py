@@ -35,15 +35,21 @@ def multisine_period(n: int, lines: np.ndarray, amplitudes: np.ndarray,
                      phasors: np.ndarray) -> np.ndarray:
     """One period of a multisine.
 
-    Args:
-        n: samples per period N.
-        lines: (L,) DFT bins, 1 <= k < N/2.
-        amplitudes: (..., L) amplitude of each line [A].
-        phasors: (..., L) complex phase factors (|P| = 1, or 0 for a line not
-            excited), broadcastable with ``amplitudes``.
+    Parameters
+    ----------
+    n
+        samples per period N.
+    lines
+        (L,) DFT bins, 1 <= k < N/2.
+    amplitudes
+        (..., L) amplitude of each line [A].
+    phasors
+        (..., L) complex phase factors (|P| = 1, or 0 for a line not
+        excited), broadcastable with ``amplitudes``.
 
-    Returns:
-        (..., N) samples [A].
+    Returns
+    -------
+    (..., N) samples [A].
     """
     coef = np.asarray(amplitudes) * np.asarray(phasors)
     spec = np.zeros(coef.shape[:-1] + (n // 2 + 1,), dtype=complex)
@@ -72,12 +78,16 @@ def schroeder_phases(lines: np.ndarray, amplitudes: np.ndarray) -> np.ndarray:
     respected); for a flat full grid k = 1..F this is -pi k (k - 1) / F, a
     quasi-linear sweep.
 
-    Args:
-        lines: (L,) sorted DFT bins.
-        amplitudes: (L,) line amplitudes (any unit).
+    Parameters
+    ----------
+    lines
+        (L,) sorted DFT bins.
+    amplitudes
+        (L,) line amplitudes (any unit).
 
-    Returns:
-        (L,) phases [rad].
+    Returns
+    -------
+    (L,) phases [rad].
 
     Examples
     --------
@@ -117,20 +127,30 @@ def optimise_crest_phases(n: int, lines: np.ndarray, amplitudes: np.ndarray,
     which is how one input looks in the experiments of an orthogonal MIMO
     design. Deterministic for given initial phases.
 
-    Args:
-        n: samples per period N.
-        lines: (L,) DFT bins.
-        amplitudes: (L,) amplitudes (any unit; only the shape matters).
-        initial_phases: (L,) starting phases [rad] (e.g. random, seeded).
-        shifts: (S,) constant phase shifts [rad]; default (0,).
-        n_clip_iterations: iterations of the clipping algorithm.
-        p_schedule: L_p norms minimised in turn (growing p -> L_inf).
-        max_iterations: conjugate-gradient iterations per p.
+    Parameters
+    ----------
+    n
+        samples per period N.
+    lines
+        (L,) DFT bins.
+    amplitudes
+        (L,) amplitudes (any unit; only the shape matters).
+    initial_phases
+        (L,) starting phases [rad] (e.g. random, seeded).
+    shifts
+        (S,) constant phase shifts [rad]; default (0,).
+    n_clip_iterations
+        iterations of the clipping algorithm.
+    p_schedule
+        L_p norms minimised in turn (growing p -> L_inf).
+    max_iterations
+        conjugate-gradient iterations per p.
 
-    Returns:
-        (L,) phases [rad] with the lowest crest factor found: computed once per set of arguments and
-        kept on disk (:mod:`ambid.disk_cache`, the same array to the bit), as it costs seconds and a
-        design repeats run after run.
+    Returns
+    -------
+    (L,) phases [rad] with the lowest crest factor found: computed once per set of arguments and
+    kept on disk (:mod:`ambid.disk_cache`, the same array to the bit), as it costs seconds and a
+    design repeats run after run.
     """
     lines = np.asarray(lines)
     amps = np.asarray(amplitudes, dtype=float)
@@ -210,14 +230,18 @@ def dft_weights(nu: int) -> np.ndarray:
 def mimo_phasors(phases: np.ndarray, mimo: str) -> np.ndarray:
     """Phasors over (realisation, experiment, input, line).
 
-    Args:
-        phases: (M, Nu, L) per-input line phases [rad].
-        mimo: 'orthogonal' (T_k = diag(exp(j phases)) W, Ne = Nu) or
-            'one_at_a_time' (experiment e excites input e only, Ne = Nu).
+    Parameters
+    ----------
+    phases
+        (M, Nu, L) per-input line phases [rad].
+    mimo
+        'orthogonal' (T_k = diag(exp(j phases)) W, Ne = Nu) or
+        'one_at_a_time' (experiment e excites input e only, Ne = Nu).
 
-    Returns:
-        (M, Ne, Nu, L) complex; T_k for realisation m is
-        ``out[m, :, :, l].T`` (input x experiment).
+    Returns
+    -------
+    (M, Ne, Nu, L) complex; T_k for realisation m is
+    ``out[m, :, :, l].T`` (input x experiment).
     """
     ph = np.exp(1j * np.asarray(phases, dtype=float))
     m, nu, _ = ph.shape
@@ -233,13 +257,18 @@ def mimo_phasors(phases: np.ndarray, mimo: str) -> np.ndarray:
 def experiment_shifts(nu: int, input_index: int, mimo: str) -> np.ndarray:
     """Constant phase shifts [rad] one input sees over the experiments.
 
-    Args:
-        nu: number of inputs.
-        input_index: input i.
-        mimo: 'orthogonal' or 'one_at_a_time'.
+    Parameters
+    ----------
+    nu
+        number of inputs.
+    input_index
+        input i.
+    mimo
+        'orthogonal' or 'one_at_a_time'.
 
-    Returns:
-        (S,) shifts: angle(W[i, e]) over e for orthogonal designs, (0,) else.
+    Returns
+    -------
+    (S,) shifts: angle(W[i, e]) over e for orthogonal designs, (0,) else.
     """
     if mimo == "orthogonal":
         return np.angle(dft_weights(nu)[input_index])

@@ -19,15 +19,23 @@ from .designers import design_multisine, design_stepped_sine, design_swept_sine
 class PlanRow:
     """One measurement option.
 
-    Attributes:
-        name: human-readable method name.
-        n_lines: lines measured.
-        n_experiments: experiments Ne (x realisations for periodic kinds).
-        excited_share: fraction of the record during which each input is
-            excited [-] (1 for orthogonal multisines, 1/Nu one at a time).
-        total_samples: record length [samples].
-        measurement_time_s: record length [s].
-        design: the design itself.
+    Attributes
+    ----------
+    name
+        human-readable method name.
+    n_lines
+        lines measured.
+    n_experiments
+        experiments Ne (x realisations for periodic kinds).
+    excited_share
+        fraction of the record during which each input is
+        excited [-] (1 for orthogonal multisines, 1/Nu one at a time).
+    total_samples
+        record length [samples].
+    measurement_time_s
+        record length [s].
+    design
+        the design itself.
     """
 
     name: str
@@ -52,19 +60,26 @@ def plan_measurements(band_hz: tuple[float, float], resolution_hz: float, fs_hz:
                       seed: int = 0) -> list[PlanRow]:
     """Designs of every method for the same measurement, with their times.
 
-    Args:
-        band_hz, resolution_hz, fs_hz, input_names, peak_current_a: as in
-            ``design_multisine``.
-        n_periods, n_transient_periods, n_realisations: periods and
-            realisations of the periodic methods (swept sine and multisines).
-        grid: multisine grid; the stepped sine measures the same lines.
-        settle_s, n_cycles: stepped-sine settling wait [s] and minimum
-            measured cycles per line.
-        seed: multisine seed (random phases).
+    Parameters
+    ----------
+    band_hz, resolution_hz, fs_hz, input_names, peak_current_a
+        as in
+        ``design_multisine``.
+    n_periods, n_transient_periods, n_realisations
+        periods and
+        realisations of the periodic methods (swept sine and multisines).
+    grid
+        multisine grid; the stepped sine measures the same lines.
+    settle_s, n_cycles
+        stepped-sine settling wait [s] and minimum
+        measured cycles per line.
+    seed
+        multisine seed (random phases).
 
-    Returns:
-        Rows: stepped sine, swept sine, multisine one at a time, orthogonal
-        multisine (all Nu inputs).
+    Returns
+    -------
+    Rows: stepped sine, swept sine, multisine one at a time, orthogonal
+    multisine (all Nu inputs).
     """
     common = dict(band_hz=band_hz, resolution_hz=resolution_hz, fs_hz=fs_hz,
                   input_names=input_names, peak_current_a=peak_current_a)

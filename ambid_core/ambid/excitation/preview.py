@@ -32,13 +32,18 @@ def plot_design(design: ExcitationDesign, path: str | Path, realisation: int = 0
     stepped sine the top panel shows each line's amplitude instead (lines are
     measured one by one). Bottom: the same period in time [s].
 
-    Args:
-        design: the design.
-        path: PNG file to write.
-        realisation: realisation m shown (stepped sine: the line shown in time).
+    Parameters
+    ----------
+    design
+        the design.
+    path
+        PNG file to write.
+    realisation
+        realisation m shown (stepped sine: the line shown in time).
 
-    Returns:
-        The path written.
+    Returns
+    -------
+    The path written.
     """
     # optional (ambid[report]): only the figure needs it. A Figure without pyplot (its import alone costs
     # ~0.5 s) and fixed margins, not constrained layout (its text-extent passes cost more than the drawing)

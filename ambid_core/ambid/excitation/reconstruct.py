@@ -54,12 +54,18 @@ class DesignNotFound(ValueError):
 class FoundDesign:
     """What :meth:`DesignFinder.finish` found.
 
-    Attributes:
-        design: the reconstructed design.
-        start_row: record row of the experiment's first sample.
-        end_row: one past its last sample.
-        transient_from: 'given' or 'response' (estimated from y).
-        notes: what was found, a line each.
+    Attributes
+    ----------
+    design
+        the reconstructed design.
+    start_row
+        record row of the experiment's first sample.
+    end_row
+        one past its last sample.
+    transient_from
+        'given' or 'response' (estimated from y).
+    notes
+        what was found, a line each.
     """
 
     design: ExcitationDesign
@@ -72,14 +78,21 @@ class FoundDesign:
 class DesignFinder:
     """Stream r (and y) through :meth:`add`, then :meth:`finish` (see the module docstring).
 
-    Args:
-        input_names: (Nu,) design input names (the currents r is added to).
-        fs_hz: sample rate [Hz].
-        n_transient_periods: Pt if known, else None (estimated from y).
-        band_hz: band of interest for the detection lines, or None.
-        rel_tol: equality and zero tolerance, relative to r's peak.
-        transient_factor: a period is settled when it differs from the
-            next by at most this times the noise scatter.
+    Parameters
+    ----------
+    input_names
+        (Nu,) design input names (the currents r is added to).
+    fs_hz
+        sample rate [Hz].
+    n_transient_periods
+        Pt if known, else None (estimated from y).
+    band_hz
+        band of interest for the detection lines, or None.
+    rel_tol
+        equality and zero tolerance, relative to r's peak.
+    transient_factor
+        a period is settled when it differs from the
+        next by at most this times the noise scatter.
     """
 
     def __init__(self, input_names, fs_hz: float, n_transient_periods: int | None = None,

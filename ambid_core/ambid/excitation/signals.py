@@ -35,11 +35,14 @@ MLS_TAPS = {
 def mls(order: int) -> np.ndarray:
     """Maximum-length sequence of an LFSR of the given order.
 
-    Args:
-        order: register length n, 2 <= n <= 23.
+    Parameters
+    ----------
+    order
+        register length n, 2 <= n <= 23.
 
-    Returns:
-        (2^n - 1,) bool bits; 2^(n-1) of them are True.
+    Returns
+    -------
+    (2^n - 1,) bool bits; 2^(n-1) of them are True.
 
     Examples
     --------
@@ -69,11 +72,14 @@ def binary_levels(bits: np.ndarray) -> tuple[float, float]:
     |low|) = 1, so the DC line of the binary signal is exactly zero (an MLS
     has one more one than zeros: its levels are 1 - 2^(1-n) and -1).
 
-    Args:
-        bits: (N,) bool.
+    Parameters
+    ----------
+    bits
+        (N,) bool.
 
-    Returns:
-        (high, low) levels [-].
+    Returns
+    -------
+    (high, low) levels [-].
 
     Examples
     --------
@@ -90,8 +96,9 @@ def binary_levels(bits: np.ndarray) -> tuple[float, float]:
 def binary_waveform(bits: np.ndarray, clock_divider: int = 1) -> np.ndarray:
     """Zero-mean waveform of peak 1 from bits, each held ``clock_divider`` samples.
 
-    Returns:
-        (clock_divider * bits.size,) float.
+    Returns
+    -------
+    (clock_divider * bits.size,) float.
 
     Examples
     --------
@@ -114,15 +121,22 @@ def dibs_bits(n: int, lines: np.ndarray, amplitudes: np.ndarray, rng: np.random.
     only (with even n) gives a half-wave antisymmetric signal, so the binary
     signal has no even-line power at all.
 
-    Args:
-        n: period [samples] (one bit per sample).
-        lines: (L,) DFT bins.
-        amplitudes: (L,) wanted relative amplitudes.
-        rng: random generator (initial phases).
-        n_iterations: iterations (>= 1).
+    Parameters
+    ----------
+    n
+        period [samples] (one bit per sample).
+    lines
+        (L,) DFT bins.
+    amplitudes
+        (L,) wanted relative amplitudes.
+    rng
+        random generator (initial phases).
+    n_iterations
+        iterations (>= 1).
 
-    Returns:
-        (bits (n,) bool, fraction of the AC power on ``lines`` [-]).
+    Returns
+    -------
+    (bits (n,) bool, fraction of the AC power on ``lines`` [-]).
     """
     if n_iterations < 1:
         raise ValueError(f"n_iterations must be >= 1, got {n_iterations!r}")
@@ -158,14 +172,20 @@ def swept_sine_period(n: int, fs_hz: float, f_start_hz: float, f_stop_hz: float,
     Instantaneous frequency from f_start to f_stop over T = n / fs; the
     phase starts at 0 (sin), so the waveform starts at 0.
 
-    Args:
-        n: samples per sweep.
-        fs_hz: sample rate [Hz].
-        f_start_hz, f_stop_hz: start and stop frequency [Hz] (> 0 for log).
-        law: 'linear' or 'log'.
+    Parameters
+    ----------
+    n
+        samples per sweep.
+    fs_hz
+        sample rate [Hz].
+    f_start_hz, f_stop_hz
+        start and stop frequency [Hz] (> 0 for log).
+    law
+        'linear' or 'log'.
 
-    Returns:
-        (n,) float.
+    Returns
+    -------
+    (n,) float.
     """
     t = np.arange(n) / fs_hz
     dur = n / fs_hz
@@ -190,8 +210,9 @@ def noise_filter_spec(band_hz: tuple[float, float], fs_hz: float,
     narrowest of: the band, the gap below it and the gap to Nyquist; the
     filter is capped at ``max_taps`` taps (then the edges are softer).
 
-    Returns:
-        JSON-safe dict: n_taps, cutoffs_hz, beta, pass_zero (for ``noise_taps``).
+    Returns
+    -------
+    JSON-safe dict: n_taps, cutoffs_hz, beta, pass_zero (for ``noise_taps``).
     """
     f_lo, f_hi = float(band_hz[0]), float(band_hz[1])
     gaps = [f_hi - f_lo, fs_hz / 2 - f_hi] + ([f_lo] if f_lo > 0 else [])
@@ -225,15 +246,22 @@ def filtered_noise(taps: np.ndarray, key: tuple[int, ...], start: int, stop: int
     it needs only: memory and time do not grow with ``start``. The stream
     starts at sample 0 with zero history (the filter's transient lies there).
 
-    Args:
-        taps: (T,) FIR taps.
-        key: non-negative integers naming the stream (seed, realisation, ...).
-        start, stop: sample range, 0 <= start <= stop.
-        chunk: white-noise chunk length [samples].
-        n_channels: independent channels.
+    Parameters
+    ----------
+    taps
+        (T,) FIR taps.
+    key
+        non-negative integers naming the stream (seed, realisation, ...).
+    start, stop
+        sample range, 0 <= start <= stop.
+    chunk
+        white-noise chunk length [samples].
+    n_channels
+        independent channels.
 
-    Returns:
-        (stop - start, n_channels) filtered noise (unit-variance white input).
+    Returns
+    -------
+    (stop - start, n_channels) filtered noise (unit-variance white input).
     """
     if stop <= start:
         return np.zeros((0, n_channels))
@@ -256,15 +284,22 @@ def stepped_sine_layout(lines: np.ndarray, n: int, fs_hz: float, settle_s: float
     periods (at least ``settle_s``) and then P measured periods (at least
     ``n_cycles`` cycles), all of p samples: the sine runs on without a jump.
 
-    Args:
-        lines: (L,) DFT bins of the n-sample grid.
-        n: grid period [samples].
-        fs_hz: sample rate [Hz].
-        settle_s: settling wait per line [s], >= 0.
-        n_cycles: minimum measured cycles per line, >= 1.
+    Parameters
+    ----------
+    lines
+        (L,) DFT bins of the n-sample grid.
+    n
+        grid period [samples].
+    fs_hz
+        sample rate [Hz].
+    settle_s
+        settling wait per line [s], >= 0.
+    n_cycles
+        minimum measured cycles per line, >= 1.
 
-    Returns:
-        (period_samples p, transient_periods Pt, periods P), each (L,) int64.
+    Returns
+    -------
+    (period_samples p, transient_periods Pt, periods P), each (L,) int64.
     """
     lines = np.asarray(lines, dtype=np.int64)
     g = np.gcd(lines, n)

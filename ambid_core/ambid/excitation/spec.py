@@ -94,23 +94,34 @@ class DesignSpec:
     10-1000 Hz at 5 Hz resolution, 0.4 A peak, M = 3 realisations of 3
     transient + 4 steady-state periods, seed 1.
 
-    Attributes:
-        kind: one of :data:`KINDS`.
-        band_hz: (f_lo, f_hi) band of interest [Hz], f_hi < fs/2.
-        resolution_hz: line spacing fs/N [Hz] (prbs: the resolution is at least this fine).
-        input_names: (Nu,) excited plant currents; empty: every current of the plant (the ``inputs``
-            :meth:`build` is given: the rig layout's u_<axis>).
-        peak_current_a: excitation peak per input [A].
-        n_periods, n_realisations, n_transient_periods: P, M, Pt (unused by stepped_sine).
-        grid, spacing, phases, mimo: "" = the kind's default (first entry of :data:`GRIDS`,
-            :data:`SPACINGS`, :data:`PHASES`, :data:`MIMOS`; a multisine's: random_odd, linear,
-            crest_optimised, orthogonal); a choice a kind does not take raises ValueError at
-            :meth:`build`. For swept_sine ``spacing`` is the sweep law.
-        seed: seed of the random choices (phases, grid, noise); an identify session seeds its sensor
-            noise with it too.
-        settle_s, n_cycles: stepped sine settling wait [s] and measured cycles per line.
-        n_harmonics, guard_bins: at speed, the synchronous harmonics 1..n_harmonics a multisine keeps
-            clear of, ``guard_bins`` bins each side (:mod:`ambid.excitation.synchronous`).
+    Attributes
+    ----------
+    kind
+        one of :data:`KINDS`.
+    band_hz
+        (f_lo, f_hi) band of interest [Hz], f_hi < fs/2.
+    resolution_hz
+        line spacing fs/N [Hz] (prbs: the resolution is at least this fine).
+    input_names
+        (Nu,) excited plant currents; empty: every current of the plant (the ``inputs``
+        :meth:`build` is given: the rig layout's u_<axis>).
+    peak_current_a
+        excitation peak per input [A].
+    n_periods, n_realisations, n_transient_periods
+        P, M, Pt (unused by stepped_sine).
+    grid, spacing, phases, mimo
+        "" = the kind's default (first entry of :data:`GRIDS`,
+        :data:`SPACINGS`, :data:`PHASES`, :data:`MIMOS`; a multisine's: random_odd, linear,
+        crest_optimised, orthogonal); a choice a kind does not take raises ValueError at
+        :meth:`build`. For swept_sine ``spacing`` is the sweep law.
+    seed
+        seed of the random choices (phases, grid, noise); an identify session seeds its sensor
+        noise with it too.
+    settle_s, n_cycles
+        stepped sine settling wait [s] and measured cycles per line.
+    n_harmonics, guard_bins
+        at speed, the synchronous harmonics 1..n_harmonics a multisine keeps
+        clear of, ``guard_bins`` bins each side (:mod:`ambid.excitation.synchronous`).
     """
 
     kind: str = "multisine"

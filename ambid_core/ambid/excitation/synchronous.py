@@ -50,14 +50,20 @@ def commensurate_period(speed_rpm: float, fs_hz: float, n: int,
     N' f_rot / fs must be an integer; with f_rot / fs = p / q in lowest
     terms (the speed taken to 1e-6 rpm) that makes N' a multiple of q.
 
-    Args:
-        speed_rpm: spin speed [rpm], > 0.
-        fs_hz: sample rate [Hz].
-        n: requested period [samples].
-        max_change: largest relative change |N' - n| / n accepted.
+    Parameters
+    ----------
+    speed_rpm
+        spin speed [rpm], > 0.
+    fs_hz
+        sample rate [Hz].
+    n
+        requested period [samples].
+    max_change
+        largest relative change |N' - n| / n accepted.
 
-    Returns:
-        N', or None when no multiple of q lies within max_change of n.
+    Returns
+    -------
+    N', or None when no multiple of q lies within max_change of n.
     """
     ratio = Fraction(round(float(speed_rpm) * 1e6), 60_000_000) / Fraction(float(fs_hz)).limit_denominator(10**9)
     q = ratio.denominator
@@ -72,13 +78,19 @@ def commensurate_period(speed_rpm: float, fs_hz: float, n: int,
 class SteeredLines:
     """Lines after steering (:func:`steer_lines`).
 
-    Attributes:
-        excited: (L,) excited lines, sorted.
-        detection_odd, detection_even: non-excited lines of the band outside every guard.
-        disturbance: (K,) bins nearest each harmonic inside [1, N/2), one per harmonic that has one.
-        disturbance_harmonic: (K,) the harmonic number k of each disturbance line.
-        moved: ((from, to, k), ...): excited line ``from`` was within the guard of harmonic k and went to
-            ``to`` (-1: no free line left, dropped).
+    Attributes
+    ----------
+    excited
+        (L,) excited lines, sorted.
+    detection_odd, detection_even
+        non-excited lines of the band outside every guard.
+    disturbance
+        (K,) bins nearest each harmonic inside [1, N/2), one per harmonic that has one.
+    disturbance_harmonic
+        (K,) the harmonic number k of each disturbance line.
+    moved
+        ((from, to, k), ...): excited line ``from`` was within the guard of harmonic k and went to
+        ``to`` (-1: no free line left, dropped).
     """
 
     excited: np.ndarray
@@ -110,16 +122,23 @@ def steer_lines(excited: np.ndarray, k_lo: int, k_hi: int, n: int, harmonics: np
                 guard_bins: int = DEFAULT_GUARD_BINS) -> SteeredLines:
     """Move excited lines off the guarded bins around the synchronous harmonics.
 
-    Args:
-        excited: (L,) excited lines of the unsteered design.
-        k_lo, k_hi: the band's bins.
-        n: period [samples].
-        harmonics: (K,) harmonic bin positions (:func:`harmonic_bins`).
-        guard_bins: bins kept free on each side of a harmonic.
+    Parameters
+    ----------
+    excited
+        (L,) excited lines of the unsteered design.
+    k_lo, k_hi
+        the band's bins.
+    n
+        period [samples].
+    harmonics
+        (K,) harmonic bin positions (:func:`harmonic_bins`).
+    guard_bins
+        bins kept free on each side of a harmonic.
 
-    Returns:
-        :class:`SteeredLines`; an excited line goes to the nearest line of its parity in the band that is
-        neither excited nor guarded (the grid's odd/even character stays), else it is dropped.
+    Returns
+    -------
+    :class:`SteeredLines`; an excited line goes to the nearest line of its parity in the band that is
+    neither excited nor guarded (the grid's odd/even character stays), else it is dropped.
     """
     exc = np.asarray(excited, dtype=np.int64)
     harmonics = np.asarray(harmonics, dtype=float)

@@ -33,13 +33,16 @@ _REAL_TOL = 1e-9
 def split_poles(poles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Group conjugate-closed poles into first- and second-order real factors.
 
-    Args:
-        poles: (n,) complex, closed under conjugation.
+    Parameters
+    ----------
+    poles
+        (n,) complex, closed under conjugation.
 
-    Returns:
-        (lin, quad): lin (n1,) inverse real poles b = 1 / a, quad (n2, 2)
-        rows [a1, a0] of s^2 + a1 s + a0 for the complex pairs,
-        n1 + 2 n2 = n.
+    Returns
+    -------
+    (lin, quad): lin (n1,) inverse real poles b = 1 / a, quad (n2, 2)
+    rows [a1, a0] of s^2 + a1 s + a0 for the complex pairs,
+    n1 + 2 n2 = n.
     """
     p = np.asarray(poles, dtype=complex).ravel()
     is_real = np.abs(p.imag) <= _REAL_TOL * np.maximum(np.abs(p), 1e-300)
@@ -102,13 +105,18 @@ def basis(s: np.ndarray, lin: np.ndarray, quad: np.ndarray) -> np.ndarray:
 def basis_derivative(s: np.ndarray, lin: np.ndarray, quad: np.ndarray, coef: np.ndarray) -> np.ndarray:
     """d(sum_k coef_k phi_k(s)) / d theta for each coefficient set.
 
-    Args:
-        s: (L,) complex.
-        lin, quad: the factors (n1,), (n2, 2).
-        coef: (E, n1 + 2 n2) real coefficients on the basis.
+    Parameters
+    ----------
+    s
+        (L,) complex.
+    lin, quad
+        the factors (n1,), (n2, 2).
+    coef
+        (E, n1 + 2 n2) real coefficients on the basis.
 
-    Returns:
-        (E, L, n1 + 2 n2) complex; the last axis runs over theta.
+    Returns
+    -------
+    (E, L, n1 + 2 n2) complex; the last axis runs over theta.
     """
     n1 = lin.size
     e = coef.shape[0]
@@ -132,8 +140,9 @@ def laurent_moments(lin: np.ndarray, quad: np.ndarray, count: int) -> np.ndarray
     ``moments[:r-1] @ c == 0`` (and there is no feed-through). Works for
     complex parameters too (used for complex-step derivatives).
 
-    Returns:
-        (count, n1 + 2 n2), same dtype as the parameters.
+    Returns
+    -------
+    (count, n1 + 2 n2), same dtype as the parameters.
     """
     dtype = np.result_type(lin, quad, float)
     out = np.zeros((count, lin.size + 2 * quad.shape[0]), dtype=dtype)
@@ -180,13 +189,16 @@ def coefficients_to_residues(lin: np.ndarray, quad: np.ndarray,
                              coef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Poles and residues of sum_k coef_k phi_k.
 
-    Args:
-        coef: (E, n1 + 2 n2) real coefficients.
+    Parameters
+    ----------
+    coef
+        (E, n1 + 2 n2) real coefficients.
 
-    Returns:
-        (poles (n,), residues (n, E)) complex, conjugate pairs adjacent.
-        Two nearly equal real roots of a second-order factor give large
-        opposite residues (a double pole has none); the sum stays right.
+    Returns
+    -------
+    (poles (n,), residues (n, E)) complex, conjugate pairs adjacent.
+    Two nearly equal real roots of a second-order factor give large
+    opposite residues (a double pole has none); the sum stays right.
     """
     lin_r, quad_r = factor_roots(lin, quad)
     n1 = lin.size

@@ -61,17 +61,23 @@ def benchmark_fit(n_lines: int = 2000, order: int = 24, noise_rel: float = 0.01,
                   f_min_hz: float = 10.0, f_max_hz: float = 1000.0) -> dict:
     """Fit :func:`synthetic_amb_plant` plus complex Gaussian noise and time it.
 
-    Args:
-        n_lines: number of lines L, linearly spaced over [f_min_hz, f_max_hz].
-        order: fitted denominator order.
-        noise_rel: noise std per line relative to the rms |G| over entries.
-        seed: noise seed.
+    Parameters
+    ----------
+    n_lines
+        number of lines L, linearly spaced over [f_min_hz, f_max_hz].
+    order
+        fitted denominator order.
+    noise_rel
+        noise std per line relative to the rms |G| over entries.
+    seed
+        noise seed.
 
-    Returns:
-        dict with ``time_s`` (wall time of the whole fit), ``cpu_time_s``
-        (process CPU time, all threads; below time_s on a busy machine), ``chi2_per_dof``,
-        ``n_vf_iterations``, ``n_refine_evaluations``, ``max_rel_error``
-        (max |G_fit - G_true| / max |G_true|), ``n_lines``, ``order``.
+    Returns
+    -------
+    dict with ``time_s`` (wall time of the whole fit), ``cpu_time_s``
+    (process CPU time, all threads; below time_s on a busy machine), ``chi2_per_dof``,
+    ``n_vf_iterations``, ``n_refine_evaluations``, ``max_rel_error``
+    (max |G_fit - G_true| / max |G_true|), ``n_lines``, ``order``.
     """
     plant = synthetic_amb_plant()
     f = np.linspace(f_min_hz, f_max_hz, n_lines)

@@ -40,15 +40,21 @@ __all__ = ["RationalModel", "FitResult", "fit_common_denominator"]
 class RationalModel:
     """Pole-residue form of a common-denominator continuous-time model.
 
-    Attributes:
-        poles: (n,) complex s-plane poles [rad/s], closed under conjugation
-            (pairs adjacent, Im > 0 first); real poles have Im = 0.
-        residues: (n, Ny, Nu) complex residue matrices [unit of G * rad/s];
-            conjugate for conjugate poles, real for real poles.
-        feedthrough: (Ny, Nu) real constant term D [unit of G].
-        delay_s: pure delay tau [s] multiplying the whole model.
-        input_names, output_names, input_units, output_units: channel labels
-            (optional, carried into the state-space realisation).
+    Attributes
+    ----------
+    poles
+        (n,) complex s-plane poles [rad/s], closed under conjugation
+        (pairs adjacent, Im > 0 first); real poles have Im = 0.
+    residues
+        (n, Ny, Nu) complex residue matrices [unit of G * rad/s];
+        conjugate for conjugate poles, real for real poles.
+    feedthrough
+        (Ny, Nu) real constant term D [unit of G].
+    delay_s
+        pure delay tau [s] multiplying the whole model.
+    input_names, output_names, input_units, output_units
+        channel labels
+        (optional, carried into the state-space realisation).
     """
 
     poles: np.ndarray
@@ -116,22 +122,33 @@ class RationalModel:
 class FitResult:
     """A fitted :class:`RationalModel` with its cost and counts.
 
-    Attributes:
-        model: the fitted model.
-        cost: V = sum |G_model - G|^2 / var over lines and entries at the end.
-        cost_linear: V after the vector-fitting (SK) stage, before refinement.
-        n_residuals: number of real residuals N = 2 L Ny Nu.
-        n_parameters: number of free real parameters p (poles, numerators, D).
-        n_vf_iterations: vector-fitting steps taken.
-        n_refine_evaluations: cost evaluations of the ML refinement (0 if off).
-        message: the refinement's stop reason.
-        weighted: True when ``var`` was given (cost then ~ chi-square / 2).
-        mode_std: one row per second-order factor of the denominator with a
-            complex pole pair: (natural frequency [Hz], its std [Hz], damping
-            ratio [-], its std [-], degrees of freedom of those variances
-            (inf: many)), from the factors' covariance
-            (:func:`ambid.fit.refine.factor_covariance`) by the delta method;
-            (K, 5), empty when the covariance is not available.
+    Attributes
+    ----------
+    model
+        the fitted model.
+    cost
+        V = sum |G_model - G|^2 / var over lines and entries at the end.
+    cost_linear
+        V after the vector-fitting (SK) stage, before refinement.
+    n_residuals
+        number of real residuals N = 2 L Ny Nu.
+    n_parameters
+        number of free real parameters p (poles, numerators, D).
+    n_vf_iterations
+        vector-fitting steps taken.
+    n_refine_evaluations
+        cost evaluations of the ML refinement (0 if off).
+    message
+        the refinement's stop reason.
+    weighted
+        True when ``var`` was given (cost then ~ chi-square / 2).
+    mode_std
+        one row per second-order factor of the denominator with a
+        complex pole pair: (natural frequency [Hz], its std [Hz], damping
+        ratio [-], its std [-], degrees of freedom of those variances
+        (inf: many)), from the factors' covariance
+        (:func:`ambid.fit.refine.factor_covariance`) by the delta method;
+        (K, 5), empty when the covariance is not available.
     """
 
     model: RationalModel
@@ -204,9 +221,10 @@ def _prepare_fit_data(freq_hz: np.ndarray, G: np.ndarray, var: np.ndarray | None
                      relative_degree: int = 0, delay_s: float = 0.0) -> tuple[WeightedData, float]:
     """Validate, scale and flatten fit data (used by the fit and order selection).
 
-    Returns:
-        (data, omega_scale): the internal :class:`WeightedData` and the
-        frequency scale 2 pi f_max [rad/s].
+    Returns
+    -------
+    (data, omega_scale): the internal :class:`WeightedData` and the
+    frequency scale 2 pi f_max [rad/s].
     """
     f, gm, v = _check_inputs(freq_hz, G, var)
     if relative_degree not in range(0, 8):
@@ -236,32 +254,47 @@ def fit_common_denominator(freq_hz: np.ndarray, G: np.ndarray, var: np.ndarray |
                            realisations: np.ndarray | None = None) -> FitResult:
     """Fit a common-denominator model of ``order`` poles to a measured FRF matrix.
 
-    Args:
-        freq_hz: (L,) lines [Hz], >= 0, distinct.
-        G: (L, Ny, Nu) complex FRF [e.g. m/A] (a (L,) SISO FRF is accepted).
-        var: (L, Ny, Nu) noise variance of G, E|G - E G|^2 [unit of G squared];
-            None weights every line and entry equally (the cost is then not
-            a chi-square).
-        order: number of poles n (degree of d(s)).
-        relative_degree: 0 proper (with D), 1 strictly proper (D = 0),
-            r >= 2 forces G ~ s^-r at high frequency (linear constraints).
-        delay_s: known pure delay tau [s]; the model is exp(-s tau) N/d.
-        initial_poles: (n,) complex [rad/s] start for vector fitting
-            (default: lightly damped pairs log-spaced over the band).
-        n_vf_iterations: most vector-fitting (SK) steps.
-        refine: run the ML refinement after vector fitting.
-        max_refine_evaluations: most cost evaluations in the refinement.
-        input_names, output_names, input_units, output_units: labels kept
-            on the model.
-        row_covariance: (L, Ny, Nu, Nu) complex covariance of the entries of
-            each row of G (:func:`ambid.frf.uncertainty.row_covariance`) for
-            the modes' intervals; None takes the residuals' line sums
-            (:func:`ambid.fit.refine.factor_covariance`).
-        realisations: (M, L, Ny, Nu) the realisations' FRFs whose mean G is;
-            their scatter may widen the modes' intervals (with ``row_covariance``).
+    Parameters
+    ----------
+    freq_hz
+        (L,) lines [Hz], >= 0, distinct.
+    G
+        (L, Ny, Nu) complex FRF [e.g. m/A] (a (L,) SISO FRF is accepted).
+    var
+        (L, Ny, Nu) noise variance of G, E|G - E G|^2 [unit of G squared];
+        None weights every line and entry equally (the cost is then not
+        a chi-square).
+    order
+        number of poles n (degree of d(s)).
+    relative_degree
+        0 proper (with D), 1 strictly proper (D = 0),
+        r >= 2 forces G ~ s^-r at high frequency (linear constraints).
+    delay_s
+        known pure delay tau [s]; the model is exp(-s tau) N/d.
+    initial_poles
+        (n,) complex [rad/s] start for vector fitting
+        (default: lightly damped pairs log-spaced over the band).
+    n_vf_iterations
+        most vector-fitting (SK) steps.
+    refine
+        run the ML refinement after vector fitting.
+    max_refine_evaluations
+        most cost evaluations in the refinement.
+    input_names, output_names, input_units, output_units
+        labels kept
+        on the model.
+    row_covariance
+        (L, Ny, Nu, Nu) complex covariance of the entries of
+        each row of G (:func:`ambid.frf.uncertainty.row_covariance`) for
+        the modes' intervals; None takes the residuals' line sums
+        (:func:`ambid.fit.refine.factor_covariance`).
+    realisations
+        (M, L, Ny, Nu) the realisations' FRFs whose mean G is;
+        their scatter may widen the modes' intervals (with ``row_covariance``).
 
-    Returns:
-        :class:`FitResult`.
+    Returns
+    -------
+    :class:`FitResult`.
     """
     with single_threaded_blas():
         return _fit(freq_hz, G, var, order, relative_degree, delay_s, initial_poles, n_vf_iterations,

@@ -26,17 +26,25 @@ def row_sandwich(j_re: np.ndarray, j_im: np.ndarray, residual: np.ndarray, w: np
                  row_cov: np.ndarray, bread: np.ndarray, n_parameters: int) -> np.ndarray:
     """Covariance B M B * chi^2_g / dof of the module docstring.
 
-    Args:
-        j_re, j_im: (L, Ny, Nu, P) derivatives of the weighted residual's real
-            and imaginary parts w.r.t. the P parameters.
-        residual: (L, Ny, Nu) complex weighted residual at the optimum.
-        w: (L, Ny, Nu) the fit's weights.
-        row_cov: (L, Ny, Nu, Nu) complex covariance of the entries of each row [unit of G squared].
-        bread: (P, P) (J^T J)^-1.
-        n_parameters: p, every real parameter of the fit (for the degrees of freedom).
+    Parameters
+    ----------
+    j_re, j_im
+        (L, Ny, Nu, P) derivatives of the weighted residual's real
+        and imaginary parts w.r.t. the P parameters.
+    residual
+        (L, Ny, Nu) complex weighted residual at the optimum.
+    w
+        (L, Ny, Nu) the fit's weights.
+    row_cov
+        (L, Ny, Nu, Nu) complex covariance of the entries of each row [unit of G squared].
+    bread
+        (P, P) (J^T J)^-1.
+    n_parameters
+        p, every real parameter of the fit (for the degrees of freedom).
 
-    Returns:
-        (P, P) covariance.
+    Returns
+    -------
+    (P, P) covariance.
     """
     cw = w[..., :, None] * row_cov * w[..., None, :]
     omega = 0.5 * np.block([[cw.real, -cw.imag], [cw.imag, cw.real]])          # (L, Ny, 2Nu, 2Nu)
@@ -121,14 +129,19 @@ def realisation_inflation(scores: np.ndarray, cov: np.ndarray,
     if both parts were 2-degree estimates, widened intervals whose sigma was
     right by 41 %: 99 % coverage instead of 95 %.)
 
-    Args:
-        scores: (M, p) linearised deviations d_m of the parameters, M >= 2.
-        cov: (p, p) covariance of the parameters of the mean.
-        sandwich_dof: degrees of freedom of ``cov`` (inf: known).
+    Parameters
+    ----------
+    scores
+        (M, p) linearised deviations d_m of the parameters, M >= 2.
+    cov
+        (p, p) covariance of the parameters of the mean.
+    sandwich_dof
+        degrees of freedom of ``cov`` (inf: known).
 
-    Returns:
-        (factors, dof): (p,) factors for the variances (scale cov by
-        sqrt(f_i f_j)), and (p,) the degrees of freedom of each variance.
+    Returns
+    -------
+    (factors, dof): (p,) factors for the variances (scale cov by
+    sqrt(f_i f_j)), and (p,) the degrees of freedom of each variance.
     """
     m, p = scores.shape
     if m < 2:

@@ -210,14 +210,19 @@ def nominal_update_parameters(rig: Rig) -> dict[str, float]:
 def parameter_prior(rig: Rig, names: Sequence[str], centre: Mapping[str, float]) -> tuple[Prior, tuple[str, ...]]:
     """The normal prior of each parameter in ``names`` from the rig's tolerances.
 
-    Args:
-        rig: the nominal rig (its ``tolerances``, else the defaults of :mod:`ambid.plant.tolerances`).
-        names: the updated parameters.
-        centre: each one's nominal value (a range tolerance replaces it by its middle).
+    Parameters
+    ----------
+    rig
+        the nominal rig (its ``tolerances``, else the defaults of :mod:`ambid.plant.tolerances`).
+    names
+        the updated parameters.
+    centre
+        each one's nominal value (a range tolerance replaces it by its middle).
 
-    Returns:
-        (prior, fixed): the :class:`ambid.fit.updating.Prior` over ``names`` (a parameter without a
-        tolerance gets none: flat), and the names whose tolerance is ``fixed``.
+    Returns
+    -------
+    (prior, fixed): the :class:`ambid.fit.updating.Prior` over ``names`` (a parameter without a
+    tolerance gets none: flat), and the names whose tolerance is ``fixed``.
     """
     mean, sd, log, fixed = [], [], [], []
     for name in names:
@@ -290,8 +295,9 @@ def _loop_moments(rig: Rig, controller: StateSpace, design: ExcitationDesign,
     segments, sum over lines of Re(X Y*) / 2), the sensor noise's part from
     Parseval over ``n_noise_lines`` lines of the unit circle.
 
-    Returns:
-        (cov (na, 2, 2) [[A^2, A m], [A m, m^2]], the plant the moments were taken on).
+    Returns
+    -------
+    (cov (na, 2, 2) [[A^2, A m], [A m, m^2]], the plant the moments were taken on).
     """
     p, _ = levitated_plant(rig)
     na = p.n_axes
@@ -343,14 +349,19 @@ def closed_loop_noise_std(rig: Rig, controller: StateSpace, plant: TruePlant | N
     circle fine enough for the lightly damped modes took seconds). What the
     period-to-period scatter of a periodic measurement estimates.
 
-    Args:
-        rig: the true rig.
-        controller: the discrete controller y -> ic that ran (dt = rig.dt).
-        plant: the affine model to linearise (default the levitated one), e.g.
-            the magnets' slopes at the excitation level.
+    Parameters
+    ----------
+    rig
+        the true rig.
+    controller
+        the discrete controller y -> ic that ran (dt = rig.dt).
+    plant
+        the affine model to linearise (default the levitated one), e.g.
+        the magnets' slopes at the excitation level.
 
-    Returns:
-        (na,) std per sensor, in the rig layout's output order [m].
+    Returns
+    -------
+    (na,) std per sensor, in the rig layout's output order [m].
     """
     g = true_linear_model(rig, discrete=True, plant=plant)
     k = controller
@@ -380,13 +391,18 @@ def excitation_slopes(rig: Rig, controller: StateSpace, design: ExcitationDesign
     stiffens the magnets: a 0.4 A multisine raises ks by about 0.6 %, far
     more than a 16.8 s measurement's noise.
 
-    Args:
-        rig: the true rig.
-        controller: the discrete controller y -> ic that ran (dt = rig.dt).
-        design: the periodic excitation design that ran.
+    Parameters
+    ----------
+    rig
+        the true rig.
+    controller
+        the discrete controller y -> ic that ran (dt = rig.dt).
+    design
+        the periodic excitation design that ran.
 
-    Returns:
-        (ki (na,) [N/A], ks (na,) [N/m]), in the rig layout's input order.
+    Returns
+    -------
+    (ki (na,) [N/A], ks (na,) [N/m]), in the rig layout's input order.
     """
     cov, p = _loop_moments(rig, controller, design)
     op = levitated_plant(rig)[1]
@@ -409,13 +425,17 @@ def excitation_slopes(rig: Rig, controller: StateSpace, design: ExcitationDesign
 def slopes_as_parameters(ki: np.ndarray, ks: np.ndarray, layout: Layout = RADIAL) -> dict[str, float]:
     """The magnets' slopes per axis (:func:`excitation_slopes`) as the updating model's parameters.
 
-    Args:
-        ki: (na,) [N/A], ks: (na,) [N/m], in ``layout``'s axis order (the rig's; default the four radial axes).
-        layout: the axes the slopes belong to.
+    Parameters
+    ----------
+    ki
+        (na,) [N/A], ks: (na,) [N/m], in ``layout``'s axis order (the rig's; default the four radial axes).
+    layout
+        the axes the slopes belong to.
 
-    Returns:
-        ``ki_n_per_a`` and ``ks_n_per_m`` (means over the radial axes) and ``ks_b_over_a`` (bearing B's ks over
-        A's); with an axial axis also ``axial_ki_n_per_a`` and ``axial_ks_n_per_m``.
+    Returns
+    -------
+    ``ki_n_per_a`` and ``ks_n_per_m`` (means over the radial axes) and ``ks_b_over_a`` (bearing B's ks over
+    A's); with an axial axis also ``axial_ki_n_per_a`` and ``axial_ks_n_per_m``.
     """
     ki, ks = np.asarray(ki, dtype=float), np.asarray(ks, dtype=float)
     axial = list(layout.axial)
@@ -455,15 +475,19 @@ def _check_params(params: Mapping[str, float]) -> dict[str, float]:
 def physical_statespace(rotor: RotorModel, params: Mapping[str, float]) -> StateSpace:
     """Continuous model u [A] -> y [m] of the parametrised rig, without the delay.
 
-    Args:
-        rotor: the rig's rotor model (``rig.rotor_model()``).
-        params: parameter name -> value (:data:`PARAMETERS`); ki, ks and the
-            amplifier bandwidth are required, the others optional (missing
-            sensor gains are 1, a missing bending mode keeps the rotor's, no
-            support or sensor-bandwidth parameters means none).
+    Parameters
+    ----------
+    rotor
+        the rig's rotor model (``rig.rotor_model()``).
+    params
+        parameter name -> value (:data:`PARAMETERS`); ki, ks and the
+        amplifier bandwidth are required, the others optional (missing
+        sensor gains are 1, a missing bending mode keeps the rotor's, no
+        support or sensor-bandwidth parameters means none).
 
-    Returns:
-        StateSpace (dt = 0), the rotor layout's na inputs (u) and na outputs (y).
+    Returns
+    -------
+    StateSpace (dt = 0), the rotor layout's na inputs (u) and na outputs (y).
     """
     p = _check_params(params)
     a_r = rotor.a.copy()
@@ -550,12 +574,17 @@ def physical_statespace(rotor: RotorModel, params: Mapping[str, float]) -> State
 def physical_frf(rotor: RotorModel, params: Mapping[str, float], freq_hz: np.ndarray, dt_s: float) -> np.ndarray:
     """FRF of the parametrised rig as measured, (L, na, na) complex [m/A].
 
-    Args:
-        rotor: the rig's rotor model.
-        params: as for :func:`physical_statespace` (``delay_s`` default 0).
-        freq_hz: (L,) lines [Hz].
-        dt_s: sample period [s] of the measurement: the zero-order-hold
-            sampled model at z = exp(j 2 pi f dt); 0 for the continuous one.
+    Parameters
+    ----------
+    rotor
+        the rig's rotor model.
+    params
+        as for :func:`physical_statespace` (``delay_s`` default 0).
+    freq_hz
+        (L,) lines [Hz].
+    dt_s
+        sample period [s] of the measurement: the zero-order-hold
+        sampled model at z = exp(j 2 pi f dt); 0 for the continuous one.
     """
     if not (math.isfinite(dt_s) and dt_s >= 0):
         raise ValueError(f"dt_s must be >= 0 [s] (0 = continuous), got {dt_s}")
@@ -581,8 +610,9 @@ def physical_discrete(rotor: RotorModel, params: Mapping[str, float], dt_s: floa
     ``delay_s`` >= 0 as whole samples of shift register plus the fraction :func:`delayed_zoh` holds): what a
     controller at that rate closes its loop around. Its FRF is :func:`physical_frf`'s.
 
-    Returns:
-        StateSpace (dt = dt_s), 4 inputs, 4 outputs, D = 0; states: the continuous model's, then u[k-1] ... (4 each).
+    Returns
+    -------
+    StateSpace (dt = dt_s), 4 inputs, 4 outputs, D = 0; states: the continuous model's, then u[k-1] ... (4 each).
     """
     if not (math.isfinite(dt_s) and dt_s > 0):
         raise ValueError(f"dt_s must be > 0 [s], got {dt_s}")
@@ -625,14 +655,21 @@ def _resolvent(a: np.ndarray, b: np.ndarray, c: np.ndarray, s: np.ndarray) -> np
 class PhysicalUpdate:
     """Updated physical parameters.
 
-    Attributes:
-        result: the :class:`ambid.fit.UpdateResult` of the free parameters
-            (estimates, standard deviations, 95 % intervals, correlation).
-        start: every parameter's start value.
-        parameters: every parameter after the update (fixed ones as started).
-        free: names of the parameters updated.
-        dt_s: sample period the FRF was modelled at [s].
-        prior: the free parameters' prior (:class:`ambid.fit.updating.Prior`), or None.
+    Attributes
+    ----------
+    result
+        the :class:`ambid.fit.UpdateResult` of the free parameters
+        (estimates, standard deviations, 95 % intervals, correlation).
+    start
+        every parameter's start value.
+    parameters
+        every parameter after the update (fixed ones as started).
+    free
+        names of the parameters updated.
+    dt_s
+        sample period the FRF was modelled at [s].
+    prior
+        the free parameters' prior (:class:`ambid.fit.updating.Prior`), or None.
     """
 
     result: UpdateResult
@@ -714,28 +751,43 @@ def update_physical_model(rotor: RotorModel, freq_hz: np.ndarray, G: np.ndarray,
                           covariance_only: bool = False) -> PhysicalUpdate:
     """Fit the free physical parameters to a measured FRF (MAP with ``prior``; intervals from the posterior).
 
-    Args:
-        rotor: the rig's rotor model.
-        freq_hz: (L,) lines [Hz].
-        G: (L, na, na) measured FRF u -> y [m/A], the rotor layout's channels (:func:`covers`).
-        var: (L, na, na) variance of G [(m/A)^2], or None (equal weights).
-        start: start values of every parameter of the model (e.g.
-            :func:`nominal_parameters` with changes); fixed ones stay.
-        free: parameters to update; default :data:`DEFAULT_FREE` (those in
-            ``start``) plus the support ones when ``start`` has them.
-        dt_s: sample period of the measurement [s] (0: continuous model).
-        max_evaluations: most model evaluations of the optimiser.
-        covariance: ``"sandwich"`` (default), ``"jacobian"`` or ``"rows"``
-            (:func:`ambid.fit.update_parameters`); ``row_covariance`` given
-            selects ``"rows"``.
-        row_covariance: (L, na, na, na) covariance of the entries of each row of G
-            (:func:`ambid.frf.uncertainty.row_covariance`).
-        realisations: (M, L, na, na) the realisations' FRFs (their scatter may widen the intervals).
-        prior: normal priors of the ``free`` parameters (:func:`parameter_prior`), or None.
-        covariance_only: keep ``start`` and give its covariance only.
+    Parameters
+    ----------
+    rotor
+        the rig's rotor model.
+    freq_hz
+        (L,) lines [Hz].
+    G
+        (L, na, na) measured FRF u -> y [m/A], the rotor layout's channels (:func:`covers`).
+    var
+        (L, na, na) variance of G [(m/A)^2], or None (equal weights).
+    start
+        start values of every parameter of the model (e.g.
+        :func:`nominal_parameters` with changes); fixed ones stay.
+    free
+        parameters to update; default :data:`DEFAULT_FREE` (those in
+        ``start``) plus the support ones when ``start`` has them.
+    dt_s
+        sample period of the measurement [s] (0: continuous model).
+    max_evaluations
+        most model evaluations of the optimiser.
+    covariance
+        ``"sandwich"`` (default), ``"jacobian"`` or ``"rows"``
+        (:func:`ambid.fit.update_parameters`); ``row_covariance`` given
+        selects ``"rows"``.
+    row_covariance
+        (L, na, na, na) covariance of the entries of each row of G
+        (:func:`ambid.frf.uncertainty.row_covariance`).
+    realisations
+        (M, L, na, na) the realisations' FRFs (their scatter may widen the intervals).
+    prior
+        normal priors of the ``free`` parameters (:func:`parameter_prior`), or None.
+    covariance_only
+        keep ``start`` and give its covariance only.
 
-    Returns:
-        :class:`PhysicalUpdate`.
+    Returns
+    -------
+    :class:`PhysicalUpdate`.
     """
     st = _check_params(start)
     unknown = sorted(set(start) - set(PARAMETERS))
@@ -808,15 +860,22 @@ def match_modes(rotor: RotorModel, nominal: Mapping[str, float], free: Sequence[
     deviations of its frequency, at least 2 %): the nominal value times the
     ratio of the fitted mode's to the nominal model's pole's.
 
-    Args:
-        rotor: the rig's rotor model.
-        nominal: every parameter's nominal value.
-        free: the parameters to be updated (with their bending modes).
-        prior: their prior, or None (then +-5 % windows).
-        modes: fitted modes (frequency [Hz], damping ratio [-]).
+    Parameters
+    ----------
+    rotor
+        the rig's rotor model.
+    nominal
+        every parameter's nominal value.
+    free
+        the parameters to be updated (with their bending modes).
+    prior
+        their prior, or None (then +-5 % windows).
+    modes
+        fitted modes (frequency [Hz], damping ratio [-]).
 
-    Returns:
-        (start values of the bending parameters, indices of the fitted modes used, notes).
+    Returns
+    -------
+    (start values of the bending parameters, indices of the fitted modes used, notes).
     """
     sds = _sd_of(prior, free)
     fm = np.array([m[0] for m in modes], dtype=float)
@@ -859,16 +918,24 @@ def start_from_data(rotor: RotorModel, freq_hz: np.ndarray, G: np.ndarray, var: 
        shared among the free lags (amplifier, sensor, delay) in proportion to
        their prior variances (the MAP split of one known sum).
 
-    Args:
-        rotor: the rig's rotor model.
-        freq_hz, G, var: the FRF (L,), (L, ny, nu) and its variance (or None).
-        start: every parameter's value so far (the prior's centres, the modes from the data).
-        free: the parameters to be updated.
-        prior: their prior, or None.
-        dt_s: sample period [s] (0: continuous).
+    Parameters
+    ----------
+    rotor
+        the rig's rotor model.
+    freq_hz, G, var
+        the FRF (L,), (L, ny, nu) and its variance (or None).
+    start
+        every parameter's value so far (the prior's centres, the modes from the data).
+    free
+        the parameters to be updated.
+    prior
+        their prior, or None.
+    dt_s
+        sample period [s] (0: continuous).
 
-    Returns:
-        Start values of every parameter.
+    Returns
+    -------
+    Start values of every parameter.
     """
     out = dict(start)
     free = list(free)
@@ -922,16 +989,22 @@ def unmodelled_mode(mode_freq_hz: np.ndarray, mode_damping: np.ndarray, mode_str
     lightly damped pole pair of the nominal model lies within ``tol``
     (relative) of its frequency.
 
-    Args:
-        mode_freq_hz, mode_damping, mode_strength: (K,) fitted modes'
-            natural frequency [Hz], damping ratio [-] and a size measure
-            (e.g. the largest residue singular value divided by the damping).
-        nominal: the nominal continuous model.
-        band_hz: (low, high) band of the data [Hz].
-        tol: relative frequency distance that counts as the same mode.
+    Parameters
+    ----------
+    mode_freq_hz, mode_damping, mode_strength
+        (K,) fitted modes'
+        natural frequency [Hz], damping ratio [-] and a size measure
+        (e.g. the largest residue singular value divided by the damping).
+    nominal
+        the nominal continuous model.
+    band_hz
+        (low, high) band of the data [Hz].
+    tol
+        relative frequency distance that counts as the same mode.
 
-    Returns:
-        (frequency [Hz], damping ratio [-]) of that mode, or None.
+    Returns
+    -------
+    (frequency [Hz], damping ratio [-]) of that mode, or None.
     """
     fm, zm, sm = (np.asarray(x, dtype=float).ravel() for x in (mode_freq_hz, mode_damping, mode_strength))
     if not (fm.shape == zm.shape == sm.shape):

@@ -29,16 +29,24 @@ _REAL_TOL = 1e-9
 class Mode:
     """One complex pole pair of the fitted model.
 
-    Attributes:
-        pole_rad_s: the pole with Im > 0 [rad/s].
-        freq_hz: undamped natural frequency |p| / (2 pi) [Hz].
-        damping: damping ratio -Re(p) / |p| [-]; < 0 for an unstable pair.
-        damped_freq_hz: Im(p) / (2 pi) [Hz].
-        output_shape: (Ny,) complex unit vector u (largest entry real > 0).
-        input_shape: (Nu,) complex participation v^H, so R ~ sigma_1 u v^H.
-        residue_singular_values: (min(Ny, Nu),) singular values of R
-            [unit of G * rad/s]; sigma_2 / sigma_1 << 1 means a clean,
-            single mode.
+    Attributes
+    ----------
+    pole_rad_s
+        the pole with Im > 0 [rad/s].
+    freq_hz
+        undamped natural frequency |p| / (2 pi) [Hz].
+    damping
+        damping ratio -Re(p) / |p| [-]; < 0 for an unstable pair.
+    damped_freq_hz
+        Im(p) / (2 pi) [Hz].
+    output_shape
+        (Ny,) complex unit vector u (largest entry real > 0).
+    input_shape
+        (Nu,) complex participation v^H, so R ~ sigma_1 u v^H.
+    residue_singular_values
+        (min(Ny, Nu),) singular values of R
+        [unit of G * rad/s]; sigma_2 / sigma_1 << 1 means a clean,
+        single mode.
     """
 
     pole_rad_s: complex
@@ -61,12 +69,17 @@ class Mode:
 class RealPole:
     """One real pole of the fitted model.
 
-    Attributes:
-        pole_rad_s: s-plane value [rad/s]; > 0 is unstable.
-        unstable: pole in the right half plane.
-        corner_freq_hz: |p| / (2 pi) [Hz].
-        output_shape, input_shape, residue_singular_values: as in :class:`Mode`
-            (real vectors here).
+    Attributes
+    ----------
+    pole_rad_s
+        s-plane value [rad/s]; > 0 is unstable.
+    unstable
+        pole in the right half plane.
+    corner_freq_hz
+        |p| / (2 pi) [Hz].
+    output_shape, input_shape, residue_singular_values
+        as in :class:`Mode`
+        (real vectors here).
     """
 
     pole_rad_s: float
@@ -118,11 +131,14 @@ def _shapes(residue: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def modal_summary(model: RationalModel) -> ModalSummary:
     """Natural frequencies, damping ratios, real poles and shapes of a model.
 
-    Args:
-        model: a fitted :class:`RationalModel`.
+    Parameters
+    ----------
+    model
+        a fitted :class:`RationalModel`.
 
-    Returns:
-        :class:`ModalSummary`.
+    Returns
+    -------
+    :class:`ModalSummary`.
     """
     p = model.poles
     real = _is_real(p)
@@ -153,14 +169,18 @@ def to_statespace(model: RationalModel, rank_tol: float = 1e-12) -> StateSpace:
     B and C share sqrt(S) for balance. The pure delay of the model, if any,
     is not in the realisation (see ``model.delay_s``).
 
-    Args:
-        model: the model.
-        rank_tol: relative singular-value threshold; the default keeps every
-            direction that is not numerically zero, so the FRF is the
-            model's; larger values give a smaller, approximate model.
+    Parameters
+    ----------
+    model
+        the model.
+    rank_tol
+        relative singular-value threshold; the default keeps every
+        direction that is not numerically zero, so the FRF is the
+        model's; larger values give a smaller, approximate model.
 
-    Returns:
-        Continuous :class:`StateSpace` (dt = 0) with the model's labels.
+    Returns
+    -------
+    Continuous :class:`StateSpace` (dt = 0) with the model's labels.
     """
     if not (np.isfinite(rank_tol) and 0 <= rank_tol < 1):
         raise ValueError(f"rank_tol must be in [0, 1), got {rank_tol}")

@@ -39,17 +39,26 @@ class StabilisationDiagram:
 
     One row per complex pair (the Im > 0 pole) and per real pole.
 
-    Attributes:
-        order: (K,) model order of each row.
-        pole_rad_s: (K,) complex s-plane pole [rad/s].
-        freq_hz: (K,) |p| / (2 pi) [Hz].
-        damping: (K,) -Re(p) / |p| (real poles: +1 stable, -1 unstable).
-        status: (K,) int, index into :data:`STATUS_LABELS`; the first order
-            fitted is all 0 (nothing to compare with).
-        orders: (M,) the orders fitted, ascending.
-        chi2_per_dof: (M,) 2 V / (N - p) of each fit (with ``var``; else the
-            cost V itself).
-        band_hz: (2,) lowest and highest line of the data [Hz].
+    Attributes
+    ----------
+    order
+        (K,) model order of each row.
+    pole_rad_s
+        (K,) complex s-plane pole [rad/s].
+    freq_hz
+        (K,) |p| / (2 pi) [Hz].
+    damping
+        (K,) -Re(p) / |p| (real poles: +1 stable, -1 unstable).
+    status
+        (K,) int, index into :data:`STATUS_LABELS`; the first order
+        fitted is all 0 (nothing to compare with).
+    orders
+        (M,) the orders fitted, ascending.
+    chi2_per_dof
+        (M,) 2 V / (N - p) of each fit (with ``var``; else the
+        cost V itself).
+    band_hz
+        (2,) lowest and highest line of the data [Hz].
     """
 
     order: np.ndarray
@@ -91,17 +100,25 @@ def stabilisation_diagram(freq_hz: np.ndarray, G: np.ndarray, var: np.ndarray | 
                           n_vf_iterations: int = 30) -> StabilisationDiagram:
     """Fit every order in ``orders`` and mark the poles that stay.
 
-    Args:
-        freq_hz, G, var: the data as for
-            :func:`~ambid.fit.common_denominator.fit_common_denominator`.
-        orders: iterable of model orders (e.g. ``range(10, 31, 2)``).
-        tol_freq: relative frequency change still called stable [-].
-        tol_damping: relative damping change still called stable [-].
-        refine: also run the ML refinement for each order (slower).
-        relative_degree, delay_s, n_vf_iterations: passed to the fit.
+    Parameters
+    ----------
+    freq_hz, G, var
+        the data as for
+        :func:`~ambid.fit.common_denominator.fit_common_denominator`.
+    orders
+        iterable of model orders (e.g. ``range(10, 31, 2)``).
+    tol_freq
+        relative frequency change still called stable [-].
+    tol_damping
+        relative damping change still called stable [-].
+    refine
+        also run the ML refinement for each order (slower).
+    relative_degree, delay_s, n_vf_iterations
+        passed to the fit.
 
-    Returns:
-        :class:`StabilisationDiagram`.
+    Returns
+    -------
+    :class:`StabilisationDiagram`.
     """
     ords = np.unique(np.asarray(list(orders), dtype=int))
     if ords.size == 0 or ords.min() < 1:
@@ -133,11 +150,14 @@ def stabilisation_diagram(freq_hz: np.ndarray, G: np.ndarray, var: np.ndarray | 
 def cmif(G: np.ndarray) -> np.ndarray:
     """Singular values of G per line, descending.
 
-    Args:
-        G: (L, Ny, Nu) complex FRF.
+    Parameters
+    ----------
+    G
+        (L, Ny, Nu) complex FRF.
 
-    Returns:
-        (L, min(Ny, Nu)) [unit of G].
+    Returns
+    -------
+    (L, min(Ny, Nu)) [unit of G].
     """
     g = np.asarray(G)
     if g.ndim != 3:
@@ -157,17 +177,25 @@ def plot_stabilisation(diagram: StabilisationDiagram, path: str | None = None, *
                        title: str = "Stabilisation diagram") -> Figure:
     """Stabilisation diagram figure, with the CMIF behind it if G is given.
 
-    Args:
-        diagram: from :func:`stabilisation_diagram`.
-        path: write a PNG there if given.
-        G, freq_hz: (L, Ny, Nu) FRF and its lines [Hz] for the CMIF overlay.
-        freq_range_hz: x-axis limits [Hz]; default half the lowest line to
-            twice the highest.
-        unit: unit of G for the CMIF axis label.
-        title: figure title.
+    Parameters
+    ----------
+    diagram
+        from :func:`stabilisation_diagram`.
+    path
+        write a PNG there if given.
+    G, freq_hz
+        (L, Ny, Nu) FRF and its lines [Hz] for the CMIF overlay.
+    freq_range_hz
+        x-axis limits [Hz]; default half the lowest line to
+        twice the highest.
+    unit
+        unit of G for the CMIF axis label.
+    title
+        figure title.
 
-    Returns:
-        The matplotlib Figure.
+    Returns
+    -------
+    The matplotlib Figure.
     """
     from matplotlib.figure import Figure
 
@@ -209,16 +237,24 @@ def plot_cmif(freq_hz: np.ndarray, G: np.ndarray, path: str | None = None, *,
               title: str = "CMIF") -> Figure:
     """CMIF figure of measured data, with a model's CMIF dashed if given.
 
-    Args:
-        freq_hz: (L,) lines [Hz].
-        G: (L, Ny, Nu) measured FRF.
-        path: write a PNG there if given.
-        model: a :class:`RationalModel` or its FRF (L, Ny, Nu) at ``freq_hz``.
-        unit: unit of G for the axis label.
-        title: figure title.
+    Parameters
+    ----------
+    freq_hz
+        (L,) lines [Hz].
+    G
+        (L, Ny, Nu) measured FRF.
+    path
+        write a PNG there if given.
+    model
+        a :class:`RationalModel` or its FRF (L, Ny, Nu) at ``freq_hz``.
+    unit
+        unit of G for the axis label.
+    title
+        figure title.
 
-    Returns:
-        The matplotlib Figure.
+    Returns
+    -------
+    The matplotlib Figure.
     """
     f = np.asarray(freq_hz, dtype=float)
     sv = cmif(G)

@@ -162,9 +162,10 @@ def factor_covariance(data: WeightedData, lin: np.ndarray, quad: np.ndarray, sol
     removed), widen it where their scatter exceeds it
     (:func:`ambid.fit.correlated.realisation_inflation`).
 
-    Returns:
-        (cov (P, P), dof (P,)): the degrees of freedom of each variance (inf:
-        many, use the normal quantile).
+    Returns
+    -------
+    (cov (P, P), dof (P,)): the degrees of freedom of each variance (inf:
+    many, use the normal quantile).
     """
     theta = fb.pack(lin, quad)
     nc = data.n_constraints

@@ -48,12 +48,16 @@ __all__ = ["NotIdentifiable", "Prior", "UpdateResult", "update_parameters"]
 class Prior:
     """Independent normal priors of the parameters: the MAP term of :func:`update_parameters`.
 
-    Attributes:
-        mean: (p,) prior means [parameter units].
-        std: (p,) prior standard deviations [parameter units], of ln(theta)
-            where ``log``; inf: no prior on that parameter (flat).
-        log: (p,) bool: the prior is normal in ln(theta) (theta > 0); those
-            parameters are estimated in ln(theta), their intervals too.
+    Attributes
+    ----------
+    mean
+        (p,) prior means [parameter units].
+    std
+        (p,) prior standard deviations [parameter units], of ln(theta)
+        where ``log``; inf: no prior on that parameter (flat).
+    log
+        (p,) bool: the prior is normal in ln(theta) (theta > 0); those
+        parameters are estimated in ln(theta), their intervals too.
 
     Examples
     --------
@@ -75,26 +79,44 @@ class Prior:
 class UpdateResult:
     """Updated parameters with their uncertainty.
 
-    Attributes:
-        names: (p,) parameter names.
-        theta: (p,) estimates [parameter units].
-        theta0: (p,) start values.
-        std: (p,) standard deviations.
-        ci95: (p, 2) 95 % intervals [low, high] (in ln theta for a log prior, then exponentiated).
-        covariance: (p, p) covariance of theta.
-        correlation: (p, p) correlation matrix.
-        cost: the data part of V at the optimum (sum |G(theta) - G|^2 / var).
-        n_residuals: N = 2 L Ny Nu real residuals.
-        jacobian_singular_values: (p,) singular values of the weighted
-            Jacobian (with the prior's rows) w.r.t. the scaled parameters, descending.
-        success: the optimiser reported convergence.
-        message: the optimiser's stop reason.
-        n_evaluations: model evaluations in the optimisation.
-        inflation: the largest factor the realisations' scatter widened a standard deviation by (1: none).
-        prior_ratio: (p,) posterior over prior standard deviation (nan: no prior); near 1 the prior
-            dominates, near 0 the data.
-        dof: (p,) degrees of freedom of each variance (inf: the normal quantile).
-        log: (p,) bool: estimated and bounded in ln theta.
+    Attributes
+    ----------
+    names
+        (p,) parameter names.
+    theta
+        (p,) estimates [parameter units].
+    theta0
+        (p,) start values.
+    std
+        (p,) standard deviations.
+    ci95
+        (p, 2) 95 % intervals [low, high] (in ln theta for a log prior, then exponentiated).
+    covariance
+        (p, p) covariance of theta.
+    correlation
+        (p, p) correlation matrix.
+    cost
+        the data part of V at the optimum (sum |G(theta) - G|^2 / var).
+    n_residuals
+        N = 2 L Ny Nu real residuals.
+    jacobian_singular_values
+        (p,) singular values of the weighted
+        Jacobian (with the prior's rows) w.r.t. the scaled parameters, descending.
+    success
+        the optimiser reported convergence.
+    message
+        the optimiser's stop reason.
+    n_evaluations
+        model evaluations in the optimisation.
+    inflation
+        the largest factor the realisations' scatter widened a standard deviation by (1: none).
+    prior_ratio
+        (p,) posterior over prior standard deviation (nan: no prior); near 1 the prior
+        dominates, near 0 the data.
+    dof
+        (p,) degrees of freedom of each variance (inf: the normal quantile).
+    log
+        (p,) bool: estimated and bounded in ln theta.
     """
 
     names: tuple[str, ...]

@@ -38,13 +38,19 @@ from ambid.fit import basis as fb
 class WeightedData:
     """Scaled, flattened fit data.
 
-    Attributes:
-        s: (L,) complex scaled Laplace variable j f / f_scale.
-        g: (E, L) complex data per matrix entry (delay already removed).
-        w: (E, L) weights 1 / sqrt(var).
-        has_feedthrough: fit a constant term D per entry (relative degree 0).
-        relative_degree: 0 (proper), 1 (strictly proper), r >= 2 adds r - 1
-            linear constraints on the coefficients (vanishing Laurent moments).
+    Attributes
+    ----------
+    s
+        (L,) complex scaled Laplace variable j f / f_scale.
+    g
+        (E, L) complex data per matrix entry (delay already removed).
+    w
+        (E, L) weights 1 / sqrt(var).
+    has_feedthrough
+        fit a constant term D per entry (relative degree 0).
+    relative_degree
+        0 (proper), 1 (strictly proper), r >= 2 adds r - 1
+        linear constraints on the coefficients (vanishing Laurent moments).
     """
 
     s: np.ndarray
@@ -62,16 +68,26 @@ class WeightedData:
 class LinearSolution:
     """Best coefficients for fixed poles.
 
-    Attributes:
-        coef: (E, n) coefficients on the pole basis (constraints applied).
-        feedthrough: (E,) constant terms (zeros without feed-through).
-        free: (E, n_free) the unconstrained unknowns z (coef = z @ null.T).
-        null: (n, n_free) null-space map of the constraints (identity without).
-        q0: (2L, k) orthonormal basis of the w_bar-weighted, real-stacked columns.
-        rho: (E, L) relative weights w / w_bar.
-        normal: (E, k, k) per-entry normal matrices Q0^T rho^2 Q0.
-        residual: (E, L) complex weighted residual w (G_model - G).
-        cost: sum |G_model - G|^2 / var = sum |residual|^2.
+    Attributes
+    ----------
+    coef
+        (E, n) coefficients on the pole basis (constraints applied).
+    feedthrough
+        (E,) constant terms (zeros without feed-through).
+    free
+        (E, n_free) the unconstrained unknowns z (coef = z @ null.T).
+    null
+        (n, n_free) null-space map of the constraints (identity without).
+    q0
+        (2L, k) orthonormal basis of the w_bar-weighted, real-stacked columns.
+    rho
+        (E, L) relative weights w / w_bar.
+    normal
+        (E, k, k) per-entry normal matrices Q0^T rho^2 Q0.
+    residual
+        (E, L) complex weighted residual w (G_model - G).
+    cost
+        sum |G_model - G|^2 / var = sum |residual|^2.
     """
 
     coef: np.ndarray
@@ -117,9 +133,10 @@ def null_map(lin: np.ndarray, quad: np.ndarray, n_constraints: int, dep: np.ndar
 def weighted_basis(data: WeightedData, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Orthonormalise columns (L, k) under the entry-averaged weight.
 
-    Returns:
-        (q0 (2L, k), t0 (k, k) upper triangular with stack(w_bar cols) = q0 t0,
-        w_bar (L,), rho (E, L) = w / w_bar).
+    Returns
+    -------
+    (q0 (2L, k), t0 (k, k) upper triangular with stack(w_bar cols) = q0 t0,
+    w_bar (L,), rho (E, L) = w / w_bar).
     """
     w_bar = np.sqrt(np.mean(data.w ** 2, axis=0))
     q0, t0 = np.linalg.qr(stack_real(w_bar[:, None] * cols))
@@ -234,8 +251,9 @@ def vector_fit(data: WeightedData, poles0: np.ndarray, n_iter: int,
     best for three steps (noisy data make vector fitting wander about the
     optimum).
 
-    Returns:
-        (lin, quad, solution, steps) of the best iterate.
+    Returns
+    -------
+    (lin, quad, solution, steps) of the best iterate.
     """
     lin, quad = fb.split_poles(poles0)
     best = (lin, quad, solve_coefficients(data, lin, quad))

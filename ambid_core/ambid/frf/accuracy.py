@@ -13,12 +13,16 @@ def frf_relative_error(frf: np.ndarray, reference: np.ndarray) -> np.ndarray:
     The matrix norm keeps the structurally zero x-y couplings of a rotor at
     standstill from dominating, as an element-wise ratio would.
 
-    Args:
-        frf: estimate (L, Ny, Nu).
-        reference: true FRF, same shape.
+    Parameters
+    ----------
+    frf
+        estimate (L, Ny, Nu).
+    reference
+        true FRF, same shape.
 
-    Returns:
-        (L,) relative error [-]; NaN where the estimate is not finite.
+    Returns
+    -------
+    (L,) relative error [-]; NaN where the estimate is not finite.
     """
     g, r = np.asarray(frf), np.asarray(reference)
     if g.shape != r.shape or g.ndim != 3:

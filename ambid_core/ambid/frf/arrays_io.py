@@ -74,18 +74,26 @@ def load_arrays(path: str | Path, channels: Sequence[str] | None = None,
                 n_samples: int | None = None, delimiter: str = ",") -> dict[str, np.ndarray]:
     """Load named channels from a .npz, .mat or .csv file.
 
-    Args:
-        path: file path.
-        channels: names to return (all numeric channels if None).
-        n_samples: required number of samples per channel, optional.
-        delimiter: field separator of .csv files.
+    Parameters
+    ----------
+    path
+        file path.
+    channels
+        names to return (all numeric channels if None).
+    n_samples
+        required number of samples per channel, optional.
+    delimiter
+        field separator of .csv files.
 
-    Returns:
-        dict name -> float array (n_samples,) or (n_samples, k), in file units.
+    Returns
+    -------
+    dict name -> float array (n_samples,) or (n_samples, k), in file units.
 
-    Raises:
-        ValueError: unknown extension, missing channel, complex data, NaN/inf,
-            channels of different lengths or not ``n_samples`` long.
+    Raises
+    ------
+    ValueError
+        unknown extension, missing channel, complex data, NaN/inf,
+        channels of different lengths or not ``n_samples`` long.
     """
     path = Path(path)
     if not path.is_file():

@@ -30,12 +30,17 @@ _STANDING = (0.4, 0.6)
 class DirectionalFrf:
     """Forward and backward directional FRFs between the bearing planes.
 
-    Attributes:
-        freq_hz: (L,) [Hz].
-        forward, backward: (L, Np, Np) complex, p (outputs) per f (inputs) [m/A].
-        var_forward, var_backward: (L, Np, Np) variances [(m/A)^2] from the x/y variances, the
-            elements taken independent; None without them.
-        planes: the bearings of the Np planes (rows), e.g. ("a", "b").
+    Attributes
+    ----------
+    freq_hz
+        (L,) [Hz].
+    forward, backward
+        (L, Np, Np) complex, p (outputs) per f (inputs) [m/A].
+    var_forward, var_backward
+        (L, Np, Np) variances [(m/A)^2] from the x/y variances, the
+        elements taken independent; None without them.
+    planes
+        the bearings of the Np planes (rows), e.g. ("a", "b").
     """
 
     freq_hz: np.ndarray
@@ -67,15 +72,21 @@ def directional_frf(freq_hz: np.ndarray, frf: np.ndarray, var: np.ndarray | None
                     output_names: Sequence[str] = (), input_names: Sequence[str] = ()) -> DirectionalFrf:
     """Forward and backward directional FRFs from an x/y FRF matrix (module docstring).
 
-    Args:
-        freq_hz: (L,) [Hz].
-        frf: (L, Ny, Nu) u -> y [m/A].
-        var: (L, Ny, Nu) variance of each element, or None.
-        output_names, input_names: the channels of the rows and columns (``y_a_x``, ``u_a_x``, ...): the
-            planes are their bearings with an x and a y channel (:func:`planes`).
+    Parameters
+    ----------
+    freq_hz
+        (L,) [Hz].
+    frf
+        (L, Ny, Nu) u -> y [m/A].
+    var
+        (L, Ny, Nu) variance of each element, or None.
+    output_names, input_names
+        the channels of the rows and columns (``y_a_x``, ``u_a_x``, ...): the
+        planes are their bearings with an x and a y channel (:func:`planes`).
 
-    Returns:
-        :class:`DirectionalFrf` with (L, Np, Np) matrices, Np the planes.
+    Returns
+    -------
+    :class:`DirectionalFrf` with (L, Np, Np) matrices, Np the planes.
     """
     g = np.asarray(frf)
     (xo, yo), (xi, yi) = (tuple(np.asarray(i, dtype=np.int64) for i in planes(n)) for n in (output_names, input_names))
@@ -100,8 +111,9 @@ def whirl(shape: np.ndarray, names: Sequence[str]) -> tuple[str, float]:
     conj(s_x - j s_y) / 2 e^{-j w t} (backward); the forward share is
     sum |s_x + j s_y|^2 / (sum |s_x + j s_y|^2 + sum |s_x - j s_y|^2) over the planes.
 
-    Returns:
-        ('forward' | 'backward' | 'standing', forward share in [0, 1]).
+    Returns
+    -------
+    ('forward' | 'backward' | 'standing', forward share in [0, 1]).
     """
     s = np.asarray(shape, dtype=complex)
     x_idx, y_idx = planes(names)
@@ -122,8 +134,9 @@ def whirl_of_residue(residue: np.ndarray, output_names: Sequence[str], input_nam
     Unlike a single shape vector this also judges a pair of coincident modes (an isotropic rotor at
     standstill, a rank-2 residue): its share is 1/2, 'standing'.
 
-    Returns:
-        ('forward' | 'backward' | 'standing', forward share in [0, 1]).
+    Returns
+    -------
+    ('forward' | 'backward' | 'standing', forward share in [0, 1]).
     """
     r = np.asarray(residue, dtype=complex)[None]
     d = directional_frf([0.0], r, None, output_names, input_names)

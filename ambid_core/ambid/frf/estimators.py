@@ -108,13 +108,17 @@ def _check_enough_experiments(n_exp: int, n_in: int) -> None:
 def h1(y: np.ndarray, u: np.ndarray) -> np.ndarray:
     """H1 estimator ``G = S_yu S_uu^-1`` (least squares in the output noise).
 
-    Args:
-        y: output spectra (M, Ne, P, L, Ny).
-        u: input spectra (M, Ne, P, L, Nu).
+    Parameters
+    ----------
+    y
+        output spectra (M, Ne, P, L, Ny).
+    u
+        input spectra (M, Ne, P, L, Nu).
 
-    Returns:
-        G (L, Ny, Nu). Biased in closed loop: tends to ``-C^-1`` where the
-        fed-back noise dominates u.
+    Returns
+    -------
+    G (L, Ny, Nu). Biased in closed loop: tends to ``-C^-1`` where the
+    fed-back noise dominates u.
     """
     s = _matched(y=y, u=u)
     return _right_divide(_cross(s["y"], s["u"]), _cross(s["u"], s["u"]), "S_uu")
@@ -126,12 +130,16 @@ def h2(y: np.ndarray, u: np.ndarray) -> np.ndarray:
     For MIMO it is defined only for a square plant (Ny == Nu), since S_uy must
     be inverted; non-square systems raise ``ValueError``.
 
-    Args:
-        y: output spectra (M, Ne, P, L, Ny).
-        u: input spectra (M, Ne, P, L, Nu).
+    Parameters
+    ----------
+    y
+        output spectra (M, Ne, P, L, Ny).
+    u
+        input spectra (M, Ne, P, L, Nu).
 
-    Returns:
-        G (L, Ny, Nu).
+    Returns
+    -------
+    G (L, Ny, Nu).
     """
     s = _matched(y=y, u=u)
     ny, nu = s["y"].shape[-1], s["u"].shape[-1]
@@ -148,13 +156,18 @@ def per_period_frf(y: np.ndarray, u: np.ndarray, r: np.ndarray | None = None) ->
     R_k = U_k (then ``G_k = Y_k U_k^+``, equal to ``Y_k U_k^-1`` when Ne == Nu,
     and also equal to the r-based one when Ne == Nu).
 
-    Args:
-        y: output spectra (M, Ne, P, L, Ny).
-        u: input spectra (M, Ne, P, L, Nu).
-        r: reference (excitation) spectra (M, Ne, P or 1, L, Nu), optional.
+    Parameters
+    ----------
+    y
+        output spectra (M, Ne, P, L, Ny).
+    u
+        input spectra (M, Ne, P, L, Nu).
+    r
+        reference (excitation) spectra (M, Ne, P or 1, L, Nu), optional.
 
-    Returns:
-        G_k (M, P, L, Ny, Nu).
+    Returns
+    -------
+    G_k (M, P, L, Ny, Nu).
     """
     s = _matched(y=y, u=u) if r is None else _matched(y=y, u=u, r=r)
     _check_enough_experiments(s["y"].shape[1], s["u"].shape[-1])
@@ -166,12 +179,16 @@ def per_period_frf(y: np.ndarray, u: np.ndarray, r: np.ndarray | None = None) ->
 def arithmetic_mean(y: np.ndarray, u: np.ndarray) -> np.ndarray:
     """Arithmetic mean over all periods and realisations of per-period FRFs.
 
-    Args:
-        y: output spectra (M, Ne, P, L, Ny).
-        u: input spectra (M, Ne, P, L, Nu).
+    Parameters
+    ----------
+    y
+        output spectra (M, Ne, P, L, Ny).
+    u
+        input spectra (M, Ne, P, L, Nu).
 
-    Returns:
-        G (L, Ny, Nu) = mean_k Y_k U_k^+ (see :func:`per_period_frf`).
+    Returns
+    -------
+    G (L, Ny, Nu) = mean_k Y_k U_k^+ (see :func:`per_period_frf`).
     """
     return per_period_frf(y, u).mean(axis=(0, 1))
 
@@ -187,12 +204,16 @@ def log_mean(y: np.ndarray, u: np.ndarray) -> np.ndarray:
     per-period phases stay within +-pi of it). An element whose arithmetic
     mean is exactly 0 is returned as 0.
 
-    Args:
-        y: output spectra (M, Ne, P, L, Ny).
-        u: input spectra (M, Ne, P, L, Nu).
+    Parameters
+    ----------
+    y
+        output spectra (M, Ne, P, L, Ny).
+    u
+        input spectra (M, Ne, P, L, Nu).
 
-    Returns:
-        G (L, Ny, Nu).
+    Returns
+    -------
+    G (L, Ny, Nu).
     """
     gk = per_period_frf(y, u)
     ga = gk.mean(axis=(0, 1))
@@ -211,12 +232,16 @@ def errors_in_variables(y: np.ndarray, u: np.ndarray) -> np.ndarray:
     Ne == Nu); the result is the mean over realisations (averaging spectra
     across realisations would cancel their random phases).
 
-    Args:
-        y: output spectra (M, Ne, P, L, Ny).
-        u: input spectra (M, Ne, P, L, Nu).
+    Parameters
+    ----------
+    y
+        output spectra (M, Ne, P, L, Ny).
+    u
+        input spectra (M, Ne, P, L, Nu).
 
-    Returns:
-        G (L, Ny, Nu).
+    Returns
+    -------
+    G (L, Ny, Nu).
     """
     s = _matched(y=y, u=u)
     _check_enough_experiments(s["y"].shape[1], s["u"].shape[-1])
@@ -234,13 +259,18 @@ def indirect(y: np.ndarray, u: np.ndarray, r: np.ndarray) -> np.ndarray:
     input sensitivity (r -> u). r is noise-free, so the noise correlated with
     u through the feedback averages out: consistent in closed loop.
 
-    Args:
-        y: output spectra (M, Ne, P, L, Ny).
-        u: input spectra (M, Ne, P, L, Nu).
-        r: excitation spectra (M, Ne, P or 1, L, Nu).
+    Parameters
+    ----------
+    y
+        output spectra (M, Ne, P, L, Ny).
+    u
+        input spectra (M, Ne, P, L, Nu).
+    r
+        excitation spectra (M, Ne, P or 1, L, Nu).
 
-    Returns:
-        G (L, Ny, Nu).
+    Returns
+    -------
+    G (L, Ny, Nu).
     """
     s = _matched(y=y, u=u, r=r)
     return _right_divide(_cross(s["y"], s["r"]), _cross(s["u"], s["r"]), "S_ur")
@@ -254,12 +284,16 @@ def multiple_coherence(y: np.ndarray, x: np.ndarray) -> np.ndarray:
     one channel). In closed loop use x = r (the excitation); with x = u the
     fed-back noise is partly "explained" and the coherence is optimistic.
 
-    Args:
-        y: output spectra (M, Ne, P, L, Ny).
-        x: input or excitation spectra (M, Ne, P or 1, L, Nx).
+    Parameters
+    ----------
+    y
+        output spectra (M, Ne, P, L, Ny).
+    x
+        input or excitation spectra (M, Ne, P or 1, L, Nx).
 
-    Returns:
-        Coherence (L, Ny) in [0, 1].
+    Returns
+    -------
+    Coherence (L, Ny) in [0, 1].
     """
     s = _matched(y=y, x=x)
     return _coherence(_cross(s["y"], s["x"]), _cross(s["x"], s["x"]), _cross(s["y"], s["y"]))
@@ -285,14 +319,20 @@ def sine_amplitude(x: np.ndarray, freq_hz: float, fs_hz: float, n_settle: int = 
     :func:`ambid.frf.periods.period_spectra`). Over an integer number of
     periods this equals the single-bin DFT.
 
-    Args:
-        x: samples (..., n_samples, n_ch), any unit.
-        freq_hz: frequency, 0 < freq_hz < fs_hz / 2 [Hz].
-        fs_hz: sample rate [Hz].
-        n_settle: samples skipped at the start (settling wait).
+    Parameters
+    ----------
+    x
+        samples (..., n_samples, n_ch), any unit.
+    freq_hz
+        frequency, 0 < freq_hz < fs_hz / 2 [Hz].
+    fs_hz
+        sample rate [Hz].
+    n_settle
+        samples skipped at the start (settling wait).
 
-    Returns:
-        Complex amplitudes (..., n_ch), in the unit of x.
+    Returns
+    -------
+    Complex amplitudes (..., n_ch), in the unit of x.
     """
     x = np.asarray(x, dtype=float)
     if x.ndim < 2:
@@ -325,16 +365,24 @@ def stepped_sine_frf(y_records: Sequence[np.ndarray], u_records: Sequence[np.nda
     and ``G = (Y R^H)(U R^H)^-1`` (indirect, closed-loop consistent) or, with
     r_records None, ``G = Y U^+``.
 
-    Args:
-        y_records: L arrays (Ne, n_samples_l, Ny) of outputs.
-        u_records: L arrays (Ne, n_samples_l, Nu) of applied inputs.
-        freq_hz: excitation frequencies (L,) [Hz].
-        fs_hz: sample rate [Hz].
-        n_settle: settling samples skipped, one int or one per frequency.
-        r_records: L arrays (Ne, n_samples_l, Nu) of excitation, optional.
+    Parameters
+    ----------
+    y_records
+        L arrays (Ne, n_samples_l, Ny) of outputs.
+    u_records
+        L arrays (Ne, n_samples_l, Nu) of applied inputs.
+    freq_hz
+        excitation frequencies (L,) [Hz].
+    fs_hz
+        sample rate [Hz].
+    n_settle
+        settling samples skipped, one int or one per frequency.
+    r_records
+        L arrays (Ne, n_samples_l, Nu) of excitation, optional.
 
-    Returns:
-        G (L, Ny, Nu).
+    Returns
+    -------
+    G (L, Ny, Nu).
     """
     freq_hz = np.atleast_1d(np.asarray(freq_hz, dtype=float))
     n_lines = freq_hz.size
@@ -371,13 +419,18 @@ def stepped_sine_frf(y_records: Sequence[np.ndarray], u_records: Sequence[np.nda
 class SpectralFrf:
     """FRF from averaged, windowed, overlapped spectra.
 
-    Attributes:
-        freq_hz: frequency grid (F,) [Hz], bins of fs / n_per_segment.
-        frf: G (F, Ny, Nu); NaN at bins where the input (or reference)
-            cross-spectral matrix is singular (not excited).
-        coherence: multiple coherence (F, Ny) of y with the reference used
-            (r for the indirect estimate, u for H1).
-        n_segments: number of averaged segments (over all experiments).
+    Attributes
+    ----------
+    freq_hz
+        frequency grid (F,) [Hz], bins of fs / n_per_segment.
+    frf
+        G (F, Ny, Nu); NaN at bins where the input (or reference)
+        cross-spectral matrix is singular (not excited).
+    coherence
+        multiple coherence (F, Ny) of y with the reference used
+        (r for the indirect estimate, u for H1).
+    n_segments
+        number of averaged segments (over all experiments).
     """
 
     freq_hz: np.ndarray
@@ -404,17 +457,26 @@ def welch_frf(y: np.ndarray, u: np.ndarray, fs_hz: float, n_per_segment: int,
     consistent); without: H1 ``G = S_yu S_uu^-1``. Several experiments (e.g.
     one swept input at a time) are pooled so that S_ur is invertible.
 
-    Args:
-        y: outputs (n_samples, Ny) or (Ne, n_samples, Ny).
-        u: applied inputs, same leading shape, Nu channels.
-        fs_hz: sample rate [Hz].
-        n_per_segment: segment length (frequency resolution fs / n_per_segment).
-        r: excitation, same shape as u, optional.
-        overlap: fraction of overlap between segments, in [0, 1).
-        freq_range_hz: (f_lo, f_hi) bins kept [Hz]; default all rfft bins.
+    Parameters
+    ----------
+    y
+        outputs (n_samples, Ny) or (Ne, n_samples, Ny).
+    u
+        applied inputs, same leading shape, Nu channels.
+    fs_hz
+        sample rate [Hz].
+    n_per_segment
+        segment length (frequency resolution fs / n_per_segment).
+    r
+        excitation, same shape as u, optional.
+    overlap
+        fraction of overlap between segments, in [0, 1).
+    freq_range_hz
+        (f_lo, f_hi) bins kept [Hz]; default all rfft bins.
 
-    Returns:
-        :class:`SpectralFrf`.
+    Returns
+    -------
+    :class:`SpectralFrf`.
     """
     arrays = {"y": y, "u": u} if r is None else {"y": y, "u": u, "r": r}
     sig = {}

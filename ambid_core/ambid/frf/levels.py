@@ -20,10 +20,14 @@ class LineLevels:
     scaling of :func:`ambid.frf.periods.period_spectra`), each ``*_noise``
     the standard deviation of Ybar from the period scatter [unit of y].
 
-    Attributes:
-        excited_hz, odd_hz, even_hz: (L,), (Lo,), (Le,) line frequencies [Hz].
-        excited_amp, odd_amp, even_amp: (L, Ny), (Lo, Ny), (Le, Ny) [m].
-        excited_noise, odd_noise, even_noise: same shapes [m].
+    Attributes
+    ----------
+    excited_hz, odd_hz, even_hz
+        (L,), (Lo,), (Le,) line frequencies [Hz].
+    excited_amp, odd_amp, even_amp
+        (L, Ny), (Lo, Ny), (Le, Ny) [m].
+    excited_noise, odd_noise, even_noise
+        same shapes [m].
     """
 
     excited_hz: np.ndarray
@@ -40,14 +44,18 @@ class LineLevels:
 def line_levels(y: np.ndarray, design: ExcitationDesign) -> LineLevels | None:
     """Output levels at the excited and detection lines of a periodic experiment (P >= 2).
 
-    Args:
-        y: (total_samples, Ny) outputs over the experiment [m]; NaN where
-            samples are missing (those periods are left out).
-        design: the experiment's design.
+    Parameters
+    ----------
+    y
+        (total_samples, Ny) outputs over the experiment [m]; NaN where
+        samples are missing (those periods are left out).
+    design
+        the experiment's design.
 
-    Returns:
-        :class:`LineLevels`, or None when the design is not periodic with
-        one period length, or has fewer than two steady-state periods.
+    Returns
+    -------
+    :class:`LineLevels`, or None when the design is not periodic with
+    one period length, or has fewer than two steady-state periods.
     """
     d = design
     if not d.is_periodic or d.kind == "stepped_sine" or d.n_periods < 2:

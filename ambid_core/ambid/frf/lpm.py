@@ -83,29 +83,47 @@ _RCOND_MIN = 1e-10
 class LocalFrf:
     """An FRF estimated by the local polynomial or rational method.
 
-    Attributes:
-        freq_hz: (L,) centre frequency of each window [Hz].
-        bins: (L,) its DFT bin of the n-sample record.
-        frf: (L, Ny, Nu) G [unit of y / unit of u]; NaN where G_ur is singular.
-        var: (L, Ny, Nu) noise variance of G [(unit of G)^2], first order.
-        row_cov: (L, Ny, Nu, Nu) covariance of the entries of each row of G.
-        frf_zr: (L, Nz, Nx) the FRF of the regressed signals z on the
-            references x ([y; u] on r in closed loop; y on u in open loop).
-        noise_cov: (L, Nz, Nz) covariance of the noise of Z at one bin,
-            E[V V^H] [(unit of z)^2, DFT scaled by n^-1/2].
-        transient: (Ne, L, Nz) the transient T at the centre bin, per
-            experiment [unit of z, same DFT scaling].
-        power: (L, Nz) mean of |Z|^2 over the window and the experiments
-            [(unit of z)^2, same scaling]: ``1 - noise / power`` is the
-            share of z the references explain (a coherence).
-        dof: (L,) q, residual degrees of freedom of ``noise_cov`` at each line.
-        rational: (L,) bool, the LRM was used at that line.
-        method: one of :data:`METHODS`.
-        degree: R, degree of the local polynomials.
-        half_width: h; the window is 2 h + 1 bins.
-        n_samples: n, samples per record.
-        n_experiments: Ne, records pooled.
-        output_names, input_names: (Ny,), (Nu,) labels (may be empty).
+    Attributes
+    ----------
+    freq_hz
+        (L,) centre frequency of each window [Hz].
+    bins
+        (L,) its DFT bin of the n-sample record.
+    frf
+        (L, Ny, Nu) G [unit of y / unit of u]; NaN where G_ur is singular.
+    var
+        (L, Ny, Nu) noise variance of G [(unit of G)^2], first order.
+    row_cov
+        (L, Ny, Nu, Nu) covariance of the entries of each row of G.
+    frf_zr
+        (L, Nz, Nx) the FRF of the regressed signals z on the
+        references x ([y; u] on r in closed loop; y on u in open loop).
+    noise_cov
+        (L, Nz, Nz) covariance of the noise of Z at one bin,
+        E[V V^H] [(unit of z)^2, DFT scaled by n^-1/2].
+    transient
+        (Ne, L, Nz) the transient T at the centre bin, per
+        experiment [unit of z, same DFT scaling].
+    power
+        (L, Nz) mean of |Z|^2 over the window and the experiments
+        [(unit of z)^2, same scaling]: ``1 - noise / power`` is the
+        share of z the references explain (a coherence).
+    dof
+        (L,) q, residual degrees of freedom of ``noise_cov`` at each line.
+    rational
+        (L,) bool, the LRM was used at that line.
+    method
+        one of :data:`METHODS`.
+    degree
+        R, degree of the local polynomials.
+    half_width
+        h; the window is 2 h + 1 bins.
+    n_samples
+        n, samples per record.
+    n_experiments
+        Ne, records pooled.
+    output_names, input_names
+        (Ny,), (Nu,) labels (may be empty).
     """
 
     freq_hz: np.ndarray
@@ -227,8 +245,10 @@ def _projector(k_t: np.ndarray) -> np.ndarray:
 def window_centres(n_samples: int, fs_hz: float, band_hz: tuple[float, float] | None, half_width: int) -> np.ndarray:
     """(L,) DFT bins (of n samples) at the centres of the non-overlapping windows of 2 h + 1 bins tiling the band.
 
-    Raises:
-        ValueError: the band holds fewer bins than one window.
+    Raises
+    ------
+    ValueError
+        the band holds fewer bins than one window.
 
     Examples
     --------
@@ -388,10 +408,14 @@ def _denominator(zbar: np.ndarray, psibar: np.ndarray, scale: np.ndarray) -> np.
     ``zbar = -psibar d + e``. The channels are weighted by ``1 / scale`` (the
     LPM's residual level), so that no unit dominates d.
 
-    Args:
-        zbar: (L, V, Nz) data with the numerators projected out.
-        psibar: (L, V, Nz, Rd) the denominator's regressors (s/h)^i Z, projected alike.
-        scale: (L, Nz) each channel's residual level.
+    Parameters
+    ----------
+    zbar
+        (L, V, Nz) data with the numerators projected out.
+    psibar
+        (L, V, Nz, Rd) the denominator's regressors (s/h)^i Z, projected alike.
+    scale
+        (L, Nz) each channel's residual level.
     """
     n_lines, v, nz, rd = psibar.shape
     psi = (psibar / scale[:, None, :, None]).reshape(n_lines, v * nz, rd)
@@ -422,18 +446,25 @@ def _rational_pays(rss_lpm: np.ndarray, rss_lrm: np.ndarray, n_extra: int, dof_l
 class TransientFree:
     """Line spectra of periodic segments with their transient removed (:func:`periodic_transient_removal`).
 
-    Attributes:
-        spectra: (..., L, ch) the mean over the P periods of each line, in
-            the amplitude scaling of :func:`ambid.frf.periods.period_spectra`
-            (2/N times the DFT of one period), transient removed [unit of x].
-        noise_cov: (..., L, ch, ch) covariance of the noise of ``spectra``
-            [(unit of x)^2], from the residuals at the bins between the lines.
-        dof: (..., L) degrees of freedom of ``noise_cov``.
-        rational: (..., L) bool, the transient was fitted by a local rational model there.
-        noise_var_time: (..., ch) variance of each channel's noise in the
-            time domain [(unit of x)^2], from the same residuals over every
-            bin up to Nyquist (Parseval).
-        transient: (..., L, ch) the transient removed at each line (same scaling as spectra).
+    Attributes
+    ----------
+    spectra
+        (..., L, ch) the mean over the P periods of each line, in
+        the amplitude scaling of :func:`ambid.frf.periods.period_spectra`
+        (2/N times the DFT of one period), transient removed [unit of x].
+    noise_cov
+        (..., L, ch, ch) covariance of the noise of ``spectra``
+        [(unit of x)^2], from the residuals at the bins between the lines.
+    dof
+        (..., L) degrees of freedom of ``noise_cov``.
+    rational
+        (..., L) bool, the transient was fitted by a local rational model there.
+    noise_var_time
+        (..., ch) variance of each channel's noise in the
+        time domain [(unit of x)^2], from the same residuals over every
+        bin up to Nyquist (Parseval).
+    transient
+        (..., L, ch) the transient removed at each line (same scaling as spectra).
     """
 
     spectra: np.ndarray
@@ -512,15 +543,20 @@ def line_noise(spec: np.ndarray, n_per_period: int, n_periods: int, fit: _Transi
                half_width: int = 2) -> np.ndarray:
     """Noise variance of one bin of a segment's DFT around every period line, from local fits between the lines.
 
-    Args:
-        spec: (..., P N, ch) unscaled DFT of segments of P periods of N samples [unit of x].
-        n_per_period, n_periods: N, P.
-        fit: the local polynomial fit to use (default degree 2 over :func:`periodic_window` (P, half_width)).
+    Parameters
+    ----------
+    spec
+        (..., P N, ch) unscaled DFT of segments of P periods of N samples [unit of x].
+    n_per_period, n_periods
+        N, P.
+    fit
+        the local polynomial fit to use (default degree 2 over :func:`periodic_window` (P, half_width)).
 
-    Returns:
-        (..., N/2 + 1, ch) E|V(P l)|^2 at the lines l = 0..N/2 [(unit of x)^2, unscaled DFT], from the residuals
-        of the bins between the lines; a running median over 2 * 10 + 1 lines (scaled to the mean of chi^2 with
-        2 q dof) keeps the smooth noise spectrum, not the windows a sharp transient still leaks into.
+    Returns
+    -------
+    (..., N/2 + 1, ch) E|V(P l)|^2 at the lines l = 0..N/2 [(unit of x)^2, unscaled DFT], from the residuals
+    of the bins between the lines; a running median over 2 * 10 + 1 lines (scaled to the mean of chi^2 with
+    2 q dof) keeps the smooth noise spectrum, not the windows a sharp transient still leaks into.
     """
     n, p = int(n_per_period), int(n_periods)
     fit = _TransientFit(periodic_window(p, half_width), 2, "lpm") if fit is None else fit
@@ -553,19 +589,27 @@ def periodic_transient_removal(x: np.ndarray, n_per_period: int, lines: np.ndarr
     taken from the two-sided DFT (a real signal's spectrum and its transient
     run on smoothly there).
 
-    Args:
-        x: (..., P N, ch) time samples of one or more segments, each from the
-            first sample of its excitation [unit of x].
-        n_per_period: N.
-        lines: (L,) period lines l (DFT bins of one period), 0 <= l <= N/2.
-        degree: R.
-        half_width: lines on each side whose in-between bins are used.
-        method: one of :data:`METHODS`.
+    Parameters
+    ----------
+    x
+        (..., P N, ch) time samples of one or more segments, each from the
+        first sample of its excitation [unit of x].
+    n_per_period
+        N.
+    lines
+        (L,) period lines l (DFT bins of one period), 0 <= l <= N/2.
+    degree
+        R.
+    half_width
+        lines on each side whose in-between bins are used.
+    method
+        one of :data:`METHODS`.
 
-    Returns:
-        :class:`TransientFree`; its noise covariance has
-        ``q = len(periodic_window(P, half_width)) - (R + 1)`` degrees of
-        freedom (R fewer where the rational model was used).
+    Returns
+    -------
+    :class:`TransientFree`; its noise covariance has
+    ``q = len(periodic_window(P, half_width)) - (R + 1)`` degrees of
+    freedom (R fewer where the rational model was used).
     """
     x = np.asarray(x, dtype=float)
     n = int(n_per_period)

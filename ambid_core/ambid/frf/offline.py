@@ -71,19 +71,26 @@ def data_channels(design_inputs: Sequence[str], names: Sequence[str] | None = No
                   references: Sequence[str] | None = None) -> tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]:
     """The FRF's channels, those not given taken from the data.
 
-    Args:
-        design_inputs: the design's input names (``u_a_x``, or a bare axis).
-        names: the record's channel names (a measurement block's); its ``y_<axis>`` channels are the
-            outputs: those of the design's axes first, in the design's order (so the matrix's rows and
-            columns name the same axes in the same order), then the others in the record's order. None:
-            the y channels of the design's axes.
-        outputs, inputs, references: given channel names (None: from the data).
+    Parameters
+    ----------
+    design_inputs
+        the design's input names (``u_a_x``, or a bare axis).
+    names
+        the record's channel names (a measurement block's); its ``y_<axis>`` channels are the
+        outputs: those of the design's axes first, in the design's order (so the matrix's rows and
+        columns name the same axes in the same order), then the others in the record's order. None:
+        the y channels of the design's axes.
+    outputs, inputs, references
+        given channel names (None: from the data).
 
-    Returns:
-        (outputs, inputs, references): the y channels; the u and r channels of the design's inputs.
+    Returns
+    -------
+    (outputs, inputs, references): the y channels; the u and r channels of the design's inputs.
 
-    Raises:
-        ValueError: the record holds no displacement channel y_<axis>.
+    Raises
+    ------
+    ValueError
+        the record holds no displacement channel y_<axis>.
     """
     axes = [axis_tag(n) for n in design_inputs]
     if inputs is None:
@@ -136,21 +143,31 @@ def frf_from_arrays(data: Mapping[str, np.ndarray],
                     total_samples: int | None = None) -> FrfResult:
     """FRF of an experiment recorded as named channels.
 
-    Args:
-        data: channel name -> samples (n_samples,) [m for y, A for u and r],
-            all the same length; row i is sample i.
-        design: the experiment's ExcitationDesign, its dict, or a JSON file.
-        estimator: one of :data:`ambid.frf.streaming.ESTIMATORS`.
-        outputs: y channel names (Ny,); None: every y_<axis> key of ``data``, in its order.
-        inputs: u channel names; those of the design's inputs are used
-            (:func:`ambid.frf.streaming.match_inputs`); None: u_<axis> of the design's inputs.
-        references: r channel names, one per entry of ``inputs``; None: r_<axis> of the design's inputs.
-        start_row: row where the experiment's first sample is.
-        total_samples: the experiment was stopped after this many samples.
+    Parameters
+    ----------
+    data
+        channel name -> samples (n_samples,) [m for y, A for u and r],
+        all the same length; row i is sample i.
+    design
+        the experiment's ExcitationDesign, its dict, or a JSON file.
+    estimator
+        one of :data:`ambid.frf.streaming.ESTIMATORS`.
+    outputs
+        y channel names (Ny,); None: every y_<axis> key of ``data``, in its order.
+    inputs
+        u channel names; those of the design's inputs are used
+        (:func:`ambid.frf.streaming.match_inputs`); None: u_<axis> of the design's inputs.
+    references
+        r channel names, one per entry of ``inputs``; None: r_<axis> of the design's inputs.
+    start_row
+        row where the experiment's first sample is.
+    total_samples
+        the experiment was stopped after this many samples.
 
-    Returns:
-        :class:`ambid.frf.streaming.FrfResult`; ``complete`` is False if the
-        record ends before the experiment does.
+    Returns
+    -------
+    :class:`ambid.frf.streaming.FrfResult`; ``complete`` is False if the
+    record ends before the experiment does.
     """
     d = load_design(design)
     outputs, inputs, references = data_channels(d.input_names, list(data), outputs, inputs, references)
@@ -181,11 +198,12 @@ def _measurement_topic(design_topic: str) -> str:
 def session_designs(path: str | os.PathLike, recover: bool = False) -> list[dict[str, Any]]:
     """The excitation designs recorded in a session, last message per experiment.
 
-    Returns:
-        List (in recording order) of dicts with keys ``topic``,
-        ``experiment_id``, ``start_index``, ``total_samples`` and ``design``
-        (ExcitationDesign); a republished design (an experiment stopped
-        early) replaces the earlier one.
+    Returns
+    -------
+    List (in recording order) of dicts with keys ``topic``,
+    ``experiment_id``, ``start_index``, ``total_samples`` and ``design``
+    (ExcitationDesign); a republished design (an experiment stopped
+    early) replaces the earlier one.
     """
 
     designs = _Designs(os.fspath(path))
@@ -303,17 +321,24 @@ def frf_from_session(path: str | os.PathLike, estimator: str = "indirect",
     pass followed (a later design message), or its design to change in a way
     the stream cannot follow exactly, the blocks are read a second time.
 
-    Args:
-        path: session .mcap file.
-        estimator: one of :data:`ambid.frf.streaming.ESTIMATORS`.
-        experiment_id: which experiment; default the last one recorded.
-        outputs, inputs, references: channel names as in
-            :func:`frf_from_arrays`; None: from the data (every y channel of
-            the measurement blocks, the design's u and r).
-        recover: read a file a killed recorder left (no summary).
+    Parameters
+    ----------
+    path
+        session .mcap file.
+    estimator
+        one of :data:`ambid.frf.streaming.ESTIMATORS`.
+    experiment_id
+        which experiment; default the last one recorded.
+    outputs, inputs, references
+        channel names as in
+        :func:`frf_from_arrays`; None: from the data (every y channel of
+        the measurement blocks, the design's u and r).
+    recover
+        read a file a killed recorder left (no summary).
 
-    Returns:
-        :class:`ambid.frf.streaming.FrfResult`.
+    Returns
+    -------
+    :class:`ambid.frf.streaming.FrfResult`.
     """
 
     if estimator not in ESTIMATORS:   # before reading the file
@@ -421,16 +446,21 @@ def local_frf_result(y: np.ndarray, u: np.ndarray, r: np.ndarray, design: Excita
                      output_names: Sequence[str], input_names: Sequence[str]) -> FrfResult:
     """The FRF of a 'recorded' design's samples by the local polynomial method, as a :class:`FrfResult`.
 
-    Args:
-        y, u, r: (n, Ny), (n, Nu), (n, Nu) the experiment's samples [m, A, A],
-            n = design.n_per_period.
-        design: the 'recorded' design (its band and ``options['lpm']``).
-        output_names, input_names: labels.
+    Parameters
+    ----------
+    y, u, r
+        (n, Ny), (n, Nu), (n, Nu) the experiment's samples [m, A, A],
+        n = design.n_per_period.
+    design
+        the 'recorded' design (its band and ``options['lpm']``).
+    output_names, input_names
+        labels.
 
-    Returns:
-        :class:`FrfResult` at the LPM's window centres (the design's lines):
-        var_noise from the local fits' residuals (first order, ``dof`` each),
-        no total variance (one record), coherence ``1 - noise / power`` of y.
+    Returns
+    -------
+    :class:`FrfResult` at the LPM's window centres (the design's lines):
+    var_noise from the local fits' residuals (first order, ``dof`` each),
+    no total variance (one record), coherence ``1 - noise / power`` of y.
     """
     opt = design.options.get("lpm") or {}
     est = local_frf(y, u, r, fs_hz=design.fs_hz, band_hz=design.band_hz, degree=int(opt.get("degree", 2)),

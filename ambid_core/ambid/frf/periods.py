@@ -39,17 +39,25 @@ def split_periods(x: np.ndarray, n_per_period: int, n_periods: int, n_transient:
                   n_realisations: int, n_experiments: int) -> np.ndarray:
     """Cut a record into steady-state periods, dropping the transient periods.
 
-    Args:
-        x: samples, shape (n_samples, n_ch) (a 1-D array is one channel),
-            any unit; n_samples must equal ``M * Ne * (Pt + P) * N``.
-        n_per_period: samples per period N.
-        n_periods: steady-state periods per segment P.
-        n_transient: transient periods per segment Pt (dropped), >= 0.
-        n_realisations: realisations M.
-        n_experiments: experiments per realisation Ne.
+    Parameters
+    ----------
+    x
+        samples, shape (n_samples, n_ch) (a 1-D array is one channel),
+        any unit; n_samples must equal ``M * Ne * (Pt + P) * N``.
+    n_per_period
+        samples per period N.
+    n_periods
+        steady-state periods per segment P.
+    n_transient
+        transient periods per segment Pt (dropped), >= 0.
+    n_realisations
+        realisations M.
+    n_experiments
+        experiments per realisation Ne.
 
-    Returns:
-        Array (M, Ne, P, N, n_ch), a copy in the unit of ``x``.
+    Returns
+    -------
+    Array (M, Ne, P, N, n_ch), a copy in the unit of ``x``.
     """
     x = np.asarray(x)
     if x.ndim == 1:
@@ -76,12 +84,16 @@ def period_spectra(periods: np.ndarray, lines: np.ndarray) -> np.ndarray:
     k = 0 and k = N/2 the factor is 1/N (a constant c gives X[0] = c). White
     noise of variance s^2 then has ``E|X[k]|^2 = 4 s^2 / N`` at interior bins.
 
-    Args:
-        periods: array (M, Ne, P, N, n_ch) from :func:`split_periods`.
-        lines: DFT bin indices, int array (L,), each in [0, N/2].
+    Parameters
+    ----------
+    periods
+        array (M, Ne, P, N, n_ch) from :func:`split_periods`.
+    lines
+        DFT bin indices, int array (L,), each in [0, N/2].
 
-    Returns:
-        Complex array (M, Ne, P, L, n_ch), in the unit of ``periods``.
+    Returns
+    -------
+    Complex array (M, Ne, P, L, n_ch), in the unit of ``periods``.
     """
     periods = np.asarray(periods)
     if periods.ndim != 5:

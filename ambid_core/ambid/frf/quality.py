@@ -31,11 +31,16 @@ __all__ = ["QualityFinding", "record_quality", "line_ranges"]
 class QualityFinding:
     """One thing that spoils the record.
 
-    Attributes:
-        kind: 'clipping', 'saturation', 'dropout', 'low excitation' or 'low coherence'.
-        channel: the channel it was found on.
-        lines_hz: (k,) the FRF lines it affects [Hz].
-        text: one line saying it, with the lines.
+    Attributes
+    ----------
+    kind
+        'clipping', 'saturation', 'dropout', 'low excitation' or 'low coherence'.
+    channel
+        the channel it was found on.
+    lines_hz
+        (k,) the FRF lines it affects [Hz].
+    text
+        one line saying it, with the lines.
     """
 
     kind: str

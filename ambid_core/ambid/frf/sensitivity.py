@@ -53,13 +53,17 @@ ZONES: tuple[str, ...] = ("A", "B", "C", "D")
 def input_sensitivity(u: np.ndarray, r: np.ndarray) -> np.ndarray:
     """Measured input sensitivity ``S = S_ur S_rr^-1`` (r -> u), per line.
 
-    Args:
-        u: applied-input spectra (M, Ne, P, L, Nu).
-        r: excitation spectra (M, Ne, P or 1, L, Nu), Ne >= Nu with an
-            invertible reference matrix at every line.
+    Parameters
+    ----------
+    u
+        applied-input spectra (M, Ne, P, L, Nu).
+    r
+        excitation spectra (M, Ne, P or 1, L, Nu), Ne >= Nu with an
+        invertible reference matrix at every line.
 
-    Returns:
-        S (L, Nu, Nu), dimensionless (A/A).
+    Returns
+    -------
+    S (L, Nu, Nu), dimensionless (A/A).
     """
     s = _matched(u=u, r=r)
     return _right_divide(_cross(s["u"], s["r"]), _cross(s["r"], s["r"]), "S_rr")
@@ -76,12 +80,15 @@ def sensitivity_diagonal(s: np.ndarray) -> np.ndarray:
 def sensitivity_peak(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Peak magnitude of each axis's sensitivity over the lines.
 
-    Args:
-        s: sensitivity matrices (L, Nu, Nu), or diagonal (L, Nu).
+    Parameters
+    ----------
+    s
+        sensitivity matrices (L, Nu, Nu), or diagonal (L, Nu).
 
-    Returns:
-        (peak, index): peak |S_ii| per axis (Nu,) as absolute gain, and the
-        line index (Nu,) where it occurs.
+    Returns
+    -------
+    (peak, index): peak |S_ii| per axis (Nu,) as absolute gain, and the
+    line index (Nu,) where it occurs.
     """
     s = np.asarray(s)
     diag = sensitivity_diagonal(s) if s.ndim == 3 else s
@@ -115,9 +122,10 @@ def zone_probabilities(peaks: np.ndarray) -> dict[str, float]:
     """The probability of each ISO 14839-3 zone, the share of ``peaks`` (draws of a peak's distribution,
     absolute gain) in it: the zone of :func:`iso14839_zone` with its confidence.
 
-    Examples:
-        >>> zone_probabilities(np.array([2.5, 2.9, 3.1, 4.2]))
-        {'A': 0.5, 'B': 0.25, 'C': 0.25, 'D': 0.0}
+    Examples
+    --------
+    >>> zone_probabilities(np.array([2.5, 2.9, 3.1, 4.2]))
+    {'A': 0.5, 'B': 0.25, 'C': 0.25, 'D': 0.0}
     """
     x = np.asarray(peaks, dtype=float).ravel()
     if x.size == 0 or not np.all(np.isfinite(x)):
@@ -130,12 +138,16 @@ def zone_probabilities(peaks: np.ndarray) -> dict[str, float]:
 def input_sensitivity_from_models(p_jw: np.ndarray, c_jw: np.ndarray) -> np.ndarray:
     """True input sensitivity ``S = (I + C P)^-1`` from plant and controller FRFs.
 
-    Args:
-        p_jw: plant FRF (L, Ny, Nu) [m/A], u -> y.
-        c_jw: controller FRF (L, Nu, Ny) [A/m], y -> -ic (``u = r - C y``).
+    Parameters
+    ----------
+    p_jw
+        plant FRF (L, Ny, Nu) [m/A], u -> y.
+    c_jw
+        controller FRF (L, Nu, Ny) [A/m], y -> -ic (``u = r - C y``).
 
-    Returns:
-        S (L, Nu, Nu).
+    Returns
+    -------
+    S (L, Nu, Nu).
     """
     p_jw, c_jw = np.asarray(p_jw), np.asarray(c_jw)
     if p_jw.ndim != 3 or c_jw.ndim != 3 or c_jw.shape != (p_jw.shape[0], p_jw.shape[2], p_jw.shape[1]):
@@ -148,12 +160,18 @@ def input_sensitivity_from_models(p_jw: np.ndarray, c_jw: np.ndarray) -> np.ndar
 class ShownSensitivity:
     """The loop sensitivity one excitation channel shows, or why it shows none.
 
-    Attributes:
-        excitation: the excitation channel (``r_a_x``).
-        injected_at: 'current', 'reference' or 'output'.
-        kind: 'input' (S_i = u / r), 'output' (S_o from the controller's sensor), or '' (none).
-        values: (L,) complex S_aa at the lines, or None.
-        why: one line: what it is, or why there is none.
+    Attributes
+    ----------
+    excitation
+        the excitation channel (``r_a_x``).
+    injected_at
+        'current', 'reference' or 'output'.
+    kind
+        'input' (S_i = u / r), 'output' (S_o from the controller's sensor), or '' (none).
+    values
+        (L,) complex S_aa at the lines, or None.
+    why
+        one line: what it is, or why there is none.
     """
 
     excitation: str
@@ -172,16 +190,24 @@ def sensitivity_shown(G: np.ndarray, S_ur: np.ndarray, output_names: Sequence[st
                       excitation_units: Sequence[str] | None = None) -> list[ShownSensitivity]:
     """Per excitation channel, the loop sensitivity the measured lines show (module docstring).
 
-    Args:
-        G: (L, Ny, Nu) the FRF u -> y.
-        S_ur: (L, Nu, Nu) the measured u / r (r -> u).
-        output_names: (Ny,) ``y_<name>``; input_names: (Nu,) ``u_<axis>`` (the excitation ``r_<axis>``).
-        injected_at: excitation name -> 'current' | 'reference' | 'output' (missing: current).
-        output_units: (Ny,) the outputs' units (None: all in m).
-        excitation_units: (Nu,) the excitation's units (None: A where injected at the current, m otherwise).
+    Parameters
+    ----------
+    G
+        (L, Ny, Nu) the FRF u -> y.
+    S_ur
+        (L, Nu, Nu) the measured u / r (r -> u).
+    output_names
+        (Ny,) ``y_<name>``; input_names: (Nu,) ``u_<axis>`` (the excitation ``r_<axis>``).
+    injected_at
+        excitation name -> 'current' | 'reference' | 'output' (missing: current).
+    output_units
+        (Ny,) the outputs' units (None: all in m).
+    excitation_units
+        (Nu,) the excitation's units (None: A where injected at the current, m otherwise).
 
-    Returns:
-        One :class:`ShownSensitivity` per input, in order.
+    Returns
+    -------
+    One :class:`ShownSensitivity` per input, in order.
     """
     injected_at = dict(injected_at or {})
     g, s_ur = np.asarray(G), np.asarray(S_ur)

@@ -64,11 +64,15 @@ _PREFIXES = ("ic_", "u_", "r_", "i_")
 class Gap:
     """Samples missing from the stream inside the experiment.
 
-    Attributes:
-        start_index: absolute sample index of the first missing sample.
-        n_samples: number of missing samples.
-        periods: steady-state periods dropped because of it, as (m, e, p)
-            (realisation, experiment, period counted after the transients).
+    Attributes
+    ----------
+    start_index
+        absolute sample index of the first missing sample.
+    n_samples
+        number of missing samples.
+    periods
+        steady-state periods dropped because of it, as (m, e, p)
+        (realisation, experiment, period counted after the transients).
     """
 
     start_index: int
@@ -80,11 +84,16 @@ class Gap:
 class BlockReport:
     """What one :meth:`FrfStream.add` call completed.
 
-    Attributes:
-        periods_completed: steady-state periods completed (and kept).
-        realisations_completed: realisations the stream passed the end of.
-        gaps: gaps found (before this block's data).
-        finished: the stream reached the end of the experiment.
+    Attributes
+    ----------
+    periods_completed
+        steady-state periods completed (and kept).
+    realisations_completed
+        realisations the stream passed the end of.
+    gaps
+        gaps found (before this block's data).
+    finished
+        the stream reached the end of the experiment.
     """
 
     periods_completed: int
@@ -97,15 +106,24 @@ class BlockReport:
 class StreamProgress:
     """Where a stream is.
 
-    Attributes:
-        samples_done: samples of the experiment passed (received or lost).
-        total_samples: samples of the experiment (after any truncation).
-        periods_done: steady-state periods kept so far.
-        periods_total: steady-state periods in the experiment.
-        realisations_done: realisations passed.
-        n_realisations: realisations within the experiment.
-        time_left_s: (total_samples - samples_done) / fs [s].
-        finished: the end was reached.
+    Attributes
+    ----------
+    samples_done
+        samples of the experiment passed (received or lost).
+    total_samples
+        samples of the experiment (after any truncation).
+    periods_done
+        steady-state periods kept so far.
+    periods_total
+        steady-state periods in the experiment.
+    realisations_done
+        realisations passed.
+    n_realisations
+        realisations within the experiment.
+    time_left_s
+        (total_samples - samples_done) / fs [s].
+    finished
+        the end was reached.
     """
 
     samples_done: int
@@ -125,18 +143,28 @@ class SynchronousResponse:
     (period, experiment, realisation), phase-locked to the experiment's start when the harmonics fall on
     lines.
 
-    Attributes:
-        harmonic: (D,) harmonic number k.
-        freq_hz: (D,) frequency of the disturbance line [Hz].
-        lines: (D,) its DFT bin.
-        amplitude: (D, C) |mean| of the line's complex amplitude per channel [m for y, A for u].
-        phase_rad: (D, C) its phase at the experiment's first sample [rad] (cosine reference).
-        amplitude_std: (D, C) standard uncertainty of each component of the complex mean, from the
-            record-to-record scatter, and so of the amplitude where it is well above this [unit of the
-            channel] (an amplitude within a few of these is biased upwards, as any |mean| is).
-        channel_names: (C,) the outputs, then the inputs.
-        n_records: records averaged.
-        on_lines: the harmonics fall exactly on lines (else leakage blurs amplitude and phase).
+    Attributes
+    ----------
+    harmonic
+        (D,) harmonic number k.
+    freq_hz
+        (D,) frequency of the disturbance line [Hz].
+    lines
+        (D,) its DFT bin.
+    amplitude
+        (D, C) |mean| of the line's complex amplitude per channel [m for y, A for u].
+    phase_rad
+        (D, C) its phase at the experiment's first sample [rad] (cosine reference).
+    amplitude_std
+        (D, C) standard uncertainty of each component of the complex mean, from the
+        record-to-record scatter, and so of the amplitude where it is well above this [unit of the
+        channel] (an amplitude within a few of these is biased upwards, as any |mean| is).
+    channel_names
+        (C,) the outputs, then the inputs.
+    n_records
+        records averaged.
+    on_lines
+        the harmonics fall exactly on lines (else leakage blurs amplitude and phase).
     """
 
     harmonic: np.ndarray
@@ -154,44 +182,68 @@ class SynchronousResponse:
 class FrfResult:
     """An FRF estimate with its uncertainty and the loop's figures.
 
-    Attributes:
-        estimator: one of :data:`ESTIMATORS`.
-        freq_hz: (L,) line frequencies [Hz].
-        lines: (L,) DFT bins of the design's N-sample period.
-        frf: G (L, Ny, Nu), u -> y [unit of y / unit of u, e.g. m/A].
-        var_noise: (L, Ny, Nu) noise variance of G from period scatter
-            [(m/A)^2] (the robust method's, see :mod:`ambid.frf.uncertainty`;
-            with unequal record counts the one-record variance is pooled
-            over realisations); NaN when no realisation has two records,
-            and for the noise kind.
-        var_total: (L, Ny, Nu) total variance of G from realisation scatter
-            (noise + stochastic nonlinear) [(m/A)^2]; NaN with M < 2.
-        coherence: (L, Ny) multiple coherence of y with r [-].
-        sensitivity: (L, Nu, Nu) input sensitivity r -> u [A/A].
-        sensitivity_peak: (Nu,) peak |S_ii| per input [-, absolute gain].
-        sensitivity_peak_hz: (Nu,) where the peak is [Hz].
-        iso_zone: ISO 14839-3 zone of the worst input ('A'..'D').
-        distortion: detection-line levels, or None without detection lines
-            or with P < 2.
-        noise_std: (Ny,) output noise standard deviation from the
-            period-to-period scatter of the time samples [unit of y]; NaN
-            when not defined.
-        noise_std_ci95: (Ny, 2) its 95 % interval [unit of y], NaN with
-            fewer than 2 segments (:func:`ambid.frf.uncertainty.noise_std_interval`).
-        noise_std_sd: (Ny,) the estimate's standard deviation [unit of y], NaN
-            with fewer than 2 segments.
-        output_names, input_names: (Ny,), (Nu,) channel names.
-        n_realisations: realisations used.
-        n_periods: records (m, p) used, summed over realisations.
-        n_experiments: Ne.
-        gaps: every gap found so far.
-        complete: the whole experiment was processed.
-        synchronous: the synchronous response at the disturbance lines of a design steered clear of a
-            spinning rotor's harmonics, or None (no such lines); those lines are in neither the FRF,
-            its noise estimate nor the distortion levels.
-        frf_realisations: (M, L, Ny, Nu) G_m of each realisation (periodic
-            multi-line designs), else None: the realisation-to-realisation
-            scatter of anything computed from G.
+    Attributes
+    ----------
+    estimator
+        one of :data:`ESTIMATORS`.
+    freq_hz
+        (L,) line frequencies [Hz].
+    lines
+        (L,) DFT bins of the design's N-sample period.
+    frf
+        G (L, Ny, Nu), u -> y [unit of y / unit of u, e.g. m/A].
+    var_noise
+        (L, Ny, Nu) noise variance of G from period scatter
+        [(m/A)^2] (the robust method's, see :mod:`ambid.frf.uncertainty`;
+        with unequal record counts the one-record variance is pooled
+        over realisations); NaN when no realisation has two records,
+        and for the noise kind.
+    var_total
+        (L, Ny, Nu) total variance of G from realisation scatter
+        (noise + stochastic nonlinear) [(m/A)^2]; NaN with M < 2.
+    coherence
+        (L, Ny) multiple coherence of y with r [-].
+    sensitivity
+        (L, Nu, Nu) input sensitivity r -> u [A/A].
+    sensitivity_peak
+        (Nu,) peak |S_ii| per input [-, absolute gain].
+    sensitivity_peak_hz
+        (Nu,) where the peak is [Hz].
+    iso_zone
+        ISO 14839-3 zone of the worst input ('A'..'D').
+    distortion
+        detection-line levels, or None without detection lines
+        or with P < 2.
+    noise_std
+        (Ny,) output noise standard deviation from the
+        period-to-period scatter of the time samples [unit of y]; NaN
+        when not defined.
+    noise_std_ci95
+        (Ny, 2) its 95 % interval [unit of y], NaN with
+        fewer than 2 segments (:func:`ambid.frf.uncertainty.noise_std_interval`).
+    noise_std_sd
+        (Ny,) the estimate's standard deviation [unit of y], NaN
+        with fewer than 2 segments.
+    output_names, input_names
+        (Ny,), (Nu,) channel names.
+    n_realisations
+        realisations used.
+    n_periods
+        records (m, p) used, summed over realisations.
+    n_experiments
+        Ne.
+    gaps
+        every gap found so far.
+    complete
+        the whole experiment was processed.
+    synchronous
+        the synchronous response at the disturbance lines of a design steered clear of a
+        spinning rotor's harmonics, or None (no such lines); those lines are in neither the FRF,
+        its noise estimate nor the distortion levels.
+    frf_realisations
+        (M, L, Ny, Nu) G_m of each realisation (periodic
+        multi-line designs), else None: the realisation-to-realisation
+        scatter of anything computed from G.
     """
 
     estimator: str
@@ -261,13 +313,18 @@ def match_inputs(design_inputs: Sequence[str], inputs: Sequence[str],
     ``a_x``) to ``inputs[i]`` and ``references[i]``. If the tags do not all
     match but the counts are equal, the channels are taken in order.
 
-    Args:
-        design_inputs: (Nu,) the design's input names.
-        inputs: applied-current channel names u, e.g. ``u_a_x``.
-        references: excitation channel names r, one per input, same order.
+    Parameters
+    ----------
+    design_inputs
+        (Nu,) the design's input names.
+    inputs
+        applied-current channel names u, e.g. ``u_a_x``.
+    references
+        excitation channel names r, one per input, same order.
 
-    Returns:
-        (u names, r names), each (Nu,), ordered like ``design_inputs``.
+    Returns
+    -------
+    (u names, r names), each (Nu,), ordered like ``design_inputs``.
     """
     inputs, references = tuple(inputs), tuple(references)
     if len(inputs) != len(references):
@@ -294,14 +351,19 @@ def loop_consistency(frf: np.ndarray, sensitivity: np.ndarray, c_jw: np.ndarray)
     deviation means the controller description is not what ran, or the
     loop saturated.
 
-    Args:
-        frf: G (L, Ny, Nu) [m/A].
-        sensitivity: S (L, Nu, Nu) [A/A].
-        c_jw: controller FRF (L, Nu, Ny) in the ``u = r - C y`` convention
-            [A/m] (the negative of a model that outputs ic).
+    Parameters
+    ----------
+    frf
+        G (L, Ny, Nu) [m/A].
+    sensitivity
+        S (L, Nu, Nu) [A/A].
+    c_jw
+        controller FRF (L, Nu, Ny) in the ``u = r - C y`` convention
+        [A/m] (the negative of a model that outputs ic).
 
-    Returns:
-        (L,) relative deviation ||S - (I + C G)^-1||_F / ||S||_F [-].
+    Returns
+    -------
+    (L,) relative deviation ||S - (I + C G)^-1||_F / ||S||_F [-].
     """
     frf, sensitivity, c_jw = np.asarray(frf), np.asarray(sensitivity), np.asarray(c_jw)
     n_lines, ny, nu = frf.shape
@@ -330,14 +392,21 @@ def _estimate(name: str, y: np.ndarray, u: np.ndarray, r: np.ndarray) -> np.ndar
 class FrfStream:
     """Incremental period spectra of one experiment; estimates at any time.
 
-    Args:
-        design: the experiment's excitation design.
-        output_names: (Ny,) names of the y channels (labels).
-        input_names: (Nu,) names of the u channels, one per design input.
-        reference_names: (Nu,) names of the r channels, one per design input.
-        start_index: absolute sample index of the experiment's first sample.
-        total_samples: stop the experiment early after this many samples
-            (default the design's whole length).
+    Parameters
+    ----------
+    design
+        the experiment's excitation design.
+    output_names
+        (Ny,) names of the y channels (labels).
+    input_names
+        (Nu,) names of the u channels, one per design input.
+    reference_names
+        (Nu,) names of the r channels, one per design input.
+    start_index
+        absolute sample index of the experiment's first sample.
+    total_samples
+        stop the experiment early after this many samples
+        (default the design's whole length).
 
     Mutable: :meth:`add` changes it. Not thread-safe.
     """
@@ -450,8 +519,10 @@ class FrfStream:
     def columns(self, channel_names: Sequence[str]) -> np.ndarray:
         """Indices into ``channel_names`` (a block's columns) of :attr:`channel_names`.
 
-        Raises:
-            ValueError: naming the channels the block lacks.
+        Raises
+        ------
+        ValueError
+            naming the channels the block lacks.
         """
         names = list(channel_names)
         missing = [n for n in self.channel_names if n not in names]
@@ -510,18 +581,24 @@ class FrfStream:
     def add(self, first_index: int, data: np.ndarray) -> BlockReport:
         """Feed a block of consecutive samples.
 
-        Args:
-            first_index: absolute sample index of the block's first row.
-            data: (n, Ny + 2 Nu) samples, columns as :attr:`channel_names`
-                [m for y, A for u and r].
+        Parameters
+        ----------
+        first_index
+            absolute sample index of the block's first row.
+        data
+            (n, Ny + 2 Nu) samples, columns as :attr:`channel_names`
+            [m for y, A for u and r].
 
-        Returns:
-            :class:`BlockReport`.
+        Returns
+        -------
+        :class:`BlockReport`.
 
-        Raises:
-            ValueError: bad shape, NaN/inf, or a block starting before the
-                end of the previous one (overlap or out of order); the stream
-                is unchanged then.
+        Raises
+        ------
+        ValueError
+            bad shape, NaN/inf, or a block starting before the
+            end of the previous one (overlap or out of order); the stream
+            is unchanged then.
         """
         if isinstance(first_index, bool) or int(first_index) != first_index or first_index < 0:
             raise ValueError(f"first_index must be an integer >= 0, got {first_index!r}")
@@ -648,21 +725,27 @@ class FrfStream:
     def estimate(self, estimator: str = "indirect", partial: bool = False) -> FrfResult | None:
         """The FRF from the realisations passed so far, or None if there is none yet.
 
-        Args:
-            estimator: one of :data:`ESTIMATORS` (the noise kind takes
-                'indirect' or 'h1').
-            partial: also use the records of the realisation still running
-                (a live preview after every record; the final estimate is the
-                same either way, since the last realisation has then passed).
+        Parameters
+        ----------
+        estimator
+            one of :data:`ESTIMATORS` (the noise kind takes
+            'indirect' or 'h1').
+        partial
+            also use the records of the realisation still running
+            (a live preview after every record; the final estimate is the
+            same either way, since the last realisation has then passed).
 
-        Returns:
-            :class:`FrfResult`, or None before the first realisation with a
-            complete record.
+        Returns
+        -------
+        :class:`FrfResult`, or None before the first realisation with a
+        complete record.
 
-        Raises:
-            ValueError: unknown estimator, or an estimator that cannot be
-                formed from these data (e.g. h2 with Ny != Nu, an input not
-                excited).
+        Raises
+        ------
+        ValueError
+            unknown estimator, or an estimator that cannot be
+            formed from these data (e.g. h2 with Ny != Nu, an input not
+            excited).
         """
         if estimator not in ESTIMATORS:
             raise ValueError(f"estimator must be one of {ESTIMATORS}, got {estimator!r}")

@@ -90,9 +90,12 @@ _SMOOTH_BINS = 20
 class TransientModel:
     """The poles of the transient and the form of its partial fractions.
 
-    Attributes:
-        poles: (n,) z-domain poles of the segment's sampling, one of each conjugate pair (Im >= 0), |p| < 1.
-        n_poly: degree of the polynomial part.
+    Attributes
+    ----------
+    poles
+        (n,) z-domain poles of the segment's sampling, one of each conjugate pair (Im >= 0), |p| < 1.
+    n_poly
+        degree of the polynomial part.
     """
 
     poles: np.ndarray
@@ -165,17 +168,26 @@ def vector_fit_poles(spectra: np.ndarray, weight: np.ndarray, bins: np.ndarray, 
     (eliminated record by record), under ``Re sum_k sigma(zeta_k) = K``; the
     zeros of sigma are the next poles.
 
-    Args:
-        spectra: (S, K, C) unscaled DFT of S records of C channels at ``bins`` [unit of each channel].
-        weight: (K, C) > 0, 1 / the noise's standard deviation at each bin [1 / unit].
-        bins: (K,) DFT bins of the n-sample records, 0 < k < n/2.
-        n_samples: n.
-        n_pairs, n_real: starting complex pairs and real poles, log-spaced over the bins.
-        n_poly: degree of the polynomial part.
-        n_iter: iterations.
+    Parameters
+    ----------
+    spectra
+        (S, K, C) unscaled DFT of S records of C channels at ``bins`` [unit of each channel].
+    weight
+        (K, C) > 0, 1 / the noise's standard deviation at each bin [1 / unit].
+    bins
+        (K,) DFT bins of the n-sample records, 0 < k < n/2.
+    n_samples
+        n.
+    n_pairs, n_real
+        starting complex pairs and real poles, log-spaced over the bins.
+    n_poly
+        degree of the polynomial part.
+    n_iter
+        iterations.
 
-    Returns:
-        :class:`TransientModel`.
+    Returns
+    -------
+    :class:`TransientModel`.
     """
     y = np.asarray(spectra, complex)
     w = np.asarray(weight, float)
@@ -232,15 +244,21 @@ def _sigma_zeros(poles: np.ndarray, c: np.ndarray, d: float) -> np.ndarray:
 class TransientFits:
     """The weighted least-squares fits of one model to every record (:func:`fit_transients`).
 
-    Attributes:
-        q: (C, K, nf) per channel the rows of Q of ``[Re; Im](w phi) = Q R``, as complex numbers
-            (row k of the real part + j row k of the imaginary part) [-].
-        r: (C, nf, nf) per channel R [1 / unit of the channel].
-        coef: (S, nf, C) the real coefficients of each record and channel, :meth:`TransientModel.basis` order
-            [unit of the channel].
-        resid: (S, K, C) the residuals Y - T at the fitted bins [unit of the channel, unscaled DFT].
-        leverage: (K, C) the share of a bin's noise power the fit takes, ``(h_re + h_im) / 2`` (summing to
-            nf / 2 over the bins) [-].
+    Attributes
+    ----------
+    q
+        (C, K, nf) per channel the rows of Q of ``[Re; Im](w phi) = Q R``, as complex numbers
+        (row k of the real part + j row k of the imaginary part) [-].
+    r
+        (C, nf, nf) per channel R [1 / unit of the channel].
+    coef
+        (S, nf, C) the real coefficients of each record and channel, :meth:`TransientModel.basis` order
+        [unit of the channel].
+    resid
+        (S, K, C) the residuals Y - T at the fitted bins [unit of the channel, unscaled DFT].
+    leverage
+        (K, C) the share of a bin's noise power the fit takes, ``(h_re + h_im) / 2`` (summing to
+        nf / 2 over the bins) [-].
     """
 
     q: np.ndarray
@@ -254,12 +272,18 @@ def fit_transients(model: TransientModel, spectra: np.ndarray, weight: np.ndarra
                    n_samples: int) -> TransientFits:
     """Each record's and channel's coefficients by weighted least squares, with its residuals and leverages.
 
-    Args:
-        model: the poles.
-        spectra: (S, K, C) unscaled DFT at ``bins`` [unit of each channel].
-        weight: (K, C) 1 / the noise's standard deviation [1 / unit].
-        bins: (K,) DFT bins of the n-sample records.
-        n_samples: n.
+    Parameters
+    ----------
+    model
+        the poles.
+    spectra
+        (S, K, C) unscaled DFT at ``bins`` [unit of each channel].
+    weight
+        (K, C) 1 / the noise's standard deviation [1 / unit].
+    bins
+        (K,) DFT bins of the n-sample records.
+    n_samples
+        n.
     """
     y = np.asarray(spectra, complex)
     n_bins, n_ch = weight.shape
@@ -352,22 +376,33 @@ def global_transient_removal(x: np.ndarray, n_per_period: int, lines: np.ndarray
     channel, the transient subtracted at the period lines, its noise put into
     each line's covariance; a local correction where the model misses.
 
-    Args:
-        x: (S, P N, ch) or (P N, ch) time samples of the segments [unit of each channel].
-        n_per_period: N.
-        lines: (L,) period lines l analysed, 0 < l < N/2.
-        n_pairs, n_real, n_poly: the vector fit's starting poles and polynomial degree.
-        half_width: lines on each side whose in-between bins give a line's noise (:func:`periodic_window`).
-        n_iter: vector-fitting iterations.
-        margin: the fit covers bins up to ``margin`` times the highest line.
+    Parameters
+    ----------
+    x
+        (S, P N, ch) or (P N, ch) time samples of the segments [unit of each channel].
+    n_per_period
+        N.
+    lines
+        (L,) period lines l analysed, 0 < l < N/2.
+    n_pairs, n_real, n_poly
+        the vector fit's starting poles and polynomial degree.
+    half_width
+        lines on each side whose in-between bins give a line's noise (:func:`periodic_window`).
+    n_iter
+        vector-fitting iterations.
+    margin
+        the fit covers bins up to ``margin`` times the highest line.
 
-    Returns:
-        :class:`GlobalTransientFree` with (S, L, ch) spectra in the amplitude scaling of
-        :func:`ambid.frf.periods.period_spectra` (2 / (N P) times the DFT), (S, L, ch, ch) noise covariance,
-        (S, L) degrees of freedom, (S, ch) time-domain noise variance.
+    Returns
+    -------
+    :class:`GlobalTransientFree` with (S, L, ch) spectra in the amplitude scaling of
+    :func:`ambid.frf.periods.period_spectra` (2 / (N P) times the DFT), (S, L, ch, ch) noise covariance,
+    (S, L) degrees of freedom, (S, ch) time-domain noise variance.
 
-    Raises:
-        ValueError: bad shapes, fewer than 2 periods, lines at 0 or N/2, NaN, or too few bins for the model.
+    Raises
+    ------
+    ValueError
+        bad shapes, fewer than 2 periods, lines at 0 or N/2, NaN, or too few bins for the model.
     """
     x = np.asarray(x, dtype=float)
     if x.ndim == 2:
@@ -472,9 +507,10 @@ def _local_correction(res_w: np.ndarray, inside: np.ndarray, cov_line: np.ndarra
     channel divided by its own level, give ``F = ((rss_0 - rss_1) / (3 C)) / (rss_1 / (C q_1))``, compared with
     F(6 C, 2 C q_1) at :data:`_ALPHA`.
 
-    Returns:
-        local (S, L) bool, the polynomial's value at the line (S, L, ch), the local method's covariance there
-        (S, L, ch, ch) and its dof (S, L).
+    Returns
+    -------
+    local (S, L) bool, the polynomial's value at the line (S, L, ch), the local method's covariance there
+    (S, L, ch, ch) and its dof (S, L).
     """
     fit = _TransientFit(offsets, 2, "lpm")
     t0, res1, _, q1, _ = fit(res_w)                                            # (S, L, ch), (S, L, w, ch)
@@ -507,14 +543,20 @@ class SegmentTransients:
     bins (about 1.5 P times the highest line) and L lines. A segment missing
     a period (a gap) is left out.
 
-    Args:
-        n_per_period: N.
-        n_periods: P >= 2.
-        lines: (L,) period lines analysed.
-        n_noisy: the first ``n_noisy`` channels carry noise and a transient
-            (y and u); the others (the excitation r, exactly periodic) are
-            taken as the mean over the periods.
-        method: 'global' (the model across the spectrum) or a local method of :data:`ambid.frf.lpm.METHODS`.
+    Parameters
+    ----------
+    n_per_period
+        N.
+    n_periods
+        P >= 2.
+    lines
+        (L,) period lines analysed.
+    n_noisy
+        the first ``n_noisy`` channels carry noise and a transient
+        (y and u); the others (the excitation r, exactly periodic) are
+        taken as the mean over the periods.
+    method
+        'global' (the model across the spectrum) or a local method of :data:`ambid.frf.lpm.METHODS`.
     """
 
     def __init__(self, n_per_period: int, n_periods: int, lines: np.ndarray, n_noisy: int,

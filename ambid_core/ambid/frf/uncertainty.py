@@ -44,12 +44,15 @@ __all__ = [
 def period_mean_variance(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Mean over the periods and the variance of that mean.
 
-    Args:
-        x: period spectra (M, Ne, P, L, n_ch), P >= 2.
+    Parameters
+    ----------
+    x
+        period spectra (M, Ne, P, L, n_ch), P >= 2.
 
-    Returns:
-        (mean, var_of_mean), each (M, Ne, L, n_ch); ``var_of_mean`` is the
-        sample variance over P (ddof 1) divided by P, in unit of x squared.
+    Returns
+    -------
+    (mean, var_of_mean), each (M, Ne, L, n_ch); ``var_of_mean`` is the
+    sample variance over P (ddof 1) divided by P, in unit of x squared.
     """
     x = _matched(x=x)["x"]
     p = x.shape[2]
@@ -62,14 +65,19 @@ def frf_noise_variance(y: np.ndarray, u: np.ndarray,
                        r: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """FRF of each realisation and its noise variance from period scatter.
 
-    Args:
-        y: output spectra (M, Ne, P, L, Ny), P >= 2.
-        u: input spectra (M, Ne, P, L, Nu).
-        r: excitation spectra (M, Ne, P or 1, L, Nu), optional; if given
-            ``G_m = (Ybar R^H)(Ubar R^H)^-1`` else ``G_m = Ybar Ubar^+``.
+    Parameters
+    ----------
+    y
+        output spectra (M, Ne, P, L, Ny), P >= 2.
+    u
+        input spectra (M, Ne, P, L, Nu).
+    r
+        excitation spectra (M, Ne, P or 1, L, Nu), optional; if given
+        ``G_m = (Ybar R^H)(Ubar R^H)^-1`` else ``G_m = Ybar Ubar^+``.
 
-    Returns:
-        (G_m, var_n): each (M, L, Ny, Nu); var_n is the noise variance of G_m.
+    Returns
+    -------
+    (G_m, var_n): each (M, L, Ny, Nu); var_n is the noise variance of G_m.
     """
     s = _matched(y=y, u=u) if r is None else _matched(y=y, u=u, r=r)
     p = s["y"].shape[2]
@@ -114,14 +122,19 @@ class BlaEstimate:
 def bla_robust(y: np.ndarray, u: np.ndarray, r: np.ndarray | None = None) -> BlaEstimate:
     """Robust-method BLA from M >= 2 realisations of P >= 2 periods (see module doc).
 
-    Args:
-        y: output spectra at the excited lines (M, Ne, P, L, Ny).
-        u: input spectra (M, Ne, P, L, Nu).
-        r: excitation spectra (M, Ne, P or 1, L, Nu), optional (use it in
-            closed loop).
+    Parameters
+    ----------
+    y
+        output spectra at the excited lines (M, Ne, P, L, Ny).
+    u
+        input spectra (M, Ne, P, L, Nu).
+    r
+        excitation spectra (M, Ne, P or 1, L, Nu), optional (use it in
+        closed loop).
 
-    Returns:
-        :class:`BlaEstimate`.
+    Returns
+    -------
+    :class:`BlaEstimate`.
     """
     g_m, var_n = frf_noise_variance(y, u, r)
     m = g_m.shape[0]
@@ -147,14 +160,19 @@ class DistortionLevels:
     estimated from the period scatter at that same line. Without distortion
     the ratio is ~1 (0 dB).
 
-    Attributes:
-        odd_power: mean over realisations and experiments of |Ybar|^2 at the
-            odd detection lines (L_odd, Ny) [unit of y squared].
-        odd_noise_power: var(Ybar) there, same shape.
-        even_power, even_noise_power: the same at even lines (L_even, Ny).
-        odd_db, even_db: per output (Ny,), ``10 log10(sum power / sum
-            noise_power)`` over the lines of that kind [dB above the noise
-            floor]; NaN when there are no such lines.
+    Attributes
+    ----------
+    odd_power
+        mean over realisations and experiments of |Ybar|^2 at the
+        odd detection lines (L_odd, Ny) [unit of y squared].
+    odd_noise_power
+        var(Ybar) there, same shape.
+    even_power, even_noise_power
+        the same at even lines (L_even, Ny).
+    odd_db, even_db
+        per output (Ny,), ``10 log10(sum power / sum
+        noise_power)`` over the lines of that kind [dB above the noise
+        floor]; NaN when there are no such lines.
     """
 
     odd_power: np.ndarray
@@ -182,12 +200,16 @@ def distortion_levels(y_odd: np.ndarray, y_even: np.ndarray) -> DistortionLevels
     Odd (e.g. cubic) nonlinearities of an odd multisine show at the odd
     detection lines, even ones (e.g. quadratic) at the even lines.
 
-    Args:
-        y_odd: output spectra at the odd non-excited lines (M, Ne, P, L_odd, Ny), P >= 2.
-        y_even: output spectra at the even non-excited lines (M, Ne, P, L_even, Ny).
+    Parameters
+    ----------
+    y_odd
+        output spectra at the odd non-excited lines (M, Ne, P, L_odd, Ny), P >= 2.
+    y_even
+        output spectra at the even non-excited lines (M, Ne, P, L_even, Ny).
 
-    Returns:
-        :class:`DistortionLevels`.
+    Returns
+    -------
+    :class:`DistortionLevels`.
     """
     odd = _levels(y_odd)
     even = _levels(y_even)
@@ -204,12 +226,15 @@ def output_noise_std(periods: np.ndarray) -> np.ndarray:
     of the steady-state samples: the periodic part (response to the
     excitation and its nonlinear distortion) cancels, the noise stays.
 
-    Args:
-        periods: time samples (M, Ne, P, N, n_ch) from
-            :func:`ambid.frf.periods.split_periods`, P >= 2.
+    Parameters
+    ----------
+    periods
+        time samples (M, Ne, P, N, n_ch) from
+        :func:`ambid.frf.periods.split_periods`, P >= 2.
 
-    Returns:
-        Noise standard deviation per channel (n_ch,), unit of the samples.
+    Returns
+    -------
+    Noise standard deviation per channel (n_ch,), unit of the samples.
     """
     periods = np.asarray(periods, dtype=float)
     if periods.ndim != 5:
@@ -233,14 +258,18 @@ def noise_std_interval(segment_variances: np.ndarray, level: float = 0.95) -> tu
     interval, which the square root carries to the std (its standard
     deviation by the delta method, sd(v_mean) / (2 sqrt(v_mean))).
 
-    Args:
-        segment_variances: (S, n_ch) each segment's mean period-to-period
-            variance [unit^2].
-        level: the interval's level.
+    Parameters
+    ----------
+    segment_variances
+        (S, n_ch) each segment's mean period-to-period
+        variance [unit^2].
+    level
+        the interval's level.
 
-    Returns:
-        (sd (n_ch,), interval (n_ch, 2)) in the unit of the samples; NaN
-        with S < 2.
+    Returns
+    -------
+    (sd (n_ch,), interval (n_ch, 2)) in the unit of the samples; NaN
+    with S < 2.
     """
     v = np.asarray(segment_variances, dtype=float)
     s, n_ch = v.shape
@@ -268,14 +297,18 @@ def row_covariance(var: np.ndarray, sensitivity: np.ndarray) -> np.ndarray:
     entries of a row are strongly correlated, and a fit that takes them as
     independent misjudges its own uncertainty.
 
-    Args:
-        var: (L, Ny, Nu) variance of each entry (e.g. pooled over the inputs);
-            each row's covariance is scaled so that its mean diagonal is the
-            mean of ``var`` over that row.
-        sensitivity: (L, Nu, Nu) input sensitivity S (r -> u).
+    Parameters
+    ----------
+    var
+        (L, Ny, Nu) variance of each entry (e.g. pooled over the inputs);
+        each row's covariance is scaled so that its mean diagonal is the
+        mean of ``var`` over that row.
+    sensitivity
+        (L, Nu, Nu) input sensitivity S (r -> u).
 
-    Returns:
-        (L, Ny, Nu, Nu) complex Hermitian row covariances [unit of G squared].
+    Returns
+    -------
+    (L, Ny, Nu, Nu) complex Hermitian row covariances [unit of G squared].
     """
     v = np.asarray(var, dtype=float)
     s = np.asarray(sensitivity, dtype=complex)
@@ -304,15 +337,20 @@ def fit_weight_variance(var_noise: np.ndarray, var_total: np.ndarray, window: in
     variances are pooled over the inputs of an output first (one output's
     noise and distortion reach every input's column alike).
 
-    Args:
-        var_noise: (L, Ny, Nu) noise variance of G [unit of G squared].
-        var_total: (L, Ny, Nu) total variance of G (noise and stochastic
-            nonlinear distortion, from the realisations' scatter).
-        window: lines either side the distortion share is averaged over.
+    Parameters
+    ----------
+    var_noise
+        (L, Ny, Nu) noise variance of G [unit of G squared].
+    var_total
+        (L, Ny, Nu) total variance of G (noise and stochastic
+        nonlinear distortion, from the realisations' scatter).
+    window
+        lines either side the distortion share is averaged over.
 
-    Returns:
-        (L, Ny, Nu) variance, the same for every input of an output; the
-        share is floored at 1 (the total holds the noise).
+    Returns
+    -------
+    (L, Ny, Nu) variance, the same for every input of an output; the
+    share is floored at 1 (the total holds the noise).
     """
     vn = np.asarray(var_noise, dtype=float).mean(axis=2, keepdims=True)
     vt = np.asarray(var_total, dtype=float).mean(axis=2, keepdims=True)

@@ -39,10 +39,14 @@ __all__ = ["SessionFollower"]
 class SessionFollower:
     """The live view's model of one session.
 
-    Args:
-        estimator: the session's FRF estimator (:data:`ambid.frf.streaming.ESTIMATORS`).
-        signal_rate_hz: samples per second of session time shown in the time plot (decimated) [Hz].
-        orbit_points: points of an orbit frame (one per block and bearing).
+    Parameters
+    ----------
+    estimator
+        the session's FRF estimator (:data:`ambid.frf.streaming.ESTIMATORS`).
+    signal_rate_hz
+        samples per second of session time shown in the time plot (decimated) [Hz].
+    orbit_points
+        points of an orbit frame (one per block and bearing).
     """
 
     def __init__(self, estimator: str = "indirect", signal_rate_hz: float = 200.0, orbit_points: int = 200) -> None:

@@ -55,11 +55,16 @@ LOG_LEVELS = (2, 3, 4, 5)
 class Frame:
     """One message of the live view.
 
-    Attributes:
-        topic: topic below the server's prefix, e.g. ``"frf/y_a_x/u_a_x"``.
-        schema_name: key of :data:`SCHEMAS`.
-        message: the JSON-safe message; None: the channel is only advertised (its messages come later).
-        t_ns: session time of what it shows [ns] (sample index / fs).
+    Attributes
+    ----------
+    topic
+        topic below the server's prefix, e.g. ``"frf/y_a_x/u_a_x"``.
+    schema_name
+        key of :data:`SCHEMAS`.
+    message
+        the JSON-safe message; None: the channel is only advertised (its messages come later).
+    t_ns
+        session time of what it shows [ns] (sample index / fs).
     """
 
     topic: str
@@ -153,10 +158,14 @@ def _band_std(result: FrfResult) -> tuple[np.ndarray | None, str]:
 def frf_frames(result: FrfResult, experiment_id: str, t_ns: int) -> list[Frame]:
     """One ``ambid.live.FrfEntry`` frame per entry (output, input) of an estimate.
 
-    Args:
-        result: the estimate (:class:`ambid.frf.streaming.FrfResult`).
-        experiment_id: the experiment it belongs to.
-        t_ns: session time of the last sample it used [ns].
+    Parameters
+    ----------
+    result
+        the estimate (:class:`ambid.frf.streaming.FrfResult`).
+    experiment_id
+        the experiment it belongs to.
+    t_ns
+        session time of the last sample it used [ns].
     """
     g = result.frf
     f = _floats(result.freq_hz)
@@ -192,11 +201,16 @@ def levels_frames(result: FrfResult, odd_freq_hz: np.ndarray, even_freq_hz: np.n
                   t_ns: int) -> list[Frame]:
     """One ``ambid.live.Levels`` frame per output: detection-line levels against the noise floor.
 
-    Args:
-        result: the estimate, with its distortion levels (None without detection lines or with P < 2).
-        odd_freq_hz, even_freq_hz: (L_odd,), (L_even,) the design's detection lines [Hz].
-        experiment_id: the experiment.
-        t_ns: session time [ns].
+    Parameters
+    ----------
+    result
+        the estimate, with its distortion levels (None without detection lines or with P < 2).
+    odd_freq_hz, even_freq_hz
+        (L_odd,), (L_even,) the design's detection lines [Hz].
+    experiment_id
+        the experiment.
+    t_ns
+        session time [ns].
     """
     d = result.distortion
     rel, ratio = _scalar(result.relative_noise_std), _scalar(result.nonlinear_ratio)
@@ -222,12 +236,18 @@ def signal_frames(first_index: int, fs_hz: float, names: Sequence[str], data: np
                   every: int) -> list[Frame]:
     """``ambid.live.Signals`` frames of the samples of a block whose index is a multiple of ``every``.
 
-    Args:
-        first_index: sample index of the block's first row.
-        fs_hz: sample rate [Hz].
-        names: (C,) the channels to show (columns of ``data``).
-        data: (n, C) samples [m, A].
-        every: keep samples k with k % every == 0 (the same samples whatever the block size).
+    Parameters
+    ----------
+    first_index
+        sample index of the block's first row.
+    fs_hz
+        sample rate [Hz].
+    names
+        (C,) the channels to show (columns of ``data``).
+    data
+        (n, C) samples [m, A].
+    every
+        keep samples k with k % every == 0 (the same samples whatever the block size).
     """
     i0 = (-first_index) % every
     rows = data[i0::every]

@@ -63,12 +63,16 @@ def _raw(topic: str) -> dict:
 def foxglove_layout(layout: Layout = RADIAL, prefix: str = DEFAULT_PREFIX) -> dict:
     """The live view's Foxglove layout for a session's channels.
 
-    Args:
-        layout: the session's axes (outputs y_<axis>, inputs u_<axis>; the FRF is Ny x Nu over them).
-        prefix: the live view's topic prefix (``<namespace>/live``).
+    Parameters
+    ----------
+    layout
+        the session's axes (outputs y_<axis>, inputs u_<axis>; the FRF is Ny x Nu over them).
+    prefix
+        the live view's topic prefix (``<namespace>/live``).
 
-    Returns:
-        The layout, JSON-safe (``configById``, ``layout``, ``globalVariables``, ...).
+    Returns
+    -------
+    The layout, JSON-safe (``configById``, ``layout``, ``globalVariables``, ...).
     """
     p = "/" + prefix.strip("/")
     configs: dict[str, dict] = {}

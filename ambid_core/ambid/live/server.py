@@ -52,14 +52,22 @@ def _foxglove():
 class LiveServer:
     """A Foxglove WebSocket server showing one session.
 
-    Args:
-        port: TCP port (0: any free one; :attr:`port` says which).
-        host: address to bind; 127.0.0.1 keeps it to this machine.
-        follower: what turns the session's messages into frames (default: indirect estimator).
-        prefix: topic prefix of the channels, e.g. ``/amb/live``.
-        queue_size: items the queue holds before it drops the oldest.
-        backlog: messages the server keeps per client before it drops that client's oldest.
-        name: the server's name, shown by Foxglove.
+    Parameters
+    ----------
+    port
+        TCP port (0: any free one; :attr:`port` says which).
+    host
+        address to bind; 127.0.0.1 keeps it to this machine.
+    follower
+        what turns the session's messages into frames (default: indirect estimator).
+    prefix
+        topic prefix of the channels, e.g. ``/amb/live``.
+    queue_size
+        items the queue holds before it drops the oldest.
+    backlog
+        messages the server keeps per client before it drops that client's oldest.
+    name
+        the server's name, shown by Foxglove.
     """
 
     def __init__(self, port: int, host: str = "127.0.0.1", follower: SessionFollower | None = None,
@@ -94,8 +102,10 @@ class LiveServer:
     def start(self) -> "LiveServer":
         """Bind the server and start the worker.
 
-        Raises:
-            LiveUnavailable: foxglove-sdk is missing, or ``host:port`` cannot be bound (one line saying so).
+        Raises
+        ------
+        LiveUnavailable
+            foxglove-sdk is missing, or ``host:port`` cannot be bound (one line saying so).
         """
         fg = _foxglove()
         self._context = fg.Context()

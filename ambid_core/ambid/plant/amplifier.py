@@ -28,16 +28,24 @@ import numpy as np
 class Amplifier:
     """Coil and current-controller data (one coil; shared by Nu identical ones).
 
-    Attributes:
-        inductance_h: coil inductance L at the operating point [H].
-        resistance_ohm: coil resistance R [ohm].
-        dc_link_voltage_v: udc, the largest voltage magnitude [V].
-        max_current_a: imax [A]; the reference and the current stay <= imax.
-        gain_v_per_a: proportional current-controller gain Gp [V/A].
-        feedforward_ohm: Gff [V/A]; None means Gff = R (unit static gain).
-        min_current_a: lowest current [A]; None means -imax. Use 0 for the
-            asymmetric half bridge of the thesis, whose coil current cannot
-            reverse (then drive it with iref = ib +- ic).
+    Attributes
+    ----------
+    inductance_h
+        coil inductance L at the operating point [H].
+    resistance_ohm
+        coil resistance R [ohm].
+    dc_link_voltage_v
+        udc, the largest voltage magnitude [V].
+    max_current_a
+        imax [A]; the reference and the current stay <= imax.
+    gain_v_per_a
+        proportional current-controller gain Gp [V/A].
+    feedforward_ohm
+        Gff [V/A]; None means Gff = R (unit static gain).
+    min_current_a
+        lowest current [A]; None means -imax. Use 0 for the
+        asymmetric half bridge of the thesis, whose coil current cannot
+        reverse (then drive it with iref = ib +- ic).
     """
 
     inductance_h: float
@@ -109,9 +117,10 @@ def amplifier_state_space(amp: Amplifier, n_amplifiers: int,
 
     States are the coil currents [A]; inputs the reference currents [A].
 
-    Returns:
-        (A, B, C, D), each of shape (Nu, Nu): A = -I / tau_cl, B = g I / tau_cl,
-        C = I, D = 0.
+    Returns
+    -------
+    (A, B, C, D), each of shape (Nu, Nu): A = -I / tau_cl, B = g I / tau_cl,
+    C = I, D = 0.
     """
     if int(n_amplifiers) != n_amplifiers or n_amplifiers < 1:
         raise ValueError(f"n_amplifiers must be a positive integer, got {n_amplifiers!r}")
@@ -131,17 +140,25 @@ def amplifier_step(amp: Amplifier, current_a: np.ndarray, reference_a: np.ndarra
     u reaches or leaves the limit (with held inputs it switches at most
     once). Currents are then clipped to [i_min, imax] (hardware limit).
 
-    Args:
-        amp: amplifier data.
-        current_a: coil currents at the start, shape (Nu,) or scalar [A].
-        reference_a: reference currents iref, broadcastable to current_a [A].
-        dt_s: sample period [s].
-        n_substeps: sub-steps per sample (>= 1). The solution is exact for
-            any value; more sub-steps only apply the current clip more often.
-        back_emf_v: velocity-induced voltage ku dx/dt, broadcastable [V].
+    Parameters
+    ----------
+    amp
+        amplifier data.
+    current_a
+        coil currents at the start, shape (Nu,) or scalar [A].
+    reference_a
+        reference currents iref, broadcastable to current_a [A].
+    dt_s
+        sample period [s].
+    n_substeps
+        sub-steps per sample (>= 1). The solution is exact for
+        any value; more sub-steps only apply the current clip more often.
+    back_emf_v
+        velocity-induced voltage ku dx/dt, broadcastable [V].
 
-    Returns:
-        Coil currents at the end of the sample, broadcast shape [A].
+    Returns
+    -------
+    Coil currents at the end of the sample, broadcast shape [A].
     """
     if not (np.isfinite(dt_s) and dt_s > 0) or int(n_substeps) != n_substeps or n_substeps < 1:
         raise ValueError(f"dt_s must be > 0 and n_substeps a positive integer, got {dt_s!r}, {n_substeps!r}")

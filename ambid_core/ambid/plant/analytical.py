@@ -19,16 +19,20 @@ def analytical_model(rig: Rig, n_bending: int | None = None) -> StateSpace:
     planes. No housing, no extra delay; gravity is a constant offset and not
     part of the small-signal model.
 
-    Args:
-        rig: rig parameters.
-        n_bending: bending modes per plane; None takes ``rig.bending_modes``
-            (0 gives the rigid 4-DOF rotor of sec. 2.3.1).
+    Parameters
+    ----------
+    rig
+        rig parameters.
+    n_bending
+        bending modes per plane; None takes ``rig.bending_modes``
+        (0 gives the rigid 4-DOF rotor of sec. 2.3.1).
 
-    Returns:
-        StateSpace, dt = 0, na inputs (the rig layout's u names) and na outputs
-        (its y names); states: rotor states, then coil control currents [A].
-        With an axial bearing its axis carries the axial magnet's ki, ks and
-        amplifier, and the rotor's axial rigid mass (decoupled).
+    Returns
+    -------
+    StateSpace, dt = 0, na inputs (the rig layout's u names) and na outputs
+    (its y names); states: rotor states, then coil control currents [A].
+    With an axial bearing its axis carries the axial magnet's ki, ks and
+    amplifier, and the rotor's axial rigid mass (decoupled).
     """
     rotor = rig.rotor_model(n_bending)
     layout = rotor.layout

@@ -27,15 +27,23 @@ NO_END = 2**62  # free_until when nothing is announced or held ahead (an int64 f
 class ExcitationSchedule:
     """Held excitation blocks and the sample ranges designs excite, for a plant at sample k.
 
-    Args:
-        n_channels: excitation channels per row.
+    Parameters
+    ----------
+    n_channels
+        excitation channels per row.
 
-    Attributes:
-        blocks: first index -> (n, n_channels) rows [A], consumed in order.
-        starts: sorted keys of ``blocks``.
-        ranges: experiment id -> [start, end) of the samples its design excites.
-        first, end, rows: the block in use, rows r[first + i] = rows[i] (zeros while none is).
-        free_until: before it, no sample outside the block in use is excited.
+    Attributes
+    ----------
+    blocks
+        first index -> (n, n_channels) rows [A], consumed in order.
+    starts
+        sorted keys of ``blocks``.
+    ranges
+        experiment id -> [start, end) of the samples its design excites.
+    first, end, rows
+        the block in use, rows r[first + i] = rows[i] (zeros while none is).
+    free_until
+        before it, no sample outside the block in use is excited.
     """
 
     def __init__(self, n_channels: int) -> None:

@@ -40,10 +40,14 @@ _MERGE_TOL_M = 1e-9
 class Material:
     """Isotropic elastic material; defaults are structural steel.
 
-    Attributes:
-        youngs_modulus_pa: E [Pa].
-        density_kg_m3: rho [kg/m^3].
-        poisson_ratio: nu [-], sets G = E / (2 (1 + nu)).
+    Attributes
+    ----------
+    youngs_modulus_pa
+        E [Pa].
+    density_kg_m3
+        rho [kg/m^3].
+    poisson_ratio
+        nu [-], sets G = E / (2 (1 + nu)).
     """
 
     youngs_modulus_pa: float = 211e9
@@ -71,11 +75,16 @@ STEEL = Material()
 class ShaftSection:
     """A uniform (hollow) cylindrical piece of the shaft.
 
-    Attributes:
-        length_m: axial length [m].
-        outer_diameter_m: outer diameter [m].
-        inner_diameter_m: bore diameter [m], 0 for a solid shaft.
-        material: overrides ``RotorGeometry.material`` for this section.
+    Attributes
+    ----------
+    length_m
+        axial length [m].
+    outer_diameter_m
+        outer diameter [m].
+    inner_diameter_m
+        bore diameter [m], 0 for a solid shaft.
+    material
+        overrides ``RotorGeometry.material`` for this section.
     """
 
     length_m: float
@@ -98,12 +107,17 @@ class ShaftSection:
 class Disk:
     """A rigid disk attached at one axial position (the disk's centre of mass).
 
-    Attributes:
-        position_m: axial position from the left shaft end [m].
-        mass_kg: mass [kg].
-        transverse_inertia_kg_m2: Id, about a diameter through the centre [kg m^2].
-        polar_inertia_kg_m2: Ip, about the shaft axis [kg m^2]; sets the
-            gyroscopic coupling.
+    Attributes
+    ----------
+    position_m
+        axial position from the left shaft end [m].
+    mass_kg
+        mass [kg].
+    transverse_inertia_kg_m2
+        Id, about a diameter through the centre [kg m^2].
+    polar_inertia_kg_m2
+        Ip, about the shaft axis [kg m^2]; sets the
+        gyroscopic coupling.
     """
 
     position_m: float
@@ -149,14 +163,21 @@ class LaminationStack:
     stiffness only as ``stiffness_fraction`` of a solid tube (insulated
     sheets carry little bending load).
 
-    Attributes:
-        start_m: axial position of the left end [m].
-        length_m: axial length [m].
-        outer_diameter_m: outer diameter [m].
-        inner_diameter_m: bore [m]; None takes the shaft's outer diameter there.
-        density_kg_m3: effective density including the stacking factor [kg/m^3].
-        stiffness_fraction: share of the tube's E I and kappa G A that adds to
-            the shaft, in [0, 1].
+    Attributes
+    ----------
+    start_m
+        axial position of the left end [m].
+    length_m
+        axial length [m].
+    outer_diameter_m
+        outer diameter [m].
+    inner_diameter_m
+        bore [m]; None takes the shaft's outer diameter there.
+    density_kg_m3
+        effective density including the stacking factor [kg/m^3].
+    stiffness_fraction
+        share of the tube's E I and kappa G A that adds to
+        the shaft, in [0, 1].
     """
 
     start_m: float
@@ -186,14 +207,21 @@ class LaminationStack:
 class RotorGeometry:
     """Everything needed to mesh and assemble a rotor.
 
-    Attributes:
-        sections: shaft sections from left (z = 0) to right.
-        disks: rigid disks.
-        stacks: lamination stacks.
-        stations_m: axial positions that must be nodes (bearing and sensor
-            centres, probe tracks) [m].
-        material: default shaft material.
-        max_element_length_m: elements are at most this long [m].
+    Attributes
+    ----------
+    sections
+        shaft sections from left (z = 0) to right.
+    disks
+        rigid disks.
+    stacks
+        lamination stacks.
+    stations_m
+        axial positions that must be nodes (bearing and sensor
+        centres, probe tracks) [m].
+    material
+        default shaft material.
+    max_element_length_m
+        elements are at most this long [m].
     """
 
     sections: tuple[ShaftSection, ...]
@@ -228,12 +256,17 @@ class RotorGeometry:
 class RotorMatrices:
     """Assembled finite-element matrices (see the module docstring for DOFs).
 
-    Attributes:
-        node_z_m: axial node positions, shape (n_nodes,) [m].
-        mass: M, shape (4 n_nodes, 4 n_nodes) [kg, kg m^2].
-        stiffness: K, same shape [N/m, N, N m/rad].
-        gyroscopic: G, same shape, skew-symmetric; multiply by the spin
-            speed Omega [rad/s] [kg m^2].
+    Attributes
+    ----------
+    node_z_m
+        axial node positions, shape (n_nodes,) [m].
+    mass
+        M, shape (4 n_nodes, 4 n_nodes) [kg, kg m^2].
+    stiffness
+        K, same shape [N/m, N, N m/rad].
+    gyroscopic
+        G, same shape, skew-symmetric; multiply by the spin
+        speed Omega [rad/s] [kg m^2].
     """
 
     node_z_m: np.ndarray
@@ -251,11 +284,16 @@ class RotorMatrices:
 class RigidBodyProperties:
     """Rigid-body data of the whole rotor.
 
-    Attributes:
-        mass_kg: total mass [kg].
-        center_of_mass_m: axial position of the centre of mass [m].
-        transverse_inertia_kg_m2: about a diameter through the centre of mass [kg m^2].
-        polar_inertia_kg_m2: about the shaft axis [kg m^2].
+    Attributes
+    ----------
+    mass_kg
+        total mass [kg].
+    center_of_mass_m
+        axial position of the centre of mass [m].
+    transverse_inertia_kg_m2
+        about a diameter through the centre of mass [kg m^2].
+    polar_inertia_kg_m2
+        about the shaft axis [kg m^2].
     """
 
     mass_kg: float
@@ -267,12 +305,16 @@ class RigidBodyProperties:
 def dof_index(node: int | np.ndarray, dof: int | np.ndarray) -> np.ndarray:
     """Global DOF index 4 node + dof.
 
-    Args:
-        node: node index, int or integer array.
-        dof: one of DOF_X, DOF_Y, DOF_RX, DOF_RY (0..3), broadcastable with node.
+    Parameters
+    ----------
+    node
+        node index, int or integer array.
+    dof
+        one of DOF_X, DOF_Y, DOF_RX, DOF_RY (0..3), broadcastable with node.
 
-    Returns:
-        Integer array of the broadcast shape.
+    Returns
+    -------
+    Integer array of the broadcast shape.
     """
     node = np.asarray(node)
     dof = np.asarray(dof)
@@ -299,16 +341,23 @@ def timoshenko_element(length_m: float, rho_a_kg_m: float, rho_i_kg_m: float, ei
     Friswell et al. (2010) eqs. 5.48-5.55 (Nelson 1980), shear parameter
     phi = 12 E I / (kappa G A L^2); kappa_g_a_n = inf gives Euler-Bernoulli.
 
-    Args:
-        length_m: element length L [m].
-        rho_a_kg_m: mass per length rho A [kg/m].
-        rho_i_kg_m: transverse rotary inertia per length rho I [kg m].
-            The polar inertia per length is taken as 2 rho I (axisymmetric).
-        ei_n_m2: bending stiffness E I [N m^2].
-        kappa_g_a_n: shear stiffness kappa G A [N].
+    Parameters
+    ----------
+    length_m
+        element length L [m].
+    rho_a_kg_m
+        mass per length rho A [kg/m].
+    rho_i_kg_m
+        transverse rotary inertia per length rho I [kg m].
+        The polar inertia per length is taken as 2 rho I (axisymmetric).
+    ei_n_m2
+        bending stiffness E I [N m^2].
+    kappa_g_a_n
+        shear stiffness kappa G A [N].
 
-    Returns:
-        (Me, Ke, Ge), each shape (8, 8), DOFs [x1, y1, tx1, ty1, x2, y2, tx2, ty2].
+    Returns
+    -------
+    (Me, Ke, Ge), each shape (8, 8), DOFs [x1, y1, tx1, ty1, x2, y2, tx2, ty2].
     """
     L = float(length_m)
     if not (L > 0 and rho_a_kg_m >= 0 and rho_i_kg_m >= 0 and ei_n_m2 > 0 and kappa_g_a_n > 0):
@@ -384,14 +433,20 @@ def mesh_nodes(geometry: RotorGeometry) -> np.ndarray:
 def node_at(node_z_m: np.ndarray, position_m: float, tol_m: float = 1e-6) -> int:
     """Index of the node at an axial position.
 
-    Args:
-        node_z_m: node positions, shape (n_nodes,) [m].
-        position_m: wanted axial position [m].
-        tol_m: allowed distance to the nearest node [m].
+    Parameters
+    ----------
+    node_z_m
+        node positions, shape (n_nodes,) [m].
+    position_m
+        wanted axial position [m].
+    tol_m
+        allowed distance to the nearest node [m].
 
-    Raises:
-        ValueError: no node within ``tol_m``; add the position to
-            ``RotorGeometry.stations_m`` so the mesh contains it.
+    Raises
+    ------
+    ValueError
+        no node within ``tol_m``; add the position to
+        ``RotorGeometry.stations_m`` so the mesh contains it.
     """
     z = np.asarray(node_z_m, dtype=float)
     idx = int(np.argmin(np.abs(z - position_m)))
@@ -404,12 +459,15 @@ def node_at(node_z_m: np.ndarray, position_m: float, tol_m: float = 1e-6) -> int
 def assemble_rotor(geometry: RotorGeometry) -> RotorMatrices:
     """Assemble M, K and G of the free-free rotor.
 
-    Args:
-        geometry: shaft, disks, stacks and required stations.
+    Parameters
+    ----------
+    geometry
+        shaft, disks, stacks and required stations.
 
-    Returns:
-        RotorMatrices with node positions and the (4 n_nodes)^2 matrices;
-        no supports and no damping (see ``rayleigh_damping`` and ``ambid.plant.modal``).
+    Returns
+    -------
+    RotorMatrices with node positions and the (4 n_nodes)^2 matrices;
+    no supports and no damping (see ``rayleigh_damping`` and ``ambid.plant.modal``).
     """
     z = mesh_nodes(geometry)
     n_nodes = z.size

@@ -35,14 +35,18 @@ class _Window:
 class LevitationMonitor:
     """Accumulates displacement statistics after a settling period.
 
-    Args:
-        clearance_m: backup-bearing radial clearance [m].
-        settle_samples: samples ignored at the start (lift-off from the retainer): the run is judged over
-            the samples from this index on (the second half of a run of known length).
-        after_lift_off: for a run that ends before ``settle_samples`` (a node died, the session was
-            stopped), the samples from this many after the last lift-off on are judged instead; default
-            ``settle_samples``. So the figures are true up to wherever the run ended: a rotor that
-            levitated for six seconds before its controller was lost reads as such, not as never levitated.
+    Parameters
+    ----------
+    clearance_m
+        backup-bearing radial clearance [m].
+    settle_samples
+        samples ignored at the start (lift-off from the retainer): the run is judged over
+        the samples from this index on (the second half of a run of known length).
+    after_lift_off
+        for a run that ends before ``settle_samples`` (a node died, the session was
+        stopped), the samples from this many after the last lift-off on are judged instead; default
+        ``settle_samples``. So the figures are true up to wherever the run ended: a rotor that
+        levitated for six seconds before its controller was lost reads as such, not as never levitated.
 
     The rotor counts as levitated when, in the window judged, it never touched the retainer and every
     measured displacement stayed within half the clearance. Feed only the samples the session ran under

@@ -19,13 +19,19 @@ MU0 = 4e-7 * np.pi  # vacuum permeability [H/m]
 class MagnetPair:
     """Physical data of one differential magnet pair (one bearing axis).
 
-    Attributes:
-        n_turns: coil turns per magnet Nc [-].
-        pole_area_m2: air-gap area of one pole Aa [m^2].
-        air_gap_m: nominal air gap s0 [m].
-        bias_current_a: bias current ib [A].
-        pole_angle_rad: half angle between the poles of one magnet, alpha
-            [rad] (22.5 deg for an eight-pole bearing).
+    Attributes
+    ----------
+    n_turns
+        coil turns per magnet Nc [-].
+    pole_area_m2
+        air-gap area of one pole Aa [m^2].
+    air_gap_m
+        nominal air gap s0 [m].
+    bias_current_a
+        bias current ib [A].
+    pole_angle_rad
+        half angle between the poles of one magnet, alpha
+        [rad] (22.5 deg for an eight-pole bearing).
 
     Examples
     --------
@@ -74,15 +80,19 @@ class MagnetPair:
     def force(self, control_current_a: np.ndarray, displacement_m: np.ndarray) -> np.ndarray:
         """Nonlinear force of the pair, eq. 2.14 [N].
 
-        Args:
-            control_current_a: control current ic [A], any shape.
-            displacement_m: rotor displacement x towards the upper magnet [m],
-                broadcastable with ``control_current_a``; |x| must stay below s0.
+        Parameters
+        ----------
+        control_current_a
+            control current ic [A], any shape.
+        displacement_m
+            rotor displacement x towards the upper magnet [m],
+            broadcastable with ``control_current_a``; |x| must stay below s0.
 
-        Returns:
-            Force towards the upper magnet [N], broadcast shape. The current of
-            each magnet is ib +/- ic; a magnet cannot push, so a negative coil
-            current acts like its magnitude (force ~ i^2).
+        Returns
+        -------
+        Force towards the upper magnet [N], broadcast shape. The current of
+        each magnet is ib +/- ic; a magnet cannot push, so a negative coil
+        current acts like its magnitude (force ~ i^2).
         """
         ic = np.asarray(control_current_a, dtype=float)
         x = np.asarray(displacement_m, dtype=float)
@@ -98,9 +108,10 @@ class MagnetPair:
     def slopes(self, control_current_a: np.ndarray, displacement_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Partial derivatives of :meth:`force` (eq. 2.14) at (ic, x).
 
-        Returns:
-            (dF/dic [N/A], dF/dx [N/m]), broadcast shape. At x = 0 they are
-            ki (for any ic) and ks (1 + ic^2 / ib^2); at (0, 0) exactly ki, ks.
+        Returns
+        -------
+        (dF/dic [N/A], dF/dx [N/m]), broadcast shape. At x = 0 they are
+        ki (for any ic) and ks (1 + ic^2 / ib^2); at (0, 0) exactly ki, ks.
         """
         ic = np.asarray(control_current_a, dtype=float)
         x = np.asarray(displacement_m, dtype=float)

@@ -34,15 +34,20 @@ from ambid.plant.fem_rotor import DOF_RX, DOF_RY, DOF_X, DOF_Y, DOFS_PER_NODE
 class ModalModel:
     """Mass-normalised modal model of an axisymmetric rotor.
 
-    Attributes:
-        freq_hz: natural frequencies at standstill per plane mode,
-            shape (n_modes,) [Hz]; the first ``n_rigid`` are 0.
-        n_rigid: rigid-body modes per plane (2 free-free, 0 when supported).
-        shapes: mode shapes on the full DOFs, shape (n_dof, 2 n_modes),
-            columns [x-plane modes, y-plane modes]; shapes.T M shapes = I.
-        polar: reduced polar-inertia matrix Pm = phi_p.T P phi_p, shape
-            (n_modes, n_modes) [-]; the reduced gyroscopic matrix is
-            [[0, Pm], [-Pm, 0]].
+    Attributes
+    ----------
+    freq_hz
+        natural frequencies at standstill per plane mode,
+        shape (n_modes,) [Hz]; the first ``n_rigid`` are 0.
+    n_rigid
+        rigid-body modes per plane (2 free-free, 0 when supported).
+    shapes
+        mode shapes on the full DOFs, shape (n_dof, 2 n_modes),
+        columns [x-plane modes, y-plane modes]; shapes.T M shapes = I.
+    polar
+        reduced polar-inertia matrix Pm = phi_p.T P phi_p, shape
+        (n_modes, n_modes) [-]; the reduced gyroscopic matrix is
+        [[0, Pm], [-Pm, 0]].
     """
 
     freq_hz: np.ndarray
@@ -71,14 +76,18 @@ class ModalModel:
 def undamped_modes(mass: np.ndarray, stiffness: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Generalised eigenproblem K phi = omega^2 M phi (any DOF layout).
 
-    Args:
-        mass: M, symmetric positive definite, shape (n, n).
-        stiffness: K, symmetric positive semi-definite, shape (n, n).
+    Parameters
+    ----------
+    mass
+        M, symmetric positive definite, shape (n, n).
+    stiffness
+        K, symmetric positive semi-definite, shape (n, n).
 
-    Returns:
-        (freq_hz, shapes): natural frequencies ascending, shape (n,) [Hz]
-        (round-off negative eigenvalues of rigid-body modes clipped to 0), and
-        mass-normalised shapes, shape (n, n), column j for freq_hz[j].
+    Returns
+    -------
+    (freq_hz, shapes): natural frequencies ascending, shape (n,) [Hz]
+    (round-off negative eigenvalues of rigid-body modes clipped to 0), and
+    mass-normalised shapes, shape (n, n), column j for freq_hz[j].
     """
     m, k = _square(mass, "mass"), _square(stiffness, "stiffness")
     if m.shape != k.shape:
@@ -90,14 +99,19 @@ def undamped_modes(mass: np.ndarray, stiffness: np.ndarray) -> tuple[np.ndarray,
 def support_stiffness(n_dof: int, dofs: Sequence[int], stiffness_n_m: float | Sequence[float]) -> np.ndarray:
     """Diagonal spring matrix to add to K for a supported analysis.
 
-    Args:
-        n_dof: size of K.
-        dofs: DOF indices of the springs (give both x and y to keep the rotor
-            axisymmetric, as ``plane_modes`` requires).
-        stiffness_n_m: one value or one per DOF [N/m] (or N m/rad on rotations).
+    Parameters
+    ----------
+    n_dof
+        size of K.
+    dofs
+        DOF indices of the springs (give both x and y to keep the rotor
+        axisymmetric, as ``plane_modes`` requires).
+    stiffness_n_m
+        one value or one per DOF [N/m] (or N m/rad on rotations).
 
-    Returns:
-        Array of shape (n_dof, n_dof).
+    Returns
+    -------
+    Array of shape (n_dof, n_dof).
     """
     idx = _dofs(dofs, n_dof, "dofs")
     kv = np.broadcast_to(np.asarray(stiffness_n_m, dtype=float), idx.shape)
@@ -112,23 +126,32 @@ def plane_modes(mass: np.ndarray, stiffness: np.ndarray, gyroscopic: np.ndarray 
                 n_flexible: int | None = None, rigid_tol_hz: float = 1.0) -> ModalModel:
     """Modal reduction of an axisymmetric rotor: rigid modes + first flexible modes.
 
-    Args:
-        mass: M, shape (4 n_nodes, 4 n_nodes), layout of ``ambid.plant.fem_rotor``.
-        stiffness: K, same shape, positive semi-definite (free-free, or with
-            axisymmetric supports). Add negative magnet stiffness later, in
-            ``modal_state_space(input_stiffness_n_m=...)``.
-        gyroscopic: G, same shape; None for a non-rotating analysis.
-        n_flexible: flexible plane modes to keep; None keeps all.
-        rigid_tol_hz: modes below this frequency count as rigid-body modes [Hz].
+    Parameters
+    ----------
+    mass
+        M, shape (4 n_nodes, 4 n_nodes), layout of ``ambid.plant.fem_rotor``.
+    stiffness
+        K, same shape, positive semi-definite (free-free, or with
+        axisymmetric supports). Add negative magnet stiffness later, in
+        ``modal_state_space(input_stiffness_n_m=...)``.
+    gyroscopic
+        G, same shape; None for a non-rotating analysis.
+    n_flexible
+        flexible plane modes to keep; None keeps all.
+    rigid_tol_hz
+        modes below this frequency count as rigid-body modes [Hz].
 
-    Returns:
-        ModalModel. Free-free rigid modes come out as translation and tilt
-        about the centre of mass (both mass-normalised); flexible shapes are
-        signed so their largest translation is positive.
+    Returns
+    -------
+    ModalModel. Free-free rigid modes come out as translation and tilt
+    about the centre of mass (both mass-normalised); flexible shapes are
+    signed so their largest translation is positive.
 
-    Raises:
-        ValueError: the planes are coupled or differ (not axisymmetric), or
-            shapes do not fit the 4-DOF-per-node layout.
+    Raises
+    ------
+    ValueError
+        the planes are coupled or differ (not axisymmetric), or
+        shapes do not fit the 4-DOF-per-node layout.
     """
     m, k = _square(mass, "mass"), _square(stiffness, "stiffness")
     n = m.shape[0]
@@ -185,21 +208,29 @@ def modal_state_space(model: ModalModel, input_dofs: Sequence[int], output_dofs:
     ``output_dofs``. Reduced equation:
     eta'' + (diag(2 zeta omega) + Omega Gm) eta' + diag(omega^2) eta = shapes.T F.
 
-    Args:
-        model: from ``plane_modes``.
-        input_dofs: DOF indices of the force inputs, length n_in.
-        output_dofs: DOF indices of the displacement outputs, length n_out.
-        speed_rad_s: spin speed Omega [rad/s].
-        damping_ratio: modal damping ratio, scalar or one per plane mode
-            (n_modes,); rigid modes (omega = 0) get none.
-        input_stiffness_n_m: springs from each input DOF to ground, scalar
-            or shape (n_in,) [N/m]; added as shapes[in].T diag(k) shapes[in].
-            Negative values model the magnets' negative stiffness -ks
-            (the modes stay those of ``model``, so keep enough of them).
+    Parameters
+    ----------
+    model
+        from ``plane_modes``.
+    input_dofs
+        DOF indices of the force inputs, length n_in.
+    output_dofs
+        DOF indices of the displacement outputs, length n_out.
+    speed_rad_s
+        spin speed Omega [rad/s].
+    damping_ratio
+        modal damping ratio, scalar or one per plane mode
+        (n_modes,); rigid modes (omega = 0) get none.
+    input_stiffness_n_m
+        springs from each input DOF to ground, scalar
+        or shape (n_in,) [N/m]; added as shapes[in].T diag(k) shapes[in].
+        Negative values model the magnets' negative stiffness -ks
+        (the modes stay those of ``model``, so keep enough of them).
 
-    Returns:
-        (A, B, C) of shapes (4 n_modes, 4 n_modes), (4 n_modes, n_in),
-        (n_out, 4 n_modes).
+    Returns
+    -------
+    (A, B, C) of shapes (4 n_modes, 4 n_modes), (4 n_modes, n_in),
+    (n_out, 4 n_modes).
     """
     n_dof, r = model.shapes.shape
     i_in = _dofs(input_dofs, n_dof, "input_dofs")
@@ -232,8 +263,9 @@ def second_order_state_space(mass: np.ndarray, damping: np.ndarray | None, stiff
     States x = [q, q'] (2 n_dof); inputs forces at ``input_dofs``; outputs
     displacements at ``output_dofs``. Any DOF layout.
 
-    Returns:
-        (A, B, C) of shapes (2 n, 2 n), (2 n, n_in), (n_out, 2 n).
+    Returns
+    -------
+    (A, B, C) of shapes (2 n, 2 n), (2 n, n_in), (n_out, 2 n).
     """
     m, k = _square(mass, "mass"), _square(stiffness, "stiffness")
     n = m.shape[0]
@@ -264,15 +296,20 @@ def whirl_frequencies(model: ModalModel, speed_rad_s: float,
     forward whirl, negative backward. The real system's eigenvalues are these
     s and their conjugates.
 
-    Args:
-        model: from ``plane_modes``.
-        speed_rad_s: spin speed Omega [rad/s] (negative spins the other way).
-        damping_ratio: as in ``modal_state_space``.
+    Parameters
+    ----------
+    model
+        from ``plane_modes``.
+    speed_rad_s
+        spin speed Omega [rad/s] (negative spins the other way).
+    damping_ratio
+        as in ``modal_state_space``.
 
-    Returns:
-        (freq_hz, damping): signed whirl frequencies, shape (2 n_modes,),
-        ordered by |freq|, then backward before forward [Hz]; and their
-        damping ratios -Re(s)/|s| (0 where s = 0).
+    Returns
+    -------
+    (freq_hz, damping): signed whirl frequencies, shape (2 n_modes,),
+    ordered by |freq|, then backward before forward [Hz]; and their
+    damping ratios -Re(s)/|s| (0 where s = 0).
     """
     if not np.isfinite(speed_rad_s):
         raise ValueError(f"speed_rad_s must be finite, got {speed_rad_s!r}")
@@ -293,14 +330,18 @@ def campbell(model: ModalModel, speeds_rad_s: np.ndarray,
              damping_ratio: float | Sequence[float] = 0.0) -> np.ndarray:
     """Signed whirl frequencies over speed (Campbell diagram) [Hz].
 
-    Args:
-        model: from ``plane_modes``.
-        speeds_rad_s: spin speeds, shape (n_speeds,) [rad/s].
+    Parameters
+    ----------
+    model
+        from ``plane_modes``.
+    speeds_rad_s
+        spin speeds, shape (n_speeds,) [rad/s].
 
-    Returns:
-        Array (n_speeds, 2 n_modes): row k is ``whirl_frequencies`` at
-        speeds_rad_s[k]; sort order is per row (by |freq|), so follow a branch
-        by sign and rank.
+    Returns
+    -------
+    Array (n_speeds, 2 n_modes): row k is ``whirl_frequencies`` at
+    speeds_rad_s[k]; sort order is per row (by |freq|), so follow a branch
+    by sign and rank.
     """
     speeds = np.atleast_1d(np.asarray(speeds_rad_s, dtype=float))
     return np.array([whirl_frequencies(model, om, damping_ratio)[0] for om in speeds])

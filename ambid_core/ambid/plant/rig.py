@@ -171,16 +171,22 @@ _ROTOR_CACHE: dict[tuple, RotorModel] = {}
 class Rig:
     """A validated set of rig parameters (names and units as in :data:`RIG_FIELDS`).
 
-    Attributes:
-        name: rig name.
-        values: parameter name -> value (every key of RIG_FIELDS).
-        rotor_import: a user's rotor model replacing the finite-element rotor
-            (:mod:`ambid.plant.rotor_import`), or None.
-        controller: the controller the rig's owner runs, as the rig file names
-            it (a kind, a file, or a mapping; :func:`ambid.control.kinds.design_controller`
-            reads it), or None for the default.
-        tolerances: the rig file's ``tolerances:`` (:mod:`ambid.plant.tolerances`), name ->
-            tolerance; the parameters it does not name keep their default tolerance.
+    Attributes
+    ----------
+    name
+        rig name.
+    values
+        parameter name -> value (every key of RIG_FIELDS).
+    rotor_import
+        a user's rotor model replacing the finite-element rotor
+        (:mod:`ambid.plant.rotor_import`), or None.
+    controller
+        the controller the rig's owner runs, as the rig file names
+        it (a kind, a file, or a mapping; :func:`ambid.control.kinds.design_controller`
+        reads it), or None for the default.
+    tolerances
+        the rig file's ``tolerances:`` (:mod:`ambid.plant.tolerances`), name ->
+        tolerance; the parameters it does not name keep their default tolerance.
     """
 
     name: str
@@ -353,9 +359,11 @@ class Rig:
     def rotor_model(self, n_bending: int | None = None) -> RotorModel:
         """The rotor as a state-space block (:class:`ambid.plant.rotor_model.RotorModel`).
 
-        Args:
-            n_bending: bending modes per plane; None takes ``bending_modes``.
-                Ignored for an imported rotor (it is used as given).
+        Parameters
+        ----------
+        n_bending
+            bending modes per plane; None takes ``bending_modes``.
+            Ignored for an imported rotor (it is used as given).
         """
         v = self.values
         if self.rotor_import is not None:

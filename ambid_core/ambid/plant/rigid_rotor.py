@@ -21,14 +21,19 @@ GRAVITY = 9.81  # standard gravity [m/s^2]
 class RigidRotor:
     """Mass data and axial positions of a rigid rotor.
 
-    Attributes:
-        mass_kg: rotor mass m [kg].
-        transverse_inertia_kgm2: moment of inertia about a transverse axis
-            through the centre of mass J_t [kg m^2].
-        bearing_z_m: axial positions of bearings A and B from the centre of
-            mass [m], shape (2,), z_a < z_b.
-        sensor_z_m: axial positions of sensors A and B from the centre of
-            mass [m], shape (2,) (non-collocated: differ from bearing_z_m).
+    Attributes
+    ----------
+    mass_kg
+        rotor mass m [kg].
+    transverse_inertia_kgm2
+        moment of inertia about a transverse axis
+        through the centre of mass J_t [kg m^2].
+    bearing_z_m
+        axial positions of bearings A and B from the centre of
+        mass [m], shape (2,), z_a < z_b.
+    sensor_z_m
+        axial positions of sensors A and B from the centre of
+        mass [m], shape (2,) (non-collocated: differ from bearing_z_m).
     """
 
     mass_kg: float

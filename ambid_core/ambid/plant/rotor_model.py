@@ -47,22 +47,34 @@ N_LATERAL = len(RADIAL)
 class RotorModel:
     """Linear free-free rotor, force at the bearings -> displacement (module docstring).
 
-    Attributes:
-        a: (n, n) state matrix.
-        b: (n, na) force input [N] at the bearing axes, ``layout`` order.
-        c_bearing: (na, n) displacement [m] at the bearing axes.
-        c_sensor: (na, n) displacement [m] at the sensor axes.
-        b_gravity: (n,) state derivative caused by gravity (both 45-deg axes).
-        mass_kg: total rotor mass [kg].
-        flexible_freq_hz: free-free bending frequencies kept in the model,
-            one per plane mode at standstill [Hz] (empty if unknown).
-        source: where the model comes from (for reports).
-        b_unbalance: (n, 2) state derivative per Omega^2 [1/s^2 -> state units]
-            of the unbalance forces, for [cos theta, sin theta] (module
-            docstring); None: no unbalance.
-        notes: what the import changed in the model the user gave (DOFs or
-            modes dropped), one sentence each, for the commands to say.
-        layout: the axes of the force inputs and displacement outputs (na of them).
+    Attributes
+    ----------
+    a
+        (n, n) state matrix.
+    b
+        (n, na) force input [N] at the bearing axes, ``layout`` order.
+    c_bearing
+        (na, n) displacement [m] at the bearing axes.
+    c_sensor
+        (na, n) displacement [m] at the sensor axes.
+    b_gravity
+        (n,) state derivative caused by gravity (both 45-deg axes).
+    mass_kg
+        total rotor mass [kg].
+    flexible_freq_hz
+        free-free bending frequencies kept in the model,
+        one per plane mode at standstill [Hz] (empty if unknown).
+    source
+        where the model comes from (for reports).
+    b_unbalance
+        (n, 2) state derivative per Omega^2 [1/s^2 -> state units]
+        of the unbalance forces, for [cos theta, sin theta] (module
+        docstring); None: no unbalance.
+    notes
+        what the import changed in the model the user gave (DOFs or
+        modes dropped), one sentence each, for the commands to say.
+    layout
+        the axes of the force inputs and displacement outputs (na of them).
     """
 
     a: np.ndarray
@@ -149,21 +161,30 @@ def fem_rotor_model(geometry: RotorGeometry, bearing_z_m: tuple[float, float], s
                     unbalance: tuple[tuple[float, float, float], ...] = ()) -> RotorModel:
     """Finite-element rotor reduced to its rigid and first bending modes.
 
-    Args:
-        geometry: shaft, stacks and disks; ``stations_m`` must contain the
-            bearing and sensor positions.
-        bearing_z_m: bearing A, B positions from the left shaft end [m].
-        sensor_z_m: sensor A, B positions from the left shaft end [m].
-        n_bending: bending modes kept per plane (besides the 2 rigid ones).
-        damping_ratio: modal damping of the bending modes [-].
-        speed_rad_s: spin speed Omega [rad/s] (gyroscopic coupling).
-        unbalance: unbalanced planes (position from the left shaft end [m],
-            mass times eccentricity m e [kg m], angle from x at theta = 0
-            [rad]); each acts at the node nearest its position.
+    Parameters
+    ----------
+    geometry
+        shaft, stacks and disks; ``stations_m`` must contain the
+        bearing and sensor positions.
+    bearing_z_m
+        bearing A, B positions from the left shaft end [m].
+    sensor_z_m
+        sensor A, B positions from the left shaft end [m].
+    n_bending
+        bending modes kept per plane (besides the 2 rigid ones).
+    damping_ratio
+        modal damping of the bending modes [-].
+    speed_rad_s
+        spin speed Omega [rad/s] (gyroscopic coupling).
+    unbalance
+        unbalanced planes (position from the left shaft end [m],
+        mass times eccentricity m e [kg m], angle from x at theta = 0
+        [rad]); each acts at the node nearest its position.
 
-    Returns:
-        RotorModel with 4 (2 + n_bending) states; gravity is the consistent
-        distributed load M g (so the rotor also sags).
+    Returns
+    -------
+    RotorModel with 4 (2 + n_bending) states; gravity is the consistent
+    distributed load M g (so the rotor also sags).
     """
     rotor = assemble_rotor(geometry)
     modal = plane_modes(rotor.mass, rotor.stiffness, rotor.gyroscopic, n_flexible=int(n_bending))

@@ -37,11 +37,16 @@ from ambid.channels import RADIAL, Layout, bearing_of, direction_of
 class Sensors:
     """Displacement sensors of one kind (a rig's radial probes, or its axial probe).
 
-    Attributes:
-        bandwidth_hz: low-pass corner frequency [Hz].
-        gain: output per displacement [m/m].
-        noise_std_m: std of the white output noise per sample [m].
-        cubic_per_m2: probe-curve cubic coefficient c3 [1/m^2] (0: none).
+    Attributes
+    ----------
+    bandwidth_hz
+        low-pass corner frequency [Hz].
+    gain
+        output per displacement [m/m].
+    noise_std_m
+        std of the white output noise per sample [m].
+    cubic_per_m2
+        probe-curve cubic coefficient c3 [1/m^2] (0: none).
     """
 
     bandwidth_hz: float
@@ -78,8 +83,9 @@ class Sensors:
     def filter_blocks(self, n_channels: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The linear electronics as s' = a_ss s + b_ss (d + r_s), y = c_ss s.
 
-        Returns:
-            a_ss, b_ss, c_ss: each (n_channels, n_channels).
+        Returns
+        -------
+        a_ss, b_ss, c_ss: each (n_channels, n_channels).
         """
         eye = np.eye(n_channels)
         wc = self.corner_rad_s
@@ -93,8 +99,9 @@ class Sensors:
 def filter_blocks(sensors: Sequence[Sensors]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The linear electronics of one sensor per axis as s' = a_ss s + b_ss (d + r_s), y = c_ss s.
 
-    Returns:
-        a_ss, b_ss, c_ss: each (na, na), diagonal.
+    Returns
+    -------
+    a_ss, b_ss, c_ss: each (na, na), diagonal.
     """
     wc = np.array([x.corner_rad_s for x in sensors])
     return np.diag(-wc), np.diag(wc), np.diag([x.gain for x in sensors])
@@ -124,9 +131,10 @@ def runout_table(values: Mapping[str, Any], layout: Layout = RADIAL) -> np.ndarr
     a cos(h (theta - gamma) + phi + h beta). A 1X runout thus reads as a
     forward circular orbit. An axial probe reads none here.
 
-    Returns:
-        T: (RUNOUT_HARMONICS, na, 2) [m]; probe c (``layout`` order) reads
-        sum_h T[h - 1, c, 0] cos(h theta) + T[h - 1, c, 1] sin(h theta).
+    Returns
+    -------
+    T: (RUNOUT_HARMONICS, na, 2) [m]; probe c (``layout`` order) reads
+    sum_h T[h - 1, c, 0] cos(h theta) + T[h - 1, c, 1] sin(h theta).
     """
     t = np.zeros((RUNOUT_HARMONICS, len(layout), 2))
     beta = math.radians(float(values["runout_b_phase_deg"]))

@@ -52,17 +52,25 @@ _GAP_GUARD = 0.98
 class PlantSimulator(KernelOwner):
     """The simulated rig: state, one step per sample, measured output.
 
-    Args:
-        rig: rig parameters.
-        seed: seed of the sensor noise.
-        nonlinear_magnets: use the full force law (eq. 2.14) of the true
-            magnets instead of its linearisation at the levitated operating
-            point.
+    Parameters
+    ----------
+    rig
+        rig parameters.
+    seed
+        seed of the sensor noise.
+    nonlinear_magnets
+        use the full force law (eq. 2.14) of the true
+        magnets instead of its linearisation at the levitated operating
+        point.
 
-    Attributes:
-        plant: the :class:`ambid.plant.true_rig.TruePlant` integrated.
-        operating_point: the levitated equilibrium (ic0, gaps, slopes).
-        index: samples stepped so far (read-only).
+    Attributes
+    ----------
+    plant
+        the :class:`ambid.plant.true_rig.TruePlant` integrated.
+    operating_point
+        the levitated equilibrium (ic0, gaps, slopes).
+    index
+        samples stepped so far (read-only).
 
     State ``x`` (n,): see :mod:`ambid.plant.true_rig`. The rotor starts at rest on
     the backup bearings (static equilibrium in contact, zero currents).
@@ -289,9 +297,10 @@ class PlantSimulator(KernelOwner):
     def step(self, current_ref) -> tuple[bool, bool]:
         """Advance one sample with the current reference u = ic + r [A] (na floats) held.
 
-        Returns:
-            (clipped, contact): the amplifiers saturated at the current limit
-            during this sample; the rotor touched the backup bearings.
+        Returns
+        -------
+        (clipped, contact): the amplifiers saturated at the current limit
+        during this sample; the rotor touched the backup bearings.
         """
         u = tuple(current_ref)   # step_output's path without building the output (the core loops' call)
         clipped, contact = self._plant_step(self._s, u)
@@ -306,13 +315,16 @@ class PlantSimulator(KernelOwner):
     def step_output(self, *u: float) -> tuple:
         """``step(u)`` then ``output()`` in one call: the loop's per-sample call.
 
-        Args:
-            u: current reference u = ic + r [A] held over this sample, na floats.
+        Parameters
+        ----------
+        u
+            current reference u = ic + r [A] held over this sample, na floats.
 
-        Returns:
-            (y_0, ..., y_na-1, clipped, contact): the next sample's measured
-            output y[k+1] [m] with its noise (what ``output()`` returns
-            after this call), then as :meth:`step`.
+        Returns
+        -------
+        (y_0, ..., y_na-1, clipped, contact): the next sample's measured
+        output y[k+1] [m] with its noise (what ``output()`` returns
+        after this call), then as :meth:`step`.
         """
         clipped, contact = self._plant_step(self._s, u)
         if contact:  # contact, or the noise block is used up

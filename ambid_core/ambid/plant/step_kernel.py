@@ -81,8 +81,9 @@ def plant_work(m: np.ndarray, n_axes: int, noise_rows: int) -> np.ndarray:
     """A plant work vector for the fused step matrix m (n + 5 na, n + 4 na + 3): n, na, M.T and v's
     constant 1 set, everything else zero (the caller sets the parameters).
 
-    Returns:
-        s: (noise_offset(n, na) + na noise_rows,) float64.
+    Returns
+    -------
+    s: (noise_offset(n, na) + na noise_rows,) float64.
     """
     na = int(n_axes)
     nr, nc = m.shape

@@ -36,12 +36,17 @@ Z95 = 1.959963984540054
 class Tolerance:
     """One parameter's tolerance.
 
-    Attributes:
-        kind: ``relative`` (value: fraction), ``factor`` (value > 1), ``absolute`` (value: half-width
-            [SI unit]), ``range`` (low, high [SI unit, or samples with ``in_samples``]) or ``fixed``.
-        value: the fraction, factor or half-width (nan for a range or fixed).
-        low, high: the range (nan otherwise).
-        in_samples: the range is in samples of the rig's sample period.
+    Attributes
+    ----------
+    kind
+        ``relative`` (value: fraction), ``factor`` (value > 1), ``absolute`` (value: half-width
+        [SI unit]), ``range`` (low, high [SI unit, or samples with ``in_samples``]) or ``fixed``.
+    value
+        the fraction, factor or half-width (nan for a range or fixed).
+    low, high
+        the range (nan otherwise).
+    in_samples
+        the range is in samples of the rig's sample period.
     """
 
     kind: str

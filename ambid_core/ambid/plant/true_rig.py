@@ -58,22 +58,36 @@ class TruePlant:
     """Continuous affine model of the true rig (module docstring), magnets linearised per axis as
     F = force_const + ki i + ks g.
 
-    Attributes:
-        a, b_u, b_f, b_s: (n, n), (n, na) x 3.
-        b_c: (n,) constant drive: gravity and the magnets' affine constant.
-        c_y: (na, n) measured output y [m] (without noise).
-        c_gap: (na, n) rotor minus stator displacement at the bearing axes [m].
-        c_current: (na, n) coil control currents [A].
-        c_sensor: (na, n) rotor minus pedestal displacement at the sensor axes [m].
-        ki, ks, force_const: (na,) affine magnet law per axis [N/A, N/m, N].
-        delay_s: input delay tau [s].
-        n_rotor: rotor states (the first n_rotor states).
-        speed_rad_s: spin speed Omega [rad/s]; the rotor angle is theta = Omega t.
-        b_unbalance: (n, 2) unbalance drive for [cos theta, sin theta] (Omega^2
-            included) [state units / s]; None: none.
-        runout: (H, na, 2) probe runout table (:func:`ambid.plant.sensors.runout_table`)
-            [m]; None: none.
-        layout: the axes, in channel order.
+    Attributes
+    ----------
+    a, b_u, b_f, b_s
+        (n, n), (n, na) x 3.
+    b_c
+        (n,) constant drive: gravity and the magnets' affine constant.
+    c_y
+        (na, n) measured output y [m] (without noise).
+    c_gap
+        (na, n) rotor minus stator displacement at the bearing axes [m].
+    c_current
+        (na, n) coil control currents [A].
+    c_sensor
+        (na, n) rotor minus pedestal displacement at the sensor axes [m].
+    ki, ks, force_const
+        (na,) affine magnet law per axis [N/A, N/m, N].
+    delay_s
+        input delay tau [s].
+    n_rotor
+        rotor states (the first n_rotor states).
+    speed_rad_s
+        spin speed Omega [rad/s]; the rotor angle is theta = Omega t.
+    b_unbalance
+        (n, 2) unbalance drive for [cos theta, sin theta] (Omega^2
+        included) [state units / s]; None: none.
+    runout
+        (H, na, 2) probe runout table (:func:`ambid.plant.sensors.runout_table`)
+        [m]; None: none.
+    layout
+        the axes, in channel order.
     """
 
     a: np.ndarray
@@ -113,12 +127,18 @@ class TruePlant:
 class OperatingPoint:
     """Levitated equilibrium of the true rig: sensors read zero (what integral action settles to).
 
-    Attributes:
-        state: (n,) state of the :class:`TruePlant`.
-        current_a: (na,) control currents ic0 = current references [A].
-        gap_m: (na,) rotor minus stator displacement at the bearings [m].
-        force_n: (na,) magnet forces [N].
-        ki_n_per_a, ks_n_per_m: (na,) slopes of eq. 2.14 there.
+    Attributes
+    ----------
+    state
+        (n,) state of the :class:`TruePlant`.
+    current_a
+        (na,) control currents ic0 = current references [A].
+    gap_m
+        (na,) rotor minus stator displacement at the bearings [m].
+    force_n
+        (na,) magnet forces [N].
+    ki_n_per_a, ks_n_per_m
+        (na,) slopes of eq. 2.14 there.
     """
 
     state: np.ndarray
@@ -133,11 +153,15 @@ def true_plant(rig: Rig, ki: np.ndarray | None = None, ks: np.ndarray | None = N
                force_const: np.ndarray | None = None) -> TruePlant:
     """Affine model of the true rig with the magnet law F = force_const + ki i + ks g per axis.
 
-    Args:
-        rig: rig parameters.
-        ki, ks: (na,) slopes [N/A], [N/m]; None takes the true magnets' at the
-            centre (eqs. 2.16-2.17 times the tolerance factors).
-        force_const: (na,) [N]; None takes 0.
+    Parameters
+    ----------
+    rig
+        rig parameters.
+    ki, ks
+        (na,) slopes [N/A], [N/m]; None takes the true magnets' at the
+        centre (eqs. 2.16-2.17 times the tolerance factors).
+    force_const
+        (na,) [N]; None takes 0.
     """
     rotor = rig.rotor_model()
     layout = rotor.layout
@@ -294,8 +318,9 @@ def delayed_zoh(a: np.ndarray, b: np.ndarray, dt: float, delay_s: float) -> tupl
                                                                                   np.ndarray]:
     """Exact discretisation of x' = A x + B u(t - tau) with u held per sample, 0 <= tau <= dt.
 
-    Returns:
-        (Phi, Gamma1, Gamma0) with x[k+1] = Phi x[k] + Gamma1 u[k] + Gamma0 u[k-1].
+    Returns
+    -------
+    (Phi, Gamma1, Gamma0) with x[k+1] = Phi x[k] + Gamma1 u[k] + Gamma0 u[k-1].
     """
     if not 0 <= delay_s <= dt * (1 + 1e-9):
         raise ValueError(f"delayed_zoh: delay {delay_s} s must lie in [0, dt = {dt}] s")
@@ -312,21 +337,28 @@ def true_linear_model(rig: Rig, discrete: bool = False, pade_order: int = 2, pla
 
     The reference every identification accuracy figure is measured against.
 
-    Args:
-        rig: rig parameters.
-        discrete: False gives the continuous model with the extra delay as a
-            Pade approximation (``pade_order``); True gives the exact
-            zero-order-hold model at rig.dt (the delay exact, na extra states
-            u[k-1]) -- what a sampled measurement of the simulator sees.
-        pade_order: order of the delay approximation (continuous only).
-        plant: the affine model to linearise (default :func:`levitated_plant`'s),
-            e.g. one with the magnets' slopes at an excitation level.
-        outputs: (q, n) output rows over the plant's states (default ``c_y``,
-            the sensors), e.g. ``c_current`` or ``c_gap``.
+    Parameters
+    ----------
+    rig
+        rig parameters.
+    discrete
+        False gives the continuous model with the extra delay as a
+        Pade approximation (``pade_order``); True gives the exact
+        zero-order-hold model at rig.dt (the delay exact, na extra states
+        u[k-1]) -- what a sampled measurement of the simulator sees.
+    pade_order
+        order of the delay approximation (continuous only).
+    plant
+        the affine model to linearise (default :func:`levitated_plant`'s),
+        e.g. one with the magnets' slopes at an excitation level.
+    outputs
+        (q, n) output rows over the plant's states (default ``c_y``,
+        the sensors), e.g. ``c_current`` or ``c_gap``.
 
-    Returns:
-        StateSpace with na inputs (the layout's u names), na outputs (its y names; q unnamed ones with
-        ``outputs``), D = 0.
+    Returns
+    -------
+    StateSpace with na inputs (the layout's u names), na outputs (its y names; q unnamed ones with
+    ``outputs``), D = 0.
     """
     p = levitated_plant(rig)[0] if plant is None else plant
     c_out = p.c_y if outputs is None else np.asarray(outputs, dtype=float)

@@ -71,17 +71,27 @@ _CDR_LE = b"\x00\x01"  # encapsulation identifier of little-endian plain CDR (XC
 class SampleBlockData:
     """One decoded SampleBlock.
 
-    Attributes:
-        stamp_ns: time of the first sample [ns] (simulated or target clock).
-        experiment_id: experiment the block belongs to, or ``""``.
-        first_index: sample index of the first row.
-        sample_period_s: sample period [s].
-        channel_names, channel_units: per column, e.g. ``y_a_x`` / ``m``.
-        data: (n_samples, n_channels) float64 [channel units], a read-only
-            view of the message bytes (copy it to modify).
-        sample_flags: (n_samples,) uint8 ``FLAG_*`` bits, or shape (0,).
-        flags: OR of the rows' flags.
-        session_id: the session that published the block, or 0 (none).
+    Attributes
+    ----------
+    stamp_ns
+        time of the first sample [ns] (simulated or target clock).
+    experiment_id
+        experiment the block belongs to, or ``""``.
+    first_index
+        sample index of the first row.
+    sample_period_s
+        sample period [s].
+    channel_names, channel_units
+        per column, e.g. ``y_a_x`` / ``m``.
+    data
+        (n_samples, n_channels) float64 [channel units], a read-only
+        view of the message bytes (copy it to modify).
+    sample_flags
+        (n_samples,) uint8 ``FLAG_*`` bits, or shape (0,).
+    flags
+        OR of the rows' flags.
+    session_id
+        the session that published the block, or 0 (none).
     """
 
     stamp_ns: int
@@ -159,8 +169,10 @@ def _header(buf: bytes | memoryview) -> tuple[int, str, int, float, int, int]:
 def sample_block_span(cdr: bytes | memoryview) -> tuple[int, int]:
     """``(first_index, n_samples)`` of a serialized SampleBlock, reading only its header.
 
-    Raises:
-        ValueError: on a truncated buffer or an unsupported encapsulation.
+    Raises
+    ------
+    ValueError
+        on a truncated buffer or an unsupported encapsulation.
     """
     try:
         _, _, first_index, _, n_samples, _ = _header(cdr)
@@ -172,16 +184,21 @@ def sample_block_span(cdr: bytes | memoryview) -> tuple[int, int]:
 def decode_sample_block(cdr: bytes | memoryview) -> SampleBlockData:
     """Decode a serialized SampleBlock (CDR bytes as recorded) without copying its data.
 
-    Args:
-        cdr: the message bytes, encapsulation header included.
+    Parameters
+    ----------
+    cdr
+        the message bytes, encapsulation header included.
 
-    Returns:
-        :class:`SampleBlockData`; ``data`` has shape (n_samples, n_channels).
+    Returns
+    -------
+    :class:`SampleBlockData`; ``data`` has shape (n_samples, n_channels).
 
-    Raises:
-        ValueError: on truncated bytes, an unsupported encapsulation, or a
-            data length that is not n_samples x len(channel_names), or a
-            sample_flags length other than 0 or n_samples.
+    Raises
+    ------
+    ValueError
+        on truncated bytes, an unsupported encapsulation, or a
+        data length that is not n_samples x len(channel_names), or a
+        sample_flags length other than 0 or n_samples.
     """
     end = len(cdr)
     try:
@@ -238,8 +255,10 @@ def sample_block_session(cdr: bytes | memoryview) -> int:
     walking past its data unread. (A live message's id is its last 8 bytes:
     :func:`ambid.session_id.session_of`; this walk also reads old recordings right.)
 
-    Raises:
-        ValueError: on truncated bytes or an unsupported encapsulation.
+    Raises
+    ------
+    ValueError
+        on truncated bytes or an unsupported encapsulation.
     """
     end = len(cdr)
     try:
@@ -321,9 +340,10 @@ def _sample_block_layout(body: memoryview, pos: int) -> tuple[tuple[int, list[st
                                                                list[tuple[int, int]]]:
     """Parse a SampleBlock body from its n_samples field on.
 
-    Returns:
-        ((n_samples, channel_names, n_values, data offset), the byte spans
-        [start, end) read, i.e. all but the alignment padding).
+    Returns
+    -------
+    ((n_samples, channel_names, n_values, data offset), the byte spans
+    [start, end) read, i.e. all but the alignment padding).
     """
     spans: list[tuple[int, int]] = []
 
@@ -372,14 +392,19 @@ def iter_sample_blocks(
 ) -> Iterator[tuple[SessionMessage, SampleBlockData]]:
     """Decoded SampleBlocks of one topic in log-time order, one at a time.
 
-    Args:
-        path: session ``.mcap``.
-        topic: full topic name, e.g. ``"/amb/measurement"``.
-        recover: read a file a killed writer left (see
-            :func:`ambid.recording.iter_messages`).
+    Parameters
+    ----------
+    path
+        session ``.mcap``.
+    topic
+        full topic name, e.g. ``"/amb/measurement"``.
+    recover
+        read a file a killed writer left (see
+        :func:`ambid.recording.iter_messages`).
 
-    Yields:
-        ``(message, block)``; ``block.data`` views ``message.data``.
+    Yields
+    ------
+    ``(message, block)``; ``block.data`` views ``message.data``.
     """
     for msg in iter_messages(path, topic, recover=recover):
         if msg.type_name and msg.type_name != SAMPLE_BLOCK_TYPE:
@@ -405,17 +430,22 @@ def sample_index_report(
 ) -> dict[str, dict[str, Any]]:
     """Sample-index gaps and overlaps of SampleBlock topics, from the block headers only.
 
-    Args:
-        path: session ``.mcap``.
-        topics: topics to check; ``None`` for every SampleBlock topic.
-        recover: read front to back, as far as the file is complete
-            (default, so it also works on a killed recorder's file).
+    Parameters
+    ----------
+    path
+        session ``.mcap``.
+    topics
+        topics to check; ``None`` for every SampleBlock topic.
+    recover
+        read front to back, as far as the file is complete
+        (default, so it also works on a killed recorder's file).
 
-    Returns:
-        ``{topic: {blocks, samples, first_index, end_index, gap_count,
-        missing_samples, overlapping_blocks, overlapping_samples, gaps}}``;
-        ``gaps`` lists up to 20 ``{log_time_ns, expected_index, got_index}``.
-        A gap is a block starting after the end of every earlier block.
+    Returns
+    -------
+    ``{topic: {blocks, samples, first_index, end_index, gap_count,
+    missing_samples, overlapping_blocks, overlapping_samples, gaps}}``;
+    ``gaps`` lists up to 20 ``{log_time_ns, expected_index, got_index}``.
+    A gap is a block starting after the end of every earlier block.
     """
     if topics is None:
         topics = sample_block_topics(path)
@@ -426,12 +456,18 @@ def sample_index_report(
 class SampleRange:
     """Samples [first_index, first_index + n) of some channels, assembled from blocks.
 
-    Attributes:
-        first_index: sample index of row 0.
-        channel_names: columns of :attr:`data`.
-        data: (n, n_channels) float64; NaN where no block covered a sample.
-        present: (n,) bool, True where a block covered the sample.
-        sample_period_s: sample period of the blocks [s] (NaN without blocks).
+    Attributes
+    ----------
+    first_index
+        sample index of row 0.
+    channel_names
+        columns of :attr:`data`.
+    data
+        (n, n_channels) float64; NaN where no block covered a sample.
+    present
+        (n,) bool, True where a block covered the sample.
+    sample_period_s
+        sample period of the blocks [s] (NaN without blocks).
     """
 
     first_index: int
@@ -455,20 +491,29 @@ def read_samples(
     Memory holds the result and one block. Blocks outside the range are
     skipped after reading their header.
 
-    Args:
-        path: session ``.mcap``.
-        topic: e.g. ``"/amb/measurement"``.
-        start_index, stop_index: sample range, 0 <= start < stop.
-        channels: column names to keep, in this order; ``None`` for all
-            channels of the first block.
-        recover: read a killed writer's file.
+    Parameters
+    ----------
+    path
+        session ``.mcap``.
+    topic
+        e.g. ``"/amb/measurement"``.
+    start_index, stop_index
+        sample range, 0 <= start < stop.
+    channels
+        column names to keep, in this order; ``None`` for all
+        channels of the first block.
+    recover
+        read a killed writer's file.
 
-    Returns:
-        :class:`SampleRange` with data of shape (stop - start, n_channels).
+    Returns
+    -------
+    :class:`SampleRange` with data of shape (stop - start, n_channels).
 
-    Raises:
-        ValueError: on a bad range, a channel missing from a block, or blocks
-            whose channel layout changes within the range.
+    Raises
+    ------
+    ValueError
+        on a bad range, a channel missing from a block, or blocks
+        whose channel layout changes within the range.
     """
     if not (isinstance(start_index, (int, np.integer)) and isinstance(stop_index, (int, np.integer))):
         raise ValueError(f"start_index and stop_index must be integers, got {start_index!r}, {stop_index!r}")
@@ -516,15 +561,24 @@ def encode_sample_block(first_index: int, sample_period_s: float, channel_names:
                         stamp_ns: int = 0, flags: int = 0, session_id: int = 0) -> bytes:
     """CDR bytes of a SampleBlock (the layout in the module docstring), as rclpy serialises it.
 
-    Args:
-        first_index: sample index of the first row.
-        sample_period_s: sample period [s].
-        channel_names, channel_units: (k,) per column.
-        data: (n, k) values [channel units].
-        experiment_id: the experiment, or "".
-        stamp_ns: time of the first sample [ns].
-        flags: OR of the rows' flags (no per-row flags are written).
-        session_id: the session the block belongs to, or 0.
+    Parameters
+    ----------
+    first_index
+        sample index of the first row.
+    sample_period_s
+        sample period [s].
+    channel_names, channel_units
+        (k,) per column.
+    data
+        (n, k) values [channel units].
+    experiment_id
+        the experiment, or "".
+    stamp_ns
+        time of the first sample [ns].
+    flags
+        OR of the rows' flags (no per-row flags are written).
+    session_id
+        the session the block belongs to, or 0.
     """
     data = np.ascontiguousarray(data, dtype="<f8")
     n, k = data.shape

@@ -27,7 +27,9 @@ def _encoder(type_name: str) -> Callable[[Any], bytes]:
 def encode_message(type_name: str, fields: Mapping[str, Any]) -> bytes:
     """CDR bytes of message ``type_name`` (``pkg/msg/Type``) with ``fields`` (nested dicts for nested messages).
 
-    Raises:
-        FileNotFoundError: the type's definition is not installed.
+    Raises
+    ------
+    FileNotFoundError
+        the type's definition is not installed.
     """
     return bytes(_encoder(normalize_type_name(type_name))(dict(fields)))

@@ -60,10 +60,11 @@ def _json_or_text(text: str) -> Any:
 def plant_facts(msg: Any) -> dict[str, Any]:
     """Facts of a PlantDescription: names, sample period [s], limits [A, m], rig parameters.
 
-    Returns:
-        dict with ``name, source, rig_name, sample_period_s, displacement_names,
-        current_names, bias_current_a, current_limit_a, backup_clearance_m,
-        seed, controller_timeout_samples`` and ``rig`` (the rig JSON parsed).
+    Returns
+    -------
+    dict with ``name, source, rig_name, sample_period_s, displacement_names,
+    current_names, bias_current_a, current_limit_a, backup_clearance_m,
+    seed, controller_timeout_samples`` and ``rig`` (the rig JSON parsed).
     """
     return {
         "name": str(msg.name),
@@ -158,8 +159,10 @@ def design_facts(msg: Any) -> dict[str, Any]:
 def rig_summary(rig: Mapping[str, Any] | str) -> dict[str, Any]:
     """The few rig parameters worth a line (name, sample rate, sizes, currents, clearances).
 
-    Args:
-        rig: the rig dict (``Rig.to_dict()``) or its JSON text.
+    Parameters
+    ----------
+    rig
+        the rig dict (``Rig.to_dict()``) or its JSON text.
     """
     if isinstance(rig, str):
         rig = _json_or_text(rig)

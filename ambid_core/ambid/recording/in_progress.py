@@ -24,16 +24,25 @@ MAX_DESIGN_FACTS = 1000
 class Recording:
     """One MCAP file being written, with its counts and facts.
 
-    Args:
-        path: the file (absolute).
-        chunk_size: uncompressed size at which a chunk is closed [bytes].
-        flush_period_s: longest a chunk stays open [s] (what a SIGKILL can lose).
-        compression: "zstd", "lz4" or "none".
-        fsync: fsync after every chunk.
-        overwrite: replace an existing file (else FileExistsError).
+    Parameters
+    ----------
+    path
+        the file (absolute).
+    chunk_size
+        uncompressed size at which a chunk is closed [bytes].
+    flush_period_s
+        longest a chunk stays open [s] (what a SIGKILL can lose).
+    compression
+        "zstd", "lz4" or "none".
+    fsync
+        fsync after every chunk.
+    overwrite
+        replace an existing file (else FileExistsError).
 
-    Raises:
-        FileExistsError, OSError: the file cannot be created.
+    Raises
+    ------
+    FileExistsError, OSError
+        the file cannot be created.
     """
 
     def __init__(self, path: str, *, chunk_size: int, flush_period_s: float, compression: str, fsync: bool,

@@ -23,8 +23,10 @@ _MAX_LISTED_GAPS = 20
 def gap_report(blocks: list[tuple[int, int, int]]) -> dict[str, Any]:
     """Gaps/overlaps between consecutive sample blocks.
 
-    Args:
-        blocks: ``(log_time_ns, first_index, n_samples)`` in log-time order.
+    Parameters
+    ----------
+    blocks
+        ``(log_time_ns, first_index, n_samples)`` in log-time order.
 
     A gap is a block starting after the end of all earlier blocks (its
     missing samples are counted); an overlap is one starting before it.
@@ -62,27 +64,32 @@ def inspect_session(
 ) -> dict[str, Any]:
     """Describe a session file.
 
-    Args:
-        path: session ``.mcap``.
-        recover: accept a file without footer (killed writer); only complete
-            chunks are counted. Without it, an incomplete file raises
-            :class:`~ambid.recording.reader.IncompleteSessionError`.
-        sample_index: extractors keyed by topic name or by type name
-            (``pkg/msg/Type``; a topic key wins), each returning
-            ``(first_index, n_samples)`` of a decoded message; those topics
-            are decoded and checked for sample-index gaps.
+    Parameters
+    ----------
+    path
+        session ``.mcap``.
+    recover
+        accept a file without footer (killed writer); only complete
+        chunks are counted. Without it, an incomplete file raises
+        :class:`~ambid.recording.reader.IncompleteSessionError`.
+    sample_index
+        extractors keyed by topic name or by type name
+        (``pkg/msg/Type``; a topic key wins), each returning
+        ``(first_index, n_samples)`` of a decoded message; those topics
+        are decoded and checked for sample-index gaps.
 
-    Returns:
-        dict with keys ``path``, ``file_bytes``, ``complete``, ``problem``,
-        ``profile``, ``library``, ``message_count``, ``chunk_count``,
-        ``compressions``, ``start_time_ns``, ``end_time_ns``, ``duration_s``,
-        ``topics`` (``{topic: {type, message_count, first_time_ns,
-        last_time_ns, rate_hz, type_hash, offered_qos_profiles}}``; rate =
-        (count - 1) / span, None below two messages), ``metadata``
-        (``{record name: {key: value}}``, session facts under
-        ``"ambid.session"``), ``attachments`` and ``sample_index``
-        (``{topic: {blocks, samples, first_index, end_index, gap_count, missing_samples,
-        overlapping_blocks, overlapping_samples, gaps: [...]}}``).
+    Returns
+    -------
+    dict with keys ``path``, ``file_bytes``, ``complete``, ``problem``,
+    ``profile``, ``library``, ``message_count``, ``chunk_count``,
+    ``compressions``, ``start_time_ns``, ``end_time_ns``, ``duration_s``,
+    ``topics`` (``{topic: {type, message_count, first_time_ns,
+    last_time_ns, rate_hz, type_hash, offered_qos_profiles}}``; rate =
+    (count - 1) / span, None below two messages), ``metadata``
+    (``{record name: {key: value}}``, session facts under
+    ``"ambid.session"``), ``attachments`` and ``sample_index``
+    (``{topic: {blocks, samples, first_index, end_index, gap_count, missing_samples,
+    overlapping_blocks, overlapping_samples, gaps: [...]}}``).
     """
     scan = scan_session(path)
     if not scan.complete and not recover:

@@ -61,10 +61,14 @@ class NotASessionError(ValueError):
 def check_session_file(path: str | os.PathLike) -> None:
     """Refuse what cannot be a recorded session before any reader touches it.
 
-    Raises:
-        FileNotFoundError: no such file.
-        IsADirectoryError: the path is a folder.
-        NotASessionError: the file is empty or does not start with the MCAP magic.
+    Raises
+    ------
+    FileNotFoundError
+        no such file.
+    IsADirectoryError
+        the path is a folder.
+    NotASessionError
+        the file is empty or does not start with the MCAP magic.
     """
     path = os.fspath(path)
     if os.path.isdir(path):
@@ -81,13 +85,20 @@ def check_session_file(path: str | os.PathLike) -> None:
 class SessionMessage:
     """One recorded message.
 
-    Attributes:
-        topic: topic name.
-        type_name: ``pkg/msg/Type`` (schema name; ``""`` without schema).
-        log_time_ns: receive time [ns].
-        publish_time_ns: send time [ns].
-        sequence: publisher sequence number (0 if unknown).
-        data: serialized CDR bytes exactly as written.
+    Attributes
+    ----------
+    topic
+        topic name.
+    type_name
+        ``pkg/msg/Type`` (schema name; ``""`` without schema).
+    log_time_ns
+        receive time [ns].
+    publish_time_ns
+        send time [ns].
+    sequence
+        publisher sequence number (0 if unknown).
+    data
+        serialized CDR bytes exactly as written.
     """
 
     topic: str
@@ -102,26 +113,44 @@ class SessionMessage:
 class SessionScan:
     """What a front-to-back scan of a session file found.
 
-    Attributes:
-        path: file scanned.
-        complete: True if the file ends with a footer and the closing magic
-            (the writer called ``close()``).
-        message_count: messages in complete records (all recoverable ones).
-        topic_message_counts: ``{topic: count}``.
-        topic_types: ``{topic: "pkg/msg/Type"}``.
-        channel_metadata: ``{topic: {"offered_qos_profiles": ..., ...}}``.
-        schemas: ``{"pkg/msg/Type": schema text}``.
-        metadata: ``{record name: {key: value}}``; a later record of the same
-            name updates the earlier one's keys.
-        attachments: attachment names in file order.
-        chunk_count: complete chunks read.
-        compressions: chunk compressions seen (``""`` is none).
-        start_time_ns, end_time_ns: log-time range of the messages, or None.
-        topic_time_ranges: ``{topic: (first log time, last log time)}`` [ns].
-        profile, library: from the header.
-        valid_bytes: length of the readable prefix [bytes].
-        file_bytes: file size [bytes].
-        problem: why the scan stopped before a footer, or None.
+    Attributes
+    ----------
+    path
+        file scanned.
+    complete
+        True if the file ends with a footer and the closing magic
+        (the writer called ``close()``).
+    message_count
+        messages in complete records (all recoverable ones).
+    topic_message_counts
+        ``{topic: count}``.
+    topic_types
+        ``{topic: "pkg/msg/Type"}``.
+    channel_metadata
+        ``{topic: {"offered_qos_profiles": ..., ...}}``.
+    schemas
+        ``{"pkg/msg/Type": schema text}``.
+    metadata
+        ``{record name: {key: value}}``; a later record of the same
+        name updates the earlier one's keys.
+    attachments
+        attachment names in file order.
+    chunk_count
+        complete chunks read.
+    compressions
+        chunk compressions seen (``""`` is none).
+    start_time_ns, end_time_ns
+        log-time range of the messages, or None.
+    topic_time_ranges
+        ``{topic: (first log time, last log time)}`` [ns].
+    profile, library
+        from the header.
+    valid_bytes
+        length of the readable prefix [bytes].
+    file_bytes
+        file size [bytes].
+    problem
+        why the scan stopped before a footer, or None.
     """
 
     path: str
@@ -435,17 +464,24 @@ def iter_messages(
 ) -> Iterator[SessionMessage]:
     """Messages of a session in log-time order (equal times in file order).
 
-    Args:
-        path: session ``.mcap`` file.
-        topics: only these topics; ``None`` for all.
-        recover: read a file without summary/footer (killed writer) front to
-            back, stopping cleanly at its truncated tail.
+    Parameters
+    ----------
+    path
+        session ``.mcap`` file.
+    topics
+        only these topics; ``None`` for all.
+    recover
+        read a file without summary/footer (killed writer) front to
+        back, stopping cleanly at its truncated tail.
 
-    Yields:
-        :class:`SessionMessage` with the raw CDR bytes.
+    Yields
+    ------
+    :class:`SessionMessage` with the raw CDR bytes.
 
-    Raises:
-        IncompleteSessionError: without ``recover`` on a file lacking a footer.
+    Raises
+    ------
+    IncompleteSessionError
+        without ``recover`` on a file lacking a footer.
     """
     for schema, channel, msg in iter_raw(path, topics, recover):
         yield _to_session_message(schema, channel, msg)
@@ -456,10 +492,11 @@ def iter_decoded(
 ) -> Iterator[tuple[SessionMessage, Any]]:
     """Like :func:`iter_messages`, also decoding each message with mcap_ros2.
 
-    Yields:
-        ``(message, decoded)`` where ``decoded`` is mcap_ros2's dynamic
-        object (attributes named like the .msg fields; arrays as lists or
-        ``array.array``).
+    Yields
+    ------
+    ``(message, decoded)`` where ``decoded`` is mcap_ros2's dynamic
+    object (attributes named like the .msg fields; arrays as lists or
+    ``array.array``).
     """
     decode = Ros2Decoder()
     for schema, channel, msg in iter_raw(path, topics, recover):
@@ -516,12 +553,15 @@ def scan_session(path: str | os.PathLike) -> SessionScan:
     Works on complete files and on files a killed writer left (no summary,
     truncated last chunk). Memory holds one chunk at a time.
 
-    Returns:
-        :class:`SessionScan` (message counts per topic, times, schemas,
-        metadata, whether the file was complete, where and why reading stopped).
+    Returns
+    -------
+    :class:`SessionScan` (message counts per topic, times, schemas,
+    metadata, whether the file was complete, where and why reading stopped).
 
-    Raises:
-        ValueError: if the file is not an MCAP file at all.
+    Raises
+    ------
+    ValueError
+        if the file is not an MCAP file at all.
     """
     state = _LinearState()
     counts: dict[str, int] = {}

@@ -72,13 +72,18 @@ _MAX_DEPTH = 50
 class MessageSchema:
     """Everything a ``ros2`` profile MCAP needs to know about one message type.
 
-    Attributes:
-        type_name: full ROS 2 name, ``pkg/msg/Type``.
-        definition: ``ros2msg`` schema text: the type's .msg text followed by
-            every nested type's text, rosbag2-style.
-        type_hash: ``RIHS01_<64 hex>``, or ``""`` when unknown.
-        dependencies: nested type names (``pkg/Type``) in the order their
-            definitions appear in ``definition``.
+    Attributes
+    ----------
+    type_name
+        full ROS 2 name, ``pkg/msg/Type``.
+    definition
+        ``ros2msg`` schema text: the type's .msg text followed by
+        every nested type's text, rosbag2-style.
+    type_hash
+        ``RIHS01_<64 hex>``, or ``""`` when unknown.
+    dependencies
+        nested type names (``pkg/Type``) in the order their
+        definitions appear in ``definition``.
     """
 
     type_name: str
@@ -90,12 +95,15 @@ class MessageSchema:
 def ament_prefixes(ament_prefix_path: str | None = None) -> list[Path]:
     """Install prefixes listed in ``AMENT_PREFIX_PATH`` (or in the given string).
 
-    Args:
-        ament_prefix_path: ``os.pathsep``-separated prefixes; ``None`` reads the
-            ``AMENT_PREFIX_PATH`` environment variable.
+    Parameters
+    ----------
+    ament_prefix_path
+        ``os.pathsep``-separated prefixes; ``None`` reads the
+        ``AMENT_PREFIX_PATH`` environment variable.
 
-    Returns:
-        The prefixes in search order, empty entries dropped.
+    Returns
+    -------
+    The prefixes in search order, empty entries dropped.
     """
     text = os.environ.get("AMENT_PREFIX_PATH", "") if ament_prefix_path is None else ament_prefix_path
     return [Path(p) for p in text.split(os.pathsep) if p]
@@ -110,9 +118,11 @@ PACKAGED_PREFIX = Path(__file__).resolve().parent.parent / "interfaces"
 def split_type_name(type_name: str) -> tuple[str, str, str]:
     """Split ``pkg/msg/Type`` or ``pkg/Type`` into ``(pkg, "msg", Type)``.
 
-    Raises:
-        ValueError: if the name is not of either form, or its middle part is
-            not ``msg`` (services and actions have no topic definitions).
+    Raises
+    ------
+    ValueError
+        if the name is not of either form, or its middle part is
+        not ``msg`` (services and actions have no topic definitions).
     """
     match = _TYPE_RE.match(type_name.strip()) if isinstance(type_name, str) else None
     if match is None or match.group(2) is None:
@@ -157,16 +167,22 @@ def nested_type_names(definition: str, package: str) -> list[str]:
     are removed; a type written without package (``Inner``) belongs to
     ``package``, as rosidl resolves it.
 
-    Args:
-        definition: text of one .msg file (no ``MSG:`` sections).
-        package: package the definition belongs to.
+    Parameters
+    ----------
+    definition
+        text of one .msg file (no ``MSG:`` sections).
+    package
+        package the definition belongs to.
 
-    Returns:
-        Sorted (bytewise, like rosbag2's ``std::set``) unique ``pkg/Type``
-        names.
+    Returns
+    -------
+    Sorted (bytewise, like rosbag2's ``std::set``) unique ``pkg/Type``
+    names.
 
-    Raises:
-        ValueError: if a field type is not a valid ROS 2 type name.
+    Raises
+    ------
+    ValueError
+        if a field type is not a valid ROS 2 type name.
     """
     found: set[str] = set()
     for lineno, raw in enumerate(definition.splitlines(), start=1):
@@ -191,14 +207,20 @@ def nested_type_names(definition: str, package: str) -> list[str]:
 def find_interface_file(type_name: str, extension: str, prefixes: Sequence[Path] | None = None) -> Path:
     """Path of ``<prefix>/share/<pkg>/msg/<Type><extension>`` in the first prefix that has it.
 
-    Args:
-        type_name: ``pkg/msg/Type`` or ``pkg/Type``.
-        extension: ``".msg"`` or ``".json"``.
-        prefixes: install prefixes; ``None`` uses ``AMENT_PREFIX_PATH``, then the definitions
-            this library carries (:data:`PACKAGED_PREFIX`).
+    Parameters
+    ----------
+    type_name
+        ``pkg/msg/Type`` or ``pkg/Type``.
+    extension
+        ``".msg"`` or ``".json"``.
+    prefixes
+        install prefixes; ``None`` uses ``AMENT_PREFIX_PATH``, then the definitions
+        this library carries (:data:`PACKAGED_PREFIX`).
 
-    Raises:
-        FileNotFoundError: naming the type, the file and the prefixes searched.
+    Raises
+    ------
+    FileNotFoundError
+        naming the type, the file and the prefixes searched.
     """
     pkg, ns, name = split_type_name(type_name)
     search = [*ament_prefixes(), PACKAGED_PREFIX] if prefixes is None else [Path(p) for p in prefixes]
@@ -221,12 +243,16 @@ def read_message_definition(type_name: str, prefixes: Sequence[Path] | None = No
 def read_type_hash(type_name: str, prefixes: Sequence[Path] | None = None) -> str:
     """RIHS01 type hash of ``type_name`` from the rosidl-generated ``<Type>.json``.
 
-    Returns:
-        ``"RIHS01_<64 hex>"``.
+    Returns
+    -------
+    ``"RIHS01_<64 hex>"``.
 
-    Raises:
-        FileNotFoundError: if no .json is installed for the type.
-        ValueError: if the .json lists no hash for the type.
+    Raises
+    ------
+    FileNotFoundError
+        if no .json is installed for the type.
+    ValueError
+        if the .json lists no hash for the type.
     """
     full = normalize_type_name(type_name)
     path = find_interface_file(full, ".json", prefixes)
@@ -254,21 +280,29 @@ def full_message_definition(
 ) -> tuple[str, tuple[str, ...]]:
     """rosbag2-style ``ros2msg`` schema text of ``type_name`` and its dependency order.
 
-    Args:
-        type_name: ``pkg/msg/Type`` or ``pkg/Type``.
-        prefixes: install prefixes; ``None`` uses ``AMENT_PREFIX_PATH``.
-        definitions: single-type .msg texts keyed by type name (either form);
-            they take precedence over installed files, so types that are not
-            installed can be used.
+    Parameters
+    ----------
+    type_name
+        ``pkg/msg/Type`` or ``pkg/Type``.
+    prefixes
+        install prefixes; ``None`` uses ``AMENT_PREFIX_PATH``.
+    definitions
+        single-type .msg texts keyed by type name (either form);
+        they take precedence over installed files, so types that are not
+        installed can be used.
 
-    Returns:
-        ``(text, dependencies)``: the root text followed by each nested type's
-        text, and the ``pkg/Type`` names in the order they were appended.
+    Returns
+    -------
+    ``(text, dependencies)``: the root text followed by each nested type's
+    text, and the ``pkg/Type`` names in the order they were appended.
 
-    Raises:
-        FileNotFoundError: if a definition is neither given nor installed.
-        ValueError: on malformed type names or a dependency chain deeper
-            than 50 (a cycle).
+    Raises
+    ------
+    FileNotFoundError
+        if a definition is neither given nor installed.
+    ValueError
+        on malformed type names or a dependency chain deeper
+        than 50 (a cycle).
     """
     given = {_short_name(k): v for k, v in (definitions or {}).items()}
     seen: set[str] = set()
@@ -293,9 +327,10 @@ def full_message_definition(
 def split_full_definition(text: str) -> dict[str | None, str]:
     """Split a rosbag2-style schema text into its single-type definitions.
 
-    Returns:
-        ``{None: root text, "pkg/Type": text, ...}`` in file order; the texts
-        are exactly what :func:`full_message_definition` concatenated.
+    Returns
+    -------
+    ``{None: root text, "pkg/Type": text, ...}`` in file order; the texts
+    are exactly what :func:`full_message_definition` concatenated.
     """
     sections: dict[str | None, str] = {}
     parts = text.split(f"\n{DEFINITION_SEPARATOR}\n")
@@ -316,17 +351,25 @@ def load_message_schema(
 ) -> MessageSchema:
     """Schema text and type hash of ``type_name``, ready for the MCAP writer.
 
-    Args:
-        type_name: ``pkg/msg/Type`` or ``pkg/Type``.
-        prefixes: install prefixes; ``None`` uses ``AMENT_PREFIX_PATH``.
-        definitions: single-type .msg texts that override installed files.
-        type_hash: ``RIHS01_...`` to use; ``None`` reads the installed .json
-            and falls back to ``""`` when there is none (the hash is optional
-            in rosbag2 files, the definition is not).
+    Parameters
+    ----------
+    type_name
+        ``pkg/msg/Type`` or ``pkg/Type``.
+    prefixes
+        install prefixes; ``None`` uses ``AMENT_PREFIX_PATH``.
+    definitions
+        single-type .msg texts that override installed files.
+    type_hash
+        ``RIHS01_...`` to use; ``None`` reads the installed .json
+        and falls back to ``""`` when there is none (the hash is optional
+        in rosbag2 files, the definition is not).
 
-    Raises:
-        ValueError: on a malformed ``type_hash`` or type name.
-        FileNotFoundError: if a needed definition is neither given nor installed.
+    Raises
+    ------
+    ValueError
+        on a malformed ``type_hash`` or type name.
+    FileNotFoundError
+        if a needed definition is neither given nor installed.
     """
     full = normalize_type_name(type_name)
     text, deps = full_message_definition(full, prefixes, definitions)

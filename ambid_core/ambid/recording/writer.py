@@ -152,14 +152,18 @@ def _duration_ns(value: Any, key: str) -> int:
 def qos_profile_from(profile: Any) -> QosProfile:
     """Convert a publisher's offered QoS to a :class:`QosProfile`.
 
-    Args:
-        profile: a :class:`QosProfile`; an rclpy ``QoSProfile`` (duck-typed:
-            policy enums, ``Duration`` attributes; e.g. from
-            ``node.get_publishers_info_by_topic(t)[i].qos_profile``); or a
-            dict in rosbag2's layout (as :meth:`QosProfile.to_rosbag2` gives).
+    Parameters
+    ----------
+    profile
+        a :class:`QosProfile`; an rclpy ``QoSProfile`` (duck-typed:
+        policy enums, ``Duration`` attributes; e.g. from
+        ``node.get_publishers_info_by_topic(t)[i].qos_profile``); or a
+        dict in rosbag2's layout (as :meth:`QosProfile.to_rosbag2` gives).
 
-    Raises:
-        ValueError: on unknown policy names or bad durations.
+    Raises
+    ------
+    ValueError
+        on unknown policy names or bad durations.
     """
     if isinstance(profile, QosProfile):
         return profile
@@ -257,25 +261,37 @@ class SessionWriter:
             w.add_topic("/amb/y", "ambid_msgs/msg/SampleBlock", qos_profiles)
             w.write("/amb/y", cdr_bytes, log_time_ns=t_ns)
 
-    Args:
-        output: file path, or a binary file object with ``write``, ``tell``
-            and ``flush`` (not closed by the writer).
-        chunk_size_bytes: a chunk is closed once its uncompressed messages
-            reach this size [bytes].
-        chunk_max_duration_ns: a chunk is closed before a message whose log
-            time is this much later than the chunk's first [ns], so a slow
-            topic still reaches the file regularly.
-        compression: ``"zstd"``, ``"lz4"`` or ``"none"``.
-        fsync: also ``os.fsync`` the file after each chunk (survives power
-            loss, costs a disk sync per chunk).
-        overwrite: allow replacing an existing file at ``output``.
-        ros_distro: stored in the rosbag2 metadata.
-        prefixes: ament install prefixes to look definitions up in;
-            ``None`` uses ``AMENT_PREFIX_PATH``.
+    Parameters
+    ----------
+    output
+        file path, or a binary file object with ``write``, ``tell``
+        and ``flush`` (not closed by the writer).
+    chunk_size_bytes
+        a chunk is closed once its uncompressed messages
+        reach this size [bytes].
+    chunk_max_duration_ns
+        a chunk is closed before a message whose log
+        time is this much later than the chunk's first [ns], so a slow
+        topic still reaches the file regularly.
+    compression
+        ``"zstd"``, ``"lz4"`` or ``"none"``.
+    fsync
+        also ``os.fsync`` the file after each chunk (survives power
+        loss, costs a disk sync per chunk).
+    overwrite
+        allow replacing an existing file at ``output``.
+    ros_distro
+        stored in the rosbag2 metadata.
+    prefixes
+        ament install prefixes to look definitions up in;
+        ``None`` uses ``AMENT_PREFIX_PATH``.
 
-    Raises:
-        ValueError: on bad sizes, durations or compression names.
-        FileExistsError: if ``output`` exists and ``overwrite`` is False.
+    Raises
+    ------
+    ValueError
+        on bad sizes, durations or compression names.
+    FileExistsError
+        if ``output`` exists and ``overwrite`` is False.
     """
 
     def __init__(
@@ -384,24 +400,34 @@ class SessionWriter:
     ) -> int:
         """Register a topic (channel) and, once per type, its schema.
 
-        Args:
-            topic: topic name, e.g. ``"/amb/y"``.
-            type_name: ``pkg/msg/Type``, e.g. ``"ambid_msgs/msg/SampleBlock"``.
-            qos_profiles: QoS offered by each publisher (rclpy ``QoSProfile``,
-                :class:`QosProfile` or rosbag2 dicts).
-            definition: the type's own .msg text, or a mapping of .msg texts
-                by type name (the type and any of its dependencies); other
-                definitions are read from the install prefixes.
-            type_hash: ``RIHS01_...``; ``None`` reads it from the installed
-                ``<Type>.json`` (empty if absent).
+        Parameters
+        ----------
+        topic
+            topic name, e.g. ``"/amb/y"``.
+        type_name
+            ``pkg/msg/Type``, e.g. ``"ambid_msgs/msg/SampleBlock"``.
+        qos_profiles
+            QoS offered by each publisher (rclpy ``QoSProfile``,
+            :class:`QosProfile` or rosbag2 dicts).
+        definition
+            the type's own .msg text, or a mapping of .msg texts
+            by type name (the type and any of its dependencies); other
+            definitions are read from the install prefixes.
+        type_hash
+            ``RIHS01_...``; ``None`` reads it from the installed
+            ``<Type>.json`` (empty if absent).
 
-        Returns:
-            The MCAP channel id.
+        Returns
+        -------
+        The MCAP channel id.
 
-        Raises:
-            ValueError: if the topic is already registered with another type,
-                or on bad names.
-            FileNotFoundError: if a definition is neither given nor installed.
+        Raises
+        ------
+        ValueError
+            if the topic is already registered with another type,
+            or on bad names.
+        FileNotFoundError
+            if a definition is neither given nor installed.
         """
         self._check_open()
         if not isinstance(topic, str) or not topic:
@@ -445,16 +471,25 @@ class SessionWriter:
     ) -> None:
         """Append one serialized message.
 
-        Args:
-            topic: a topic registered with :meth:`add_topic`.
-            data: CDR bytes as received (``raw=True`` subscription).
-            log_time_ns: receive time [ns], 0 <= t < 2**64.
-            publish_time_ns: send time [ns]; defaults to ``log_time_ns``.
-            sequence: publisher sequence number if known (uint32).
+        Parameters
+        ----------
+        topic
+            a topic registered with :meth:`add_topic`.
+        data
+            CDR bytes as received (``raw=True`` subscription).
+        log_time_ns
+            receive time [ns], 0 <= t < 2**64.
+        publish_time_ns
+            send time [ns]; defaults to ``log_time_ns``.
+        sequence
+            publisher sequence number if known (uint32).
 
-        Raises:
-            ValueError: on an unknown topic, non-bytes data or bad times.
-            SessionWriteError: if the file cannot be written (disk full...).
+        Raises
+        ------
+        ValueError
+            on an unknown topic, non-bytes data or bad times.
+        SessionWriteError
+            if the file cannot be written (disk full...).
         """
         self._check_open()
         info = self._topics.get(topic)
@@ -499,9 +534,12 @@ class SessionWriter:
     def add_metadata(self, name: str, data: Mapping[str, Any]) -> None:
         """Write an MCAP metadata record now (and flush it to the OS).
 
-        Args:
-            name: record name, e.g. ``"ambid.session"``.
-            data: key/values; non-string values are stored as JSON text.
+        Parameters
+        ----------
+        name
+            record name, e.g. ``"ambid.session"``.
+        data
+            key/values; non-string values are stored as JSON text.
         """
         self._check_open()
         if not isinstance(name, str) or not name:
@@ -519,11 +557,13 @@ class SessionWriter:
     def write_session_facts(self, facts: Mapping[str, Any]) -> None:
         """Store the session's own facts as metadata record ``ambid.session``.
 
-        Args:
-            facts: e.g. ``{"rig": ..., "controller": ..., "excitation": {...},
-                "parameters": {...}}``; non-string values become JSON text.
-                Key ``ambid_version`` is added unless given. The facts are also
-                copied into the rosbag2 metadata's ``custom_data``.
+        Parameters
+        ----------
+        facts
+            e.g. ``{"rig": ..., "controller": ..., "excitation": {...},
+            "parameters": {...}}``; non-string values become JSON text.
+            Key ``ambid_version`` is added unless given. The facts are also
+            copied into the rosbag2 metadata's ``custom_data``.
         """
         record = self._string_map(facts)
         record.setdefault("ambid_version", AMBID_VERSION)
@@ -565,8 +605,10 @@ class SessionWriter:
         Safe to call twice. After a write failure it only releases the file:
         the part written before the failure is readable with ``recover=True``.
 
-        Raises:
-            SessionWriteError: if the summary cannot be written.
+        Raises
+        ------
+        SessionWriteError
+            if the summary cannot be written.
         """
         if self._closed:
             return
