@@ -12,7 +12,7 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import linalg, signal
+from scipy import linalg
 
 
 @dataclass(frozen=True)
@@ -163,6 +163,7 @@ class StateSpace:
         """
         if self.dt > 0:
             raise ValueError("to_discrete: the model is already discrete")
+        from scipy import signal  # here, not at the top: scipy.signal imports scipy.stats, ~0.6 s on every command
         ad, bd, cd, dd, _ = signal.cont2discrete((self.a, self.b, self.c, self.d), dt, method=method)
         return self._replace(a=ad, b=bd, c=cd, d=dd, dt=dt)
 

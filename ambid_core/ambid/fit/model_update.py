@@ -58,7 +58,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import linalg, stats
+from scipy import linalg, special  # not scipy.stats: ~0.6 s to import
 
 from ambid.channels import FIVE_AXIS, RADIAL, Layout, bearing_of
 from ambid.fit.updating import Prior, UpdateResult, update_parameters
@@ -700,7 +700,7 @@ class PhysicalUpdate:
         with np.errstate(divide="ignore"):
             nu = float(np.sum(contrib[used]) ** 2 / np.sum(contrib[used] ** 2 / dof[used])) if used.any() else np.inf
         value = total_lag(self.parameters)
-        half = float(stats.t.ppf(0.975, nu)) * np.sqrt(var)
+        half = float(special.stdtrit(nu, 0.975)) * np.sqrt(var)
         return dict(value=value, std=float(np.sqrt(var)), ci95=[value - half, value + half], unit="s",
                     parts=[n for n in ("amplifier_bandwidth_hz", "sensor_bandwidth_hz", "delay_s") if n in idx])
 

@@ -35,7 +35,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import optimize, stats
+from scipy import special  # not scipy.stats (~0.6 s to import); scipy.optimize is imported where it is used
 
 from ambid.fit.blas_threads import single_threaded_blas
 from ambid.fit.correlated import combined_dof, line_sandwich, realisation_inflation
@@ -319,7 +319,7 @@ def _in_parameter_units(xc: _Scaled, x: np.ndarray, cov_x: np.ndarray, dofs: np.
     cov = cov_x * jt[:, None] * jt[None, :]
     std = np.sqrt(np.diag(cov))
     corr = cov / np.outer(std, std)
-    half = stats.t.ppf(0.975, dofs) * std_x
+    half = special.stdtrit(dofs, 0.975) * std_x
     ci = np.column_stack([xc.to_theta(x - half), xc.to_theta(x + half)])
     ratio = np.where(has_prior, std_x / np.where(has_prior, xs, 1.0), np.nan)
     return theta, std, ci, cov, corr, ratio
@@ -370,6 +370,7 @@ def _optimise(resid_data: Callable, resid: Callable, x0: np.ndarray, xbounds: tu
             if check_start:
                 # fail early (and cheaply) when the start already shows a parameter combination without effect
                 _check_rank(np.vstack([_central_jacobian(resid_data, x0), prior_rows]), nm, rcond, "at the start")
+            from scipy import optimize  # here: ~0.2 s to import, and only estimating parameters needs it
             res = optimize.least_squares(resid, x0, bounds=xbounds, method="trf", x_scale=1.0,
                                          max_nfev=max_evaluations, xtol=1e-12, ftol=1e-12, gtol=1e-12)
             x, nfev, ok, msg = res.x, int(res.nfev), bool(res.success), str(res.message)

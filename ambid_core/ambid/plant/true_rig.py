@@ -42,7 +42,7 @@ from dataclasses import dataclass
 from math import factorial
 
 import numpy as np
-from scipy import linalg, signal
+from scipy import linalg
 
 from ambid.plant.magnet import MagnetPair
 from ambid.plant.sensors import filter_blocks, runout_table
@@ -298,6 +298,7 @@ def pade_delay(n_channels: int, delay_s: float, order: int = 2) -> StateSpace:
                                                             * factorial(order - k)) for k in range(order + 1)]
     num = [c * (-delay_s) ** k for k, c in enumerate(coef)][::-1]
     den = [c * delay_s ** k for k, c in enumerate(coef)][::-1]
+    from scipy import signal  # here, not at the top: scipy.signal imports scipy.stats, ~0.6 s on every command
     a1, b1, c1, d1 = signal.tf2ss(num, den)
     a1, t = linalg.matrix_balance(a1, permute=False)  # companion entries span 1/tau^order: rescale
     b1, c1 = linalg.solve(t, b1), c1 @ t
