@@ -12,9 +12,12 @@ import argparse
 import ast
 import difflib
 import importlib
+import os
 import signal
 import sys
 from pathlib import Path
+
+from ambid_cli import heartbeat
 
 # subcommand -> module in ambid_cli.commands
 COMMANDS = {
@@ -99,6 +102,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"ambid: unknown {what} '{name}'{did_you_mean(name, [*COMMANDS, *SCRIPT_COMMANDS])} "
               "('ambid --help' lists the commands)", file=sys.stderr)
         return 2
+    # the command's start as the launcher took it (its set-up check included), not handed on to children
+    heartbeat.mark_start(os.environ.pop("AMBID_T0", ""))
+    with heartbeat.Phases(name) as phases:   # on a terminal: no silence over ~2 s, loading included
+        phases.say(f"loading ambid {name}", line=False)
+        return _run(argv, name)
+
+
+def _run(argv: list[str], name: str) -> int:
     parser = argparse.ArgumentParser(prog="ambid", description="system identification of AMB rotor systems on ROS 2")
     sub = parser.add_subparsers(dest="command", required=True)
     mod = importlib.import_module(f"ambid_cli.commands.{COMMANDS[name]}")
@@ -109,6 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     if extras:
         print(_unknown_options(p, name, extras), file=sys.stderr)
         return 2
+    heartbeat.current().quiet()   # loaded: from here the command says its own phases, if it has any
     from ambid_cli.commands.inputs import BadInput
 
     try:

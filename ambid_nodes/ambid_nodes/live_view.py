@@ -28,6 +28,10 @@ import sys
 import threading
 import time
 
+if __name__ == "__main__" and os.environ.get("AMBID_LIVE_NICENESS", "").isdigit():
+    # started by LiveProcess: lower the priority before any import starts a thread, so that all inherit it
+    os.nice(int(os.environ.pop("AMBID_LIVE_NICENESS")))
+
 import numpy as np
 from ambid.excitation import ExcitationDesign
 from ambid.frf.streaming import ESTIMATORS
@@ -48,6 +52,7 @@ LIVE_BLOCKS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200, reliability
                          durability=DurabilityPolicy.VOLATILE)
 
 
+LIVE_NICENESS = 10   # the live view's niceness beside a session: the loop first
 DESIGN_LINE = "live view: experiment "   # printed on each design shown
 
 
@@ -141,7 +146,10 @@ class LiveProcess:
                  session: int = 0) -> None:
         from ambid_nodes.supervisor import ros_args
 
-        env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
+        # a viewer yields the CPU to the loop it shows: beside a busy process on two cores the live view and its
+        # client's frames took the loop's turns (0.83 of the loop without them); main() lowers its priority
+        # before any thread starts, so that every one of them inherits it
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), AMBID_LIVE_NICENESS=str(LIVE_NICENESS))
         self._lines: queue.Queue = queue.Queue()
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "ambid_nodes.live_view",
@@ -219,7 +227,6 @@ def main(args=None) -> int:
 
     from ambid_nodes.node_main import SUMMARY_PREFIX, apply_network_defaults, spin_until_done
     from rclpy.task import Future
-
     apply_network_defaults()
     rclpy.init(args=args)
     executor = EventsExecutor()

@@ -224,20 +224,29 @@ class _Composed:
         cfg, total, fs = self.cfg, self.total, self.fs
         bar = ProgressBar(cfg.progress)
         stop_sent = False
+
+        def tick() -> None:
+            nonlocal stop_sent
+            analyse_early()
+            if cfg.hardware:
+                k = plant.figures()["samples_published"]
+                if k >= total and not stop_sent:  # enough recorded: the target's clock may stop
+                    plant.queue_command(CommandCode.STOP)
+                    stop_sent = True
+            else:
+                k = plant.k
+            st = _consumer_text(consumer)
+            rate = k / max(time.perf_counter() - self.wall0, 1e-9)
+            bar.show(k / total, f"sim {k / fs:6.2f}/{total / fs:.2f} s  {rate / 1000:5.1f}k samples/s  {st}")
+
+        # a timer among the loop's events: the composed loop keeps the executor busy, so that
+        # spin_until_future_complete returns only when the run is over; the bar moves by the timer
+        timer = self.nodes[0].create_timer(0.25, tick)
         with gc_frozen():
             while not plant.finished.done():
                 self.executor.spin_until_future_complete(plant.finished, timeout_sec=0.25)
-                analyse_early()
-                if cfg.hardware:
-                    k = plant.figures()["samples_published"]
-                    if k >= total and not stop_sent:  # enough recorded: the target's clock may stop
-                        plant.queue_command(CommandCode.STOP)
-                        stop_sent = True
-                else:
-                    k = plant.k
-                st = _consumer_text(consumer)
-                rate = k / max(time.perf_counter() - self.wall0, 1e-9)
-                bar.show(k / total, f"sim {k / fs:6.2f}/{total / fs:.2f} s  {rate / 1000:5.1f}k samples/s  {st}")
+                tick()
+        self.nodes[0].destroy_timer(timer)
         bar.show(1.0, "simulation done, closing the recording", force=True)
         bar.close()
         plant_summary = plant.finished.result()
@@ -323,7 +332,8 @@ def _live_figures(result) -> dict:
 
 def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None,
                  report_foreign: Callable[[dict], None] | None = None,
-                 on_headline: Callable[[IdentifyResult], None] | None = None) -> IdentifyResult:
+                 on_headline: Callable[[IdentifyResult], None] | None = None,
+                 on_phase: Callable[[str], None] | None = None) -> IdentifyResult:
     """The whole job: the recorded session on the graph, then the offline identification of it.
 
     The analysis runs in a process of its own (:class:`ambid.identification.early.EarlyAnalysis`), started
@@ -331,6 +341,7 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None,
     start the moment the last period is in, while the graph and the recording close. ``on_headline`` is called
     with the summary as soon as the results are there, before the report is written (the numbers are those of
     the recording's analysis; should that process fail, the recording is analysed here, as before).
+    ``on_phase`` is told each phase after the session as it starts (the analysis, the report).
 
     Writes ``out_dir/session.mcap``, ``out_dir/summary.json`` and ``out_dir/report/``.
     """
@@ -364,11 +375,15 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None,
             run = run_session_composed(cfg, plan, report_foreign, live=live, early=early)
         design: ExcitationDesign = run.pop("design")
         shown: dict = {}
+        phase = on_phase or (lambda text: None)
 
         def show(offline: Identification) -> None:   # the headline, as soon as the results are there
             shown["at"] = time.perf_counter()
             if on_headline is not None:
                 on_headline(_identify_summary(cfg, run, design, offline, _timing(run, shown)))
+            phase("writing the report")
+
+        phase("analysing the recording: FRF, fit, model update")
 
         offline = notes = None
         if early is not None and early.analysing:

@@ -182,6 +182,24 @@ def test_no_function_over_100_lines_in_the_core_or_the_nodes():
     assert long == []
 
 
+SESSION_NODES = ("excitation_generator", "frf_consumer", "hardware_bridge", "plant_sim", "position_controller")
+
+
+@pytest.mark.parametrize("name", SESSION_NODES)
+def test_a_node_writes_its_reporting_intake_and_main_once_in_session_node(name):
+    """Events for rejected, foreign and failed messages, joining the session and main live in
+    ambid_nodes/session_node.py; a node file keeps what makes it itself (where it stands, what it logs)."""
+    tree = ast.parse((NODES / f"{name}.py").read_text())
+    classes = [n for n in tree.body if isinstance(n, ast.ClassDef)
+               and any(isinstance(b, ast.Name) and b.id == "SessionNode" for b in n.bases)]
+    assert len(classes) == 1, f"{name}.py: one node class, a SessionNode"
+    own = {f.name for f in classes[0].body if isinstance(f, ast.FunctionDef)}
+    assert not own & {"on_reject", "on_foreign", "on_handler_error", "event", "main"}, own
+    assert not any(isinstance(n, ast.FunctionDef) and n.name == "main" for n in tree.body), f"{name}.py writes main"
+    text = (NODES / f"{name}.py").read_text()
+    assert "Intake(" not in text and "SessionIdentity(" not in text
+
+
 def test_the_nodes_never_import_the_command_line():
     # imports point one way: command line -> nodes -> core
     for m, p in NODE_MODULES.items():

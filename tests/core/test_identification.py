@@ -188,7 +188,8 @@ def test_select_order_rule():
             (8, pair(100, 0.01), 3), (8, pair(300, 0.01), 1), (8, pair(2000, 0.01), 0),  # 2 kHz: out of band
             (10, pair(100, 0.01), 3), (10, pair(300, 0.01), 3), (10, pair(500, 0.02), 0)]
     chi = [50.0, 1.3, 1.0, 0.98]
-    # N = 2 L Ny Nu = 100 residuals, p = n + (n + 1): AIC = chi2/dof (N - p) + 2 p = 4568, 139.1, 117, 119.4
+    # N = 2 L Ny Nu = 100 residuals, p = n + (n + 1): AICc = chi2/dof (N - p) + 2 p N / (N - p - 1)
+    # = 4570, 143.3, 124.5, 131.3
     assert select_order(diagram(rows, chi), band, n_lines=50, n_entries=1) == 8
     # an unstable lightly damped pair disqualifies order 8; order 10 with its 500 Hz mode stable is taken
     bad = rows[:5] + [(8, pair(600, -0.01), 3)] + rows[6:8] + [(10, pair(500, 0.02), 1)]

@@ -322,3 +322,16 @@ def test_stripline_resonator_modes_against_lscf_and_the_q_factor_fit(tmp_path):
         q = Qfactor(network[band].s21, res_type="transmission")
         q.fit()
         assert abs(f - q.f_L) / q.f_L < 5e-4, (f, q.f_L)
+
+
+def test_a_short_file_with_a_high_order_allowed_still_prints_only_its_resonance(tmp_path):
+    """101 lines of S11 with orders up to 64 allowed: without the small-sample correction of the order rule the fit
+    chose order 58, its poles followed the ripple (97 and 106 GHz printed) and the resonance was lost."""
+    from ambid.frf.frf_file import read_frf_file
+    from ambid.identification.frf_file_fit import identify_frf
+
+    summary = identify_frf(read_frf_file(RING), tmp_path / "fit", max_order=64, report=False)
+    vf, _ = _ring_slot_independent()
+    printed = np.array([m["freq_hz"] for m in summary["fit"]["modes"]])
+    assert printed.size == 1 and abs(printed[0] - vf[0]) / vf[0] < 0.02, (printed, vf, summary["fit"]["order"])
+    assert summary["fit"]["order"] <= 32

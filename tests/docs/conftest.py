@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-_collected = {"docs": False}
-
-
-def pytest_collection_modifyitems(session, config, items):  # noqa: ARG001 (pytest's hook signature)
-    _collected["docs"] = any(item.nodeid.startswith("tests/docs/test_doc_blocks.py") for item in items)
-
 
 def pytest_terminal_summary(terminalreporter, exitstatus, config):  # noqa: ARG001 (pytest's hook signature)
-    if not _collected["docs"]:
+    # from the reports, not the collection: under pytest-xdist the process that writes the summary collects
+    # nothing, its workers do
+    ran = any(getattr(r, "nodeid", "").startswith("tests/docs/test_doc_blocks.py")
+              for reports in terminalreporter.stats.values() for r in reports)
+    if not ran:
         return
     from test_doc_blocks import not_run_listing
 

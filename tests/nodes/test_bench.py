@@ -39,6 +39,12 @@ def test_quick_bench_reports_every_figure_as_a_positive_number(ros, tmp_path, ca
         assert r["ours"]["samples"] == r["bare"]["samples"] == loop["samples"] == 2000
         assert math.isclose(loop[layout]["ratio"], r["ours"]["samples_per_wall_s"] / r["bare"]["samples_per_wall_s"])
     assert report["sections"]["identify"]["state"] == "done"
+    # the commands as typed at a terminal: each answered before it ended, identify's split adds up
+    cmds = report["sections"]["commands"]
+    assert 0 < cmds["fit"]["to_figures_s"] < cmds["fit"]["wall_s"]
+    ident = cmds["identify"]
+    assert 0 < ident["setup_s"] + ident["session_s"] <= ident["headline_s"] <= ident["wall_s"]
+    assert 0 < ident["longest_silence_s"] < ident["wall_s"]
     mem = report["sections"]["memory"]
     assert math.isclose(mem["offline"]["length_ratio"], bench.FACTOR) and mem["live"]["length_ratio"] > 1.5
     assert len(report["machine"]["load_average_start"]) == 3

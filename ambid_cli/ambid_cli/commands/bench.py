@@ -21,6 +21,9 @@ Sections (each can be skipped):
   transients), on the core loop (:mod:`ambid_cli.bench.settling`);
 * memory: peak memory of sessions of one kind, one six times longer
   (:mod:`ambid_cli.bench.memory`);
+* commands: ``ambid design``, ``ambid fit FRF_FILE`` and ``ambid identify`` as typed at a terminal: wall
+  time to the answer and to the end, the longest silence, identify's time beyond its session
+  (:mod:`ambid_cli.bench.commands`);
 * link: what the authenticated link (protocol version 3) costs the C reference
   target and the Python bridge beside version 2: CPU per datagram sealed and
   checked, and the C target
@@ -51,7 +54,7 @@ from ambid_cli.results_page import measured_on, write_section
 from ambid.jsonable import to_jsonable
 
 HELP = "measure loop throughput, identify real-time factor, offline rates and memory against the targets"
-SECTIONS = ("loop", "identify", "analysis", "live", "offline", "fit", "settling", "memory", "link")
+SECTIONS = ("commands", "loop", "identify", "analysis", "live", "offline", "fit", "settling", "memory", "link")
 FACTOR = 6  # the long session of the memory figure is this many times longer
 
 # the sizes of a --quick run (the smoke test): every section, seconds each
@@ -70,6 +73,8 @@ QUICK = {
                     "n_transient_periods": 1},
     "settling": {"band_hz": (50.0, 1000.0), "resolution_hz": 50.0, "n_realisations": 1},
     "link_seconds": 0.3, "link_repeats": 2000,
+    "commands_identify": ["--band", "50", "1000", "--resolution", "50", "--periods", "1", "--realisations", "1",
+                          "--transient-periods", "1"],
 }
 # the default sizes: the identify session and the offline file are the default identify experiment
 FULL = {
@@ -84,6 +89,7 @@ FULL = {
     "live_memory": {"resolution_hz": 10.0, "n_periods": 2, "n_realisations": 1, "n_transient_periods": 1},
     "settling": {},
     "link_seconds": 5.0, "link_repeats": 20000,  # 5 s at 10 kHz: 50,000 samples on absolute deadlines per version
+    "commands_identify": [],   # the default experiment, as a user's first identify runs it
 }
 
 
@@ -109,6 +115,25 @@ def _at_least(name: str, value: float | None, unit: str, low: float, label: str)
 
 def _at_most(name: str, value: float | None, unit: str, high: float, label: str) -> dict:
     return _figure(name, value, unit, f"<= {label}", None if value is None else bool(value <= high))
+
+
+def _commands_section(sizes: dict, work: Path, figures: list) -> dict:
+    from ambid_cli.bench.commands import command_figures
+
+    res = command_figures(work / "commands", sizes["commands_identify"])
+    d, f, i = res["design"], res["fit"], res["identify"]
+    figures += [
+        _figure("ambid design (default experiment, figure included): wall time", d["wall_s"], "s", "< 1 s",
+                bool(d["wall_s"] < 1.0)),
+        _at_most(f"ambid fit {Path(f['file']).name}: wall time to its figures", f["to_figures_s"], "s", 2.0, "2 s"),
+        _figure("ambid fit of that file: wall time, report written", f["wall_s"], "s"),
+        _figure("ambid identify: the session (lift-off and experiment on the graph)", i["session_s"], "s"),
+        _at_most("ambid identify: wall time beyond the session, to the headline", i["beyond_session_to_headline_s"],
+                 "s", 8.0, "8 s"),
+        _figure("ambid identify: wall time beyond the session, report written", i["beyond_session_s"], "s"),
+        _at_most("ambid identify on a terminal: longest silence", i["longest_silence_s"], "s", 3.0, "3 s"),
+    ]
+    return res
 
 
 def _loop_section(sizes: dict, figures: list) -> dict:
@@ -351,6 +376,7 @@ def run(args: argparse.Namespace) -> int:
     }
     figures = report["figures"]
     sections = {
+        "commands": lambda: _commands_section(sizes, work, figures),
         "loop": lambda: _loop_section(sizes, figures),
         "identify": lambda: _identify_section(sizes, work, figures),
         "analysis": lambda: _analysis_section(sizes, work, figures),

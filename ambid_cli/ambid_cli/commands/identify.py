@@ -52,6 +52,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ambid_cli.heartbeat import current
+
+    phases = current()
     from ambid_nodes.running.domain import session_domain_id
     from ambid_nodes.session import NodeDied, SessionConfig, plan_session, run_identify
 
@@ -80,6 +83,7 @@ def run(args: argparse.Namespace) -> int:
                         hardware=args.hardware or "", local_port=args.local_port, true_model=args.true_model, **link,
                         progress=not args.no_progress and sys.stderr.isatty(), namespace=args.namespace,
                         session=session, processes=args.processes, live_port=args.live, live_host=args.live_host)
+    phases.say("planning the run: rig, controller, experiment design", line=False)  # a line once it holds
     try:
         plan = plan_session(cfg, rig, ctrl)  # the design, made once
     except ValueError as exc:
@@ -90,15 +94,18 @@ def run(args: argparse.Namespace) -> int:
     layout = "separate processes" if args.processes else "one process"
     print(f"ambid identify: {session_words(session)}, {layout}, namespace {args.namespace}, ROS_DOMAIN_ID "
           f"{session_domain_id()}", file=sys.stderr, flush=True)
+    phases.say("starting the graph and waiting for every reader; the rotor lifts off, then the experiment runs")
+    started = phases.elapsed()
 
     def headline(summary: IdentifyResult) -> None:   # printed as soon as the results are there; the report follows
         kept_out = kept_out_line("identify", summary.session.foreign_messages)
         if kept_out:
             print(kept_out, file=sys.stderr, flush=True)
-        print(format_headlines(summary, args.out), flush=True)
+        print(format_headlines(summary, args.out, (started, phases.elapsed())), flush=True)
 
     try:  # the foreign publishers named before anything starts
-        summary = run_identify(cfg, plan, lambda found: print_foreign("identify", found), on_headline=headline)
+        summary = run_identify(cfg, plan, lambda found: print_foreign("identify", found), on_headline=headline,
+                               on_phase=phases.say)
     except KeyboardInterrupt:
         print("ambid identify: interrupted; the recording so far is in", args.out / "session.mcap", file=sys.stderr)
         return 130
@@ -114,13 +121,18 @@ def run(args: argparse.Namespace) -> int:
         return 1
     if summary.live:
         print("  " + live_line(summary.live))
+    print(f"ambid identify: report written, {phases.elapsed():.1f} s wall in all", file=sys.stderr)
     return 0 if summary.state == "done" else 1
 
 
-def format_headlines(s: IdentifyResult, out: Path) -> str:
+def format_headlines(s: IdentifyResult, out: Path, wall: tuple[float, float]) -> str:
+    """The headline lines; ``wall`` (seconds from the command's start to the session's start and to now)
+    splits the whole wall time into set-up, the session and the analysis."""
     ident = s.identification
-    lines = [f"ambid identify: done in {s.wall_time_s:.1f} s wall for {s.simulated_time_s:.2f} s simulated "
-             f"({s.simulated_samples_per_wall_s:.0f} samples/s, {s.layout})"]
+    before, total = wall
+    lines = [f"ambid identify: done in {total:.1f} s wall: {before:.1f} s set-up and design, {s.wall_time_s:.1f} s "
+             f"the session ({s.simulated_time_s:.2f} s simulated, {s.simulated_samples_per_wall_s:.0f} samples/s, "
+             f"{s.layout}), {max(total - before - s.wall_time_s, 0.0):.1f} s closing and analysis"]
     ctrl = ident.controller
     if ctrl:
         what = (ctrl.get("parameters") or {}).get("file", "") if ctrl["kind"] == "file" else ""

@@ -88,7 +88,8 @@ def identify_frf(measured: MeasuredFrf, out_dir: str | os.PathLike, *, order: in
         raise ValueError(f"{measured.path}: {f.size} frequencies are too few for a parametric fit; give more")
     out.mkdir(parents=True, exist_ok=True)
     diagram = stabilisation_diagram(f, g, w_var, orders=orders, delay_s=delay_s)
-    rule = f"smallest chi2 + {order_penalty:g} p among orders with stable, positively damped in-band modes"
+    rule = (f"smallest chi2 + {order_penalty:g} p N/(N - p - 1) (AICc) among orders with stable, positively damped "
+            "in-band modes")
     if order is None:
         order = select_order(diagram, band, f.size, ny * nu, var is not None, order_penalty)
     else:

@@ -112,9 +112,9 @@ def plan_session(cfg: SessionConfig, rig: Rig | None = None, controller: Control
 class ProgressBar:
     """One terminal line: simulated time, periods done, current FRF noise level."""
 
-    def __init__(self, enabled: bool, stream=sys.stderr) -> None:
+    def __init__(self, enabled: bool, stream=None) -> None:
         self.enabled = enabled
-        self.stream = stream
+        self.stream = sys.stderr if stream is None else stream   # the stream of now (a caller may watch it)
         self.last = 0.0
 
     def show(self, fraction: float, text: str, force: bool = False) -> None:
