@@ -59,17 +59,22 @@ def _side(run: Path) -> dict:
                 true_peak=((s.get("sensitivity") or {}).get("true_peak")))
 
 
+def _peak(side: dict) -> str:
+    v = side.get("measured_peak")
+    return "not measured" if v is None else f"{v:.2f} (ISO 14839-3 zone {side['zone']})"
+
+
 def format_commission(doc: dict) -> str:
     b, a, p = doc["before"], doc.get("after"), doc.get("predicted_peak")
     lines = [f"ambid commission: {doc['outcome']}",
-             f"  before: input sensitivity peak {b['measured_peak']:.2f} (ISO 14839-3 zone {b['zone']}), "
+             f"  before: input sensitivity peak {_peak(b)}, "
              f"current RMS {max(b['current_rms_a'] or [0]):.3f} A, modes "
              + ", ".join(f"{m['freq_hz']:.1f} Hz" for m in b["modes"][:5])]
     if p:
         lines.append(f"  predicted for {doc['kind']} ({doc['order']} states): {p['value']:.2f} "
                      f"(95 % {p['ci95'][0]:.2f}..{p['ci95'][1]:.2f}), designed in {doc['design_time_s']:.0f} s")
     if a:
-        lines.append(f"  after:  input sensitivity peak {a['measured_peak']:.2f} (ISO 14839-3 zone {a['zone']}), "
+        lines.append(f"  after:  input sensitivity peak {_peak(a)}, "
                      f"{'inside' if doc['inside'] else 'OUTSIDE'} the prediction, current RMS "
                      f"{max(a['current_rms_a'] or [0]):.3f} A, modes "
                      + ", ".join(f"{m['freq_hz']:.1f} Hz" for m in a["modes"][:5]))
