@@ -3,10 +3,11 @@
 The conventions a doc follows (docs/architecture.md, "Docs are tested"):
 
 - A block of shell commands (no language, ``bash``, ``sh``) runs as one bash script (``set -e``) in a
-  scratch folder of its doc, in which ``tests``, ``rigs``, ``docs``, ``ambid_core`` and ``ambid_nodes``
-  point into the checkout; ``./launch_scripts/`` and ``ros_ws/install/`` name the checkout's. Every
+  scratch folder of its doc, in which ``tests``, ``rigs``, ``ambid_core``, ``ambid_nodes`` and
+  ``docs/examples`` point into the checkout (``docs/`` itself is the folder's own); ``./launch_scripts/`` and ``ros_ws/install/`` name the checkout's. Every
   block of a doc runs in the same folder, in the doc's order, so a block may use what an earlier one
-  wrote. It must exit 0; what it started in the background is stopped when it ends.
+  wrote; ``/tmp/`` in a command is that folder's ``tmp/`` and a loopback port ``127.0.0.1:N`` a free one. It must exit 0; what it started in the
+  background is stopped when it ends.
 - A block whose lines start with ``$ `` is a transcript: each command runs and the lines under it are
   what it prints.
 - A block marked ``<!-- output of: COMMAND -->`` is what COMMAND (a command of a block above, in the same

@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import itertools
 import os
+import re
 import signal
+import socket
 import subprocess
 import sys
 import textwrap
@@ -46,8 +48,11 @@ class Docs:
         d = self.root / doc.replace("/", "_")
         if not d.exists():
             d.mkdir(parents=True)
-            for name in ("tests", "rigs", "docs", "ambid_core", "ambid_nodes"):
+            for name in ("tests", "rigs", "ambid_core", "ambid_nodes"):
                 (d / name).symlink_to(REPO / name)
+            # docs/ of its own: a block that writes into docs/ (ambid compare) writes here, not into the checkout
+            (d / "docs").mkdir()
+            (d / "docs" / "examples").symlink_to(REPO / "docs" / "examples")
         return d
 
     def identify(self) -> Ran:
@@ -118,7 +123,19 @@ def _run(argv: list[str], cwd: Path) -> Ran:
     return Ran(proc.returncode, out, err)
 
 
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
 def _bash(script: str, cwd: Path) -> Ran:
+    # a doc's /tmp/ is the doc's own scratch folder's tmp/ (two runs of the suite never share a key file)
+    (cwd / "tmp").mkdir(exist_ok=True)
+    script = re.sub(r"(?<![\w.])/tmp/", f"{cwd}/tmp/", script)
+    # and its loopback UDP ports are free ones (two runs of the suite at once never cross their datagrams)
+    for port in sorted(set(re.findall(r"127\.0\.0\.1:(\d{4,5})\b", script))):
+        script = re.sub(rf"\b{port}\b", str(_free_udp_port()), script)
     return _run(["bash", "-e", "-o", "pipefail", "-c", "trap 'kill $(jobs -p) 2>/dev/null || true' EXIT\n"
                  + checkout_paths(script)], cwd)
 
@@ -217,3 +234,18 @@ def test_performance_md_describes_every_bench_section() -> None:
     table = (REPO / "docs" / "performance.md").read_text()
     missing = [s for s in SECTIONS if f"| `{s}` |" not in table]
     assert not missing, f"docs/performance.md lacks a row for the bench sections {missing}"
+
+
+def test_the_repositorys_compare_md_is_what_compare_writes(docs: Docs) -> None:
+    """docs/compare/compare.md is what identify.md's ``ambid compare`` writes today: the same headings,
+    rows, methods and sentences; only the numbers (wall times, errors in their last digits) may differ."""
+    (block,) = [b for b in BLOCKS if b.path == "docs/identify.md" and "ambid compare --preset quick" in b.text]
+    ran = docs.run(block)
+    assert ran.rc == 0, ran.err[-3000:]
+
+    def words(path: Path) -> list[str]:
+        return [re.sub(r"[-+]?\d[\d.,e+-]*", "#", ln).rstrip() for ln in path.read_text().splitlines()]
+
+    written = words(docs.workdir(block.path) / "docs" / "compare" / "compare.md")
+    assert words(REPO / "docs" / "compare" / "compare.md") == written, \
+        "docs/compare/compare.md is stale: regenerate it with identify.md's 'ambid compare' command"

@@ -67,6 +67,9 @@ def run(args: argparse.Namespace) -> int:
     from ambid.excitation.synchronous import describe_steering
     from ambid.plant.rig import rig_or_default
 
+    from ambid_cli.heartbeat import current
+
+    current().say("designing the experiment, its time table and its figure", line=False)   # terminal only
     spec = experiment_spec(args, input_names=tuple(s.strip() for s in args.inputs.split(",") if s.strip()))
     output_dir(args.out)
     try:

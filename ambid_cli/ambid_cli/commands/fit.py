@@ -191,7 +191,12 @@ def _run_frf_file(args: argparse.Namespace) -> int:
         if not args.json:
             print(format_frf_summary(summary) + ("" if args.no_report else "\nwriting the report ..."), flush=True)
             shown.append(True)
+            phases.say("writing the report", line=False)
 
+    from ambid_cli.heartbeat import current
+
+    phases = current()   # on a terminal, status lines through the pauses (nothing added to a log)
+    phases.say("fitting: stabilisation diagram, order, modes and their intervals", line=False)
     try:
         summary = identify_frf(measured, args.out, order=args.order, max_order=args.max_order, delay_s=args.delay,
                                report=not args.no_report, on_summary=show)
@@ -218,6 +223,9 @@ def run(args: argparse.Namespace) -> int:
     output_dir(args.out)
     if args.rig:
         rig_file(args.rig)
+    from ambid_cli.heartbeat import current
+
+    current().say("identifying the session: FRF, fit, model update, report", line=False)
     try:
         summary = identify_session(path, args.out, estimator=args.estimator, order=args.order,
                                    experiment_id=args.experiment, rig=args.rig, max_order=args.max_order,
