@@ -37,6 +37,7 @@ COMMANDS = {
     "validate": "validate",
     "live": "live",
     "tune": "tune",
+    "commission": "commission",
 }
 # what launch_scripts/ambid answers itself, before Python runs
 SCRIPT_COMMANDS = {

@@ -105,6 +105,7 @@ RIG_COMMANDS = {
     "validate": lambda rig, d: ["validate", "--rig", rig, "--out", str(d / "validate_out")],
     "fit": None,  # filled in the test: it needs the good session
     "target-model": lambda rig, d: ["target-model", "--rig", rig, "--out", str(d / "target-model_out")],
+    "commission": lambda rig, d: ["commission", "--rig", rig, "--out", str(d / "commission_out")],
 }
 RIG_REFUSAL = {"missing": "does not exist", "folder": "is a folder", "empty": "is empty", "random": "is not YAML text",
                "truncated": "is not YAML text", "unrelated": "is not YAML text"}

@@ -195,3 +195,32 @@ def test_a_layout_of_five_axes_is_tuned_in_two_groups():
 
     assert axis_groups(Layout(("a_x", "b_x", "a_y", "b_y", "z"))) == [[0, 1, 2, 3], [4]]
     assert axis_groups(Layout(("z",))) == [[0]]
+
+
+def test_the_prediction_moves_the_posterior_to_the_new_loops_operating_point():
+    """The magnets' slopes a run's excitation sees depend on the loop; the posterior is carried to the new loop by
+    the nominal rig's ratio, the run's own controller leaving it where it is and linear magnets not moving it."""
+    from types import SimpleNamespace
+
+    from ambid.commissioning.from_run import operating_point
+    from ambid.excitation import design_multisine
+    from ambid.fit.model_update import excitation_slopes, slopes_as_parameters
+
+    values = nominal_update_parameters(RIG)
+    unc = plant_uncertainty(_update(values, {"ki_n_per_a": (0.5, False), "ks_n_per_m": (2000.0, False)},
+                                    np.eye(2)), RIG)
+    design = design_multisine((10.0, 1000.0), 10.0, RIG.sample_rate_hz, list(RADIAL.inputs), 0.4, n_periods=1,
+                              n_realisations=1, seed=5)
+    ran = pid_controller(PidParameters(kp_a_per_m=20_000.0, td_s=0.8e-3), DT)
+    new = pid_controller(PidParameters(), DT)
+    run = SimpleNamespace(rig=RIG, controller=(ran, {}), design=design, nonlinear_magnets=True)
+    at = operating_point(run, unc)
+    assert at(ran).values == pytest.approx(unc.values, rel=1e-12)
+    a = slopes_as_parameters(*excitation_slopes(RIG, ran, design), RIG.layout)
+    b = slopes_as_parameters(*excitation_slopes(RIG, new, design), RIG.layout)
+    moved_values = at(new).values
+    for name in ("ki_n_per_a", "ks_n_per_m"):
+        assert moved_values[name] == pytest.approx(unc.values[name] * b[name] / a[name], rel=1e-9)
+        assert abs(b[name] / a[name] - 1) > 1e-5          # the loops differ enough to move the slopes
+    assert np.array_equal(at(new).cov, unc.cov)           # the data's spread is kept
+    assert operating_point(SimpleNamespace(**{**vars(run), "nonlinear_magnets": False}), unc) is None

@@ -41,7 +41,7 @@ from ambid.recording.blocks import read_samples
 from ambid.recording.facts import controller_facts, controller_model, plant_facts
 from ambid.statespace import StateSpace
 
-__all__ = ["RunInputs", "read_run", "operating_point", "headline_peak", "tune_run", "CLAIM"]
+__all__ = ["RunInputs", "read_run", "operating_point", "current_rms", "headline_peak", "tune_run", "CLAIM"]
 
 #: what predicted_peak's interval claims (tune.json, docs/uncertainty.md)
 CLAIM = ("95 % prediction interval of the input-sensitivity peak that ambid identify measures with this controller "
@@ -180,6 +180,31 @@ def operating_point(inputs: RunInputs, unc: PlantUncertainty) -> Callable[[State
         return moved(unc, {k: new[k] / ran[k] for k in ran if ran[k] != 0})
 
     return at
+
+
+def current_rms(folder: str | os.PathLike) -> list[float] | None:
+    """Per axis the control current's RMS about its mean over a run's experiment [A], from its session (the
+    measurement topic's ``ic_`` channels); None when the run's session does not hold them."""
+    run = Path(folder)
+    try:
+        summary = json.loads((run / "identification.json").read_text())
+    except (OSError, ValueError):
+        return None
+    session = summary.get("session")
+    session = session if isinstance(session, str) and Path(session).is_file() else str(run / "session.mcap")
+    if not Path(session).is_file():
+        return None
+    from ambid.frf.offline import session_designs
+
+    try:
+        chosen = session_designs(session)[-1]
+        topic = chosen["topic"].rstrip("/")[:-len("excitation/design")] + "measurement"
+        start = int(chosen["start_index"])
+        names = [f"ic_{n[2:]}" for n in summary.get("inputs") or [] if n.startswith("u_")]
+        data = read_samples(session, topic, start, start + int(chosen["total_samples"]), names).data
+    except (ValueError, IndexError, OSError, KeyError):
+        return None
+    return [float(x) for x in np.std(data, axis=0)]
 
 
 def read_run(folder: str | os.PathLike, rig: Rig | str | os.PathLike | None = None) -> RunInputs:
