@@ -95,9 +95,9 @@ def run(args: argparse.Namespace) -> int:
                 "margin_a": margin.tolist()}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    png = None if args.no_figure else plot_design(design, out / "design.png")
     (out / "design.json").write_text(json.dumps(design.to_dict()))
     if args.json:
+        png = None if args.no_figure else plot_design(design, out / "design.png")
         print(json.dumps({
             "kind": design.kind, "sample_rate_hz": design.fs_hz, "n_per_period": design.n_per_period,
             "resolution_hz": design.fs_hz / design.n_per_period, "n_lines": int(design.excited_lines.size),
@@ -119,8 +119,10 @@ def run(args: argparse.Namespace) -> int:
             n = len(design.input_names)   # the spec's inputs, else every current of the rig
             print(f"\nmeasurement time of the full {n} x {n} FRF matrix on the same lines:")
             print(format_plan(plan))
-        if png is not None:
-            print(f"\nfigure: {png}")
+        # the figures first, the plot after: drawing it (matplotlib's import and Agg) is most of design's time
+        sys.stdout.flush()
+        if not args.no_figure:
+            print(f"\nfigure: {plot_design(design, out / 'design.png')}")
         print(f"design: {out / 'design.json'} (start it with the excitation generator's "
               "start_experiment service, design_json = this file's text)")
     return 0
