@@ -66,11 +66,16 @@ def cached_array(name: str, source_file: str | os.PathLike, parts: Iterable,
                  compute: Callable[[], np.ndarray]) -> np.ndarray:
     """``compute()``, or the array an earlier call with the same key stored (:func:`cache_key`).
 
-    Args:
-        name: what is computed (a folder of the cache).
-        source_file: the module whose code computes it.
-        parts: every input the result depends on.
-        compute: computes the float64 array when it is not stored.
+    Parameters
+    ----------
+    name
+        what is computed (a folder of the cache).
+    source_file
+        the module whose code computes it.
+    parts
+        every input the result depends on.
+    compute
+        computes the float64 array when it is not stored.
     """
     folder = cache_dir()
     if folder is None:

@@ -54,18 +54,29 @@ CLAIM = ("95 % prediction interval of the input-sensitivity peak that ambid iden
 class RunInputs:
     """What tuning reads from a run.
 
-    Attributes:
-        folder: the run's folder.
-        summary: its identification.json.
-        rig: the nominal rig.
-        rig_source: where the rig came from (a file, or "the session's").
-        controller: the controller that ran (discrete y -> ic) and its facts, or None.
-        static_a: (na,) the mean control current per axis during the run [A], or None.
-        freq_hz, var_g, sensitivity: the FRF's lines, variance and measured sensitivity.
-        poles: the fitted model's poles [rad/s].
-        design: the run's (last) periodic excitation design, or None.
-        nonlinear_magnets: the run's magnets are nonlinear (a simulated session with linear ones says so; a
-            recorded one is real).
+    Attributes
+    ----------
+    folder
+        the run's folder.
+    summary
+        its identification.json.
+    rig
+        the nominal rig.
+    rig_source
+        where the rig came from (a file, or "the session's").
+    controller
+        the controller that ran (discrete y -> ic) and its facts, or None.
+    static_a
+        (na,) the mean control current per axis during the run [A], or None.
+    freq_hz, var_g, sensitivity
+        the FRF's lines, variance and measured sensitivity.
+    poles
+        the fitted model's poles [rad/s].
+    design
+        the run's (last) periodic excitation design, or None.
+    nonlinear_magnets
+        the run's magnets are nonlinear (a simulated session with linear ones says so; a
+        recorded one is real).
     """
 
     folder: Path
@@ -210,8 +221,10 @@ def current_rms(folder: str | os.PathLike) -> list[float] | None:
 def read_run(folder: str | os.PathLike, rig: Rig | str | os.PathLike | None = None) -> RunInputs:
     """The :class:`RunInputs` of a run's folder (module docstring).
 
-    Raises:
-        ValueError: one sentence naming what is missing or wrong and what to give instead.
+    Raises
+    ------
+    ValueError
+        one sentence naming what is missing or wrong and what to give instead.
     """
     top = Path(folder)
     if not top.is_dir():
@@ -334,19 +347,29 @@ def tune_run(folder: str | os.PathLike, out_dir: str | os.PathLike, *, rig: Rig 
     """Tune a controller for the plant a run measured; write ``controller.npz``, ``tune.json`` and
     ``report/index.html`` into ``out_dir``.
 
-    Args:
-        folder: the run (module docstring).
-        out_dir: the output folder (created).
-        rig: the nominal rig the run's update was made on (default the session's).
-        settings: how hard to work (:class:`ambid.commissioning.tuning.TuneSettings`).
-        report: write the report page.
-        progress: called with a line per step.
+    Parameters
+    ----------
+    folder
+        the run (module docstring).
+    out_dir
+        the output folder (created).
+    rig
+        the nominal rig the run's update was made on (default the session's).
+    settings
+        how hard to work (:class:`ambid.commissioning.tuning.TuneSettings`).
+    report
+        write the report page.
+    progress
+        called with a line per step.
 
-    Returns:
-        tune.json's content.
+    Returns
+    -------
+    tune.json's content.
 
-    Raises:
-        ValueError: the run cannot be read or tuned (one sentence with the reason and the fix).
+    Raises
+    ------
+    ValueError
+        the run cannot be read or tuned (one sentence with the reason and the fix).
     """
     inputs = read_run(folder, rig)
     s = inputs.summary

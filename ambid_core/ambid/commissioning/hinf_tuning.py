@@ -32,12 +32,18 @@ ORDERS: tuple[int, ...] = (8, 12, 16, 20, 24, 28, 32, 40)
 class HinfDesign:
     """A tuned H-infinity controller.
 
-    Attributes:
-        model: the discrete controller as it runs, y (na) [m] -> ic (na) [A], one sample of delay.
-        weights: the weighting of the synthesis.
-        gamma: the norm the synthesis reached.
-        full_order: the synthesis' order before the reduction.
-        design_peak: the worst input-sensitivity peak over the design plants [-].
+    Attributes
+    ----------
+    model
+        the discrete controller as it runs, y (na) [m] -> ic (na) [A], one sample of delay.
+    weights
+        the weighting of the synthesis.
+    gamma
+        the norm the synthesis reached.
+    full_order
+        the synthesis' order before the reduction.
+    design_peak
+        the worst input-sensitivity peak over the design plants [-].
     """
 
     model: StateSpace
@@ -62,15 +68,23 @@ def tune_hinf(plants: PlantSet, noise_m: float, *, guards: Sequence[StateSpace] 
               progress: Callable[[str], None] | None = None) -> HinfDesign:
     """The H-infinity controller for ``plants`` (module docstring).
 
-    Args:
-        plants: the design plants, the first the estimate.
-        noise_m: the sensors' noise std per sample [m].
-        guards: plants the loop must also hold, outside the peak (the nominal model).
-        sensitivity_peak: the peak the sensitivity weight asks for [-].
-        progress: called with a line per weighting.
+    Parameters
+    ----------
+    plants
+        the design plants, the first the estimate.
+    noise_m
+        the sensors' noise std per sample [m].
+    guards
+        plants the loop must also hold, outside the peak (the nominal model).
+    sensitivity_peak
+        the peak the sensitivity weight asks for [-].
+    progress
+        called with a line per weighting.
 
-    Raises:
-        ValueError: no weighting gives a controller that holds every design plant.
+    Raises
+    ------
+    ValueError
+        no weighting gives a controller that holds every design plant.
     """
     say = progress or (lambda _line: None)
     plant = plants.models[0]

@@ -29,14 +29,22 @@ __all__ = ["CurrentBudget", "CurrentCheck", "check_current"]
 class CurrentBudget:
     """What the amplifier allows and what else uses it, per axis.
 
-    Attributes:
-        current_limit_a: the limit on ``|ic + r|`` [A].
-        static_a: (na,) the current that carries the rotor's weight [A].
-        excitation_peak_a: (na,) the verifying experiment's peak excitation [A].
-        noise_std_m: (na,) sensor noise std per sample [m].
-        inductance_h: (na,) coil inductance [H].
-        amplifier_bandwidth_hz: (na,) the current loop's bandwidth [Hz].
-        dc_link_voltage_v: the amplifiers' dc link [V].
+    Attributes
+    ----------
+    current_limit_a
+        the limit on ``|ic + r|`` [A].
+    static_a
+        (na,) the current that carries the rotor's weight [A].
+    excitation_peak_a
+        (na,) the verifying experiment's peak excitation [A].
+    noise_std_m
+        (na,) sensor noise std per sample [m].
+    inductance_h
+        (na,) coil inductance [H].
+    amplifier_bandwidth_hz
+        (na,) the current loop's bandwidth [Hz].
+    dc_link_voltage_v
+        the amplifiers' dc link [V].
     """
 
     current_limit_a: float
@@ -58,12 +66,18 @@ class CurrentBudget:
 class CurrentCheck:
     """A controller against the budget.
 
-    Attributes:
-        noise_rms_a: (na,) RMS control current the sensor noise causes [A].
-        current_use_a: (na,) ``4 sigma + |static| + r_peak`` [A].
-        voltage_rms_v: (na,) RMS coil voltage the noise costs, ``L sigma_di/dt`` [V].
-        current_margin_a: the smallest ``limit - use`` over the axes [A] (< 0: over the limit).
-        voltage_margin_v: the smallest ``u_dc / 2 - 4 L sigma_di/dt`` [V].
+    Attributes
+    ----------
+    noise_rms_a
+        (na,) RMS control current the sensor noise causes [A].
+    current_use_a
+        (na,) ``4 sigma + |static| + r_peak`` [A].
+    voltage_rms_v
+        (na,) RMS coil voltage the noise costs, ``L sigma_di/dt`` [V].
+    current_margin_a
+        the smallest ``limit - use`` over the axes [A] (< 0: over the limit).
+    voltage_margin_v
+        the smallest ``u_dc / 2 - 4 L sigma_di/dt`` [V].
     """
 
     noise_rms_a: np.ndarray
@@ -88,11 +102,16 @@ def check_current(plant: StateSpace, controller: StateSpace, budget: CurrentBudg
                   ) -> CurrentCheck:
     """The noise current and voltage of ``controller`` on ``plant`` (module docstring).
 
-    Args:
-        plant: discrete u (na) [A] -> y (na) [m].
-        controller: discrete y (na) [m] -> ic (na) [A].
-        budget: the amplifier's limits and the other uses.
-        n_lines: lines of the uniform grid.
+    Parameters
+    ----------
+    plant
+        discrete u (na) [A] -> y (na) [m].
+    controller
+        discrete y (na) [m] -> ic (na) [A].
+    budget
+        the amplifier's limits and the other uses.
+    n_lines
+        lines of the uniform grid.
     """
     dt = plant.dt
     f = (np.arange(n_lines) + 0.5) / n_lines * 0.5 / dt

@@ -74,16 +74,20 @@ def loop_blocks(controller_frf: np.ndarray, plant_frf: np.ndarray) -> list[np.nd
 def input_sensitivity_frf(controller_frf: np.ndarray, plant_frf: np.ndarray) -> np.ndarray:
     """``S = (I - K G)^-1`` of every plant, (..., L, na, na).
 
-    Args:
-        controller_frf: (L, na) a decentralised controller's diagonal, or (L, na, na) a full one [A/m],
-            minus sign and delay included.
-        plant_frf: (..., L, na, na) plants [m/A].
+    Parameters
+    ----------
+    controller_frf
+        (L, na) a decentralised controller's diagonal, or (L, na, na) a full one [A/m],
+        minus sign and delay included.
+    plant_frf
+        (..., L, na, na) plants [m/A].
 
-    Examples:
-        >>> import numpy as np
-        >>> g = np.array([[[2.0]]])              # one line, one axis: 2 m/A
-        >>> input_sensitivity_frf(np.array([[-1.0]]), g)[0, 0, 0]   # 1 / (1 + 2)
-        np.float64(0.3333333333333333)
+    Examples
+    --------
+    >>> import numpy as np
+    >>> g = np.array([[[2.0]]])              # one line, one axis: 2 m/A
+    >>> input_sensitivity_frf(np.array([[-1.0]]), g)[0, 0, 0]   # 1 / (1 + 2)
+    np.float64(0.3333333333333333)
     """
     k = np.asarray(controller_frf)
     kg = k[..., :, None] * plant_frf if k.ndim == 2 else k @ plant_frf
@@ -96,10 +100,14 @@ def worst_peak(controller_frf: np.ndarray, plant_frf: np.ndarray, blocks: list[n
     """Peak ``|S_jj|`` per plant over the axes and the grid, (...,) from plants (..., L, na, na) (each loop's
     stability is not checked here).
 
-    Args:
-        controller_frf: (L, na) decentralised controller [A/m].
-        plant_frf: (..., L, na, na) plants [m/A].
-        blocks: :func:`loop_blocks`, when known.
+    Parameters
+    ----------
+    controller_frf
+        (L, na) decentralised controller [A/m].
+    plant_frf
+        (..., L, na, na) plants [m/A].
+    blocks
+        :func:`loop_blocks`, when known.
     """
     k = np.asarray(controller_frf)
     if k.ndim != 2:
@@ -126,10 +134,14 @@ def noise_current_frf(controller_frf: np.ndarray, plant_frf: np.ndarray, noise_s
     """The control current each sensor's white noise causes through the loop, ``ic = K (I - G K)^-1 v``, per
     unit of noise std: (L, na currents, na sensors) [A per sample].
 
-    Args:
-        controller_frf: (L, na) decentralised, or (L, na, na) full controller [A/m].
-        plant_frf: (L, na, na) one plant [m/A].
-        noise_std_m: (na,) each sensor's noise std per sample [m].
+    Parameters
+    ----------
+    controller_frf
+        (L, na) decentralised, or (L, na, na) full controller [A/m].
+    plant_frf
+        (L, na, na) one plant [m/A].
+    noise_std_m
+        (na,) each sensor's noise std per sample [m].
     """
     k = np.asarray(controller_frf)
     kf = np.einsum("li,ij->lij", k, np.eye(k.shape[1])) if k.ndim == 2 else k

@@ -33,15 +33,24 @@ __all__ = ["PlantUncertainty", "plant_uncertainty", "moved", "draw_parameters", 
 class PlantUncertainty:
     """An updated physical model as a distribution of plants.
 
-    Attributes:
-        rotor: the rig's rotor model (its layout: the channels).
-        dt_s: the sample period of the loop [s].
-        values: every parameter's estimate (name -> value, :data:`ambid.fit.model_update.PARAMETERS`).
-        free: the parameters the data identified.
-        log: (k,) bool, those estimated in ln theta.
-        cov: (k, k) their covariance in the estimation's coordinates (theta, or ln theta where ``log``).
-        dof: (k,) each one's degrees of freedom (inf: normal).
-        prior_only: (name, mean, sd, log) of each parameter drawn from its tolerance alone.
+    Attributes
+    ----------
+    rotor
+        the rig's rotor model (its layout: the channels).
+    dt_s
+        the sample period of the loop [s].
+    values
+        every parameter's estimate (name -> value, :data:`ambid.fit.model_update.PARAMETERS`).
+    free
+        the parameters the data identified.
+    log
+        (k,) bool, those estimated in ln theta.
+    cov
+        (k, k) their covariance in the estimation's coordinates (theta, or ln theta where ``log``).
+    dof
+        (k,) each one's degrees of freedom (inf: normal).
+    prior_only
+        (name, mean, sd, log) of each parameter drawn from its tolerance alone.
     """
 
     rotor: RotorModel
@@ -68,13 +77,18 @@ def _dof(q: float) -> float:
 def plant_uncertainty(update: Mapping, rig: Rig) -> PlantUncertainty:
     """The posterior of identify's model update (``identification.json``'s ``update``) on ``rig``'s rotor.
 
-    Args:
-        update: the update's dict: ``parameters`` (name -> value, std, ci95, free, prior), ``free`` and
-            ``correlation`` (over ``free``, in their order).
-        rig: the nominal rig the update was made on (its rotor, sample period and tolerances).
+    Parameters
+    ----------
+    update
+        the update's dict: ``parameters`` (name -> value, std, ci95, free, prior), ``free`` and
+        ``correlation`` (over ``free``, in their order).
+    rig
+        the nominal rig the update was made on (its rotor, sample period and tolerances).
 
-    Raises:
-        ValueError: the update failed or holds no free parameter.
+    Raises
+    ------
+    ValueError
+        the update failed or holds no free parameter.
     """
     params = (update or {}).get("parameters")
     if not params:
@@ -117,12 +131,13 @@ def moved(unc: PlantUncertainty, ratios: Mapping[str, float]) -> PlantUncertaint
     carried to another operating point (the magnets' slopes under another loop,
     :func:`ambid.commissioning.from_run.operating_point`).
 
-    Examples:
-        >>> from ambid.plant.rig import make_rig
-        >>> update = {"free": ["ki_n_per_a"], "parameters": {
-        ...     "ki_n_per_a": {"value": 175.0, "std": 0.5, "ci95": [174.0, 176.0], "free": True}}}
-        >>> moved(plant_uncertainty(update, make_rig()), {"ki_n_per_a": 1.01}).values["ki_n_per_a"]
-        176.75
+    Examples
+    --------
+    >>> from ambid.plant.rig import make_rig
+    >>> update = {"free": ["ki_n_per_a"], "parameters": {
+    ...     "ki_n_per_a": {"value": 175.0, "std": 0.5, "ci95": [174.0, 176.0], "free": True}}}
+    >>> moved(plant_uncertainty(update, make_rig()), {"ki_n_per_a": 1.01}).values["ki_n_per_a"]
+    176.75
     """
     values = {k: v * float(ratios.get(k, 1.0)) for k, v in unc.values.items()}
     return replace(unc, values=values)
@@ -131,17 +146,18 @@ def moved(unc: PlantUncertainty, ratios: Mapping[str, float]) -> PlantUncertaint
 def draw_parameters(unc: PlantUncertainty, n: int, rng: np.random.Generator) -> list[dict[str, float]]:
     """``n`` parameter sets from the posterior (module docstring); the first is the estimate itself.
 
-    Examples:
-        >>> import numpy as np
-        >>> from ambid.plant.rig import make_rig
-        >>> rig = make_rig()
-        >>> update = {"free": ["ki_n_per_a"], "correlation": [[1.0]], "parameters": {
-        ...     "ki_n_per_a": {"value": 175.0, "std": 0.5, "ci95": [174.0, 176.0], "free": True},
-        ...     "ks_n_per_m": {"value": 8.7e5, "free": False},
-        ...     "amplifier_bandwidth_hz": {"value": 1700.0, "free": False}}}
-        >>> draws = draw_parameters(plant_uncertainty(update, rig), 400, np.random.default_rng(1))
-        >>> round(float(np.std([d["ki_n_per_a"] for d in draws])), 1)
-        0.5
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from ambid.plant.rig import make_rig
+    >>> rig = make_rig()
+    >>> update = {"free": ["ki_n_per_a"], "correlation": [[1.0]], "parameters": {
+    ...     "ki_n_per_a": {"value": 175.0, "std": 0.5, "ci95": [174.0, 176.0], "free": True},
+    ...     "ks_n_per_m": {"value": 8.7e5, "free": False},
+    ...     "amplifier_bandwidth_hz": {"value": 1700.0, "free": False}}}
+    >>> draws = draw_parameters(plant_uncertainty(update, rig), 400, np.random.default_rng(1))
+    >>> round(float(np.std([d["ki_n_per_a"] for d in draws])), 1)
+    0.5
     """
     k = len(unc.free)
     x0 = np.array([np.log(unc.values[p]) if lg else unc.values[p] for p, lg in zip(unc.free, unc.log)])
@@ -181,11 +197,16 @@ def draw_parameters(unc: PlantUncertainty, n: int, rng: np.random.Generator) -> 
 class PlantSet:
     """Discrete plants and their frequency responses on one grid.
 
-    Attributes:
-        parameters: each plant's physical parameters.
-        models: each plant, discrete u (na) [A] -> y (na) [m] at the loop's sample period, its delay exact.
-        freq_hz: (L,) the grid [Hz].
-        frf: (D, L, na, na) each plant's frequency response there [m/A].
+    Attributes
+    ----------
+    parameters
+        each plant's physical parameters.
+    models
+        each plant, discrete u (na) [A] -> y (na) [m] at the loop's sample period, its delay exact.
+    freq_hz
+        (L,) the grid [Hz].
+    frf
+        (D, L, na, na) each plant's frequency response there [m/A].
     """
 
     parameters: list[dict[str, float]]

@@ -43,14 +43,21 @@ __all__ = ["MeasurementModel", "measurement_model", "PeakPrediction", "predict_p
 class MeasurementModel:
     """How the run measured, which the verifying identification repeats.
 
-    Attributes:
-        freq_hz: (L,) the excited lines [Hz].
-        noise_var: (L, ny) variance of each output's error over the excitation, ``E = V R^-1``
-            [(m/A)^2] (module docstring).
-        order: the fitted model's order.
-        delay_s: the delay the fit takes as known [s] (half a sample).
-        poles: (order,) the run's fitted poles [rad/s]: the verifying fit's start.
-        n_dense: lines of the dense grid between the excited ones where identify looks for the peak.
+    Attributes
+    ----------
+    freq_hz
+        (L,) the excited lines [Hz].
+    noise_var
+        (L, ny) variance of each output's error over the excitation, ``E = V R^-1``
+        [(m/A)^2] (module docstring).
+    order
+        the fitted model's order.
+    delay_s
+        the delay the fit takes as known [s] (half a sample).
+    poles
+        (order,) the run's fitted poles [rad/s]: the verifying fit's start.
+    n_dense
+        lines of the dense grid between the excited ones where identify looks for the peak.
     """
 
     freq_hz: np.ndarray
@@ -70,12 +77,18 @@ def measurement_model(freq_hz: np.ndarray, var_g: np.ndarray, sensitivity: np.nd
                       delay_s: float, poles: np.ndarray, window: int = 3) -> MeasurementModel:
     """The run's :class:`MeasurementModel` from its FRF's variance and measured sensitivity.
 
-    Args:
-        freq_hz: (L,) lines [Hz].
-        var_g: (L, ny, nu) the FRF's variance (noise and stochastic distortion; identify's band variance).
-        sensitivity: (L, nu, nu) the sensitivity the run measured.
-        order, delay_s, poles: the run's fit.
-        window: lines either side each output's noise level is averaged over.
+    Parameters
+    ----------
+    freq_hz
+        (L,) lines [Hz].
+    var_g
+        (L, ny, nu) the FRF's variance (noise and stochastic distortion; identify's band variance).
+    sensitivity
+        (L, nu, nu) the sensitivity the run measured.
+    order, delay_s, poles
+        the run's fit.
+    window
+        lines either side each output's noise level is averaged over.
     """
     v = np.asarray(var_g, dtype=float)
     sinv = np.linalg.inv(np.asarray(sensitivity))
@@ -92,17 +105,28 @@ def measurement_model(freq_hz: np.ndarray, var_g: np.ndarray, sensitivity: np.nd
 class PeakPrediction:
     """A controller's predicted input-sensitivity peak.
 
-    Attributes:
-        value: the predicted headline peak of the verifying identification (median of the samples) [-].
-        ci95: its 95 % prediction interval [lo, hi] [-].
-        freq_hz: where the loop's peak lies at the estimate [Hz].
-        axis: the axis of that peak.
-        zones: probability of each ISO 14839-3 zone of the verifying measurement's peak.
-        samples: (B,) the simulated verifying measurements' peaks.
-        loop_peak: the loop's own peak at the estimate (all frequencies) [-].
-        loop_ci95: the 2.5 and 97.5 % quantiles of the loop's peak over the drawn plants [-].
-        loop_samples: (B,) the loop's peak of each drawn plant.
-        stable_share: share of the drawn plants whose loop is stable [-].
+    Attributes
+    ----------
+    value
+        the predicted headline peak of the verifying identification (median of the samples) [-].
+    ci95
+        its 95 % prediction interval [lo, hi] [-].
+    freq_hz
+        where the loop's peak lies at the estimate [Hz].
+    axis
+        the axis of that peak.
+    zones
+        probability of each ISO 14839-3 zone of the verifying measurement's peak.
+    samples
+        (B,) the simulated verifying measurements' peaks.
+    loop_peak
+        the loop's own peak at the estimate (all frequencies) [-].
+    loop_ci95
+        the 2.5 and 97.5 % quantiles of the loop's peak over the drawn plants [-].
+    loop_samples
+        (B,) the loop's peak of each drawn plant.
+    stable_share
+        share of the drawn plants whose loop is stable [-].
     """
 
     value: float
@@ -149,16 +173,25 @@ def predict_peak(unc: PlantUncertainty, controller: StateSpace, model: Measureme
                  seed: int = 0, axes: Sequence[str] = ()) -> PeakPrediction:
     """The verifying identification's headline peak with ``controller`` (module docstring).
 
-    Args:
-        unc: the run's updated physical model and its posterior.
-        controller: discrete y -> ic at the loop's sample period.
-        model: how the run measured (:func:`measurement_model`).
-        n_samples: simulated verifying measurements (plants drawn from the posterior).
-        seed: the random draws' seed.
-        axes: the axes' names, for the peak's axis.
+    Parameters
+    ----------
+    unc
+        the run's updated physical model and its posterior.
+    controller
+        discrete y -> ic at the loop's sample period.
+    model
+        how the run measured (:func:`measurement_model`).
+    n_samples
+        simulated verifying measurements (plants drawn from the posterior).
+    seed
+        the random draws' seed.
+    axes
+        the axes' names, for the peak's axis.
 
-    Raises:
-        ValueError: the loop is unstable at the estimate.
+    Raises
+    ------
+    ValueError
+        the loop is unstable at the estimate.
     """
     rng = np.random.default_rng([seed, 36])
     params = draw_parameters(unc, n_samples, rng)

@@ -35,11 +35,16 @@ __all__ = ["StructuredDesign", "axis_groups", "tune_structured"]
 class StructuredDesign:
     """A tuned structured controller.
 
-    Attributes:
-        axes: one :class:`ambid.control.structured.StructuredAxis` per axis of the layout.
-        model: the discrete controller, y (na) [m] -> ic (na) [A], one sample of computational delay.
-        design_peak: its worst input-sensitivity peak over the design plants and the grid [-].
-        n_evaluations: objective evaluations the tuning took.
+    Attributes
+    ----------
+    axes
+        one :class:`ambid.control.structured.StructuredAxis` per axis of the layout.
+    model
+        the discrete controller, y (na) [m] -> ic (na) [A], one sample of computational delay.
+    design_peak
+        its worst input-sensitivity peak over the design plants and the grid [-].
+    n_evaluations
+        objective evaluations the tuning took.
     """
 
     axes: tuple[StructuredAxis, ...]
@@ -169,26 +174,40 @@ def tune_structured(plants: PlantSet, layout: Layout, starts: Sequence[Sequence[
                     progress: Callable[[str], None] | None = None) -> StructuredDesign:
     """Tune the structured controller on ``plants`` (module docstring).
 
-    Args:
-        plants: the design plants, the first the nominal one (:func:`ambid.commissioning.plants.plant_set`);
-            their grid should resolve the peaks (:func:`ambid.commissioning.plants.peak_grid`).
-        layout: the rig's axes.
-        starts: candidate starting controllers, one :class:`StructuredAxis` per axis each (e.g. the running
-            one and the default); the tuning starts from each and keeps the best.
-        noise_grid: (uniform grid over (0, Nyquist) [Hz], the nominal plant's response there) for the
-            current-noise constraint, or None for none.
-        noise_std_m: (na,) sensor noise std per sample [m].
-        noise_limit_a: the largest RMS control current the noise may cause per axis [A].
-        max_evaluations: objective evaluations per group and stage.
-        notches: add the lead/lag and the notches in a second stage.
-        guards: plants the loop must also hold, outside the peak (the nominal model).
-        progress: called with a line per stage.
+    Parameters
+    ----------
+    plants
+        the design plants, the first the nominal one (:func:`ambid.commissioning.plants.plant_set`);
+        their grid should resolve the peaks (:func:`ambid.commissioning.plants.peak_grid`).
+    layout
+        the rig's axes.
+    starts
+        candidate starting controllers, one :class:`StructuredAxis` per axis each (e.g. the running
+        one and the default); the tuning starts from each and keeps the best.
+    noise_grid
+        (uniform grid over (0, Nyquist) [Hz], the nominal plant's response there) for the
+        current-noise constraint, or None for none.
+    noise_std_m
+        (na,) sensor noise std per sample [m].
+    noise_limit_a
+        the largest RMS control current the noise may cause per axis [A].
+    max_evaluations
+        objective evaluations per group and stage.
+    notches
+        add the lead/lag and the notches in a second stage.
+    guards
+        plants the loop must also hold, outside the peak (the nominal model).
+    progress
+        called with a line per stage.
 
-    Returns:
-        :class:`StructuredDesign`.
+    Returns
+    -------
+    :class:`StructuredDesign`.
 
-    Raises:
-        ValueError: no start and no tuned controller holds the nominal plant.
+    Raises
+    ------
+    ValueError
+        no start and no tuned controller holds the nominal plant.
     """
     dt = plants.models[0].dt
     fs = 1.0 / dt

@@ -44,13 +44,20 @@ KINDS: dict[str, str] = {
 class TuneSettings:
     """How hard :func:`tune` works.
 
-    Attributes:
-        kinds: the kinds to design (:data:`KINDS`).
-        n_design: design plants (the estimate and draws).
-        n_check: drawn plants every candidate must hold.
-        n_prediction: simulated verifying measurements of the prediction.
-        max_evaluations: objective evaluations per stage of the structured tuning.
-        seed: the draws' seed.
+    Attributes
+    ----------
+    kinds
+        the kinds to design (:data:`KINDS`).
+    n_design
+        design plants (the estimate and draws).
+    n_check
+        drawn plants every candidate must hold.
+    n_prediction
+        simulated verifying measurements of the prediction.
+    max_evaluations
+        objective evaluations per stage of the structured tuning.
+    seed
+        the draws' seed.
     """
 
     kinds: tuple[str, ...] = ("structured", "hinf")
@@ -73,16 +80,26 @@ class TuneSettings:
 class Candidate:
     """A controller :func:`tune` considered.
 
-    Attributes:
-        kind: ``structured``, ``hinf`` or ``running`` (the controller that ran).
-        model: discrete y (na) [m] -> ic (na) [A].
-        parameters: its design parameters (JSON-able).
-        worst_peak: its worst input-sensitivity peak over the check plants (inf: a loop unstable) [-].
-        stable_share: share of the check plants its loop holds [-].
-        current: its noise against the amplifier's budget (on the estimate).
-        design_s: wall time of its design [s].
-        holds_nominal: its loop with the rig file's nominal model is stable.
-        note: why it was not chosen, or "".
+    Attributes
+    ----------
+    kind
+        ``structured``, ``hinf`` or ``running`` (the controller that ran).
+    model
+        discrete y (na) [m] -> ic (na) [A].
+    parameters
+        its design parameters (JSON-able).
+    worst_peak
+        its worst input-sensitivity peak over the check plants (inf: a loop unstable) [-].
+    stable_share
+        share of the check plants its loop holds [-].
+    current
+        its noise against the amplifier's budget (on the estimate).
+    design_s
+        wall time of its design [s].
+    holds_nominal
+        its loop with the rig file's nominal model is stable.
+    note
+        why it was not chosen, or "".
     """
 
     kind: str
@@ -111,15 +128,23 @@ class Candidate:
 class TuneResult:
     """What :func:`tune` found.
 
-    Attributes:
-        chosen: the controller to run.
-        candidates: every candidate, the chosen among them.
-        prediction: the chosen controller's predicted peak.
-        before: the running controller's predicted peak, or None (none ran, or its loop is unstable on the
-            updated model).
-        robustness: the chosen loop's figures on the estimate (peaks, zone, loop-at-a-time margins).
-        design_s: the whole tuning's wall time [s].
-        notes: what the caller should say.
+    Attributes
+    ----------
+    chosen
+        the controller to run.
+    candidates
+        every candidate, the chosen among them.
+    prediction
+        the chosen controller's predicted peak.
+    before
+        the running controller's predicted peak, or None (none ran, or its loop is unstable on the
+        updated model).
+    robustness
+        the chosen loop's figures on the estimate (peaks, zone, loop-at-a-time margins).
+    design_s
+        the whole tuning's wall time [s].
+    notes
+        what the caller should say.
     """
 
     chosen: Candidate

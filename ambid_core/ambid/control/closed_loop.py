@@ -49,9 +49,12 @@ def _discrete(plant: StateSpace, dt: float) -> StateSpace:
 def check_stability(plant: StateSpace, controller: StateSpace, label: str) -> np.ndarray:
     """Closed-loop poles (z-plane) of ``plant`` (continuous or discrete) with ``controller``.
 
-    Raises:
-        ValueError naming the unstable poles (as s-plane frequency and damping)
-        when the loop is unstable.
+    Raises
+    ------
+    ValueError
+        naming the unstable poles (as s-plane frequency and damping)
+    when
+        the loop is unstable.
     """
     loop = close_loop(_discrete(plant, controller.dt), controller)
     poles = loop.poles()
@@ -75,16 +78,23 @@ def check_stability(plant: StateSpace, controller: StateSpace, label: str) -> np
 def check_controller_on_rig(rig, controller: StateSpace) -> dict[str, np.ndarray]:
     """Check a controller before a run: stable on the analytical and on the true linearised model.
 
-    Args:
-        rig: :class:`ambid.plant.rig.Rig`.
-        controller: discrete y -> ic model at rig.dt.
+    Parameters
+    ----------
+    rig
+        :class:`ambid.plant.rig.Rig`.
+    controller
+        discrete y -> ic model at rig.dt.
 
-    Returns:
-        {"analytical": poles, "true": poles}, closed-loop z-plane poles.
+    Returns
+    -------
+    {"analytical": poles, "true": poles}, closed-loop z-plane poles.
 
-    Raises:
-        ValueError naming the model ("analytical model" or "true rig") and
-        its unstable poles.
+    Raises
+    ------
+    ValueError
+        naming the model ("analytical model" or "true rig") and
+    its
+        unstable poles.
     """
 
     if abs(controller.dt - rig.dt) > 1e-15:

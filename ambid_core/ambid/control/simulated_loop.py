@@ -89,15 +89,23 @@ def levitate(rig: Rig, seed: int = 0, nonlinear_magnets: bool = False, liftoff_s
              controller: tuple[StateSpace, float] | None = None) -> LoopStart:
     """Lift the rotor off its backup bearings under the default PID (or ``controller``) and let it settle.
 
-    Args:
-        rig: rig parameters.
-        seed: sensor-noise seed.
-        nonlinear_magnets: use the full magnet law (eq. 2.14).
-        liftoff_s: simulated time [s], > 0.
-        controller: (discrete controller y -> ic, its current limit [A]); None: the default PID.
+    Parameters
+    ----------
+    rig
+        rig parameters.
+    seed
+        sensor-noise seed.
+    nonlinear_magnets
+        use the full magnet law (eq. 2.14).
+    liftoff_s
+        simulated time [s], > 0.
+    controller
+        (discrete controller y -> ic, its current limit [A]); None: the default PID.
 
-    Raises:
-        ValueError if the rotor touches the retainer in the second half of that time.
+    Raises
+    ------
+    ValueError
+        if the rotor touches the retainer in the second half of that time.
     """
     if not (math.isfinite(liftoff_s) and liftoff_s > 0):
         raise ValueError(f"liftoff_s must be finite and > 0, got {liftoff_s!r}")

@@ -292,14 +292,18 @@ def design_swept_sine(band_hz: tuple[float, float], resolution_hz: float, fs_hz:
     multisine, not band-limited (some power lies outside the band and
     between the lines' neighbours). Realisations repeat the same sweep.
 
-    Args:
-        band_hz, resolution_hz, fs_hz, input_names, peak_current_a, n_periods,
-            n_realisations, n_transient_periods: as in ``design_multisine``.
-        law: 'linear' or 'log'.
-        mimo: 'one_at_a_time' or 'orthogonal' (Hadamard signs; Nu a power of 2).
+    Parameters
+    ----------
+    band_hz, resolution_hz, fs_hz, input_names, peak_current_a, n_periods, n_realisations, n_transient_periods
+        as in ``design_multisine``.
+    law
+        'linear' or 'log'.
+    mimo
+        'one_at_a_time' or 'orthogonal' (Hadamard signs; Nu a power of 2).
 
-    Returns:
-        ExcitationDesign of kind 'swept_sine'.
+    Returns
+    -------
+    ExcitationDesign of kind 'swept_sine'.
     """
     names, peaks = _inputs(input_names, peak_current_a)
     n, k_lo, k_hi = _common(band_hz, resolution_hz, fs_hz)
@@ -416,17 +420,19 @@ def design_dibs(band_hz: tuple[float, float], resolution_hz: float, fs_hz: float
     the lines is in ``options['power_fraction']`` (per realisation). With the
     odd grids and even N the even lines stay exactly unexcited.
 
-    Args:
-        band_hz, resolution_hz, fs_hz, input_names, peak_current_a, n_periods,
-            n_realisations, n_transient_periods, grid, spacing,
-            amplitude_shape, seed, n_lines, group_size: as in
-            ``design_multisine``.
-        mimo: 'one_at_a_time' or 'orthogonal' (Hadamard signs; Nu a power of 2).
-        n_iterations: DIBS iterations per realisation.
+    Parameters
+    ----------
+    band_hz, resolution_hz, fs_hz, input_names, peak_current_a, n_periods, n_realisations, n_transient_periods, grid, spacing, amplitude_shape, seed, n_lines, group_size
+        as in ``design_multisine``.
+    mimo
+        'one_at_a_time' or 'orthogonal' (Hadamard signs; Nu a power of 2).
+    n_iterations
+        DIBS iterations per realisation.
 
-    Returns:
-        ExcitationDesign of kind 'dibs'; ``amplitudes_a`` is the mean over
-        realisations (``reference_spectrum`` gives each exactly).
+    Returns
+    -------
+    ExcitationDesign of kind 'dibs'; ``amplitudes_a`` is the mean over
+    realisations (``reference_spectrum`` gives each exactly).
     """
     names, peaks = _inputs(input_names, peak_current_a)
     n, k_lo, k_hi = _common(band_hz, resolution_hz, fs_hz)

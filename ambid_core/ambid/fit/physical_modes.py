@@ -57,14 +57,22 @@ NEGATIVE_STIFFNESS = "the plant's unstable real pole: the magnets' negative stif
 class PoleVerdict:
     """One pole of the fitted model and whether the data shows it as a mode.
 
-    Attributes:
-        index: the pole's index in ``model.poles``.
-        freq_hz: |p| / (2 pi) [Hz]; damping: -Re p / |p| (a real pole: +1 stable, -1 unstable).
-        real: a real pole.
-        physical: printed as a mode (complex) or named as the plant's (real).
-        reason: why not, or what it is (one phrase).
-        stable_share: the share of the orders checked at which it was found again [-] (NaN: too few orders).
-        snr: its largest contribution to the FRF over the noise there [-] (complex poles).
+    Attributes
+    ----------
+    index
+        the pole's index in ``model.poles``.
+    freq_hz
+        |p| / (2 pi) [Hz]; damping: -Re p / |p| (a real pole: +1 stable, -1 unstable).
+    real
+        a real pole.
+    physical
+        printed as a mode (complex) or named as the plant's (real).
+    reason
+        why not, or what it is (one phrase).
+    stable_share
+        the share of the orders checked at which it was found again [-] (NaN: too few orders).
+    snr
+        its largest contribution to the FRF over the noise there [-] (complex poles).
     """
 
     index: int
@@ -129,20 +137,32 @@ def judge_poles(model: RationalModel, diagram: StabilisationDiagram, order: int,
                 tol_freq: float = 0.01, min_stable_share: float = 0.5, min_snr: float = 3.0) -> list[PoleVerdict]:
     """Each pole of ``model`` (complex pairs once, Im > 0, then the real ones) judged by the module's checks.
 
-    Args:
-        model: the fit at ``order``.
-        diagram: the stabilisation diagram the order was chosen on.
-        order: the model's order.
-        freq_hz: (L,) the measured lines [Hz].
-        G: (L, Ny, Nu) the measured FRF.
-        noise_var: (L, Ny, Nu) its variance E|G - G0|^2, or None (the fit's residual stands for the noise).
-        plant_input_current: the FRF is an AMB plant's, current in (an unstable real pole can be its own).
-        tol_freq: relative frequency tolerance of "found again" [-].
-        min_stable_share: share of the orders checked at which a physical pole is found again [-].
-        min_snr: how far a physical mode's contribution stands above the noise [-].
+    Parameters
+    ----------
+    model
+        the fit at ``order``.
+    diagram
+        the stabilisation diagram the order was chosen on.
+    order
+        the model's order.
+    freq_hz
+        (L,) the measured lines [Hz].
+    G
+        (L, Ny, Nu) the measured FRF.
+    noise_var
+        (L, Ny, Nu) its variance E|G - G0|^2, or None (the fit's residual stands for the noise).
+    plant_input_current
+        the FRF is an AMB plant's, current in (an unstable real pole can be its own).
+    tol_freq
+        relative frequency tolerance of "found again" [-].
+    min_stable_share
+        share of the orders checked at which a physical pole is found again [-].
+    min_snr
+        how far a physical mode's contribution stands above the noise [-].
 
-    Returns:
-        :class:`PoleVerdict` per pole pair and real pole, complex ones by frequency first.
+    Returns
+    -------
+    :class:`PoleVerdict` per pole pair and real pole, complex ones by frequency first.
     """
     f = np.asarray(freq_hz, dtype=float)
     g = np.asarray(G, dtype=complex)

@@ -70,19 +70,30 @@ class FrfFileError(ValueError):
 class MeasuredFrf:
     """An FRF read from a file.
 
-    Attributes:
-        path: the file.
-        kind: 'npz', 'mat', 'csv', 'uff' or 'touchstone'.
-        freq_hz: (n,) frequencies, increasing [Hz].
-        frf: (n, ny, nu) complex H [the file's unit].
-        var: (n, ny, nu) variance of each entry [unit squared], or None when the file gives none.
-        output_names, input_names: (ny,), (nu,).
-        notes: what was assumed, a line each.
-        output_units, input_units: (ny,), (nu,) each channel's unit as the file says it ('' where it says none).
-        form: what H is: 'FRF', 'receptance', 'mobility', 'accelerance', 'transmissibility', or a network's
-            'S-parameters', 'impedance' or 'admittance'.
-        coherence: (n, ny, nu) the analyser's coherence of each response with each reference (UFF function
-            type 6; NaN where the file has none), or None.
+    Attributes
+    ----------
+    path
+        the file.
+    kind
+        'npz', 'mat', 'csv', 'uff' or 'touchstone'.
+    freq_hz
+        (n,) frequencies, increasing [Hz].
+    frf
+        (n, ny, nu) complex H [the file's unit].
+    var
+        (n, ny, nu) variance of each entry [unit squared], or None when the file gives none.
+    output_names, input_names
+        (ny,), (nu,).
+    notes
+        what was assumed, a line each.
+    output_units, input_units
+        (ny,), (nu,) each channel's unit as the file says it ('' where it says none).
+    form
+        what H is: 'FRF', 'receptance', 'mobility', 'accelerance', 'transmissibility', or a network's
+        'S-parameters', 'impedance' or 'admittance'.
+    coherence
+        (n, ny, nu) the analyser's coherence of each response with each reference (UFF function
+        type 6; NaN where the file has none), or None.
     """
 
     path: str
@@ -115,8 +126,10 @@ def is_frf_file(path: str | os.PathLike) -> bool:
 def read_frf_file(path: str | os.PathLike) -> MeasuredFrf:
     """Read and check an FRF file (module docstring).
 
-    Raises:
-        FrfFileError: one line naming the file, the problem and the fix.
+    Raises
+    ------
+    FrfFileError
+        one line naming the file, the problem and the fix.
     """
     p = Path(path)
     suffix = p.suffix.lower()

@@ -39,14 +39,19 @@ _INTERVAL_KEYS = ("freq_hz_std", "freq_hz_ci95", "damping_std", "damping_ci95")
 def model_modes(model: StateSpace, band_hz: tuple[float, float], max_damping: float = 0.3) -> list[dict]:
     """Lightly damped modes of a continuous model in a band, with their whirl.
 
-    Args:
-        model: continuous StateSpace whose named inputs and outputs hold the bearing planes' x and y
-            channels (``u_a_x``, ``y_a_x``, ...; any other axis, e.g. the axial one, is left out).
-        band_hz: (f_lo, f_hi) [Hz].
-        max_damping: modes with damping ratio in (0, max_damping) count.
+    Parameters
+    ----------
+    model
+        continuous StateSpace whose named inputs and outputs hold the bearing planes' x and y
+        channels (``u_a_x``, ``y_a_x``, ...; any other axis, e.g. the axial one, is left out).
+    band_hz
+        (f_lo, f_hi) [Hz].
+    max_damping
+        modes with damping ratio in (0, max_damping) count.
 
-    Returns:
-        [{freq_hz, damping, whirl, forward_share}] ascending in frequency.
+    Returns
+    -------
+    [{freq_hz, damping, whirl, forward_share}] ascending in frequency.
     """
     s, v = np.linalg.eig(model.a)
     w = np.linalg.inv(v)
@@ -97,8 +102,9 @@ def predicted_branches(rig: Rig, speeds_rpm: np.ndarray, band_hz: tuple[float, f
 def critical_speeds(speeds_rpm: np.ndarray, branches: Mapping[str, np.ndarray]) -> list[dict]:
     """Where each branch crosses the 1X line f = rpm / 60 (linear interpolation on the grid).
 
-    Returns:
-        [{label, speed_rpm, freq_hz}].
+    Returns
+    -------
+    [{label, speed_rpm, freq_hz}].
     """
     out = []
     rpm = np.asarray(speeds_rpm, dtype=float)
@@ -118,9 +124,10 @@ def first_bending(modes: Sequence[Mapping], reference_hz: float) -> dict:
     A standing mode (standstill) gives both; whirl is 'split' when a backward and a forward mode are
     there, else the one direction found.
 
-    Returns:
-        {backward_hz, forward_hz, backward_damping, forward_damping, whirl} (None where missing), and
-        ``<side>_hz_ci95`` / ``<side>_damping_ci95`` (95 % intervals, None where the mode has none).
+    Returns
+    -------
+    {backward_hz, forward_hz, backward_damping, forward_damping, whirl} (None where missing), and
+    ``<side>_hz_ci95`` / ``<side>_damping_ci95`` (95 % intervals, None where the mode has none).
     """
     near = [m for m in modes if abs(m["freq_hz"] / reference_hz - 1) <= _BENDING_WINDOW]
     out: dict[str, Any] = {f"{side}_{q}": None for side in ("backward", "forward")
@@ -154,12 +161,17 @@ def campbell_summary(rig: Rig, runs: Sequence[tuple[float, Mapping[str, Any]]], 
     """campbell.json: per speed the identified and true modes and the first bending mode, the predicted
     branches and the critical speeds.
 
-    Args:
-        rig: the rig at any speed (its speed is replaced).
-        runs: (speed [rpm], identification summary) per speed, ascending.
-        band_hz: band of the modes [Hz].
-        n_grid: speeds of the predicted branches, from 0 to 1.25 x the highest, at least past the first
-            bending mode's critical speed.
+    Parameters
+    ----------
+    rig
+        the rig at any speed (its speed is replaced).
+    runs
+        (speed [rpm], identification summary) per speed, ascending.
+    band_hz
+        band of the modes [Hz].
+    n_grid
+        speeds of the predicted branches, from 0 to 1.25 x the highest, at least past the first
+        bending mode's critical speed.
     """
     ref_hz = float(_at_speed(rig, 0.0).rotor_model().flexible_freq_hz[0])
     # the first bending mode as the levitated rotor has it at standstill (the magnets lower it a little)

@@ -50,11 +50,15 @@ class EarlyAnalysisFailed(RuntimeError):
 class EarlyAnalysis:
     """The analysis of one identify session in a worker process.
 
-    Args:
-        out_dir: the identification's output folder (``identify_session``'s ``out_dir``).
-        nice: added to the worker's niceness: > 0 where the session has a real-time partner (a hardware
-            target whose bridge must never fall silent), so that the analysis never takes its CPU.
-        **options: further arguments of ``identify_session`` (estimator, true_model, ...).
+    Parameters
+    ----------
+    out_dir
+        the identification's output folder (``identify_session``'s ``out_dir``).
+    nice
+        added to the worker's niceness: > 0 where the session has a real-time partner (a hardware
+        target whose bridge must never fall silent), so that the analysis never takes its CPU.
+    **options
+        further arguments of ``identify_session`` (estimator, true_model, ...).
     """
 
     def __init__(self, out_dir: str | os.PathLike, nice: int = 0, **options: Any) -> None:

@@ -36,18 +36,28 @@ MEASUREMENT_TOPIC = "measurement"
 class SessionInputs:
     """What the identification of one experiment takes from its session.
 
-    Attributes:
-        path: the session file.
-        experiment: the experiment's entry as :func:`ambid.frf.offline.session_designs` lists it
-            (``topic``, ``experiment_id``, ``start_index``, ``total_samples``, ``design``).
-        frf: its FRF (:func:`ambid.frf.offline.frf_from_session`); None before the measurement ends.
-        rig_facts: the rig parameters the session recorded (:func:`session_rig`), or None.
-        plant_source: ``'sim'``, ``'hardware'`` or None.
-        controller: the controller that ran, (discrete StateSpace y -> ic, facts), or None.
-        nonlinear_magnets: the simulated plant ran the nonlinear magnets.
-        injected_at: excitation channel -> where the rig adds it ('current', 'reference', 'output'); an
-            imported record's MAP.yaml says (ambid's own sessions: current, the default).
-        units: channel -> unit, where an imported record says (outputs of any kind).
+    Attributes
+    ----------
+    path
+        the session file.
+    experiment
+        the experiment's entry as :func:`ambid.frf.offline.session_designs` lists it
+        (``topic``, ``experiment_id``, ``start_index``, ``total_samples``, ``design``).
+    frf
+        its FRF (:func:`ambid.frf.offline.frf_from_session`); None before the measurement ends.
+    rig_facts
+        the rig parameters the session recorded (:func:`session_rig`), or None.
+    plant_source
+        ``'sim'``, ``'hardware'`` or None.
+    controller
+        the controller that ran, (discrete StateSpace y -> ic, facts), or None.
+    nonlinear_magnets
+        the simulated plant ran the nonlinear magnets.
+    injected_at
+        excitation channel -> where the rig adds it ('current', 'reference', 'output'); an
+        imported record's MAP.yaml says (ambid's own sessions: current, the default).
+    units
+        channel -> unit, where an imported record says (outputs of any kind).
     """
 
     path: str
@@ -126,8 +136,9 @@ def session_rig(path: str | os.PathLike, plant_topic: str = "/amb/plant/descript
     From the ``ambid.session`` metadata the recorder writes, else from the
     first PlantDescription message on ``plant_topic``.
 
-    Returns:
-        (rig dict for :func:`ambid.plant.rig.make_rig` or None, source or None).
+    Returns
+    -------
+    (rig dict for :func:`ambid.plant.rig.make_rig` or None, source or None).
     """
     facts = read_metadata(path, recover=recover).get("ambid.session", {})
     plant = _parsed(facts.get("plant"))

@@ -43,19 +43,27 @@ def select_order(diagram: StabilisationDiagram, band_hz: tuple[float, float], n_
                  weighted: bool = True, penalty: float = 2.0, max_damping: float = 0.3) -> int:
     """The model order by the rule of the module docstring.
 
-    Args:
-        diagram: from :func:`ambid.fit.stabilisation_diagram`, fitted with
-            relative degree 0 (a feed-through term).
-        band_hz: (low, high) band whose poles count [Hz].
-        n_lines: L lines of the data; n_entries: Ny * Nu.
-        weighted: the fits were weighted by the noise variance (then
-            ``diagram.chi2_per_dof`` is chi^2/dof); False when unweighted
-            (then it holds the cost V, scaled here by the smallest V / dof).
-        penalty: criterion weight per parameter (2: AIC, ln N: MDL/BIC).
-        max_damping: complex poles more damped than this are not checked [-].
+    Parameters
+    ----------
+    diagram
+        from :func:`ambid.fit.stabilisation_diagram`, fitted with
+        relative degree 0 (a feed-through term).
+    band_hz
+        (low, high) band whose poles count [Hz].
+    n_lines
+        L lines of the data; n_entries: Ny * Nu.
+    weighted
+        the fits were weighted by the noise variance (then
+        ``diagram.chi2_per_dof`` is chi^2/dof); False when unweighted
+        (then it holds the cost V, scaled here by the smallest V / dof).
+    penalty
+        criterion weight per parameter (2: AIC, ln N: MDL/BIC).
+    max_damping
+        complex poles more damped than this are not checked [-].
 
-    Returns:
-        The chosen order.
+    Returns
+    -------
+    The chosen order.
     """
     if not (penalty >= 0 and n_lines >= 1 and n_entries >= 1):
         raise ValueError(f"need penalty >= 0, n_lines >= 1, n_entries >= 1; got {penalty}, {n_lines}, {n_entries}")
@@ -102,10 +110,11 @@ def split_modes(fit: FitResult, diagram: StabilisationDiagram, order: int, freq_
     """The fit's poles parted into the modes the data shows and the computational ones
     (:func:`ambid.fit.physical_modes.judge_poles`), for ``ambid fit`` of a session and of an FRF file alike.
 
-    Returns:
-        (modes: the physical :class:`ambid.fit.Mode` by frequency; their rows: freq_hz, damping, stable (found
-        again within 1 % at the next lower order), the 95 % intervals; the real poles' rows: pole_hz (signed,
-        > 0 unstable), unstable, reason; the computational complex poles' rows: freq_hz, damping, reason).
+    Returns
+    -------
+    (modes: the physical :class:`ambid.fit.Mode` by frequency; their rows: freq_hz, damping, stable (found
+    again within 1 % at the next lower order), the 95 % intervals; the real poles' rows: pole_hz (signed,
+    > 0 unstable), unstable, reason; the computational complex poles' rows: freq_hz, damping, reason).
     """
     summary_modes = modal_summary(fit.model)
     prev = diagram.orders[diagram.orders < order]
@@ -148,21 +157,32 @@ def _is_current(name: str) -> bool:
 class FrfFit:
     """The common-denominator model of an FRF as identify fits it, and what the fit was weighted by.
 
-    Attributes:
-        fit: the fit at the chosen order (:class:`ambid.fit.FitResult`).
-        order, order_rule: the order and how it was chosen.
-        diagram: the stabilisation diagram the order was chosen on.
-        band_hz: (low, high) of the FRF's lines [Hz].
-        delay_s: the known delay fitted with the model: half a sample (the zero-order hold) [s].
-        modes: the in-band complex pole pairs (:class:`ambid.fit.Mode`), by frequency.
-        mode_rows: per mode, what identify prints and records (:class:`ambid.identification.result.ModeRow`):
-            frequency, damping, stable (found again within 1 % at the next lower order), their 95 %
-            intervals, and, where the channels hold a radial bearing's x and y, whirl and forward_share.
-        real_rows: the real poles (:class:`ambid.identification.result.RealPole`).
-        computational: the fit's complex poles that are not modes of the data, each with its reason
-            (:func:`split_modes`).
-        variances: what the fit was weighted by and its intervals are read from
-            (:class:`ambid.identification.session_frf.FrfVariances`).
+    Attributes
+    ----------
+    fit
+        the fit at the chosen order (:class:`ambid.fit.FitResult`).
+    order, order_rule
+        the order and how it was chosen.
+    diagram
+        the stabilisation diagram the order was chosen on.
+    band_hz
+        (low, high) of the FRF's lines [Hz].
+    delay_s
+        the known delay fitted with the model: half a sample (the zero-order hold) [s].
+    modes
+        the in-band complex pole pairs (:class:`ambid.fit.Mode`), by frequency.
+    mode_rows
+        per mode, what identify prints and records (:class:`ambid.identification.result.ModeRow`):
+        frequency, damping, stable (found again within 1 % at the next lower order), their 95 %
+        intervals, and, where the channels hold a radial bearing's x and y, whirl and forward_share.
+    real_rows
+        the real poles (:class:`ambid.identification.result.RealPole`).
+    computational
+        the fit's complex poles that are not modes of the data, each with its reason
+        (:func:`split_modes`).
+    variances
+        what the fit was weighted by and its intervals are read from
+        (:class:`ambid.identification.session_frf.FrfVariances`).
     """
 
     fit: FitResult
@@ -195,19 +215,29 @@ def fit_frf(frf: FrfResult, sample_rate_hz: float, order: int | None = None, *, 
     (module docstring): order selection on the stabilisation diagram unless ``order`` is given, a known
     delay of half a sample, the weights and interval covariance of the FRF's variance.
 
-    Args:
-        frf: the estimate (:func:`ambid.frf.offline.frf_from_session`).
-        sample_rate_hz: the measurement's sample rate [Hz].
-        order: model order; None selects it (:func:`select_order`).
-        max_order: highest order in the stabilisation diagram.
-        order_penalty: criterion weight per parameter of the order rule (2: Akaike).
-        units: channel -> unit where the record says (an imported record's outputs of any kind); default m
-            for outputs, A for inputs.
-        variances: the FRF's variances (:func:`ambid.identification.session_frf.frf_variances`), when the
-            caller has them; default computed here.
+    Parameters
+    ----------
+    frf
+        the estimate (:func:`ambid.frf.offline.frf_from_session`).
+    sample_rate_hz
+        the measurement's sample rate [Hz].
+    order
+        model order; None selects it (:func:`select_order`).
+    max_order
+        highest order in the stabilisation diagram.
+    order_penalty
+        criterion weight per parameter of the order rule (2: Akaike).
+    units
+        channel -> unit where the record says (an imported record's outputs of any kind); default m
+        for outputs, A for inputs.
+    variances
+        the FRF's variances (:func:`ambid.identification.session_frf.frf_variances`), when the
+        caller has them; default computed here.
 
-    Raises:
-        ValueError: too few lines for a parametric fit.
+    Raises
+    ------
+    ValueError
+        too few lines for a parametric fit.
     """
     f = frf.freq_hz
     band = (float(f.min()), float(f.max()))

@@ -30,16 +30,26 @@ __all__ = ["ReferenceModels", "reference_key", "reference_models", "on_channels"
 class ReferenceModels:
     """What an identification compares the measurement with that the measurement does not change.
 
-    Attributes:
-        key: :func:`reference_key` of the inputs it was made for.
-        true_g: (L, Ny, Nu) the simulated true rig's small-signal FRF at the lines (sampled), or None.
-        true_params: its physical parameters (and the magnets' slopes at this excitation), or None.
-        true_g_x: (L, Ny, Nu) the true rig linearised at this excitation's level, or None.
-        true_noise: (Ny,) the sensor noise through the true loop [m], or None.
-        true_poles: s-plane poles [rad/s] of the linear system this excitation measures, or None.
-        sens_freq_hz: (8000,) the band's dense grid of the input-sensitivity check [Hz], or None.
-        controller_frf: (8000, Nu, Ny) the recorded controller there, or None.
-        true_loop: the true loop's input-sensitivity peak (true_peak, true_peak_hz, true_iso_zone), or None.
+    Attributes
+    ----------
+    key
+        :func:`reference_key` of the inputs it was made for.
+    true_g
+        (L, Ny, Nu) the simulated true rig's small-signal FRF at the lines (sampled), or None.
+    true_params
+        its physical parameters (and the magnets' slopes at this excitation), or None.
+    true_g_x
+        (L, Ny, Nu) the true rig linearised at this excitation's level, or None.
+    true_noise
+        (Ny,) the sensor noise through the true loop [m], or None.
+    true_poles
+        s-plane poles [rad/s] of the linear system this excitation measures, or None.
+    sens_freq_hz
+        (8000,) the band's dense grid of the input-sensitivity check [Hz], or None.
+    controller_frf
+        (8000, Nu, Ny) the recorded controller there, or None.
+    true_loop
+        the true loop's input-sensitivity peak (true_peak, true_peak_hz, true_iso_zone), or None.
     """
 
     key: str
@@ -70,11 +80,15 @@ def reference_models(inputs: SessionInputs, freq_hz: np.ndarray, output_names: S
     from what ``inputs`` say of the session, none of what it measured (``inputs.frf`` is not read): so
     they can be computed while the session still runs.
 
-    Args:
-        inputs: the session's inputs.
-        freq_hz: (L,) the FRF's lines [Hz].
-        output_names, input_names: the FRF's channels (``y_<axis>``, ``u_<axis>``): the truths are picked on
-            them, the controller aligned to them by axis; the noise through the loop needs every sensor of the rig.
+    Parameters
+    ----------
+    inputs
+        the session's inputs.
+    freq_hz
+        (L,) the FRF's lines [Hz].
+    output_names, input_names
+        the FRF's channels (``y_<axis>``, ``u_<axis>``): the truths are picked on
+        them, the controller aligned to them by axis; the noise through the loop needs every sensor of the rig.
     """
     f = np.asarray(freq_hz, dtype=float)
     refs: dict[str, Any] = {}

@@ -32,16 +32,26 @@ def write_identification_report(folder: Path, result: Identification, inputs: Se
                                 dfrf: DirectionalFrf | None, samples) -> None:
     """Write the report of ``result`` into ``folder`` (``index.html`` and its figures).
 
-    Args:
-        folder: the report's folder (created).
-        result: the identification, as recorded.
-        inputs: the session's inputs (its FRF, design, rig facts).
-        fitted: the fit.
-        rig: the rig of the nominal and updated models, or None.
-        upd: the update, or None.
-        true_g: (L, Ny, Nu) the true FRF at the lines, or None.
-        dfrf: the directional FRFs of the measurement, or None.
-        samples: the experiment's samples (:func:`ambid.identification.quality.experiment_samples`), or None.
+    Parameters
+    ----------
+    folder
+        the report's folder (created).
+    result
+        the identification, as recorded.
+    inputs
+        the session's inputs (its FRF, design, rig facts).
+    fitted
+        the fit.
+    rig
+        the rig of the nominal and updated models, or None.
+    upd
+        the update, or None.
+    true_g
+        (L, Ny, Nu) the true FRF at the lines, or None.
+    dfrf
+        the directional FRFs of the measurement, or None.
+    samples
+        the experiment's samples (:func:`ambid.identification.quality.experiment_samples`), or None.
     """
     frf, design = inputs.frf, inputs.design
     dt_s = 1.0 / design.fs_hz

@@ -27,12 +27,18 @@ __all__ = ["FrfVariances", "frf_variances", "SessionFrf", "session_frf", "band_k
 class FrfVariances:
     """What an FRF's fit is weighted by and its intervals are read from.
 
-    Attributes:
-        var, var_kind: the line variance the intervals are read from, and what it is (None: no variance).
-        band_var: the variance of the printed +-2 sigma band.
-        weights, weights_kind: the variance the fit is weighted by, and what it is.
-        row_cov: the covariance of a row's entries (the indirect estimator), or None.
-        realisations: (M, L, Ny, Nu) the realisations' FRFs whose scatter joins the intervals, or None.
+    Attributes
+    ----------
+    var, var_kind
+        the line variance the intervals are read from, and what it is (None: no variance).
+    band_var
+        the variance of the printed +-2 sigma band.
+    weights, weights_kind
+        the variance the fit is weighted by, and what it is.
+    row_cov
+        the covariance of a row's entries (the indirect estimator), or None.
+    realisations
+        (M, L, Ny, Nu) the realisations' FRFs whose scatter joins the intervals, or None.
     """
 
     var: np.ndarray | None
@@ -105,11 +111,16 @@ def band_kind(var_kind: str) -> str:
 class SessionFrf:
     """A session's FRF as the identification uses it.
 
-    Attributes:
-        frf: the estimate.
-        variances: its variances (:func:`frf_variances`).
-        directional: its forward and backward whirl FRFs, where the channels hold a bearing's x and y; else None.
-        notes: what the measurement lacks (gaps).
+    Attributes
+    ----------
+    frf
+        the estimate.
+    variances
+        its variances (:func:`frf_variances`).
+    directional
+        its forward and backward whirl FRFs, where the channels hold a bearing's x and y; else None.
+    notes
+        what the measurement lacks (gaps).
     """
 
     frf: FrfResult

@@ -59,13 +59,17 @@ def compare_modes(fitted: Sequence[tuple[float, float]], true: Sequence[tuple[fl
     modes within ``resolution_hz`` of the cluster (the nearest fitted mode
     when none is).
 
-    Args:
-        fitted, true: [(frequency [Hz], damping ratio [-])].
-        resolution_hz: frequency resolution fs / N of the measurement [Hz].
+    Parameters
+    ----------
+    fitted, true
+        [(frequency [Hz], damping ratio [-])].
+    resolution_hz
+        frequency resolution fs / N of the measurement [Hz].
 
-    Returns:
-        One :class:`ambid.identification.result.ModeComparison` per true cluster: true_freq_hz,
-        true_damping, freq_hz, damping, freq_error, damping_error (relative), n_true, n_fitted.
+    Returns
+    -------
+    One :class:`ambid.identification.result.ModeComparison` per true cluster: true_freq_hz,
+    true_damping, freq_hz, damping, freq_error, damping_error (relative), n_true, n_fitted.
     """
     if not resolution_hz > 0:
         raise ValueError(f"resolution_hz must be > 0, got {resolution_hz}")
@@ -96,13 +100,20 @@ def compare_modes(fitted: Sequence[tuple[float, float]], true: Sequence[tuple[fl
 class Truth:
     """What the identification is measured against, where there is a truth.
 
-    Attributes:
-        g: (L, Ny, Nu) the true FRF at the lines, or None (no truth).
-        g_at_excitation: (L, Ny, Nu) the true rig linearised at this excitation's level, or None.
-        noise: (Ny,) the sensor noise through the true loop [m], or None.
-        parameters: the true rig's physical parameters, or None.
-        modes_vs_true: the fitted modes against the true ones (intervals where one meets one).
-        reference: what the truth is, in words.
+    Attributes
+    ----------
+    g
+        (L, Ny, Nu) the true FRF at the lines, or None (no truth).
+    g_at_excitation
+        (L, Ny, Nu) the true rig linearised at this excitation's level, or None.
+    noise
+        (Ny,) the sensor noise through the true loop [m], or None.
+    parameters
+        the true rig's physical parameters, or None.
+    modes_vs_true
+        the fitted modes against the true ones (intervals where one meets one).
+    reference
+        what the truth is, in words.
     """
 
     g: np.ndarray | None = None
@@ -118,13 +129,20 @@ def truth_of(simulated: bool, refs: ReferenceModels, true_model: StateSpace | No
     """The truth of a session: the simulated rig's (``refs``), or ``true_model`` where given (it is the truth,
     whatever the session's source), or none; the fitted modes compared with its modes.
 
-    Args:
-        simulated: the session ran the simulated rig (and a rig is known).
-        refs: :func:`ambid.identification.references.reference_models` of the session.
-        true_model: the plant the session measured, u [A] -> y [m], known from elsewhere, or None.
-        fitted: the fit (:func:`ambid.identification.model_fit.fit_frf`).
-        freq_hz: (L,) the FRF's lines [Hz].
-        resolution_hz: the measurement's frequency resolution fs / N [Hz].
+    Parameters
+    ----------
+    simulated
+        the session ran the simulated rig (and a rig is known).
+    refs
+        :func:`ambid.identification.references.reference_models` of the session.
+    true_model
+        the plant the session measured, u [A] -> y [m], known from elsewhere, or None.
+    fitted
+        the fit (:func:`ambid.identification.model_fit.fit_frf`).
+    freq_hz
+        (L,) the FRF's lines [Hz].
+    resolution_hz
+        the measurement's frequency resolution fs / N [Hz].
     """
     truth = Truth()
     if simulated:

@@ -41,10 +41,14 @@ _SUPPORT_KEYS = ("support_freq_hz", "support_damping_ratio", "support_gain_per_k
 class RigUpdate:
     """The outcome of :func:`update_rig`.
 
-    Attributes:
-        update: the physical-model update, or None (not covered, failed, nothing free).
-        error: why it failed, or None.
-        notes: what was done differently and why (parameters kept fixed, channels not covered, ...).
+    Attributes
+    ----------
+    update
+        the physical-model update, or None (not covered, failed, nothing free).
+    error
+        why it failed, or None.
+    notes
+        what was done differently and why (parameters kept fixed, channels not covered, ...).
     """
 
     update: PhysicalUpdate | None
@@ -68,14 +72,21 @@ def update_rig(rig: Rig, frf: FrfResult, fitted: FrfFit, dt_s: float, nominal: M
     from the FRF (:func:`ambid.fit.model_update.start_from_data`). Nothing is fixed because the data cannot
     tell it: such a direction keeps its prior's width.
 
-    Args:
-        rig: the rig whose physical model is updated.
-        frf: the measured FRF.
-        fitted: its fit (:func:`ambid.identification.model_fit.fit_frf`): weights, band, stable modes.
-        dt_s: the sample period [s].
-        nominal: nominal values replacing the rig's (parameter name -> value).
-        free: parameters to update; default :data:`DEFAULT_FREE` (those the rig has), the bending modes in
-            the band and a support mode where the fit shows one.
+    Parameters
+    ----------
+    rig
+        the rig whose physical model is updated.
+    frf
+        the measured FRF.
+    fitted
+        its fit (:func:`ambid.identification.model_fit.fit_frf`): weights, band, stable modes.
+    dt_s
+        the sample period [s].
+    nominal
+        nominal values replacing the rig's (parameter name -> value).
+    free
+        parameters to update; default :data:`DEFAULT_FREE` (those the rig has), the bending modes in
+        the band and a support mode where the fit shows one.
     """
     rotor = rig.rotor_model()
     part = _on_the_rigs_channels(rotor, frf, fitted.variances)
@@ -238,15 +249,22 @@ def refit_parameters(identification: Identification, rig: Rig, freq_hz: np.ndarr
     E.g. a noise-free twin of the session (``ambid validate``): started at the identification's
     estimates, the same parameters free, the same priors and weights ``var``.
 
-    Args:
-        identification: :func:`ambid.identification.identify_session`'s result, with an update.
-        rig: the rig the session updated.
-        freq_hz: (L,) lines [Hz].
-        G: (L, na, na) FRF u -> y [m/A] on the rig's axes.
-        var: (L, na, na) the session's fit variance [(m/A)^2], or None.
+    Parameters
+    ----------
+    identification
+        :func:`ambid.identification.identify_session`'s result, with an update.
+    rig
+        the rig the session updated.
+    freq_hz
+        (L,) lines [Hz].
+    G
+        (L, na, na) FRF u -> y [m/A] on the rig's axes.
+    var
+        (L, na, na) the session's fit variance [(m/A)^2], or None.
 
-    Returns:
-        free parameter name -> estimate; {} without an update.
+    Returns
+    -------
+    free parameter name -> estimate; {} without an update.
     """
     params = ((identification.update.parameters if identification.update is not None else None) or {})
     start = {k: float(v.value) for k, v in params.items()}

@@ -542,16 +542,22 @@ def make_rig(overrides: dict[str, Any] | None = None, name: str = "ambid-default
              rotor_import: RotorModel | None = None) -> Rig:
     """Default rig with ``overrides`` applied, every value checked against its range.
 
-    Args:
-        overrides: parameter name -> value (any subset of RIG_FIELDS); may
-            also hold ``name``, ``rotor_file`` (a user rotor model, see
-            :mod:`ambid.plant.rotor_import`), ``controller`` (see :class:`Rig`) and
-            ``tolerances`` (a mapping, :func:`ambid.plant.tolerances.parse_tolerances`).
-        name: rig name unless ``overrides`` gives one.
-        rotor_import: a user rotor model replacing the finite-element rotor.
+    Parameters
+    ----------
+    overrides
+        parameter name -> value (any subset of RIG_FIELDS); may
+        also hold ``name``, ``rotor_file`` (a user rotor model, see
+        :mod:`ambid.plant.rotor_import`), ``controller`` (see :class:`Rig`) and
+        ``tolerances`` (a mapping, :func:`ambid.plant.tolerances.parse_tolerances`).
+    name
+        rig name unless ``overrides`` gives one.
+    rotor_import
+        a user rotor model replacing the finite-element rotor.
 
-    Raises:
-        ValueError naming the field and its allowed range.
+    Raises
+    ------
+    ValueError
+        naming the field and its allowed range.
 
     Examples
     --------

@@ -201,8 +201,10 @@ def rotor_from_second_order(data: dict, speed_rad_s: float = 0.0, damping_ratio:
     DOFs that no bearing or sensor DOF is coupled to (axial and torsional ones) are dropped first,
     then the modes that neither the bearings nor the sensors see; ``RotorModel.notes`` says what went.
 
-    Raises:
-        ValueError naming the key, or the support springs of a rotor that is not free-free.
+    Raises
+    ------
+    ValueError
+        naming the key, or the support springs of a rotor that is not free-free.
     """
     m = np.asarray(data["M"], dtype=float)
     n_dof = m.shape[0] if m.ndim == 2 else 0
@@ -280,17 +282,24 @@ def rotor_from_second_order(data: dict, speed_rad_s: float = 0.0, damping_ratio:
 def load_rotor(path: str | Path, speed_rpm: float = 0.0, damping_ratio: float = 0.005) -> RotorModel:
     """Load a user rotor model (layout by keys: "M" present -> second order, else state space).
 
-    Args:
-        path: ``.npz`` or ``.mat`` file.
-        speed_rpm: spin speed for the gyroscopic matrix G (second order only) [rpm].
-        damping_ratio: modal damping of the flexible modes when no D is given
-            (second order only) [-].
+    Parameters
+    ----------
+    path
+        ``.npz`` or ``.mat`` file.
+    speed_rpm
+        spin speed for the gyroscopic matrix G (second order only) [rpm].
+    damping_ratio
+        modal damping of the flexible modes when no D is given
+        (second order only) [-].
 
-    Returns:
-        RotorModel with ``source = "file:<path>"``.
+    Returns
+    -------
+    RotorModel with ``source = "file:<path>"``.
 
-    Raises:
-        ValueError naming the missing or malformed key.
+    Raises
+    ------
+    ValueError
+        naming the missing or malformed key.
     """
     path = Path(path)
     data = _read(path)

@@ -33,8 +33,10 @@ LPM_DEGREE = 2
 class RecordedExcitation:
     """Fed r (n, Nu) in row chunks from the excitation's first row; its band, level and 'recorded' design.
 
-    Args:
-        n_inputs: Nu.
+    Parameters
+    ----------
+    n_inputs
+        Nu.
     """
 
     def __init__(self, n_inputs: int) -> None:

@@ -62,8 +62,10 @@ def export_session(session: str | os.PathLike, out: str | os.PathLike, fmt: str,
                    experiment_id: str | None = None) -> ExportResult:
     """Write the session's measurement rows to ``out`` as ``fmt`` ('csv', 'mat', 'mat73', 'npz') and a MAP.yaml.
 
-    Raises:
-        RecordError: no experiment, no measurement blocks, or gaps in them.
+    Raises
+    ------
+    RecordError
+        no experiment, no measurement blocks, or gaps in them.
     """
     path = os.fspath(session)
     suffix = FORMAT_SUFFIX.get(fmt, "")

@@ -59,17 +59,28 @@ _LATCHED = QosProfile(depth=1, durability="transient_local")
 class ImportResult:
     """What :func:`import_record` did.
 
-    Attributes:
-        session: the session file written.
-        n_rows: record rows (= samples in the session).
-        fs_hz: sample rate [Hz].
-        design: the experiment's design (given or reconstructed).
-        start_row: record row (= sample index) of the experiment's first sample.
-        reconstructed: True if the design was found from the excitation record.
-        estimator: which FRF estimator the session's design leads to, and why (one line).
-        notes: what was found, a line each.
-        bytes_read: size of the record file [bytes].
-        seconds: wall time [s].
+    Attributes
+    ----------
+    session
+        the session file written.
+    n_rows
+        record rows (= samples in the session).
+    fs_hz
+        sample rate [Hz].
+    design
+        the experiment's design (given or reconstructed).
+    start_row
+        record row (= sample index) of the experiment's first sample.
+    reconstructed
+        True if the design was found from the excitation record.
+    estimator
+        which FRF estimator the session's design leads to, and why (one line).
+    notes
+        what was found, a line each.
+    bytes_read
+        size of the record file [bytes].
+    seconds
+        wall time [s].
     """
 
     session: str
@@ -220,15 +231,22 @@ def import_record(data: str | os.PathLike | Sequence[str | os.PathLike], record_
                   out: str | os.PathLike, chunk_rows: int = CHUNK_ROWS) -> ImportResult:
     """Convert a rig's record into a session MCAP (module docstring).
 
-    Args:
-        data: .csv, .mat (v5 or v7.3, LMS/Simcenter structs too) or .npz record, or several .mat/.npz files of
-            one recording (their channels side by side).
-        record_map: MAP.yaml path or a parsed :class:`ambid.records.mapping.RecordMap`.
-        out: session .mcap to write (replaced only once complete).
-        chunk_rows: rows read at a time.
+    Parameters
+    ----------
+    data
+        .csv, .mat (v5 or v7.3, LMS/Simcenter structs too) or .npz record, or several .mat/.npz files of
+        one recording (their channels side by side).
+    record_map
+        MAP.yaml path or a parsed :class:`ambid.records.mapping.RecordMap`.
+    out
+        session .mcap to write (replaced only once complete).
+    chunk_rows
+        rows read at a time.
 
-    Raises:
-        RecordError: one line naming the file, the column, the row and the fix.
+    Raises
+    ------
+    RecordError
+        one line naming the file, the column, the row and the fix.
     """
     t_start = time.perf_counter()
     m = record_map if isinstance(record_map, RecordMap) else load_map(record_map)

@@ -38,13 +38,20 @@ _NAMED = {(1, 0, 0, 0, 0, 0): "m", (1, 0, -1, 0, 0, 0): "m/s", (1, 0, -2, 0, 0, 
 class LmsSignal:
     """One exported struct.
 
-    Attributes:
-        variable: the MATLAB variable.
-        names: (k,) channel names, one per column.
-        unit: the SI unit of its values ('' when the file does not say).
-        display: the unit Test.Lab displayed (e.g. 'g'), for the note.
-        start_s, dt_s: the time base [s].
-        values: (n, k) float64.
+    Attributes
+    ----------
+    variable
+        the MATLAB variable.
+    names
+        (k,) channel names, one per column.
+    unit
+        the SI unit of its values ('' when the file does not say).
+    display
+        the unit Test.Lab displayed (e.g. 'g'), for the note.
+    start_s, dt_s
+        the time base [s].
+    values
+        (n, k) float64.
     """
 
     variable: str
@@ -104,8 +111,10 @@ def is_lms_struct(value) -> bool:
 def read_lms_signals(path: str, variables: list[str]) -> list[LmsSignal]:
     """The LMS structs among ``variables`` of a MAT v5 file (others are left out).
 
-    Raises:
-        ValueError: a struct whose time base or values do not fit (one line: the variable and the fix).
+    Raises
+    ------
+    ValueError
+        a struct whose time base or values do not fit (one line: the variable and the fix).
     """
     from scipy.io import loadmat
 

@@ -186,11 +186,16 @@ class _Plain:
 class Record:
     """An open time record: channel names and a chunked row reader.
 
-    Attributes:
-        path: the file.
-        kind: 'csv', 'mat5', 'mat73' or 'npz'.
-        names: (k,) channel names in the file.
-        n_rows: rows per channel, or None until a CSV has been read through.
+    Attributes
+    ----------
+    path
+        the file.
+    kind
+        'csv', 'mat5', 'mat73' or 'npz'.
+    names
+        (k,) channel names in the file.
+    n_rows
+        rows per channel, or None until a CSV has been read through.
     """
 
     path: str
@@ -218,9 +223,11 @@ class Record:
 
         Values are as stored (no NaN/Inf check here: see ``ambid.records.importer``).
 
-        Raises:
-            RecordError: a row that cannot be read (CSV: wrong field count, not a number),
-                channels of different lengths, a file that ends early.
+        Raises
+        ------
+        RecordError
+            a row that cannot be read (CSV: wrong field count, not a number),
+            channels of different lengths, a file that ends early.
         """
         self.require(names, "the request")
         if self.kind == "csv":
@@ -270,8 +277,10 @@ class Record:
 def open_record(path: str | os.PathLike) -> Record:
     """Open a time record (.csv, .mat v5/v7.3, .npz) and read its channel names (not its data).
 
-    Raises:
-        RecordError: missing, a folder, empty, not of its format, no numeric channels.
+    Raises
+    ------
+    RecordError
+        missing, a folder, empty, not of its format, no numeric channels.
     """
     path = os.fspath(path)
     if os.path.isdir(path):
@@ -296,9 +305,11 @@ def open_records(paths: Sequence[str | os.PathLike]) -> Record:
     """Several files of one recording as one record (an acquisition system that exports its signals in more
     than one file): their channels side by side, every file of the same length and sample period.
 
-    Raises:
-        RecordError: as :func:`open_record`; a channel in two files; files of different lengths or rates; CSV
-            among several files.
+    Raises
+    ------
+    RecordError
+        as :func:`open_record`; a channel in two files; files of different lengths or rates; CSV
+        among several files.
     """
     paths = [os.fspath(p) for p in paths]
     if len(paths) == 1:

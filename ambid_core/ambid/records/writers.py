@@ -84,15 +84,22 @@ def write_record(path: str | os.PathLike, fmt: str, names: Sequence[str], n_rows
                  chunks: Iterable[tuple[int, np.ndarray]]) -> Path:
     """Write channels to ``path`` in format ``fmt`` (:data:`WRITE_FORMATS`).
 
-    Args:
-        path: output file (its extension is not changed).
-        fmt: 'csv', 'mat' (v5), 'mat73' or 'npz'.
-        names: (k,) channel names (MATLAB identifiers for the MAT formats).
-        n_rows: total rows the chunks give.
-        chunks: (first_row, values (n, k)) in row order covering [0, n_rows).
+    Parameters
+    ----------
+    path
+        output file (its extension is not changed).
+    fmt
+        'csv', 'mat' (v5), 'mat73' or 'npz'.
+    names
+        (k,) channel names (MATLAB identifiers for the MAT formats).
+    n_rows
+        total rows the chunks give.
+    chunks
+        (first_row, values (n, k)) in row order covering [0, n_rows).
 
-    Returns:
-        The path written.
+    Returns
+    -------
+    The path written.
     """
     if fmt not in WRITE_FORMATS:
         raise ValueError(f"format {fmt!r} is not one of {WRITE_FORMATS}")

@@ -80,16 +80,26 @@ def bode_matrix(freq_hz: np.ndarray, G: np.ndarray, std: np.ndarray | None,
                 col_units: Sequence[str] = ()) -> Figure:
     """Ny x Nu grid of the measured FRF (with a +-2 sigma band) and model curves.
 
-    Args:
-        freq_hz: (L,) measured lines [Hz].
-        G: (L, Ny, Nu) measured FRF [m/A].
-        std: (L, Ny, Nu) standard deviation of G [m/A], or None.
-        curves: label -> (freq (K,) [Hz], FRF (K, Ny, Nu) [m/A]) of models.
-        quantity: 'magnitude' (dB re 1 m/A) or 'phase' (deg).
-        path: PNG to write.
-        input_names, output_names: channel labels.
-        row_units: (Ny,) each row's unit (e.g. 'm/s^2/A' for an accelerometer, '' dimensionless); default m/A.
-        col_units: (Nu,) each input's unit (N for a hammer, '' dimensionless); default A.
+    Parameters
+    ----------
+    freq_hz
+        (L,) measured lines [Hz].
+    G
+        (L, Ny, Nu) measured FRF [m/A].
+    std
+        (L, Ny, Nu) standard deviation of G [m/A], or None.
+    curves
+        label -> (freq (K,) [Hz], FRF (K, Ny, Nu) [m/A]) of models.
+    quantity
+        'magnitude' (dB re 1 m/A) or 'phase' (deg).
+    path
+        PNG to write.
+    input_names, output_names
+        channel labels.
+    row_units
+        (Ny,) each row's unit (e.g. 'm/s^2/A' for an accelerometer, '' dimensionless); default m/A.
+    col_units
+        (Nu,) each input's unit (N for a hammer, '' dimensionless); default A.
     """
     if quantity not in ("magnitude", "phase"):
         raise ValueError(f"quantity must be 'magnitude' or 'phase', got {quantity!r}")
@@ -152,11 +162,16 @@ def noise_distortion(levels: LineLevels, output_names: Sequence[str] = (), path:
                      odd_db: np.ndarray | None = None, even_db: np.ndarray | None = None) -> Figure:
     """Output amplitude at excited, odd- and even-detection lines against the noise floor, per output.
 
-    Args:
-        levels: :class:`ambid.frf.levels.LineLevels`.
-        output_names: (Ny,) labels.
-        path: PNG to write.
-        odd_db, even_db: (Ny,) distortion levels above the noise [dB] for the titles.
+    Parameters
+    ----------
+    levels
+        :class:`ambid.frf.levels.LineLevels`.
+    output_names
+        (Ny,) labels.
+    path
+        PNG to write.
+    odd_db, even_db
+        (Ny,) distortion levels above the noise [dB] for the titles.
     """
     from matplotlib.ticker import NullLocator
 
@@ -205,12 +220,18 @@ def stabilisation(diagram: StabilisationDiagram, freq_hz: np.ndarray, G: np.ndar
                   path: str | Path | None = None, mode_ci95: Sequence[Sequence[float]] = ()) -> Figure:
     """Stabilisation diagram over the CMIF of the measured FRF, the chosen order marked.
 
-    Args:
-        diagram: from :func:`ambid.fit.stabilisation_diagram`.
-        freq_hz: (L,) lines [Hz]; G: (L, Ny, Nu) measured FRF [m/A].
-        order: the chosen model order.
-        path: PNG to write.
-        mode_ci95: [(low, high)] 95 % frequency intervals of the chosen order's modes [Hz], drawn as bars.
+    Parameters
+    ----------
+    diagram
+        from :func:`ambid.fit.stabilisation_diagram`.
+    freq_hz
+        (L,) lines [Hz]; G: (L, Ny, Nu) measured FRF [m/A].
+    order
+        the chosen model order.
+    path
+        PNG to write.
+    mode_ci95
+        [(low, high)] 95 % frequency intervals of the chosen order's modes [Hz], drawn as bars.
     """
     from ambid.fit.order_selection import plot_stabilisation
 
@@ -234,9 +255,12 @@ def excitation(design: ExcitationDesign, path: str | Path | None = None) -> Figu
 
     The legend gives each input's crest factor, peak and RMS from the design.
 
-    Args:
-        design: the experiment's design.
-        path: PNG to write.
+    Parameters
+    ----------
+    design
+        the experiment's design.
+    path
+        PNG to write.
     """
     from matplotlib.ticker import NullLocator
 
@@ -287,11 +311,16 @@ def input_sensitivity(freq_hz: np.ndarray, S: np.ndarray, input_names: Sequence[
                       path: str | Path | None = None) -> Figure:
     """|S_ii| per axis (absolute gain) with the ISO 14839-3 zones A-D shaded (limits 3, 4, 5).
 
-    Args:
-        freq_hz: (L,) lines [Hz].
-        S: (L, Nu, Nu) input sensitivity r -> u [A/A].
-        input_names: (Nu,) labels.
-        path: PNG to write.
+    Parameters
+    ----------
+    freq_hz
+        (L,) lines [Hz].
+    S
+        (L, Nu, Nu) input sensitivity r -> u [A/A].
+    input_names
+        (Nu,) labels.
+    path
+        PNG to write.
     """
     f = np.asarray(freq_hz, dtype=float)
     s = np.abs(np.diagonal(np.asarray(S), axis1=1, axis2=2))
@@ -324,12 +353,17 @@ def time_records(t_s: np.ndarray, y: np.ndarray, u: np.ndarray, r: np.ndarray, o
                  input_names: Sequence[str] = (), path: str | Path | None = None) -> Figure:
     """A short window of the measured displacements, applied currents and excitation.
 
-    Args:
-        t_s: (n,) sample times [s].
-        y: (n, Ny) displacements [m]; u, r: (n, Nu) applied current and
-            excitation [A].
-        output_names, input_names: labels.
-        path: PNG to write.
+    Parameters
+    ----------
+    t_s
+        (n,) sample times [s].
+    y
+        (n, Ny) displacements [m]; u, r: (n, Nu) applied current and
+        excitation [A].
+    output_names, input_names
+        labels.
+    path
+        PNG to write.
     """
     fig = _figure((9.5, 6.5))
     ax_y, ax_u = fig.subplots(2, 1, sharex=True)
@@ -356,11 +390,16 @@ def frf_error(freq_hz: np.ndarray, errors: Mapping[str, np.ndarray], noise_level
               path: str | Path | None = None) -> Figure:
     """Relative FRF-matrix error per line against the true rig, for the measurement and the models.
 
-    Args:
-        freq_hz: (L,) lines [Hz].
-        errors: label -> (L,) ||G - G_true||_F / ||G_true||_F [-].
-        noise_level: (L,) the measurement's 2 sigma relative noise level, or None.
-        path: PNG to write.
+    Parameters
+    ----------
+    freq_hz
+        (L,) lines [Hz].
+    errors
+        label -> (L,) ||G - G_true||_F / ||G_true||_F [-].
+    noise_level
+        (L,) the measurement's 2 sigma relative noise level, or None.
+    path
+        PNG to write.
     """
     from matplotlib.ticker import NullLocator
 

@@ -228,9 +228,12 @@ def _parameter_rows(s: Mapping[str, Any]) -> list[list[str]]:
 def render_index(summary: Mapping[str, Any], figure_list: list[tuple[str, str]]) -> str:
     """The index.html text: headline table, modes, parameters, figures with captions.
 
-    Args:
-        summary: the dict :func:`ambid.identification.identify_session` returns.
-        figure_list: [(PNG file name, caption)].
+    Parameters
+    ----------
+    summary
+        the dict :func:`ambid.identification.identify_session` returns.
+    figure_list
+        [(PNG file name, caption)].
     """
     parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>ambid identification report</title>"
              f"<style>{_CSS}</style></head><body>",

@@ -25,14 +25,22 @@ def write_measured_report(report_dir: str | Path, summary: Mapping[str, Any], fr
     """Bode matrices (measured with +-2 sigma where the file gives var, and the fit), the stabilisation diagram,
     the headline table and the modes; returns the path of index.html.
 
-    Args:
-        report_dir: folder (created).
-        summary: :func:`ambid.identification.frf_file_fit.identify_frf`'s summary.
-        freq_hz, frf: (L,), (L, Ny, Nu) the file's FRF [its unit].
-        std: (L, Ny, Nu) its standard deviation, or None.
-        diagram, order: the stabilisation diagram and the chosen order.
-        curves: label -> (freq (K,), FRF (K, Ny, Nu)) of the models.
-        output_names, input_names: labels.
+    Parameters
+    ----------
+    report_dir
+        folder (created).
+    summary
+        :func:`ambid.identification.frf_file_fit.identify_frf`'s summary.
+    freq_hz, frf
+        (L,), (L, Ny, Nu) the file's FRF [its unit].
+    std
+        (L, Ny, Nu) its standard deviation, or None.
+    diagram, order
+        the stabilisation diagram and the chosen order.
+    curves
+        label -> (freq (K,), FRF (K, Ny, Nu)) of the models.
+    output_names, input_names
+        labels.
     """
     out = Path(report_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -28,11 +28,16 @@ def directional_frf_figure(measured: DirectionalFrf, curves: Mapping[str, Direct
                            modes: Sequence[tuple[float, str]] = (), path: str | Path | None = None) -> Figure:
     """Forward and backward directional FRFs of each bearing plane (diagonal elements, p per f).
 
-    Args:
-        measured: the measured directional FRF (dots).
-        curves: label -> model directional FRF on a dense grid (lines).
-        modes: (frequency [Hz], whirl) of the fitted modes, marked by whirl colour.
-        path: PNG to write.
+    Parameters
+    ----------
+    measured
+        the measured directional FRF (dots).
+    curves
+        label -> model directional FRF on a dense grid (lines).
+    modes
+        (frequency [Hz], whirl) of the fitted modes, marked by whirl colour.
+    path
+        PNG to write.
     """
     n_planes = measured.forward.shape[1]
     names = [p.upper() for p in measured.planes] or [str(j + 1) for j in range(n_planes)]
@@ -66,16 +71,24 @@ def campbell_figure(speeds_rpm: np.ndarray, identified: Sequence[Mapping], predi
                     f_max_hz: float | None = None, path: str | Path | None = None) -> Figure:
     """Campbell diagram: identified modes against speed beside the model's predicted whirl curves and 1X.
 
-    Args:
-        speeds_rpm: (S,) measured speeds [rpm].
-        identified: dicts with speed_rpm, freq_hz, damping, whirl and, where known, freq_hz_ci95
-            [lo, hi] (95 % interval, drawn as a bar).
-        predicted_rpm: (K,) dense speeds of the predicted curves [rpm].
-        predicted: label -> (K,) frequency [Hz] of each predicted branch; labels ending in
-            'forward' / 'backward' take the whirl colours.
-        critical: dicts with speed_rpm, freq_hz, label (crossings of 1X).
-        f_max_hz: top of the frequency axis, or None.
-        path: PNG to write.
+    Parameters
+    ----------
+    speeds_rpm
+        (S,) measured speeds [rpm].
+    identified
+        dicts with speed_rpm, freq_hz, damping, whirl and, where known, freq_hz_ci95
+        [lo, hi] (95 % interval, drawn as a bar).
+    predicted_rpm
+        (K,) dense speeds of the predicted curves [rpm].
+    predicted
+        label -> (K,) frequency [Hz] of each predicted branch; labels ending in
+        'forward' / 'backward' take the whirl colours.
+    critical
+        dicts with speed_rpm, freq_hz, label (crossings of 1X).
+    f_max_hz
+        top of the frequency axis, or None.
+    path
+        PNG to write.
     """
     fig = _figure((10.0, 6.0))
     ax_f, ax_z = fig.subplots(1, 2, gridspec_kw={"width_ratios": (2.2, 1.0)})

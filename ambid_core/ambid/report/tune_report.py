@@ -23,12 +23,18 @@ def sensitivity_bands_figure(freq_hz: np.ndarray, bands: Mapping[str, np.ndarray
     between their 2.5 and 97.5 % quantiles, with the ISO 14839-3 zones, and the run's measured |S_jj| at
     its lines.
 
-    Args:
-        freq_hz: (L,) [Hz].
-        bands: label -> (3, L, na) quantiles of |S_jj| [-].
-        axes: (na,) the axes' names.
-        measured: (lines (K,), |S_jj| (K, na)) the run measured, or None.
-        path: PNG to write.
+    Parameters
+    ----------
+    freq_hz
+        (L,) [Hz].
+    bands
+        label -> (3, L, na) quantiles of |S_jj| [-].
+    axes
+        (na,) the axes' names.
+    measured
+        (lines (K,), |S_jj| (K, na)) the run measured, or None.
+    path
+        PNG to write.
     """
     f = np.asarray(freq_hz, dtype=float)
     fig = _figure((9.0, 5.2))
@@ -69,10 +75,14 @@ def write_tune_report(report_dir: str | Path, doc: Mapping[str, Any], freq_hz: n
                       measured: tuple[np.ndarray, np.ndarray] | None = None) -> Path:
     """Write ``report_dir/index.html`` and its figure; returns the page's path.
 
-    Args:
-        report_dir: folder (created).
-        doc: tune.json's content.
-        freq_hz, bands, axes, measured: as :func:`sensitivity_bands_figure` takes them.
+    Parameters
+    ----------
+    report_dir
+        folder (created).
+    doc
+        tune.json's content.
+    freq_hz, bands, axes, measured
+        as :func:`sensitivity_bands_figure` takes them.
     """
     out = Path(report_dir)
     out.mkdir(parents=True, exist_ok=True)

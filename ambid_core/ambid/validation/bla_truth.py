@@ -48,10 +48,14 @@ SLOPES = ("ki_n_per_a", "ks_n_per_m", "ks_b_over_a")
 class Twin:
     """One noise-free twin's FRF and the variance the session's fit weighted such data with.
 
-    Attributes:
-        freq_hz: (L,) excited lines [Hz].
-        frf: (L, 4, 4) FRF u -> y [m/A] of the noise-free nonlinear rig.
-        var: (L, 4, 4) the session's fit variance at these lines [(m/A)^2].
+    Attributes
+    ----------
+    freq_hz
+        (L,) excited lines [Hz].
+    frf
+        (L, 4, 4) FRF u -> y [m/A] of the noise-free nonlinear rig.
+    var
+        (L, 4, 4) the session's fit variance at these lines [(m/A)^2].
     """
 
     freq_hz: np.ndarray
@@ -67,16 +71,24 @@ def noise_free_twin(rig: Rig, controller: StateSpace, current_limit_a: float, de
     node's stepper, sample by sample): what ``ambid identify`` measures on the same rig and design without
     noise, to the last bit, in seconds instead of a ROS session.
 
-    Args:
-        rig: the simulated rig (its ``sensor_noise_m`` is set to 0 here).
-        controller: the discrete controller y -> ic that runs (dt = rig.dt).
-        current_limit_a: its output saturation [A].
-        design: the periodic excitation design.
-        nonlinear_magnets: the magnets' full law (eq. 2.14), as identify simulates them.
-        estimator: the FRF estimator (:data:`ambid.frf.streaming.ESTIMATORS`).
+    Parameters
+    ----------
+    rig
+        the simulated rig (its ``sensor_noise_m`` is set to 0 here).
+    controller
+        the discrete controller y -> ic that runs (dt = rig.dt).
+    current_limit_a
+        its output saturation [A].
+    design
+        the periodic excitation design.
+    nonlinear_magnets
+        the magnets' full law (eq. 2.14), as identify simulates them.
+    estimator
+        the FRF estimator (:data:`ambid.frf.streaming.ESTIMATORS`).
 
-    Returns:
-        :class:`ambid.frf.streaming.FrfResult` of the twin.
+    Returns
+    -------
+    :class:`ambid.frf.streaming.FrfResult` of the twin.
     """
     quiet = replace(rig, values={**rig.values, "sensor_noise_m": 0.0})
     start = levitate(quiet, nonlinear_magnets=nonlinear_magnets, controller=(controller, current_limit_a))
@@ -90,13 +102,18 @@ def variance_on(freq_ref_hz: np.ndarray, var_ref: np.ndarray, freq_hz: np.ndarra
     """A line variance carried to other lines of the same band: per entry, linear in log f and log var
     (the fit variance is smooth over frequency), held beyond the ends.
 
-    Args:
-        freq_ref_hz: (L,) lines of ``var_ref`` [Hz], ascending.
-        var_ref: (L, Ny, Nu) variance > 0.
-        freq_hz: (K,) lines wanted [Hz].
+    Parameters
+    ----------
+    freq_ref_hz
+        (L,) lines of ``var_ref`` [Hz], ascending.
+    var_ref
+        (L, Ny, Nu) variance > 0.
+    freq_hz
+        (K,) lines wanted [Hz].
 
-    Returns:
-        (K, Ny, Nu) variance.
+    Returns
+    -------
+    (K, Ny, Nu) variance.
     """
     lf = np.log(np.asarray(freq_ref_hz, dtype=float))
     lv = np.log(np.asarray(var_ref, dtype=float)).reshape(lf.size, -1)
@@ -109,19 +126,26 @@ def bla_parameters(rig: Rig, twins: Sequence[Twin], names: Sequence[str], free: 
                    max_evaluations: int = 300) -> dict[str, float]:
     """The BLA parameters (module docstring) of a session's physical model on ``rig``.
 
-    Args:
-        rig: the simulated (true) rig, with its tolerances.
-        twins: noise-free twins of the session at the same excitation level (several random-phase
-            designs: their stochastic distortion averages out; 16 or more leave it below a quarter of a
-            session's standard deviation).
-        names: every parameter of the session's physical model (its structure: which bending modes,
-            sensor bandwidth, support mode).
-        free: those the session updated.
-        max_evaluations: most model evaluations of the fit.
+    Parameters
+    ----------
+    rig
+        the simulated (true) rig, with its tolerances.
+    twins
+        noise-free twins of the session at the same excitation level (several random-phase
+        designs: their stochastic distortion averages out; 16 or more leave it below a quarter of a
+        session's standard deviation).
+    names
+        every parameter of the session's physical model (its structure: which bending modes,
+        sensor bandwidth, support mode).
+    free
+        those the session updated.
+    max_evaluations
+        most model evaluations of the fit.
 
-    Returns:
-        name -> value for every name in ``names`` (the fixed ones at the rig's values at rest), and
-        ``total_lag_s`` (:func:`ambid.fit.model_update.total_lag`) where the lags are in ``names``.
+    Returns
+    -------
+    name -> value for every name in ``names`` (the fixed ones at the rig's values at rest), and
+    ``total_lag_s`` (:func:`ambid.fit.model_update.total_lag`) where the lags are in ``names``.
     """
     if not twins:
         raise ValueError("bla_parameters: give at least one noise-free twin")
@@ -153,13 +177,18 @@ def at_own_excitation(bla: Mapping[str, float], own: Mapping[str, float],
     less the mean of those values over the pooled sessions (Bussgang: the magnets' slopes its grid and
     amplitudes cause, :func:`ambid.fit.model_update.excitation_slopes`).
 
-    Args:
-        bla: name -> value, the pooled estimand.
-        own: name -> this session's value at its own excitation, for some of :data:`SLOPES`.
-        pooled: name -> the mean of those values over the sessions whose twins gave ``bla``.
+    Parameters
+    ----------
+    bla
+        name -> value, the pooled estimand.
+    own
+        name -> this session's value at its own excitation, for some of :data:`SLOPES`.
+    pooled
+        name -> the mean of those values over the sessions whose twins gave ``bla``.
 
-    Returns:
-        name -> value: ``bla`` with the slopes it and ``own`` and ``pooled`` share moved.
+    Returns
+    -------
+    name -> value: ``bla`` with the slopes it and ``own`` and ``pooled`` share moved.
     """
     out = dict(bla)
     for k in SLOPES:

@@ -75,14 +75,18 @@ def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
 def frf_record(G: np.ndarray, G_true: np.ndarray, variances: Mapping[str, np.ndarray]) -> dict:
     """One session's FRF against the truth, per kind of variance.
 
-    Args:
-        G, G_true: (L, Ny, Nu) measured and true FRF.
-        variances: kind name -> (L, Ny, Nu) claimed variance E|G - G_true|^2.
+    Parameters
+    ----------
+    G, G_true
+        (L, Ny, Nu) measured and true FRF.
+    variances
+        kind name -> (L, Ny, Nu) claimed variance E|G - G_true|^2.
 
-    Returns:
-        kind -> {n, covered (cases with |G - G_true| <= 2 sigma), sum_err2,
-        sum_var, sum_z2 (of |G - G_true|^2 / sigma^2)}: sums over the L Ny Nu
-        cases with a finite, positive variance.
+    Returns
+    -------
+    kind -> {n, covered (cases with |G - G_true| <= 2 sigma), sum_err2,
+    sum_var, sum_z2 (of |G - G_true|^2 / sigma^2)}: sums over the L Ny Nu
+    cases with a finite, positive variance.
     """
     e2 = np.abs(np.asarray(G) - np.asarray(G_true)) ** 2
     out = {}
@@ -112,24 +116,30 @@ def seed_record(identification: Identification, G: np.ndarray, truths: Mapping[s
                 variances: Mapping[str, np.ndarray]) -> dict:
     """Everything one session claims, beside the truth, in a JSON-safe dict.
 
-    Args:
-        identification: ``identify_session``'s result for the session.
-        G: (L, Ny, Nu) measured FRF.
-        truths: truth name -> (L, Ny, Nu) true FRF (e.g. the small-signal
-            model and the one at the excitation level).
-        variances: as for :func:`frf_record`.
+    Parameters
+    ----------
+    identification
+        ``identify_session``'s result for the session.
+    G
+        (L, Ny, Nu) measured FRF.
+    truths
+        truth name -> (L, Ny, Nu) true FRF (e.g. the small-signal
+        model and the one at the excitation level).
+    variances
+        as for :func:`frf_record`.
 
-    Returns:
-        dict with ``frf`` (:func:`frf_record`), ``intervals`` (name -> value,
-        std, ci95, true, noise_only) for the updated free parameters
-        (``parameter:<name>``, with ``true_at_rest``: the rig's value at rest; ``true`` is the
-        identification's until :func:`with_bla_truth` sets the BLA's), the total lag
-        (``derived:total_lag_s``) and the fitted modes with an
-        interval (``mode_freq:<k>``, ``mode_damping:<k>``), ``model`` (the
-        update's parameter ``names`` and ``free`` ones: its structure), ``noise``
-        (the estimated output noise std per channel) and ``noise_interval``
-        (its value, std, ci95 and true closed-loop noise std per channel, or
-        None where the session has no truth).
+    Returns
+    -------
+    dict with ``frf`` (:func:`frf_record`), ``intervals`` (name -> value,
+    std, ci95, true, noise_only) for the updated free parameters
+    (``parameter:<name>``, with ``true_at_rest``: the rig's value at rest; ``true`` is the
+    identification's until :func:`with_bla_truth` sets the BLA's), the total lag
+    (``derived:total_lag_s``) and the fitted modes with an
+    interval (``mode_freq:<k>``, ``mode_damping:<k>``), ``model`` (the
+    update's parameter ``names`` and ``free`` ones: its structure), ``noise``
+    (the estimated output noise std per channel) and ``noise_interval``
+    (its value, std, ci95 and true closed-loop noise std per channel, or
+    None where the session has no truth).
     """
     items = []
     upd = identification.update
@@ -196,13 +206,14 @@ def _row(nominal: float, covered: int, n: int, err2: float, var: float, **extra)
 def coverage_table(records: Sequence[Mapping[str, Any]]) -> dict:
     """Pool the records of many seeds into one row per kind of interval (module docstring).
 
-    Returns:
-        kind -> {nominal, coverage, ci95 [lo, hi], covered, n, std_ratio, ...}:
-        ``frf:<variance kind>`` for the FRF bands, ``<item name>`` for each
-        parameter and mode interval (with bias and scatter relative to the
-        claimed std), ``noise_std (outputs pooled)`` for the noise level's
-        interval (each seed's outputs are cases) and ``noise_std`` for its
-        scatter over the seeds.
+    Returns
+    -------
+    kind -> {nominal, coverage, ci95 [lo, hi], covered, n, std_ratio, ...}:
+    ``frf:<variance kind>`` for the FRF bands, ``<item name>`` for each
+    parameter and mode interval (with bias and scatter relative to the
+    claimed std), ``noise_std (outputs pooled)`` for the noise level's
+    interval (each seed's outputs are cases) and ``noise_std`` for its
+    scatter over the seeds.
     """
     table: dict[str, dict] = {}
     kinds = sorted({k for r in records for k in r["frf"]})
@@ -328,15 +339,19 @@ def draw_nominal_rig(rig: Rig, rng: np.random.Generator) -> tuple[dict[str, Any]
     sheet claims. The ratio of the bearings' ks and the support mode have no
     data sheet and are not drawn.
 
-    Args:
-        rig: the true (simulated) rig, with its tolerances.
-        rng: the random generator (seed it per session).
+    Parameters
+    ----------
+    rig
+        the true (simulated) rig, with its tolerances.
+    rng
+        the random generator (seed it per session).
 
-    Returns:
-        (overrides, drawn): the rig-file mapping of the nominal rig (``rig``'s
-        values with the drawn ones and a ``tolerances`` mapping holding the drawn
-        delay range), and each drawn parameter's nominal value, true value and
-        its draw in prior standard deviations (name -> {nominal, true, z}).
+    Returns
+    -------
+    (overrides, drawn): the rig-file mapping of the nominal rig (``rig``'s
+    values with the drawn ones and a ``tolerances`` mapping holding the drawn
+    delay range), and each drawn parameter's nominal value, true value and
+    its draw in prior standard deviations (name -> {nominal, true, z}).
     """
     from ambid.fit.model_update import nominal_update_parameters, true_parameters
 
