@@ -301,3 +301,18 @@ def test_pooled_row_counts_every_parameter_and_mode_interval():
     assert pooled["n"] == 4 and pooled["covered"] == 3                  # the total lag is its own row
     assert pooled["std_ratio"] == pytest.approx(np.sqrt((0.25 + 0.0625 + 9 + 2.25) / 4))
     assert t["derived:total_lag_s"]["coverage"] == 0.0
+
+
+def test_predicted_peak_row_counts_the_cases_inside_their_interval():
+    from ambid.validation.coverage import predicted_peak_row
+
+    # three cases inside (the bounds count), one above, one below, one without a measurement (tune refused)
+    cases = [dict(predicted=dict(value=2.1, ci95=[2.0, 2.2]), measured=m) for m in (2.0, 2.15, 2.2, 2.25, 1.9)]
+    cases.append(dict(predicted=None, measured=None, refused="no controller holds every drawn plant"))
+    row = predicted_peak_row(cases)
+    assert row["n"] == 5 and row["covered"] == 3 and row["coverage"] == pytest.approx(0.6)
+    assert row["nominal"] == 0.95 and row["ci95"] == list(clopper_pearson(3, 5))
+    # claimed std: the half width over 1.96 (0.05102); errors 0.1, -0.05, -0.1, -0.15, 0.2
+    s = 0.1 / 1.959964
+    assert row["std_ratio"] == pytest.approx((0.085 / 5) ** 0.5 / s)
+    assert predicted_peak_row(cases[-1:]) is None

@@ -34,8 +34,8 @@ import sys
 import time
 from pathlib import Path
 
-from ambid_cli.commands.inputs import (checked_controller, controller, output_dir, output_file, positive_int,
-                                       rig_file)
+from ambid_cli.commands.inputs import (checked_controller, controller, output_dir, output_file, positive_float,
+                                       positive_int, rig_file)
 from ambid_cli.results_page import measured_on, write_section
 from ambid_cli.sessions_on_dask import add_scheduler_option, as_finished, domain_base, session_client
 
@@ -57,14 +57,31 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--linear-magnets", action="store_true",
                    help="linearised magnets instead of eq. 2.14 (separates the magnets' nonlinearity from the rest)")
     p.add_argument("--no-figure", action="store_true", help="skip coverage.png")
+    p.add_argument("--tune", action="store_true",
+                   help="measure ambid tune's predicted peak instead: each seed commissions (identify, tune, "
+                        "identify again with the tuned controller) and its measured peak is checked against the "
+                        "prediction's 95 %% interval")
+    p.add_argument("--resolution", type=positive_float, default=None,
+                   help="the sessions' frequency resolution [Hz] (default identify's)")
+    p.add_argument("--periods", type=positive_int, default=None, help="the sessions' steady-state periods P "
+                                                                        "(default identify's)")
+    p.add_argument("--realisations", type=positive_int, default=None,
+                   help="the sessions' random-phase realisations M (default identify's)")
+    p.add_argument("--tune-evaluations", type=positive_int, default=600,
+                   help="with --tune: objective evaluations per stage of the structured tuning (default 600)")
+    p.add_argument("--tune-samples", type=positive_int, default=100,
+                   help="with --tune: simulated verifying measurements behind the prediction (default 100)")
+    p.add_argument("--tune-checks", type=positive_int, default=100,
+                   help="with --tune: drawn plants the tuned controller must hold (default 100)")
     p.add_argument("--results", metavar="FILE",
                    help="write the coverage table as the validate section of a results page, e.g. docs/results.md")
 
 
-def run_fingerprint(rig_path: str, linear_magnets: bool, controller_spec: str = "") -> str:
+def run_fingerprint(rig_path: str, linear_magnets: bool, controller_spec: str = "", terms: str = "") -> str:
     """What a reused seed must share with this run: the rig file's content, the magnet law, the controller
-    (its name and, for a file, its content) and the git commit."""
+    (its name and, for a file, its content), the experiment's and tuning's terms and the git commit."""
     h = hashlib.sha256(b"linear" if linear_magnets else b"nonlinear")
+    h.update(terms.encode())
     h.update(_code_version().encode())
     if rig_path:
         h.update(Path(rig_path).read_bytes())
@@ -87,7 +104,7 @@ def _code_version() -> str:
 
 
 def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_magnets: bool = False,
-             controller_spec: str = "") -> dict:
+             controller_spec: str = "", spec_terms: dict | None = None) -> dict:
     """One identify session and its record; writes seed_dir/record.json last (atomically)."""
     import numpy as np
     import yaml
@@ -112,7 +129,8 @@ def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_m
     nominal, drawn = draw_nominal_rig(rig, np.random.default_rng([seed, 26]))
     nominal_path = out / "nominal_rig.yaml"
     nominal_path.write_text(yaml.safe_dump(to_jsonable(nominal), sort_keys=False))
-    cfg = SessionConfig(out_dir=out, experiment=DesignSpec(seed=seed), rig_file=rig_path, progress=False,
+    cfg = SessionConfig(out_dir=out, experiment=DesignSpec(seed=seed, **(spec_terms or {})), rig_file=rig_path,
+                        progress=False,
                         nonlinear_magnets=not linear_magnets, controller=controller_spec)
     plan = plan_session(cfg, rig)
     run = run_session_composed(cfg, plan)
@@ -215,7 +233,9 @@ def run(args: argparse.Namespace) -> int:
         output_file(args.results, "--results")
     n = args.seeds or PRESET_SEEDS[args.preset]
     seeds = list(range(args.first_seed, args.first_seed + n))
-    fp = run_fingerprint(args.rig, args.linear_magnets, args.controller)
+    if args.tune:
+        return run_tune(args, out, seeds)
+    fp = run_fingerprint(args.rig, args.linear_magnets, args.controller, json.dumps(spec_terms(args)))
     (out / "seeds").mkdir(parents=True, exist_ok=True)
     records, todo = {}, []
     for s in seeds:
@@ -231,7 +251,7 @@ def run(args: argparse.Namespace) -> int:
         base = domain_base(args)     # one ROS domain per worker
         failed = []
         items = [(s, (s, args.rig, str((out / "seeds" / f"seed_{s:03d}").resolve()), fp, args.linear_magnets,
-                      args.controller)) for s in todo]
+                      args.controller, spec_terms(args))) for s in todo]
         with session_client(args.scheduler, args.jobs, len(todo)) as client:
             for s, rec, exc in as_finished(client, base, run_seed, items):
                 if exc is None:
@@ -268,6 +288,76 @@ def run(args: argparse.Namespace) -> int:
         write_section(args.results, "validate", "Coverage of the printed intervals (`ambid validate`)",
                       f"{measured_on()} {len(recs)} seeds ({', '.join(map(str, sorted(records)))}) of identify's "
                       f"session on the {args.rig or 'built-in'} rig.\n\n" + coverage_markdown(table))
+        print(f"results written to {args.results}")
+    return 0
+
+
+def spec_terms(args: argparse.Namespace) -> dict:
+    """The experiment's terms the options set (DesignSpec fields; the rest identify's defaults)."""
+    given = dict(resolution_hz=args.resolution, n_periods=args.periods, n_realisations=args.realisations)
+    return {k: v for k, v in given.items() if v is not None}
+
+
+def run_tune(args: argparse.Namespace, out: Path, seeds: list[int]) -> int:
+    """``--tune``: one commissioning case per seed (:mod:`ambid_cli.tune_coverage`) on Dask, and the coverage of
+    tune's predicted peak in coverage.json (:func:`ambid.validation.coverage.predicted_peak_row`)."""
+    from ambid.validation.coverage import PREDICTED_PEAK, predicted_peak_row
+
+    from ambid_cli.tune_coverage import run_tune_case
+
+    terms = dict(n_check=args.tune_checks, n_prediction=max(args.tune_samples, 3),
+                 max_evaluations=args.tune_evaluations)
+    fp = run_fingerprint(args.rig, args.linear_magnets, args.controller,
+                         json.dumps(dict(tune=terms, spec=spec_terms(args))))
+    (out / "seeds").mkdir(parents=True, exist_ok=True)
+    cases, todo = {}, []
+    for s in seeds:
+        rec = reusable_record(out / "seeds" / f"seed_{s:03d}" / "tune_case.json", fp)
+        (todo.append(s) if rec is None else cases.__setitem__(s, rec))
+    where = args.scheduler or f"a local Dask cluster ({args.jobs or os.cpu_count() or 1} at a time)"
+    print(f"ambid validate --tune: {len(seeds)} commissioning cases ({len(cases)} reused), on {where}, out {out}",
+          flush=True)
+    t0 = time.perf_counter()
+    if todo:
+        items = [(s, (s, args.rig, str((out / "seeds" / f"seed_{s:03d}").resolve()), fp, args.linear_magnets,
+                      args.controller, spec_terms(args), terms)) for s in todo]
+        with session_client(args.scheduler, args.jobs, len(todo)) as client:
+            for s, rec, exc in as_finished(client, domain_base(args), run_tune_case, items):
+                if exc is None and rec.get("refused"):
+                    cases[s] = rec
+                    print(f"  seed {s}: tune refused ({rec['refused']}); no prediction", flush=True)
+                elif exc is None:
+                    cases[s] = rec
+                    p = rec["predicted"]
+                    print(f"  seed {s}: predicted {p['value']:.3f} ({p['ci95'][0]:.3f}..{p['ci95'][1]:.3f}), "
+                          f"measured {rec['measured'] if rec['measured'] is None else round(rec['measured'], 3)}: "
+                          f"{'inside' if rec['inside'] else 'OUTSIDE'} "
+                          f"({rec['wall_s']['total']:.0f} s; {len(cases)}/{len(seeds)}, "
+                          f"{time.perf_counter() - t0:.0f} s)", flush=True)
+                else:
+                    print(f"  seed {s}: failed: {exc}", file=sys.stderr, flush=True)
+    row = predicted_peak_row([cases[s] for s in sorted(cases)])
+    if row is None:
+        print("ambid validate: no commissioning case finished; nothing to tabulate", file=sys.stderr)
+        return 1
+    refused = sorted(s for s in cases if cases[s].get("refused"))
+    row["refused"] = refused   # cases where tune made no prediction (commission keeps the running controller)
+    table = {PREDICTED_PEAK: row}
+    result = dict(seeds=sorted(cases), n_seeds=len(cases), refused=refused, rig=args.rig or "built-in",
+                  session="ambid commission's steps per seed: identify (seed = noise and random phases; the update "
+                          "from a nominal rig drawn from the tolerances), tune on it, identify with the tuned "
+                          "controller", experiment=spec_terms(args), tune=terms, wall_s=time.perf_counter() - t0,
+                  kinds=table, cases={str(s): cases[s] for s in sorted(cases)})
+    (out / "coverage.json").write_text(json.dumps(result, indent=1))
+    print(format_table(table))
+    if refused:
+        print(f"tune refused {len(refused)} of {len(cases)} cases (seeds {refused}): no prediction, not counted")
+    print(f"written: {out / 'coverage.json'}")
+    if args.results:
+        write_section(args.results, "validate_tune", "Coverage of tune's predicted peak (`ambid validate --tune`)",
+                      f"{measured_on()} {len(cases)} commissioning cases (seeds "
+                      f"{', '.join(map(str, sorted(cases)))}) on the {args.rig or 'built-in'} rig.\n\n"
+                      + coverage_markdown(table))
         print(f"results written to {args.results}")
     return 0
 

@@ -54,12 +54,14 @@ from ambid.plant.rig import Rig
 from ambid.plant.tolerances import tolerance_for
 
 __all__ = ["FRF_NOMINAL", "POOLED", "clopper_pearson", "frf_record", "seed_record", "with_bla_truth",
-           "coverage_table", "coverage_figure", "draw_nominal_rig"]
+           "coverage_table", "coverage_figure", "draw_nominal_rig", "PREDICTED_PEAK", "predicted_peak_row"]
 
 #: P(|e| <= 2 sigma) for a circular complex Gaussian error e with E|e|^2 = sigma^2.
 FRF_NOMINAL = float(1 - np.exp(-4.0))
 #: the row of :func:`coverage_table` that pools every parameter and mode interval
 POOLED = "pooled: parameters and modes"
+#: the row of tune's predicted input-sensitivity peak (:func:`predicted_peak_row`)
+PREDICTED_PEAK = "tune:predicted_peak"
 
 
 def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
@@ -294,6 +296,34 @@ def coverage_table(records: Sequence[Mapping[str, Any]]) -> dict:
                                   if x.shape[0] > 1 else None,
                                   claim="the estimate's scatter over the seeds")
     return table
+
+
+def predicted_peak_row(cases: Sequence[Mapping[str, Any]]) -> dict | None:
+    """The coverage of tune's predicted peak over commissioning cases, one case each.
+
+    Parameters
+    ----------
+    cases
+        each {predicted: {value, ci95: [lo, hi]}, measured}: ``ambid tune``'s ``predicted_peak`` and the
+        headline input-sensitivity peak [-] the verifying identification measured (what the prediction
+        claims to hold); cases without a measurement are left out.
+
+    Returns
+    -------
+    :func:`coverage_table`'s row (nominal 0.95, coverage with its Clopper-Pearson interval, std_ratio taking
+    the half width over 1.96 as the claimed std), or None without a case.
+    """
+    rows = [c for c in cases if c.get("measured") is not None and c.get("predicted")]
+    if not rows:
+        return None
+    lo, hi = (np.array([c["predicted"]["ci95"][i] for c in rows], dtype=float) for i in (0, 1))
+    v = np.array([c["predicted"]["value"] for c in rows], dtype=float)
+    m = np.array([c["measured"] for c in rows], dtype=float)
+    s = (hi - lo) / (2 * 1.959964)
+    return _row(0.95, int(np.sum((lo <= m) & (m <= hi))), len(rows), float(np.sum((v - m) ** 2)),
+                float(np.sum(s**2)), noise_only=False, bias_over_std=float(np.mean(v - m) / np.sqrt(np.mean(s**2))),
+                claim="tune's 95 % interval of the predicted peak holds the verifying identification's measured "
+                      "headline peak (its own seed's, rig drawn from the tolerances)")
 
 
 def coverage_figure(table: Mapping[str, Mapping[str, Any]], path: str | Path | None = None):
