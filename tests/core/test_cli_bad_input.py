@@ -145,6 +145,8 @@ OPTION_VALUES = [  # argv, the option the error names
     (["validate", "--seeds", "0"], "--seeds"),
     (["validate", "--preset", "huge"], "--preset"),
     (["validate", "--controller", "bogus"], "--controller"),
+    (["validate", "--tune", "--tune-samples", "0"], "--tune-samples"),
+    (["validate", "--resolution", "-5"], "--resolution"),
 ]
 
 
