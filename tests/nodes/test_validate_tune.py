@@ -18,9 +18,9 @@ REPO = Path(__file__).resolve().parents[2]
 
 def test_validate_tune_checks_each_prediction_against_its_verifying_identification(ros_env, tmp_path):
     out = tmp_path / "v"
-    # its sessions' domains 205..206 (validate's own tests take 215.., campaign's 223..)
+    # its sessions' domains 207..208 (validate's own tests take 215.., campaign's 223..)
     proc = subprocess.run([sys.executable, "-m", "ambid_cli.cli", "validate", "--tune", "--seeds", "2", "--jobs", "2",
-                           "--domain-base", "205", "--out", str(out)], env=ros_env, cwd=REPO, capture_output=True,
+                           "--domain-base", "207", "--out", str(out)], env=ros_env, cwd=REPO, capture_output=True,
                           text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     result = json.loads((out / "coverage.json").read_text())
