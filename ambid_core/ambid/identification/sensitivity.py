@@ -113,6 +113,9 @@ def loop_zone_probabilities(frf: FrfResult, model: StateSpace, refs: ReferenceMo
     * the fitted model's peak of each input between the lines (``figures.model_peak_hz``): the fitted plant
       there, drawn with the variance of the nearest measured line plus that line's squared fit residual.
 
+    The draws are reflected about the estimated peak (the basic bootstrap): a largest of noisy values is
+    biased up by the noise, and the draws above the estimate show by how much.
+
     What it does not cover: the fit's parameter covariance is not propagated (the fit does not expose one
     for G between the lines cheaply), so a fitted peak's spread is that of the data around it, not of the
     mode's damping the fit chose; correlation between lines and elements is ignored; a bias common to every
@@ -140,6 +143,10 @@ def loop_zone_probabilities(frf: FrfResult, model: StateSpace, refs: ReferenceMo
     s, g, v, c = frf.sensitivity[lines], frf.frf[lines], var[lines], -((1 - w) * kz[k - 1] + w * kz[k])
     if figures.model_peak_hz is not None:
         fm = np.unique(np.asarray(figures.model_peak_hz, dtype=float))
+        # one point per mode: peaks of several inputs within half a line spacing are one peak (each point
+        # gives every input's S), not independent draws of it, which would push the largest up
+        half = 0.5 * float(np.median(np.diff(frf.freq_hz))) if frf.freq_hz.size > 1 else 0.0
+        fm = fm[np.concatenate([[True], np.diff(fm) > half])]
         near = np.abs(frf.freq_hz[None, :] - fm[:, None]).argmin(axis=1)
         resid2 = np.abs(frf.frf[near] - model.freqresp(frf.freq_hz[near])) ** 2
         gm = model.freqresp(fm)
@@ -147,7 +154,10 @@ def loop_zone_probabilities(frf: FrfResult, model: StateSpace, refs: ReferenceMo
         sm = np.linalg.inv(np.eye(gm.shape[2])[None] + cm @ gm)
         s, g, v, c = (np.concatenate(p) for p in ((s, sm), (g, gm), (v, var[near] + resid2), (c, cm)))
     draws = sensitivity_peak_draws(s, g, v, c, n_draws, np.random.default_rng([seed, 14839]))
-    return zone_probabilities(draws)
+    # the basic bootstrap: the estimated peak is itself a largest of noisy values, biased up by the noise as
+    # much as the draws are above it, so the truth's draws are the draws reflected about the estimate
+    peak = float(np.abs(np.diagonal(s, axis1=1, axis2=2)).max())
+    return zone_probabilities(np.maximum(2.0 * peak - draws, 0.0))
 
 
 def _model_sensitivity(model: StateSpace, refs: ReferenceModels) -> dict[str, Any]:
