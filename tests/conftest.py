@@ -41,3 +41,20 @@ def pytest_collection_modifyitems(session, config, items) -> None:
         return rank.get(path, len(rank))
 
     items.sort(key=key)  # stable: each file's tests keep their order, the other files theirs
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:  # noqa: ARG001 (pytest's hook)
+    """The doc blocks not run here and why, whenever a doc block's test ran (tests/docs/test_doc_blocks.py).
+
+    Read from the run's reports, not its collection: under pytest-xdist this process collects nothing."""
+    ran = any(getattr(r, "nodeid", "").startswith("tests/docs/test_doc_blocks.py")
+              for reports in terminalreporter.stats.values() for r in reports)
+    if not ran:
+        return
+    import sys
+
+    sys.path.insert(0, os.path.join(str(config.rootpath), "tests", "docs"))
+    from test_doc_blocks import not_run_listing
+
+    terminalreporter.write_sep("-", "doc blocks")
+    terminalreporter.write_line(not_run_listing())

@@ -51,3 +51,7 @@ def test_identify_runs_the_rig_files_controller(ros_env, tmp_path):
     assert summary["sensitivity"]["iso_zone"] != "C"          # the lines alone miss the peak
     head = next(ln for ln in proc.stdout.splitlines() if "loop sensitivity peak" in ln)
     assert "ISO 14839-3 zone C" in head and "from the fitted model between the lines" in head
+    # the zone's confidence: from the data's uncertainty, most of it on the true loop's zone (4.87: C)
+    probs = loop["zone_probabilities"]
+    assert abs(sum(probs.values()) - 1.0) < 1e-9 and max(probs, key=probs.get) == "C"
+    assert any(ln.strip().startswith("zone probabilities A ") for ln in proc.stdout.splitlines())

@@ -42,6 +42,7 @@ import numpy as np
 from ambid.frf.estimators import _cross, _matched, _right_divide
 
 __all__ = ["input_sensitivity", "sensitivity_diagonal", "sensitivity_peak", "iso14839_zone", "zone_probabilities",
+           "sensitivity_peak_draws",
            "input_sensitivity_from_models", "ZONE_LIMITS", "ZONES", "ShownSensitivity", "sensitivity_shown"]
 
 # Upper peak-gain limits of zones A, B, C (ISO 14839-3); above the last is D.
@@ -133,6 +134,50 @@ def zone_probabilities(peaks: np.ndarray) -> dict[str, float]:
     edges = [limit for _, limit in ZONE_LIMITS]
     counts = np.bincount(np.searchsorted(edges, x, side="right"), minlength=len(ZONES))
     return {z: float(c) / x.size for z, c in zip(ZONES, counts)}
+
+
+def sensitivity_peak_draws(s: np.ndarray, g: np.ndarray, var_g: np.ndarray, c_jw: np.ndarray,
+                           n_draws: int = 1000, rng: np.random.Generator | None = None) -> np.ndarray:
+    """Draws of the worst input-sensitivity peak ``max_l max_i |S_ii(l)|`` from the plant FRF's uncertainty.
+
+    At each line the plant is drawn as ``G + dG``, dG circular complex Gaussian with ``E|dG|^2 = var_g``
+    per element (independent elements and lines), and the sensitivity moves as the loop closed on it does:
+    ``S + (I + C (G + dG))^-1 - (I + C G)^-1`` (exact, not linearised). The centre ``s`` is what is known at
+    the line (the measured u / r, or the fitted model's S between the lines).
+
+    Parameters
+    ----------
+    s
+        (L, Nu, Nu) the sensitivity at the lines [A/A].
+    g
+        (L, Ny, Nu) the plant FRF u -> y there [m/A].
+    var_g
+        (L, Ny, Nu) its variance [(m/A)^2]; 0 where nothing is known.
+    c_jw
+        (L, Nu, Ny) the controller y -> -ic there [A/m] (``u = r - C y``).
+    n_draws
+        number of draws.
+    rng
+        the generator (None: seed 0).
+
+    Returns
+    -------
+    (n_draws,) peak draws [-, absolute gain].
+
+    Examples
+    --------
+    >>> g = np.full((1, 1, 1), 1.0 + 0j); c = np.full((1, 1, 1), -0.7 + 0j)
+    >>> d = sensitivity_peak_draws(1.0 / (1.0 + c @ g), g, np.zeros((1, 1, 1)), c, 4)
+    >>> np.allclose(d, 1.0 / 0.3)
+    True
+    """
+    s, g, c_jw = (np.asarray(a, dtype=complex) for a in (s, g, c_jw))
+    sd = np.sqrt(np.nan_to_num(np.asarray(var_g, dtype=float), nan=0.0) / 2.0)
+    rng = np.random.default_rng(0) if rng is None else rng
+    dg = sd * (rng.standard_normal((n_draws, *g.shape)) + 1j * rng.standard_normal((n_draws, *g.shape)))
+    eye = np.eye(s.shape[1])
+    drawn = s + np.linalg.inv(eye + c_jw @ (g + dg)) - np.linalg.inv(eye + c_jw @ g)
+    return np.abs(np.diagonal(drawn, axis1=2, axis2=3)).max(axis=(1, 2))
 
 
 def input_sensitivity_from_models(p_jw: np.ndarray, c_jw: np.ndarray) -> np.ndarray:
@@ -260,6 +305,10 @@ def sensitivity_lines(sens: Mapping | None) -> list[str]:
             lines.append(f"  at the measured lines {measured:.3g} (zone {sens.get('iso_zone')})"
                          + ("" if sens.get("true_peak") is None else
                             f"; the true loop {max(sens['true_peak']):.3g} (zone {sens.get('true_iso_zone')})"))
+        probs = loop.get("zone_probabilities")
+        if probs:
+            lines.append("  zone probabilities " + ", ".join(f"{z} {probs[z]:.2f}" for z in ZONES)
+                         + " (from the measured and fitted sensitivity's uncertainty)")
     for why in sens.get("none") or []:
         lines.append(why)
     return lines

@@ -264,13 +264,16 @@ class SensitivityChannel(JsonRecord):
 @dataclass(frozen=True, eq=False)
 class LoopSensitivity(JsonRecord):
     """The loop's worst sensitivity peak, over the measured lines and the fitted model between them: its
-    value, frequency [Hz], where it came from, the channel and its ISO 14839-3 zone."""
+    value, frequency [Hz], where it came from, the channel and its ISO 14839-3 zone; the probability of each
+    zone (``zone_probabilities``, :func:`ambid.identification.sensitivity.loop_zone_probabilities`) where the
+    data give the peak's uncertainty."""
 
     peak: float
     peak_hz: float
     source: str
     channel: str
     iso_zone: str
+    zone_probabilities: dict[str, float] | None = json_field(omit_none=True)
 
 
 @dataclass(frozen=True, eq=False)

@@ -4,7 +4,8 @@ Each excitation channel shows the sensitivity its injection point allows (at the
 sensitivity u / r; elsewhere what :func:`ambid.frf.sensitivity.sensitivity_shown` finds, or why none). The
 measured S is known only at the excited lines, which can straddle a sharp peak; the fitted plant with the
 recorded controller K(z) gives it in between, and the updated physical model with K gives its own peak;
-each peak with its ISO 14839-3 zone.
+each peak with its ISO 14839-3 zone, and the loop's worst peak with the probability of each zone
+(:func:`loop_zone_probabilities`).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import numpy as np
 
 from ambid.control.closed_loop import loop_robustness
 from ambid.fit.model_update import PhysicalUpdate, physical_discrete
-from ambid.frf.sensitivity import iso14839_zone, sensitivity_shown
+from ambid.frf.sensitivity import iso14839_zone, sensitivity_peak_draws, sensitivity_shown, zone_probabilities
 from ambid.frf.streaming import FrfResult
 from ambid.identification.inputs import SessionInputs
 from ambid.identification.references import ReferenceModels, axis_of
@@ -25,7 +26,11 @@ from ambid.identification.result import LoopSensitivity, SensitivityChannel, Sen
 from ambid.plant.rig import Rig
 from ambid.statespace import StateSpace
 
-__all__ = ["sensitivity_figures"]
+__all__ = ["sensitivity_figures", "loop_zone_probabilities"]
+
+#: Draws of the loop's worst peak behind its zone probabilities, and the lines they are taken at.
+N_DRAWS = 1000
+N_LINES = 24
 
 
 def sensitivity_figures(frf: FrfResult, inputs: SessionInputs, model: StateSpace, refs: ReferenceModels,
@@ -52,8 +57,12 @@ def sensitivity_figures(frf: FrfResult, inputs: SessionInputs, model: StateSpace
                                      iso_zone=w.iso_zone)
     else:
         figures = SensitivityFigures(channels)
-    return replace(figures, none=[c.why for c in channels if c.peak is None],
-                   loop=_loop_peak(with_peak, figures, frf.input_names))
+    loop = _loop_peak(with_peak, figures, frf.input_names)
+    if loop is not None and all(c.injected_at == "current" for c in channels):
+        seed = getattr(inputs.design, "seed", None)
+        loop = replace(loop, zone_probabilities=loop_zone_probabilities(frf, model, refs, figures,
+                                                                        0 if seed is None else int(seed)))
+    return replace(figures, none=[c.why for c in channels if c.peak is None], loop=loop)
 
 
 def _channels(frf: FrfResult, inputs: SessionInputs) -> list[SensitivityChannel]:
@@ -89,6 +98,66 @@ def _loop_peak(with_peak: list[SensitivityChannel], figures: SensitivityFigures,
         return None
     peak, hz, source, chan = max(cands, key=lambda c: c[0])
     return LoopSensitivity(peak=peak, peak_hz=hz, source=source, channel=chan, iso_zone=iso14839_zone(peak))
+
+
+def loop_zone_probabilities(frf: FrfResult, model: StateSpace, refs: ReferenceModels, figures: SensitivityFigures,
+                            seed: int, n_draws: int = N_DRAWS) -> dict[str, float] | None:
+    """The probability of each ISO 14839-3 zone for the loop's worst input-sensitivity peak, the share of
+    ``n_draws`` draws of that peak in each (:func:`ambid.frf.sensitivity.zone_probabilities`).
+
+    Each draw is the worst ``|S_ii|`` over (:func:`ambid.frf.sensitivity.sensitivity_peak_draws`):
+
+    * the measured lines (the ``N_LINES`` with the highest measured peak, where the worst one can be): the
+      measured u / r moved as the loop closed on a plant drawn from the FRF's own per-line variance
+      (``var_total``, noise and stochastic nonlinear scatter; ``var_noise`` where that is unknown) moves it;
+    * the fitted model's peak of each input between the lines (``figures.model_peak_hz``): the fitted plant
+      there, drawn with the variance of the nearest measured line plus that line's squared fit residual.
+
+    The draws are reflected about the estimated peak (the basic bootstrap): a largest of noisy values is
+    biased up by the noise, and the draws above the estimate show by how much.
+
+    What it does not cover: the fit's parameter covariance is not propagated (the fit does not expose one
+    for G between the lines cheaply), so a fitted peak's spread is that of the data around it, not of the
+    mode's damping the fit chose; correlation between lines and elements is ignored; a bias common to every
+    period (e.g. the magnets' level dependence) is not in the variance. Deterministic: the draws come from
+    ``seed`` (the session's).
+
+    Returns
+    -------
+    ``{zone: probability}`` over 'A'..'D', summing to 1; None without the recorded controller on the lines'
+    band (the propagation needs it) or without any variance.
+    """
+    if refs.controller_frf is None or refs.sens_freq_hz is None:
+        return None
+    var = np.where(np.isfinite(frf.var_total), frf.var_total, frf.var_noise)
+    if not np.any(np.isfinite(var)):
+        return None
+    var = np.nan_to_num(var, nan=0.0)
+    grid, kz = refs.sens_freq_hz, refs.controller_frf      # kz: y -> ic = -C
+    mag = np.abs(np.diagonal(frf.sensitivity, axis1=1, axis2=2)).max(axis=1)
+    lines = np.sort(np.argsort(mag)[::-1][:N_LINES])
+    f = frf.freq_hz[lines]
+    # the controller at the lines, linear between the dense grid's points
+    k = np.clip(np.searchsorted(grid, f), 1, grid.size - 1)
+    w = ((f - grid[k - 1]) / (grid[k] - grid[k - 1]))[:, None, None]
+    s, g, v, c = frf.sensitivity[lines], frf.frf[lines], var[lines], -((1 - w) * kz[k - 1] + w * kz[k])
+    if figures.model_peak_hz is not None:
+        fm = np.unique(np.asarray(figures.model_peak_hz, dtype=float))
+        # one point per mode: peaks of several inputs within half a line spacing are one peak (each point
+        # gives every input's S), not independent draws of it, which would push the largest up
+        half = 0.5 * float(np.median(np.diff(frf.freq_hz))) if frf.freq_hz.size > 1 else 0.0
+        fm = fm[np.concatenate([[True], np.diff(fm) > half])]
+        near = np.abs(frf.freq_hz[None, :] - fm[:, None]).argmin(axis=1)
+        resid2 = np.abs(frf.frf[near] - model.freqresp(frf.freq_hz[near])) ** 2
+        gm = model.freqresp(fm)
+        cm = -kz[np.abs(grid[None, :] - fm[:, None]).argmin(axis=1)]
+        sm = np.linalg.inv(np.eye(gm.shape[2])[None] + cm @ gm)
+        s, g, v, c = (np.concatenate(p) for p in ((s, sm), (g, gm), (v, var[near] + resid2), (c, cm)))
+    draws = sensitivity_peak_draws(s, g, v, c, n_draws, np.random.default_rng([seed, 14839]))
+    # the basic bootstrap: the estimated peak is itself a largest of noisy values, biased up by the noise as
+    # much as the draws are above it, so the truth's draws are the draws reflected about the estimate
+    peak = float(np.abs(np.diagonal(s, axis1=1, axis2=2)).max())
+    return zone_probabilities(np.maximum(2.0 * peak - draws, 0.0))
 
 
 def _model_sensitivity(model: StateSpace, refs: ReferenceModels) -> dict[str, Any]:

@@ -108,6 +108,10 @@ def _headline(s: Mapping[str, Any]) -> list[list[str]]:
     zone = (loop or {}).get("iso_zone", sens.get("iso_zone") if "loop" not in sens else None)
     if zone is not None:
         rows += [["ISO 14839-3 zone", zone]]
+    probs = (loop or {}).get("zone_probabilities")
+    if probs:
+        rows += [["ISO 14839-3 zone probabilities (from the measured and fitted sensitivity's uncertainty)",
+                  ", ".join(f"{z} {p:.2f}" for z, p in probs.items())]]
     rows += [["no sensitivity", why] for why in sens.get("none") or []]
     rows += [["data quality", q["text"]] for q in (s.get("quality") or {}).get("findings", [])]
     if s.get("max_mode_freq_error") is not None:
