@@ -203,6 +203,7 @@ def tune(unc: PlantUncertainty, measurement: MeasurementModel, layout: Layout, b
     f_u = (np.arange(1024) + 0.5) / 1024 * 0.5 / unc.dt_s
     noise_grid = (f_u, residue_freqresp(design.models[0], f_u))
     candidates: list[Candidate] = []
+    failed: list[str] = []  # designs that ended without a controller, and why (the refusal names them)
 
     def judged(kind: str, k: StateSpace, params: dict, t_start: float, note: str = "") -> Candidate:
         peak, share = _check(k, check.models, grid, check.frf)
@@ -235,12 +236,13 @@ def tune(unc: PlantUncertainty, measurement: MeasurementModel, layout: Layout, b
                 candidates.append(judged(kind, d.model, d.parameters(), t1))
         except ValueError as exc:
             say(f"{kind}: {exc}")
+            failed.append(f"{kind}: {exc}")
     admissible = [c for c in candidates if c.admissible]
     if not admissible:
+        reasons = [f"{c.kind}: stable on {100 * c.stable_share:.0f} %"
+                   + ("" if c.holds_nominal else ", not on the nominal model") for c in candidates] + failed
         raise ValueError("no controller holds every drawn plant and the nominal model within the amplifier's "
-                         "limits: " + "; ".join(f"{c.kind}: stable on {100 * c.stable_share:.0f} %"
-                                                + ("" if c.holds_nominal else ", not on the nominal model")
-                                                for c in candidates))
+                         "limits: " + "; ".join(reasons))
     chosen = min(admissible, key=lambda c: c.worst_peak)
     notes = []
     if chosen.kind == "running":
