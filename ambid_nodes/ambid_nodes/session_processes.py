@@ -75,13 +75,12 @@ def run_session_processes(cfg: SessionConfig, plan: SessionPlan | None = None, r
             sup.start("excitation_generator", {"start_margin": start_index, **rig_param, **session})
             sup.start("frf_consumer", {"estimator": cfg.estimator, **session})
             # the recorder, the consumer and the generator (and a live view) listen to the measurement before the
-            # loop starts
-            meas = watch.measurement
-            listeners = 4
+            # loop starts, each by name (another listener on the topic stands in for none of them)
+            listeners = ["recorder", "frf_consumer", "excitation_generator"]
             if live is not None:
                 print(f"ambid: live view on {live.wait_ready()} (docs/live.md)", file=sys.stderr, flush=True)
-                listeners += 1
-            spin_until(lambda: watch.count_subscribers(meas) >= listeners and watch.hears_the_plant(),
+                listeners.append("live_view")
+            spin_until(lambda: not watch.subscribed(watch.measurement, listeners) and watch.hears_the_plant(),
                        START_TIMEOUT_S, "the recorder, the consumer and the generator to subscribe"
                        + (" (and the live view)" if live is not None else ""))
             answer = _start_experiment(watch, executor, spin_until, StartExperiment, start_index, design)
