@@ -270,6 +270,53 @@ class BadController(Node):
             self.pub.publish(Sample(index=m.index, values=ic))
 
 
+class SlowStarter(Node):
+    """A lock-step controller slow to its first answer (a process still starting on a busy machine): it answers
+    each y[0] heard only after 0.6 s, by then the plant has sent y[0] again; every later y at once."""
+
+    def __init__(self, context):
+        super().__init__("slow_starter", namespace=NS, context=context)
+        from ambid.control.pid import PidParameters, pid_controller
+        from ambid.control.stepper import ControllerStepper
+        self.ctl = ControllerStepper(pid_controller(PidParameters(), 1e-4), 3.0)
+        self.pub = self.create_publisher(Sample, "control_current", qos.LOOP)
+        self.create_subscription(Sample, "displacement", self.on_y, qos.subscription(qos.LOOP))
+        self.first: list[Sample] = []
+
+    def on_y(self, m):
+        if m.index == 0:
+            if not self.first:
+                self.timer = self.create_timer(0.6, self.answer_first)
+            self.first.append(m)
+        else:
+            self.pub.publish(Sample(index=m.index, values=self.ctl.step(list(m.values))))
+
+    def answer_first(self):
+        self.timer.cancel()
+        ic = self.ctl.step(list(self.first[0].values))
+        for _ in self.first:  # the same answer to each y[0], as position_controller gives it
+            self.pub.publish(Sample(index=0, values=ic))
+
+
+def test_the_answers_to_a_start_retry_are_duplicates_not_rejected(ros):
+    """Until its first answer the plant sends y[0] again every START_RETRY_S; the controller answers each, and the
+    answers after the first are duplicates the plant asked for: counted, never rejected as stale."""
+    spy = ros.add(Spy(ros.context))
+    spy.ros = ros
+    plant = ros.add(PlantSim(namespace=NS, context=ros.context,
+                             parameter_overrides=[Parameter("sim_seconds", value=0.2)]))
+    ros.matched(spy, to=plant)
+    starter = ros.add(SlowStarter(ros.context))
+    assert ros.spin_until(plant.finished.done, timeout_s=120)
+    s = plant.finished.result()
+    assert s["start_retries"] >= 2, s  # 0.25 s, 0.5 s: before the answer at 0.6 s
+    assert s["messages_rejected"] == 0 and s["state"] == "done", (s, [e.text for e in spy.events])
+    assert_every_sample_once(spy, s, 2000, lead=0)
+    # the starter's answers to y[0] beyond the first (it may have matched after the first y[0]), the resends'
+    assert ros.spin_until(lambda: plant.duplicate_answers == len(starter.first) - 1 + 2 * s["resends"], 5), s
+    assert plant.intake.total_rejected == 0
+
+
 def test_bad_control_messages_rejected_counted_loop_survives(ros):
     spy = ros.add(Spy(ros.context))
     plant = ros.add(PlantSim(namespace=NS, context=ros.context,
