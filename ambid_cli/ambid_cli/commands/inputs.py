@@ -256,10 +256,11 @@ _SPEC_OPTIONS = {"kind": "kind", "band": "band_hz", "resolution": "resolution_hz
                  "settle": "settle_s", "cycles": "n_cycles", "harmonics": "n_harmonics", "guard_bins": "guard_bins"}
 
 
-def check_amplifier(design, current_limit_a: float, working_current_a: float) -> None:
+def check_amplifier(design, current_limit_a: float, working_current_a: float, rig=None) -> None:
     """BadInput when ``design``'s peak plus the controller's working current exceeds the amplifier's limit
     (:func:`ambid.excitation.check_headroom`): the refusal the excitation generator would give once the
-    nodes run, given before anything starts, in the command's terms."""
+    nodes run, given before anything starts, in the command's terms. With ``rig``, also when following the
+    excitation would ask the amplifier for more voltage than its dc link has (:func:`check_voltage`)."""
     import numpy as np
     from ambid.excitation import check_headroom
 
@@ -271,6 +272,35 @@ def check_amplifier(design, current_limit_a: float, working_current_a: float) ->
         raise BadInput(f"the excitation peak {float(np.max(design.peak_a)):.3g} A plus the controller's working "
                        f"current {working_current_a:g} A exceeds the amplifier's {current_limit_a:g} A limit on "
                        f"{', '.join(over)}; give --peak-current {left:.3g} or less") from None
+    if rig is not None:
+        check_voltage(design, rig, working_current_a)
+
+
+def check_voltage(design, rig, working_current_a: float) -> None:
+    """BadInput when a step of the excitation from one sample to the next is more than the amplifier's dc link
+    can move its coil's current within a sample (:func:`ambid.plant.amplifier.slew_voltage_v`): it would
+    saturate, the coil current slew behind the excitation designed, the FRF measure that distortion. The
+    controller's own share (its noise, its response) is not counted: this refuses what cannot be followed."""
+    from ambid.plant.amplifier import slew_voltage_v
+
+    names = list(rig.layout.inputs)
+    x = design.samples(0, design.total_samples)
+    worst = None
+    for i, name in enumerate(design.input_names):
+        axial = name in names and names.index(name) in rig.layout.axial
+        amp = rig.axial_amplifier if axial else rig.amplifier
+        offset = rig.values["axial_bias_current_a" if axial else "bias_current_a"] + working_current_a
+        need = float(slew_voltage_v(amp, x[:, i], 1.0 / design.fs_hz, offset))
+        udc = amp.dc_link_voltage_v
+        if need > udc and (worst is None or need / udc > worst[1] / worst[2]):
+            # the voltage grows with the peak (the resistive share with the offset too): the peak that fits
+            static = amp.resistance_ohm * offset
+            worst = (name, need, udc, float(design.peak_a[i]) * max(udc - static, 0.0) / max(need - static, 1e-300))
+    if worst is not None:
+        name, need, udc, fits = worst
+        raise BadInput(f"the excitation's steps on {name} need {need:.4g} V of the amplifier's {udc:g} V dc link to "
+                       f"be followed within a sample (L di/dt + R i); give --peak-current {fits:.3g} or less, or a "
+                       "lower band")
 
 
 def experiment_spec(args: argparse.Namespace, **terms) -> DesignSpec:
