@@ -80,7 +80,10 @@ class LiveView(Node):
             raise ParameterError(f"live_view: estimator '{estimator}' is not one of {list(ESTIMATORS)}")
         prefix = self.get_namespace().rstrip("/") + "/live"
         try:
-            self.server = LiveServer(int(port), host, SessionFollower(estimator, rate), prefix=prefix,
+            # at most two live estimates a wall second: a viewer reads them, a simulated session completes
+            # records several times faster
+            follower = SessionFollower(estimator, rate, estimate_every_s=0.5)
+            self.server = LiveServer(int(port), host, follower, prefix=prefix,
                                      queue_size=256, display_hz=float(display)).start()
         except LiveUnavailable as exc:
             raise ParameterError(f"live_view: {exc}") from None

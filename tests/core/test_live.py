@@ -320,3 +320,18 @@ def test_a_session_faster_than_real_time_is_drawn_at_the_display_rate(session):
     assert sig[-1]["t_s"] == pytest.approx((len(x) - 1) // 10 * 10 / FS)   # the last sample shown
     final = [m for m in got["/amb/live/frf/y_a_y/u_a_x"] if m["complete"]]
     assert final and got["/amb/live/progress"][-1]["finished"]
+
+
+def test_live_estimates_wait_their_turn_but_the_final_one_comes(session):
+    """estimate_every_s: a record completed sooner than that after the last estimate waits; the final estimate
+    (the whole experiment's, the session's) is always made."""
+    d, x = session
+    every, _ = _follow(d, x, block=250)
+    f = SessionFollower(signal_rate_hz=500.0, orbit_points=50, estimate_every_s=3600.0)
+    frames = f.design_message("exp1", d, PRE, d.total_samples)
+    for k in range(0, len(x), 250):
+        frames += f.block(k, 1 / FS, NAMES, x[k:k + 250])
+    assert every.counts["estimates"] > 2 and f.counts["estimates"] == 2   # the first record's, and the final
+    entry = [fr.message for fr in frames if fr.topic == "frf/y_a_y/u_a_x" and fr.message is not None]
+    assert len(entry) == 2 and entry[-1]["complete"] and not entry[0]["complete"]
+    np.testing.assert_array_equal(f.result.frf, every.result.frf)   # the same final estimate
