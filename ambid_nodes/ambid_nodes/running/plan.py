@@ -50,6 +50,9 @@ class SessionConfig:
     processes: bool = False  # every node its own process, supervised
     live_port: int | None = None    # a Foxglove live view on this port (0: any free one); None: none
     live_host: str = "127.0.0.1"    # the address the live view binds
+    # the report: True written before the run returns; "background" by a detached process, the run returning
+    # without it (report/status.json says when it is there: ambid identify answers without waiting for it)
+    report: bool | str = True
     extra: dict = field(default_factory=dict)
 
     @property
