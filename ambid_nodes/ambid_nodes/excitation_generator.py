@@ -82,7 +82,7 @@ class ExcitationGenerator(SessionNode):
         self.spec = DesignSpec(**terms)
         # defaults until the plant describes itself; the terms are checked now, so a bad band fails at
         # start-up, and designed only when an experiment asks for them (a caller may bring its own design)
-        self.dt = rig.dt
+        self.set_sample_period(rig.dt)
         self.set_currents(list(rig.layout.inputs), np.full(len(rig.layout), float(rig.current_limit_a)))
         self.plant_known = False
         self.default_error = self.check_spec()
@@ -119,13 +119,17 @@ class ExcitationGenerator(SessionNode):
         changed = abs(msg.sample_period - self.dt) > 1e-12 * self.dt
         if list(msg.current_names) != self.current_names:
             self.default_design = None   # [auto] inputs: the plant's currents
-        self.dt = float(msg.sample_period)
+        self.set_sample_period(float(msg.sample_period))
         self.set_currents(list(msg.current_names), np.asarray(msg.current_limit, dtype=float))
         self.plant_known = True
         if changed:
             self.default_design, self.default_error = None, self.check_spec("the plant's ")
             if self.default_error:
                 self.event(SessionEvent.ERROR, "bad_design", self.default_error)
+
+    def set_sample_period(self, dt: float) -> None:
+        """The plant's sample period [s] (its messages' stamps) and, from it once, the rate [Hz] designs take."""
+        self.dt, self.fs_hz = dt, 1.0 / dt
 
     def set_currents(self, names: list[str], limits: np.ndarray) -> None:
         """The plant's current channels (u_<axis>) and their limits [A]; the excitation goes out on r_<axis>
@@ -137,9 +141,9 @@ class ExcitationGenerator(SessionNode):
     def check_spec(self, whose: str = "") -> str:
         """Why the parameters' design cannot be made at the present sample rate, or ""."""
         try:
-            self.spec.check(1.0 / self.dt)
+            self.spec.check(self.fs_hz)
         except ValueError as exc:
-            return f"the design parameters are invalid at {whose}{1.0 / self.dt:g} Hz: {exc}"
+            return f"the design parameters are invalid at {whose}{self.fs_hz:g} Hz: {exc}"
         return ""
 
     def on_measurement(self, msg: SampleBlock) -> None:
@@ -197,10 +201,10 @@ class ExcitationGenerator(SessionNode):
             raise ValueError(self.default_error)
         else:
             if self.default_design is None:
-                self.default_design = self.spec.build(1.0 / self.dt, inputs=self.current_names)
+                self.default_design = self.spec.build(self.fs_hz, inputs=self.current_names)
             design = self.default_design
         limit = self.plant_limit if self.current_limit == 0 else self.current_limit
-        exp = place_experiment(f"exp-{self.count + 1:04d}", design, fs_hz=1.0 / self.dt,
+        exp = place_experiment(f"exp-{self.count + 1:04d}", design, fs_hz=self.fs_hz,
                                current_names=self.current_names, current_limit_a=limit,
                                working_current_a=self.working_current, excitation_names=self.excitation_names,
                                progress=self.progress, margin=self.start_margin, after=self.last_end,

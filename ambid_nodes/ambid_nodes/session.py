@@ -104,7 +104,7 @@ class _Composed:
         from rclpy.experimental import EventsExecutor
 
         self.cfg, self.plan = cfg, plan
-        self.fs = 1.0 / plan.rig.dt
+        self.fs = plan.rig.sample_rate_hz
         self.start_index, self.total = session_samples(plan.design, self.fs)
         self.mcap_path = cfg.out_dir / "session.mcap"
         self.context = rclpy.Context()

@@ -107,7 +107,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         inputs = read_session_inputs(path, estimator, experiment_id, recover)
     frf, design = inputs.frf, inputs.design
     out.mkdir(parents=True, exist_ok=True)  # only once the session gave an FRF: a refusal leaves nothing behind
-    dt_s = 1.0 / design.fs_hz
+    dt_s = design.dt_s
     measured = session_frf(frf)
     notes = list(measured.notes)
     fitted = fit_frf(frf, design.fs_hz, order, max_order=max_order, order_penalty=order_penalty,

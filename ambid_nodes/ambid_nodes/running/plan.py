@@ -109,7 +109,7 @@ def plan_session(cfg: SessionConfig, rig: Rig | None = None, controller: Control
     rig = rig if rig is not None else rig_or_default(cfg.rig_file)
     if controller is None and not cfg.hardware:
         controller = checked_design(cfg.controller, rig)
-    return SessionPlan(rig, controller, cfg.design(1.0 / rig.dt, float(rig.rotor_speed_rpm), rig.layout.inputs))
+    return SessionPlan(rig, controller, cfg.design(rig.sample_rate_hz, float(rig.rotor_speed_rpm), rig.layout.inputs))
 
 
 class ProgressBar:
