@@ -141,7 +141,7 @@ def slew_voltage_v(amp: Amplifier, reference_a: np.ndarray, dt_s: float, offset_
     amp
         the coil's amplifier.
     reference_a
-        (n,) or (n, Nu) reference current perturbations [A].
+        (n,) or (n, Nu) reference current perturbations [A]; NaN rows separate pieces (no step across them).
     dt_s
         sample period [s].
     offset_a
@@ -152,8 +152,8 @@ def slew_voltage_v(amp: Amplifier, reference_a: np.ndarray, dt_s: float, offset_
     (Nu,) (a scalar for a 1-D reference) the voltage [V].
     """
     r = np.asarray(reference_a, dtype=float)
-    step = np.max(np.abs(np.diff(r, axis=0)), axis=0) if r.shape[0] > 1 else np.zeros(r.shape[1:])
-    return amp.inductance_h * step / dt_s + amp.resistance_ohm * (abs(offset_a) + np.max(np.abs(r), axis=0))
+    step = np.nanmax(np.abs(np.diff(r, axis=0)), axis=0) if r.shape[0] > 1 else np.zeros(r.shape[1:])
+    return amp.inductance_h * step / dt_s + amp.resistance_ohm * (abs(offset_a) + np.nanmax(np.abs(r), axis=0))
 
 
 def amplifier_step(amp: Amplifier, current_a: np.ndarray, reference_a: np.ndarray, dt_s: float,
