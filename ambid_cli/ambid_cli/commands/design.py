@@ -41,7 +41,8 @@ def add_arguments(g: argparse.ArgumentParser) -> None:
                         "(default: the rig file's rotor_speed_rpm; 0 = standstill)")
     spec_option(g, "--harmonics", "n_harmonics", type=positive_int, help="synchronous harmonics kept clear")
     spec_option(g, "--guard-bins", "guard_bins", type=count, help="bins kept free each side of a harmonic")
-    g.add_argument("--working-current", type=positive_float, default=WORKING_CURRENT_A,
+    g.add_argument("--working-current", dest="working_current_a", metavar="WORKING_CURRENT", type=positive_float,
+                   default=WORKING_CURRENT_A,
                    help=f"controller's peak working current [A] for the headroom check (default {WORKING_CURRENT_A:g})")
     g.add_argument("--no-plan", action="store_true", help="skip the stepped/swept/multisine time table")
     g.add_argument("--no-figure", action="store_true", help="skip design.png (otherwise drawn in the background once the figures are out)")
@@ -92,13 +93,13 @@ def run(args: argparse.Namespace) -> int:
         return 2
     limit = float(rig.current_limit_a)
     try:  # refused: one line, exit code 2, nothing written (identify refuses the same design before it starts)
-        check_amplifier(design, limit, args.working_current, rig)
+        check_amplifier(design, limit, args.working_current_a, rig)
     except BadInput as exc:
         print(f"ambid design: headroom: REFUSED, {exc}", file=sys.stderr)
         return 2
-    margin = limit - args.working_current - design.peak_a
+    margin = limit - args.working_current_a - design.peak_a
     headroom = {"ok": True, "text": f"headroom: fits the {limit:g} A amplifier limit with a working current "
-                                    f"of {args.working_current:g} A; smallest margin {margin.min():.3g} A",
+                                    f"of {args.working_current_a:g} A; smallest margin {margin.min():.3g} A",
                 "margin_a": margin.tolist()}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -111,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
             "input_names": list(design.input_names), "peak_a": design.peak_a.tolist(),
             "rms_a": design.rms_a.tolist(), "crest_factor": design.crest_factor.tolist(),
             "total_samples": design.total_samples, "measurement_time_s": design.measurement_time_s,
-            "current_limit_a": limit, "working_current_a": args.working_current, "headroom": headroom,
+            "current_limit_a": limit, "working_current_a": args.working_current_a, "headroom": headroom,
             "plan": None if plan is None else [
                 {"method": r.name, "n_lines": r.n_lines, "n_experiments": r.n_experiments,
                  "total_samples": r.total_samples, "measurement_time_s": r.measurement_time_s} for r in plan],
