@@ -104,7 +104,7 @@ class _Composed:
         from rclpy.experimental import EventsExecutor
 
         self.cfg, self.plan = cfg, plan
-        self.fs = 1.0 / plan.rig.dt
+        self.fs = plan.rig.sample_rate_hz
         self.start_index, self.total = session_samples(plan.design, self.fs)
         self.mcap_path = cfg.out_dir / "session.mcap"
         self.context = rclpy.Context()
@@ -353,7 +353,7 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None,
         from ambid.hardware.target_model import read_target_model
 
         true_model = read_target_model(cfg.true_model).plant
-    options = dict(estimator=cfg.estimator, true_model=true_model)
+    options = dict(estimator=cfg.estimator, true_model=true_model, report=cfg.report)
     live = start_live(cfg)
     # with a real-time target the bridge must never fall silent: the analysis yields it the CPU. A session
     # run by a daemonic worker (a study's on Dask) may not start processes: it analyses the recording itself
@@ -381,7 +381,7 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None,
             shown["at"] = time.perf_counter()
             if on_headline is not None:
                 on_headline(_identify_summary(cfg, run, design, offline, _timing(run, shown)))
-            phase("writing the report")
+            phase("writing the report" if cfg.report is True else "handing the report to a process of its own")
 
         phase("analysing the recording: FRF, fit, model update")
 

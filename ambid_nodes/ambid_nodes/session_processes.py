@@ -39,7 +39,7 @@ def run_session_processes(cfg: SessionConfig, plan: SessionPlan | None = None, r
 
     plan = plan_session(cfg) if plan is None else plan
     design, rig = plan.design, plan.rig
-    fs = 1.0 / rig.dt
+    fs = rig.sample_rate_hz
     start_index, total = session_samples(design, fs)
     cfg.out_dir.mkdir(parents=True, exist_ok=True)
     mcap_path = cfg.out_dir / "session.mcap"

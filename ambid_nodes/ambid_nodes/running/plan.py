@@ -50,6 +50,9 @@ class SessionConfig:
     processes: bool = False  # every node its own process, supervised
     live_port: int | None = None    # a Foxglove live view on this port (0: any free one); None: none
     live_host: str = "127.0.0.1"    # the address the live view binds
+    # the report: True written before the run returns; "background" by a detached process, the run returning
+    # without it (report/status.json says when it is there: ambid identify answers without waiting for it)
+    report: bool | str = True
     extra: dict = field(default_factory=dict)
 
     @property
@@ -106,7 +109,7 @@ def plan_session(cfg: SessionConfig, rig: Rig | None = None, controller: Control
     rig = rig if rig is not None else rig_or_default(cfg.rig_file)
     if controller is None and not cfg.hardware:
         controller = checked_design(cfg.controller, rig)
-    return SessionPlan(rig, controller, cfg.design(1.0 / rig.dt, float(rig.rotor_speed_rpm), rig.layout.inputs))
+    return SessionPlan(rig, controller, cfg.design(rig.sample_rate_hz, float(rig.rotor_speed_rpm), rig.layout.inputs))
 
 
 class ProgressBar:
