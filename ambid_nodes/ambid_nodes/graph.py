@@ -11,6 +11,7 @@ from ambid.plant.rig import Rig
 
 from ambid_nodes.node_main import spin_until_done
 from ambid_nodes.running.domain import DEFAULT_NAMESPACE, session_domain_id
+from ambid_nodes.running.layout import preflight
 
 
 @dataclass
@@ -70,55 +71,6 @@ def run_composed(cfg: GraphConfig) -> dict:
         rclpy.shutdown(context=context)
 
 
-def preflight(executor, namespace: str, context, report: Callable[[dict], None] | None = None) -> dict[str, list[str]]:
-    """{topic: [publishers named]} already on the rig's topics before its session starts (a rig next door, a
-    replayed recording, a script left running), found in the session's own ``context`` before any of its nodes
-    exists: a listener waits for discovery to settle (:func:`wait_for_discovery`, 1-5 s), so the session's
-    participant knows them from then on and its nodes hear them from their first message. The session runs
-    unaffected by them (every node acts only on its session's messages); ``report(found)`` names them at
-    once (the command's one line). Without ``report`` (a study's sessions: campaign, validate, bench) nobody
-    asks: no wait, {}."""
-    if report is None:
-        return {}
-    import rclpy
-
-    from ambid_nodes.watch import SESSION_TOPICS
-
-    probe = rclpy.create_node("session_preflight", namespace=namespace, context=context)
-    executor.add_node(probe)
-    try:
-        wait_for_discovery(executor, probe)
-        found = {}
-        for t in SESSION_TOPICS:  # nothing of the session publishes yet: every publisher there is foreign
-            topic = probe.resolve_topic_name(t)
-            names = sorted({f"{i.node_namespace.rstrip('/')}/{i.node_name}"
-                            for i in probe.get_publishers_info_by_topic(topic)})
-            if names:
-                found[topic] = names
-    finally:
-        executor.remove_node(probe)
-        probe.destroy_node()
-    report(found)
-    return found
-
-
-def wait_for_discovery(executor, node, least_s: float = 1.0, most_s: float = 5.0, still_s: float = 1.0) -> None:
-    """Spin at least ``least_s``, then until the graph ``node`` sees has not changed for ``still_s`` (at most
-    ``most_s`` in all): participants already on the domain are discovered within a fraction of a second on
-    one host, later on a loaded one (a node's name and its publishers come a while after its participant: the
-    graph compared is the nodes and the topics with their types, so late endpoints count as a change)."""
-    start = time.monotonic()
-    seen, since = None, start
-    while time.monotonic() - start < most_s:
-        executor.spin_once(timeout_sec=0.05)
-        now = (frozenset(node.get_node_names_and_namespaces()),
-               frozenset((t, tuple(types)) for t, types in node.get_topic_names_and_types()))
-        if now != seen:
-            seen, since = now, time.monotonic()
-        elif time.monotonic() - start >= least_s and time.monotonic() - since >= still_s:
-            return
-
-
 def run_processes(cfg: GraphConfig) -> dict:
     """Plant and controller as separate processes on one DDS domain, supervised (ambid_nodes.supervisor).
 
@@ -128,6 +80,7 @@ def run_processes(cfg: GraphConfig) -> dict:
     """
     from ambid.plant.rig import rig_or_default
 
+    from ambid_nodes.running.processes import died_summary
     from ambid_nodes.supervisor import NodeGone, supervise, supervised, wait_for
 
     rig = cfg.rig or rig_or_default(cfg.plant.get("rig_file"))
@@ -151,27 +104,6 @@ def run_processes(cfg: GraphConfig) -> dict:
         if death is not None:
             summary = died_summary(death, summary, watch, rig.dt, time.perf_counter() - wall0)
         return {**summary, "layout": "processes", "foreign_publishers": foreign}
-
-
-def died_summary(death, summary: dict | None, watch, dt: float, wall_s: float) -> dict:
-    """The run's figures where ``death`` ended it: the plant's own where it ended its run (its levitation is
-    judged up to where the loop stopped), else what the watch heard up to the last block."""
-    from ambid_nodes.supervisor import consequence
-
-    if summary is None:
-        k = watch.progress
-        figures = watch.figures("plant_sim")
-        summary = {**watch.monitor.figures(), "samples": k, "simulated_s": k * dt, "wall_s": wall_s,
-                   "samples_per_wall_s": k / wall_s if wall_s > 0 else 0.0, "state": "failed", "failure": None,
-                   "messages_rejected": figures.get("messages_rejected", 0),
-                   "messages_received": figures.get("messages_received", 0)}
-    failure = summary.get("failure") or {}
-    finished = summary.get("state") == "done"
-    k = failure.get("sample_index", summary.get("samples", watch.progress))
-    summary = {**summary, "state": "failed"}
-    summary["death"] = {"node": death.node, "how": death.how, "sample_index": int(k), "simulated_s": k * dt,
-                        "consequence": consequence(death.node, failure, finished)}
-    return summary
 
 
 def run_hardware(cfg: GraphConfig, target: str, local_port: int = 0) -> dict:

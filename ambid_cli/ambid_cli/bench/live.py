@@ -39,7 +39,8 @@ def _session(out_dir: Path, overrides: dict, live: bool) -> dict:
 
     from ambid_nodes.running.domain import session_domain_id
     from ambid_nodes.live_view import LiveProcess
-    from ambid_nodes.session import SessionConfig, run_session_composed
+    from ambid_nodes.running.plan import SessionConfig
+    from ambid_nodes.running.run import run_session
 
     cfg = SessionConfig(out_dir=out_dir, progress=False, experiment=DesignSpec(**overrides))
     proc = client = None
@@ -52,7 +53,7 @@ def _session(out_dir: Path, overrides: dict, live: bool) -> dict:
                                       stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
             cpu = {"live0": _cpu_s(proc.proc.pid), "client0": _cpu_s(client.pid)}
         cpu["session0"] = time.process_time()
-        run = run_session_composed(cfg, live=proc)
+        run = run_session(cfg, live=proc)
         cpu["session"] = time.process_time() - cpu.pop("session0")
         if live:
             for who, pid in (("live", proc.proc.pid), ("client", client.pid)):
