@@ -7,7 +7,7 @@
   without. The client (:mod:`ambid_cli.bench.foxglove_client`) runs in a
   process of its own and subscribes to every channel, as the Foxglove app
   would with the layout open.
-* :func:`analysis_figures`: a whole ``identify`` (:func:`ambid_nodes.session.run_identify`):
+* :func:`analysis_figures`: a whole ``identify`` (:func:`ambid_nodes.running.identify.run_identify`):
   wall seconds from the consumer's final FRF (the last period measured) to
   the headline and to the report; beside it, the analysis of the same
   recording as it was done before (``identify_session`` on the file, in this
@@ -119,7 +119,8 @@ def analysis_figures(work: Path, overrides: dict) -> dict:
     from ambid.identification import model_fit, pipeline, report
     from ambid.jsonable import to_jsonable
 
-    from ambid_nodes.session import SessionConfig, run_identify
+    from ambid_nodes.running.identify import run_identify
+    from ambid_nodes.running.plan import SessionConfig
 
     out = work / "analysis"
     cfg = SessionConfig(out_dir=out, progress=False, experiment=DesignSpec(**overrides))

@@ -40,7 +40,7 @@ class ComposedLayout(Layout):
         super().__init__(*args, **kwargs)
         self.early = early
         self.nodes: list = []
-        self.plant = self.inputs = self.answer = None
+        self.plant = self.recorder = self.generator = self.consumer = self.inputs = self.answer = None
 
     # --- the steps ---------------------------------------------------------------------------------------
     @contextlib.contextmanager
@@ -67,6 +67,10 @@ class ComposedLayout(Layout):
         from ambid_nodes.recorder import Recorder
 
         cfg, plan, ns, params = self.cfg, self.plan, self.ns, self.params
+        if self.loop_only:
+            if self.plant is None:
+                self.plant = self.add(self.make_plant())
+            return
         cfg.out_dir.mkdir(parents=True, exist_ok=True)
         self.recorder = self.add(Recorder(**ns, parameter_overrides=params({
             "output": str(self.mcap_path), "overwrite": True,
@@ -85,8 +89,10 @@ class ComposedLayout(Layout):
 
         This process's own (the recorder's once it has found the topic), and a live view's, whose process
         discovers ours late on a loaded machine (a design it got after the experiment's blocks had passed
-        would leave it no FRF to show).
+        would leave it no FRF to show). The loop alone starts at once: its nodes are this process's.
         """
+        if self.loop_only:
+            return
         remote = announce_live(self.live)
         recorder = self.recorder
         for pub, who in ((self.plant.pub_block, "the measurement"), (self.generator.pub_design, "the excitation design")):
@@ -100,6 +106,9 @@ class ComposedLayout(Layout):
         """Hand the design to the generator, then start the loop (:meth:`start_loop`); the service's answer."""
         from ambid_msgs.srv import StartExperiment
 
+        if self.loop_only:
+            self.start_loop(None)
+            return None
         client = self.recorder.create_client(StartExperiment, "start_experiment")
         self.spin_until(client.service_is_ready, 30, "the start_experiment service")
         future = client.call_async(StartExperiment.Request(start_index=self.start_index,
@@ -130,6 +139,8 @@ class ComposedLayout(Layout):
         plant = self.plant
         with gc_frozen():
             while not plant.finished.done():
+                if not self.context.ok():   # ^C or SIGTERM (rclpy shuts the context down): every node stops
+                    raise KeyboardInterrupt
                 self.executor.spin_until_future_complete(plant.finished, timeout_sec=0.25)
                 tick()
         self.nodes[0].destroy_timer(timer)
@@ -169,7 +180,7 @@ class ComposedLayout(Layout):
 
         cfg = self.cfg
         return PlantSim(**self.ns, rig=self.plan.rig, parameter_overrides=self.params({
-            "sim_seconds": self.total / self.fs, "seed": cfg.seed, "nonlinear_magnets": cfg.nonlinear_magnets,
+            "sim_seconds": self.sim_seconds, "seed": cfg.seed, "nonlinear_magnets": cfg.nonlinear_magnets,
             **self.rig_param, **self.session}))
 
     def start_loop(self, answer) -> None:
@@ -225,7 +236,7 @@ def local_readers(nodes, topic: str) -> int:
 
 def consumer_text(consumer) -> str:
     """The consumer's progress for the progress bar."""
-    f = consumer.figures()
+    f = consumer.figures() if consumer is not None else {}
     if not f:
         return "waiting for the experiment"
     noise = f.get("relative_noise_std")

@@ -4,6 +4,11 @@ and the position controller (the target runs the fast loop; docs/bridge_protocol
 The bridge is started first: the target must answer before anything is written, so a wrong address
 leaves no recording behind. The target starts its clock (START) once it has acknowledged the
 experiment, and is told to STOP once the session's samples are in.
+
+The loop alone (``ambid graph --hardware``): the bridge starts an idle target as soon as it hears it, a
+listener (:class:`ambid_nodes.watch.SessionWatch`) judges the levitation from the session's blocks as
+plant_sim does (over the second half of the run), and the target is told to STOP once the run's samples
+arrived (or it finished): the bridge's figures with the levitation's.
 """
 
 from __future__ import annotations
@@ -36,6 +41,12 @@ class HardwareLayout(ComposedLayout):
 
     def start_graph(self) -> None:
         self.plant = self.add(self.make_plant())
+        if self.loop_only:   # the levitation judged from the session's blocks, as plant_sim judges it
+            from ambid_nodes.watch import SessionWatch
+
+            self.watch = self.add(SessionWatch(self.session["session"], self.plan.rig.backup_clearance_m,
+                                               self.total // 2, int(round(0.5 * self.fs)), **self.ns))
+            return
         # the target must answer before anything is written: a wrong address leaves no recording behind
         self.spin_until(lambda: self.plant.connected, 15,
                         f"the real-time target at {self.cfg.hardware} (is it running and sending to this bridge's "
@@ -46,16 +57,34 @@ class HardwareLayout(ComposedLayout):
         from ambid_nodes.hardware_bridge import HardwareBridge
 
         return HardwareBridge(**self.ns, rig=self.plan.rig, parameter_overrides=self.params({
-            **bridge_parameters(self.cfg), **self.rig_param, **self.session}))
+            **bridge_parameters(self.cfg), "autostart": self.loop_only, **self.rig_param, **self.session}))
 
     def start_loop(self, answer) -> None:
-        """The target starts its clock once it has acknowledged the experiment."""
+        """The target starts its clock once it has acknowledged the experiment (the bridge starts it at once
+        where the loop runs alone)."""
+        if answer is None:
+            return
         plant = self.plant
         self.spin_until(lambda: answer.experiment_id in plant.slots and plant.connected
                         and not plant.commands.pending, 30,
                         f"the real-time target at {self.cfg.hardware} to acknowledge the experiment (is it running, "
                         "idle, and sending to this bridge's port?)")
         plant.queue_command(CommandCode.START)
+
+    def run_loop(self, answer) -> dict:
+        if answer is not None:
+            return super().run_loop(answer)
+        bridge, executor = self.plant, self.executor
+        while not bridge.finished.done() and bridge.figures()["samples_published"] < self.total:
+            if not self.context.ok():
+                raise KeyboardInterrupt
+            executor.spin_until_future_complete(bridge.finished, timeout_sec=0.25)
+        if not bridge.finished.done() and bridge.connected:
+            bridge.queue_command(CommandCode.STOP)  # the session is over: the target stops its clock
+            executor.spin_until_future_complete(bridge.finished, timeout_sec=2.0)
+        figures = bridge.figures()
+        return {**figures, **self.watch.monitor.figures(),
+                "samples_per_wall_s": figures["samples_published"] / max(figures["wall_s"], 1e-9)}
 
     def progress(self) -> int:
         k = self.plant.figures()["samples_published"]

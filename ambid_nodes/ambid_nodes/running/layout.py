@@ -45,12 +45,15 @@ class Layout(ABC):
 
     executor = None  # set by opened(): the executor the layout spins
     context = None   # and its rclpy context
+    foreign: dict = {}  # the foreign publishers preflight found
 
     def __init__(self, cfg: SessionConfig, plan: SessionPlan, report_foreign: Callable[[dict], None] | None = None,
                  live=None) -> None:
         self.cfg, self.plan, self.report_foreign, self.live = cfg, plan, report_foreign, live
         self.fs = 1.0 / plan.rig.dt
-        self.start_index, self.total = session_samples(plan.design, self.fs)
+        self.start_index, self.total = session_samples(plan.design, self.fs, cfg.loop_seconds)
+        self.loop_only = plan.design is None   # the loop alone (ambid graph): no recorder, experiment, estimate
+        self.sim_seconds = cfg.loop_seconds or self.total / self.fs   # the plant's run
         self.mcap_path = cfg.out_dir / "session.mcap"
         self.session = {"session": cfg.session or new_session_id()}  # every session has an id, given or fresh
         # said, not parsed again: a composed node gets plan.rig, a process parses the file once
@@ -63,17 +66,23 @@ class Layout(ABC):
         RuntimeError or ValueError names what went wrong (a timeout, a refused experiment, a failed run: the
         recording so far is kept); the processes layout raises
         :class:`ambid_nodes.running.plan.NodeDied` when a node died before the run was over.
+        KeyboardInterrupt once the context is shut down (^C, SIGTERM): every node is stopped.
+
+        The loop alone (``cfg.loop_seconds``, ``ambid graph``) returns the plant's summary with ``layout`` and
+        ``foreign_publishers`` instead (where a node died, the figures up to there and ``death``).
         """
         with self.opened():
-            foreign = preflight(self.executor, self.cfg.namespace, self.context, self.report_foreign)
+            self.foreign = preflight(self.executor, self.cfg.namespace, self.context, self.report_foreign)
             self.start_graph()
             self.wait_readers()
             answer = self.start_experiment()
             plant_summary = self.run_loop(answer)
+            if answer is None:   # the loop alone: the plant's summary is the run's
+                return self.loop_summary(plant_summary)
             recorder, estimate = self.stop(plant_summary, answer)
             return run_facts(answer, plant_summary, recorder, live_figures(estimate),
                              time.perf_counter() - self.wall0, self.words(), self.plan.design, self.mcap_path,
-                             foreign, self.final_estimate_at(answer))
+                             self.foreign, self.final_estimate_at(answer))
 
     @abstractmethod
     def opened(self) -> contextlib.AbstractContextManager:
@@ -81,7 +90,8 @@ class Layout(ABC):
 
     @abstractmethod
     def start_graph(self) -> None:
-        """Start the recorder, the plant (or the bridge), the generator and the consumer."""
+        """Start the recorder, the plant (or the bridge), the generator and the consumer (the plant alone where
+        the loop runs alone)."""
 
     @abstractmethod
     def wait_readers(self) -> None:
@@ -89,7 +99,8 @@ class Layout(ABC):
 
     @abstractmethod
     def start_experiment(self):
-        """Place the experiment through the generator's service and start the loop; the service's answer."""
+        """Place the experiment through the generator's service and start the loop; the service's answer
+        (None where the loop runs alone: it is started)."""
 
     @abstractmethod
     def run_loop(self, answer) -> dict:
@@ -102,6 +113,10 @@ class Layout(ABC):
     @abstractmethod
     def words(self) -> str:
         """How the session ran, for its summary (``composed``, ``processes``, ``hardware bridge to ...``)."""
+
+    def loop_summary(self, plant_summary: dict) -> dict:
+        """The run's summary where the loop ran alone: the plant's, how it ran and the foreign publishers."""
+        return {**plant_summary, "layout": self.words(), "foreign_publishers": self.foreign}
 
     def final_estimate_at(self, answer) -> float | None:
         """When the consumer had the final FRF (time.perf_counter), where this process knows it."""

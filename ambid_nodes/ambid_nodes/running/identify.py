@@ -23,9 +23,7 @@ from ambid.jsonable import JsonRecord, json_field
 from ambid.session_id import format_session
 
 from ambid_nodes.running.layout import start_live
-# the plan and its parts live in ambid_nodes.running.plan; the command line takes them from here, beside the
-# entry point (run_identify)
-from ambid_nodes.running.plan import NodeDied, SessionConfig, SessionPlan, plan_session, session_samples  # noqa: F401
+from ambid_nodes.running.plan import SessionConfig, SessionPlan, plan_session
 from ambid_nodes.running.run import run_session
 
 
