@@ -6,7 +6,7 @@ Services (namespace-relative):
     (the plant's progress + ``start_margin``, not before the previous experiment's end).
     Refused, with the reason in ``message``: while another experiment runs, before the
     ``plant/description`` arrived, when the design's sample rate differs from the plant's,
-    names an input the plant has not, or lacks headroom (peak + ``working_current`` above
+    names an input the plant has not, or lacks headroom (peak + ``working_current_a`` above
     the amplifier limit; the message is ``check_headroom``'s).
   ``stop_experiment`` (ambid_msgs/StopExperiment): no more blocks; the design is republished
     with total_samples cut at the next block boundary not yet published.
@@ -38,7 +38,7 @@ import sys
 import numpy as np
 from ambid.excitation import ExcitationDesign
 from ambid.excitation.experiment import WORKING_CURRENT_A, Experiment, place_experiment
-from ambid.excitation.spec import KINDS, DesignSpec
+from ambid.excitation.spec import DesignSpec
 from ambid.plant.rig import Rig
 from ambid.recording.facts import design_fields
 
@@ -48,13 +48,9 @@ from ambid_msgs.srv import StartExperiment, StopExperiment
 from ambid_nodes import qos
 from ambid_nodes.conversions import BadMessage, block_data, block_msg, check_plant_description, status_msg, time_msg
 from ambid_nodes.session_node import SessionNode
-from ambid_nodes.parameters import ParameterError, declare, node_rig
+from ambid_nodes.parameters import ParameterError, declare, declare_fields, node_rig
 
 STATUS_PERIOD_S = 0.5
-
-
-D = DesignSpec()  # the parameters' defaults: the experiment identify runs
-AUTO = "auto"  # inputs: [auto] = every current of the plant (as frf_consumer's channels)
 
 
 class ExcitationGenerator(SessionNode):
@@ -64,55 +60,29 @@ class ExcitationGenerator(SessionNode):
         rig_file = declare(self, "rig_file", "", "YAML rig parameter file for the defaults until plant/description "
                                                  "arrives; empty = the default rig")
         rig = node_rig(self, rig_file, rig)   # its currents are the default inputs
-        kind = declare(self, "kind", D.kind, "excitation kind: " + " | ".join(KINDS))
-        band = (declare(self, "band_low", D.band_hz[0], "lower edge of the band of interest", 0.0, 1e6, "Hz"),
-                declare(self, "band_high", D.band_hz[1], "upper edge of the band of interest, below fs/2", 0.0, 1e6,
-                        "Hz"))
-        resolution = declare(self, "resolution", D.resolution_hz,
-                             "frequency resolution fs/N; fs/resolution must be an integer", 1e-6, 1e6, "Hz")
-        inputs = declare(self, "inputs", list(D.input_names) or [AUTO],
-                         "excited inputs (plant current names; [auto]: every current of the plant); u_<axis> is "
-                         "excited through channel r_<axis>")
-        peak = declare(self, "peak_current", D.peak_current_a, "excitation peak per input", 1e-6, 1e3, "A")
-        periods = declare(self, "periods", D.n_periods, "steady-state periods P per experiment", 1, 1_000_000)
-        realisations = declare(self, "realisations", D.n_realisations, "realisations M (random phases, noise "
-                                                                       "records)", 1, 100_000)
-        transient = declare(self, "transient_periods", D.n_transient_periods,
-                            "periods discarded ahead of each experiment", 0, 100_000)
-        grid = declare(self, "grid", D.grid, "line grid: random_odd | odd | full; empty = the kind's default")
-        spacing = declare(self, "spacing", D.spacing, "line spacing (swept sine: sweep law): linear | log; "
-                                                      "empty = the kind's default")
-        phases = declare(self, "phases", D.phases, "multisine phases: crest_optimised | random | schroeder; "
-                                                   "empty = the kind's default (crest_optimised)")
-        mimo = declare(self, "mimo", D.mimo, "orthogonal | one_at_a_time | simultaneous; empty = the kind's default")
-        seed = declare(self, "seed", D.seed, "seed of the random choices (phases, grid, noise)", 0, 2**31 - 1)
-        settle = declare(self, "settle_time", D.settle_s, "stepped sine: settling wait per line", 0.0, 3600.0, "s")
-        cycles = declare(self, "cycles", D.n_cycles, "stepped sine: measured cycles per line", 1, 1_000_000)
+        terms = declare_fields(self, DesignSpec)  # the experiment's terms: DesignSpec's names and defaults
         self.block_size = declare(self, "block_size", 1000, "samples per excitation block", 1, 1_000_000)
         self.lookahead = declare(self, "lookahead", 20_000, "most samples published ahead of the plant's progress",
                                  2, 100_000_000)
         self.start_margin = declare(self, "start_margin", 5000, "samples between the plant's progress and an "
                                                                 "automatically chosen start", 0, 100_000_000)
-        self.current_limit = declare(self, "current_limit", 0.0, "amplifier current limit for the headroom check; "
+        self.current_limit = declare(self, "current_limit_a", 0.0, "amplifier current limit for the headroom check; "
                                                                  "0 = the plant's (plant/description)", 0.0, 1e3, "A")
-        self.working_current = declare(self, "working_current", WORKING_CURRENT_A, "controller's peak working current (gravity "
-                                                                     "and regulation) for the headroom check",
-                                       0.0, 1e3, "A")
+        self.working_current = declare(self, "working_current_a", WORKING_CURRENT_A,
+                                       "controller's peak working current (gravity and regulation) for the headroom "
+                                       "check", 0.0, 1e3, "A")
         self.join_session()
         if self.lookahead < 2 * self.block_size:
             raise ParameterError(f"excitation_generator: lookahead {self.lookahead} must be at least twice "
                                  f"block_size {self.block_size} (the plant waits for each block)")
-        if inputs == [AUTO]:
-            inputs = []   # the plant's currents, once it says them (the rig's until then)
-        unknown = sorted(set(inputs) - set(rig.layout.inputs))
+        unknown = sorted(set(terms["input_names"]) - set(rig.layout.inputs))   # (): the plant's currents
         if unknown:
-            raise ParameterError(f"excitation_generator: inputs {unknown} are not plant currents; use some of "
+            raise ParameterError(f"excitation_generator: input_names {unknown} are not plant currents; use some of "
                                  f"{list(rig.layout.inputs)}")
-        self.spec = DesignSpec(kind, band, resolution, tuple(inputs), peak, periods, realisations, transient, grid,
-                               spacing, phases, mimo, seed, settle, cycles)
+        self.spec = DesignSpec(**terms)
         # defaults until the plant describes itself; the terms are checked now, so a bad band fails at
         # start-up, and designed only when an experiment asks for them (a caller may bring its own design)
-        self.dt = rig.dt
+        self.set_sample_period(rig.dt)
         self.set_currents(list(rig.layout.inputs), np.full(len(rig.layout), float(rig.current_limit_a)))
         self.plant_known = False
         self.default_error = self.check_spec()
@@ -149,13 +119,17 @@ class ExcitationGenerator(SessionNode):
         changed = abs(msg.sample_period - self.dt) > 1e-12 * self.dt
         if list(msg.current_names) != self.current_names:
             self.default_design = None   # [auto] inputs: the plant's currents
-        self.dt = float(msg.sample_period)
+        self.set_sample_period(float(msg.sample_period))
         self.set_currents(list(msg.current_names), np.asarray(msg.current_limit, dtype=float))
         self.plant_known = True
         if changed:
             self.default_design, self.default_error = None, self.check_spec("the plant's ")
             if self.default_error:
                 self.event(SessionEvent.ERROR, "bad_design", self.default_error)
+
+    def set_sample_period(self, dt: float) -> None:
+        """The plant's sample period [s] (its messages' stamps) and, from it once, the rate [Hz] designs take."""
+        self.dt, self.fs_hz = dt, 1.0 / dt
 
     def set_currents(self, names: list[str], limits: np.ndarray) -> None:
         """The plant's current channels (u_<axis>) and their limits [A]; the excitation goes out on r_<axis>
@@ -167,9 +141,9 @@ class ExcitationGenerator(SessionNode):
     def check_spec(self, whose: str = "") -> str:
         """Why the parameters' design cannot be made at the present sample rate, or ""."""
         try:
-            self.spec.check(1.0 / self.dt)
+            self.spec.check(self.fs_hz)
         except ValueError as exc:
-            return f"the design parameters are invalid at {whose}{1.0 / self.dt:g} Hz: {exc}"
+            return f"the design parameters are invalid at {whose}{self.fs_hz:g} Hz: {exc}"
         return ""
 
     def on_measurement(self, msg: SampleBlock) -> None:
@@ -227,10 +201,10 @@ class ExcitationGenerator(SessionNode):
             raise ValueError(self.default_error)
         else:
             if self.default_design is None:
-                self.default_design = self.spec.build(1.0 / self.dt, inputs=self.current_names)
+                self.default_design = self.spec.build(self.fs_hz, inputs=self.current_names)
             design = self.default_design
         limit = self.plant_limit if self.current_limit == 0 else self.current_limit
-        exp = place_experiment(f"exp-{self.count + 1:04d}", design, fs_hz=1.0 / self.dt,
+        exp = place_experiment(f"exp-{self.count + 1:04d}", design, fs_hz=self.fs_hz,
                                current_names=self.current_names, current_limit_a=limit,
                                working_current_a=self.working_current, excitation_names=self.excitation_names,
                                progress=self.progress, margin=self.start_margin, after=self.last_end,

@@ -181,7 +181,7 @@ class FrfConsumer(SessionNode):
             self.finish()
         self.stream, self.experiment_id, self.result = stream, msg.experiment_id, None
         self.columns = {}  # column picks depend on the design's inputs
-        self.dt = 1.0 / design.fs_hz
+        self.dt = design.dt_s
         self.state = SessionStatus.STATE_RUNNING
         self.event(SessionEvent.INFO, "experiment", f"{msg.experiment_id}: {design.kind}, samples "
                    f"[{stream.start_index}, {stream.end_index}), inputs {list(u_names)}, estimator {self.estimator}")

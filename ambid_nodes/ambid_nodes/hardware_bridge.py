@@ -395,7 +395,7 @@ class HardwareBridge(SessionNode):
                        f"{bp.TargetState(hb.state).name} at sample {hb.sample_index}, {hb.sample_rate_hz} Hz")
             if abs(hb.sample_rate_hz * self.dt - 1.0) > 1e-6:
                 self.event(SessionEvent.ERROR, "sample_rate_mismatch",
-                           f"the target runs at {hb.sample_rate_hz} Hz, the rig description says {1 / self.dt:g} Hz; "
+                           f"the target runs at {hb.sample_rate_hz} Hz, the rig description says {self.rig.sample_rate_hz:g} Hz; "
                            "set rig_file to the rig the target runs")
             if hb.axes and hb.axes != self.na:   # version 2 says the target's axes
                 self.event(SessionEvent.ERROR, "axes_mismatch",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ambid.plant.rig import Rig, rig_or_default
+from ambid.quantity import quantities
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
 
@@ -30,6 +31,28 @@ def declare(node: Node, name: str, default, description: str, low=None, high=Non
     except Exception as exc:  # rclpy raises several exception types for a bad override
         rng = f" (allowed range [{low}, {high}]{' ' + unit if unit else ''})" if low is not None else ""
         raise ParameterError(f"{node.get_name()}: parameter '{name}' is invalid{rng}: {exc}") from None
+
+
+def declare_fields(node: Node, cls: type) -> dict:
+    """Declare a parameter for each field of the dataclass ``cls`` that carries a Quantity (``ambid.quantity``):
+    the field's name, default, description, unit and range; return {field: value}, ready for ``cls(**values)``.
+
+    A tuple field is an array parameter: one of an empty default is written as its Quantity's ``empty``
+    word (``[auto]``) and read back as (); one of a non-empty default takes as many entries.
+    """
+    values = {}
+    for name, default, q in quantities(cls):
+        if isinstance(default, tuple):
+            value = declare(node, name, list(default) or [q.empty], q.doc, unit=q.unit)
+            if not default:
+                value = () if list(value) == [q.empty] else tuple(value)
+            elif len(value) != len(default):
+                raise ParameterError(f"{node.get_name()}: parameter '{name}' takes {len(default)} values "
+                                     f"({q.description()}), got {list(value)}")
+            values[name] = tuple(value)
+        else:
+            values[name] = declare(node, name, default, q.doc, q.low, q.high, q.unit)
+    return values
 
 
 def refuse_unknown(node: Node) -> None:

@@ -301,7 +301,7 @@ class PlantSim(SessionNode):
 
     def describe_run(self) -> str:
         t = f"{self.sim_seconds:g} s" if self.n_total else "until stopped"
-        return f"rig {self.rig.name}, {1 / self.dt:g} Hz, {t}, seed {self.seed}, session {self.identity}"
+        return f"rig {self.rig.name}, {self.rig.sample_rate_hz:g} Hz, {t}, seed {self.seed}, session {self.identity}"
 
     # --- the loop ---------------------------------------------------------
     def publish_y(self) -> None:

@@ -66,7 +66,7 @@ from ambid_nodes.loop_kernels import (CK_LEAD, CK_LIMIT, CK_MAT, CK_N, CK_P, CK_
                                       controller_kernel, sample_buffer)
 from ambid_nodes.identity import LoopPartner
 from ambid_nodes.loop_pump import NOT_RUN, GatingState, LoopEntry
-from ambid_nodes.parameters import ParameterError, declare, node_rig
+from ambid_nodes.parameters import ParameterError, declare, declare_fields, node_rig
 from ambid_nodes.raw_publish import raw_publisher
 from ambid_nodes.sample_codec import decode_sample, encode_sample
 
@@ -87,20 +87,7 @@ class PositionController(SessionNode):
         self.kind = declare(self, "controller", "",
                             f"controller: {describe_kinds()}, or a controller file (.npz, .mat, .yaml: a discrete "
                             "state space or per-axis transfer functions); empty: the rig file's controller, else pid")
-        d = PidParameters()
-        pid = PidParameters(
-            kp_a_per_m=declare(self, "kp", d.kp_a_per_m, "proportional gain", 1.0, 1e9, "A/m"),
-            ti_s=declare(self, "ti", d.ti_s, "integral time", 1e-5, 1e4, "s"),
-            td_s=declare(self, "td", d.td_s, "derivative time", 0.0, 1.0, "s"),
-            derivative_filter_n=declare(self, "derivative_filter_n", d.derivative_filter_n,
-                                        "derivative filter ratio N (lead up to N)", 1.0, 1000.0),
-            lowpass_hz=declare(self, "lowpass", d.lowpass_hz, "first-order low-pass corner", 1.0, 1e6, "Hz"),
-            delay_samples=declare(self, "delay_samples", d.delay_samples, "computational delay", 0, 100),
-            current_limit_a=declare(self, "current_limit", d.current_limit_a, "saturation of ic", 1e-3, 1e3, "A"),
-            axial_kp_a_per_m=declare(self, "axial_kp", d.axial_kp_a_per_m, "proportional gain of an axial axis",
-                                     1.0, 1e9, "A/m"),
-            axial_td_s=declare(self, "axial_td", d.axial_td_s, "derivative time of an axial axis", 0.0, 1.0, "s"),
-        )
+        pid = PidParameters(**declare_fields(self, PidParameters))   # the gains: PidParameters' names and defaults
         pipeline = declare(self, "pipeline", True,
                            "answer y[k] with ic[k+1] when the controller has a computational delay (no "
                            "feedthrough), so the next current travels while the plant steps; false: with ic[k]")

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from ambid.background import wait
 from ambid.channels import RADIAL
 from ambid.excitation import ExcitationDesign, check_headroom
 from ambid_cli.commands import design as cmd
@@ -37,8 +38,8 @@ def test_preview_runs_without_rclpy_and_writes_what_it_reports(tmp_path):
 
     # design.json is the design build_design makes from the same terms, at the default rig's 10 kHz
     design = ExcitationDesign.from_dict(json.loads((tmp_path / "design.json").read_text()))
-    assert design == cmd.build_design("multisine", (20.0, 800.0), 10.0, 10_000.0, RADIAL.inputs, 0.4,
-                                      n_periods=3)
+    assert design == cmd.build_design("multisine", (20.0, 800.0), 10.0, 10_000.0, input_names=RADIAL.inputs,
+                                      peak_current_a=0.4, n_periods=3)
     # orthogonal multisine, 4 inputs, identify's M = 3 and Pt = 3: Ne M (Pt + P) N / fs = 4 x 3 x (3 + 3) x 1000 / 10 kHz
     assert summary["measurement_time_s"] == pytest.approx(4 * 3 * 6 * 1000 / 10_000.0)
     assert summary["n_lines"] == design.excited_lines.size and summary["peak_a"] == pytest.approx([0.4] * 4)
@@ -47,6 +48,9 @@ def test_preview_runs_without_rclpy_and_writes_what_it_reports(tmp_path):
     plan = {row["method"]: row["measurement_time_s"] for row in summary["plan"]}
     assert plan["orthogonal multisine"] == pytest.approx(summary["measurement_time_s"])
     assert plan["stepped sine"] > 8 * plan["orthogonal multisine"]  # 63 s against 7.2 s for M = 3 realisations
+    # the figure, drawn by a detached process once the command has answered: said "writing" at once, then done
+    assert summary["figure_status"] == str(tmp_path / "design.status.json")
+    assert wait(summary["figure_status"])["state"] == "done"
     assert (tmp_path / "design.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
@@ -93,6 +97,7 @@ def test_every_command_defaults_to_the_one_experiment():
     node run, are DesignSpec(): the one home of the experiment's defaults."""
     import yaml
     from ambid.excitation.spec import DesignSpec
+    from ambid.quantity import quantities
     from ambid_cli.commands import campaign, identify
     from ambid_cli.commands.inputs import experiment_spec
 
@@ -106,10 +111,9 @@ def test_every_command_defaults_to_the_one_experiment():
     # the generator's parameter file (tests/nodes/test_config_files.py: file == the node's declared defaults)
     gen = yaml.safe_load((ROOT / "ambid_nodes" / "config" / "excitation_generator.yaml").read_text())
     p = gen["/**"]["ros__parameters"]
-    assert DesignSpec(p["kind"], (p["band_low"], p["band_high"]), p["resolution"],
-                      () if p["inputs"] == ["auto"] else tuple(p["inputs"]),
-                      p["peak_current"], p["periods"], p["realisations"], p["transient_periods"], p["grid"],
-                      p["spacing"], p["phases"], p["mimo"], p["seed"], p["settle_time"], p["cycles"]) == spec
+    terms = {name: p[name] for name, _, _ in quantities(DesignSpec)}
+    terms.update(band_hz=tuple(p["band_hz"]), input_names=() if p["input_names"] == ["auto"] else tuple(p["input_names"]))
+    assert DesignSpec(**terms) == spec
     # identify's experiment: orthogonal random-odd crest-optimised multisine, 0.4 A, M = 3, 3 + 4 periods
     assert (spec.peak_current_a, spec.n_realisations, spec.n_transient_periods, spec.n_periods) == (0.4, 3, 3, 4)
 

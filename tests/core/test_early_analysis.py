@@ -98,3 +98,32 @@ def test_inputs_unlike_the_recording_are_analysed_again_from_it(session):
     assert notes and "analysed again from the recording" in notes[0]
     _same(final, session["reference"])
     np.testing.assert_array_equal(np.load(session["root"] / "wrong" / "frf.npz")["frf"], rec.frf.frf)
+
+
+def test_the_report_in_the_background_follows_the_result_and_is_the_same_page(session):
+    """identify's way: the worker returns once the numbers are written; the report's figures follow from a
+    detached process (what it was handed crosses as a pickle), the page the one written in line."""
+    from ambid.background import read_status, wait
+
+    rec = read_session_inputs(session["path"])
+    out = session["root"] / "background"
+    early = EarlyAnalysis(out, report="background", **OPTIONS)
+    try:
+        early.analyse(rec)
+        early.recording_closed()
+        first, _ = early.summary()
+        final, notes = early.result()
+    finally:
+        early.close()
+    assert notes == []
+    _same(final, session["reference"])
+    assert final["files"]["report"] == str(out / "report" / "index.html")
+    assert read_status(out / "report" / "status.json")["state"] in ("writing", "done")
+    done = wait(out / "report" / "status.json")
+    assert done["state"] == "done" and done["seconds"] > 0
+    page, ref = ((d / "report" / "index.html").read_text() for d in (out, session["root"] / "reference"))
+    figures = sorted(p.name for p in (out / "report").glob("*.png"))
+    assert figures == sorted(p.name for p in (session["root"] / "reference" / "report").glob("*.png")) and figures
+    # the same page but for where it was written and the wall times in it
+    assert len(page.splitlines()) == len(ref.splitlines())
+    assert not list((out / "report").glob("status.json.job"))   # the hand-over is gone once read

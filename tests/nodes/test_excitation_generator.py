@@ -29,9 +29,9 @@ FS = 10_000.0
 INPUTS = ["u_a_x", "u_b_y"]  # excited through r_a_x (column 0) and r_b_y (column 3)
 COLS = [EXCITATION_NAMES.index("r_a_x"), EXCITATION_NAMES.index("r_b_y")]
 # 2 periods of an N = 1000 orthogonal multisine on 2 inputs: 2 experiments x 2 periods x 1000 = 4000 samples
-GEN = {"band_low": 50.0, "band_high": 2000.0, "resolution": 10.0, "inputs": INPUTS, "peak_current": 0.3,
-       "periods": 2, "transient_periods": 0, "realisations": 1, "phases": "random", "seed": 7, "block_size": 500, "lookahead": 3000, "start_margin": 1500,
-       "working_current": 1.0}
+GEN = {"band_hz": [50.0, 2000.0], "resolution_hz": 10.0, "input_names": INPUTS, "peak_current_a": 0.3,
+       "n_periods": 2, "n_transient_periods": 0, "n_realisations": 1, "phases": "random", "seed": 7, "block_size": 500,
+       "lookahead": 3000, "start_margin": 1500, "working_current_a": 1.0}
 R_COLS = [MEASUREMENT_NAMES.index(n) for n in EXCITATION_NAMES]
 
 
@@ -150,7 +150,7 @@ def test_stop_cuts_the_design_at_a_block_boundary(ros):
     # 80,000 samples, far longer than the test runs; lookahead 2000 >= block 500 + measurement block 1000
     # a start 20,000 samples ahead: the free-running plant does ~10^5 samples/s, so a margin of 1000 (10 ms)
     # was sometimes passed before the design arrived (seen in CI and in stop 14's review)
-    rig = Rig(ros, {**GEN, "periods": 40, "lookahead": 2000, "start_margin": 20_000})
+    rig = Rig(ros, {**GEN, "n_periods": 40, "lookahead": 2000, "start_margin": 20_000})
     assert rig.call(rig.stop, StopExperiment.Request()).accepted is False  # nothing runs yet
     resp = rig.call(rig.start, StartExperiment.Request())
     assert resp.accepted and resp.total_samples == 80_000
@@ -177,10 +177,11 @@ def test_stop_cuts_the_design_at_a_block_boundary(ros):
 
 
 @pytest.mark.parametrize("override, words", [
-    ({"band_high": 6000.0}, "Nyquist"),
-    ({"resolution": 3.0}, "resolution"),
+    ({"band_hz": [50.0, 6000.0]}, "Nyquist"),
+    ({"band_hz": [50.0]}, "band_hz' takes 2 values"),
+    ({"resolution_hz": 3.0}, "resolution"),
     ({"kind": "noise", "grid": "odd"}, "grid 'odd' does not apply to a noise design"),
-    ({"inputs": ["u_a_x", "u_c_x"]}, "u_c_x"),
+    ({"input_names": ["u_a_x", "u_c_x"]}, "u_c_x"),
     ({"block_size": 2000, "lookahead": 3000}, "lookahead"),
     ({"peak": 1.0}, "unknown parameter"),
 ])

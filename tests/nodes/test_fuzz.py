@@ -348,8 +348,8 @@ def test_fuzz_excitation_generator(ros):
     ns = "/fz_gen"
     fuzzer = ros.add(FuzzNode(ros.context, ns, PLAN["excitation_generator"]))
     gen = ros.add(ExcitationGenerator(namespace=ns, context=ros.context, parameter_overrides=[
-        Parameter(k, value=v) for k, v in dict(inputs=["u_a_x"], band_low=50.0, band_high=1000.0, resolution=10.0,
-                                               periods=1, transient_periods=0, realisations=1, phases="random",
+        Parameter(k, value=v) for k, v in dict(input_names=["u_a_x"], band_hz=[50.0, 1000.0], resolution_hz=10.0,
+                                               n_periods=1, n_transient_periods=0, n_realisations=1, phases="random",
                                                block_size=500, lookahead=2000, start_margin=1000).items()]))
     sent = fuzz_topics(ros, gen, fuzzer, PLAN["excitation_generator"], seed=5)
     check_accounting(ros, gen, fuzzer, sent)

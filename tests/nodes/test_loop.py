@@ -180,7 +180,7 @@ def test_bad_plant_parameters_named(ros, params, fragment):
 
 def test_unstable_controller_refused_naming_poles(ros):
     with pytest.raises(ParameterError) as err:
-        PositionController(namespace=NS, context=ros.context, parameter_overrides=[Parameter("kp", value=100.0)])
+        PositionController(namespace=NS, context=ros.context, parameter_overrides=[Parameter("kp_a_per_m", value=100.0)])
     assert "unstable poles" in str(err.value) and "Hz" in str(err.value)
 
 

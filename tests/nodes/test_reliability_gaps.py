@@ -53,8 +53,8 @@ def test_a_lost_block_is_reported_by_consumer_and_recording_and_no_frf_spans_it(
         Parameter("discovery_period", value=0.05)]))
     gen = ros.add(ExcitationGenerator(namespace=NS, context=ros.context, parameter_overrides=[
         Parameter(k, value=v) for k, v in dict(
-            inputs=["u_a_x"], band_low=50.0, band_high=1000.0, resolution=10.0, periods=P, transient_periods=TRANSIENT,
-            peak_current=0.3, realisations=1, phases="random", block_size=BLOCK, lookahead=3000,
+            input_names=["u_a_x"], band_hz=[50.0, 1000.0], resolution_hz=10.0, n_periods=P,
+            n_transient_periods=TRANSIENT, peak_current_a=0.3, n_realisations=1, phases="random", block_size=BLOCK, lookahead=3000,
             start_margin=START, seed=3).items()]))
     consumer = ros.add(FrfConsumer(namespace=NS, context=ros.context))
     plant = ros.add(PlantSim(namespace=NS, context=ros.context, cli_args=[

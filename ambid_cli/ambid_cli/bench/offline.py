@@ -40,7 +40,7 @@ EXPERIMENT_ID = "bench"
 def make_design(**overrides) -> ExcitationDesign:
     """The default identify experiment (:class:`ambid.excitation.spec.DesignSpec`) at the default rig's sample
     rate, with DesignSpec field overrides."""
-    return DesignSpec(**overrides).build(1.0 / make_rig().dt)
+    return DesignSpec(**overrides).build(make_rig().sample_rate_hz)
 
 
 def _design_msg(d: ExcitationDesign, start: int, dt: float) -> DesignMsg:

@@ -3,7 +3,8 @@
 Prints the design's figures (``describe``), its headroom against the rig's
 amplifier current limit, the measurement times of stepped sine, swept sine
 and multisines for the same band and resolution side by side, and writes
-``design.png`` (spectrum and time signal) and ``design.json`` (loadable by
+``design.png`` (spectrum and time signal, drawn in a detached process once the figures are out: its state in
+``design.status.json``) and ``design.json`` (loadable by
 the excitation generator's ``start_experiment`` service) to ``--out``.
 
 The design in the user's terms is :class:`ambid.excitation.spec.DesignSpec`; with no options it is the
@@ -47,7 +48,7 @@ def add_arguments(g: argparse.ArgumentParser) -> None:
     g.add_argument("--working-current", type=positive_float, default=WORKING_CURRENT_A,
                    help=f"controller's peak working current [A] for the headroom check (default {WORKING_CURRENT_A:g})")
     g.add_argument("--no-plan", action="store_true", help="skip the stepped/swept/multisine time table")
-    g.add_argument("--no-figure", action="store_true", help="skip design.png (quicker)")
+    g.add_argument("--no-figure", action="store_true", help="skip design.png (otherwise drawn in the background once the figures are out)")
     g.add_argument("--out", default="design", help="directory for design.png and design.json (default design/)")
     g.add_argument("--json", action="store_true", help="print one JSON object instead of text")
 
@@ -62,8 +63,18 @@ def _plan(spec, fs_hz: float, inputs) -> list:
                              n_cycles=spec.n_cycles, seed=spec.seed)
 
 
+def draw_in_background(design, out: Path) -> Path:
+    """Start drawing ``out/design.png`` in a detached process (matplotlib's import and drawing are most of
+    design's time: the figures are printed and the prompt is back meanwhile); its status file
+    (:mod:`ambid.background`)."""
+    from ambid.background import start
+    from ambid.excitation.preview import plot_design
+
+    return start(out / "design.status.json", plot_design, design, out / "design.png")
+
+
 def run(args: argparse.Namespace) -> int:
-    from ambid.excitation import describe, format_plan, plot_design
+    from ambid.excitation import describe, format_plan
     from ambid.excitation.synchronous import describe_steering
     from ambid.plant.rig import rig_or_default
 
@@ -96,8 +107,8 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "design.json").write_text(json.dumps(design.to_dict()))
+    status = None if args.no_figure else draw_in_background(design, out)
     if args.json:
-        png = None if args.no_figure else plot_design(design, out / "design.png")
         print(json.dumps({
             "kind": design.kind, "sample_rate_hz": design.fs_hz, "n_per_period": design.n_per_period,
             "resolution_hz": design.fs_hz / design.n_per_period, "n_lines": int(design.excited_lines.size),
@@ -108,7 +119,8 @@ def run(args: argparse.Namespace) -> int:
             "plan": None if plan is None else [
                 {"method": r.name, "n_lines": r.n_lines, "n_experiments": r.n_experiments,
                  "total_samples": r.total_samples, "measurement_time_s": r.measurement_time_s} for r in plan],
-            "figure": png and str(png), "design_json": str(out / "design.json"),
+            "figure": status and str(out / "design.png"), "figure_status": status and str(status),
+            "design_json": str(out / "design.json"),
             "synchronous": design.options.get("synchronous")}))
     else:
         print(describe(design))
@@ -119,10 +131,9 @@ def run(args: argparse.Namespace) -> int:
             n = len(design.input_names)   # the spec's inputs, else every current of the rig
             print(f"\nmeasurement time of the full {n} x {n} FRF matrix on the same lines:")
             print(format_plan(plan))
-        # the figures first, the plot after: drawing it (matplotlib's import and Agg) is most of design's time
-        sys.stdout.flush()
-        if not args.no_figure:
-            print(f"\nfigure: {plot_design(design, out / 'design.png')}")
+        if status is not None:
+            print(f"\nfigure: {out / 'design.png'} (drawn in the background, about a second; {status} says "
+                  "when it is there)")
         print(f"design: {out / 'design.json'} (start it with the excitation generator's "
               "start_experiment service, design_json = this file's text)")
     return 0

@@ -83,7 +83,8 @@ def run(args: argparse.Namespace) -> int:
                         nonlinear_magnets=not args.linear_magnets, estimator=args.estimator,
                         hardware=args.hardware or "", local_port=args.local_port, true_model=args.true_model, **link,
                         progress=not args.no_progress and sys.stderr.isatty(), namespace=args.namespace,
-                        session=session, processes=args.processes, live_port=args.live, live_host=args.live_host)
+                        session=session, processes=args.processes, live_port=args.live, live_host=args.live_host,
+                        report="background")   # the headline is the answer; the report's figures follow
     phases.say("planning the run: rig, controller, experiment design", line=False)  # a line once it holds
     try:
         plan = plan_session(cfg, rig, ctrl)  # the design, made once
@@ -122,7 +123,9 @@ def run(args: argparse.Namespace) -> int:
         return 1
     if summary.live:
         print("  " + live_line(summary.live))
-    print(f"ambid identify: report written, {phases.elapsed():.1f} s wall in all", file=sys.stderr)
+    report = args.out / "report"
+    print(f"ambid identify: {phases.elapsed():.1f} s wall in all; the report is being written by a process of its "
+          f"own, {report / 'index.html'} in a few seconds ({report / 'status.json'} says when)", file=sys.stderr)
     return 0 if summary.state == "done" else 1
 
 

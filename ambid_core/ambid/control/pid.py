@@ -14,6 +14,7 @@ import numpy as np
 from scipy import signal
 
 from ambid.channels import RADIAL, Layout
+from ambid.quantity import check_ranges, quantity
 from ambid.statespace import StateSpace, block_diag, delay, series
 
 
@@ -51,31 +52,19 @@ class PidParameters:
         derivative time of an axial axis [s].
     """
 
-    kp_a_per_m: float = 12_000.0
-    ti_s: float = 0.05
-    td_s: float = 1.5e-3
-    derivative_filter_n: float = 10.0
-    lowpass_hz: float = 5_000.0
-    delay_samples: int = 1
-    current_limit_a: float = 3.0
-    axial_kp_a_per_m: float = 16_000.0
-    axial_td_s: float = 3.0e-3
+    kp_a_per_m: float = quantity(12_000.0, "proportional gain", "A/m", 1.0, 1e9)
+    ti_s: float = quantity(0.05, "integral time", "s", 1e-5, 1e4)
+    td_s: float = quantity(1.5e-3, "derivative time", "s", 0.0, 1.0)
+    derivative_filter_n: float = quantity(10.0, "derivative filter ratio N (lead up to N)", "", 1.0, 1000.0)
+    lowpass_hz: float = quantity(5_000.0, "first-order low-pass corner", "Hz", 1.0, 1e6)
+    delay_samples: int = quantity(1, "computational delay [samples]", "", 0, 100)
+    current_limit_a: float = quantity(3.0, "saturation of ic", "A", 1e-3, 1e3)
+    axial_kp_a_per_m: float = quantity(16_000.0, "proportional gain of an axial axis (rigs/five_axis.yaml)", "A/m",
+                                       1.0, 1e9)
+    axial_td_s: float = quantity(3.0e-3, "derivative time of an axial axis", "s", 0.0, 1.0)
 
     def __post_init__(self) -> None:
-        checks = {
-            "kp_a_per_m": (0.0, 1e9), "ti_s": (1e-5, 1e4), "td_s": (0.0, 1.0),
-            "derivative_filter_n": (1.0, 1000.0), "lowpass_hz": (1.0, 1e6),
-            "delay_samples": (0, 100), "current_limit_a": (1e-3, 1e3),
-            "axial_kp_a_per_m": (0.0, 1e9), "axial_td_s": (0.0, 1.0),
-        }
-        for name, (lo, hi) in checks.items():
-            v = getattr(self, name)
-            if not (np.isfinite(v) and lo <= v <= hi):
-                raise ValueError(f"PID parameter {name} = {v!r} is outside [{lo:g}, {hi:g}]")
-        for name in ("kp_a_per_m", "axial_kp_a_per_m"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"PID parameter {name} must be > 0")
-
+        check_ranges(self, "PID parameter")   # the ranges the node's parameters take too
 
 def pid_axis(p: PidParameters, dt: float) -> StateSpace:
     """One axis of the PID, continuous design discretised by Tustin, y [m] -> ic [A], minus sign included.

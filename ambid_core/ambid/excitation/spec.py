@@ -18,6 +18,7 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 
 from ambid.channels import RADIAL
+from ambid.quantity import quantity
 
 from ambid.excitation.design import ExcitationDesign
 from ambid.excitation.designers import (design_dibs, design_multisine, design_noise, design_prbs,
@@ -85,7 +86,7 @@ def prbs_clock(band_hz: tuple[float, float], resolution_hz: float, fs_hz: float)
     return order, divider
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class DesignSpec:
     """An excitation experiment in the user's terms; the defaults are ``ambid identify``'s session.
 
@@ -124,24 +125,30 @@ class DesignSpec:
         clear of, ``guard_bins`` bins each side (:mod:`ambid.excitation.synchronous`).
     """
 
-    kind: str = "multisine"
-    band_hz: tuple[float, float] = (10.0, 1000.0)
-    resolution_hz: float = 5.0
-    input_names: tuple[str, ...] = ()
+    kind: str = quantity("multisine", "excitation kind: " + " | ".join(KINDS))
+    band_hz: tuple[float, float] = quantity((10.0, 1000.0), "band of interest (lower, upper edge), the upper below "
+                                                            "fs/2", "Hz")
+    resolution_hz: float = quantity(5.0, "frequency resolution fs/N; fs/resolution must be an integer", "Hz",
+                                    1e-6, 1e6)
+    input_names: tuple[str, ...] = quantity((), "excited inputs (plant current names; [auto]: every current of the "
+                                                "plant); u_<axis> is excited through channel r_<axis>", empty="auto")
     # 0.4 A keeps the magnets' odd distortion within ~3 dB of the noise (at 0.5 A it biased the
     # housing-mode damping by 11 %)
-    peak_current_a: float = 0.4
-    n_periods: int = 4
+    peak_current_a: float = quantity(0.4, "excitation peak per input", "A", 1e-6, 1e3)
+    n_periods: int = quantity(4, "steady-state periods P per experiment", "", 1, 1_000_000)
     # three realisations bring the worst excited line under 8 % and give the total variance its scatter
-    n_realisations: int = 3
-    n_transient_periods: int = 3
-    grid: str = ""
-    spacing: str = ""
-    phases: str = ""
-    mimo: str = ""
-    seed: int = 1
-    settle_s: float = 0.5
-    n_cycles: int = 10
+    n_realisations: int = quantity(3, "realisations M (random phases, noise records)", "", 1, 100_000)
+    n_transient_periods: int = quantity(3, "periods Pt discarded ahead of each experiment", "", 0, 100_000)
+    grid: str = quantity("", "line grid: random_odd | odd | full; empty = the kind's default")
+    spacing: str = quantity("", "line spacing (swept sine: sweep law): linear | log; empty = the kind's default")
+    phases: str = quantity("", "multisine phases: crest_optimised | random | schroeder; empty = the kind's default "
+                               "(crest_optimised)")
+    mimo: str = quantity("", "orthogonal | one_at_a_time | simultaneous; empty = the kind's default")
+    seed: int = quantity(1, "seed of the random choices (phases, grid, noise)", "", 0, 2**31 - 1)
+    settle_s: float = quantity(0.5, "stepped sine: settling wait per line", "s", 0.0, 3600.0)
+    n_cycles: int = quantity(10, "stepped sine: measured cycles per line", "", 1, 1_000_000)
+    # the synchronous harmonics matter only at speed, which a node's default design does not have:
+    # plain fields, no node parameters
     n_harmonics: int = DEFAULT_HARMONICS
     guard_bins: int = DEFAULT_GUARD_BINS
 
@@ -216,13 +223,11 @@ class DesignSpec:
                            seed=seed)
 
 
-def build_design(kind: str, band_hz: tuple[float, float], resolution_hz: float, fs_hz: float, *terms,
-                 speed_rpm: float = 0.0, **named) -> ExcitationDesign:
-    """``DesignSpec(kind, band_hz, resolution_hz, *terms, **named).build(fs_hz, speed_rpm)`` (inputs: the default
-    rig's currents unless ``input_names`` names them).
+def build_design(kind: str, band_hz: tuple[float, float], resolution_hz: float, fs_hz: float, *,
+                 speed_rpm: float = 0.0, **terms) -> ExcitationDesign:
+    """``DesignSpec(kind=kind, band_hz=band_hz, resolution_hz=resolution_hz, **terms).build(fs_hz, speed_rpm)``
+    (inputs: the default rig's currents unless ``input_names`` names them).
 
-    ``terms`` and ``named`` are :class:`DesignSpec`'s fields after ``resolution_hz``, in its order
-    (input_names, peak_current_a, n_periods, n_realisations, n_transient_periods, grid, spacing,
-    phases, mimo, seed, settle_s, n_cycles, n_harmonics, guard_bins); what is left out is its default.
+    ``terms`` are :class:`DesignSpec`'s other fields by name; what is left out is its default.
     """
-    return DesignSpec(kind, band_hz, resolution_hz, *terms, **named).build(fs_hz, speed_rpm)
+    return DesignSpec(kind=kind, band_hz=band_hz, resolution_hz=resolution_hz, **terms).build(fs_hz, speed_rpm)

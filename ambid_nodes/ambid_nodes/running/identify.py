@@ -50,7 +50,7 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None,
         from ambid.hardware.target_model import read_target_model
 
         true_model = read_target_model(cfg.true_model).plant
-    options = dict(estimator=cfg.estimator, true_model=true_model)
+    options = dict(estimator=cfg.estimator, true_model=true_model, report=cfg.report)
     live = start_live(cfg)
     # with a real-time target the bridge must never fall silent: the analysis yields it the CPU. A session
     # run by a daemonic worker (a study's on Dask) may not start processes: it analyses the recording itself
@@ -74,7 +74,7 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None,
             shown["at"] = time.perf_counter()
             if on_headline is not None:
                 on_headline(_identify_summary(cfg, run, design, offline, _timing(run, shown)))
-            phase("writing the report")
+            phase("writing the report" if cfg.report is True else "handing the report to a process of its own")
 
         phase("analysing the recording: FRF, fit, model update")
 

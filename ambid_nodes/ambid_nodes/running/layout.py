@@ -50,7 +50,7 @@ class Layout(ABC):
     def __init__(self, cfg: SessionConfig, plan: SessionPlan, report_foreign: Callable[[dict], None] | None = None,
                  live=None) -> None:
         self.cfg, self.plan, self.report_foreign, self.live = cfg, plan, report_foreign, live
-        self.fs = 1.0 / plan.rig.dt
+        self.fs = plan.rig.sample_rate_hz
         self.start_index, self.total = session_samples(plan.design, self.fs, cfg.loop_seconds)
         self.loop_only = plan.design is None   # the loop alone (ambid graph): no recorder, experiment, estimate
         self.sim_seconds = cfg.loop_seconds or self.total / self.fs   # the plant's run

@@ -52,6 +52,9 @@ class SessionConfig:
     loop_seconds: float = 0.0
     live_port: int | None = None    # a Foxglove live view on this port (0: any free one); None: none
     live_host: str = "127.0.0.1"    # the address the live view binds
+    # the report: True written before the run returns; "background" by a detached process, the run returning
+    # without it (report/status.json says when it is there: ambid identify answers without waiting for it)
+    report: bool | str = True
     extra: dict = field(default_factory=dict)
 
     @property
@@ -111,7 +114,7 @@ def plan_session(cfg: SessionConfig, rig: Rig | None = None, controller: Control
         controller = checked_design(cfg.controller, rig)
     if cfg.loop_seconds:
         return SessionPlan(rig, controller, None)
-    return SessionPlan(rig, controller, cfg.design(1.0 / rig.dt, float(rig.rotor_speed_rpm), rig.layout.inputs))
+    return SessionPlan(rig, controller, cfg.design(rig.sample_rate_hz, float(rig.rotor_speed_rpm), rig.layout.inputs))
 
 
 class ProgressBar:
