@@ -66,5 +66,13 @@ def test_parameter_file_holds_the_declared_defaults(ros, name, tmp_path):
                  and not (isinstance(v, (int, float)) and isinstance(declared[k], (int, float))
                           and float(v) == float(declared[k]))}
         assert not drift, f"{name}.yaml (file, declared): {drift}"
+        # each line's comment is the parameter's description (the declaration's, a dataclass field's for those
+        # of FIELDS), so a user reading the file reads what `ros2 param describe` says
+        comments = {ln.split(":", 1)[0].strip(): ln.split("  # ", 1)[1] if "  # " in ln else ""
+                    for ln in (CONFIG / f"{name}.yaml").read_text().splitlines() if ln.startswith("    ")
+                    and not ln.lstrip().startswith("#") and ln.split(":", 1)[0].strip() in params}
+        wrong = {k: (c, node.describe_parameter(k).description) for k, c in comments.items()
+                 if c != node.describe_parameter(k).description}
+        assert not wrong, f"{name}.yaml (comment, description): {wrong}"
     finally:
         node.destroy_node()

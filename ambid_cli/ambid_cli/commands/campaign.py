@@ -62,8 +62,8 @@ def _rig_at(base, rpm: float, controller_spec: str) -> tuple:
 
 def _settings(args: argparse.Namespace, rig) -> dict:
     """What must not change between a campaign's runs (the speeds may grow)."""
-    return dict(rig=rig.to_dict(), controller=args.controller, band_hz=list(args.band), resolution_hz=args.resolution,
-                realisations=args.realisations, seed=args.seed)
+    return dict(rig=rig.to_dict(), controller=args.controller, band_hz=list(args.band_hz), resolution_hz=args.resolution_hz,
+                realisations=args.n_realisations, seed=args.seed)
 
 
 def _speed_dir(out: Path, rpm: float) -> Path:
@@ -167,7 +167,7 @@ def run(args: argparse.Namespace) -> int:
         return 1
     runs = [(rpm, runs[rpm]) for rpm in speeds]
 
-    camp = campbell_summary(base, runs, tuple(args.band))
+    camp = campbell_summary(base, runs, tuple(args.band_hz))
     camp["wall_time_s"] = time.perf_counter() - t0
     camp["session_wall_time_s"] = {f"{k:.0f}": v for k, v in walls.items()}
     tmp = out / "campbell.json.tmp"

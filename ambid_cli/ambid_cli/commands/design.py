@@ -23,7 +23,7 @@ HELP = "preview an excitation design: figures, headroom, measurement times, spec
 from ambid.excitation.spec import GRIDS, KINDS, MIMOS, PHASES, SPACINGS, build_design, prbs_clock  # noqa: F401 - re-exported
 from ambid.excitation.experiment import WORKING_CURRENT_A
 from ambid_cli.commands.inputs import (D, BadInput, add_experiment_options, add_session_options, check_amplifier, count,
-                                       experiment_spec, output_dir, positive_float, positive_int)
+                                       experiment_spec, output_dir, positive_float, positive_int, spec_option)
 
 
 # ---- the command ------------------------------------------------------------
@@ -33,19 +33,16 @@ def add_arguments(g: argparse.ArgumentParser) -> None:
     add_experiment_options(g)
     g.add_argument("--inputs", default=",".join(D.input_names),
                    help="comma-separated excited inputs, e.g. u_a_x,u_a_y (default: every current of the rig)")
-    g.add_argument("--settle", type=positive_float, default=D.settle_s,
-                   help=f"stepped sine settling wait per line [s] (default {D.settle_s:g})")
-    g.add_argument("--cycles", type=positive_int, default=D.n_cycles,
-                   help=f"stepped sine measured cycles per line (default {D.n_cycles})")
+    spec_option(g, "--settle", "settle_s", type=positive_float)
+    spec_option(g, "--cycles", "n_cycles", type=positive_int)
     g.add_argument("--rig", help="rig parameter YAML file (default: the built-in rig): sample rate, current limit")
     g.add_argument("--speed-rpm", type=float, default=None,
                    help="rotor speed [rpm]: keep the lines clear of its synchronous harmonics and say which moved "
                         "(default: the rig file's rotor_speed_rpm; 0 = standstill)")
-    g.add_argument("--harmonics", type=positive_int, default=D.n_harmonics,
-                   help=f"synchronous harmonics kept clear (default {D.n_harmonics})")
-    g.add_argument("--guard-bins", type=count, default=D.guard_bins,
-                   help=f"bins kept free each side of a harmonic (default {D.guard_bins})")
-    g.add_argument("--working-current", type=positive_float, default=WORKING_CURRENT_A,
+    spec_option(g, "--harmonics", "n_harmonics", type=positive_int, help="synchronous harmonics kept clear")
+    spec_option(g, "--guard-bins", "guard_bins", type=count, help="bins kept free each side of a harmonic")
+    g.add_argument("--working-current", dest="working_current_a", metavar="WORKING_CURRENT", type=positive_float,
+                   default=WORKING_CURRENT_A,
                    help=f"controller's peak working current [A] for the headroom check (default {WORKING_CURRENT_A:g})")
     g.add_argument("--no-plan", action="store_true", help="skip the stepped/swept/multisine time table")
     g.add_argument("--no-figure", action="store_true", help="skip design.png (otherwise drawn in the background once the figures are out)")
@@ -96,13 +93,13 @@ def run(args: argparse.Namespace) -> int:
         return 2
     limit = float(rig.current_limit_a)
     try:  # refused: one line, exit code 2, nothing written (identify refuses the same design before it starts)
-        check_amplifier(design, limit, args.working_current)
+        check_amplifier(design, limit, args.working_current_a)
     except BadInput as exc:
         print(f"ambid design: headroom: REFUSED, {exc}", file=sys.stderr)
         return 2
-    margin = limit - args.working_current - design.peak_a
+    margin = limit - args.working_current_a - design.peak_a
     headroom = {"ok": True, "text": f"headroom: fits the {limit:g} A amplifier limit with a working current "
-                                    f"of {args.working_current:g} A; smallest margin {margin.min():.3g} A",
+                                    f"of {args.working_current_a:g} A; smallest margin {margin.min():.3g} A",
                 "margin_a": margin.tolist()}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -115,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
             "input_names": list(design.input_names), "peak_a": design.peak_a.tolist(),
             "rms_a": design.rms_a.tolist(), "crest_factor": design.crest_factor.tolist(),
             "total_samples": design.total_samples, "measurement_time_s": design.measurement_time_s,
-            "current_limit_a": limit, "working_current_a": args.working_current, "headroom": headroom,
+            "current_limit_a": limit, "working_current_a": args.working_current_a, "headroom": headroom,
             "plan": None if plan is None else [
                 {"method": r.name, "n_lines": r.n_lines, "n_experiments": r.n_experiments,
                  "total_samples": r.total_samples, "measurement_time_s": r.measurement_time_s} for r in plan],

@@ -14,7 +14,10 @@ import os
 import sys
 from pathlib import Path
 
+import dataclasses
+
 from ambid.excitation.spec import KINDS, DesignSpec
+from ambid.quantity import quantities
 
 D = DesignSpec()  # the experiment identify runs: every command's defaults
 
@@ -220,40 +223,38 @@ def check_band(band: tuple[float, float], option: str = "--band") -> tuple[float
 def add_session_options(p: argparse.ArgumentParser) -> None:
     """--band, --resolution, --realisations and --seed of an identify session, as identify, campaign and design
     take them (the defaults: :class:`ambid.excitation.spec.DesignSpec`'s, the experiment identify runs)."""
-    p.add_argument("--band", nargs=2, type=float, metavar=("LO", "HI"), default=D.band_hz,
-                   help=f"band of interest [Hz] (default {D.band_hz[0]:g} {D.band_hz[1]:g})")
-    p.add_argument("--resolution", type=positive_float, default=D.resolution_hz,
-                   help=f"frequency resolution fs/N [Hz] (default {D.resolution_hz:g})")
-    p.add_argument("--realisations", type=positive_int, default=D.n_realisations,
-                   help=f"random-phase realisations M (default {D.n_realisations})")
-    p.add_argument("--seed", type=int, default=D.seed,
-                   help=f"seed of the random phases and of the simulated noise (default {D.seed})")
+    spec_option(p, "--band", "band_hz", nargs=2, type=float, metavar=("LO", "HI"))
+    spec_option(p, "--resolution", "resolution_hz", type=positive_float)
+    spec_option(p, "--realisations", "n_realisations", type=positive_int)
+    spec_option(p, "--seed", "seed", type=int, help="seed of the random phases and of the simulated noise")
 
 
 def add_experiment_options(p: argparse.ArgumentParser) -> None:
     """The rest of the experiment's terms, as identify and design take them, with DesignSpec's defaults."""
-    p.add_argument("--kind", choices=KINDS, default=D.kind, help=f"excitation kind (default {D.kind})")
-    p.add_argument("--peak-current", type=positive_float, default=D.peak_current_a,
-                   help=f"excitation peak per input [A] (default {D.peak_current_a:g})")
-    p.add_argument("--periods", type=positive_int, default=D.n_periods,
-                   help=f"steady-state periods P per experiment (default {D.n_periods})")
-    p.add_argument("--transient-periods", type=count, default=D.n_transient_periods,
-                   help=f"periods Pt discarded ahead of each experiment (default {D.n_transient_periods})")
-    p.add_argument("--grid", default=D.grid, help="line grid: random_odd | odd | full (default: the kind's, "
-                                                  "random_odd for a multisine)")
-    p.add_argument("--spacing", default=D.spacing, help="line spacing linear | log (swept sine: the sweep law; "
-                                                        "default: the kind's)")
-    p.add_argument("--phases", default=D.phases, help="multisine phases: crest_optimised | random | schroeder "
-                                                      "(default crest_optimised: the lowest crest factor)")
-    p.add_argument("--mimo", default=D.mimo, help="several inputs: orthogonal | one_at_a_time | simultaneous "
-                                                  "(default: the kind's, orthogonal for a multisine)")
+    spec_option(p, "--kind", "kind", choices=KINDS, help="excitation kind")
+    spec_option(p, "--peak-current", "peak_current_a", type=positive_float)
+    spec_option(p, "--periods", "n_periods", type=positive_int)
+    spec_option(p, "--transient-periods", "n_transient_periods", type=count)
+    spec_option(p, "--grid", "grid")
+    spec_option(p, "--spacing", "spacing")
+    spec_option(p, "--phases", "phases")
+    spec_option(p, "--mimo", "mimo")
 
 
-# option -> DesignSpec field, for the options a command takes
-_SPEC_OPTIONS = {"kind": "kind", "band": "band_hz", "resolution": "resolution_hz", "peak_current": "peak_current_a",
-                 "periods": "n_periods", "realisations": "n_realisations", "transient_periods": "n_transient_periods",
-                 "grid": "grid", "spacing": "spacing", "phases": "phases", "mimo": "mimo", "seed": "seed",
-                 "settle": "settle_s", "cycles": "n_cycles", "harmonics": "n_harmonics", "guard_bins": "guard_bins"}
+def spec_option(p: argparse.ArgumentParser, flag: str, field: str, **kw) -> None:
+    """The option ``flag`` for :class:`DesignSpec`'s ``field``: its dest is the field's name, its default the
+    field's, its help the field's description (``ambid.quantity``) unless ``help`` is given, so the option
+    repeats none of them and :func:`experiment_spec` reads it by the field's name."""
+    described = {name: q.description() for name, _, q in quantities(DesignSpec)}
+    default = getattr(D, field)
+    if isinstance(default, tuple):
+        shown = " ".join(f"{v:g}" for v in default)
+    else:
+        shown = f"{default:g}" if isinstance(default, (int, float)) else default
+    text = kw.pop("help", None) or described[field]
+    if "choices" not in kw:   # the usage line as before: --peak-current PEAK_CURRENT
+        kw.setdefault("metavar", flag.lstrip("-").replace("-", "_").upper())
+    p.add_argument(flag, dest=field, default=default, help=text + (f" (default {shown})" if shown else ""), **kw)
 
 
 def check_amplifier(design, current_limit_a: float, working_current_a: float) -> None:
@@ -276,7 +277,7 @@ def check_amplifier(design, current_limit_a: float, working_current_a: float) ->
 def experiment_spec(args: argparse.Namespace, **terms) -> DesignSpec:
     """The DesignSpec of the options ``args`` holds (DesignSpec's defaults for those it does not) and
     ``terms``; the band is checked (:func:`check_band`)."""
-    given = {field: getattr(args, opt) for opt, field in _SPEC_OPTIONS.items() if hasattr(args, opt)}
+    given = {f.name: getattr(args, f.name) for f in dataclasses.fields(DesignSpec) if hasattr(args, f.name)}
     if "band_hz" in given:
         given["band_hz"] = check_band(tuple(given["band_hz"]))
     return DesignSpec(**{**given, **terms})

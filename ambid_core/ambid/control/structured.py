@@ -56,14 +56,8 @@ class StructuredAxis:
 
     Attributes
     ----------
-    kp_a_per_m
-        proportional gain [A/m].
-    ti_s
-        integral time [s].
-    td_s
-        derivative time [s] (0: no derivative).
-    derivative_filter_n
-        derivative filter ratio n [-].
+    kp_a_per_m, ti_s, td_s, derivative_filter_n
+        the PID's terms, as :class:`ambid.control.pid.PidParameters`'s (td_s 0: no derivative).
     lead_zero_hz, lead_pole_hz
         the lead/lag's zero and pole [Hz] (equal: none; zero below pole: lead).
     lowpass_hz
