@@ -92,7 +92,8 @@ def run(args: argparse.Namespace) -> int:
         raise BadInput(str(exc)) from None
     from ambid.excitation.experiment import WORKING_CURRENT_A
 
-    check_amplifier(plan.design, float(plan.rig.current_limit_a), WORKING_CURRENT_A)  # the generator's refusal, now
+    # the generator's refusal, now; and an excitation the amplifier's voltage cannot follow
+    check_amplifier(plan.design, float(plan.rig.current_limit_a), WORKING_CURRENT_A, None if args.hardware else plan.rig)
     layout = "separate processes" if args.processes else "one process"
     print(f"ambid identify: {session_words(session)}, {layout}, namespace {args.namespace}, ROS_DOMAIN_ID "
           f"{session_domain_id()}", file=sys.stderr, flush=True)
