@@ -57,7 +57,7 @@ def run_session_processes(cfg: SessionConfig, plan: SessionPlan | None = None, r
         session = {"session": session_id}
         rig_param = {"rig_file": cfg.rig_file} if cfg.rig_file else {}
         try:
-            sup.start("recorder", {"output": str(mcap_path), "overwrite": True, "status_period": RECORDER_STATUS_S,
+            sup.start("recorder", {"output": str(mcap_path), "overwrite": True, "status_period_s": RECORDER_STATUS_S,
                                    **session,
                                    "session_facts": json.dumps({"session": "identify", "config": config_json(cfg)})})
             if cfg.hardware:

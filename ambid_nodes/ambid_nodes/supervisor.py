@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 from ambid_nodes.node_main import DIE_WITH_PARENT_ENV, SUMMARY_PREFIX
 
 POLL_S = 0.1         # how often the children are looked at
-DEATH_GRACE_S = 3.0  # after a death, the plant's time to end its run itself (its controller_timeout is 2 s)
+DEATH_GRACE_S = 3.0  # after a death, the plant's time to end its run itself (its controller_timeout_s is 2 s)
 # after the controller's death the plant is sure to end its run (safe state, landing) once its 2 s wall-clock
 # watchdog fires; a loaded machine may delay that by seconds, and ending the session first would hide the landing
 CONTROLLER_DEATH_GRACE_S = 15.0
