@@ -93,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     limit = float(rig.current_limit_a)
     try:  # refused: one line, exit code 2, nothing written (identify refuses the same design before it starts)
-        check_amplifier(design, limit, args.working_current_a)
+        check_amplifier(design, limit, args.working_current_a, rig)
     except BadInput as exc:
         print(f"ambid design: headroom: REFUSED, {exc}", file=sys.stderr)
         return 2

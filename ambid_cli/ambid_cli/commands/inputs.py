@@ -257,21 +257,63 @@ def spec_option(p: argparse.ArgumentParser, flag: str, field: str, **kw) -> None
     p.add_argument(flag, dest=field, default=default, help=text + (f" (default {shown})" if shown else ""), **kw)
 
 
-def check_amplifier(design, current_limit_a: float, working_current_a: float) -> None:
+def check_amplifier(design, current_limit_a: float, working_current_a: float, rig=None) -> None:
     """BadInput when ``design``'s peak plus the controller's working current exceeds the amplifier's limit
     (:func:`ambid.excitation.check_headroom`): the refusal the excitation generator would give once the
-    nodes run, given before anything starts, in the command's terms."""
+    nodes run, given before anything starts, in the command's terms. With ``rig``, also when following the
+    excitation would ask the amplifier for more voltage than its dc link has (:func:`voltage_needs`); the
+    peak current suggested fits both."""
     import numpy as np
     from ambid.excitation import check_headroom
 
+    volts = voltage_needs(design, rig, working_current_a) if rig is not None else []
+    over_v = [v for v in volts if v[1] > v[2]]
+    fits_v = min((v[3] for v in volts), default=np.inf)
     try:
         check_headroom(design, current_limit_a, working_current_a)
     except ValueError:
         over = [n for n, pk in zip(design.input_names, design.peak_a) if pk + working_current_a > current_limit_a]
-        left = max(current_limit_a - working_current_a, 0.0)
+        left = min(max(current_limit_a - working_current_a, 0.0), fits_v)
         raise BadInput(f"the excitation peak {float(np.max(design.peak_a)):.3g} A plus the controller's working "
                        f"current {working_current_a:g} A exceeds the amplifier's {current_limit_a:g} A limit on "
                        f"{', '.join(over)}; give --peak-current {left:.3g} or less") from None
+    if over_v:
+        name, need, udc, _ = max(over_v, key=lambda v: v[1] / v[2])
+        raise BadInput(f"the excitation's steps on {name} need {need:.4g} V of the amplifier's {udc:g} V dc link to "
+                       f"be followed within a sample (L di/dt + R i); give --peak-current {fits_v:.3g} or less, or "
+                       "a lower band")
+
+
+def voltage_needs(design, rig, working_current_a: float) -> list[tuple[str, float, float, float]]:
+    """Per input of ``design``: (name, the voltage its steps need to be followed within a sample, the dc link's
+    voltage, the peak current whose steps it can follow) (:func:`ambid.plant.amplifier.slew_voltage_v`).
+
+    Beyond the dc link the amplifier would saturate, the coil current slew behind the excitation designed and
+    the FRF measure that distortion. The controller's own share (its noise, its response) is not counted:
+    what is refused is what cannot be followed at all."""
+    from ambid.plant.amplifier import slew_voltage_v
+
+    import numpy as np
+
+    names = list(rig.layout.inputs)
+    if design.is_periodic:
+        # the steady state the FRF is measured in: each segment's period, closed on itself (the jump from one
+        # segment to the next falls in the settling periods, which are not measured)
+        x = np.concatenate([np.concatenate([p, p[:1], np.full((1, design.n_inputs), np.nan)])
+                            for m in range(design.n_realisations) for e in range(design.n_experiments)
+                            for p in [design.period(m, e)]])
+    else:
+        x = design.samples(0, design.total_samples)
+    out = []
+    for i, name in enumerate(design.input_names):
+        axial = name in names and names.index(name) in rig.layout.axial
+        amp = rig.axial_amplifier if axial else rig.amplifier
+        offset = rig.values["axial_bias_current_a" if axial else "bias_current_a"] + working_current_a
+        need = float(slew_voltage_v(amp, x[:, i], 1.0 / design.fs_hz, offset))
+        static = amp.resistance_ohm * offset   # the share that does not grow with the peak
+        udc = amp.dc_link_voltage_v
+        out.append((name, need, udc, float(design.peak_a[i]) * max(udc - static, 0.0) / max(need - static, 1e-300)))
+    return out
 
 
 def experiment_spec(args: argparse.Namespace, **terms) -> DesignSpec:
