@@ -28,7 +28,7 @@ from ambid_nodes.supervisor import POLL_S, Death, Supervisor, consequence, stopp
 from ambid_nodes.watch import SessionWatch
 
 START_TIMEOUT_S = 120  # processes start in seconds; on a loaded machine in tens of them
-DEATH_GRACE_S = 3.0  # after a death, the plant's time to end its run itself (its controller_timeout is 2 s)
+DEATH_GRACE_S = 3.0  # after a death, the plant's time to end its run itself (its controller_timeout_s is 2 s)
 # after the controller's death the plant is sure to end its run (safe state, landing) once its 2 s wall-clock
 # watchdog fires; a loaded machine may delay that by seconds, and ending the session first would hide the landing
 CONTROLLER_DEATH_GRACE_S = 15.0
@@ -75,7 +75,7 @@ class ProcessesLayout(Layout):
             sup.start(self.plant_name, self.plant_parameters(), finishes=True)
             return
         cfg.out_dir.mkdir(parents=True, exist_ok=True)
-        sup.start("recorder", {"output": str(self.mcap_path), "overwrite": True, "status_period": RECORDER_STATUS_S,
+        sup.start("recorder", {"output": str(self.mcap_path), "overwrite": True, "status_period_s": RECORDER_STATUS_S,
                                **session, "session_facts": json.dumps({"session": "identify",
                                                                        "config": config_json(cfg)})})
         sup.start(self.plant_name, self.plant_parameters(), finishes=True)
@@ -90,8 +90,9 @@ class ProcessesLayout(Layout):
         if self.loop_only:
             self.spin_until(watch.hears_the_plant, START_TIMEOUT_S, f"{self.plant_name}'s measurement")
             return
-        listeners = 4 + announce_live(self.live)
-        self.spin_until(lambda: watch.count_subscribers(watch.measurement) >= listeners and watch.hears_the_plant(),
+        # each by name: another listener on the topic (a ros2 topic echo, a test's) stands in for none of them
+        listeners = ["recorder", "frf_consumer", "excitation_generator"] + ["live_view"] * announce_live(self.live)
+        self.spin_until(lambda: not watch.subscribed(watch.measurement, listeners) and watch.hears_the_plant(),
                         START_TIMEOUT_S, "the recorder, the consumer and the generator to subscribe"
                         + (" (and the live view)" if self.live is not None else ""))
 
