@@ -98,6 +98,7 @@ class FrfConsumer(SessionNode):
         self.result: FrfResult | None = None           # latest estimate of the current experiment
         self.results: dict[str, FrfResult] = {}        # final estimate per experiment
         self.finished_at: dict[str, float] = {}        # when it was made (time.perf_counter), for timing figures
+        self.final_figures: dict[str, dict] = {}       # its figures as the frf_done event says them
         self.dt = 0.0
         self.index = 0
         self.state = SessionStatus.STATE_IDLE
@@ -280,6 +281,7 @@ class FrfConsumer(SessionNode):
             self.event(SessionEvent.ERROR, "no_estimate", f"{self.experiment_id} ended without a complete "
                        "realisation: no FRF")
         else:
+            self.final_figures[self.experiment_id] = figures
             self.event(SessionEvent.INFO, "frf_done", json.dumps(figures))
 
     def consistency(self, result: FrfResult) -> float:

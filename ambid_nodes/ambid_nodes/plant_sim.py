@@ -32,7 +32,14 @@ time waiting for the controller, the plant sends y[k - 1] and y[k] again;
 the controller answers the one it missed and repeats the answers it gave,
 so a lost displacement or current costs milliseconds and the samples are
 the same as without the loss (``resends`` and ``duplicate_answers`` in
-``status`` and the summary).
+``status`` and the summary). Until the first answer the plant sends y[0]
+again every ``START_RETRY_S`` (``start_retries``): another listener's match
+can let the loop start before the controller's. The plant cannot tell a lost
+message from a starved process (a busy machine holds a node for tens of
+milliseconds), so it also asks again where nothing was lost: each displacement
+sent again is answered again (y[0] of a pipelined controller with ic[0] and
+ic[1]), and every answer that comes twice because the plant asked for it is
+taken as a duplicate, never rejected.
 
 Controller supervision. In lock-step the plant cannot advance past a sample
 whose answer has not arrived, so a dead or stalled controller is detected at
@@ -210,7 +217,9 @@ class PlantSim(SessionNode):
         # recovery of a lost loop message: no clock is read per sample; this timer sees the loop stand still
         self.resends = 0  # times the plant asked again
         self.duplicate_answers = 0  # answers that came twice because it asked again
-        self.resent_k = 2**62  # the sample k it last asked again at (none yet)
+        self.start_retries = 0  # times it sent y[0] again before the first answer
+        # [first, last] index of the currents that may come twice because the plant asked again (none yet)
+        self.asked_again = (1, 0)
         self.resend_watch_k = -1
         self.resend_timer = self.create_timer(self.resend_after, self.resend_if_stalled)
         self.status_received = -1
@@ -297,6 +306,8 @@ class PlantSim(SessionNode):
         if self.k > 0 or self.state != RUNNING:
             self.start_retry.cancel()
             return
+        self.start_retries += 1
+        self.asked_again = (0, 1)  # y[0]'s answers: ic[0], and ic[1] from a pipelined controller
         self.publish_y_raw(self.y_bytes)
 
     def describe_run(self) -> str:
@@ -369,8 +380,10 @@ class PlantSim(SessionNode):
         if self.state == DONE and index == self.k and not self.ic_ready:
             intake.accept("control_current")  # a pipelined controller's current for the sample after the run
             return
-        if running and self.resent_k - 1 <= index < nxt:
-            intake.accept("control_current")  # the second answer to a sample asked for again: already applied
+        first, last = self.asked_again
+        if self.state != IDLE and first <= index <= last and index < nxt:
+            # the second answer to a displacement sent again (also after the run's end): already applied
+            intake.accept("control_current")
             self.duplicate_answers += 1
             return
         if not running:
@@ -482,7 +495,10 @@ class PlantSim(SessionNode):
             self.resend_watch_k = k
             return
         self.resends += 1
-        self.resent_k = k
+        # the answers to y[k - 1] and y[k]: ic[k - 1] .. ic[k + 1] (a pipelined controller answers one ahead);
+        # those of an earlier request that may still be on their way stay expected
+        first, last = self.asked_again
+        self.asked_again = (first if last >= k - 2 else k - 1, k + 1)
         row = k - 1 - self.buf_start
         prev = self.rec[row if row >= 0 else self.block_size - 1]  # y[k - 1]: the previous block's last row
         self.publish_y_raw(encode_sample(k - 1, prev[0:self.na].tolist()))
@@ -568,7 +584,8 @@ class PlantSim(SessionNode):
                 "samples_per_wall_s": self.k / wall if wall > 0 else 0.0,
                 "messages_received": self.intake.total_received, "messages_rejected": self.intake.total_rejected,
                 "clipped_samples": self.clipped_samples, "controller_lost_after_s": self.controller_lost_after_s,
-                "resends": self.resends, "duplicate_answers": self.duplicate_answers,
+                "resends": self.resends, "start_retries": self.start_retries,
+                "duplicate_answers": self.duplicate_answers,
                 **self.intake.figures()}
 
     def status_when_idle(self) -> None:

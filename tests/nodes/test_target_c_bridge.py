@@ -22,7 +22,7 @@ from ambid.hardware.link_key import LinkKey, write_key_file
 from ambid.hardware.target_model import rig_target_model, write_target_model
 from ambid.plant.rig import make_rig
 
-from ambid_nodes.session import SessionConfig, session_samples
+from ambid_nodes.running.plan import SessionConfig, session_samples
 from udp_port import free_port
 from udp_relay import Relay
 

@@ -80,7 +80,8 @@ def _done(folder: Path) -> dict | None:
 
 def _identify_speed(cfg, rig, controller) -> tuple:
     """One speed's identify session (a Dask task): its summary and wall time [s]."""
-    from ambid_nodes.session import plan_session, run_identify
+    from ambid_nodes.running.identify import run_identify
+    from ambid_nodes.running.plan import plan_session
 
     t0 = time.perf_counter()
     summary = run_identify(cfg, plan_session(cfg, rig, controller))
@@ -92,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ambid.identification.campbell import campbell_summary, campbell_table, write_campbell_report
     from ambid.jsonable import to_jsonable
-    from ambid_nodes.session import SessionConfig
+    from ambid_nodes.running.plan import SessionConfig
 
     spec = experiment_spec(args)
     out = output_dir(args.out)

@@ -16,10 +16,10 @@ from ambid_cli.commands.inputs import (BadInput, add_experiment_options, add_lin
                                         output_dir, rig_file)
 from ambid_cli.commands.session_report import (death_line, kept_out_line, levitation_lines, live_line,
                                                 print_foreign, session_of, session_words)
-from ambid_nodes.graph import DEFAULT_NAMESPACE
+from ambid_nodes.running.domain import DEFAULT_NAMESPACE
 
 if TYPE_CHECKING:
-    from ambid_nodes.session import IdentifyResult
+    from ambid_nodes.running.identify import IdentifyResult
 
 HELP = "identify the simulated rig end to end (graph, experiment, recording, FRF, fit, report)"
 
@@ -56,7 +56,8 @@ def run(args: argparse.Namespace) -> int:
 
     phases = current()
     from ambid_nodes.running.domain import session_domain_id
-    from ambid_nodes.session import NodeDied, SessionConfig, plan_session, run_identify
+    from ambid_nodes.running.identify import run_identify
+    from ambid_nodes.running.plan import NodeDied, SessionConfig, plan_session
 
     spec = experiment_spec(args)
     output_dir(args.out)
