@@ -1,7 +1,7 @@
 """recorder: records the session's topics into one MCAP file laid out as rosbag2 writes it.
 
 Each wanted topic's type is discovered from the graph (polled every
-``discovery_period`` seconds, so late topics are picked up) and the topic is
+``discovery_period_s`` seconds, so late topics are picked up) and the topic is
 subscribed with ``raw=True``: the CDR bytes go to the file unchanged, nothing
 is deserialised except the few latched description messages. The
 subscription QoS follows the publishers' offers as rosbag2's does: reliable
@@ -30,7 +30,7 @@ a second). A topic of a type without ``session_id`` other than those (a user's o
 topic) is recorded as it comes.
 
 Messages published on a volatile topic before the recorder's subscription
-matched (about ``discovery_period`` plus DDS discovery) are not recorded:
+matched (about ``discovery_period_s`` plus DDS discovery) are not recorded:
 start the recorder first and let it subscribe (``topic_recorded`` events,
 the subscription count) before the loop starts.
 
@@ -47,7 +47,7 @@ MCAP metadata ``ambid.session`` when they become known, readable without
 decoding any message.
 
 Crash safety: a wall-clock timer closes the open chunk every
-``flush_period`` seconds, so a SIGKILL loses at most that much; ``ambid
+``flush_period_s`` seconds, so a SIGKILL loses at most that much; ``ambid
 inspect --recover`` reads the rest. SIGINT and SIGTERM close the file
 completely (summary and footer). A write failure (disk full) is logged,
 reported as an ``events`` ERROR and a failed ``status``, recording stops and
@@ -149,12 +149,12 @@ class Recorder(Node):
                              1024, 1 << 30, "bytes")
         compression = declare(self, "compression", "zstd", "chunk compression: zstd, lz4 or none")
         fsync = declare(self, "fsync", False, "fsync the file after every chunk (survives a power loss)")
-        flush_period = declare(self, "flush_period", 1.0,
+        flush_period = declare(self, "flush_period_s", 1.0,
                                "wall time between chunk flushes: at most this much is lost to a SIGKILL",
                                0.02, 60.0, "s")
-        discovery_period = declare(self, "discovery_period", 0.25, "wall time between graph polls for new topics",
+        discovery_period = declare(self, "discovery_period_s", 0.25, "wall time between graph polls for new topics",
                                    0.02, 60.0, "s")
-        status_period = declare(self, "status_period", 1.0, "wall time between status messages", 0.02, 3600.0, "s")
+        status_period = declare(self, "status_period_s", 1.0, "wall time between status messages", 0.02, 3600.0, "s")
         facts_text = declare(self, "session_facts", "{}",
                              "extra session facts as a JSON object, e.g. {\"operator\": \"...\", \"notes\": \"...\"}")
         session = declare(self, *SESSION_PARAMETER)
