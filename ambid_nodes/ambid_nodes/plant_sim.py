@@ -27,7 +27,7 @@ ahead, or has the wrong channels, sample period or non-finite values; a design
 if it is inconsistent, at another sample rate, starts in the past or overlaps
 another experiment.
 
-Recovery. Where the loop stands still for ``resend_after`` (20 ms) of wall
+Recovery. Where the loop stands still for ``resend_after_s`` (20 ms) of wall
 time waiting for the controller, the plant sends y[k - 1] and y[k] again;
 the controller answers the one it missed and repeats the answers it gave,
 so a lost displacement or current costs milliseconds and the samples are
@@ -44,7 +44,7 @@ taken as a duplicate, never rejected.
 Controller supervision. In lock-step the plant cannot advance past a sample
 whose answer has not arrived, so a dead or stalled controller is detected at
 that very sample: the detection latency is 0 samples of simulated time, and
-``controller_timeout`` (+ up to two watchdog periods, each at most 0.1 s:
+``controller_timeout_s`` (+ up to two watchdog periods, each at most 0.1 s:
 the loop reads no clock per sample, the watchdog dates progress to its
 ticks) of wall time.
 Then the plant goes to its safe state: zero control current, the rotor drops
@@ -54,7 +54,7 @@ and FLAG_LANDED), a FATAL ``controller_lost`` event, the session failed.
 Excitation supervision. Where a design says a sample is excited, the plant
 waits for its excitation block (where excitation lands never depends on
 message timing), and simulated time stands still meanwhile. If the block
-has not come after ``excitation_timeout`` of wall time (+ up to two watchdog
+has not come after ``excitation_timeout_s`` of wall time (+ up to two watchdog
 periods), the excitation generator is taken as lost: a FATAL
 ``excitation_lost`` event naming the experiment and sample, the block so far
 published as final, the session failed; the samples before stay recorded.
@@ -252,13 +252,13 @@ class PlantSim(SessionNode):
                                    0.0, 1e6, "s")
         self.block_size = declare(self, "block_size", 1000, "samples per measurement block", 1, 100_000)
         self.clock_every = declare(self, "clock_every", 100, "samples between /clock messages", 1, 100_000)
-        self.timeout = declare(self, "controller_timeout", 2.0,
+        self.timeout = declare(self, "controller_timeout_s", 2.0,
                                "wall time without an answer before the controller is declared lost",
                                0.01, 3600.0, "s")
-        self.exc_timeout = declare(self, "excitation_timeout", 5.0,
+        self.exc_timeout = declare(self, "excitation_timeout_s", 5.0,
                                    "wall time waiting for an excitation block a design says is due before the "
                                    "session fails", 0.01, 3600.0, "s")
-        self.resend_after = declare(self, "resend_after", 0.02,
+        self.resend_after = declare(self, "resend_after_s", 0.02,
                                     "wall time the loop may stand still before the plant sends y[k - 1] and y[k] "
                                     "again (a lost message is recovered; the controller answers them again)",
                                     0.001, 60.0, "s")
@@ -482,11 +482,11 @@ class PlantSim(SessionNode):
 
     # --- supervision ------------------------------------------------------
     def resend_if_stalled(self) -> None:
-        """Ask again where the loop stood still for a whole ``resend_after`` period waiting for the
+        """Ask again where the loop stood still for a whole ``resend_after_s`` period waiting for the
         controller: send y[k - 1] and y[k] again, as first sent. Whichever of them, or of the answers,
         was lost, the controller answers the one it has not seen and repeats the answers it gave
         (ic[k] answers y[k] or, pipelined, y[k - 1]), so the loop goes on with the very numbers it
-        would have had: a lost message costs one to two ``resend_after`` periods, nothing else."""
+        would have had: a lost message costs one to two ``resend_after_s`` periods, nothing else."""
         k = self.k
         if self.state != RUNNING or self.ic_ready or k == 0:  # not waiting for the controller (k = 0: the start)
             self.resend_watch_k = -1

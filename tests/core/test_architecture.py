@@ -207,7 +207,8 @@ def test_no_function_over_100_lines_in_the_core_or_the_nodes():
     assert long == []
 
 
-SESSION_NODES = ("excitation_generator", "frf_consumer", "hardware_bridge", "plant_sim", "position_controller")
+SESSION_NODES = ("excitation_generator", "frf_consumer", "hardware_bridge", "plant_sim", "position_controller",
+                 "recorder")
 
 
 @pytest.mark.parametrize("name", SESSION_NODES)

@@ -309,9 +309,9 @@ def test_fuzz_plant_and_controller_while_the_loop_runs(ros):
     topics = list(PLAN["plant_sim"]) + list(PLAN["position_controller"])
     fuzzer = ros.add(FuzzNode(ros.context, ns, topics))
     plant = ros.add(PlantSim(namespace=ns, context=ros.context, parameter_overrides=[
-        Parameter("controller_timeout", value=30.0)]))
+        Parameter("controller_timeout_s", value=30.0)]))
     ctrl = ros.add(PositionController(namespace=ns, context=ros.context, parameter_overrides=[
-        Parameter("plant_timeout", value=30.0)]))
+        Parameter("plant_timeout_s", value=30.0)]))
     wait(ros, lambda: plant.k >= 6000, 60, "the loop levitates")  # lifted off and settled
     near = lambda: max(plant.k - 200, 1)  # noqa: E731 - indices of samples already passed
     # on the loop topics the fuzz rides along the lock-step traffic: all of it is refused, nothing else is
@@ -521,8 +521,8 @@ def test_fuzz_recorder(ros, tmp_path):
     path = tmp_path / "fuzz.mcap"
     fuzzer = ros.add(FuzzNode(ros.context, ns, PLAN["recorder"]))
     rec = ros.add(Recorder(namespace=ns, context=ros.context, parameter_overrides=[
-        Parameter("output", value=str(path)), Parameter("discovery_period", value=0.05),
-        Parameter("status_period", value=3600.0)]))
+        Parameter("output", value=str(path)), Parameter("discovery_period_s", value=0.05),
+        Parameter("status_period_s", value=3600.0)]))
     wait(ros, lambda: all(f"{ns}/{t}" in rec.subs for t in PLAN["recorder"]), 20, "recorder subscribed")
     counted = lambda t: rec.counts.get(f"{ns}/{t}", 0)  # noqa: E731 - messages written per topic
     # the recorder's queues hold queue_depth (1000) messages on every topic, latched ones too

@@ -198,7 +198,7 @@ def test_compiled_callbacks_give_the_same_samples_as_the_python_path(ros, monkey
             monkeypatch.setattr(PositionController, "regate", lambda self: self.fast.set(LOOP_GATE, 0))
         # the paths' numbers are under test, not the watchdog: a starved machine may hold an answer past 2 s
         plant, ctrl, spy = make_loop(ros, 0.3, [("controller", controller)], seed=5, block_size=1000,
-                                     controller_timeout=30.0)
+                                     controller_timeout_s=30.0)
         assert ctrl.design.kind == ("file" if user_controller else "pid")
         assert ros.spin_until(plant.finished.done, timeout_s=120)
         summary = plant.finished.result()

@@ -4,7 +4,7 @@ run as its own process on a pseudo-terminal (as typed at a prompt), every chunk 
 Figures per command: wall seconds to its answer (the first line of its figures) and to its end, and the
 longest silence on the terminal (a status line counts: that is what the user sees). For identify,
 what it spent beyond its session (the headline's own split: set-up and design, closing and analysis),
-to the headline and to its end (the report written).
+to the headline and to its exit, and the report's own time (written by a process of its own after the headline).
 """
 
 from __future__ import annotations
@@ -92,6 +92,7 @@ def command_figures(work: Path, identify_options: list[str]) -> dict:
     design["figure_own_s"] = figure.get("seconds")
     fit = run_on_terminal(["fit", str(FRF_FILE), "--out", str(work / "fit")], work)
     ident = run_on_terminal(["identify", "--out", str(work / "identify"), *identify_options], work)
+    report = wait(work / "identify" / "report" / "status.json", 300.0) if ident["returncode"] == 0 else {}
     for name, r in (("design", design), ("fit", fit), ("identify", ident)):
         if r["returncode"] != 0:
             raise RuntimeError(f"ambid {name} exited {r['returncode']}: {r['text'][-800:]}")
@@ -109,5 +110,5 @@ def command_figures(work: Path, identify_options: list[str]) -> dict:
                      "setup_s": setup, "headline_s": headline_total, "to_headline_s": to_headline,
                      "beyond_session_to_headline_s": to_headline - session,
                      "wall_s": ident["wall_s"], "beyond_session_s": ident["wall_s"] - session,
-                     "longest_silence_s": ident["longest_silence_s"]},
+                     "longest_silence_s": ident["longest_silence_s"], "report_own_s": report.get("seconds")},
     }

@@ -309,7 +309,7 @@ def voltage_needs(design, rig, working_current_a: float) -> list[tuple[str, floa
         axial = name in names and names.index(name) in rig.layout.axial
         amp = rig.axial_amplifier if axial else rig.amplifier
         offset = rig.values["axial_bias_current_a" if axial else "bias_current_a"] + working_current_a
-        need = float(slew_voltage_v(amp, x[:, i], 1.0 / design.fs_hz, offset))
+        need = float(slew_voltage_v(amp, x[:, i], design.dt_s, offset))
         static = amp.resistance_ohm * offset   # the share that does not grow with the peak
         udc = amp.dc_link_voltage_v
         out.append((name, need, udc, float(design.peak_a[i]) * max(udc - static, 0.0) / max(need - static, 1e-300)))

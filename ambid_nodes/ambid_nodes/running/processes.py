@@ -28,7 +28,7 @@ from ambid_nodes.supervisor import POLL_S, Death, Supervisor, consequence, stopp
 from ambid_nodes.watch import SessionWatch
 
 START_TIMEOUT_S = 120  # processes start in seconds; on a loaded machine in tens of them
-DEATH_GRACE_S = 3.0  # after a death, the plant's time to end its run itself (its controller_timeout is 2 s)
+DEATH_GRACE_S = 3.0  # after a death, the plant's time to end its run itself (its controller_timeout_s is 2 s)
 # after the controller's death the plant is sure to end its run (safe state, landing) once its 2 s wall-clock
 # watchdog fires; a loaded machine may delay that by seconds, and ending the session first would hide the landing
 CONTROLLER_DEATH_GRACE_S = 15.0
@@ -75,7 +75,7 @@ class ProcessesLayout(Layout):
             sup.start(self.plant_name, self.plant_parameters(), finishes=True)
             return
         cfg.out_dir.mkdir(parents=True, exist_ok=True)
-        sup.start("recorder", {"output": str(self.mcap_path), "overwrite": True, "status_period": RECORDER_STATUS_S,
+        sup.start("recorder", {"output": str(self.mcap_path), "overwrite": True, "status_period_s": RECORDER_STATUS_S,
                                **session, "session_facts": json.dumps({"session": "identify",
                                                                        "config": config_json(cfg)})})
         sup.start(self.plant_name, self.plant_parameters(), finishes=True)
