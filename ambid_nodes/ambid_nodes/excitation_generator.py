@@ -37,7 +37,7 @@ import sys
 
 import numpy as np
 from ambid.excitation import ExcitationDesign
-from ambid.excitation.experiment import WORKING_CURRENT_A, Experiment, place_experiment
+from ambid.excitation.experiment import Experiment, Streaming, place_experiment
 from ambid.excitation.spec import DesignSpec
 from ambid.plant.rig import Rig
 from ambid.recording.facts import design_fields
@@ -61,16 +61,11 @@ class ExcitationGenerator(SessionNode):
                                                  "arrives; empty = the default rig")
         rig = node_rig(self, rig_file, rig)   # its currents are the default inputs
         terms = declare_fields(self, DesignSpec)  # the experiment's terms: DesignSpec's names and defaults
-        self.block_size = declare(self, "block_size", 1000, "samples per excitation block", 1, 1_000_000)
-        self.lookahead = declare(self, "lookahead", 20_000, "most samples published ahead of the plant's progress",
-                                 2, 100_000_000)
-        self.start_margin = declare(self, "start_margin", 5000, "samples between the plant's progress and an "
-                                                                "automatically chosen start", 0, 100_000_000)
-        self.current_limit = declare(self, "current_limit_a", 0.0, "amplifier current limit for the headroom check; "
-                                                                 "0 = the plant's (plant/description)", 0.0, 1e3, "A")
-        self.working_current = declare(self, "working_current_a", WORKING_CURRENT_A,
-                                       "controller's peak working current (gravity and regulation) for the headroom "
-                                       "check", 0.0, 1e3, "A")
+        # the streaming and the headroom check: Streaming's names and defaults
+        streaming = Streaming(**declare_fields(self, Streaming))
+        self.block_size, self.lookahead, self.start_margin = (streaming.block_size, streaming.lookahead,
+                                                              streaming.start_margin)
+        self.current_limit, self.working_current = streaming.current_limit_a, streaming.working_current_a
         self.join_session()
         if self.lookahead < 2 * self.block_size:
             raise ParameterError(f"excitation_generator: lookahead {self.lookahead} must be at least twice "
@@ -207,7 +202,7 @@ class ExcitationGenerator(SessionNode):
         exp = place_experiment(f"exp-{self.count + 1:04d}", design, fs_hz=self.fs_hz,
                                current_names=self.current_names, current_limit_a=limit,
                                working_current_a=self.working_current, excitation_names=self.excitation_names,
-                               progress=self.progress, margin=self.start_margin, after=self.last_end,
+                               progress=self.progress, start_margin=self.start_margin, after=self.last_end,
                                start_index=req.start_index)
         self.count += 1
         return exp
