@@ -63,13 +63,13 @@ def test_reference_models_are_used_only_for_their_own_inputs(session):
     assert reference_key(dataclasses.replace(rec, nonlinear_magnets=True), f, *chans) != refs.key
     assert reference_key(rec, f, chans[0][:2], chans[1]) != refs.key
     # handed over ready-made, or left to identify_session: the same numbers
-    _same(identify_session(session["path"], session["root"] / "given", inputs=rec, references=refs, **OPTIONS),
-          session["reference"])
+    _same(identify_session(session["path"], session["root"] / "given", inputs=rec, references=refs, report=False,
+                           **OPTIONS), session["reference"])
 
 
-def _early(out, inputs, planned=None, freq_hz=None):
+def _early(out, inputs, planned=None, freq_hz=None, report=True):
     """The worker fed as identify feeds it: (first summary, how, final summary, notes)."""
-    early = EarlyAnalysis(out, **OPTIONS)
+    early = EarlyAnalysis(out, report=report, **OPTIONS)
     try:
         if planned is not None:
             early.prepare(planned, freq_hz, RADIAL.outputs, RADIAL.inputs)
@@ -93,7 +93,7 @@ def test_the_early_analysis_gives_the_recordings_numbers(session):
 def test_inputs_unlike_the_recording_are_analysed_again_from_it(session):
     rec = read_session_inputs(session["path"])
     wrong = dataclasses.replace(rec, frf=dataclasses.replace(rec.frf, frf=rec.frf.frf * 1.01))
-    first, _, final, notes = _early(session["root"] / "wrong", wrong)
+    first, _, final, notes = _early(session["root"] / "wrong", wrong, report=False)   # the numbers only
     assert first["frf_error"] != session["reference"]["frf_error"]   # what was shown first came from them
     assert notes and "analysed again from the recording" in notes[0]
     _same(final, session["reference"])
