@@ -3,7 +3,8 @@
 A case is what ``ambid commission`` does, on the session validate runs for a seed: identify with the running
 controller (the seed's noise and phases; the update from a nominal rig drawn from the tolerances around the
 simulated one, never the truth), ``ambid tune`` on that run with that nominal rig, and identify again with the
-tuned controller (the same experiment, as commission repeats identify's options). The measured peak is the
+tuned controller (the same experiment, as commission repeats identify's options, with fresh sensor noise, as
+a real rig would meet). The measured peak is the
 verifying identification's headline input-sensitivity peak (:func:`ambid.commissioning.from_run.headline_peak`),
 the quantity tune's ``predicted_peak`` claims. Each finished case leaves ``DIR/seeds/seed_NNN/tune_case.json``.
 """
@@ -15,14 +16,15 @@ import time
 from pathlib import Path
 
 
-def _identify(cfg_args: dict, rig, out: Path, controller_spec: str, nominal_path: Path) -> dict:
+def _identify(cfg_args: dict, rig, out: Path, controller_spec: str, nominal_path: Path,
+              noise_seed: int | None = None) -> dict:
     """identify's session (the composed graph) and its offline identification on the nominal rig; returns
-    identification.json's content."""
+    identification.json's content. ``noise_seed``: the sensor noise's own seed (None: the experiment's)."""
     from ambid.identification.pipeline import identify_session
 
     from ambid_nodes.session import SessionConfig, plan_session, run_session_composed
 
-    cfg = SessionConfig(out_dir=out, controller=controller_spec, **cfg_args)
+    cfg = SessionConfig(out_dir=out, controller=controller_spec, noise_seed=noise_seed, **cfg_args)
     run = run_session_composed(cfg, plan_session(cfg, rig))
     identify_session(run["mcap_path"], out, estimator=cfg.estimator, report=False, rig=nominal_path)
     Path(run["mcap_path"]).unlink(missing_ok=True)   # ~19 MB a session; identification.json and frf.npz stay
@@ -45,6 +47,8 @@ def run_tune_case(seed: int, rig_path: str, seed_dir: str, fingerprint: str, lin
     from ambid.jsonable import to_jsonable
     from ambid.plant.rig import rig_or_default
     from ambid.validation.coverage import draw_nominal_rig
+
+    from ambid_cli.commands.commission import verify_noise_seed
 
     t0 = time.perf_counter()
     out = Path(seed_dir)
@@ -69,11 +73,14 @@ def run_tune_case(seed: int, rig_path: str, seed_dir: str, fingerprint: str, lin
     # tune keeps the running controller when nothing beats it; its prediction is then for that one
     new = out / "tuned" / "controller.npz"
     verify_with = str(new) if doc["kind"] != "running" and new.is_file() else controller_spec
-    after = _identify(cfg_args, rig, out / "after", verify_with, nominal_path)
+    # the same experiment (lines, phases) as the run, and fresh sensor noise: a real verifying run meets other
+    # noise than the run the plant was identified from, which its prediction must hold too
+    verify_noise = verify_noise_seed(seed)
+    after = _identify(cfg_args, rig, out / "after", verify_with, nominal_path, verify_noise)
     measured = headline_peak(after.get("sensitivity") or {})
     lo, hi = doc["predicted_peak"]["ci95"]
     case = dict(seed=seed, fingerprint=fingerprint, kind=doc["kind"], predicted=doc["predicted_peak"],
-                measured=measured, inside=measured is not None and lo <= measured <= hi,
+                measured=measured, inside=measured is not None and lo <= measured <= hi, verify_noise_seed=verify_noise,
                 before=headline_peak(before.get("sensitivity") or {}),
                 true_peak_after=(after.get("sensitivity") or {}).get("true_peak"), nominal=drawn,
                 wall_s=dict(identify=t1 - t0, tune=t2 - t1, verify=time.perf_counter() - t2,

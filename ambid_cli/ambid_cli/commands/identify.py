@@ -33,6 +33,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"position controller: {describe_kinds()}, or a controller file (.npz, .mat, .yaml) "
                         "(default: the rig file's controller, else pid)")
     p.add_argument("--linear-magnets", action="store_true", help="linearised magnets instead of eq. 2.14")
+    p.add_argument("--noise-seed", type=count, default=None,
+                   help="seed of the simulated sensor noise alone (default: --seed's); a verifying run repeats the "
+                        "experiment with fresh noise, as a real rig meets")
     p.add_argument("--estimator", default="indirect",
                    choices=["indirect", "h1", "h2", "arithmetic_mean", "log_mean", "eiv"])
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -68,6 +71,8 @@ def run(args: argparse.Namespace) -> int:
     if args.true_model:
         if not args.hardware:
             raise BadInput("--true-model needs --hardware: a simulated session is compared with its own true rig")
+    if args.hardware and args.noise_seed is not None:
+        raise BadInput("--noise-seed with --hardware: a real rig's sensor noise has no seed; leave --noise-seed out")
         from ambid.hardware.target_model import read_target_model
 
         try:
@@ -80,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
     session = session_of(args)
     cfg = SessionConfig(out_dir=args.out, experiment=spec, rig_file=args.rig, controller=args.controller,
                         nonlinear_magnets=not args.linear_magnets, estimator=args.estimator,
+                        noise_seed=args.noise_seed,
                         hardware=args.hardware or "", local_port=args.local_port, true_model=args.true_model, **link,
                         progress=not args.no_progress and sys.stderr.isatty(), namespace=args.namespace,
                         session=session, processes=args.processes, live_port=args.live, live_host=args.live_host)

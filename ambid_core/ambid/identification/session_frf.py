@@ -20,7 +20,7 @@ from ambid.frf.streaming import FrfResult
 from ambid.frf.uncertainty import fit_weight_variance, row_covariance
 from ambid.identification.result import Harmonic, NoiseFigures, SynchronousFigures
 
-__all__ = ["FrfVariances", "frf_variances", "SessionFrf", "session_frf", "band_kind"]
+__all__ = ["FrfVariances", "frf_variances", "fit_weights", "SessionFrf", "session_frf", "band_kind"]
 
 
 @dataclass(frozen=True)
@@ -92,8 +92,14 @@ def _weight_variance(frf: FrfResult, var: np.ndarray | None, var_kind: str) -> t
     vn, vt = (np.asarray(getattr(frf, k), dtype=float) for k in ("var_noise", "var_total"))
     if var is None or not (np.all(np.isfinite(vn)) and np.all(np.isfinite(vt)) and np.any(vn > 0)):
         return var, var_kind
-    return (_floored(fit_weight_variance(vn, vt)),
-            "var_noise x (var_total / var_noise averaged over +-3 lines), pooled over the inputs")
+    return fit_weights(vn, vt), "var_noise x (var_total / var_noise averaged over +-3 lines), pooled over the inputs"
+
+
+def fit_weights(var_noise: np.ndarray, var_total: np.ndarray) -> np.ndarray:
+    """(L, Ny, Nu) the variance identify weights its fit by, from the FRF's noise and total variances
+    (L, Ny, Nu) [unit of G squared] (:func:`ambid.frf.uncertainty.fit_weight_variance`, floored); the
+    commissioning's simulated verifying measurement weights its fit by the same rule."""
+    return _floored(fit_weight_variance(var_noise, var_total))
 
 
 def _floored(v: np.ndarray) -> np.ndarray:
