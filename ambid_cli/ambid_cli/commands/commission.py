@@ -22,17 +22,12 @@ HELP = "identify, tune and verify in one command: the running controller, a tune
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ambid_cli.commands import identify, tune
-    from ambid_cli.commands.inputs import positive_int
 
     identify.add_arguments(p)
     p.set_defaults(out=Path("commission"))
     p.add_argument("--tune-kind", choices=tune.KIND_CHOICES, default="best",
                    help="the controller tuned: structured, hinf, or best (both, the better kept; default)")
-    p.add_argument("--tune-checks", type=positive_int, default=100, help="drawn plants the new controller must hold")
-    p.add_argument("--tune-samples", type=positive_int, default=100,
-                   help="simulated verifying measurements behind the prediction (default 100)")
-    p.add_argument("--tune-evaluations", type=positive_int, default=600,
-                   help="objective evaluations per stage of the structured tuning (default 600)")
+    tune.add_effort_options(p, "tune-")
     p.add_argument("--tune-seed", type=int, default=0, help="seed of the tuning's drawn plants")
 
 

@@ -14,7 +14,7 @@ interval claims to hold 95 % of the time. It differs from the loop's own peak by
   much of it reaches the new estimate;
 * the verifying fit: the common-denominator model of that noisy estimate, at the run's order, between the
   lines, weighted as identify weights it: by the noise and total variances the verifying run estimates from
-  its own periods and realisations (:func:`ambid.identification.session_frf.fit_weights`). Those estimates
+  its own periods and realisations (:func:`ambid.frf.uncertainty.fit_weights`). Those estimates
   scatter from line to line (a few degrees of freedom each), and the fitted model between the lines, where
   the headline peak usually lies, moves with its weights: each simulated measurement draws its variance
   estimates by resampling the run's own line-to-line scatter (each line's level over its neighbours').
@@ -38,7 +38,7 @@ from ambid.commissioning.plants import PlantUncertainty, draw_parameters, peak_g
 from ambid.control.closed_loop import close_loop, residue_freqresp
 from ambid.fit import fit_common_denominator
 from ambid.frf.sensitivity import zone_probabilities
-from ambid.identification.session_frf import fit_weights
+from ambid.frf.uncertainty import fit_weights
 from ambid.statespace import StateSpace
 
 __all__ = ["MeasurementModel", "measurement_model", "PeakPrediction", "predict_peak"]

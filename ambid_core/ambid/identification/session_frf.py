@@ -17,10 +17,10 @@ import numpy as np
 
 from ambid.frf.directional import DirectionalFrf, directional_frf, has_planes
 from ambid.frf.streaming import FrfResult
-from ambid.frf.uncertainty import fit_weight_variance, row_covariance
+from ambid.frf.uncertainty import fit_weights, floored_variance, row_covariance
 from ambid.identification.result import Harmonic, NoiseFigures, SynchronousFigures
 
-__all__ = ["FrfVariances", "frf_variances", "fit_weights", "SessionFrf", "session_frf", "band_kind"]
+__all__ = ["FrfVariances", "frf_variances", "SessionFrf", "session_frf", "band_kind"]
 
 
 @dataclass(frozen=True)
@@ -82,7 +82,7 @@ def _fit_variance(frf: FrfResult, pool: bool = True) -> tuple[np.ndarray | None,
         if np.all(np.isfinite(v)) and np.any(v > 0):
             if pool:
                 v = np.broadcast_to(v.mean(axis=2, keepdims=True), v.shape)
-            return _floored(v), name + (", pooled over the inputs" if pool else "")
+            return floored_variance(v), name + (", pooled over the inputs" if pool else "")
     return None, "none (equal weights)"
 
 
@@ -94,17 +94,6 @@ def _weight_variance(frf: FrfResult, var: np.ndarray | None, var_kind: str) -> t
         return var, var_kind
     return fit_weights(vn, vt), "var_noise x (var_total / var_noise averaged over +-3 lines), pooled over the inputs"
 
-
-def fit_weights(var_noise: np.ndarray, var_total: np.ndarray) -> np.ndarray:
-    """(L, Ny, Nu) the variance identify weights its fit by, from the FRF's noise and total variances
-    (L, Ny, Nu) [unit of G squared] (:func:`ambid.frf.uncertainty.fit_weight_variance`, floored); the
-    commissioning's simulated verifying measurement weights its fit by the same rule."""
-    return _floored(fit_weight_variance(var_noise, var_total))
-
-
-def _floored(v: np.ndarray) -> np.ndarray:
-    """A weighting variance floored at 1e-6 of its median positive value (no line weighs without bound)."""
-    return np.maximum(v, 1e-6 * np.median(v[v > 0]))
 
 
 def band_kind(var_kind: str) -> str:
