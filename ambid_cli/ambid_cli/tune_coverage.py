@@ -42,9 +42,9 @@ def run_tune_case(seed: int, rig_path: str, seed_dir: str, fingerprint: str, lin
     from ambid.commissioning.tuning import TuneSettings
     from ambid.excitation.spec import DesignSpec
     from ambid.plant.rig import rig_or_default
+    from ambid.validation.coverage import seed_nominal_rig
 
     from ambid_cli.commands.commission import verify_noise_seed
-    from ambid_cli.commands.validate import seed_nominal_rig
 
     t0 = time.perf_counter()
     out = Path(seed_dir)

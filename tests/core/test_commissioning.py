@@ -230,7 +230,7 @@ def test_the_verifying_fit_is_weighted_as_identify_weights_it_with_the_runs_scat
     """identify weights its fit by the noise and total variances its run estimates (a few degrees of freedom a
     line); the simulated verifying fit draws its estimates from the run's own line-to-line scatter and combines
     them by identify's rule."""
-    from ambid.commissioning.prediction import _fit_weights, measurement_model
+    from ambid.commissioning.prediction import measurement_model, verify_fit_weights
     from ambid.frf.uncertainty import fit_weight_variance
 
     rng = np.random.default_rng(3)
@@ -252,12 +252,12 @@ def test_the_verifying_fit_is_weighted_as_identify_weights_it_with_the_runs_scat
     # no scatter: identify's rule on the new loop's levels (gain sum_k |Sinv_kj|^2 = 1 / 0.8^2)
     still = MeasurementModel(lines, m.noise_var, 12, DT / 2, np.zeros(12, complex),
                              noise_only_var=m.noise_only_var, scatter=np.ones((4, 2)))
-    w = _fit_weights(still, np.linalg.inv(sens), rng)
+    w = verify_fit_weights(still, np.linalg.inv(sens), rng)
     gain = 1 / 0.8 ** 2
     expect = fit_weight_variance(m.noise_only_var[:, :, None] * gain * np.ones(ny),
                                  m.noise_var[:, :, None] * gain * np.ones(ny))
     assert np.allclose(w, expect, rtol=1e-12)
     # with the run's scatter the weights move line by line, about the same level
-    w1 = _fit_weights(m, np.linalg.inv(sens), rng)
+    w1 = verify_fit_weights(m, np.linalg.inv(sens), rng)
     ratio = w1[:, :, 0] / expect[:, :, 0]
     assert 0.1 < np.std(np.log(ratio)) < 1.5 and np.median(ratio) == pytest.approx(1.0, abs=0.3)

@@ -33,16 +33,12 @@ import os
 import sys
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from ambid_cli.commands.inputs import (checked_controller, controller, output_dir, output_file, positive_float,
                                        positive_int, rig_file)
 from ambid_cli.commands.tune import add_effort_options
 from ambid_cli.results_page import measured_on, write_section
 from ambid_cli.sessions_on_dask import add_scheduler_option, as_finished, domain_base, session_client
-
-if TYPE_CHECKING:
-    from ambid.plant.rig import Rig
 
 HELP = "measure the coverage of every printed interval over many seeds of the identify session"
 PRESET_SEEDS = {"quick": 6, "full": 20}
@@ -103,22 +99,6 @@ def _code_version() -> str:
         return ""
 
 
-def seed_nominal_rig(rig: Rig, seed: int, out: Path) -> tuple[Path, dict]:
-    """The nominal model a seed's update starts from, the user's: the simulated ``rig`` missed by a draw from its
-    tolerances (never the truth), written to ``out/nominal_rig.yaml`` (``out`` created); its path and the draw."""
-    import numpy as np
-    import yaml
-
-    from ambid.jsonable import to_jsonable
-    from ambid.validation.coverage import draw_nominal_rig
-
-    out.mkdir(parents=True, exist_ok=True)
-    nominal, drawn = draw_nominal_rig(rig, np.random.default_rng([seed, 26]))
-    path = out / "nominal_rig.yaml"
-    path.write_text(yaml.safe_dump(to_jsonable(nominal), sort_keys=False))
-    return path, drawn
-
-
 def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_magnets: bool = False,
              controller_spec: str = "", spec_terms: dict | None = None) -> dict:
     """One identify session and its record; writes seed_dir/record.json last (atomically)."""
@@ -130,7 +110,7 @@ def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_m
     from ambid.identification.update import refit_parameters
     from ambid.plant.rig import load_rig, rig_or_default
     from ambid.validation.bla_truth import noise_free_twin
-    from ambid.validation.coverage import frf_record, seed_record
+    from ambid.validation.coverage import frf_record, seed_nominal_rig, seed_record
 
     from ambid_nodes.session import SessionConfig, plan_session, run_session_composed
 

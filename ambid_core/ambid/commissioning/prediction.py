@@ -41,7 +41,7 @@ from ambid.frf.sensitivity import zone_probabilities
 from ambid.frf.uncertainty import fit_weights
 from ambid.statespace import StateSpace
 
-__all__ = ["MeasurementModel", "measurement_model", "PeakPrediction", "predict_peak"]
+__all__ = ["MeasurementModel", "measurement_model", "verify_fit_weights", "PeakPrediction", "predict_peak"]
 
 
 @dataclass(frozen=True)
@@ -186,7 +186,7 @@ def _measured_peak(k_lines: np.ndarray, k_dense: np.ndarray, g_lines: np.ndarray
     g_meas = g_lines + e @ sinv
     kf = np.einsum("li,ij->lij", k_lines, np.eye(nu)) if k_lines.ndim == 2 else k_lines
     s_meas = s + s @ kf @ e
-    fit = fit_common_denominator(f, g_meas, _fit_weights(model, sinv, rng), order=model.order,
+    fit = fit_common_denominator(f, g_meas, verify_fit_weights(model, sinv, rng), order=model.order,
                                  delay_s=model.delay_s,
                                  initial_poles=model.poles, n_vf_iterations=5, max_refine_evaluations=40)
     dense = model.dense_hz
@@ -195,7 +195,7 @@ def _measured_peak(k_lines: np.ndarray, k_dense: np.ndarray, g_lines: np.ndarray
     return max(model_peak, line_peak)
 
 
-def _fit_weights(model: MeasurementModel, sinv: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+def verify_fit_weights(model: MeasurementModel, sinv: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """(L, ny, nu) the variance the simulated verifying fit is weighted by (module docstring): the new loop's
     noise and total variances, each line's estimates scattered by a resampled pair of the run's, combined as
     identify combines them; pooled over the inputs."""
