@@ -23,10 +23,11 @@ def _identify(cfg_args: dict, rig, out: Path, controller_spec: str, nominal_path
     the experiment's)."""
     from ambid.identification.pipeline import identify_session
 
-    from ambid_nodes.session import SessionConfig, plan_session, run_session_composed
+    from ambid_nodes.running.plan import SessionConfig, plan_session
+    from ambid_nodes.running.run import run_session
 
     cfg = SessionConfig(out_dir=out, controller=controller_spec, noise_seed=noise_seed, **cfg_args)
-    run = run_session_composed(cfg, plan_session(cfg, rig))
+    run = run_session(cfg, plan_session(cfg, rig))
     identify_session(run["mcap_path"], out, estimator=cfg.estimator, report=False, rig=nominal_path)
     return json.loads((out / "identification.json").read_text()), Path(run["mcap_path"])
 

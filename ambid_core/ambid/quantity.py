@@ -11,6 +11,7 @@ so neither repeats a name, a default or a description.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -59,6 +60,34 @@ def quantity(default: Any, doc: str, unit: str = "", low: float | None = None, h
     [('peak_current_a', 0.4, 'pulse peak [A]')]
     """
     return dataclasses.field(default=default, metadata={KEY: Quantity(doc, unit, low, high, empty)})
+
+
+def required(doc: str, unit: str = "", low: float | None = None, high: float | None = None) -> Any:
+    """A dataclass field without a default that carries a :class:`Quantity` (as :func:`quantity`)."""
+    return dataclasses.field(metadata={KEY: Quantity(doc, unit, low, high)})
+
+
+def check_ranges(obj: Any, what: str) -> None:
+    """ValueError ``"<what> <field> = <value> is outside [low, high]"`` for the first field of the dataclass
+    ``obj`` whose value is not finite or outside its Quantity's range (fields without a range pass).
+
+    Examples
+    --------
+    >>> from dataclasses import dataclass
+    >>> @dataclass(frozen=True)
+    ... class Gain:
+    ...     kp_a_per_m: float = quantity(1e4, "proportional gain", "A/m", 1.0, 1e9)
+    >>> check_ranges(Gain(kp_a_per_m=-1.0), "PID parameter")
+    Traceback (most recent call last):
+    ...
+    ValueError: PID parameter kp_a_per_m = -1.0 is outside [1, 1e+09]
+    """
+    for name, _, q in quantities(type(obj)):
+        if q.low is None:
+            continue
+        v = getattr(obj, name)
+        if not (math.isfinite(v) and q.low <= v <= q.high):
+            raise ValueError(f"{what} {name} = {v!r} is outside [{q.low:g}, {q.high:g}]")
 
 
 def quantities(cls: type) -> list[tuple[str, Any, Quantity]]:

@@ -9,7 +9,21 @@ from __future__ import annotations
 
 import os
 
-__all__ = ["read_text"]
+__all__ = ["read_text", "refusal"]
+
+
+def refusal(path: str | os.PathLike, what: str, problem: str, fix: str) -> ValueError:
+    """The one-line ValueError about a user's file: ``"<what> <path> <problem>; <fix>"``.
+
+    ``what`` "" names the path alone; ``fix`` "" ends the line after the problem.
+
+    Examples
+    --------
+    >>> refusal("rig.yaml", "rig file", "is empty", "write the parameters in it")
+    ValueError('rig file rig.yaml is empty; write the parameters in it')
+    """
+    name = f"{what} {os.fspath(path)}" if what else os.fspath(path)
+    return ValueError(f"{name} {problem}" + (f"; {fix}" if fix else ""))
 
 
 def read_text(path: str | os.PathLike, what: str = "", fix: str = "", binary: str = "is not text (binary data)") -> str:
@@ -19,10 +33,8 @@ def read_text(path: str | os.PathLike, what: str = "", fix: str = "", binary: st
     ----------
     path
         the file.
-    what
-        what the file is, for messages ("rig file"); "" names the path alone.
-    fix
-        the fix a message ends with, after "; " ("" for none).
+    what, fix
+        what the file is and the fix a message ends with (:func:`refusal`).
     binary
         what the message says of a file that is not UTF-8 text.
 
@@ -32,14 +44,12 @@ def read_text(path: str | os.PathLike, what: str = "", fix: str = "", binary: st
         "<what> <path> does not exist", "... is a folder" or "... <binary>",
         then "; <fix>".
     """
-    name = f"{what} {os.fspath(path)}" if what else os.fspath(path)
-    tail = f"; {fix}" if fix else ""
     try:
         with open(path, encoding="utf-8") as f:
             return f.read()
     except FileNotFoundError:
-        raise ValueError(f"{name} does not exist{tail}") from None
+        raise refusal(path, what, "does not exist", fix) from None
     except IsADirectoryError:
-        raise ValueError(f"{name} is a folder{tail}") from None
+        raise refusal(path, what, "is a folder", fix) from None
     except UnicodeDecodeError:
-        raise ValueError(f"{name} {binary}{tail}") from None
+        raise refusal(path, what, binary, fix) from None

@@ -21,7 +21,7 @@ from typing import Any
 
 import yaml
 
-from ambid.text_file import read_text
+from ambid.text_file import read_text, refusal
 
 __all__ = ["NumberLoader", "load_yaml", "read_yaml"]
 
@@ -57,10 +57,8 @@ def read_yaml(path: str | os.PathLike, what: str, fix: str, allow_empty: bool = 
     ----------
     path
         the file.
-    what
-        what the file is, for messages ("rig file"); "" names the path alone.
-    fix
-        the fix a message ends with, after "; " ("" for none).
+    what, fix
+        what the file is and the fix a message ends with (:func:`ambid.text_file.refusal`).
     allow_empty
         False refuses a file of nothing but white space ("... is empty").
 
@@ -75,13 +73,11 @@ def read_yaml(path: str | os.PathLike, what: str, fix: str, allow_empty: bool = 
         YAML (with the line), then "; <fix>".
     """
     text = read_text(path, what, fix, binary="is not YAML text (binary data)")
-    name = f"{what} {os.fspath(path)}" if what else os.fspath(path)
-    tail = f"; {fix}" if fix else ""
     if not allow_empty and not text.strip():
-        raise ValueError(f"{name} is empty{tail}")
+        raise refusal(path, what, "is empty", fix)
     try:
         return load_yaml(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         at = f" at line {mark.line + 1}" if mark is not None else ""
-        raise ValueError(f"{name} is not YAML text{at}{tail}") from None
+        raise refusal(path, what, f"is not YAML text{at}", fix) from None

@@ -37,7 +37,7 @@ import sys
 
 import numpy as np
 from ambid.excitation import ExcitationDesign
-from ambid.excitation.experiment import WORKING_CURRENT_A, Experiment, place_experiment
+from ambid.excitation.experiment import Experiment, Streaming, place_experiment
 from ambid.excitation.spec import DesignSpec
 from ambid.plant.rig import Rig
 from ambid.recording.facts import design_fields
@@ -61,16 +61,11 @@ class ExcitationGenerator(SessionNode):
                                                  "arrives; empty = the default rig")
         rig = node_rig(self, rig_file, rig)   # its currents are the default inputs
         terms = declare_fields(self, DesignSpec)  # the experiment's terms: DesignSpec's names and defaults
-        self.block_size = declare(self, "block_size", 1000, "samples per excitation block", 1, 1_000_000)
-        self.lookahead = declare(self, "lookahead", 20_000, "most samples published ahead of the plant's progress",
-                                 2, 100_000_000)
-        self.start_margin = declare(self, "start_margin", 5000, "samples between the plant's progress and an "
-                                                                "automatically chosen start", 0, 100_000_000)
-        self.current_limit = declare(self, "current_limit_a", 0.0, "amplifier current limit for the headroom check; "
-                                                                 "0 = the plant's (plant/description)", 0.0, 1e3, "A")
-        self.working_current = declare(self, "working_current_a", WORKING_CURRENT_A,
-                                       "controller's peak working current (gravity and regulation) for the headroom "
-                                       "check", 0.0, 1e3, "A")
+        # the streaming and the headroom check: Streaming's names and defaults
+        streaming = Streaming(**declare_fields(self, Streaming))
+        self.block_size, self.lookahead, self.start_margin = (streaming.block_size, streaming.lookahead,
+                                                              streaming.start_margin)
+        self.current_limit, self.working_current = streaming.current_limit_a, streaming.working_current_a
         self.join_session()
         if self.lookahead < 2 * self.block_size:
             raise ParameterError(f"excitation_generator: lookahead {self.lookahead} must be at least twice "
@@ -82,7 +77,7 @@ class ExcitationGenerator(SessionNode):
         self.spec = DesignSpec(**terms)
         # defaults until the plant describes itself; the terms are checked now, so a bad band fails at
         # start-up, and designed only when an experiment asks for them (a caller may bring its own design)
-        self.dt = rig.dt
+        self.set_sample_period(rig.dt)
         self.set_currents(list(rig.layout.inputs), np.full(len(rig.layout), float(rig.current_limit_a)))
         self.plant_known = False
         self.default_error = self.check_spec()
@@ -119,13 +114,17 @@ class ExcitationGenerator(SessionNode):
         changed = abs(msg.sample_period - self.dt) > 1e-12 * self.dt
         if list(msg.current_names) != self.current_names:
             self.default_design = None   # [auto] inputs: the plant's currents
-        self.dt = float(msg.sample_period)
+        self.set_sample_period(float(msg.sample_period))
         self.set_currents(list(msg.current_names), np.asarray(msg.current_limit, dtype=float))
         self.plant_known = True
         if changed:
             self.default_design, self.default_error = None, self.check_spec("the plant's ")
             if self.default_error:
                 self.event(SessionEvent.ERROR, "bad_design", self.default_error)
+
+    def set_sample_period(self, dt: float) -> None:
+        """The plant's sample period [s] (its messages' stamps) and, from it once, the rate [Hz] designs take."""
+        self.dt, self.fs_hz = dt, 1.0 / dt
 
     def set_currents(self, names: list[str], limits: np.ndarray) -> None:
         """The plant's current channels (u_<axis>) and their limits [A]; the excitation goes out on r_<axis>
@@ -137,9 +136,9 @@ class ExcitationGenerator(SessionNode):
     def check_spec(self, whose: str = "") -> str:
         """Why the parameters' design cannot be made at the present sample rate, or ""."""
         try:
-            self.spec.check(1.0 / self.dt)
+            self.spec.check(self.fs_hz)
         except ValueError as exc:
-            return f"the design parameters are invalid at {whose}{1.0 / self.dt:g} Hz: {exc}"
+            return f"the design parameters are invalid at {whose}{self.fs_hz:g} Hz: {exc}"
         return ""
 
     def on_measurement(self, msg: SampleBlock) -> None:
@@ -197,13 +196,13 @@ class ExcitationGenerator(SessionNode):
             raise ValueError(self.default_error)
         else:
             if self.default_design is None:
-                self.default_design = self.spec.build(1.0 / self.dt, inputs=self.current_names)
+                self.default_design = self.spec.build(self.fs_hz, inputs=self.current_names)
             design = self.default_design
         limit = self.plant_limit if self.current_limit == 0 else self.current_limit
-        exp = place_experiment(f"exp-{self.count + 1:04d}", design, fs_hz=1.0 / self.dt,
+        exp = place_experiment(f"exp-{self.count + 1:04d}", design, fs_hz=self.fs_hz,
                                current_names=self.current_names, current_limit_a=limit,
                                working_current_a=self.working_current, excitation_names=self.excitation_names,
-                               progress=self.progress, margin=self.start_margin, after=self.last_end,
+                               progress=self.progress, start_margin=self.start_margin, after=self.last_end,
                                start_index=req.start_index)
         self.count += 1
         return exp

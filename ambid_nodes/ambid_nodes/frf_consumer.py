@@ -98,6 +98,7 @@ class FrfConsumer(SessionNode):
         self.result: FrfResult | None = None           # latest estimate of the current experiment
         self.results: dict[str, FrfResult] = {}        # final estimate per experiment
         self.finished_at: dict[str, float] = {}        # when it was made (time.perf_counter), for timing figures
+        self.final_figures: dict[str, dict] = {}       # its figures as the frf_done event says them
         self.dt = 0.0
         self.index = 0
         self.state = SessionStatus.STATE_IDLE
@@ -180,7 +181,7 @@ class FrfConsumer(SessionNode):
             self.finish()
         self.stream, self.experiment_id, self.result = stream, msg.experiment_id, None
         self.columns = {}  # column picks depend on the design's inputs
-        self.dt = 1.0 / design.fs_hz
+        self.dt = design.dt_s
         self.state = SessionStatus.STATE_RUNNING
         self.event(SessionEvent.INFO, "experiment", f"{msg.experiment_id}: {design.kind}, samples "
                    f"[{stream.start_index}, {stream.end_index}), inputs {list(u_names)}, estimator {self.estimator}")
@@ -280,6 +281,7 @@ class FrfConsumer(SessionNode):
             self.event(SessionEvent.ERROR, "no_estimate", f"{self.experiment_id} ended without a complete "
                        "realisation: no FRF")
         else:
+            self.final_figures[self.experiment_id] = figures
             self.event(SessionEvent.INFO, "frf_done", json.dumps(figures))
 
     def consistency(self, result: FrfResult) -> float:

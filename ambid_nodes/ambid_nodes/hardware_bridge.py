@@ -30,7 +30,7 @@ that is malformed, at another sample period, passed, repeated or overlapping
 a held one, or beyond ``excitation_horizon`` samples ahead of the target; a
 design that is inconsistent or at another sample rate; lost (sequence gaps), duplicated, reordered and late
 datagrams are counted and lost sample ranges reported as ``sample_gap``
-events. A target silent for ``target_timeout`` s is reported
+events. A target silent for ``target_timeout_s`` s is reported
 (``target_silent``); when it is heard again it is commanded to its safe
 state. ``finished`` completes once the target's clock stopped and every
 sample up to its end was published or declared lost: state done if the
@@ -194,18 +194,18 @@ class HardwareBridge(SessionNode):
         key_file = declare(self, "key_file", "", "the rig's key file, mode 0600 (protocol version 3; 'ambid keygen "
                            "--out FILE'); only its fingerprint is ever shown")
         rig_file = declare(self, "rig_file", "", "YAML rig parameter file describing the rig; empty = the default")
-        self.timeout = declare(self, "target_timeout", 0.5, "silence after which the target is declared lost",
+        self.timeout = declare(self, "target_timeout_s", 0.5, "silence after which the target is declared lost",
                                0.005, 3600.0, "s")
-        self.hb_period = declare(self, "heartbeat_period", 0.05, "period of the bridge's heartbeats", 0.001, 10.0,
+        self.hb_period = declare(self, "heartbeat_period_s", 0.05, "period of the bridge's heartbeats", 0.001, 10.0,
                                  "s")
         window = declare(self, "reorder_window", 16, "later datagrams after which a missing one is lost", 1, 4096)
-        reorder_timeout = declare(self, "reorder_timeout", 0.2, "longest wait for a missing datagram",
+        reorder_timeout = declare(self, "reorder_timeout_s", 0.2, "longest wait for a missing datagram",
                                   0.0, 60.0, "s")
         self.block_size = declare(self, "block_size", 1000, "samples per measurement block", 1, 100_000)
         self.chunk = declare(self, "excitation_chunk", 40, "samples per EXCITATION datagram (at most what one "
                              "datagram of the rig's axes carries)", 1, bp.max_block_samples(bp.Kind.EXCITATION, 8, 1))
         self.clock_every = declare(self, "clock_every", 100, "samples between /clock messages", 1, 100_000)
-        self.retry_s = declare(self, "command_retry", 0.1, "wait for an ACK before a command is sent again",
+        self.retry_s = declare(self, "command_retry_s", 0.1, "wait for an ACK before a command is sent again",
                                0.001, 60.0, "s")
         self.retries = declare(self, "command_retries", 20, "sends of a command before it is given up", 1, 1000)
         self.autostart = declare(self, "autostart", True, "send START when an idle target is first heard")
@@ -395,7 +395,7 @@ class HardwareBridge(SessionNode):
                        f"{bp.TargetState(hb.state).name} at sample {hb.sample_index}, {hb.sample_rate_hz} Hz")
             if abs(hb.sample_rate_hz * self.dt - 1.0) > 1e-6:
                 self.event(SessionEvent.ERROR, "sample_rate_mismatch",
-                           f"the target runs at {hb.sample_rate_hz} Hz, the rig description says {1 / self.dt:g} Hz; "
+                           f"the target runs at {hb.sample_rate_hz} Hz, the rig description says {self.rig.sample_rate_hz:g} Hz; "
                            "set rig_file to the rig the target runs")
             if hb.axes and hb.axes != self.na:   # version 2 says the target's axes
                 self.event(SessionEvent.ERROR, "axes_mismatch",

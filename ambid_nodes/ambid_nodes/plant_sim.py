@@ -27,17 +27,24 @@ ahead, or has the wrong channels, sample period or non-finite values; a design
 if it is inconsistent, at another sample rate, starts in the past or overlaps
 another experiment.
 
-Recovery. Where the loop stands still for ``resend_after`` (20 ms) of wall
+Recovery. Where the loop stands still for ``resend_after_s`` (20 ms) of wall
 time waiting for the controller, the plant sends y[k - 1] and y[k] again;
 the controller answers the one it missed and repeats the answers it gave,
 so a lost displacement or current costs milliseconds and the samples are
 the same as without the loss (``resends`` and ``duplicate_answers`` in
-``status`` and the summary).
+``status`` and the summary). Until the first answer the plant sends y[0]
+again every ``START_RETRY_S`` (``start_retries``): another listener's match
+can let the loop start before the controller's. The plant cannot tell a lost
+message from a starved process (a busy machine holds a node for tens of
+milliseconds), so it also asks again where nothing was lost: each displacement
+sent again is answered again (y[0] of a pipelined controller with ic[0] and
+ic[1]), and every answer that comes twice because the plant asked for it is
+taken as a duplicate, never rejected.
 
 Controller supervision. In lock-step the plant cannot advance past a sample
 whose answer has not arrived, so a dead or stalled controller is detected at
 that very sample: the detection latency is 0 samples of simulated time, and
-``controller_timeout`` (+ up to two watchdog periods, each at most 0.1 s:
+``controller_timeout_s`` (+ up to two watchdog periods, each at most 0.1 s:
 the loop reads no clock per sample, the watchdog dates progress to its
 ticks) of wall time.
 Then the plant goes to its safe state: zero control current, the rotor drops
@@ -47,7 +54,7 @@ and FLAG_LANDED), a FATAL ``controller_lost`` event, the session failed.
 Excitation supervision. Where a design says a sample is excited, the plant
 waits for its excitation block (where excitation lands never depends on
 message timing), and simulated time stands still meanwhile. If the block
-has not come after ``excitation_timeout`` of wall time (+ up to two watchdog
+has not come after ``excitation_timeout_s`` of wall time (+ up to two watchdog
 periods), the excitation generator is taken as lost: a FATAL
 ``excitation_lost`` event naming the experiment and sample, the block so far
 published as final, the session failed; the samples before stay recorded.
@@ -210,7 +217,9 @@ class PlantSim(SessionNode):
         # recovery of a lost loop message: no clock is read per sample; this timer sees the loop stand still
         self.resends = 0  # times the plant asked again
         self.duplicate_answers = 0  # answers that came twice because it asked again
-        self.resent_k = 2**62  # the sample k it last asked again at (none yet)
+        self.start_retries = 0  # times it sent y[0] again before the first answer
+        # [first, last] index of the currents that may come twice because the plant asked again (none yet)
+        self.asked_again = (1, 0)
         self.resend_watch_k = -1
         self.resend_timer = self.create_timer(self.resend_after, self.resend_if_stalled)
         self.status_received = -1
@@ -243,13 +252,13 @@ class PlantSim(SessionNode):
                                    0.0, 1e6, "s")
         self.block_size = declare(self, "block_size", 1000, "samples per measurement block", 1, 100_000)
         self.clock_every = declare(self, "clock_every", 100, "samples between /clock messages", 1, 100_000)
-        self.timeout = declare(self, "controller_timeout", 2.0,
+        self.timeout = declare(self, "controller_timeout_s", 2.0,
                                "wall time without an answer before the controller is declared lost",
                                0.01, 3600.0, "s")
-        self.exc_timeout = declare(self, "excitation_timeout", 5.0,
+        self.exc_timeout = declare(self, "excitation_timeout_s", 5.0,
                                    "wall time waiting for an excitation block a design says is due before the "
                                    "session fails", 0.01, 3600.0, "s")
-        self.resend_after = declare(self, "resend_after", 0.02,
+        self.resend_after = declare(self, "resend_after_s", 0.02,
                                     "wall time the loop may stand still before the plant sends y[k - 1] and y[k] "
                                     "again (a lost message is recovered; the controller answers them again)",
                                     0.001, 60.0, "s")
@@ -297,11 +306,13 @@ class PlantSim(SessionNode):
         if self.k > 0 or self.state != RUNNING:
             self.start_retry.cancel()
             return
+        self.start_retries += 1
+        self.asked_again = (0, 1)  # y[0]'s answers: ic[0], and ic[1] from a pipelined controller
         self.publish_y_raw(self.y_bytes)
 
     def describe_run(self) -> str:
         t = f"{self.sim_seconds:g} s" if self.n_total else "until stopped"
-        return f"rig {self.rig.name}, {1 / self.dt:g} Hz, {t}, seed {self.seed}, session {self.identity}"
+        return f"rig {self.rig.name}, {self.rig.sample_rate_hz:g} Hz, {t}, seed {self.seed}, session {self.identity}"
 
     # --- the loop ---------------------------------------------------------
     def publish_y(self) -> None:
@@ -369,8 +380,10 @@ class PlantSim(SessionNode):
         if self.state == DONE and index == self.k and not self.ic_ready:
             intake.accept("control_current")  # a pipelined controller's current for the sample after the run
             return
-        if running and self.resent_k - 1 <= index < nxt:
-            intake.accept("control_current")  # the second answer to a sample asked for again: already applied
+        first, last = self.asked_again
+        if self.state != IDLE and first <= index <= last and index < nxt:
+            # the second answer to a displacement sent again (also after the run's end): already applied
+            intake.accept("control_current")
             self.duplicate_answers += 1
             return
         if not running:
@@ -469,11 +482,11 @@ class PlantSim(SessionNode):
 
     # --- supervision ------------------------------------------------------
     def resend_if_stalled(self) -> None:
-        """Ask again where the loop stood still for a whole ``resend_after`` period waiting for the
+        """Ask again where the loop stood still for a whole ``resend_after_s`` period waiting for the
         controller: send y[k - 1] and y[k] again, as first sent. Whichever of them, or of the answers,
         was lost, the controller answers the one it has not seen and repeats the answers it gave
         (ic[k] answers y[k] or, pipelined, y[k - 1]), so the loop goes on with the very numbers it
-        would have had: a lost message costs one to two ``resend_after`` periods, nothing else."""
+        would have had: a lost message costs one to two ``resend_after_s`` periods, nothing else."""
         k = self.k
         if self.state != RUNNING or self.ic_ready or k == 0:  # not waiting for the controller (k = 0: the start)
             self.resend_watch_k = -1
@@ -482,7 +495,10 @@ class PlantSim(SessionNode):
             self.resend_watch_k = k
             return
         self.resends += 1
-        self.resent_k = k
+        # the answers to y[k - 1] and y[k]: ic[k - 1] .. ic[k + 1] (a pipelined controller answers one ahead);
+        # those of an earlier request that may still be on their way stay expected
+        first, last = self.asked_again
+        self.asked_again = (first if last >= k - 2 else k - 1, k + 1)
         row = k - 1 - self.buf_start
         prev = self.rec[row if row >= 0 else self.block_size - 1]  # y[k - 1]: the previous block's last row
         self.publish_y_raw(encode_sample(k - 1, prev[0:self.na].tolist()))
@@ -568,7 +584,8 @@ class PlantSim(SessionNode):
                 "samples_per_wall_s": self.k / wall if wall > 0 else 0.0,
                 "messages_received": self.intake.total_received, "messages_rejected": self.intake.total_rejected,
                 "clipped_samples": self.clipped_samples, "controller_lost_after_s": self.controller_lost_after_s,
-                "resends": self.resends, "duplicate_answers": self.duplicate_answers,
+                "resends": self.resends, "start_retries": self.start_retries,
+                "duplicate_answers": self.duplicate_answers,
                 **self.intake.figures()}
 
     def status_when_idle(self) -> None:

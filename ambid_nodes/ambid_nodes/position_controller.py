@@ -25,16 +25,16 @@ leaves its state untouched, so one bad sample cannot destabilise the loop. A
 displacement for any index but the awaited one (stale, repeated, ahead, out of
 range) is rejected and changes nothing; a session starts at index 0 (a plant
 that re-sends y[0] before the loop moved on gets the same answer again). A plant
-that asks again for one of the last two displacements (its ``resend_after`` wait
+that asks again for one of the last two displacements (its ``resend_after_s`` wait
 passed: an answer or a displacement was lost) gets the answer already given,
 byte for byte, without a second step (``answers_repeated`` in ``status``). Every
 received message is counted per topic in ``status`` (``ambid_nodes.intake``).
 
-Plant supervision. Once the loop runs, a plant silent for ``plant_timeout``
+Plant supervision. Once the loop runs, a plant silent for ``plant_timeout_s``
 seconds of wall time is declared lost -- unless its last ``status`` said
 its run ended (done or failed). In lock-step the plant's next sample is the
 one that did not come, so the detection latency is 0 samples and
-``plant_timeout`` (+ up to two watchdog periods, each at most 0.1 s: no
+``plant_timeout_s`` (+ up to two watchdog periods, each at most 0.1 s: no
 clock is read per sample, the watchdog dates progress to its ticks) of wall time. Then
 the controller reports a FAILED status and an ERROR ``plant_lost`` event,
 resets its state to zero current and idles safely: it answers nothing until
@@ -91,7 +91,7 @@ class PositionController(SessionNode):
         pipeline = declare(self, "pipeline", True,
                            "answer y[k] with ic[k+1] when the controller has a computational delay (no "
                            "feedthrough), so the next current travels while the plant steps; false: with ic[k]")
-        self.timeout = declare(self, "plant_timeout", 2.0,
+        self.timeout = declare(self, "plant_timeout_s", 2.0,
                                "wall time without a displacement before the running plant is declared lost",
                                0.01, 3600.0, "s")
         self.join_session()

@@ -1,7 +1,7 @@
 """recorder: records the session's topics into one MCAP file laid out as rosbag2 writes it.
 
 Each wanted topic's type is discovered from the graph (polled every
-``discovery_period`` seconds, so late topics are picked up) and the topic is
+``discovery_period_s`` seconds, so late topics are picked up) and the topic is
 subscribed with ``raw=True``: the CDR bytes go to the file unchanged, nothing
 is deserialised except the few latched description messages. The
 subscription QoS follows the publishers' offers as rosbag2's does: reliable
@@ -30,7 +30,7 @@ a second). A topic of a type without ``session_id`` other than those (a user's o
 topic) is recorded as it comes.
 
 Messages published on a volatile topic before the recorder's subscription
-matched (about ``discovery_period`` plus DDS discovery) are not recorded:
+matched (about ``discovery_period_s`` plus DDS discovery) are not recorded:
 start the recorder first and let it subscribe (``topic_recorded`` events,
 the subscription count) before the loop starts.
 
@@ -47,7 +47,7 @@ MCAP metadata ``ambid.session`` when they become known, readable without
 decoding any message.
 
 Crash safety: a wall-clock timer closes the open chunk every
-``flush_period`` seconds, so a SIGKILL loses at most that much; ``ambid
+``flush_period_s`` seconds, so a SIGKILL loses at most that much; ``ambid
 inspect --recover`` reads the rest. SIGINT and SIGTERM close the file
 completely (summary and footer). A write failure (disk full) is logged,
 reported as an ``events`` ERROR and a failed ``status``, recording stops and
@@ -70,7 +70,6 @@ import functools
 import importlib
 import json
 import os
-import signal
 import sys
 import time
 
@@ -82,7 +81,6 @@ from ambid.recording.facts import FACT_TYPES, controller_facts, design_facts, pl
 from ambid.recording.in_progress import Recording
 from ambid.recording.writer import available_compressions
 from rclpy.clock import Clock, ClockType
-from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from rclpy.task import Future
@@ -91,9 +89,10 @@ from ambid_msgs.msg import SessionEvent, SessionStatus
 from ambid_nodes import qos
 from ambid_nodes.conversions import (BadMessage, check_controller_description, check_design, check_plant_description,
                                      decode_message, status_msg)
-from ambid_nodes.identity import GONE, SESSION_PARAMETER, UNNAMED, LoopPartner, SessionIdentity
+from ambid_nodes.identity import GONE, UNNAMED, LoopPartner
 from ambid_nodes.loop_pump import NOT_RUN, LoopEntry
-from ambid_nodes.parameters import ParameterError, declare, refuse_unknown
+from ambid_nodes.parameters import ParameterError, declare
+from ambid_nodes.session_node import SessionNode
 
 #: every topic of the ambid graph, relative to the rig's namespace (plus /clock)
 DEFAULT_TOPICS = ["displacement", "control_current", "measurement", "excitation", "excitation/design",
@@ -135,7 +134,9 @@ def message_class(type_name: str):
     return getattr(importlib.import_module(f"{pkg}.msg"), name)
 
 
-class Recorder(Node):
+class Recorder(SessionNode):
+    stop_on_signal = True   # never interrupted in the middle of a chunk write: SIGINT/SIGTERM close the file
+
     def __init__(self, **kwargs) -> None:
         super().__init__("recorder", **kwargs)
         output = declare(self, "output", "session.mcap", "MCAP file to write (relative: to the working directory)")
@@ -149,17 +150,15 @@ class Recorder(Node):
                              1024, 1 << 30, "bytes")
         compression = declare(self, "compression", "zstd", "chunk compression: zstd, lz4 or none")
         fsync = declare(self, "fsync", False, "fsync the file after every chunk (survives a power loss)")
-        flush_period = declare(self, "flush_period", 1.0,
+        flush_period = declare(self, "flush_period_s", 1.0,
                                "wall time between chunk flushes: at most this much is lost to a SIGKILL",
                                0.02, 60.0, "s")
-        discovery_period = declare(self, "discovery_period", 0.25, "wall time between graph polls for new topics",
+        discovery_period = declare(self, "discovery_period_s", 0.25, "wall time between graph polls for new topics",
                                    0.02, 60.0, "s")
-        status_period = declare(self, "status_period", 1.0, "wall time between status messages", 0.02, 3600.0, "s")
+        status_period = declare(self, "status_period_s", 1.0, "wall time between status messages", 0.02, 3600.0, "s")
         facts_text = declare(self, "session_facts", "{}",
                              "extra session facts as a JSON object, e.g. {\"operator\": \"...\", \"notes\": \"...\"}")
-        session = declare(self, *SESSION_PARAMETER)
-        refuse_unknown(self)
-        self.identity = SessionIdentity(self, session)
+        self.join_session()
         if compression not in available_compressions():
             raise ParameterError(f"recorder: compression '{compression}' is not usable here; "
                                  f"choose one of {list(available_compressions())}")
@@ -347,7 +346,7 @@ class Recorder(Node):
                 rec.rejected += 1
                 return
             if session != self.identity.id:
-                self.on_foreign(topic, session)
+                self.keep_out(topic, session)
                 return
         if not rec.open:
             rec.rejected += 1
@@ -371,8 +370,8 @@ class Recorder(Node):
         if topic in self.fact_decoders:
             self.update_facts(topic, data)
 
-    def on_foreign(self, topic: str, session: int | None = None, gid: bytes | None = None,
-                   count: bool = True) -> None:
+    def keep_out(self, topic: str, session: int | None = None, gid: bytes | None = None,
+                 count: bool = True) -> None:
         """A message of another session on ``topic`` (or, ``gid``, the first of a foreign publisher of a tapped
         topic, counted by its tap): not recorded; counted, named, reported (throttled)."""
         if count:
@@ -402,7 +401,7 @@ class Recorder(Node):
                    f"({self.identity}): counted, not recorded{more}")
 
     def on_foreign_gid(self, topic: str, gid: bytes) -> None:
-        self.on_foreign(topic, gid=gid, count=False)
+        self.keep_out(topic, gid=gid, count=False)
 
     def foreign_figures(self) -> dict:
         """{topic: {"messages": n, "from": [publishers named]}} of the foreign messages kept out so far; once
@@ -504,14 +503,12 @@ class Recorder(Node):
         except Exception:  # noqa: BLE001 - the context may already be shut down (SIGINT)
             pass
 
-    def event(self, severity: int, code: str, text: str) -> None:
-        try:
-            self.pub_event.publish(SessionEvent(
-                stamp=self.get_clock().now().to_msg(),
-                sample_index=max(self.rec.block_end.values(), default=0), severity=severity,
-                node=self.get_fully_qualified_name(), code=code, text=text))
-        except Exception:  # noqa: BLE001 - the context may already be shut down (SIGINT)
-            pass
+    def event_index(self) -> int:
+        """Where the recording stands: the end of the newest block recorded."""
+        return max(self.rec.block_end.values(), default=0)
+
+    def event_stamp(self, index: int):
+        return self.get_clock().now().to_msg()
 
     # --- shutdown ---------------------------------------------------------
     def close(self) -> dict:
@@ -550,22 +547,7 @@ class Recorder(Node):
         super().destroy_node()
 
 
-def _stop_on_signal(signum, frame) -> None:
-    """SIGINT/SIGTERM: shut the ROS context down so run_single leaves its spin and closes the file.
-
-    rclpy's own handlers (installed by rclpy.init, chaining to this one) usually did it already.
-    This handler never raises: a KeyboardInterrupt in the middle of a chunk write would corrupt the file.
-    """
-    from rclpy.utilities import get_default_context
-
-    get_default_context().try_shutdown()
-
-
-def main(args=None) -> int:
-    from ambid_nodes.node_main import run_single
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, _stop_on_signal)
-    return run_single(Recorder, args)
+main = Recorder.main  # the console script: SessionNode.main (SIGINT/SIGTERM close the file)
 
 
 if __name__ == "__main__":

@@ -11,6 +11,8 @@ what makes it itself: its parameters, topics, the handling of its messages, and 
 
 from __future__ import annotations
 
+import signal
+
 from rclpy.node import Node
 
 from ambid_msgs.msg import SessionEvent
@@ -27,6 +29,9 @@ class SessionNode(Node):
 
     identity: SessionIdentity
     dt: float
+    # SIGINT and SIGTERM end the node's run without raising anywhere (:func:`stop_on_signal`): a node that
+    # writes a file (the recorder) must not be interrupted in the middle of a write
+    stop_on_signal = False
 
     def join_session(self) -> SessionIdentity:
         """Declare the ``session`` parameter, refuse unknown ones (call after the node's own), and join."""
@@ -44,15 +49,26 @@ class SessionNode(Node):
         """The sample index the node stands at, which its events carry unless given one."""
         return 0
 
+    def event_stamp(self, index: int):
+        """The time an event at sample ``index`` carries: the sample's (a node without a sample clock, the
+        recorder, says the time of now)."""
+        return time_msg(index * self.dt)
+
     def log_event(self, severity: int, code: str, text: str) -> None:
         """Write an event to the node's log too (none by default: events are published)."""
 
     def event(self, severity: int, code: str, text: str, index: int | None = None) -> None:
-        """Publish a :class:`SessionEvent` at ``index`` (default :meth:`event_index`)."""
+        """Publish a :class:`SessionEvent` at ``index`` (default :meth:`event_index`); once the context is shut
+        down (SIGINT, SIGTERM) there is nobody left to tell, and nothing is raised."""
         k = self.event_index() if index is None else index
         self.log_event(severity, code, text)
-        self.pub_event.publish(SessionEvent(stamp=time_msg(k * self.dt), sample_index=k, severity=severity,
-                                            node=self.get_fully_qualified_name(), code=code, text=text))
+        msg = SessionEvent(stamp=self.event_stamp(k), sample_index=k, severity=severity,
+                           node=self.get_fully_qualified_name(), code=code, text=text)
+        try:
+            self.pub_event.publish(msg)
+        except Exception:  # noqa: BLE001 - rcl refuses a publish after shutdown; before it, the error is real
+            if self.context.ok():
+                raise
 
     def on_reject(self, topic: str, why: str) -> None:
         self.event(SessionEvent.WARN, "rejected_message", why)
@@ -66,4 +82,19 @@ class SessionNode(Node):
     @classmethod
     def main(cls, args=None) -> int:
         """Run this node alone until it finishes (:func:`ambid_nodes.node_main.run_single`): its console script."""
+        if cls.stop_on_signal:
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(sig, stop_on_signal)
         return run_single(cls, args)
+
+
+def stop_on_signal(signum, frame) -> None:
+    """SIGINT/SIGTERM: shut the ROS context down so run_single leaves its spin and the node closes what it
+    writes (:attr:`SessionNode.stop_on_signal`).
+
+    rclpy's own handlers (installed by rclpy.init, chaining to this one) usually did it already.
+    This handler never raises: a KeyboardInterrupt in the middle of a chunk write would corrupt the file.
+    """
+    from rclpy.utilities import get_default_context
+
+    get_default_context().try_shutdown()

@@ -1,5 +1,7 @@
 """A session's nodes as processes: started so that none outlives the run, watched, every death named.
 
+The processes layout (:mod:`ambid_nodes.running.processes`) runs a session with it.
+
 The orchestrator (``ambid graph --processes``, ``ambid identify --processes``) is every node's parent, so
 it sees a death at once, whatever the node was doing:
 
@@ -15,7 +17,6 @@ recorder then closes its file completely), SIGKILL after :data:`STOP_GRACE_S`.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import signal
@@ -28,11 +29,6 @@ from dataclasses import dataclass, field
 from ambid_nodes.node_main import DIE_WITH_PARENT_ENV, SUMMARY_PREFIX
 
 POLL_S = 0.1         # how often the children are looked at
-DEATH_GRACE_S = 3.0  # after a death, the plant's time to end its run itself (its controller_timeout is 2 s)
-# after the controller's death the plant is sure to end its run (safe state, landing) once its 2 s wall-clock
-# watchdog fires; a loaded machine may delay that by seconds, and ending the session first would hide the landing
-CONTROLLER_DEATH_GRACE_S = 15.0
-SETTLE_S = 0.5       # then the time for what is on its way (the last blocks and events)
 STOP_GRACE_S = 5.0   # SIGTERM to SIGKILL
 
 
@@ -180,89 +176,6 @@ class Supervisor:
 
     def stop_all(self, grace_s: float = STOP_GRACE_S) -> None:
         self.stop(None, grace_s)
-
-
-@contextlib.contextmanager
-def supervised(namespace: str, session: int, clearance_m: float, settle_samples: int, after_lift_off: int):
-    """``(executor, supervisor, watch)``: a supervisor of a session's node processes on this process's domain and
-    the session's watch (``ambid_nodes.watch.SessionWatch``: the levitation judged as plant_sim judges it), spun
-    by one executor; at the end every node is stopped and ROS shut down, whatever happened."""
-    import rclpy
-    from rclpy.experimental import EventsExecutor
-
-    from ambid_nodes.running.domain import session_domain_id
-    from ambid_nodes.watch import SessionWatch
-
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=session_domain_id())
-    executor = EventsExecutor(context=context)
-    sup = Supervisor(namespace, dict(os.environ, ROS_DOMAIN_ID=str(session_domain_id())))
-    watch = None
-    try:
-        watch = SessionWatch(session, clearance_m, settle_samples, after_lift_off, namespace=namespace,
-                             context=context)
-        executor.add_node(watch)
-        yield executor, sup, watch
-    finally:
-        sup.stop_all()
-        executor.shutdown()
-        if watch is not None:
-            watch.destroy_node()
-        rclpy.shutdown(context=context)
-
-
-def supervise(executor, sup: Supervisor, watch, done, grace_s: float = DEATH_GRACE_S,
-              controller_grace_s: float = CONTROLLER_DEATH_GRACE_S) -> Death | None:
-    """Spin ``executor`` (the watch's) until ``done()`` or a node died; after a death, give the plant up to
-    ``grace_s`` to end its run by itself (it names the exact sample where the loop stopped; after the
-    position controller's death, which its watchdog always answers, up to ``controller_grace_s``), then return
-    the death. None: the run ended as it should."""
-    death = None
-    while not done():
-        spin(executor, watch)
-        death = sup.check()
-        if death is not None:
-            break
-    if death is None:
-        return None
-    plant = next((n for n in ("plant_sim", "hardware_bridge") if n in sup.nodes), None)
-    if plant is not None and death.node != plant:
-        end = time.monotonic() + (controller_grace_s if death.node == "position_controller" else grace_s)
-        while time.monotonic() < end and not sup.exited(plant):
-            spin(executor, watch)
-    end = time.monotonic() + SETTLE_S  # the blocks and events already on their way
-    while time.monotonic() < end:
-        spin(executor, watch)
-    return death
-
-
-def wait_for(executor, sup: Supervisor, node, predicate, timeout_s: float, what: str) -> None:
-    """Spin until ``predicate()``; RuntimeError naming ``what`` after ``timeout_s``, NodeGone if a node died
-    meanwhile, KeyboardInterrupt if the context was shut down."""
-    end = time.monotonic() + timeout_s
-    while not predicate():
-        death = sup.check()
-        if death is not None:
-            raise NodeGone(death)
-        if time.monotonic() > end:
-            raise RuntimeError(f"timed out after {timeout_s:g} s waiting for {what}")
-        spin(executor, node, 0.05)
-
-
-class NodeGone(Exception):
-    """A node died while the run was being set up (``death``: :class:`Death`)."""
-
-    def __init__(self, death: Death) -> None:
-        super().__init__(f"{death.node} {death.how}")
-        self.death = death
-
-
-def spin(executor, node, timeout_s: float = POLL_S) -> None:
-    """One turn of ``executor``; KeyboardInterrupt once ``node``'s context is shut down (rclpy's SIGINT and
-    SIGTERM handlers do that instead of raising), so ^C ends a supervised run, its nodes stopped in order."""
-    if not node.context.ok():
-        raise KeyboardInterrupt
-    executor.spin_once(timeout_sec=timeout_s)
 
 
 def consequence(node: str, failure: dict | None, finished: bool = False) -> str:

@@ -108,6 +108,17 @@ class SessionWatch(Node):
         if msg is not None:
             self.events.append(msg)
 
+    def subscribed(self, topic: str, nodes) -> list[str]:
+        """Those of ``nodes`` (names in the watch's namespace) the graph does not show subscribed to ``topic`` yet.
+
+        By name, not by count: any other listener (a ``ros2 topic echo``, a monitor, a test's) would otherwise
+        stand in for a node that has not subscribed yet, and the loop would start while that node still misses
+        the first blocks of a volatile topic."""
+        ns = self.get_namespace().rstrip("/")
+        have = {i.node_name for i in self.get_subscriptions_info_by_topic(topic)
+                if i.node_namespace.rstrip("/") == ns}
+        return [n for n in nodes if n not in have]
+
     def hears_the_plant(self) -> bool:
         """Its measurement subscription is matched to a publisher (the plant's): it hears every block from the
         first, so the figures it keeps are true from sample 0 (start the loop after this)."""

@@ -124,3 +124,28 @@ def test_bad_inputs_raise():
         amplifier_step(amp, 0.0, 0.0, -1e-4)
     with pytest.raises(ValueError, match="n_amplifiers"):
         amplifier_state_space(amp, 0)
+
+
+def test_slew_voltage_is_what_a_sample_at_full_voltage_can_move_and_no_more():
+    """slew_voltage_v's bound, against the saturating amplifier: with the reference's largest step needing more
+    than the dc link, even a stiff current loop ends the sample short of it (the coil slews at udc / L); a step
+    within the bound is reached (a stiff loop: Gp so large that tau_cl << dt)."""
+    from ambid.plant.amplifier import slew_voltage_v
+
+    dt = 1e-4
+    amp = Amplifier(L_H, 0.0, UDC_V, IMAX_A, gain_v_per_a=1e6)
+    reach = UDC_V * dt / L_H                      # 1.5 A: what full voltage moves the coil current in a sample
+    for step, follows in ((0.8 * reach, True), (1.25 * reach, False)):
+        ref = np.array([0.0, step])
+        need = slew_voltage_v(amp, ref, dt)
+        assert need == pytest.approx(L_H * step / dt)
+        assert (need <= UDC_V) == follows
+        i = _run(amp, [step], dt, i0=0.0, n_substeps=50)[-1, 0]
+        assert (abs(i - step) < 1e-3 * step) == follows, (step, i)
+        if not follows:
+            assert i == pytest.approx(reach, rel=1e-3)   # the ramp at full voltage: udc dt / L
+    # the resistive share: R (offset + the reference's largest value), per input
+    amp_r = Amplifier(L_H, 2.0, UDC_V, IMAX_A, gain_v_per_a=1e6)
+    ref = np.array([[0.0, 0.0], [0.5, -1.0], [0.2, 0.0]])
+    np.testing.assert_allclose(slew_voltage_v(amp_r, ref, dt, offset_a=3.0),
+                               L_H * np.array([0.5, 1.0]) / dt + 2.0 * (3.0 + np.array([0.5, 1.0])))

@@ -149,11 +149,36 @@ def test_no_import_circle_anywhere_in_the_project():
     assert _cycles(_project_edges()) == []
 
 
-def test_the_layers_point_one_way_command_line_nodes_core():
-    rank = {"ambid": 0, "ambid_nodes": 1, "ambid_cli": 2}
-    up = [(m, t) for m, targets in _project_edges().items() for t in targets
-          if rank[t.split(".")[0]] > rank[m.split(".")[0]]]
+def _layer(mod: str) -> int:
+    """0 the core, 1 the nodes, 2 running a session (ambid_nodes.running: its plan and layouts), 3 the command
+    line."""
+    if mod == "ambid_nodes.running" or mod.startswith("ambid_nodes.running."):
+        return 2
+    return {"ambid": 0, "ambid_nodes": 1, "ambid_cli": 3}[mod.split(".")[0]]
+
+
+def test_the_layers_point_one_way_command_line_running_nodes_core():
+    """The command line drives sessions through ambid_nodes.running, which starts the nodes, which call the
+    core; no import runs back up (a node never imports a layout, whatever the layout imports)."""
+    up = [(m, t) for m, targets in _project_edges().items() for t in targets if _layer(t) > _layer(m)]
     assert up == []
+
+
+def test_running_a_session_imports_only_the_modules_before_it_as_the_document_says():
+    """One way to run a session: the modules of ambid_nodes/running/ in the order docs/architecture.md names
+    them, each importing only those before it (the layouts share the interface, none imports another back)."""
+    m = re.search(r"^Running, lowest first: (.+)$", DOC, re.M)
+    assert m, "docs/architecture.md must state 'Running, lowest first: ...'"
+    order = [f"ambid_nodes.running.{x.strip(' `.')}" for x in m.group(1).split(",")]
+    running = {mod for mod in NODE_MODULES if mod.startswith("ambid_nodes.running.")}
+    assert set(order) == running, "the document must name every module of ambid_nodes/running/ exactly once"
+    rank = {mod: i for i, mod in enumerate(order)}
+    edges = _project_edges()
+    wrong = [(a, b) for a in order for b in edges[a] if b in rank and rank[b] >= rank[a]]
+    assert wrong == []
+    # the command line starts a session through run_session or run_identify, never a layout by itself
+    layouts = {f"ambid_nodes.running.{x}" for x in ("composed", "hardware", "processes", "layout")}
+    assert [(a, b) for a in CLI_MODULES for b in edges[a] if b in layouts] == []
 
 
 def test_the_check_sees_an_import_inside_a_function(tmp_path):
@@ -182,7 +207,8 @@ def test_no_function_over_100_lines_in_the_core_or_the_nodes():
     assert long == []
 
 
-SESSION_NODES = ("excitation_generator", "frf_consumer", "hardware_bridge", "plant_sim", "position_controller")
+SESSION_NODES = ("excitation_generator", "frf_consumer", "hardware_bridge", "plant_sim", "position_controller",
+                 "recorder")
 
 
 @pytest.mark.parametrize("name", SESSION_NODES)

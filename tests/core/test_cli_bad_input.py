@@ -236,6 +236,30 @@ def test_a_run_the_amplifier_would_refuse_is_refused_before_any_node_starts(file
         assert not out.exists()
 
 
+def test_an_excitation_the_amplifiers_voltage_cannot_follow_is_refused_before_any_node_starts(files, capsys):
+    # a PRBS of +-1.6 A: within the current limit (1.6 + 1 A working < 3 A), but a step of 3.2 A in one 0.1 ms
+    # sample needs L di/dt = 18.8 mH x 3.2 A / 0.1 ms ~ 600 V of the 560 V dc link: the amplifier would saturate
+    import re
+
+    from ambid.excitation.spec import DesignSpec
+
+    rig = make_rig()
+    design = DesignSpec(kind="prbs", peak_current_a=1.6).build(float(rig.sample_rate_hz), 0.0, rig.layout.inputs)
+    x = design.samples(0, design.total_samples)
+    need = rig.coil_inductance_h * np.abs(np.diff(x, axis=0)).max() * design.fs_hz   # R = 0 on the default rig
+    assert need > rig.values["dc_link_voltage_v"] and rig.amplifier.resistance_ohm == 0
+    for command in ("identify", "design"):
+        out = files["dir"] / f"volts_{command}"
+        code, printed = _run([command, "--kind", "prbs", "--peak-current", "1.6", "--out", str(out)], capsys)
+        assert code == 2 and printed.out == ""
+        line = _one_line(printed.err, command, f"need {need:.4g} V of the amplifier's 560 V dc link")
+        fits = float(re.search(r"give --peak-current ([0-9.]+) or less", line).group(1))
+        assert fits == pytest.approx(1.6 * 560 / need, rel=5e-3)   # the voltage is proportional to the steps
+        assert not out.exists()
+    # the default experiment is far inside: its steps need a fraction of the dc link
+    assert _run(["design", "--no-plan", "--no-figure", "--out", str(files["dir"] / "volts_ok")], capsys)[0] == 0
+
+
 @pytest.mark.parametrize("argv, says", [
     (["identfy"], "ambid: unknown command 'identfy'; did you mean 'identify'?"),
     (["desing", "--out", "x"], "ambid: unknown command 'desing'; did you mean 'design'?"),

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from ambid.background import wait
 from ambid.channels import RADIAL
 from ambid.excitation import ExcitationDesign, check_headroom
 from ambid_cli.commands import design as cmd
@@ -47,6 +48,9 @@ def test_preview_runs_without_rclpy_and_writes_what_it_reports(tmp_path):
     plan = {row["method"]: row["measurement_time_s"] for row in summary["plan"]}
     assert plan["orthogonal multisine"] == pytest.approx(summary["measurement_time_s"])
     assert plan["stepped sine"] > 8 * plan["orthogonal multisine"]  # 63 s against 7.2 s for M = 3 realisations
+    # the figure, drawn by a detached process once the command has answered: said "writing" at once, then done
+    assert summary["figure_status"] == str(tmp_path / "design.status.json")
+    assert wait(summary["figure_status"])["state"] == "done"
     assert (tmp_path / "design.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 

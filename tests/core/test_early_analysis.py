@@ -63,13 +63,13 @@ def test_reference_models_are_used_only_for_their_own_inputs(session):
     assert reference_key(dataclasses.replace(rec, nonlinear_magnets=True), f, *chans) != refs.key
     assert reference_key(rec, f, chans[0][:2], chans[1]) != refs.key
     # handed over ready-made, or left to identify_session: the same numbers
-    _same(identify_session(session["path"], session["root"] / "given", inputs=rec, references=refs, **OPTIONS),
-          session["reference"])
+    _same(identify_session(session["path"], session["root"] / "given", inputs=rec, references=refs, report=False,
+                           **OPTIONS), session["reference"])
 
 
-def _early(out, inputs, planned=None, freq_hz=None):
+def _early(out, inputs, planned=None, freq_hz=None, report=True):
     """The worker fed as identify feeds it: (first summary, how, final summary, notes)."""
-    early = EarlyAnalysis(out, **OPTIONS)
+    early = EarlyAnalysis(out, report=report, **OPTIONS)
     try:
         if planned is not None:
             early.prepare(planned, freq_hz, RADIAL.outputs, RADIAL.inputs)
@@ -93,8 +93,37 @@ def test_the_early_analysis_gives_the_recordings_numbers(session):
 def test_inputs_unlike_the_recording_are_analysed_again_from_it(session):
     rec = read_session_inputs(session["path"])
     wrong = dataclasses.replace(rec, frf=dataclasses.replace(rec.frf, frf=rec.frf.frf * 1.01))
-    first, _, final, notes = _early(session["root"] / "wrong", wrong)
+    first, _, final, notes = _early(session["root"] / "wrong", wrong, report=False)   # the numbers only
     assert first["frf_error"] != session["reference"]["frf_error"]   # what was shown first came from them
     assert notes and "analysed again from the recording" in notes[0]
     _same(final, session["reference"])
     np.testing.assert_array_equal(np.load(session["root"] / "wrong" / "frf.npz")["frf"], rec.frf.frf)
+
+
+def test_the_report_in_the_background_follows_the_result_and_is_the_same_page(session):
+    """identify's way: the worker returns once the numbers are written; the report's figures follow from a
+    detached process (what it was handed crosses as a pickle), the page the one written in line."""
+    from ambid.background import read_status, wait
+
+    rec = read_session_inputs(session["path"])
+    out = session["root"] / "background"
+    early = EarlyAnalysis(out, report="background", **OPTIONS)
+    try:
+        early.analyse(rec)
+        early.recording_closed()
+        first, _ = early.summary()
+        final, notes = early.result()
+    finally:
+        early.close()
+    assert notes == []
+    _same(final, session["reference"])
+    assert final["files"]["report"] == str(out / "report" / "index.html")
+    assert read_status(out / "report" / "status.json")["state"] in ("writing", "done")
+    done = wait(out / "report" / "status.json")
+    assert done["state"] == "done" and done["seconds"] > 0
+    page, ref = ((d / "report" / "index.html").read_text() for d in (out, session["root"] / "reference"))
+    figures = sorted(p.name for p in (out / "report").glob("*.png"))
+    assert figures == sorted(p.name for p in (session["root"] / "reference" / "report").glob("*.png")) and figures
+    # the same page but for where it was written and the wall times in it
+    assert len(page.splitlines()) == len(ref.splitlines())
+    assert not list((out / "report").glob("status.json.job"))   # the hand-over is gone once read

@@ -71,7 +71,9 @@ def test_a_record_of_any_channels_imports_and_fits(record, tmp_path, kind, capsy
     out = capsys.readouterr()
     assert code == 0, out.err
     assert f"orthogonal design, Ne = {na} experiment(s) x M = 2 realisation(s)" in out.out and "N = 2000" in out.out
-    report = kind == "csv"   # the report of any number of channels, once per layout
+    # the report of any number of channels, once per layout but the four radial axes: their report is the
+    # default rig's, which every identify test's session writes (and test_early_analysis compares figure by figure)
+    report = kind == "csv" and na != 4
     code = cli.main(["fit", str(tmp_path / "rig.mcap"), "--out", str(tmp_path / "fit")] + ([] if report else
                                                                                             ["--no-report"]))
     out = capsys.readouterr()

@@ -286,3 +286,52 @@ def test_the_layout_has_a_bode_orbit_and_status_panel_for_any_layout():
     assert any(c.get("topicToRender") == "/amb/live/events" for c in configs.values())
     one = foxglove_layout(Layout(("z",)))
     assert not any("/orbit/" in p["value"] for c in one["configById"].values() for p in c.get("paths", []))
+
+
+def test_a_session_faster_than_real_time_is_drawn_at_the_display_rate(session):
+    """A simulated session runs many times faster than real time: the time signals and the orbits go out at most
+    display_hz times per wall second (what a viewer draws), the stream's last frame always; every FRF estimate and
+    the progress go out whole. The frames in between are counted, never queued."""
+    from ambid_cli.bench.foxglove_client import follow
+
+    d, x = session
+    server = LiveServer(0, prefix="/amb/live", follower=SessionFollower(signal_rate_hz=1000.0),
+                        display_hz=10.0).start()
+    got: dict[str, list] = {}
+    client = threading.Thread(target=lambda: asyncio.run(follow(
+        server.url, lambda topic, t, m: got.setdefault(topic, []).append(m))), daemon=True)
+    client.start()
+    server.submit("design_message", "exp1", d, PRE, d.total_samples)
+    server.submit("block", 0, 1 / FS, NAMES, x[:500])
+    end = time.monotonic() + 30
+    while not ({"/amb/live/signals", "/amb/live/frf/y_a_y/u_a_x"} <= set(got)) and time.monotonic() < end:
+        time.sleep(0.05)   # every channel advertised and subscribed (the first signals frame came)
+    t0 = time.monotonic()
+    for k in range(500, len(x), 500):   # as fast as the worker takes them: ~100 x real time
+        server.submit("block", k, 1 / FS, NAMES, x[k:k + 500])
+        server.drain(10.0)
+    wall = time.monotonic() - t0
+    figures = server.close()
+    client.join(30)
+    sig = got["/amb/live/signals"]
+    made = (len(x) - 500) // 10      # every 10th sample (1 kHz of a 10 kHz session), once subscribed
+    assert 2 <= len(sig) <= 1 + 10.0 * wall + 3, (len(sig), wall)   # the first, one per 0.1 s, the last
+    assert figures["frames_thinned"] >= made - len(sig) > 0
+    assert sig[-1]["t_s"] == pytest.approx((len(x) - 1) // 10 * 10 / FS)   # the last sample shown
+    final = [m for m in got["/amb/live/frf/y_a_y/u_a_x"] if m["complete"]]
+    assert final and got["/amb/live/progress"][-1]["finished"]
+
+
+def test_live_estimates_wait_their_turn_but_the_final_one_comes(session):
+    """estimate_every_s: a record completed sooner than that after the last estimate waits; the final estimate
+    (the whole experiment's, the session's) is always made."""
+    d, x = session
+    every, _ = _follow(d, x, block=250)
+    f = SessionFollower(signal_rate_hz=500.0, orbit_points=50, estimate_every_s=3600.0)
+    frames = f.design_message("exp1", d, PRE, d.total_samples)
+    for k in range(0, len(x), 250):
+        frames += f.block(k, 1 / FS, NAMES, x[k:k + 250])
+    assert every.counts["estimates"] > 2 and f.counts["estimates"] == 2   # the first record's, and the final
+    entry = [fr.message for fr in frames if fr.topic == "frf/y_a_y/u_a_x" and fr.message is not None]
+    assert len(entry) == 2 and entry[-1]["complete"] and not entry[0]["complete"]
+    np.testing.assert_array_equal(f.result.frf, every.result.frf)   # the same final estimate

@@ -54,7 +54,7 @@ def _design(inputs=("u_a_x", "u_b_y"), peak=0.3):
 def test_experiment_streams_its_design_within_the_lookahead_in_the_right_channels():
     d = _design()
     exp = place_experiment("exp-0001", d, fs_hz=10_000.0, current_names=CURRENTS, current_limit_a=3.0,
-                           working_current_a=1.0, excitation_names=EXC, progress=200, margin=1500, after=0)
+                           working_current_a=1.0, excitation_names=EXC, progress=200, start_margin=1500, after=0)
     assert (exp.start, exp.total) == (1700, d.total_samples) and exp.columns.tolist() == [0, 3]
     blocks = list(exp.due_blocks(progress=200, lookahead=3000, block_size=500, n_channels=4))
     assert [b[0] for b in blocks] == [1700, 2200, 2700]  # ends within 200 + 3000
@@ -77,7 +77,7 @@ def test_experiment_streams_its_design_within_the_lookahead_in_the_right_channel
 ])
 def test_experiment_placement_refuses_what_the_plant_cannot_run(change, words):
     kw = dict(fs_hz=10_000.0, current_names=CURRENTS, current_limit_a=3.0, working_current_a=1.0,
-              excitation_names=EXC, progress=200, margin=1500, after=0)
+              excitation_names=EXC, progress=200, start_margin=1500, after=0)
     with pytest.raises(ValueError, match=words):
         place_experiment("x", _design(), **{**kw, **change})
 

@@ -17,6 +17,8 @@ The conventions a doc follows (docs/architecture.md, "Docs are tested"):
   or phrase (any text within the line) and a line ``...`` for any number of lines.
 - ``python`` blocks run with the suite's interpreter; ``yaml`` blocks must parse, and one marked
   ``<!-- file: NAME -->`` is written to NAME for the blocks after it.
+- A command in backticks in the prose (`` `ambid fit SESSION --out DIR` ``) names a command and options that
+  exist (:func:`inline_commands`; what stands in for a value, ``SESSION``, ``DIR``, ``[...]``, is not read).
 - Any other block is marked ``<!-- not run: REASON -->`` (hardware, a cluster, a diagram, a server that
   runs until stopped, a synopsis) or ``<!-- run by: tests/...py -->`` (a test that runs it in full); the
   suite lists every such block with its reason.
@@ -170,3 +172,45 @@ def checkout_paths(script: str) -> str:
     """The one rewrite a command gets: ``./launch_scripts/`` and ``ros_ws/install/`` name the checkout's."""
     script = re.sub(r"(?<![\w/.])(\./)?launch_scripts/", f"{REPO}/launch_scripts/", script)
     return re.sub(r"(?<![\w/.])(\./)?ros_ws/install/", f"{REPO}/ros_ws/install/", script)
+
+
+_INLINE = re.compile(r"`(?:\./)?(?:launch_scripts/)?ambid[ \t\n]+([^`]+)`")
+
+
+@dataclass(frozen=True)
+class InlineCommand:
+    """An ``ambid ...`` command in backticks in a doc's prose (outside its fenced blocks)."""
+
+    path: str   # relative to the checkout
+    line: int   # 1-based
+    text: str   # what follows ``ambid``
+
+    @property
+    def command(self) -> str:
+        return self.text.split()[0]
+
+    @property
+    def options(self) -> list[str]:
+        """The option names it gives (``--out`` of ``--out DIR`` or ``--out=DIR``), in order."""
+        words = re.sub(r"[\[\]|(),]", " ", self.text).split()[1:]
+        return [w.split("=", 1)[0] for w in words if re.fullmatch(r"--?[a-zA-Z][\w-]*(=\S*)?", w)]
+
+
+def inline_commands(path: Path) -> list[InlineCommand]:
+    """Every `` `ambid COMMAND ...` `` of a Markdown file's prose (a span may wrap a line), fenced blocks left out
+    (they are run, or marked); a placeholder command (``ambid COMMAND``) is not one."""
+    rel = str(path.relative_to(REPO))
+    lines, prose, fenced = path.read_text(encoding="utf-8").splitlines(), [], False
+    for ln in lines:
+        if re.match(r"^\s*```", ln):
+            fenced = not fenced
+            prose.append("")
+            continue
+        prose.append("" if fenced else ln)
+    text = "\n".join(prose)
+    out = []
+    for m in _INLINE.finditer(text):
+        body = " ".join(m.group(1).split())
+        if re.match(r"[a-z/-]+\b", body) or body.startswith("-"):
+            out.append(InlineCommand(rel, text.count("\n", 0, m.start()) + 1, body))
+    return out

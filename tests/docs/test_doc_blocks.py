@@ -21,8 +21,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from doc_blocks import (REPO, SHARED_IDENTIFY, Block, checkout_paths, commands, doc_files, mismatch, parse,
-                        transcript)
+from doc_blocks import (REPO, SHARED_IDENTIFY, Block, checkout_paths, commands, doc_files, inline_commands,
+                        mismatch, parse, transcript)
 
 BLOCKS = [b for f in doc_files() for b in parse(f)]
 TIMEOUT_S = 900
@@ -216,6 +216,56 @@ def not_run_listing() -> str:
     lines += [f"  {b.id}: run by {b.markers['run by']}" for b in elsewhere]
     lines += [f"  {b.id}: not run: {b.markers['not run']}" for b in left]
     return "\n".join(textwrap.shorten(ln, 160) if len(ln) > 160 else ln for ln in lines)
+
+
+def _option_names(command: str) -> set[str]:
+    """The option strings ``ambid COMMAND`` takes (its parser, as the command line builds it)."""
+    import argparse
+    import importlib
+
+    from ambid_cli.cli import COMMANDS
+
+    p = argparse.ArgumentParser(prog=f"ambid {command}")
+    importlib.import_module(f"ambid_cli.commands.{COMMANDS[command]}").add_arguments(p)
+    return {s for action in p._actions for s in action.option_strings}  # noqa: SLF001 - argparse has no API
+
+
+@pytest.mark.parametrize("doc", doc_files(), ids=lambda p: str(p.relative_to(REPO)))
+def test_commands_in_the_prose_name_what_the_command_line_has(doc: Path) -> None:
+    """Every `` `ambid COMMAND --option ...` `` in a doc's sentences names a command of ``ambid --help`` and
+    options that command takes: a renamed command or option fails here, not in a user's hands. ``a/b`` names
+    two commands; what follows ``--ros-args`` is ROS's."""
+    from ambid_cli.cli import COMMANDS, SCRIPT_COMMANDS
+
+    wrong, options = [], {}
+    for ref in inline_commands(doc):
+        where = f"{ref.path}:{ref.line}: `ambid {ref.text}`"
+        if ref.command in ("--help", "-h", "help") or ref.command in SCRIPT_COMMANDS:
+            continue   # the overview; setup and test (its arguments are pytest's)
+        given = ref.options[:ref.options.index("--ros-args")] if "--ros-args" in ref.options else ref.options
+        for command in ref.command.split("/"):   # `ambid identify/graph --hardware ...`: each of them
+            if command not in COMMANDS:
+                wrong.append(f"{where}: no command '{command}'")
+                continue
+            if command not in options:
+                options[command] = _option_names(command)
+            wrong += [f"{where}: 'ambid {command}' has no option {o}" for o in given if o not in options[command]]
+    assert not wrong, "\n".join(wrong)
+
+
+def test_the_prose_check_reads_commands_and_options_as_written(tmp_path) -> None:
+    """The extraction itself: spans in sentences (one may wrap a line), not fenced blocks nor the Python API."""
+    import doc_blocks
+
+    doc = doc_blocks.REPO / "docs" / "_probe_inline.md"
+    doc.write_text("Run `ambid fit SESSION --out DIR [--order N]` or\n`./launch_scripts/ambid design\n--no-plan`; "
+                   "not `ambid.design_excitation(...)` nor `ambid COMMAND --help`.\n```\nambid fit --bogus\n```\n")
+    try:
+        refs = inline_commands(doc)
+    finally:
+        doc.unlink()
+    assert [(r.line, r.command, r.options) for r in refs] == [(1, "fit", ["--out", "--order"]),
+                                                              (2, "design", ["--no-plan"])]
 
 
 def test_commands_md_lists_every_command() -> None:

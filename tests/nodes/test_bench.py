@@ -45,6 +45,9 @@ def test_quick_bench_reports_every_figure_as_a_positive_number(ros, tmp_path, ca
     ident = cmds["identify"]
     assert 0 < ident["setup_s"] + ident["session_s"] <= ident["headline_s"] <= ident["wall_s"]
     assert 0 < ident["longest_silence_s"] < ident["wall_s"]
+    # what follows the answer, from a process of its own: design's figure, identify's report, each done
+    assert cmds["design"]["figure_own_s"] > 0 and cmds["design"]["figure_s"] >= cmds["design"]["wall_s"]
+    assert ident["report_own_s"] > 0
     mem = report["sections"]["memory"]
     assert math.isclose(mem["offline"]["length_ratio"], bench.FACTOR) and mem["live"]["length_ratio"] > 1.5
     assert len(report["machine"]["load_average_start"]) == 3

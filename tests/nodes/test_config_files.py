@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 import yaml
 from ambid.control.pid import PidParameters
+from ambid.excitation.experiment import Streaming
 from ambid.excitation.spec import DesignSpec
 from ambid.quantity import quantities
 from rclpy.parameter import Parameter
@@ -24,18 +25,19 @@ NODES = {"plant_sim": PlantSim, "position_controller": PositionController, "exci
 
 
 # the nodes whose parameters are a core dataclass's fields (ambid_nodes.parameters.declare_fields)
-FIELDS = {"excitation_generator": DesignSpec, "position_controller": PidParameters}
+FIELDS = [("excitation_generator", DesignSpec), ("excitation_generator", Streaming),
+          ("position_controller", PidParameters)]
 
 
-@pytest.mark.parametrize("name", list(FIELDS))
-def test_parameter_file_says_the_dataclass_names_defaults_and_descriptions(name):
+@pytest.mark.parametrize("name, cls", FIELDS)
+def test_parameter_file_says_the_dataclass_names_defaults_and_descriptions(name, cls):
     """Each field of the dataclass is a line ``name: default  # description [unit]`` of the node's file: the
     quantity's one name, default and description live in the core, and the file is held against them."""
     text = (CONFIG / f"{name}.yaml").read_text()
     params = yaml.safe_load(text)["/**"]["ros__parameters"]
     lines = {ln.split(":", 1)[0].strip(): ln for ln in text.splitlines() if ":" in ln and not ln.lstrip().startswith("#")}
-    for field, default, q in quantities(FIELDS[name]):
-        assert field in params, f"{name}.yaml lacks {field} ({FIELDS[name].__name__}.{field})"
+    for field, default, q in quantities(cls):
+        assert field in params, f"{name}.yaml lacks {field} ({cls.__name__}.{field})"
         want = (list(default) or [q.empty]) if isinstance(default, tuple) else default
         assert params[field] == want, f"{name}.yaml {field}: {params[field]!r}, the dataclass says {want!r}"
         comment = lines[field].split("#", 1)[1].strip() if "#" in lines[field] else ""
@@ -66,5 +68,13 @@ def test_parameter_file_holds_the_declared_defaults(ros, name, tmp_path):
                  and not (isinstance(v, (int, float)) and isinstance(declared[k], (int, float))
                           and float(v) == float(declared[k]))}
         assert not drift, f"{name}.yaml (file, declared): {drift}"
+        # each line's comment is the parameter's description (the declaration's, a dataclass field's for those
+        # of FIELDS), so a user reading the file reads what `ros2 param describe` says
+        comments = {ln.split(":", 1)[0].strip(): ln.split("  # ", 1)[1] if "  # " in ln else ""
+                    for ln in (CONFIG / f"{name}.yaml").read_text().splitlines() if ln.startswith("    ")
+                    and not ln.lstrip().startswith("#") and ln.split(":", 1)[0].strip() in params}
+        wrong = {k: (c, node.describe_parameter(k).description) for k, c in comments.items()
+                 if c != node.describe_parameter(k).description}
+        assert not wrong, f"{name}.yaml (comment, description): {wrong}"
     finally:
         node.destroy_node()

@@ -219,7 +219,7 @@ def target_thread(key_file):
 
 def test_injected_loss_reorder_duplication_and_corruption_are_reported_exactly(ros, target_thread, key_file):
     spy = ros.add(Spy(ros.context))
-    bridge, target, local = start_bridge(ros, key_file, reorder_window=8, reorder_timeout=1.0)
+    bridge, target, local = start_bridge(ros, key_file, reorder_window=8, reorder_timeout_s=1.0)
     ros.matched(spy, to=bridge)  # the spy hears the bridge from its first message
     n, seed = 3000, 5
     tg, th, res = target_thread(bind=target, bridge=local, seed=seed, pace=1.0, samples=n, linger=0.3,
@@ -263,7 +263,7 @@ def test_injected_loss_reorder_duplication_and_corruption_are_reported_exactly(r
 def test_silent_target_is_detected_and_sent_to_its_safe_state(ros, target_thread, key_file):
     spy = ros.add(Spy(ros.context))
     timeout = 0.25
-    bridge, target, local = start_bridge(ros, key_file, target_timeout=timeout)
+    bridge, target, local = start_bridge(ros, key_file, target_timeout_s=timeout)
     ros.matched(spy, to=bridge)  # the spy hears the bridge from its first message
     tg, th, res = target_thread(bind=target, bridge=local, seed=2, pace=1.0, samples=0, linger=0.3,
                                 mute_at=400, mute_seconds=0.8, safe_seconds=0.01)

@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from ambid.background import wait
 from ambid.control.pid import PidParameters, pid_controller
 from ambid.plant.rig import make_rig
 
@@ -39,6 +40,8 @@ def test_identify_runs_the_rig_files_controller(ros_env, tmp_path):
     assert ctrl["kind"] == "file" and ctrl["parameters"]["file"] == str((tmp_path / "site_controller.mat").resolve())
     assert ctrl["n_states"] == model.n_states and ctrl["delay_samples"] == 1
     assert f"controller: file {(tmp_path / 'site_controller.mat').resolve()}" in proc.stdout
+    # the report is written by a process of its own after the headline: there once its status says done
+    assert wait(out / "report" / "status.json")["state"] == "done"
     page = (out / "report" / "index.html").read_text()
     assert "site_controller.mat" in page
     # the loop ran that controller: the FRF error figure is the usual one (a stable, identified loop)

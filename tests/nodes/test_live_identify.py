@@ -76,7 +76,9 @@ def test_the_client_gets_every_channel_of_the_live_view(sessions):
     for topic in wanted:
         assert got["messages"].get(topic), f"no message on {topic}; the live view's figures: {live}"
     sig = got["messages"]["/amb/live/signals"]
-    assert set(RADIAL.outputs) | set(RADIAL.inputs) <= set(sig[-1]) and len(sig) > 100
+    # at most display_rate_hz (30) a wall second: the session runs faster than real time, a viewer draws ~30
+    assert set(RADIAL.outputs) | set(RADIAL.inputs) <= set(sig[-1]) and len(sig) >= 2
+    assert [m["t_s"] for m in sig] == sorted(m["t_s"] for m in sig) and live["frames_thinned"] > 0
     orbit = got["messages"]["/amb/live/orbit/b"][-1]
     assert (orbit["x_channel"], orbit["y_channel"]) == ("y_b_x", "y_b_y") and len(orbit["x_m"]) == len(orbit["y_m"])
     assert any(e["level"] == 2 and "frf_done" in e["message"] for e in got["messages"]["/amb/live/events"])

@@ -36,8 +36,10 @@ class Spy(Node):
         super().__init__("spy", namespace=NS, context=context)
         self.y_idx, self.ic_idx, self.blocks, self.events = [], [], [], []
         self.plant_desc = self.ctrl_desc = None
-        self.create_subscription(Sample, "displacement", lambda m: self.y_idx.append(m.index), qos.LOOP)
-        self.create_subscription(Sample, "control_current", lambda m: self.ic_idx.append(m.index), qos.LOOP)
+        self.create_subscription(Sample, "displacement", lambda m: self.y_idx.append(m.index),
+                                 qos.subscription(qos.LOOP))
+        self.create_subscription(Sample, "control_current", lambda m: self.ic_idx.append(m.index),
+                                 qos.subscription(qos.LOOP))
         self.create_subscription(SampleBlock, "measurement", self.blocks.append, qos.BLOCKS)
         self.create_subscription(SessionEvent, "events", self.events.append, qos.EVENTS)
         self.statuses = []
@@ -50,10 +52,70 @@ class Spy(Node):
                                  lambda m: setattr(self, "ctrl_desc", m), qos.LATCHED)
 
 
+def sent_again(heard: list[int], n: int) -> tuple[int, int]:
+    """The displacements a spy heard, taken apart: y[0] .. y[n - 1] in order, and what the plant sent again
+    where the loop stood still (a lost message, or only a starved process on a busy machine): after y[0] y[0]
+    again (a start retry), after y[k] the pair y[k - 1], y[k] (a resend), any number of times. Returns
+    (start retries, resends); fails on anything else."""
+    i = retries = resends = 0
+    for k in range(n):
+        assert heard[i:i + 1] == [k], f"y[{k}] expected at message {i}, heard {heard[max(0, i - 3):i + 4]}"
+        i += 1
+        while k == 0 and heard[i:i + 1] == [0]:
+            retries, i = retries + 1, i + 1
+        while k > 0 and heard[i:i + 2] == [k - 1, k]:
+            resends, i = resends + 1, i + 2
+    assert i == len(heard), f"after y[{n - 1}]: {heard[i:i + 5]}"
+    return retries, resends
+
+
+def answered_again(heard: list[int], n: int) -> int:
+    """The currents a spy heard: ic[0] .. ic[n - 1] each first heard in order; every other message repeats one of
+    the last three currents heard (an answer given again to a displacement the plant sent again). Returns the
+    repeats."""
+    assert list(dict.fromkeys(heard)) == list(range(n))
+    newest, repeats = -1, 0
+    for index in heard:
+        if index <= newest:
+            assert index >= newest - 2, f"ic[{index}] again after ic[{newest}]"
+            repeats += 1
+        newest = max(newest, index)
+    return repeats
+
+
+def assert_every_sample_once(spy, summary: dict, n: int, lead: int) -> None:
+    """The spy heard every displacement and current of the loop in order, once each, except what the plant sent
+    again and counted (resends, start retries) and the controller's answers to that: one per displacement, two
+    to y[0] of a pipelined controller (ic[0], ic[1])."""
+    retries, resends = summary["start_retries"], summary["resends"]
+    assert ros_heard(spy, n + retries + 2 * resends, "y_idx"), (len(spy.y_idx), summary)
+    assert sent_again(spy.y_idx, n) == (retries, resends), summary
+    most = n + lead + 2 * resends + (1 + lead) * retries
+    assert ros_heard(spy, n + lead, "ic_idx", most), (len(spy.ic_idx), summary)
+    repeats = answered_again(spy.ic_idx, n + lead)
+    assert repeats <= most - n - lead
+    print(f"lead {lead}: {retries} start retries, {resends} resends, {repeats} currents repeated")
+
+
+def ros_heard(spy, n: int, what: str, most: int | None = None) -> bool:
+    """Spin until the spy heard at least n messages of ``what`` (and no more of them come for 0.5 s: the answers
+    to what was sent again); False if fewer than n or more than ``most`` (default n) came."""
+    ros = spy.ros
+    heard = getattr(spy, what)
+    if not ros.spin_until(lambda: len(heard) >= n, timeout_s=5):
+        return False
+    seen = -1
+    while len(heard) != seen:  # the last repeated answers may still be on their way
+        seen = len(heard)
+        ros.spin_until(lambda: False, 0.5, scale=False)
+    return n <= len(heard) <= (n if most is None else most)
+
+
 def make_loop(ros, sim_seconds: float, controller_params=(), **plant_params):
     """A spy and the plant, matched, then the controller: its arrival starts the loop, so the spy hears
     every message of it."""
     spy = ros.add(Spy(ros.context))
+    spy.ros = ros
     plant = ros.add(PlantSim(namespace=NS, context=ros.context, parameter_overrides=[
         Parameter("sim_seconds", value=sim_seconds), *(Parameter(k, value=v) for k, v in plant_params.items())]))
     ros.matched(spy, to=plant)
@@ -66,11 +128,9 @@ def test_lockstep_10000_steps_levitates_from_rest(ros):
     plant, ctrl, spy = make_loop(ros, 1.0, block_size=2000)
     assert ros.spin_until(plant.finished.done, timeout_s=120)
     s = plant.finished.result()
-    # every sample index exactly once, in order, on both loop topics; the controller (one sample of
-    # computational delay) answers y[k] with ic[k + 1], y[0] with ic[0] and ic[1]
-    assert ros.spin_until(lambda: len(spy.y_idx) == 10_000 and len(spy.ic_idx) == 10_001, timeout_s=5)
-    assert spy.y_idx == list(range(10_000))
-    assert spy.ic_idx == list(range(10_001))
+    # every sample index in order on both loop topics, once but for what the plant asked again; the controller
+    # (one sample of computational delay) answers y[k] with ic[k + 1], y[0] with ic[0] and ic[1]
+    assert_every_sample_once(spy, s, 10_000, lead=1)
     assert s["state"] == "done" and s["levitated"], s
     assert s["contact_samples"] > 0  # it started on the retainer ...
     assert s["lift_off_index"] is not None and s["lift_off_index"] < 2000  # ... and lifted off
@@ -95,7 +155,10 @@ def test_lockstep_10000_steps_levitates_from_rest(ros):
                 if m.node == plant.fqn and m.state != SessionStatus.STATE_IDLE]
 
     assert ros.spin_until(lambda: len(plant_status()) >= 2, timeout_s=5)
-    assert plant_status() == [(SessionStatus.STATE_RUNNING, 10_000), (SessionStatus.STATE_DONE, 10_000)]
+    # (then the done one again, once a second, while messages still come: the pipelined ic[10000], repeats)
+    running, *done = plant_status()
+    assert running == (SessionStatus.STATE_RUNNING, 10_000)
+    assert done and set(done) == {(SessionStatus.STATE_DONE, 10_000)}
 
 
 def test_pipelined_controller_gives_the_same_samples_as_lock_step_answers(ros):
@@ -105,10 +168,10 @@ def test_pipelined_controller_gives_the_same_samples_as_lock_step_answers(ros):
         # the spy matched before the controller joins: it hears the loop from y[0] on
         plant, ctrl, spy = make_loop(ros, 0.3, [("pipeline", pipeline)], seed=5, block_size=1000)
         assert ros.spin_until(plant.finished.done, timeout_s=120)
-        assert plant.finished.result()["messages_rejected"] == 0
+        s = plant.finished.result()
+        assert s["messages_rejected"] == 0, s
         assert ros.spin_until(lambda: sum(b.n_samples for b in spy.blocks) == 3000, timeout_s=10)
-        assert ros.spin_until(lambda: len(spy.ic_idx) == 3000 + pipeline, timeout_s=5)
-        assert spy.ic_idx == list(range(3000 + pipeline))
+        assert_every_sample_once(spy, s, 3000, lead=int(pipeline))
         runs[pipeline] = np.vstack([block_data(b, MEASUREMENT_NAMES) for b in spy.blocks])
         ros.retire(spy, plant, ctrl)
     assert np.array_equal(runs[True], runs[False])
@@ -134,7 +197,7 @@ def test_compiled_callbacks_give_the_same_samples_as_the_python_path(ros, monkey
             monkeypatch.setattr(PositionController, "regate", lambda self: self.fast.set(LOOP_GATE, 0))
         # the paths' numbers are under test, not the watchdog: a starved machine may hold an answer past 2 s
         plant, ctrl, spy = make_loop(ros, 0.3, [("controller", controller)], seed=5, block_size=1000,
-                                     controller_timeout=30.0)
+                                     controller_timeout_s=30.0)
         assert ctrl.design.kind == ("file" if user_controller else "pid")
         assert ros.spin_until(plant.finished.done, timeout_s=120)
         summary = plant.finished.result()
@@ -205,6 +268,53 @@ class BadController(Node):
             if m.index == 3002:  # a stale duplicate first
                 self.pub.publish(Sample(index=m.index - 1, values=ic))
             self.pub.publish(Sample(index=m.index, values=ic))
+
+
+class SlowStarter(Node):
+    """A lock-step controller slow to its first answer (a process still starting on a busy machine): it answers
+    each y[0] heard only after 0.6 s, by then the plant has sent y[0] again; every later y at once."""
+
+    def __init__(self, context):
+        super().__init__("slow_starter", namespace=NS, context=context)
+        from ambid.control.pid import PidParameters, pid_controller
+        from ambid.control.stepper import ControllerStepper
+        self.ctl = ControllerStepper(pid_controller(PidParameters(), 1e-4), 3.0)
+        self.pub = self.create_publisher(Sample, "control_current", qos.LOOP)
+        self.create_subscription(Sample, "displacement", self.on_y, qos.subscription(qos.LOOP))
+        self.first: list[Sample] = []
+
+    def on_y(self, m):
+        if m.index == 0:
+            if not self.first:
+                self.timer = self.create_timer(0.6, self.answer_first)
+            self.first.append(m)
+        else:
+            self.pub.publish(Sample(index=m.index, values=self.ctl.step(list(m.values))))
+
+    def answer_first(self):
+        self.timer.cancel()
+        ic = self.ctl.step(list(self.first[0].values))
+        for _ in self.first:  # the same answer to each y[0], as position_controller gives it
+            self.pub.publish(Sample(index=0, values=ic))
+
+
+def test_the_answers_to_a_start_retry_are_duplicates_not_rejected(ros):
+    """Until its first answer the plant sends y[0] again every START_RETRY_S; the controller answers each, and the
+    answers after the first are duplicates the plant asked for: counted, never rejected as stale."""
+    spy = ros.add(Spy(ros.context))
+    spy.ros = ros
+    plant = ros.add(PlantSim(namespace=NS, context=ros.context,
+                             parameter_overrides=[Parameter("sim_seconds", value=0.2)]))
+    ros.matched(spy, to=plant)
+    starter = ros.add(SlowStarter(ros.context))
+    assert ros.spin_until(plant.finished.done, timeout_s=120)
+    s = plant.finished.result()
+    assert s["start_retries"] >= 2, s  # 0.25 s, 0.5 s: before the answer at 0.6 s
+    assert s["messages_rejected"] == 0 and s["state"] == "done", (s, [e.text for e in spy.events])
+    assert_every_sample_once(spy, s, 2000, lead=0)
+    # the starter's answers to y[0] beyond the first (it may have matched after the first y[0]), the resends'
+    assert ros.spin_until(lambda: plant.duplicate_answers == len(starter.first) - 1 + 2 * s["resends"], 5), s
+    assert plant.intake.total_rejected == 0
 
 
 def test_bad_control_messages_rejected_counted_loop_survives(ros):

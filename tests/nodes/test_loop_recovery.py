@@ -2,7 +2,7 @@
 
 A lossy relay, a real node between the two loop nodes (the sender's topic remapped to it), drops
 chosen messages the first time their index passes; the plant notices the loop standing still after
-``resend_after``, asks again, and the session records exactly the samples of a run without loss.
+``resend_after_s``, asks again, and the session records exactly the samples of a run without loss.
 """
 
 from __future__ import annotations

@@ -101,7 +101,7 @@ def test_one_session_across_two_hosts(two_hosts, ros_env):
     # opened to the subnet: the loop runs across the link, every sample once, in order
     n = 5000
     plant = run_in(a, opened, "-m", "ambid_nodes.plant_sim", *ns_args, "-p", f"sim_seconds:={n * 1e-4}",
-                   "-p", "controller_timeout:=10.0")
+                   "-p", "controller_timeout_s:=10.0")
     ctrl = run_in(b, opened, "-m", "ambid_nodes.position_controller", *ns_args)
     try:
         out = finish(plant, 180)

@@ -61,7 +61,7 @@ def _twin(seed: int, out_dir: Path) -> tuple[np.ndarray, np.ndarray, dict]:
     from ambid.fit.model_update import excitation_slopes, slopes_as_parameters
     from ambid.plant.rig import make_rig
     from ambid.validation.bla_truth import noise_free_twin
-    from ambid_nodes.session import SessionConfig, plan_session
+    from ambid_nodes.running.plan import SessionConfig, plan_session
 
     rig = make_rig()
     plan = plan_session(SessionConfig(out_dir=out_dir, experiment=DesignSpec(seed=seed)), rig)

@@ -80,7 +80,7 @@ class Watcher(Node):
 
 
 def start_recorder(env: dict, path, *, preexec_fn=None, **params) -> subprocess.Popen:
-    params = {"output": str(path), "flush_period": 0.2, "status_period": 0.1, "discovery_period": 0.05, **params}
+    params = {"output": str(path), "flush_period_s": 0.2, "status_period_s": 0.1, "discovery_period_s": 0.05, **params}
     args = [sys.executable, "-m", "ambid_nodes.recorder", "--ros-args", "-r", f"__ns:={NS}"]
     for key, value in params.items():
         args += ["-p", f"{key}:={value}"]

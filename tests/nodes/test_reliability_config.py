@@ -31,11 +31,11 @@ def test_bad_rig_file_through_ambid_graph_names_the_field_and_range(ros_env, tmp
 
 def test_bad_parameter_file_names_the_field_and_range(ros_env, tmp_path):
     params = tmp_path / "controller.yaml"
-    params.write_text("/**:\n  ros__parameters:\n    plant_timeout: 0.0\n")
+    params.write_text("/**:\n  ros__parameters:\n    plant_timeout_s: 0.0\n")
     out = subprocess.run([sys.executable, "-m", "ambid_nodes.position_controller", "--ros-args", "--params-file",
                           str(params)], env=ros_env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 2, out.stderr
-    assert "'plant_timeout' is invalid (allowed range [0.01, 3600.0] s)" in out.stderr, out.stderr
+    assert "'plant_timeout_s' is invalid (allowed range [0.01, 3600.0] s)" in out.stderr, out.stderr
     assert "Traceback" not in out.stderr
 
 

@@ -50,7 +50,7 @@ def test_a_lost_block_is_reported_by_consumer_and_recording_and_no_frf_spans_it(
     link = ros.add(LossyLink(ros.context))
     rec = ros.add(Recorder(namespace=NS, context=ros.context, parameter_overrides=[
         Parameter("output", value=str(path)), Parameter("topics", value=["measurement", "excitation/design"]),
-        Parameter("discovery_period", value=0.05)]))
+        Parameter("discovery_period_s", value=0.05)]))
     gen = ros.add(ExcitationGenerator(namespace=NS, context=ros.context, parameter_overrides=[
         Parameter(k, value=v) for k, v in dict(
             input_names=["u_a_x"], band_hz=[50.0, 1000.0], resolution_hz=10.0, n_periods=P,

@@ -99,7 +99,7 @@ def test_plant_detects_a_dead_or_stalled_controller_and_lands_the_rotor(ros, ros
     ns = f"/wd_ctrl_{sig.name.lower()}"
     spy = ros.add(Spy(ros.context, ns))
     plant = ros.add(PlantSim(namespace=ns, context=ros.context, parameter_overrides=[
-        Parameter("controller_timeout", value=START_TIMEOUT_S), Parameter("block_size", value=500)]))
+        Parameter("controller_timeout_s", value=START_TIMEOUT_S), Parameter("block_size", value=500)]))
     assert plant.watchdog.timer_period_ns == WATCHDOG_S * 1e9  # the tick TIMEOUT_S is checked at
     ros.matched(spy, to=plant)  # the spy hears every block from the first before the controller starts the loop
     ctrl = start("position_controller", ns, ros_env)
@@ -147,11 +147,11 @@ def test_controller_detects_a_dead_or_stalled_plant_and_idles_safely(ros, ros_en
     ns = f"/wd_plant_{sig.name.lower()}"
     spy = ros.add(Spy(ros.context, ns))
     # the plant's own watchdog matters only once it resumes (SIGSTOP): a few seconds, past a start under load
-    plant = start("plant_sim", ns, ros_env, controller_timeout=3.0)
+    plant = start("plant_sim", ns, ros_env, controller_timeout_s=3.0)
     try:
         ros.matched(spy, to=["displacement", "measurement"])
         ctrl = ros.add(PositionController(namespace=ns, context=ros.context,
-                                          parameter_overrides=[Parameter("plant_timeout", value=START_TIMEOUT_S)]))
+                                          parameter_overrides=[Parameter("plant_timeout_s", value=START_TIMEOUT_S)]))
         assert ctrl.watchdog.timer_period_ns == WATCHDOG_S * 1e9
         assert ros.spin_until(lambda: (ctrl.expected or 0) >= 1000, 90), "the loop did not run"
         ctrl.timeout = TIMEOUT_S  # the loop runs: now a silent plant is lost
@@ -197,7 +197,7 @@ def test_a_plant_that_ends_its_run_is_not_reported_lost(ros):
                              parameter_overrides=[Parameter("sim_seconds", value=0.2)]))
     ros.matched(spy, to=plant)
     ctrl = ros.add(PositionController(namespace=ns, context=ros.context,
-                                      parameter_overrides=[Parameter("plant_timeout", value=0.2)]))
+                                      parameter_overrides=[Parameter("plant_timeout_s", value=0.2)]))
     assert ros.spin_until(plant.finished.done, 60)
     assert ros.spin_until(lambda: ctrl.state == SessionStatus.STATE_DONE and spy.code("plant_finished"), 5)
     assert not spy.code("plant_lost")
@@ -205,14 +205,14 @@ def test_a_plant_that_ends_its_run_is_not_reported_lost(ros):
 
 def test_a_lost_excitation_generator_fails_the_session_and_keeps_what_was_recorded(ros):
     """A design excites samples [START, START + 1000); only the first 250 samples' block ever comes.
-    The plant waits at START + 250, then fails the session after excitation_timeout, naming the
+    The plant waits at START + 250, then fails the session after excitation_timeout_s, naming the
     experiment; every sample before is recorded, the last block marked final."""
     ns, start, sent = "/wd_exc", 1500, 250
     spy = ros.add(Spy(ros.context, ns))
     pub_design = spy.create_publisher(ExcitationDesign, "excitation/design", qos.LATCHED)
     pub_exc = spy.create_publisher(SampleBlock, "excitation", qos.BLOCKS)
     plant = ros.add(PlantSim(namespace=ns, context=ros.context, parameter_overrides=[
-        Parameter("sim_seconds", value=0.5), Parameter("excitation_timeout", value=TIMEOUT_S)]))
+        Parameter("sim_seconds", value=0.5), Parameter("excitation_timeout_s", value=TIMEOUT_S)]))
     ros.matched(spy, to=plant)
     dt = plant.dt
     pub_design.publish(ExcitationDesign(

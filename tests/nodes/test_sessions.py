@@ -330,3 +330,25 @@ def test_the_bridge_obeys_its_sessions_designs_only(ros):
     f = bridge.intake.figures()
     assert any("/amb/next_door" in who for who in f["foreign_from:excitation/design"]), f
     assert f["received:excitation/design"] == 2 and f["accepted:excitation/design"] == 1
+
+
+def test_the_run_waits_for_its_listeners_by_name_not_by_count(ros):
+    """Before the loop starts, identify --processes waits until the recorder, the consumer and the generator
+    subscribe to the measurement blocks (volatile: a block published before a reader matched is lost to it).
+    Another listener on the topic (a ``ros2 topic echo``, a test's) must not stand in for one of them: counted,
+    it did, and the recording began at the second block."""
+    from ambid_nodes.watch import SessionWatch
+
+    watch = ros.add(SessionWatch(int(SESSION, 16), 1e-3, 100, 100, namespace="/amb", context=ros.context))
+    names = ["recorder", "frf_consumer"]
+    listeners = []
+    for name, ns in (("echo", "/amb"), ("frf_consumer", "/amb"), ("recorder", "/other"), ("monitor", "/amb")):
+        node = ros.add(Node(name, namespace=ns, context=ros.context))
+        node.create_subscription(SampleBlock, "/amb/measurement", lambda m: None, qos.subscription(qos.BLOCKS))
+        listeners.append(node)
+    # four subscriptions besides the watch's, and the recorder of this namespace still not among them
+    assert ros.spin_until(lambda: watch.count_subscribers(watch.measurement) >= 5, 10)
+    assert ros.spin_until(lambda: watch.subscribed(watch.measurement, names) == ["recorder"], 10)
+    recorder = ros.add(Node("recorder", namespace="/amb", context=ros.context))
+    recorder.create_subscription(SampleBlock, "measurement", lambda m: None, qos.subscription(qos.BLOCKS))
+    assert ros.spin_until(lambda: watch.subscribed(watch.measurement, names) == [], 10)

@@ -15,13 +15,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from ambid.background import wait
 from ambid.excitation.spec import DesignSpec
 from ambid.hardware import bridge_protocol as bp
 from ambid.hardware.link_key import LinkKey, write_key_file
 from ambid.hardware.target_model import rig_target_model, write_target_model
 from ambid.plant.rig import make_rig
 
-from ambid_nodes.session import SessionConfig, session_samples
+from ambid_nodes.running.plan import SessionConfig, session_samples
 from udp_port import free_port
 from udp_relay import Relay
 
@@ -81,6 +82,8 @@ def identify_on_target(model: Path, key: Path, out: Path, rig=None, *extra: str,
         proc.kill()
         relay.close()
     assert hw.returncode == 0, hw.stdout + hw.stderr
+    # the report, written by a process of its own after the headline, finished (the folder is whole)
+    assert wait(out / "report" / "status.json")["state"] == "done"
     assert s["state"] == "done" and s["samples"] == total and s["late_excitation_samples"] == 0, s
     recording = {"to_target": list(relay.to_target), "to_bridge": list(relay.to_bridge), "target": s,
                  "stdout": hw.stdout + hw.stderr}

@@ -4,7 +4,7 @@ run as its own process on a pseudo-terminal (as typed at a prompt), every chunk 
 Figures per command: wall seconds to its answer (the first line of its figures) and to its end, and the
 longest silence on the terminal (a status line counts: that is what the user sees). For identify,
 what it spent beyond its session (the headline's own split: set-up and design, closing and analysis),
-to the headline and to its end (the report written).
+to the headline and to its exit, and the report's own time (written by a process of its own after the headline).
 """
 
 from __future__ import annotations
@@ -17,6 +17,8 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+from ambid.background import wait
 
 ROOT = Path(__file__).resolve().parents[3]
 FRF_FILE = ROOT / "tests" / "data" / "real" / "ladisk_beam_uff" / "measurement.uff"
@@ -82,8 +84,15 @@ def command_figures(work: Path, identify_options: list[str]) -> dict:
     """Time ``design``, ``fit FRF_FILE`` and ``identify`` (with ``identify_options``) on a terminal."""
     work.mkdir(parents=True, exist_ok=True)
     design = run_on_terminal(["design", "--out", str(work / "design")], work)
+    # design.png is drawn by a detached process after the command has answered: when it is there, counted from
+    # the command's start (the shell had its prompt back at wall_s)
+    t0 = time.monotonic() - design["wall_s"]
+    figure = wait(work / "design" / "design.status.json") if design["returncode"] == 0 else {}
+    design["figure_s"] = time.monotonic() - t0
+    design["figure_own_s"] = figure.get("seconds")
     fit = run_on_terminal(["fit", str(FRF_FILE), "--out", str(work / "fit")], work)
     ident = run_on_terminal(["identify", "--out", str(work / "identify"), *identify_options], work)
+    report = wait(work / "identify" / "report" / "status.json", 300.0) if ident["returncode"] == 0 else {}
     for name, r in (("design", design), ("fit", fit), ("identify", ident)):
         if r["returncode"] != 0:
             raise RuntimeError(f"ambid {name} exited {r['returncode']}: {r['text'][-800:]}")
@@ -93,12 +102,13 @@ def command_figures(work: Path, identify_options: list[str]) -> dict:
     headline_total, setup, session, simulated = (float(x) for x in m.groups())
     to_headline = _first(ident["chunks"], "ambid identify: done in")
     return {
-        "design": {"wall_s": design["wall_s"], "longest_silence_s": design["longest_silence_s"]},
+        "design": {"wall_s": design["wall_s"], "longest_silence_s": design["longest_silence_s"],
+                   "figure_s": design["figure_s"], "figure_own_s": design["figure_own_s"]},
         "fit": {"file": str(FRF_FILE.relative_to(ROOT)), "to_figures_s": _first(fit["chunks"], "model order"),
                 "wall_s": fit["wall_s"], "longest_silence_s": fit["longest_silence_s"]},
         "identify": {"options": identify_options, "simulated_s": simulated, "session_s": session,
                      "setup_s": setup, "headline_s": headline_total, "to_headline_s": to_headline,
                      "beyond_session_to_headline_s": to_headline - session,
                      "wall_s": ident["wall_s"], "beyond_session_s": ident["wall_s"] - session,
-                     "longest_silence_s": ident["longest_silence_s"]},
+                     "longest_silence_s": ident["longest_silence_s"], "report_own_s": report.get("seconds")},
     }

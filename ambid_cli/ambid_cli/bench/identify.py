@@ -1,6 +1,6 @@
 """Real-time factor of a full ``identify`` session: every node of the graph composed, recorder included.
 
-Runs the session runner of ``ambid identify`` (:mod:`ambid_nodes.session`)
+Runs the session runner of ``ambid identify`` (:func:`ambid_nodes.running.run.run_session`)
 as it is, on its default experiment unless told otherwise; the offline
 identification after the recording is not part of this figure.
 """
@@ -27,11 +27,12 @@ def identify_figures(out_dir: str | os.PathLike, overrides: dict | None = None) 
         the sample rate, loop only), ``samples``, ``state``, ``levitated``.
     """
     try:
-        from ambid_nodes.session import SessionConfig, run_session_composed
+        from ambid_nodes.running.plan import SessionConfig
+        from ambid_nodes.running.run import run_session
     except ImportError as exc:
         return {"available": False, "reason": f"the identify session runner cannot be imported: {exc}"}
     cfg = SessionConfig(out_dir=Path(out_dir), progress=False, experiment=DesignSpec(**(overrides or {})))
-    run = run_session_composed(cfg)
+    run = run_session(cfg)
     plant = run["plant"]
     fs = plant["samples"] / plant["simulated_s"]
     return {

@@ -89,7 +89,8 @@ def real_time_run(work: Path, version: int, seconds: float) -> dict:
     from ambid.hardware.target_model import rig_target_model, write_target_model
     from ambid.plant.rig import make_rig
 
-    from ambid_nodes.graph import GraphConfig, run_hardware
+    from ambid_nodes.running.plan import SessionConfig, plan_session
+    from ambid_nodes.running.run import run_session
 
     work.mkdir(parents=True, exist_ok=True)
     model = work / "rig_model.txt"
@@ -116,7 +117,9 @@ def real_time_run(work: Path, version: int, seconds: float) -> dict:
     if proc.poll() is not None:
         raise RuntimeError(f"the C target did not start: {proc.communicate()[1].strip()}")
     try:
-        bridge = run_hardware(GraphConfig(sim_seconds=seconds, plant=link, rig=make_rig()), f"127.0.0.1:{port}", local)
+        cfg = SessionConfig(loop_seconds=seconds, hardware=f"127.0.0.1:{port}", local_port=local, progress=False,
+                            **link)
+        bridge = run_session(cfg, plan_session(cfg, make_rig()))
         out, err = proc.communicate(timeout=30)
     finally:
         if proc.poll() is None:

@@ -7,7 +7,7 @@
   without. The client (:mod:`ambid_cli.bench.foxglove_client`) runs in a
   process of its own and subscribes to every channel, as the Foxglove app
   would with the layout open.
-* :func:`analysis_figures`: a whole ``identify`` (:func:`ambid_nodes.session.run_identify`):
+* :func:`analysis_figures`: a whole ``identify`` (:func:`ambid_nodes.running.identify.run_identify`):
   wall seconds from the consumer's final FRF (the last period measured) to
   the headline and to the report; beside it, the analysis of the same
   recording as it was done before (``identify_session`` on the file, in this
@@ -39,7 +39,8 @@ def _session(out_dir: Path, overrides: dict, live: bool) -> dict:
 
     from ambid_nodes.running.domain import session_domain_id
     from ambid_nodes.live_view import LiveProcess
-    from ambid_nodes.session import SessionConfig, run_session_composed
+    from ambid_nodes.running.plan import SessionConfig
+    from ambid_nodes.running.run import run_session
 
     cfg = SessionConfig(out_dir=out_dir, progress=False, experiment=DesignSpec(**overrides))
     proc = client = None
@@ -52,7 +53,7 @@ def _session(out_dir: Path, overrides: dict, live: bool) -> dict:
                                       stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
             cpu = {"live0": _cpu_s(proc.proc.pid), "client0": _cpu_s(client.pid)}
         cpu["session0"] = time.process_time()
-        run = run_session_composed(cfg, live=proc)
+        run = run_session(cfg, live=proc)
         cpu["session"] = time.process_time() - cpu.pop("session0")
         if live:
             for who, pid in (("live", proc.proc.pid), ("client", client.pid)):
@@ -118,7 +119,8 @@ def analysis_figures(work: Path, overrides: dict) -> dict:
     from ambid.identification import model_fit, pipeline, report
     from ambid.jsonable import to_jsonable
 
-    from ambid_nodes.session import SessionConfig, run_identify
+    from ambid_nodes.running.identify import run_identify
+    from ambid_nodes.running.plan import SessionConfig
 
     out = work / "analysis"
     cfg = SessionConfig(out_dir=out, progress=False, experiment=DesignSpec(**overrides))

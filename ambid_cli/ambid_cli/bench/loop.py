@@ -13,22 +13,26 @@ import os
 import statistics
 import time
 
+from ambid.excitation.spec import DesignSpec
 from ambid.plant.rig import make_rig
 from ambid.session_id import new_session_id
 
 from ambid_cli.bench.pingpong import run_pingpong_composed, run_pingpong_processes
 
-from ambid_nodes.graph import GraphConfig, run_composed, run_processes, session_domain_id
+from ambid_nodes.running.domain import session_domain_id
+from ambid_nodes.running.plan import SessionConfig
+from ambid_nodes.running.run import run_session
 
 LAYOUTS = ("composed", "processes")
 
 
 def _ours(layout: str, sim_seconds: float, controller: str = "") -> dict:
     # a session, as identify and graph run: the loop pump checks each message's publisher GID
-    cfg = GraphConfig(sim_seconds=sim_seconds, controller={"controller": controller} if controller else {},
-                      session=new_session_id())
+    cfg = SessionConfig(loop_seconds=sim_seconds, controller=controller, session=new_session_id(),
+                        experiment=DesignSpec(seed=0),
+                        nonlinear_magnets=False, progress=False, processes=layout == "processes")
     cpu0 = time.process_time()
-    s = run_composed(cfg) if layout == "composed" else run_processes(cfg)
+    s = run_session(cfg)
     if s.get("state") != "done":
         raise RuntimeError(f"the {layout} loop ended in state {s.get('state')!r}: {s}")
     out = {k: s[k] for k in ("samples", "wall_s", "samples_per_wall_s")}
@@ -40,7 +44,8 @@ def _ours(layout: str, sim_seconds: float, controller: str = "") -> dict:
 def _short_run_cpu() -> tuple[float, int]:
     """(CPU time [s], samples) of a composed run of 0.01 s: mostly the set-up (nodes, stability check)."""
     cpu0 = time.process_time()
-    s = run_composed(GraphConfig(sim_seconds=0.01, session=new_session_id()))
+    s = run_session(SessionConfig(loop_seconds=0.01, session=new_session_id(), experiment=DesignSpec(seed=0),
+                                  nonlinear_magnets=False, progress=False))
     return time.process_time() - cpu0, s["samples"]
 
 

@@ -56,12 +56,13 @@ def _child(argv: list[str]) -> dict:
         import importlib
 
         from ambid.excitation.spec import DesignSpec
-        from ambid_nodes.session import SessionConfig, run_session_composed
+        from ambid_nodes.running.plan import SessionConfig
+        from ambid_nodes.running.run import run_session
 
         for node in ("excitation_generator", "frf_consumer", "plant_sim", "position_controller", "recorder"):
             importlib.import_module(f"ambid_nodes.{node}")  # imported before the baseline, as the offline child
         base = _rss_mb()
-        run = run_session_composed(SessionConfig(out_dir=Path(argv[1]), progress=False,
+        run = run_session(SessionConfig(out_dir=Path(argv[1]), progress=False,
                                                  experiment=DesignSpec(**json.loads(argv[2]))))
         return {"baseline_mb": base, "peak_mb": _peak_mb(), "simulated_s": run["simulated_s"],
                 "wall_s": run["wall_s"], "state": run["plant"]["state"]}
@@ -116,7 +117,7 @@ def memory_figures(work_dir: str | os.PathLike, design_kwargs: dict, live_overri
 
     work_dir = Path(work_dir)
     try:
-        import ambid_nodes.session  # noqa: F401
+        import ambid_nodes.running.run  # noqa: F401
         live_reason = None
     except ImportError as exc:
         live_reason = f"the identify session runner cannot be imported: {exc}"

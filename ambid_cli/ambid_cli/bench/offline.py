@@ -40,7 +40,7 @@ EXPERIMENT_ID = "bench"
 def make_design(**overrides) -> ExcitationDesign:
     """The default identify experiment (:class:`ambid.excitation.spec.DesignSpec`) at the default rig's sample
     rate, with DesignSpec field overrides."""
-    return DesignSpec(**overrides).build(1.0 / make_rig().dt)
+    return DesignSpec(**overrides).build(make_rig().sample_rate_hz)
 
 
 def _design_msg(d: ExcitationDesign, start: int, dt: float) -> DesignMsg:
@@ -73,7 +73,7 @@ def write_simulated_session(path: str | os.PathLike, design: ExcitationDesign, s
     rig = make_rig()
     dt = rig.dt
     if abs(design.fs_hz * dt - 1.0) > 1e-9:
-        raise ValueError(f"design sample rate {design.fs_hz} Hz differs from the rig's {1 / dt:g} Hz")
+        raise ValueError(f"design sample rate {design.fs_hz} Hz differs from the rig's {rig.sample_rate_hz:g} Hz")
     lay = rig.layout
     na = len(lay)
     cols = [lay.inputs.index(name) for name in design.input_names]

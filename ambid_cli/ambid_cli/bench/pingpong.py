@@ -5,7 +5,7 @@ What the plant and controller do per sample, minus the work: the pinger
 the ponger (the controller's role) answers each with the same bytes; raw
 subscriptions, QoS ``qos.LOOP``, bytes published the nodes' way
 (:func:`ambid_nodes.raw_publish.raw_publisher`), EventsExecutor, composed in
-one process or as two processes, exactly as :mod:`ambid_nodes.graph` runs the
+one process or as two processes, exactly as :mod:`ambid_nodes.running` runs the
 real nodes. One message in flight: the pinger sends the next ping when the
 pong is in.
 Its rate is the practical limit of the loop on this machine.

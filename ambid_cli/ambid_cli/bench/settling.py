@@ -40,7 +40,7 @@ def settling_figures(overrides: dict | None = None, extra_realisations: int = 2)
         ``time_at_equal_error_by_law_s``, the no-settling time at the default's error by that law.
     """
     rig = make_rig()
-    fs = 1.0 / rig.dt
+    fs = rig.sample_rate_hz
     spec = DesignSpec(**(overrides or {}))
     start = levitate(rig, spec.seed, True, 0.5)
     t0 = time.perf_counter()

@@ -62,8 +62,8 @@ def _rig_at(base, rpm: float, controller_spec: str) -> tuple:
 
 def _settings(args: argparse.Namespace, rig) -> dict:
     """What must not change between a campaign's runs (the speeds may grow)."""
-    return dict(rig=rig.to_dict(), controller=args.controller, band_hz=list(args.band), resolution_hz=args.resolution,
-                realisations=args.realisations, seed=args.seed)
+    return dict(rig=rig.to_dict(), controller=args.controller, band_hz=list(args.band_hz), resolution_hz=args.resolution_hz,
+                realisations=args.n_realisations, seed=args.seed)
 
 
 def _speed_dir(out: Path, rpm: float) -> Path:
@@ -80,7 +80,8 @@ def _done(folder: Path) -> dict | None:
 
 def _identify_speed(cfg, rig, controller) -> tuple:
     """One speed's identify session (a Dask task): its summary and wall time [s]."""
-    from ambid_nodes.session import plan_session, run_identify
+    from ambid_nodes.running.identify import run_identify
+    from ambid_nodes.running.plan import plan_session
 
     t0 = time.perf_counter()
     summary = run_identify(cfg, plan_session(cfg, rig, controller))
@@ -92,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ambid.identification.campbell import campbell_summary, campbell_table, write_campbell_report
     from ambid.jsonable import to_jsonable
-    from ambid_nodes.session import SessionConfig
+    from ambid_nodes.running.plan import SessionConfig
 
     spec = experiment_spec(args)
     out = output_dir(args.out)
@@ -166,7 +167,7 @@ def run(args: argparse.Namespace) -> int:
         return 1
     runs = [(rpm, runs[rpm]) for rpm in speeds]
 
-    camp = campbell_summary(base, runs, tuple(args.band))
+    camp = campbell_summary(base, runs, tuple(args.band_hz))
     camp["wall_time_s"] = time.perf_counter() - t0
     camp["session_wall_time_s"] = {f"{k:.0f}": v for k, v in walls.items()}
     tmp = out / "campbell.json.tmp"

@@ -12,8 +12,7 @@ from ambid_cli.commands.inputs import (add_link_options, add_live_options, add_r
 from ambid_cli.commands.session_report import (death_line, levitation_lines, live_line, print_foreign, session_of,
                                                 session_words)
 
-from ambid_nodes.graph import (DEFAULT_NAMESPACE, GraphConfig, run_composed, run_hardware, run_processes,
-                               session_domain_id)
+from ambid_nodes.running.domain import DEFAULT_NAMESPACE, session_domain_id
 
 HELP = "run the plant and controller graph on the simulated rig"
 
@@ -61,27 +60,43 @@ def run(args: argparse.Namespace) -> int:
             print(live_line(f))
 
 
+def loop_config(args: argparse.Namespace, session: int):
+    """The loop alone for ``--sim-seconds`` (:class:`ambid_nodes.running.plan.SessionConfig`): the run
+    identify makes, without its experiment; ``--seed`` seeds the sensor noise."""
+    from ambid.excitation.spec import DesignSpec
+
+    from ambid_nodes.running.plan import SessionConfig
+
+    return SessionConfig(experiment=DesignSpec(seed=args.seed), rig_file=args.rig or "",
+                         controller=args.controller or "", nonlinear_magnets=bool(getattr(args, "nonlinear", False)),
+                         namespace=args.namespace, progress=False, session=session,
+                         processes=bool(getattr(args, "processes", False)) and not args.hardware, loop_seconds=args.sim_seconds,
+                         hardware=args.hardware or "", local_port=args.local_port, **hardware_link(args))
+
+
+def run_loop(args: argparse.Namespace, rig, ctrl=None) -> dict:
+    """Run the loop alone through its layout (:func:`ambid_nodes.running.run.run_session`); its summary.
+    Composed, the nodes take this rig and controller (parsed and designed once, here); as processes each
+    node reads its own parameters."""
+    from ambid_nodes.running.plan import plan_session
+    from ambid_nodes.running.run import run_session
+
+    cfg = loop_config(args, args.session)
+    return run_session(cfg, plan_session(cfg, rig, ctrl), lambda found: print_foreign("graph", found))
+
+
 def run_graph(args: argparse.Namespace, rig) -> int:
     if args.hardware:
         return run_on_hardware(args, rig)
     ctrl = checked_controller(args.controller, rig)  # and an unknown or unstable controller
-    plant = {"seed": args.seed, "nonlinear_magnets": args.nonlinear}
-    ctrl_params = {"controller": args.controller}
-    if args.rig:
-        plant["rig_file"] = ctrl_params["rig_file"] = args.rig
-    # composed, the nodes take this rig and controller (parsed and designed once, here); as processes each
-    # node reads its own parameters
-    session = session_of(args)
-    cfg = GraphConfig(sim_seconds=args.sim_seconds, namespace=args.namespace, plant=plant, controller=ctrl_params,
-                      rig=rig, controller_design=ctrl, session=session)
+    session = args.session = session_of(args)
     layout = "separate processes" if args.processes else "one process (EventsExecutor)"
     layout += f", {ctrl.kind.upper()} controller"
     print(f"ambid graph: {session_words(session)}, plant_sim + position_controller in {layout}, axes "
           f"{' '.join(rig.layout.axes)}, namespace "
           f"{args.namespace}, ROS_DOMAIN_ID {session_domain_id()}, {args.sim_seconds:g} s simulated", flush=True)
-    cfg.report_foreign = lambda found: print_foreign("graph", found)  # before anything starts
-    try:
-        summary = run_processes(cfg) if args.processes else run_composed(cfg)
+    try:  # the foreign publishers named before anything starts
+        summary = run_loop(args, rig, ctrl)
     except KeyboardInterrupt:
         print("ambid graph: interrupted; every node stopped", file=sys.stderr)
         return 130
@@ -109,16 +124,12 @@ def run_graph(args: argparse.Namespace, rig) -> int:
 
 
 def run_on_hardware(args: argparse.Namespace, rig) -> int:
-    plant = {"rig_file": args.rig} if args.rig else {}
-    plant.update(hardware_link(args))  # the bridge's protocol_version and key_file
-    session = session_of(args)
-    cfg = GraphConfig(sim_seconds=args.sim_seconds, namespace=args.namespace, plant=plant, rig=rig, session=session)
+    session = args.session = session_of(args)
     print(f"ambid graph: {session_words(session)}, hardware_bridge to the real-time target at {args.hardware}, "
           f"namespace {args.namespace}, ROS_DOMAIN_ID {session_domain_id()}, {args.sim_seconds:g} s of samples",
           flush=True)
-    cfg.report_foreign = lambda found: print_foreign("graph", found)
     try:
-        f = run_hardware(cfg, args.hardware, args.local_port)
+        f = run_loop(args, rig)
     except KeyboardInterrupt:
         print("ambid graph: interrupted", file=sys.stderr)
         return 130

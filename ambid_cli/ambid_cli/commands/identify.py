@@ -16,10 +16,10 @@ from ambid_cli.commands.inputs import (BadInput, add_experiment_options, add_lin
                                         output_dir, rig_file)
 from ambid_cli.commands.session_report import (death_line, kept_out_line, levitation_lines, live_line,
                                                 print_foreign, session_of, session_words)
-from ambid_nodes.graph import DEFAULT_NAMESPACE
+from ambid_nodes.running.domain import DEFAULT_NAMESPACE
 
 if TYPE_CHECKING:
-    from ambid_nodes.session import IdentifyResult
+    from ambid_nodes.running.identify import IdentifyResult
 
 HELP = "identify the simulated rig end to end (graph, experiment, recording, FRF, fit, report)"
 
@@ -59,7 +59,8 @@ def run(args: argparse.Namespace) -> int:
 
     phases = current()
     from ambid_nodes.running.domain import session_domain_id
-    from ambid_nodes.session import NodeDied, SessionConfig, plan_session, run_identify
+    from ambid_nodes.running.identify import run_identify
+    from ambid_nodes.running.plan import NodeDied, SessionConfig, plan_session
 
     spec = experiment_spec(args)
     output_dir(args.out)
@@ -88,7 +89,8 @@ def run(args: argparse.Namespace) -> int:
                         noise_seed=args.noise_seed,
                         hardware=args.hardware or "", local_port=args.local_port, true_model=args.true_model, **link,
                         progress=not args.no_progress and sys.stderr.isatty(), namespace=args.namespace,
-                        session=session, processes=args.processes, live_port=args.live, live_host=args.live_host)
+                        session=session, processes=args.processes, live_port=args.live, live_host=args.live_host,
+                        report="background")   # the headline is the answer; the report's figures follow
     phases.say("planning the run: rig, controller, experiment design", line=False)  # a line once it holds
     try:
         plan = plan_session(cfg, rig, ctrl)  # the design, made once
@@ -96,7 +98,8 @@ def run(args: argparse.Namespace) -> int:
         raise BadInput(str(exc)) from None
     from ambid.excitation.experiment import WORKING_CURRENT_A
 
-    check_amplifier(plan.design, float(plan.rig.current_limit_a), WORKING_CURRENT_A)  # the generator's refusal, now
+    # the generator's refusal, now; and an excitation the amplifier's voltage cannot follow
+    check_amplifier(plan.design, float(plan.rig.current_limit_a), WORKING_CURRENT_A, None if args.hardware else plan.rig)
     layout = "separate processes" if args.processes else "one process"
     print(f"ambid identify: {session_words(session)}, {layout}, namespace {args.namespace}, ROS_DOMAIN_ID "
           f"{session_domain_id()}", file=sys.stderr, flush=True)
@@ -127,7 +130,9 @@ def run(args: argparse.Namespace) -> int:
         return 1
     if summary.live:
         print("  " + live_line(summary.live))
-    print(f"ambid identify: report written, {phases.elapsed():.1f} s wall in all", file=sys.stderr)
+    report = args.out / "report"
+    print(f"ambid identify: {phases.elapsed():.1f} s wall in all; the report is being written by a process of its "
+          f"own, {report / 'index.html'} in a few seconds ({report / 'status.json'} says when)", file=sys.stderr)
     return 0 if summary.state == "done" else 1
 
 

@@ -14,7 +14,10 @@ import os
 import sys
 from pathlib import Path
 
+import dataclasses
+
 from ambid.excitation.spec import KINDS, DesignSpec
+from ambid.quantity import quantities
 
 D = DesignSpec()  # the experiment identify runs: every command's defaults
 
@@ -220,63 +223,103 @@ def check_band(band: tuple[float, float], option: str = "--band") -> tuple[float
 def add_session_options(p: argparse.ArgumentParser) -> None:
     """--band, --resolution, --realisations and --seed of an identify session, as identify, campaign and design
     take them (the defaults: :class:`ambid.excitation.spec.DesignSpec`'s, the experiment identify runs)."""
-    p.add_argument("--band", nargs=2, type=float, metavar=("LO", "HI"), default=D.band_hz,
-                   help=f"band of interest [Hz] (default {D.band_hz[0]:g} {D.band_hz[1]:g})")
-    p.add_argument("--resolution", type=positive_float, default=D.resolution_hz,
-                   help=f"frequency resolution fs/N [Hz] (default {D.resolution_hz:g})")
-    p.add_argument("--realisations", type=positive_int, default=D.n_realisations,
-                   help=f"random-phase realisations M (default {D.n_realisations})")
-    p.add_argument("--seed", type=int, default=D.seed,
-                   help=f"seed of the random phases and of the simulated noise (default {D.seed})")
+    spec_option(p, "--band", "band_hz", nargs=2, type=float, metavar=("LO", "HI"))
+    spec_option(p, "--resolution", "resolution_hz", type=positive_float)
+    spec_option(p, "--realisations", "n_realisations", type=positive_int)
+    spec_option(p, "--seed", "seed", type=int, help="seed of the random phases and of the simulated noise")
 
 
 def add_experiment_options(p: argparse.ArgumentParser) -> None:
     """The rest of the experiment's terms, as identify and design take them, with DesignSpec's defaults."""
-    p.add_argument("--kind", choices=KINDS, default=D.kind, help=f"excitation kind (default {D.kind})")
-    p.add_argument("--peak-current", type=positive_float, default=D.peak_current_a,
-                   help=f"excitation peak per input [A] (default {D.peak_current_a:g})")
-    p.add_argument("--periods", type=positive_int, default=D.n_periods,
-                   help=f"steady-state periods P per experiment (default {D.n_periods})")
-    p.add_argument("--transient-periods", type=count, default=D.n_transient_periods,
-                   help=f"periods Pt discarded ahead of each experiment (default {D.n_transient_periods})")
-    p.add_argument("--grid", default=D.grid, help="line grid: random_odd | odd | full (default: the kind's, "
-                                                  "random_odd for a multisine)")
-    p.add_argument("--spacing", default=D.spacing, help="line spacing linear | log (swept sine: the sweep law; "
-                                                        "default: the kind's)")
-    p.add_argument("--phases", default=D.phases, help="multisine phases: crest_optimised | random | schroeder "
-                                                      "(default crest_optimised: the lowest crest factor)")
-    p.add_argument("--mimo", default=D.mimo, help="several inputs: orthogonal | one_at_a_time | simultaneous "
-                                                  "(default: the kind's, orthogonal for a multisine)")
+    spec_option(p, "--kind", "kind", choices=KINDS, help="excitation kind")
+    spec_option(p, "--peak-current", "peak_current_a", type=positive_float)
+    spec_option(p, "--periods", "n_periods", type=positive_int)
+    spec_option(p, "--transient-periods", "n_transient_periods", type=count)
+    spec_option(p, "--grid", "grid")
+    spec_option(p, "--spacing", "spacing")
+    spec_option(p, "--phases", "phases")
+    spec_option(p, "--mimo", "mimo")
 
 
-# option -> DesignSpec field, for the options a command takes
-_SPEC_OPTIONS = {"kind": "kind", "band": "band_hz", "resolution": "resolution_hz", "peak_current": "peak_current_a",
-                 "periods": "n_periods", "realisations": "n_realisations", "transient_periods": "n_transient_periods",
-                 "grid": "grid", "spacing": "spacing", "phases": "phases", "mimo": "mimo", "seed": "seed",
-                 "settle": "settle_s", "cycles": "n_cycles", "harmonics": "n_harmonics", "guard_bins": "guard_bins"}
+def spec_option(p: argparse.ArgumentParser, flag: str, field: str, **kw) -> None:
+    """The option ``flag`` for :class:`DesignSpec`'s ``field``: its dest is the field's name, its default the
+    field's, its help the field's description (``ambid.quantity``) unless ``help`` is given, so the option
+    repeats none of them and :func:`experiment_spec` reads it by the field's name."""
+    described = {name: q.description() for name, _, q in quantities(DesignSpec)}
+    default = getattr(D, field)
+    if isinstance(default, tuple):
+        shown = " ".join(f"{v:g}" for v in default)
+    else:
+        shown = f"{default:g}" if isinstance(default, (int, float)) else default
+    text = kw.pop("help", None) or described[field]
+    if "choices" not in kw:   # the usage line as before: --peak-current PEAK_CURRENT
+        kw.setdefault("metavar", flag.lstrip("-").replace("-", "_").upper())
+    p.add_argument(flag, dest=field, default=default, help=text + (f" (default {shown})" if shown else ""), **kw)
 
 
-def check_amplifier(design, current_limit_a: float, working_current_a: float) -> None:
+def check_amplifier(design, current_limit_a: float, working_current_a: float, rig=None) -> None:
     """BadInput when ``design``'s peak plus the controller's working current exceeds the amplifier's limit
     (:func:`ambid.excitation.check_headroom`): the refusal the excitation generator would give once the
-    nodes run, given before anything starts, in the command's terms."""
+    nodes run, given before anything starts, in the command's terms. With ``rig``, also when following the
+    excitation would ask the amplifier for more voltage than its dc link has (:func:`voltage_needs`); the
+    peak current suggested fits both."""
     import numpy as np
     from ambid.excitation import check_headroom
 
+    volts = voltage_needs(design, rig, working_current_a) if rig is not None else []
+    over_v = [v for v in volts if v[1] > v[2]]
+    fits_v = min((v[3] for v in volts), default=np.inf)
     try:
         check_headroom(design, current_limit_a, working_current_a)
     except ValueError:
         over = [n for n, pk in zip(design.input_names, design.peak_a) if pk + working_current_a > current_limit_a]
-        left = max(current_limit_a - working_current_a, 0.0)
+        left = min(max(current_limit_a - working_current_a, 0.0), fits_v)
         raise BadInput(f"the excitation peak {float(np.max(design.peak_a)):.3g} A plus the controller's working "
                        f"current {working_current_a:g} A exceeds the amplifier's {current_limit_a:g} A limit on "
                        f"{', '.join(over)}; give --peak-current {left:.3g} or less") from None
+    if over_v:
+        name, need, udc, _ = max(over_v, key=lambda v: v[1] / v[2])
+        raise BadInput(f"the excitation's steps on {name} need {need:.4g} V of the amplifier's {udc:g} V dc link to "
+                       f"be followed within a sample (L di/dt + R i); give --peak-current {fits_v:.3g} or less, or "
+                       "a lower band")
+
+
+def voltage_needs(design, rig, working_current_a: float) -> list[tuple[str, float, float, float]]:
+    """Per input of ``design``: (name, the voltage its steps need to be followed within a sample, the dc link's
+    voltage, the peak current whose steps it can follow) (:func:`ambid.plant.amplifier.slew_voltage_v`).
+
+    Beyond the dc link the amplifier would saturate, the coil current slew behind the excitation designed and
+    the FRF measure that distortion. The controller's own share (its noise, its response) is not counted:
+    what is refused is what cannot be followed at all."""
+    from ambid.plant.amplifier import slew_voltage_v
+
+    import numpy as np
+
+    names = list(rig.layout.inputs)
+    if design.is_periodic:
+        # the steady state the FRF is measured in: each segment's period, closed on itself (the jump from one
+        # segment to the next falls in the settling periods, which are not measured)
+        x = np.concatenate([np.concatenate([p, p[:1], np.full((1, design.n_inputs), np.nan)])
+                            for m in range(design.n_realisations) for e in range(design.n_experiments)
+                            for p in [design.period(m, e)]])
+    else:
+        x = design.samples(0, design.total_samples)
+    out = []
+    for i, name in enumerate(design.input_names):
+        axial = name in names and names.index(name) in rig.layout.axial
+        amp = rig.axial_amplifier if axial else rig.amplifier
+        offset = rig.values["axial_bias_current_a" if axial else "bias_current_a"] + working_current_a
+        need = float(slew_voltage_v(amp, x[:, i], design.dt_s, offset))
+        static = amp.resistance_ohm * offset   # the share that does not grow with the peak
+        udc = amp.dc_link_voltage_v
+        out.append((name, need, udc, float(design.peak_a[i]) * max(udc - static, 0.0) / max(need - static, 1e-300)))
+    return out
 
 
 def experiment_spec(args: argparse.Namespace, **terms) -> DesignSpec:
     """The DesignSpec of the options ``args`` holds (DesignSpec's defaults for those it does not) and
     ``terms``; the band is checked (:func:`check_band`)."""
-    given = {field: getattr(args, opt) for opt, field in _SPEC_OPTIONS.items() if hasattr(args, opt)}
+    given = {f.name: getattr(args, f.name) for f in dataclasses.fields(DesignSpec) if hasattr(args, f.name)}
     if "band_hz" in given:
         given["band_hz"] = check_band(tuple(given["band_hz"]))
     return DesignSpec(**{**given, **terms})

@@ -112,7 +112,8 @@ def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_m
     from ambid.validation.bla_truth import noise_free_twin
     from ambid.validation.coverage import frf_record, seed_nominal_rig, seed_record
 
-    from ambid_nodes.session import SessionConfig, plan_session, run_session_composed
+    from ambid_nodes.running.plan import SessionConfig, plan_session
+    from ambid_nodes.running.run import run_session
 
     t0 = time.perf_counter()
     out = Path(seed_dir)
@@ -123,7 +124,7 @@ def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_m
                         progress=False,
                         nonlinear_magnets=not linear_magnets, controller=controller_spec)
     plan = plan_session(cfg, rig)
-    run = run_session_composed(cfg, plan)
+    run = run_session(cfg, plan)
     summary = identify_session(run["mcap_path"], out, estimator=cfg.estimator, report=False, rig=nominal_path)
     frf = np.load(out / "frf.npz")
     truths = {"small-signal truth": frf["true_frf"]}

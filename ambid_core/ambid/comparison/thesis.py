@@ -333,7 +333,7 @@ def _transient_periods(settle_s: float, resolution_hz: float) -> int:
 
 
 def _method_designs(preset: ComparePreset, rig: Rig, settle_s: float) -> dict[str, ExcitationDesign]:
-    fs, band, res, pk = 1.0 / rig.dt, preset.band_hz, preset.resolution_hz, preset.peak_current_a
+    fs, band, res, pk = rig.sample_rate_hz, preset.band_hz, preset.resolution_hz, preset.peak_current_a
     inputs = rig.layout.inputs
     m, p = preset.max_realisations, preset.multisine_periods
     pt = _transient_periods(settle_s, res)
@@ -477,7 +477,7 @@ def compare_estimators(preset: ComparePreset, rig: Rig, start: LoopStart | None 
     ``coherence_median`` (y with r).
     """
     start = start or levitate(rig, preset.seed, False, preset.liftoff_s)
-    fs = 1.0 / rig.dt
+    fs = rig.sample_rate_hz
     settle = settling_time(rig, start.ctl.model, preset.band_hz[1], preset.settle_time_constants)
     lay = rig.layout
     d = design_multisine(preset.band_hz, preset.resolution_hz, fs, lay.inputs, preset.estimator_peak_a,
@@ -542,7 +542,7 @@ def compare_odd_full(preset: ComparePreset, rig: Rig, start: LoopStart | None = 
     start = start or levitate(rig, preset.seed, True, preset.liftoff_s)
     if not start.nonlinear_magnets:
         raise ValueError("compare_odd_full needs a LoopStart with nonlinear_magnets=True")
-    fs = 1.0 / rig.dt
+    fs = rig.sample_rate_hz
     res_hz = preset.nonlinear_resolution_hz
     settle = settling_time(rig, start.ctl.model, preset.nonlinear_band_hz[1], preset.settle_time_constants)
     pt = _transient_periods(settle["settle_s"], res_hz)
@@ -622,7 +622,7 @@ def run_comparison(preset: ComparePreset | str = "quick", rig: Rig | None = None
     rig = rig or make_rig()
     t0 = time.perf_counter()
     out: dict = {"preset": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(preset).items()},
-                 "rig": rig.name, "axes": list(rig.layout.axes), "sample_rate_hz": 1.0 / rig.dt,
+                 "rig": rig.name, "axes": list(rig.layout.axes), "sample_rate_hz": rig.sample_rate_hz,
                  "loop": ("core lock-step loop of ambid.plant.simulator.PlantSimulator and ambid.control.pid."
                           "ControllerStepper (default PID), in the order of the plant_sim node")}
     if "methods" in parts or "estimators" in parts:

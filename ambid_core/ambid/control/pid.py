@@ -14,7 +14,7 @@ import numpy as np
 from scipy import signal
 
 from ambid.channels import RADIAL, Layout
-from ambid.quantity import quantities, quantity
+from ambid.quantity import check_ranges, quantity
 from ambid.statespace import StateSpace, block_diag, delay, series
 
 
@@ -64,10 +64,7 @@ class PidParameters:
     axial_td_s: float = quantity(3.0e-3, "derivative time of an axial axis", "s", 0.0, 1.0)
 
     def __post_init__(self) -> None:
-        for name, _, q in quantities(PidParameters):   # the ranges the node's parameters take too
-            v = getattr(self, name)
-            if not (np.isfinite(v) and q.low <= v <= q.high):
-                raise ValueError(f"PID parameter {name} = {v!r} is outside [{q.low:g}, {q.high:g}]")
+        check_ranges(self, "PID parameter")   # the ranges the node's parameters take too
 
 def pid_axis(p: PidParameters, dt: float) -> StateSpace:
     """One axis of the PID, continuous design discretised by Tustin, y [m] -> ic [A], minus sign included.

@@ -19,6 +19,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 from ambid.channels import RADIAL, Layout
+from ambid.quantity import check_ranges, quantity, required
 from ambid.statespace import StateSpace, block_diag, delay, series
 
 
@@ -55,14 +56,8 @@ class StructuredAxis:
 
     Attributes
     ----------
-    kp_a_per_m
-        proportional gain [A/m].
-    ti_s
-        integral time [s].
-    td_s
-        derivative time [s] (0: no derivative).
-    derivative_filter_n
-        derivative filter ratio n [-].
+    kp_a_per_m, ti_s, td_s, derivative_filter_n
+        the PID's terms, as :class:`ambid.control.pid.PidParameters`'s (td_s 0: no derivative).
     lead_zero_hz, lead_pole_hz
         the lead/lag's zero and pole [Hz] (equal: none; zero below pole: lead).
     lowpass_hz
@@ -73,24 +68,18 @@ class StructuredAxis:
         the notch filters.
     """
 
-    kp_a_per_m: float
-    ti_s: float = 0.05
-    td_s: float = 1.5e-3
-    derivative_filter_n: float = 10.0
-    lead_zero_hz: float = 1000.0
-    lead_pole_hz: float = 1000.0
-    lowpass_hz: float = 5000.0
-    lowpass_damping: float = 0.7
+    kp_a_per_m: float = required("proportional gain", "A/m", 1e-9, 1e9)
+    ti_s: float = quantity(0.05, "integral time", "s", 1e-5, 1e4)
+    td_s: float = quantity(1.5e-3, "derivative time (0: no derivative)", "s", 0.0, 1.0)
+    derivative_filter_n: float = quantity(10.0, "derivative filter ratio n", "", 1.0, 1000.0)
+    lead_zero_hz: float = quantity(1000.0, "the lead/lag's zero", "Hz", 1e-3, 1e7)
+    lead_pole_hz: float = quantity(1000.0, "the lead/lag's pole", "Hz", 1e-3, 1e7)
+    lowpass_hz: float = quantity(5000.0, "second-order low-pass corner", "Hz", 1.0, 1e7)
+    lowpass_damping: float = quantity(0.7, "the low-pass's damping ratio", "", 0.05, 5.0)
     notches: tuple[Notch, ...] = field(default_factory=tuple)
 
     def __post_init__(self) -> None:
-        checks = {"kp_a_per_m": (1e-9, 1e9), "ti_s": (1e-5, 1e4), "td_s": (0.0, 1.0),
-                  "derivative_filter_n": (1.0, 1000.0), "lead_zero_hz": (1e-3, 1e7), "lead_pole_hz": (1e-3, 1e7),
-                  "lowpass_hz": (1.0, 1e7), "lowpass_damping": (0.05, 5.0)}
-        for name, (lo, hi) in checks.items():
-            v = getattr(self, name)
-            if not (np.isfinite(v) and lo <= v <= hi):
-                raise ValueError(f"structured controller: {name} = {v!r} is outside [{lo:g}, {hi:g}]")
+        check_ranges(self, "structured controller:")
         object.__setattr__(self, "notches", tuple(n if isinstance(n, Notch) else Notch(**n) for n in self.notches))
 
     def to_dict(self) -> dict:

@@ -231,6 +231,11 @@ class ExcitationDesign:
                 np.full(m, self.n_periods, dtype=np.int64))
 
     @property
+    def dt_s(self) -> float:
+        """Sample period [s] = 1 / fs_hz: the one place a design's rate becomes a period."""
+        return 1.0 / self.fs_hz
+
+    @property
     def total_samples(self) -> int:
         """Length of the whole experiment [samples]."""
         return int(self._seg_start[-1])

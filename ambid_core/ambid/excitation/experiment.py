@@ -16,10 +16,36 @@ from dataclasses import dataclass
 import numpy as np
 
 from ambid.excitation.design import ExcitationDesign, check_headroom
+from ambid.quantity import quantity
 
 # the controller's peak working current (gravity and regulation) the headroom check assumes unless told [A]:
 # the excitation generator's default, and what identify and design check a run against before it starts
 WORKING_CURRENT_A = 1.0
+
+
+@dataclass(frozen=True)
+class Streaming:
+    """How experiments are streamed ahead of a plant and checked against its amplifier: the excitation
+    generator's parameters besides the experiment's terms (:class:`ambid.excitation.spec.DesignSpec`).
+
+    Attributes
+    ----------
+    block_size, lookahead, start_margin
+        samples per block; most samples published ahead of the plant's progress (:meth:`Experiment.due_blocks`);
+        samples between the plant's progress and an automatically chosen start (:func:`place_experiment`).
+    current_limit_a, working_current_a
+        the headroom check's amplifier limit (0: the plant's) and controller's working current [A].
+    """
+
+    block_size: int = quantity(1000, "samples per excitation block", "", 1, 1_000_000)
+    lookahead: int = quantity(20_000, "most samples published ahead of the plant's progress", "", 2, 100_000_000)
+    start_margin: int = quantity(5000, "samples between the plant's progress and an automatically chosen start", "",
+                                 0, 100_000_000)
+    current_limit_a: float = quantity(0.0, "amplifier current limit for the headroom check; 0 = the plant's "
+                                           "(plant/description)", "A", 0.0, 1e3)
+    working_current_a: float = quantity(WORKING_CURRENT_A, "controller's peak working current (gravity and "
+                                                           "regulation) for the headroom check", "A", 0.0, 1e3)
+
 
 @dataclass
 class Experiment:
@@ -79,7 +105,7 @@ class Experiment:
 
 def place_experiment(experiment_id: str, design: ExcitationDesign, *, fs_hz: float, current_names: Sequence[str],
                      current_limit_a: np.ndarray | float, working_current_a: float,
-                     excitation_names: Sequence[str], progress: int, margin: int, after: int = 0,
+                     excitation_names: Sequence[str], progress: int, start_margin: int, after: int = 0,
                      start_index: int = 0) -> Experiment:
     """``design`` as an experiment on a plant, or ValueError saying why it cannot run there.
 
@@ -96,7 +122,7 @@ def place_experiment(experiment_id: str, design: ExcitationDesign, *, fs_hz: flo
     excitation_names
         the excitation channels; input ``u_<axis>`` is excited through ``r_<axis>``.
     progress
-        the next sample the plant applies; the experiment starts at least ``margin``
+        the next sample the plant applies; the experiment starts at least ``start_margin``
         samples later, and not before ``after`` (the previous experiment's end).
     start_index
         the start asked for; 0 = the earliest safe one.
@@ -115,10 +141,10 @@ def place_experiment(experiment_id: str, design: ExcitationDesign, *, fs_hz: flo
     if np.any(columns < 0):
         raise ValueError(f"inputs {list(design.input_names)} have no excitation channel among "
                          f"{list(excitation_names)} (u_<axis> is excited by r_<axis>)")
-    earliest = max(progress + margin, after)
+    earliest = max(progress + start_margin, after)
     start = int(start_index) or earliest
     if start < earliest:
         raise ValueError(f"start_index {start} is too early: the plant is at sample {progress} (needs start_margin "
-                         f"{margin} ahead) and the previous experiment ends at {after}; use {earliest} or later, "
+                         f"{start_margin} ahead) and the previous experiment ends at {after}; use {earliest} or later, "
                          "or 0 for the next safe one")
     return Experiment(experiment_id, design, start, design.total_samples, columns)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -95,7 +96,9 @@ def plot_design(design: ExcitationDesign, path: str | Path, realisation: int = 0
     ax_t.grid(True, alpha=0.3)
     ax_t.legend(fontsize=7)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    part = path.with_name(path.name + ".part")   # whole or not at all: a reader never sees half a PNG
+    fig.savefig(part, dpi=110, format="png")
+    os.replace(part, path)
     return path
 
 

@@ -5,7 +5,7 @@ current, periods, ...) and maps them onto the designers of this package for
 every kind (:meth:`DesignSpec.build`). Its defaults are the experiment
 ``ambid identify`` runs, so ``ambid design`` with no options previews exactly
 that experiment: ``ambid identify``, ``ambid design``, ``ambid validate``,
-``ambid campaign``, the identify session (``ambid_nodes.session.SessionConfig``)
+``ambid campaign``, the identify session (``ambid_nodes.running.plan.SessionConfig``)
 and the ``excitation_generator`` node (its parameters and
 ``ambid_nodes/config/excitation_generator.yaml``) all take their defaults from
 here.

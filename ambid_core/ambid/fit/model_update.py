@@ -393,10 +393,8 @@ def excitation_slopes(rig: Rig, controller: StateSpace, design: ExcitationDesign
 
     Parameters
     ----------
-    rig
-        the true rig.
-    controller
-        the discrete controller y -> ic that ran (dt = rig.dt).
+    rig, controller
+        as :func:`closed_loop_noise_std`'s.
     design
         the periodic excitation design that ran.
 

@@ -103,6 +103,13 @@ def _check_enough_experiments(n_exp: int, n_in: int) -> None:
                          "at a time)")
 
 
+def _solve_over_experiments(yk: np.ndarray, uk: np.ndarray, rk: np.ndarray, what: str) -> np.ndarray:
+    """``(Y R^H)(U R^H)^-1`` per record and line, the Ne experiments the columns: yk (..., Ny, Ne),
+    uk and rk (..., Nu, Ne) -> (..., Ny, Nu)."""
+    rk_h = np.conj(np.swapaxes(rk, -1, -2))
+    return _right_divide(yk @ rk_h, uk @ rk_h, what)
+
+
 # --------------------------------------------------------------------------- periodic estimators
 
 def h1(y: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -171,9 +178,9 @@ def per_period_frf(y: np.ndarray, u: np.ndarray, r: np.ndarray | None = None) ->
     """
     s = _matched(y=y, u=u) if r is None else _matched(y=y, u=u, r=r)
     _check_enough_experiments(s["y"].shape[1], s["u"].shape[-1])
-    yk, uk = _records(s["y"]), _records(s["u"])
-    rk_h = np.conj(np.swapaxes(_records(s["r"] if r is not None else s["u"]), -1, -2))
-    return _right_divide(yk @ rk_h, uk @ rk_h, "U R^H per period")
+    uk = _records(s["u"])
+    return _solve_over_experiments(_records(s["y"]), uk, _records(s["r"]) if r is not None else uk,
+                                   "U R^H per period")
 
 
 def arithmetic_mean(y: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -247,8 +254,7 @@ def errors_in_variables(y: np.ndarray, u: np.ndarray) -> np.ndarray:
     _check_enough_experiments(s["y"].shape[1], s["u"].shape[-1])
     ybar = _records(s["y"].mean(axis=2, keepdims=True))[:, 0]
     ubar = _records(s["u"].mean(axis=2, keepdims=True))[:, 0]
-    ubar_h = np.conj(np.swapaxes(ubar, -1, -2))
-    return _right_divide(ybar @ ubar_h, ubar @ ubar_h, "Ubar Ubar^H").mean(axis=0)
+    return _solve_over_experiments(ybar, ubar, ubar, "Ubar Ubar^H").mean(axis=0)
 
 
 def indirect(y: np.ndarray, u: np.ndarray, r: np.ndarray) -> np.ndarray:

@@ -372,7 +372,7 @@ class Target:
         r = self.refused
         self._send(bp.Kind.HEARTBEAT, dict(
             state=self.state, safe_reason=self.safe_reason, clock_running=self.clock_running,
-            sample_rate_hz=int(round(1 / self.dt)), sample_index=self.k, sent_end=self.sent_end,
+            sample_rate_hz=int(round(self.rig.sample_rate_hz)), sample_index=self.k, sent_end=self.sent_end,
             excitation_next=bp.NO_INDEX if nxt is None else nxt,
             next_measurement_sequence=self.link.seq[bp.Kind.MEASUREMENT], rx_datagrams=self.rx,
             rx_rejected=self.rx_foreign + self.rx_malformed, late_excitation_samples=self.late_excitation,

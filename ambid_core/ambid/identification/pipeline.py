@@ -52,7 +52,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
                      rig: Rig | str | os.PathLike | Mapping | None = None, max_order: int = 32,
                      order_penalty: float = 2.0, update: bool = True,
                      nominal: Mapping[str, float] | None = None,
-                     update_free: Sequence[str] | None = None, report: bool = True,
+                     update_free: Sequence[str] | None = None, report: bool | str = True,
                      recover: bool = False, true_model: StateSpace | None = None,
                      inputs: SessionInputs | None = None,
                      references: ReferenceModels | Callable[[], ReferenceModels | None] | None = None,
@@ -79,7 +79,8 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         update_free: parameters to update; default ki, ks, ks_b_over_a, the
             amplifier and sensor bandwidths, the delay, the bending modes in
             the band and a support mode (when the fit shows one).
-        report: write the HTML report.
+        report: write the HTML report; ``"background"``: have a detached process write it
+            (:mod:`ambid.background`, its state in ``report/status.json``) and return without waiting for it.
         recover: read a session file a killed recorder left.
         true_model: the plant the session measured, u [A] -> y [m], when it is
             known from elsewhere (a hardware session against the C reference
@@ -106,7 +107,7 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
         inputs = read_session_inputs(path, estimator, experiment_id, recover)
     frf, design = inputs.frf, inputs.design
     out.mkdir(parents=True, exist_ok=True)  # only once the session gave an FRF: a refusal leaves nothing behind
-    dt_s = 1.0 / design.fs_hz
+    dt_s = design.dt_s
     measured = session_frf(frf)
     notes = list(measured.notes)
     fitted = fit_frf(frf, design.fs_hz, order, max_order=max_order, order_penalty=order_penalty,
@@ -138,11 +139,22 @@ def identify_session(mcap_path: str | os.PathLike, out_dir: str | os.PathLike, e
     if report:
         result = replace(result, files=replace(result.files, report=str(out / "report" / "index.html")),
                          wall_s=time.perf_counter() - t0)
-        write_identification_report(out / "report", result, inputs, fitted, the_rig, updated.update, truth.g,
-                                    measured.directional, samples)
+        _report(report, out / "report", result, inputs, fitted, the_rig, updated.update, truth.g,
+                measured.directional, samples)
     result = replace(result, wall_s=time.perf_counter() - t0)
     (out / "identification.json").write_text(json.dumps(result.to_json(), indent=1))
     return result
+
+
+def _report(how: bool | str, folder: Path, *what) -> None:
+    """:func:`write_identification_report` into ``folder``, here, or (``how`` "background") by a detached
+    process: the caller answers now, the page follows (``folder/status.json`` says when)."""
+    if how == "background":
+        from ambid.background import start
+
+        start(folder / "status.json", write_identification_report, folder, *what, nice=5)
+    else:
+        write_identification_report(folder, *what)
 
 
 def _update_stage(rig, inputs: SessionInputs, true_model: StateSpace | None, update: bool, fitted, dt_s: float,

@@ -54,7 +54,7 @@ def write_identification_report(folder: Path, result: Identification, inputs: Se
         the experiment's samples (:func:`ambid.identification.quality.experiment_samples`), or None.
     """
     frf, design = inputs.frf, inputs.design
-    dt_s = 1.0 / design.fs_hz
+    dt_s = design.dt_s
     band, f, fit = fitted.band_hz, frf.freq_hz, fitted.fit
     levels, window = _samples_for_report(samples, inputs)
     dense = np.geomspace(max(band[0] / 1.5, 1e-3), min(band[1] * 1.5, 0.499 * design.fs_hz), 400)

@@ -22,6 +22,7 @@ Not thread-safe: one thread feeds it.
 from __future__ import annotations
 
 import json
+import time
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -47,14 +48,21 @@ class SessionFollower:
         samples per second of session time shown in the time plot (decimated) [Hz].
     orbit_points
         points of an orbit frame (one per block and bearing).
+    estimate_every_s
+        the least wall time between two live estimates: a record completed sooner waits for the next one
+        (a simulated session completes records many times a second; each estimate costs its noise and
+        distortion figures). The final estimate is always made. 0: after every record.
     """
 
-    def __init__(self, estimator: str = "indirect", signal_rate_hz: float = 200.0, orbit_points: int = 200) -> None:
+    def __init__(self, estimator: str = "indirect", signal_rate_hz: float = 200.0, orbit_points: int = 200,
+                 estimate_every_s: float = 0.0) -> None:
         if estimator not in ESTIMATORS:
             raise ValueError(f"estimator must be one of {ESTIMATORS}, got {estimator!r}")
         if not signal_rate_hz > 0 or orbit_points < 2:
             raise ValueError(f"need signal_rate_hz > 0 and orbit_points >= 2, got {signal_rate_hz}, {orbit_points}")
         self.estimator = estimator
+        self.estimate_every_s = float(estimate_every_s)
+        self._estimated_at = -1e300   # time.monotonic() of the last estimate
         self.signal_rate_hz = float(signal_rate_hz)
         self.orbit_points = int(orbit_points)
         self.experiment_id = ""
@@ -203,7 +211,8 @@ class SessionFollower:
             return []
         frames = []
         records = stream.records_done
-        if records != self._records or report.finished:
+        due = time.monotonic() - self._estimated_at >= self.estimate_every_s
+        if (records != self._records and due) or report.finished:
             self._records = records
             frames += self._estimate(final=report.finished)
         frames.append(self._progress())
@@ -217,6 +226,7 @@ class SessionFollower:
             return []
         if result is None:
             return []
+        self._estimated_at = time.monotonic()
         self.result = result
         self.counts["estimates"] += 1
         d = self.design

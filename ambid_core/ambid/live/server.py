@@ -17,13 +17,20 @@ caller:
   client's oldest data messages: a client that never reads costs a bounded
   amount of memory);
 * a client that subscribes late gets the channel's latest message at once
-  (an FRF estimate comes only every few seconds).
+  (an FRF estimate comes only every few seconds);
+* with ``display_hz``, the streams drawn as they come (the time signals, the
+  orbits) are sent at most that often per topic, in wall time: a simulated
+  session runs many times faster than real time, and a viewer draws some 30
+  frames a second; the frames in between are counted (``frames_thinned``),
+  never queued, and the latest one held back is sent once its turn comes (or
+  at the end). The FRF, levels, progress, statuses and events are all sent.
 """
 
 from __future__ import annotations
 
 import json
 import threading
+import time
 from collections import deque
 from typing import Any
 
@@ -34,6 +41,8 @@ __all__ = ["LiveServer", "LiveUnavailable", "DEFAULT_PREFIX"]
 
 #: Topic prefix of the live view's channels (below the session's namespace).
 DEFAULT_PREFIX = "/amb/live"
+#: the schemas of the streams a viewer draws as they come: sent at most ``display_hz`` times a second per topic
+THINNED = frozenset({"ambid.live.Signals", "ambid.live.Orbit"})
 
 
 class LiveUnavailable(RuntimeError):
@@ -68,15 +77,23 @@ class LiveServer:
         messages the server keeps per client before it drops that client's oldest.
     name
         the server's name, shown by Foxglove.
+    display_hz
+        the most frames per wall second sent per topic of the streams drawn as they come (:data:`THINNED`);
+        0 sends every frame.
     """
 
     def __init__(self, port: int, host: str = "127.0.0.1", follower: SessionFollower | None = None,
                  prefix: str = DEFAULT_PREFIX, queue_size: int = 64, backlog: int = 256,
-                 name: str = "ambid live view") -> None:
+                 name: str = "ambid live view", display_hz: float = 0.0) -> None:
         if not (isinstance(port, int) and 0 <= port <= 65535):
             raise ValueError(f"port must be an integer in 0..65535, got {port!r}")
         if queue_size < 1 or backlog < 1:
             raise ValueError(f"queue_size and backlog must be >= 1, got {queue_size}, {backlog}")
+        if not display_hz >= 0:
+            raise ValueError(f"display_hz must be >= 0, got {display_hz!r}")
+        self._period = 1.0 / display_hz if display_hz > 0 else 0.0
+        self._held: dict[str, Frame] = {}       # thinned topic -> its latest frame not sent yet
+        self._sent_at: dict[str, float] = {}    # thinned topic -> monotonic time of its last frame sent
         self.follower = follower if follower is not None else SessionFollower()
         self.prefix = "/" + prefix.strip("/")
         self.host, self._port, self.name = host, port, name
@@ -92,7 +109,7 @@ class LiveServer:
         self._latest: dict[str, Frame] = {}
         self._clients: set[int] = set()
         self.counts = {"submitted": 0, "dropped_frames": 0, "frames": 0, "frames_sent": 0, "bytes_sent": 0,
-                       "worker_errors": 0, "stop_timed_out": 0}
+                       "frames_thinned": 0, "worker_errors": 0, "stop_timed_out": 0}
         self.errors: list[str] = []
         self._server = None
         self._context = None
@@ -181,7 +198,7 @@ class LiveServer:
     # ---- worker ---------------------------------------------------------------------------------
     def _work(self) -> None:
         while True:
-            self._wake.wait(0.5)
+            self._wake.wait(self._period if self._held else 0.5)
             self._wake.clear()
             while True:
                 with self._lock:
@@ -207,6 +224,7 @@ class LiveServer:
                     topic = self._by_id.get(cid)
                     if topic in self._latest:
                         self._log(self._latest[topic])
+            self._send_held(final=self._closing and not self._queue)
             if self._closing and not self._queue:
                 return
 
@@ -220,6 +238,28 @@ class LiveServer:
         self._latest[frame.topic] = frame
         if not channel.has_sinks():   # nobody subscribes: not even encoded
             return
+        if self._period and frame.schema_name in THINNED:
+            now = time.monotonic()
+            if now - self._sent_at.get(frame.topic, -1e300) < self._period:
+                if frame.topic in self._held:
+                    self.counts["frames_thinned"] += 1   # the one held before never goes out
+                self._held[frame.topic] = frame
+                return
+            self._sent_at[frame.topic] = now
+            if self._held.pop(frame.topic, None) is not None:
+                self.counts["frames_thinned"] += 1
+        self._send(channel, frame)
+
+    def _send_held(self, final: bool) -> None:
+        """The held frames whose turn has come (``final``: all of them, the stream's last frame shown)."""
+        now = time.monotonic()
+        for topic, frame in list(self._held.items()):
+            if final or now - self._sent_at[topic] >= self._period:
+                del self._held[topic]
+                self._sent_at[topic] = now
+                self._send(self._channels[topic], frame)
+
+    def _send(self, channel, frame: Frame) -> None:
         message = frame.message
         if frame.schema_name == "ambid.live.Progress":
             message = dict(message, dropped_frames=self.counts["dropped_frames"])

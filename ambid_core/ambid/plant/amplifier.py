@@ -129,6 +129,33 @@ def amplifier_state_space(amp: Amplifier, n_amplifiers: int,
     return -eye / tau, amp.static_gain * eye / tau, eye.copy(), np.zeros_like(eye)
 
 
+def slew_voltage_v(amp: Amplifier, reference_a: np.ndarray, dt_s: float, offset_a: float = 0.0) -> np.ndarray:
+    """The coil voltage that moves the current by the reference's largest step within one sample.
+
+    ``L max|iref[k+1] - iref[k]| / dt + R (offset + max|iref|)`` (eq. 2.19 without the back EMF): where it
+    exceeds the dc link, the current cannot reach the reference within a sample even at full voltage: the
+    amplifier saturates and the coil current slews behind what was designed (eq. 2.23).
+
+    Parameters
+    ----------
+    amp
+        the coil's amplifier.
+    reference_a
+        (n,) or (n, Nu) reference current perturbations [A]; NaN rows separate pieces (no step across them).
+    dt_s
+        sample period [s].
+    offset_a
+        the constant current beside it (bias and working current) [A].
+
+    Returns
+    -------
+    (Nu,) (a scalar for a 1-D reference) the voltage [V].
+    """
+    r = np.asarray(reference_a, dtype=float)
+    step = np.nanmax(np.abs(np.diff(r, axis=0)), axis=0) if r.shape[0] > 1 else np.zeros(r.shape[1:])
+    return amp.inductance_h * step / dt_s + amp.resistance_ohm * (abs(offset_a) + np.nanmax(np.abs(r), axis=0))
+
+
 def amplifier_step(amp: Amplifier, current_a: np.ndarray, reference_a: np.ndarray, dt_s: float,
                    n_substeps: int = 1, back_emf_v: np.ndarray | float = 0.0) -> np.ndarray:
     """Advance coil currents over one sample with voltage and current limits.

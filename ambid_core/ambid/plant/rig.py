@@ -202,8 +202,13 @@ class Rig:
         raise AttributeError(item)
 
     @property
+    def sample_rate_hz(self) -> float:
+        """Control rate fs [Hz]: the value the rig holds (code that works in rates reads it, not 1 / dt)."""
+        return float(self.values["sample_rate_hz"])
+
+    @property
     def dt(self) -> float:
-        """Control period [s]."""
+        """Control period [s]: 1 / :attr:`sample_rate_hz`, the one place the rig's rate becomes a period."""
         return 1.0 / self.values["sample_rate_hz"]
 
     # -- magnets ---------------------------------------------------------

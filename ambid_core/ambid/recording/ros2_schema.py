@@ -353,12 +353,8 @@ def load_message_schema(
 
     Parameters
     ----------
-    type_name
-        ``pkg/msg/Type`` or ``pkg/Type``.
-    prefixes
-        install prefixes; ``None`` uses ``AMENT_PREFIX_PATH``.
-    definitions
-        single-type .msg texts that override installed files.
+    type_name, prefixes, definitions
+        as :func:`full_message_definition`'s.
     type_hash
         ``RIHS01_...`` to use; ``None`` reads the installed .json
         and falls back to ``""`` when there is none (the hash is optional

@@ -133,7 +133,7 @@ class _TimeCheck:
         if self.t0 is None:
             raise RecordError(f"{self.path}: fewer than two rows: no sample rate in time column "
                               f"'{self.m.time_column}'; give a longer record")
-        return 1.0 / self.dt if self.m.sample_rate_hz else (self.n - 1) / (self.last - self.t0)
+        return float(self.m.sample_rate_hz) if self.m.sample_rate_hz else (self.n - 1) / (self.last - self.t0)
 
 
 def _controller_message(model: StateSpace, name: str) -> dict:

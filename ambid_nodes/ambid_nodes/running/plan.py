@@ -1,9 +1,8 @@
-"""The plan of a session, decided once per run, and what its layouts (composed, processes) share.
+"""The plan of a session, decided once per run, and what its layouts (composed, hardware, processes) share.
 
 :class:`SessionConfig` says what to run, :func:`plan_session` decides the rig, the controller and the
 design once (:class:`SessionPlan`), :func:`session_samples` where the experiment starts and how long the
-run is; :func:`run_facts` is what either layout returns. The entry points stay importable from
-``ambid_nodes.session`` (``SessionConfig``, ``plan_session``, ``run_identify``, ``NodeDied``).
+run is; :func:`run_facts` is what every layout returns (:meth:`ambid_nodes.running.layout.Layout.run`).
 """
 
 from __future__ import annotations
@@ -48,8 +47,14 @@ class SessionConfig:
     true_model: str = ""    # with hardware: the C target's model file, the truth the FRF is compared with
     session: int = 0        # the session's id (docs/sessions.md); 0: open nodes
     processes: bool = False  # every node its own process, supervised
+    # > 0: the loop alone (plant and controller, or the bridge) for this long [s], no experiment, recording or
+    # estimate (``ambid graph``); the experiment's seed then seeds the sensor noise only
+    loop_seconds: float = 0.0
     live_port: int | None = None    # a Foxglove live view on this port (0: any free one); None: none
     live_host: str = "127.0.0.1"    # the address the live view binds
+    # the report: True written before the run returns; "background" by a detached process, the run returning
+    # without it (report/status.json says when it is there: ambid identify answers without waiting for it)
+    report: bool | str = True
     extra: dict = field(default_factory=dict)
     # the simulated sensor noise's own seed; None: the experiment's. A verifying run repeats the experiment
     # (its lines and phases) and meets fresh noise, as on a real rig
@@ -77,12 +82,13 @@ class SessionPlan:
             hardware bridge take this object instead of parsing ``rig_file`` each).
         controller: the position controller, designed and checked against the rig once; None where a
             real-time target closes the loop.
-        design: the excitation experiment's design, built once (the generator builds none of its own).
+        design: the excitation experiment's design, built once (the generator builds none of its own); None
+            where the loop runs alone (``SessionConfig.loop_seconds``).
     """
 
     rig: Rig
     controller: ControllerDesign | None
-    design: ExcitationDesign
+    design: ExcitationDesign | None
 
 
 class NodeDied(RuntimeError):
@@ -110,7 +116,9 @@ def plan_session(cfg: SessionConfig, rig: Rig | None = None, controller: Control
     rig = rig if rig is not None else rig_or_default(cfg.rig_file)
     if controller is None and not cfg.hardware:
         controller = checked_design(cfg.controller, rig)
-    return SessionPlan(rig, controller, cfg.design(1.0 / rig.dt, float(rig.rotor_speed_rpm), rig.layout.inputs))
+    if cfg.loop_seconds:
+        return SessionPlan(rig, controller, None)
+    return SessionPlan(rig, controller, cfg.design(rig.sample_rate_hz, float(rig.rotor_speed_rpm), rig.layout.inputs))
 
 
 class ProgressBar:
@@ -137,10 +145,13 @@ class ProgressBar:
             self.stream.flush()
 
 
-def session_samples(design: ExcitationDesign, fs: float) -> tuple[int, int]:
+def session_samples(design: ExcitationDesign | None, fs: float, loop_seconds: float = 0.0) -> tuple[int, int]:
     """(the experiment's first sample index, the session's samples): lift-off, the experiment, and one
     block of tail so the last period is measured. A free-running target can be told the count
-    (ambp_udp_target --samples) so it stops where the session does."""
+    (ambp_udp_target --samples) so it stops where the session does. Without a design, the loop alone:
+    (0, ``loop_seconds`` of samples)."""
+    if design is None:
+        return 0, int(round(loop_seconds * fs))
     start_index = int(round(LIFT_OFF_S * fs))
     return start_index, start_index + design.total_samples + 1000
 
