@@ -124,14 +124,10 @@ class ComposedLayout(Layout):
     def run_loop(self, answer) -> dict:
         """Spin until the plant's run ends, showing progress; the plant's summary."""
         bar = ProgressBar(self.cfg.progress)
-        total, fs = self.total, self.fs
 
         def tick() -> None:
             self.analyse_early()
-            k = self.progress()
-            rate = k / max(time.perf_counter() - self.wall0, 1e-9)
-            bar.show(k / total, f"sim {k / fs:6.2f}/{total / fs:.2f} s  {rate / 1000:5.1f}k samples/s  "
-                                f"{consumer_text(self.consumer)}")
+            self.show_progress(bar, self.progress(), f"  {consumer_text(self.consumer)}")
 
         # a timer among the loop's events: the composed loop keeps the executor busy, so that
         # spin_until_future_complete returns only when the run is over; the bar moves by the timer

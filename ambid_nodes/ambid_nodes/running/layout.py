@@ -114,6 +114,12 @@ class Layout(ABC):
     def words(self) -> str:
         """How the session ran, for its summary (``composed``, ``processes``, ``hardware bridge to ...``)."""
 
+    def show_progress(self, bar, k: int, extra: str = "") -> None:
+        """The progress line at sample ``k``: simulated time, the rate, and ``extra`` (the consumer's words)."""
+        total, fs = self.total, self.fs
+        rate = k / max(time.perf_counter() - self.wall0, 1e-9)
+        bar.show(k / total, f"sim {k / fs:6.2f}/{total / fs:.2f} s  {rate / 1000:5.1f}k samples/s{extra}")
+
     def loop_summary(self, plant_summary: dict) -> dict:
         """The run's summary where the loop ran alone: the plant's, how it ran and the foreign publishers."""
         return {**plant_summary, "layout": self.words(), "foreign_publishers": self.foreign}

@@ -127,14 +127,9 @@ class ProcessesLayout(Layout):
     def run_loop(self, answer) -> dict:
         """Until the plant (or the bridge) finishes, or a node dies; the plant's summary."""
         sup, watch, bar, total, fs = self.sup, self.watch, self.bar, self.total, self.fs
-        last = [0.0]
 
         def done() -> bool:
-            k = watch.progress
-            if time.monotonic() - last[0] > 0.25:
-                last[0] = time.monotonic()
-                rate = k / max(time.perf_counter() - self.wall0, 1e-9)
-                bar.show(k / total, f"sim {k / fs:6.2f}/{total / fs:.2f} s  {rate / 1000:5.1f}k samples/s")
+            self.show_progress(bar, watch.progress)   # the bar shows at most 4 lines a second
             return sup.exited(self.plant_name)
 
         death = supervise(self.executor, sup, watch, done)
