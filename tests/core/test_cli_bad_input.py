@@ -146,6 +146,8 @@ OPTION_VALUES = [  # argv, the option the error names
     (["validate", "--preset", "huge"], "--preset"),
     (["validate", "--controller", "bogus"], "--controller"),
     (["validate", "--tune", "--tune-samples", "0"], "--tune-samples"),
+    (["identify", "--noise-seed", "-1"], "--noise-seed"),
+    (["commission", "--tune-checks", "0"], "--tune-checks"),
     (["validate", "--resolution", "-5"], "--resolution"),
 ]
 
@@ -184,6 +186,7 @@ RANGE_REFUSALS = [  # values argparse cannot judge alone: the command's one line
     (["identify", "--hardware", "127.0.0.1:9", "--true-model", "{random}"], "is not text"),
     (["target-model", "--out", "{dir}/no_such_folder/m.txt"], "--out"),
     (["identify", "--hardware", "127.0.0.1:9", "--controller", "lqg"], "--controller with --hardware"),
+    (["identify", "--hardware", "127.0.0.1:9", "--noise-seed", "3"], "--noise-seed with --hardware"),
     (["graph", "--hardware", "127.0.0.1:9", "--controller", "lqg"], "--controller with --hardware"),
     (["identify", "--hardware", "127.0.0.1:9"], "--hardware needs --key-file"),
     (["graph", "--hardware", "127.0.0.1:9"], "--hardware needs --key-file"),

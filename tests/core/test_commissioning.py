@@ -224,3 +224,40 @@ def test_the_prediction_moves_the_posterior_to_the_new_loops_operating_point():
         assert abs(b[name] / a[name] - 1) > 1e-5          # the loops differ enough to move the slopes
     assert np.array_equal(at(new).cov, unc.cov)           # the data's spread is kept
     assert operating_point(SimpleNamespace(**{**vars(run), "nonlinear_magnets": False}), unc) is None
+
+
+def test_the_verifying_fit_is_weighted_as_identify_weights_it_with_the_runs_scatter():
+    """identify weights its fit by the noise and total variances its run estimates (a few degrees of freedom a
+    line); the simulated verifying fit draws its estimates from the run's own line-to-line scatter and combines
+    them by identify's rule."""
+    from ambid.commissioning.prediction import measurement_model, verify_fit_weights
+    from ambid.frf.uncertainty import fit_weight_variance
+
+    rng = np.random.default_rng(3)
+    lines = np.arange(15.0, 1000.0, 10.0)
+    n, ny = lines.size, 4
+    sens = np.broadcast_to(np.eye(ny) * 0.8, (n, ny, ny)).astype(complex)
+    level = 1e-14 * (1 + lines / 500.0)                                      # (L,) smooth noise level
+    dof = 8
+    factors = rng.chisquare(dof, (n, ny, 1)) / dof                           # one estimate per line and output
+    var_noise = level[:, None, None] * factors * np.ones((1, 1, ny))
+    var_total = 3 * var_noise                                                # a distortion share of 3
+    m = measurement_model(lines, var_total, sens, 12, DT / 2, np.zeros(12, complex), var_noise=var_noise)
+    assert m.scatter.shape == (n * ny, 2)
+    inner = m.scatter[4 * ny:-4 * ny]                                        # lines with six neighbours
+    # each line over its neighbours' mean: chi2(dof)/dof over chi2(6 dof)/(6 dof), its variance 2/dof (1 + 1/6 ...)
+    assert np.mean(inner[:, 0]) == pytest.approx(1.0, abs=0.1)
+    assert np.var(inner[:, 0]) == pytest.approx(2 / dof * (1 + 1 / 6), rel=0.35)
+    assert np.allclose(inner[:, 0], inner[:, 1])                             # noise and total scatter together
+    # no scatter: identify's rule on the new loop's levels (gain sum_k |Sinv_kj|^2 = 1 / 0.8^2)
+    still = MeasurementModel(lines, m.noise_var, 12, DT / 2, np.zeros(12, complex),
+                             noise_only_var=m.noise_only_var, scatter=np.ones((4, 2)))
+    w = verify_fit_weights(still, np.linalg.inv(sens), rng)
+    gain = 1 / 0.8 ** 2
+    expect = fit_weight_variance(m.noise_only_var[:, :, None] * gain * np.ones(ny),
+                                 m.noise_var[:, :, None] * gain * np.ones(ny))
+    assert np.allclose(w, expect, rtol=1e-12)
+    # with the run's scatter the weights move line by line, about the same level
+    w1 = verify_fit_weights(m, np.linalg.inv(sens), rng)
+    ratio = w1[:, :, 0] / expect[:, :, 0]
+    assert 0.1 < np.std(np.log(ratio)) < 1.5 and np.median(ratio) == pytest.approx(1.0, abs=0.3)

@@ -30,7 +30,8 @@ def test_graph_processes_levitates_the_five_axis_rotor(ros_env):
 
 
 def test_identify_measures_the_five_by_five_frf(ros_env, tmp_path):
-    out = _cli(ros_env, "identify", "--rig", str(RIG_FILE), "--out", str(tmp_path), "--no-progress")
+    out = _cli(ros_env, "identify", "--rig", str(RIG_FILE), "--out", str(tmp_path), "--no-progress",
+               "--no-report")
     assert out.returncode == 0, out.stdout + out.stderr[-3000:]
     s = json.loads((tmp_path / "summary.json").read_text())
     assert s["levitated"] and s["simulated"]

@@ -17,7 +17,7 @@ def test_identify_on_the_ideal_rig_keeps_what_the_data_cannot_tell_at_its_prior(
     rig = str(REPO / "rigs" / "ideal.yaml")
     proc = subprocess.run([sys.executable, "-m", "ambid_cli.cli", "identify", "--rig", rig, "--out", str(out),
                            "--resolution", "10", "--periods", "2", "--realisations", "2", "--transient-periods", "2",
-                           "--no-progress"],
+                           "--no-progress", "--no-report"],
                           env=ros_env, cwd=REPO, capture_output=True, text=True, timeout=240)
     assert proc.returncode == 0, proc.stderr[-2000:]
     summary = json.loads((out / "summary.json").read_text())

@@ -36,7 +36,7 @@ def _cli(env, *args, timeout=600):
 @pytest.fixture(scope="module")
 def identified(tmp_path_factory, ros_env_module):
     out = tmp_path_factory.mktemp("identify")
-    run = _cli(ros_env_module, "identify", "--out", str(out), "--no-progress", *SHORT)
+    run = _cli(ros_env_module, "identify", "--out", str(out), "--no-progress", "--no-report", *SHORT)
     assert run.returncode == 0, run.stderr[-3000:]
     return out
 

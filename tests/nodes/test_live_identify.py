@@ -29,7 +29,7 @@ from ambid_cli.bench.foxglove_client import follow
 
 REPO = Path(__file__).resolve().parents[2]
 SHORT = ["--band", "20", "400", "--resolution", "20", "--periods", "2", "--realisations", "2",
-         "--transient-periods", "1", "--seed", "4", "--no-progress"]
+         "--transient-periods", "1", "--seed", "4", "--no-progress", "--no-report"]
 
 
 def _free_port() -> int:

@@ -92,7 +92,8 @@ def session(twin_jobs, tmp_path_factory):
 
     out = tmp_path_factory.mktemp("identify")
     env = dict(os.environ, ROS_DOMAIN_ID=str(next_domain_id()), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    proc = subprocess.run([sys.executable, "-m", "ambid_cli.cli", "identify", "--out", str(out), "--no-progress"],
+    proc = subprocess.run([sys.executable, "-m", "ambid_cli.cli", "identify", "--out", str(out), "--no-progress",
+                           "--no-report"],
                           env=env, cwd=REPO, capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stderr[-2000:]
     return dict(out=out, summary=json.loads((out / "summary.json").read_text()))

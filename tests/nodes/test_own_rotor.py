@@ -66,7 +66,8 @@ def test_own_rotor_identified_under_its_controller(rig_dir, ros_env, controller)
     out = d / f"run_{controller}"
     proc = subprocess.run([sys.executable, "-m", "ambid_cli.cli", "identify", "--rig", str(d / "rig.yaml"),
                            "--controller", spec, "--out", str(out), "--band", "20", "800", "--resolution", "5",
-                           "--periods", "2", "--realisations", "1", "--transient-periods", "1", "--no-progress"],
+                           "--periods", "2", "--realisations", "1", "--transient-periods", "1", "--no-progress",
+                           "--no-report"],
                           env=ros_env, cwd=REPO, capture_output=True, text=True, timeout=240)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "ambid: rotor file: dropped 34 of 102 DOFs" in proc.stderr

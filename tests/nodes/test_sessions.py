@@ -29,7 +29,7 @@ from proc_tree import alive, descendants
 
 REPO = Path(__file__).resolve().parents[2]
 SMALL = ["--band", "20", "400", "--resolution", "20", "--periods", "2", "--realisations", "1",
-         "--transient-periods", "1", "--no-progress", "--seed", "3"]
+         "--transient-periods", "1", "--no-progress", "--no-report", "--seed", "3"]
 SESSION = "00c0ffee"
 EXC_NAMES = list(RADIAL.excitations)
 MEASUREMENT_NAMES = RADIAL.measurement_names  # the default rig's channels

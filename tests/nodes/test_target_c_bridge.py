@@ -138,7 +138,7 @@ def c_identify(tmp_path_factory, key_file) -> dict:
 
 def test_identify_hardware_gives_the_c_target_the_accuracy_of_the_simulated_rig(tmp_path, c_identify, key_file):
     model = c_identify["model"]
-    sim = cli("identify", "--out", str(tmp_path / "sim"), "--linear-magnets", *SMALL)
+    sim = cli("identify", "--out", str(tmp_path / "sim"), "--linear-magnets", "--no-report", *SMALL)
     assert sim.returncode == 0, sim.stdout + sim.stderr
     total = c_identify["total"]
     a = json.loads((tmp_path / "sim" / "summary.json").read_text())
@@ -161,7 +161,7 @@ def test_identify_hardware_gives_the_c_target_the_accuracy_of_the_simulated_rig(
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT / "ambid_core")
     try:
         py = cli("identify", "--hardware", f"127.0.0.1:{tp}", "--local-port", str(lp), "--true-model", str(model),
-                 "--key-file", str(key_file), "--out", str(tmp_path / "py"), *SMALL)
+                 "--key-file", str(key_file), "--out", str(tmp_path / "py"), "--no-report", *SMALL)
         py_target.communicate(timeout=30)
     finally:
         py_target.kill()

@@ -22,25 +22,30 @@ HELP = "identify, tune and verify in one command: the running controller, a tune
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ambid_cli.commands import identify, tune
-    from ambid_cli.commands.inputs import positive_int
 
     identify.add_arguments(p)
     p.set_defaults(out=Path("commission"))
     p.add_argument("--tune-kind", choices=tune.KIND_CHOICES, default="best",
                    help="the controller tuned: structured, hinf, or best (both, the better kept; default)")
-    p.add_argument("--tune-checks", type=positive_int, default=100, help="drawn plants the new controller must hold")
-    p.add_argument("--tune-samples", type=positive_int, default=100,
-                   help="simulated verifying measurements behind the prediction (default 100)")
-    p.add_argument("--tune-evaluations", type=positive_int, default=600,
-                   help="objective evaluations per stage of the structured tuning (default 600)")
+    tune.add_effort_options(p, "tune-")
     p.add_argument("--tune-seed", type=int, default=0, help="seed of the tuning's drawn plants")
 
 
-def _identify(args: argparse.Namespace, out: Path, controller: str) -> int:
+def verify_noise_seed(seed: int) -> int:
+    """The simulated sensor noise's seed of a verifying run whose experiment has ``seed``: other noise than the
+    run the plant was identified from (a real verifying run meets fresh noise; its prediction must hold it)."""
+    import numpy as np
+
+    return int(np.random.default_rng([seed, 37]).integers(2**31 - 1))
+
+
+def _identify(args: argparse.Namespace, out: Path, controller: str, verify: bool = False) -> int:
     from ambid_cli.commands import identify
 
     step = copy.copy(args)
     step.out, step.controller, step.live = out, controller, None
+    if verify and not args.hardware:
+        step.noise_seed = verify_noise_seed(args.seed if args.noise_seed is None else args.noise_seed)
     return identify.run(step)
 
 
@@ -148,7 +153,7 @@ def run(args: argparse.Namespace) -> int:
         _write(out, doc)
         print(format_commission(doc))
         return 0
-    code = _identify(args, out / "after", str(new))
+    code = _identify(args, out / "after", str(new), verify=True)
     if code != 0 or not (out / "after" / "summary.json").is_file():
         doc.update(outcome="the verifying identification failed (above); the running controller stays")
         _write(out, doc)

@@ -33,9 +33,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"position controller: {describe_kinds()}, or a controller file (.npz, .mat, .yaml) "
                         "(default: the rig file's controller, else pid)")
     p.add_argument("--linear-magnets", action="store_true", help="linearised magnets instead of eq. 2.14")
+    p.add_argument("--noise-seed", type=count, default=None,
+                   help="seed of the simulated sensor noise alone (default: --seed's); a verifying run repeats the "
+                        "experiment with fresh noise, as a real rig meets")
     p.add_argument("--estimator", default="indirect",
                    choices=["indirect", "h1", "h2", "arithmetic_mean", "log_mean", "eiv"])
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--no-report", action="store_true",
+                   help="no HTML report: the results, summary.json and the model files only")
     p.add_argument("--hardware", metavar="HOST:PORT", type=address,
                    help="identify a real-time target over the UDP bridge instead of the simulated rig (the target "
                         "runs plant and controller, e.g. the C reference target; see docs/bridge_protocol.md)")
@@ -69,6 +74,8 @@ def run(args: argparse.Namespace) -> int:
     if args.true_model:
         if not args.hardware:
             raise BadInput("--true-model needs --hardware: a simulated session is compared with its own true rig")
+    if args.hardware and args.noise_seed is not None:
+        raise BadInput("--noise-seed with --hardware: a real rig's sensor noise has no seed; leave --noise-seed out")
         from ambid.hardware.target_model import read_target_model
 
         try:
@@ -81,10 +88,11 @@ def run(args: argparse.Namespace) -> int:
     session = session_of(args)
     cfg = SessionConfig(out_dir=args.out, experiment=spec, rig_file=args.rig, controller=args.controller,
                         nonlinear_magnets=not args.linear_magnets, estimator=args.estimator,
+                        noise_seed=args.noise_seed,
                         hardware=args.hardware or "", local_port=args.local_port, true_model=args.true_model, **link,
                         progress=not args.no_progress and sys.stderr.isatty(), namespace=args.namespace,
                         session=session, processes=args.processes, live_port=args.live, live_host=args.live_host,
-                        report="background")   # the headline is the answer; the report's figures follow
+                        report=not args.no_report and "background")   # the headline is the answer; the figures follow
     phases.say("planning the run: rig, controller, experiment design", line=False)  # a line once it holds
     try:
         plan = plan_session(cfg, rig, ctrl)  # the design, made once
@@ -104,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
         kept_out = kept_out_line("identify", summary.session.foreign_messages)
         if kept_out:
             print(kept_out, file=sys.stderr, flush=True)
-        print(format_headlines(summary, args.out, (started, phases.elapsed())), flush=True)
+        print(format_headlines(summary, args.out, (started, phases.elapsed()), not args.no_report), flush=True)
 
     try:  # the foreign publishers named before anything starts
         summary = run_identify(cfg, plan, lambda found: print_foreign("identify", found), on_headline=headline,
@@ -125,14 +133,15 @@ def run(args: argparse.Namespace) -> int:
     if summary.live:
         print("  " + live_line(summary.live))
     report = args.out / "report"
-    print(f"ambid identify: {phases.elapsed():.1f} s wall in all; the report is being written by a process of its "
-          f"own, {report / 'index.html'} in a few seconds ({report / 'status.json'} says when)", file=sys.stderr)
+    print(f"ambid identify: {phases.elapsed():.1f} s wall in all" + ("; no report (--no-report)" if args.no_report else
+          f"; the report is being written by a process of its own, {report / 'index.html'} in a few seconds "
+          f"({report / 'status.json'} says when)"), file=sys.stderr)
     return 0 if summary.state == "done" else 1
 
 
-def format_headlines(s: IdentifyResult, out: Path, wall: tuple[float, float]) -> str:
+def format_headlines(s: IdentifyResult, out: Path, wall: tuple[float, float], report: bool = True) -> str:
     """The headline lines; ``wall`` (seconds from the command's start to the session's start and to now)
-    splits the whole wall time into set-up, the session and the analysis."""
+    splits the whole wall time into set-up, the session and the analysis; ``report``: one follows."""
     ident = s.identification
     before, total = wall
     lines = [f"ambid identify: done in {total:.1f} s wall: {before:.1f} s set-up and design, {s.wall_time_s:.1f} s "
@@ -171,8 +180,8 @@ def format_headlines(s: IdentifyResult, out: Path, wall: tuple[float, float]) ->
     lines += [f"  {ln}" for ln in sensitivity_lines(ident.sensitivity)]
     lines += [f"  data quality: {q['text']}" for q in ident.quality.findings]
     if "headline_after_last_period_s" in s.analysis_timing:
-        lines.append(f"  results {s.analysis_timing['headline_after_last_period_s']:.1f} s after the last period; "
-                     "the report follows")
-    lines += [f"  summary: {out / 'summary.json'}", f"  report:  {out / 'report' / 'index.html'}",
-              f"  session: {s.recording.path} ({s.recording.messages} messages)"]
+        lines.append(f"  results {s.analysis_timing['headline_after_last_period_s']:.1f} s after the last period"
+                     + ("; the report follows" if report else ""))
+    lines += [f"  summary: {out / 'summary.json'}"] + ([f"  report:  {out / 'report' / 'index.html'}"] if report else [])
+    lines += [f"  session: {s.recording.path} ({s.recording.messages} messages)"]
     return "\n".join(lines)

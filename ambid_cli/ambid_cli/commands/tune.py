@@ -18,9 +18,20 @@ HELP = "design a controller for the plant a run measured, with its predicted sen
 KIND_CHOICES = ("best", "structured", "hinf")
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
+def add_effort_options(p: argparse.ArgumentParser, prefix: str = "", when: str = "") -> None:
+    """How hard tune works: ``--checks``, ``--samples`` and ``--evaluations``, named ``--PREFIXchecks`` ... where
+    another command passes them on (commission, validate), their help led by ``when``."""
     from ambid_cli.commands.inputs import positive_int
 
+    p.add_argument(f"--{prefix}checks", type=positive_int, default=100,
+                   help=f"{when}drawn plants every candidate must hold (default 100)")
+    p.add_argument(f"--{prefix}samples", type=positive_int, default=100,
+                   help=f"{when}simulated verifying measurements behind the prediction (default 100)")
+    p.add_argument(f"--{prefix}evaluations", type=positive_int, default=600,
+                   help=f"{when}objective evaluations per stage of the structured tuning (default 600)")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("run", help="a run's folder: the --out of ambid identify, fit or commission")
     p.add_argument("--out", type=Path, required=True, help="output folder (controller.npz, tune.json, report/)")
     p.add_argument("--rig", default="", help="the nominal rig the run's model update was made on "
@@ -28,12 +39,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--kind", choices=KIND_CHOICES, default="best",
                    help="structured (per-axis PID with lead/lag and notches), hinf (H-infinity mixed sensitivity, "
                         "reduced), or best: both, the better kept (default)")
-    p.add_argument("--checks", type=positive_int, default=100,
-                   help="drawn plants every candidate must hold (default 100)")
-    p.add_argument("--samples", type=positive_int, default=100,
-                   help="simulated verifying measurements behind the prediction (default 100)")
-    p.add_argument("--evaluations", type=positive_int, default=600,
-                   help="objective evaluations per stage of the structured tuning (default 600)")
+    add_effort_options(p)
     p.add_argument("--seed", type=int, default=0, help="seed of the drawn plants and simulated measurements")
     p.add_argument("--no-report", action="store_true", help="skip the report page")
     p.add_argument("--quiet", action="store_true", help="no progress lines")

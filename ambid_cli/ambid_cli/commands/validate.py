@@ -36,6 +36,7 @@ from pathlib import Path
 
 from ambid_cli.commands.inputs import (checked_controller, controller, output_dir, output_file, positive_float,
                                        positive_int, rig_file)
+from ambid_cli.commands.tune import add_effort_options
 from ambid_cli.results_page import measured_on, write_section
 from ambid_cli.sessions_on_dask import add_scheduler_option, as_finished, domain_base, session_client
 
@@ -67,12 +68,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                                                                         "(default identify's)")
     p.add_argument("--realisations", type=positive_int, default=None,
                    help="the sessions' random-phase realisations M (default identify's)")
-    p.add_argument("--tune-evaluations", type=positive_int, default=600,
-                   help="with --tune: objective evaluations per stage of the structured tuning (default 600)")
-    p.add_argument("--tune-samples", type=positive_int, default=100,
-                   help="with --tune: simulated verifying measurements behind the prediction (default 100)")
-    p.add_argument("--tune-checks", type=positive_int, default=100,
-                   help="with --tune: drawn plants the tuned controller must hold (default 100)")
+    add_effort_options(p, "tune-", "with --tune: ")
     p.add_argument("--results", metavar="FILE",
                    help="write the coverage table as the validate section of a results page, e.g. docs/results.md")
 
@@ -107,29 +103,23 @@ def run_seed(seed: int, rig_path: str, seed_dir: str, fingerprint: str, linear_m
              controller_spec: str = "", spec_terms: dict | None = None) -> dict:
     """One identify session and its record; writes seed_dir/record.json last (atomically)."""
     import numpy as np
-    import yaml
 
     from ambid.excitation.spec import DesignSpec
     from ambid.fit.model_update import total_lag
     from ambid.identification.pipeline import identify_session
     from ambid.identification.update import refit_parameters
-    from ambid.jsonable import to_jsonable
     from ambid.plant.rig import load_rig, rig_or_default
     from ambid.validation.bla_truth import noise_free_twin
-    from ambid.validation.coverage import draw_nominal_rig, frf_record, seed_record
+    from ambid.validation.coverage import frf_record, seed_nominal_rig, seed_record
 
     from ambid_nodes.running.plan import SessionConfig, plan_session
     from ambid_nodes.running.run import run_session
 
     t0 = time.perf_counter()
     out = Path(seed_dir)
-    out.mkdir(parents=True, exist_ok=True)
     # identify's session (the experiment's defaults) at this seed; the rig parsed once in this worker
     rig = rig_or_default(rig_path)
-    # the nominal model this seed's update starts from: the simulated rig missed by a draw from its tolerances
-    nominal, drawn = draw_nominal_rig(rig, np.random.default_rng([seed, 26]))
-    nominal_path = out / "nominal_rig.yaml"
-    nominal_path.write_text(yaml.safe_dump(to_jsonable(nominal), sort_keys=False))
+    nominal_path, drawn = seed_nominal_rig(rig, seed, out)
     cfg = SessionConfig(out_dir=out, experiment=DesignSpec(seed=seed, **(spec_terms or {})), rig_file=rig_path,
                         progress=False,
                         nonlinear_magnets=not linear_magnets, controller=controller_spec)

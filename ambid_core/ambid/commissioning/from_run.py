@@ -77,6 +77,8 @@ class RunInputs:
     nonlinear_magnets
         the run's magnets are nonlinear (a simulated session with linear ones says so; a
         recorded one is real).
+    var_noise
+        (L, ny, nu) the FRF's noise variance (the periods' scatter), or None where the run has none.
     """
 
     folder: Path
@@ -91,6 +93,7 @@ class RunInputs:
     poles: np.ndarray
     design: ExcitationDesign | None = None
     nonlinear_magnets: bool = True
+    var_noise: np.ndarray | None = None
 
 
 def _run_folder(folder: Path) -> Path:
@@ -268,7 +271,12 @@ def read_run(folder: str | os.PathLike, rig: Rig | str | os.PathLike | None = No
     has_session = bool(session) and Path(session).is_file()
     return RunInputs(run, summary, the_rig, source, controller, static, arrays["freq_hz"], var,
                      arrays["sensitivity"], np.asarray(fitted.poles), _design(session) if has_session else None,
-                     _nonlinear(session) if has_session else True)
+                     _nonlinear(session) if has_session else True, _usable(arrays.get("var_noise")))
+
+
+def _usable(var: np.ndarray | None) -> np.ndarray | None:
+    """A variance array where every entry is finite and one is positive, else None."""
+    return var if var is not None and np.all(np.isfinite(var)) and np.any(var > 0) else None
 
 
 def headline_peak(sensitivity: Mapping[str, Any]) -> float | None:
@@ -378,7 +386,8 @@ def tune_run(folder: str | os.PathLike, out_dir: str | os.PathLike, *, rig: Rig 
     if "order" not in fit or "delay_s" not in fit:
         raise ValueError(f"{inputs.folder}/identification.json has no fit; run ambid identify or fit again")
     measurement: MeasurementModel = measurement_model(inputs.freq_hz, inputs.var_g, inputs.sensitivity,
-                                                      int(fit["order"]), float(fit["delay_s"]), inputs.poles)
+                                                      int(fit["order"]), float(fit["delay_s"]), inputs.poles,
+                                                      var_noise=inputs.var_noise)
     running, facts = inputs.controller if inputs.controller is not None else (None, None)
     layout = inputs.rig.layout
     result: TuneResult = tune(unc, measurement, layout, _budget(inputs, unc), _starts(inputs.rig, facts), running,

@@ -13,7 +13,11 @@ interval claims to hold 95 % of the time. It differs from the loop's own peak by
   ``var(G_ij) = e_i^2 sum_k |(S^-1)_kj|^2`` with the run's sensitivity, so the new loop's ``S`` sets how
   much of it reaches the new estimate;
 * the verifying fit: the common-denominator model of that noisy estimate, at the run's order, between the
-  lines.
+  lines, weighted as identify weights it: by the noise and total variances the verifying run estimates from
+  its own periods and realisations (:func:`ambid.frf.uncertainty.fit_weights`). Those estimates
+  scatter from line to line (a few degrees of freedom each), and the fitted model between the lines, where
+  the headline peak usually lies, moves with its weights: each simulated measurement draws its variance
+  estimates by resampling the run's own line-to-line scatter (each line's level over its neighbours').
 
 :func:`predict_peak` simulates the verifying measurement this way for plants drawn from the posterior
 (a parametric bootstrap of the measurement and its fit), and reads the interval off the order statistics
@@ -34,9 +38,10 @@ from ambid.commissioning.plants import PlantUncertainty, draw_parameters, peak_g
 from ambid.control.closed_loop import close_loop, residue_freqresp
 from ambid.fit import fit_common_denominator
 from ambid.frf.sensitivity import zone_probabilities
+from ambid.frf.uncertainty import fit_weights
 from ambid.statespace import StateSpace
 
-__all__ = ["MeasurementModel", "measurement_model", "PeakPrediction", "predict_peak"]
+__all__ = ["MeasurementModel", "measurement_model", "verify_fit_weights", "PeakPrediction", "predict_peak"]
 
 
 @dataclass(frozen=True)
@@ -58,6 +63,13 @@ class MeasurementModel:
         (order,) the run's fitted poles [rad/s]: the verifying fit's start.
     n_dense
         lines of the dense grid between the excited ones where identify looks for the peak.
+    noise_only_var
+        (L, ny) like ``noise_var``, of the noise alone (the periods' scatter), or None: the fit is then
+        weighted by ``noise_var`` itself.
+    scatter
+        (N, 2) the run's estimated noise and total levels of a line (an output's) over the mean of its
+        neighbours', the pairs each simulated measurement's variance estimates are resampled from; None: no
+        scatter.
     """
 
     freq_hz: np.ndarray
@@ -66,6 +78,8 @@ class MeasurementModel:
     delay_s: float
     poles: np.ndarray
     n_dense: int = 8000
+    noise_only_var: np.ndarray | None = None
+    scatter: np.ndarray | None = None
 
     @property
     def dense_hz(self) -> np.ndarray:
@@ -74,7 +88,8 @@ class MeasurementModel:
 
 
 def measurement_model(freq_hz: np.ndarray, var_g: np.ndarray, sensitivity: np.ndarray, order: int,
-                      delay_s: float, poles: np.ndarray, window: int = 3) -> MeasurementModel:
+                      delay_s: float, poles: np.ndarray, window: int = 3,
+                      var_noise: np.ndarray | None = None) -> MeasurementModel:
     """The run's :class:`MeasurementModel` from its FRF's variance and measured sensitivity.
 
     Parameters
@@ -89,16 +104,28 @@ def measurement_model(freq_hz: np.ndarray, var_g: np.ndarray, sensitivity: np.nd
         the run's fit.
     window
         lines either side each output's noise level is averaged over.
+    var_noise
+        (L, ny, nu) the FRF's noise variance (the periods' scatter), or None.
     """
-    v = np.asarray(var_g, dtype=float)
     sinv = np.linalg.inv(np.asarray(sensitivity))
     gain = np.sum(np.abs(sinv) ** 2, axis=1)                       # (L, nu): sum_k |Sinv_kj|^2
-    e2 = np.mean(v / gain[:, None, :], axis=2)                      # (L, ny)
     kernel = np.ones(2 * window + 1)
-    norm = np.convolve(np.ones(e2.shape[0]), kernel, mode="same")
-    smooth = np.stack([np.convolve(e2[:, i], kernel, mode="same") / norm for i in range(e2.shape[1])], axis=1)
+    count = np.convolve(np.ones(gain.shape[0]), kernel, mode="same")
+
+    def level(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each output's level over the excitation (L, ny), smoothed, and each line's over its neighbours'."""
+        e2 = np.mean(np.asarray(v, dtype=float) / gain[:, None, :], axis=2)
+        total = np.stack([np.convolve(e2[:, i], kernel, mode="same") for i in range(e2.shape[1])], axis=1)
+        neighbours = (total - e2) / (count - 1)[:, None]            # the line itself left out
+        return total / count[:, None], e2 / neighbours
+
+    smooth, scatter_total = level(var_g)
+    noise_only = scatter = None
+    if var_noise is not None:
+        noise_only, scatter_noise = level(var_noise)
+        scatter = np.stack([scatter_noise.ravel(), scatter_total.ravel()], axis=1)
     return MeasurementModel(np.asarray(freq_hz, dtype=float), smooth, int(order), float(delay_s),
-                            np.asarray(poles, dtype=complex))
+                            np.asarray(poles, dtype=complex), noise_only_var=noise_only, scatter=scatter)
 
 
 @dataclass(frozen=True)
@@ -159,14 +186,27 @@ def _measured_peak(k_lines: np.ndarray, k_dense: np.ndarray, g_lines: np.ndarray
     g_meas = g_lines + e @ sinv
     kf = np.einsum("li,ij->lij", k_lines, np.eye(nu)) if k_lines.ndim == 2 else k_lines
     s_meas = s + s @ kf @ e
-    var = model.noise_var[:, :, None] * np.sum(np.abs(sinv) ** 2, axis=1)[:, None, :]
-    var = np.broadcast_to(var.mean(axis=2, keepdims=True), var.shape)   # pooled over the inputs, as identify
-    fit = fit_common_denominator(f, g_meas, var, order=model.order, delay_s=model.delay_s,
+    fit = fit_common_denominator(f, g_meas, verify_fit_weights(model, sinv, rng), order=model.order,
+                                 delay_s=model.delay_s,
                                  initial_poles=model.poles, n_vf_iterations=5, max_refine_evaluations=40)
     dense = model.dense_hz
     model_peak = float(worst_peak(k_dense, fit.model.freqresp(dense)[None])[0])
     line_peak = float(np.abs(np.diagonal(s_meas, axis1=1, axis2=2)).max())
     return max(model_peak, line_peak)
+
+
+def verify_fit_weights(model: MeasurementModel, sinv: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """(L, ny, nu) the variance the simulated verifying fit is weighted by (module docstring): the new loop's
+    noise and total variances, each line's estimates scattered by a resampled pair of the run's, combined as
+    identify combines them; pooled over the inputs."""
+    gain = np.sum(np.abs(sinv) ** 2, axis=1)[:, None, :]             # (L, 1, nu)
+    if model.noise_only_var is None or model.scatter is None:
+        var = model.noise_var[:, :, None] * gain
+        return np.broadcast_to(var.mean(axis=2, keepdims=True), var.shape)
+    pick = model.scatter[rng.integers(0, model.scatter.shape[0], size=model.noise_var.shape)]   # (L, ny, 2)
+    noise = (model.noise_only_var * pick[..., 0])[:, :, None] * gain
+    total = (model.noise_var * pick[..., 1])[:, :, None] * gain
+    return fit_weights(noise, total)
 
 
 def predict_peak(unc: PlantUncertainty, controller: StateSpace, model: MeasurementModel, *, n_samples: int = 100,

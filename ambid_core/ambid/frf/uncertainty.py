@@ -36,6 +36,7 @@ import numpy as np
 from ambid.frf.estimators import _matched, _records, _right_divide, per_period_frf
 
 __all__ = [
+    "fit_weights", "floored_variance",
     "fit_weight_variance", "period_mean_variance", "frf_noise_variance", "BlaEstimate", "bla_robust",
     "DistortionLevels", "distortion_levels", "noise_std_interval", "output_noise_std", "row_covariance",
 ]
@@ -365,3 +366,15 @@ def fit_weight_variance(var_noise: np.ndarray, var_total: np.ndarray, window: in
     count = (hi - lo - 1)[:, None, None]
     mean_share = np.where(count > 0, (csum[hi] - csum[lo] - share) / np.maximum(count, 1), share)
     return np.broadcast_to(vn * np.maximum(mean_share, 1.0), np.shape(var_noise)).copy()
+
+
+def floored_variance(v: np.ndarray) -> np.ndarray:
+    """A weighting variance floored at 1e-6 of its median positive value (no line weighs without bound)."""
+    return np.maximum(v, 1e-6 * np.median(v[v > 0]))
+
+
+def fit_weights(var_noise: np.ndarray, var_total: np.ndarray) -> np.ndarray:
+    """(L, Ny, Nu) the variance identify weights its fit by, from the FRF's noise and total variances
+    (L, Ny, Nu) [unit of G squared]: :func:`fit_weight_variance`, floored (:func:`floored_variance`).
+    The commissioning's simulated verifying measurement weights its fit by the same rule."""
+    return floored_variance(fit_weight_variance(var_noise, var_total))

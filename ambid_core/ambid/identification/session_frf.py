@@ -17,7 +17,7 @@ import numpy as np
 
 from ambid.frf.directional import DirectionalFrf, directional_frf, has_planes
 from ambid.frf.streaming import FrfResult
-from ambid.frf.uncertainty import fit_weight_variance, row_covariance
+from ambid.frf.uncertainty import fit_weights, floored_variance, row_covariance
 from ambid.identification.result import Harmonic, NoiseFigures, SynchronousFigures
 
 __all__ = ["FrfVariances", "frf_variances", "SessionFrf", "session_frf", "band_kind"]
@@ -82,7 +82,7 @@ def _fit_variance(frf: FrfResult, pool: bool = True) -> tuple[np.ndarray | None,
         if np.all(np.isfinite(v)) and np.any(v > 0):
             if pool:
                 v = np.broadcast_to(v.mean(axis=2, keepdims=True), v.shape)
-            return _floored(v), name + (", pooled over the inputs" if pool else "")
+            return floored_variance(v), name + (", pooled over the inputs" if pool else "")
     return None, "none (equal weights)"
 
 
@@ -92,13 +92,8 @@ def _weight_variance(frf: FrfResult, var: np.ndarray | None, var_kind: str) -> t
     vn, vt = (np.asarray(getattr(frf, k), dtype=float) for k in ("var_noise", "var_total"))
     if var is None or not (np.all(np.isfinite(vn)) and np.all(np.isfinite(vt)) and np.any(vn > 0)):
         return var, var_kind
-    return (_floored(fit_weight_variance(vn, vt)),
-            "var_noise x (var_total / var_noise averaged over +-3 lines), pooled over the inputs")
+    return fit_weights(vn, vt), "var_noise x (var_total / var_noise averaged over +-3 lines), pooled over the inputs"
 
-
-def _floored(v: np.ndarray) -> np.ndarray:
-    """A weighting variance floored at 1e-6 of its median positive value (no line weighs without bound)."""
-    return np.maximum(v, 1e-6 * np.median(v[v > 0]))
 
 
 def band_kind(var_kind: str) -> str:

@@ -54,7 +54,7 @@ from ambid.plant.rig import Rig
 from ambid.plant.tolerances import tolerance_for
 
 __all__ = ["FRF_NOMINAL", "POOLED", "clopper_pearson", "frf_record", "seed_record", "with_bla_truth",
-           "coverage_table", "coverage_figure", "draw_nominal_rig", "PREDICTED_PEAK", "predicted_peak_row"]
+           "coverage_table", "coverage_figure", "draw_nominal_rig", "seed_nominal_rig", "PREDICTED_PEAK", "predicted_peak_row"]
 
 #: P(|e| <= 2 sigma) for a circular complex Gaussian error e with E|e|^2 = sigma^2.
 FRF_NOMINAL = float(1 - np.exp(-4.0))
@@ -421,3 +421,16 @@ def draw_nominal_rig(rig: Rig, rng: np.random.Generator) -> tuple[dict[str, Any]
     over["extra_delay_s"] = float(min(max(delay, 0.0), rig.dt))
     base = {k: val for k, val in rig.to_dict().items() if k not in over}
     return {**base, **over, "tolerances": tolerances}, drawn
+
+
+def seed_nominal_rig(rig: Rig, seed: int, out: Path) -> tuple[Path, dict[str, Any]]:
+    """The nominal model a validate seed's update starts from, the user's: the simulated ``rig`` missed by a
+    draw from its tolerances (:func:`draw_nominal_rig`, never the truth), written to ``out/nominal_rig.yaml``
+    (``out`` created); its path and the draw."""
+    import yaml
+
+    out.mkdir(parents=True, exist_ok=True)
+    nominal, drawn = draw_nominal_rig(rig, np.random.default_rng([seed, 26]))
+    path = out / "nominal_rig.yaml"
+    path.write_text(yaml.safe_dump(to_jsonable(nominal), sort_keys=False))
+    return path, drawn

@@ -74,7 +74,8 @@ def run_identify(cfg: SessionConfig, plan: SessionPlan | None = None,
             shown["at"] = time.perf_counter()
             if on_headline is not None:
                 on_headline(_identify_summary(cfg, run, design, offline, _timing(run, shown)))
-            phase("writing the report" if cfg.report is True else "handing the report to a process of its own")
+            if cfg.report:
+                phase("writing the report" if cfg.report is True else "handing the report to a process of its own")
 
         phase("analysing the recording: FRF, fit, model update")
 

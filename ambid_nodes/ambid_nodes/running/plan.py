@@ -56,10 +56,14 @@ class SessionConfig:
     # without it (report/status.json says when it is there: ambid identify answers without waiting for it)
     report: bool | str = True
     extra: dict = field(default_factory=dict)
+    # the simulated sensor noise's own seed; None: the experiment's. A verifying run repeats the experiment
+    # (its lines and phases) and meets fresh noise, as on a real rig
+    noise_seed: int | None = None
 
     @property
     def seed(self) -> int:
-        return self.experiment.seed
+        """The simulated sensor noise's seed."""
+        return self.experiment.seed if self.noise_seed is None else self.noise_seed
 
     def design(self, fs_hz: float, rig_speed_rpm: float = 0.0, inputs: Sequence[str] = ()) -> ExcitationDesign:
         """The experiment's design at the plant's rate, on the plant's currents ``inputs`` unless the experiment
