@@ -98,8 +98,9 @@ def drill(ros, procs, ros_env, args: list[str], node: str, sig: int, at_sample: 
     assert "Traceback" not in err, err[-3000:]
     assert run.returncode == 2, (run.returncode, err[-2000:])
     # this process hears the last blocks at its pace (on a busy machine after the run has ended): waited for, up
-    # to the line's sample, so what the tests compare with them is all there
-    ros.spin_until(lambda: blocks.progress >= int(m.group(5)), 10)
+    # to the line's sample, so what the tests compare with them is all there (bounded: a starved process may miss
+    # a final block whose writer exited after FLUSH_S without its ack)
+    ros.spin_until(lambda: blocks.progress >= int(m.group(5)), 5, scale=False)
     return out, err, m, blocks
 
 
@@ -196,7 +197,9 @@ def test_excitation_generator_killed_mid_experiment(ros, ros_env, procs, tmp_pat
     assert scan.complete  # the recorder closed it on SIGTERM
     rec = recorded_blocks(path)
     assert_tiles(rec, k)  # every sample up to the line's, none after
-    assert rec[-1].first_index + rec[-1].n_samples == blocks.progress
+    # every block this process heard is recorded (the recording's end is the line's sample, above); the final
+    # block may never reach this starved process: the plant exits after at most FLUSH_S waiting for its ack
+    assert rec[-1].first_index + rec[-1].n_samples >= blocks.progress
 
 
 def test_frf_consumer_stopped(ros, ros_env, procs, tmp_path):
