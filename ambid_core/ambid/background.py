@@ -137,11 +137,12 @@ def _run(status: Path) -> int:
         _write_status(status, {"state": "failed", "pid": os.getpid(), "started": started,
                                "seconds": time.perf_counter() - t0, "error": f"{type(exc).__name__}: {exc}"})
         return 1
-    _write_status(status, {"state": "done", "pid": os.getpid(), "started": started,
-                           "seconds": time.perf_counter() - t0})
     log = status.with_name(status.name + ".log")
+    # before "done": a reader that saw "done" finds the folder as it stays
     if log.exists() and log.stat().st_size == 0:   # nothing said: no file to look at
         log.unlink()
+    _write_status(status, {"state": "done", "pid": os.getpid(), "started": started,
+                           "seconds": time.perf_counter() - t0})
     return 0
 
 
