@@ -265,6 +265,10 @@ class PlantSim(SessionNode):
         self.horizon = declare(self, "excitation_horizon", 1_000_000,
                                "most samples an excitation block may lie ahead of the plant (memory bound)",
                                1, 1_000_000_000)
+        self.measurement_readers = declare(
+            self, "measurement_readers", 0,
+            "readers of the measurement the loop waits to be matched with before y[0] (a volatile topic: a reader "
+            "matched later misses the first blocks)", 0, 1000)
         self.join_session()
         return rig_file, nonlinear
 
@@ -291,6 +295,7 @@ class PlantSim(SessionNode):
         # start once both directions are matched: neither y[0] nor the answer ic[0] may be lost; with a
         # session, once the roster names the session's controller (whose currents alone are taken)
         if (self.pub_y.get_subscription_count() < 1 or self.sub_ic.get_publisher_count() < 1
+                or self.pub_block.get_subscription_count() < self.measurement_readers
                 or not self.controller.known):
             return
         self.start_timer.cancel()

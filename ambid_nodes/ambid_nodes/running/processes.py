@@ -91,7 +91,8 @@ class ProcessesLayout(Layout):
             self.spin_until(watch.hears_the_plant, START_TIMEOUT_S, f"{self.plant_name}'s measurement")
             return
         # each by name: another listener on the topic (a ros2 topic echo, a test's) stands in for none of them
-        listeners = ["recorder", "frf_consumer", "excitation_generator"] + ["live_view"] * announce_live(self.live)
+        announce_live(self.live)
+        listeners = self.measurement_listeners()
         self.spin_until(lambda: not watch.subscribed(watch.measurement, listeners) and watch.hears_the_plant(),
                         START_TIMEOUT_S, "the recorder, the consumer and the generator to subscribe"
                         + (" (and the live view)" if self.live is not None else ""))
@@ -172,8 +173,15 @@ class ProcessesLayout(Layout):
         if cfg.hardware:
             return {**bridge_parameters(cfg), "start_with_experiment": not self.loop_only,
                     "autostart": self.loop_only, "stop_after_samples": self.total, **self.rig_param, **self.session}
+        # the loop waits until the plant's own writer is matched with every reader the run waits for (the
+        # graph showing a subscription by name is not yet the plant's writer matched with it)
+        readers = 0 if self.loop_only else len(self.measurement_listeners()) + 1   # + the watch
         return {"sim_seconds": self.sim_seconds, "seed": cfg.seed, "nonlinear_magnets": cfg.nonlinear_magnets,
-                **self.rig_param, **self.session}
+                "measurement_readers": readers, **self.rig_param, **self.session}
+
+    def measurement_listeners(self) -> list[str]:
+        """The session's nodes that listen to the measurement from its first block, by name."""
+        return ["recorder", "frf_consumer", "excitation_generator"] + ["live_view"] * (self.live is not None)
 
     def start_controller(self) -> None:
         """The controller joins (a target runs its own): the loop starts."""
