@@ -71,11 +71,11 @@ def run(args: argparse.Namespace) -> int:
     # unstable controller or an experiment that cannot be designed stops here, before any node starts
     rig = rig_file(args.rig)
     ctrl = None if args.hardware else checked_controller(args.controller, rig)
+    if args.hardware and args.noise_seed is not None:
+        raise BadInput("--noise-seed with --hardware: a real rig's sensor noise has no seed; leave --noise-seed out")
     if args.true_model:
         if not args.hardware:
             raise BadInput("--true-model needs --hardware: a simulated session is compared with its own true rig")
-    if args.hardware and args.noise_seed is not None:
-        raise BadInput("--noise-seed with --hardware: a real rig's sensor noise has no seed; leave --noise-seed out")
         from ambid.hardware.target_model import read_target_model
 
         try:
