@@ -30,9 +30,31 @@ import sys
 import threading
 import time
 
+
+def lower_priority(niceness: int) -> dict:
+    """Make this process yield the CPU: ``niceness`` more nice, and so its autogroup where it leads one.
+
+    With the kernel's autogroups (``/proc/sys/kernel/sched_autogroup_enabled``, on by default in most
+    distributions) every session is scheduled as one group against the others, a task's nice weighing only
+    inside its group: the live view, a session of its own (LiveProcess), niced alone still took as much CPU
+    as the loop's whole session. Its autogroup's nice is raised too; each step only where permitted (a
+    process may always lower its own priority; a kernel without autogroups has no file). Call it before any
+    thread starts: threads inherit it. What was applied, e.g. ``{"nice": 10, "autogroup_nice": 10}``.
+    """
+    done = {"nice": os.nice(niceness)}
+    if os.getsid(0) == os.getpid():   # the autogroup is this session's own: nothing else is made nicer
+        try:
+            with open("/proc/self/autogroup", "w") as f:
+                f.write(str(done["nice"]))
+            done["autogroup_nice"] = done["nice"]
+        except OSError:
+            pass
+    return done
+
+
 if __name__ == "__main__" and os.environ.get("AMBID_LIVE_NICENESS", "").isdigit():
     # started by LiveProcess: lower the priority before any import starts a thread, so that all inherit it
-    os.nice(int(os.environ.pop("AMBID_LIVE_NICENESS")))
+    lower_priority(int(os.environ.pop("AMBID_LIVE_NICENESS")))
 
 import numpy as np
 from ambid.excitation import ExcitationDesign
@@ -56,6 +78,7 @@ LIVE_BLOCKS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200, reliability
 
 LIVE_NICENESS = 10   # the live view's niceness beside a session: the loop first
 DESIGN_LINE = "live view: experiment "   # printed on each design shown
+FINISHED_LINE = "live view: finished "   # printed once it has shown an experiment's last period
 
 
 def _t_ns(stamp) -> int:
@@ -91,7 +114,18 @@ class LiveView(Node):
         self.create_subscription(DesignMsg, "excitation/design", self.on_design, qos.subscription(qos.LATCHED))
         self.create_subscription(SessionStatus, "status", self.on_status, qos.subscription(qos.STATUS))
         self.create_subscription(SessionEvent, "events", self.on_event, qos.subscription(qos.EVENTS))
+        self.finished: set[str] = set()   # experiments whose end the live view has shown
+        self.create_timer(0.2, self.say_finished)
+        self.cpu_at_start = time.process_time()
         self.get_logger().info(f"live view on {self.server.url} (topics {prefix}/...)")
+
+    def say_finished(self) -> None:
+        """Print once per experiment when the live view has shown its end, for a supervising command
+        (LiveProcess.wait_finished): a live view behind the loop catches up once the loop is over."""
+        f = self.server.follower
+        if f.experiment_id and f.experiment_id not in self.finished and f.stream is not None and f.stream.finished:
+            self.finished.add(f.experiment_id)
+            print(f"{FINISHED_LINE}{f.experiment_id}", flush=True)
 
     def foreign_message(self, topic: str, msg) -> bool:
         """True (and counted) if ``msg`` is of another session than the one shown."""
@@ -135,8 +169,10 @@ class LiveView(Node):
                            _t_ns(msg.stamp))
 
     def close(self) -> dict:
-        """Stop the server (what is queued is shown first); its figures, with the foreign messages not shown."""
-        return {**self.server.close(), "foreign_messages": dict(self.foreign)}
+        """Stop the server (what is queued is shown first); its figures, with the foreign messages not shown and
+        the CPU seconds the process used since it listened (``cpu_s``: every thread, the SDK's included)."""
+        return {**self.server.close(), "foreign_messages": dict(self.foreign),
+                "cpu_s": time.process_time() - self.cpu_at_start}
 
 
 class LiveProcess:
@@ -156,8 +192,8 @@ class LiveProcess:
         from ambid_nodes.supervisor import ros_args
 
         # a viewer yields the CPU to the loop it shows: beside a busy process on two cores the live view and its
-        # client's frames took the loop's turns (0.83 of the loop without them); main() lowers its priority
-        # before any thread starts, so that every one of them inherits it
+        # client's frames took the loop's turns (0.83 of the loop without them); the process lowers its priority
+        # (and its autogroup's: it leads a session of its own) before any thread starts, so that all inherit it
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), AMBID_LIVE_NICENESS=str(LIVE_NICENESS))
         self._lines: queue.Queue = queue.Queue()
         self.proc = subprocess.Popen(
@@ -214,6 +250,12 @@ class LiveProcess:
             if line == DESIGN_LINE + experiment_id:
                 return
         raise RuntimeError(f"the live view did not get the design of {experiment_id} within {timeout_s:g} s")
+
+    def wait_finished(self, experiment_id: str, timeout_s: float = 30.0) -> bool:
+        """Wait until the live view has shown the end of the experiment (it runs nicer than the loop, so on a
+        busy machine it may still be catching up when the session ends); False if it has not within
+        ``timeout_s``."""
+        return any(line == FINISHED_LINE + experiment_id for line in self._stdout(timeout_s))
 
     def stop(self) -> dict:
         """SIGTERM, then its figures (from its summary line); {} if it printed none."""

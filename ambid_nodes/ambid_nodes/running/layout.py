@@ -80,9 +80,14 @@ class Layout(ABC):
             if answer is None:   # the loop alone: the plant's summary is the run's
                 return self.loop_summary(plant_summary)
             recorder, estimate = self.stop(plant_summary, answer)
-            return run_facts(answer, plant_summary, recorder, live_figures(estimate),
-                             time.perf_counter() - self.wall0, self.words(), self.plan.design, self.mcap_path,
-                             self.foreign, self.final_estimate_at(answer))
+            facts = run_facts(answer, plant_summary, recorder, live_figures(estimate),
+                              time.perf_counter() - self.wall0, self.words(), self.plan.design, self.mcap_path,
+                              self.foreign, self.final_estimate_at(answer))
+            if self.live is not None:
+                # the live view runs nicer than the loop: on a busy machine it may still be behind. The loop is
+                # over, so it catches up now, while the writers live to send it what it has not received
+                facts["live_caught_up"] = self.live.wait_finished(answer.experiment_id, LIVE_CATCH_UP_S)
+            return facts
 
     @abstractmethod
     def opened(self) -> contextlib.AbstractContextManager:
@@ -144,6 +149,10 @@ def start_live(cfg: SessionConfig):
 
     return LiveProcess(cfg.live_port, cfg.live_host, cfg.namespace, cfg.estimator, session_domain_id(),
                        cfg.session or 0)
+
+
+#: the most wall seconds a session waits, after its loop, for its live view to show the experiment's end
+LIVE_CATCH_UP_S = 10.0
 
 
 def announce_live(live) -> int:
