@@ -7,39 +7,51 @@ from __future__ import annotations
 
 import os
 
-# the slowest files of the suite, slowest first: their tests' summed durations (pytest --durations of a whole
-# suite, three workers on the 2-core machine beside other work, less what the reports left out since saved),
-# about 310 s down to 40 s; a file missing from the list keeps its place after these
+# the slowest files of the suite, slowest first: their tests' summed durations (pytest --durations=120 of a
+# fresh-clone CI run beside a busy process and other work, 2 workers; 21 min in all, so about twice the usual
+# figures), about 186 s down to 12 s; a file missing from the list keeps its place after these. The launcher
+# runs xdist with --no-loadscope-reorder: xdist's default queues the files by their count of tests, which put
+# the one-test files (test_nominal_models, test_commission, test_validate_tune) last, a long tail on one worker
 SLOW_FIRST = (
-    "tests/nodes/test_target_c_bridge.py",
-    "tests/docs/test_doc_blocks.py",
-    "tests/nodes/test_drills.py",
-    "tests/nodes/test_nominal_models.py",
-    "tests/nodes/test_live_identify.py",
-    "tests/nodes/test_sessions.py",
-    "tests/nodes/test_validate_tune.py",        # not yet measured in a whole suite: placed by what it runs
-    "tests/core/test_import_any_channels.py",
-    "tests/nodes/test_loop.py",
-    "tests/nodes/test_validate_command.py",
-    "tests/nodes/test_commission.py",           # likewise
-    "tests/nodes/test_fuzz.py",
-    "tests/nodes/test_identify_session.py",
-    "tests/nodes/test_five_axis.py",
-    "tests/core/test_early_analysis.py",
-    "tests/core/test_live.py",
+    "tests/nodes/test_nominal_models.py",       # 186 s (155 s of it the session and the twins)
+    "tests/nodes/test_commission.py",           # 172 s
+    "tests/docs/test_doc_blocks.py",            # 145 s
+    "tests/nodes/test_target_c_bridge.py",      # 132 s
+    "tests/nodes/test_validate_tune.py",        # 130 s
     "tests/nodes/test_bench.py",
-    "tests/nodes/test_own_rotor.py",
-    "tests/core/test_warm_caches.py",
-    "tests/core/test_import_any_excitation.py",
-    "tests/nodes/test_reliability_watchdog.py",
-    "tests/core/test_design_cache.py",
-    "tests/nodes/test_identify_controller.py",
-    "tests/core/test_import_export.py",
+    "tests/nodes/test_drills.py",
     "tests/docs/test_dask_cluster.py",
-    "tests/core/test_frf_file.py",
+    "tests/nodes/test_identify_session.py",
+    "tests/nodes/test_live_identify.py",
+    "tests/nodes/test_validate_command.py",
+    "tests/nodes/test_loop.py",
     "tests/core/test_architecture.py",
     "tests/nodes/test_campaign.py",
+    "tests/core/test_warm_caches.py",
+    "tests/core/test_live.py",
+    "tests/nodes/test_sessions.py",
+    "tests/core/test_early_analysis.py",
+    "tests/nodes/test_fuzz.py",
+    "tests/nodes/test_five_axis.py",
+    "tests/nodes/test_own_rotor.py",
+    "tests/nodes/test_identify_controller.py",
+    "tests/docs/test_core_wheel.py",
+    "tests/nodes/test_reliability_config.py",
+    "tests/core/test_import_any_excitation.py",
+    "tests/nodes/test_reliability_watchdog.py",
+    "tests/core/test_import_any_channels.py",
+    "tests/core/test_import_export.py",
+    "tests/core/test_commissioning.py",
+    "tests/core/test_optional_dependencies.py",
+    "tests/core/test_api.py",
+    "tests/core/test_coverage.py",
+    "tests/core/test_tune_command.py",
+    "tests/core/test_design_cache.py",
+    "tests/nodes/test_netns.py",
+    "tests/core/test_identification.py",
     "tests/nodes/test_identify_ideal_rig.py",
+    "tests/nodes/test_loop_recovery.py",
+    "tests/core/test_frf_file.py",           # 12 s
 )
 
 

@@ -49,11 +49,25 @@ def publisher_gid(publisher) -> bytes:
         return _publisher_gid(publisher.handle.pointer)
 
 
+def endpoint_node(info) -> str | None:
+    """The node of a publisher or subscription the graph shows (rclpy's TopicEndpointInfo), ``/ns/name``; None
+    while the graph knows the endpoint but not yet its node."""
+    if info.node_name == _UNKNOWN_NODE:
+        return None
+    return f"{info.node_namespace.rstrip('/')}/{info.node_name}"
+
+
+def unnamed_endpoint(info) -> str:
+    """An endpoint whose node the graph does not know yet, named by its GID."""
+    return f"publisher {format_gid(bytes(info.endpoint_gid[:GID_BYTES]))} ({UNNAMED})"
+
+
 def _endpoint_name(info, gid: bytes) -> str:
     """A foreign publisher the graph shows, named by its node (by its GID while the graph has no node for it)."""
-    if info.node_name == _UNKNOWN_NODE:
+    node = endpoint_node(info)
+    if node is None:
         return f"publisher {format_gid(gid)} ({UNNAMED})"
-    return f"{info.node_namespace.rstrip('/')}/{info.node_name} (not of this session)"
+    return f"{node} (not of this session)"
 
 
 def stamped(publisher, session_id: int):

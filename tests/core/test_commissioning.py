@@ -199,12 +199,15 @@ def test_a_layout_of_five_axes_is_tuned_in_two_groups():
 
 def test_the_prediction_moves_the_posterior_to_the_new_loops_operating_point():
     """The magnets' slopes a run's excitation sees depend on the loop; the posterior is carried to the new loop by
-    the nominal rig's ratio, the run's own controller leaving it where it is and linear magnets not moving it."""
+    the ratio on the plant the data showed (the nominal rig moved to the update's estimates, its magnets those
+    estimates), not on the drawing's: a nominal rig off by its tolerances gives the same ratio as the rig itself.
+    The run's own controller leaves it where it is and linear magnets do not move it."""
+    from dataclasses import replace
     from types import SimpleNamespace
 
     from ambid.commissioning.from_run import operating_point
     from ambid.excitation import design_multisine
-    from ambid.fit.model_update import excitation_slopes, slopes_as_parameters
+    from ambid.fit.model_update import excitation_slopes, rig_values_for, slopes_as_parameters
 
     values = nominal_update_parameters(RIG)
     unc = plant_uncertainty(_update(values, {"ki_n_per_a": (0.5, False), "ks_n_per_m": (2000.0, False)},
@@ -213,15 +216,29 @@ def test_the_prediction_moves_the_posterior_to_the_new_loops_operating_point():
                               n_realisations=1, seed=5)
     ran = pid_controller(PidParameters(kp_a_per_m=20_000.0, td_s=0.8e-3), DT)
     new = pid_controller(PidParameters(), DT)
-    run = SimpleNamespace(rig=RIG, controller=(ran, {}), design=design, nonlinear_magnets=True)
+    # the drawing misses the rig: ki 3 % high, ks 4 % low, the amplifier 10 % slow
+    off = replace(RIG, values={**RIG.values, **rig_values_for(RIG, {
+        "ki_n_per_a": 1.03 * values["ki_n_per_a"], "ks_n_per_m": 0.96 * values["ks_n_per_m"],
+        "amplifier_bandwidth_hz": 0.9 * values["amplifier_bandwidth_hz"]})})
+    assert nominal_update_parameters(off)["ks_n_per_m"] == pytest.approx(0.96 * values["ks_n_per_m"], rel=1e-12)
+    run = SimpleNamespace(rig=off, controller=(ran, {}), design=design, nonlinear_magnets=True)
     at = operating_point(run, unc)
     assert at(ran).values == pytest.approx(unc.values, rel=1e-12)
-    a = slopes_as_parameters(*excitation_slopes(RIG, ran, design), RIG.layout)
-    b = slopes_as_parameters(*excitation_slopes(RIG, new, design), RIG.layout)
+    # the rig the data describe: the built-in one, its magnets exactly the estimates (no manufacturing factor)
+    exact = replace(RIG, values={**RIG.values, "true_ki_factor": 1.0, "true_ks_factor": 1.0})
+
+    def ratio(rig):
+        a = slopes_as_parameters(*excitation_slopes(rig, ran, design), rig.layout)
+        b = slopes_as_parameters(*excitation_slopes(rig, new, design), rig.layout)
+        return {k: b[k] / a[k] for k in ("ki_n_per_a", "ks_n_per_m")}
+
+    want, drawing = ratio(exact), ratio(replace(off, values={**off.values, "true_ki_factor": 1.0,
+                                                              "true_ks_factor": 1.0}))
     moved_values = at(new).values
     for name in ("ki_n_per_a", "ks_n_per_m"):
-        assert moved_values[name] == pytest.approx(unc.values[name] * b[name] / a[name], rel=1e-9)
-        assert abs(b[name] / a[name] - 1) > 1e-5          # the loops differ enough to move the slopes
+        assert moved_values[name] == pytest.approx(unc.values[name] * want[name], rel=1e-9)
+        assert abs(want[name] - 1) > 1e-5                 # the loops differ enough to move the slopes
+        assert abs(drawing[name] - want[name]) > 1e-6     # and the drawing's ratio would have been another
     assert np.array_equal(at(new).cov, unc.cov)           # the data's spread is kept
     assert operating_point(SimpleNamespace(**{**vars(run), "nonlinear_magnets": False}), unc) is None
 

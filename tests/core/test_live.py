@@ -316,8 +316,8 @@ def test_a_session_faster_than_real_time_is_drawn_at_the_display_rate(session):
     client.start()
     server.submit("design_message", "exp1", d, PRE, d.total_samples)
     k, end = 0, time.monotonic() + 30
-    while "/amb/live/signals" not in got and time.monotonic() < end:   # a block every 0.1 s until it shows one:
-        server.submit("block", k, 1 / FS, NAMES, x[k:k + 500])            # the client subscribed
+    while not ({"/amb/live/signals", "/amb/live/progress"} <= set(got)) and time.monotonic() < end:
+        server.submit("block", k, 1 / FS, NAMES, x[k:k + 500])   # a block every 0.1 s until they show: subscribed
         k += 500
         time.sleep(0.1)
     time.sleep(0.3)   # and to every channel advertised; what those blocks showed has come (a subscription in the
@@ -355,3 +355,36 @@ def test_live_estimates_wait_their_turn_but_the_final_one_comes(session):
     entry = [fr.message for fr in frames if fr.topic == "frf/y_a_y/u_a_x" and fr.message is not None]
     assert len(entry) == 2 and entry[-1]["complete"] and not entry[0]["complete"]
     np.testing.assert_array_equal(f.result.frf, every.result.frf)   # the same final estimate
+
+
+def test_the_client_asks_again_for_a_channel_the_server_did_not_know_yet():
+    """foxglove-sdk 0.30 can drop a subscription to a channel it has just advertised ("Unknown channel ID"):
+    the bench's client (the viewer of the live view's tests and benchmark) asks for it again and gets its
+    messages. The server here is a plain WebSocket one that drops the first subscription, as the SDK does."""
+    import websockets
+    from ambid_cli.bench.foxglove_client import follow
+
+    asked: list[list[dict]] = []
+
+    async def serve(ws):
+        await ws.send(json.dumps({"op": "advertise", "channels": [
+            {"id": 7, "topic": "/amb/live/progress", "encoding": "json", "schemaName": "p", "schema": "{}"}]}))
+        async for raw in ws:
+            subs = json.loads(raw)["subscriptions"]
+            asked.append(subs)
+            if len(asked) == 1:
+                await ws.send(json.dumps({"op": "status", "level": 2, "message": "Unknown channel ID: 7"}))
+            else:
+                await ws.send(struct.pack("<BIQ", 1, subs[0]["id"], 5) + b'{"finished": true}')
+                await ws.close()
+
+    got: list[tuple] = []
+
+    async def run():
+        async with websockets.serve(serve, "127.0.0.1", 0, subprotocols=["foxglove.sdk.v1"]) as server:
+            port = server.sockets[0].getsockname()[1]
+            await follow(f"ws://127.0.0.1:{port}", lambda *m: got.append(m), connect_timeout_s=10.0)
+
+    asyncio.run(asyncio.wait_for(run(), 30))
+    assert [[s["channelId"] for s in a] for a in asked] == [[7], [7]]
+    assert got == [("/amb/live/progress", 5, {"finished": True})]

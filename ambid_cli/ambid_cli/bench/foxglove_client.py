@@ -20,6 +20,7 @@ import time
 from collections.abc import Callable
 
 PROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
+UNKNOWN = "Unknown channel ID: "   # the status foxglove-sdk sends for a subscription it dropped
 
 
 async def follow(url: str, on_message: Callable[[str, int, dict], None], connect_timeout_s: float = 60.0,
@@ -50,6 +51,14 @@ async def follow(url: str, on_message: Callable[[str, int, dict], None], connect
                     if on_channels is not None:
                         on_channels(m["channels"])
                     await ws.send(json.dumps({"op": "subscribe", "subscriptions": new}))
+                elif m.get("op") == "status" and str(m.get("message", "")).startswith(UNKNOWN):
+                    # foxglove-sdk 0.30 can answer a subscription to a channel it has just advertised with
+                    # "Unknown channel ID" (it sends the advertisement before it knows the channel for that
+                    # client): the subscription was dropped, so it is asked for again, once the server caught up
+                    cid = int(str(m["message"])[len(UNKNOWN):])
+                    again = [{"id": sid, "channelId": cid} for sid, c in subs.items() if c["id"] == cid]
+                    await asyncio.sleep(0.05)
+                    await ws.send(json.dumps({"op": "subscribe", "subscriptions": again}))
             elif raw and raw[0] == 1:   # MessageData: opcode, subscription id (u32), log time (u64), payload
                 sub_id, t_ns = struct.unpack_from("<IQ", raw, 1)
                 c = subs.get(sub_id)

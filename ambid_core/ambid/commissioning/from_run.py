@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -176,15 +176,20 @@ def operating_point(inputs: RunInputs, unc: PlantUncertainty) -> Callable[[State
     A linear model fitted to data taken with an excitation estimates the magnets' slopes averaged over the
     excursions that excitation causes through the loop (:func:`ambid.fit.model_update.excitation_slopes`), so
     a new controller, with the same excitation, meets slightly other slopes: ki and ks move by the ratio of the
-    nominal rig's slopes under the new loop to those under the run's (the nominal model gives the ratio; the
-    data keep the level).
+    slopes under the new loop to those under the run's (the data keep the level). The ratio is computed on the
+    nominal rig moved to the update's estimates (:func:`ambid.fit.model_update.rig_values_for`, its magnets
+    those estimates): the loops' excursions are those of the plant the data showed, not of the drawing's (a nominal model off by its
+    tolerances can hold the running loop barely damped and move ks ten times more than the rig does).
     """
     if inputs.controller is None or inputs.design is None or not inputs.nonlinear_magnets:
         return None
-    from ambid.fit.model_update import excitation_slopes, slopes_as_parameters
+    from ambid.fit.model_update import excitation_slopes, rig_values_for, slopes_as_parameters
 
-    rig, design = inputs.rig, inputs.design
+    design = inputs.design
     try:
+        # the magnets as the data found them: no simulated manufacturing factor on top of the estimates
+        exact = {k: 1.0 for k in ("true_ki_factor", "true_ks_factor", "axial_true_ki_factor", "axial_true_ks_factor")}
+        rig = replace(inputs.rig, values={**inputs.rig.values, **rig_values_for(inputs.rig, unc.values), **exact})
         ran = slopes_as_parameters(*excitation_slopes(rig, inputs.controller[0], design), rig.layout)
     except (ValueError, np.linalg.LinAlgError):
         return None

@@ -35,7 +35,7 @@ import numpy as np
 
 from ambid.commissioning.loops import input_sensitivity_frf, worst_peak
 from ambid.commissioning.plants import PlantUncertainty, draw_parameters, peak_grid, plant_set
-from ambid.control.closed_loop import close_loop, residue_freqresp
+from ambid.control.closed_loop import close_loop, closed_loop_patches, residue_freqresp
 from ambid.fit import fit_common_denominator
 from ambid.frf.sensitivity import zone_probabilities
 from ambid.frf.uncertainty import fit_weights
@@ -245,19 +245,23 @@ def predict_peak(unc: PlantUncertainty, controller: StateSpace, model: Measureme
     for i, p in enumerate(params):
         ps = plant_set(unc, [p], model.freq_hz)
         plant = ps.models[0]
-        ok = bool(np.all(np.abs(close_loop(plant, controller).poles()) < 1.0))
+        loop = close_loop(plant, controller)
+        ok = bool(np.all(np.abs(loop.poles()) < 1.0))
         if i == 0 and not ok:
             raise ValueError("the loop with this controller is unstable on the updated model: no peak to predict")
         stable += ok
         if not ok:
             continue
-        g_grid = residue_freqresp(plant, grid)
-        s = input_sensitivity_frf(k_grid, g_grid)
+        # the plant's modes and this loop's own: a closed-loop peak can be far narrower than the plant's mode
+        own = np.setdiff1d(closed_loop_patches(loop), grid)
+        f_all = np.concatenate([grid, own])
+        k_all = np.concatenate([k_grid, residue_freqresp(controller, own)])
+        s = input_sensitivity_frf(k_all, residue_freqresp(plant, f_all))
         mag = np.abs(np.diagonal(s, axis1=1, axis2=2))
         loops.append(float(mag.max()))
         if i == 0:
             j = np.unravel_index(np.argmax(mag), mag.shape)
-            at_estimate = (float(mag.max()), float(grid[j[0]]), axes[j[1]] if axes else str(j[1]))
+            at_estimate = (float(mag.max()), float(f_all[j[0]]), axes[j[1]] if axes else str(j[1]))
         samples.append(_measured_peak(k_lines, k_dense, ps.frf[0], model, rng))
     x = np.array(samples)
     # a new draw lies between the order statistics at ranks (n + 1) p with probability p2 - p1, whatever the

@@ -176,18 +176,27 @@ class LoopRobustness:
     max_singular_peak: float
 
 
-def robustness_grid(loop: StateSpace, f_lo_hz: float = 1.0, n_grid: int = 4000) -> np.ndarray:
-    """Frequency grid [Hz] for peak searches: log-spaced to Nyquist plus dense patches around every
-    lightly damped closed-loop pole (a 0.5 %-damped mode is narrower than any affordable log grid)."""
+def closed_loop_patches(loop: StateSpace, f_lo_hz: float = 1.0, n_points: int = 81) -> np.ndarray:
+    """Frequencies [Hz] about every lightly damped pole of a discrete closed ``loop`` (+-4 half-power widths,
+    at least +-0.1 %): where its sensitivity peaks, narrower than any affordable log grid (a 0.5 %-damped
+    mode)."""
     nyq = 0.5 / loop.dt
-    grid = [np.logspace(np.log10(f_lo_hz), np.log10(0.999 * nyq), n_grid)]
     s = np.log(loop.poles().astype(complex)) / loop.dt
+    grid = [np.zeros(0)]
     for v in s:
         f0 = abs(v.imag) / (2 * np.pi)
         if f0 > f_lo_hz and f0 < nyq and -v.real < 0.3 * abs(v):
             half = max(4 * -v.real / (2 * np.pi), 1e-3 * f0)
-            grid.append(np.linspace(max(f0 - half, f_lo_hz), min(f0 + half, 0.999 * nyq), 81))
+            grid.append(np.linspace(max(f0 - half, f_lo_hz), min(f0 + half, 0.999 * nyq), n_points))
     return np.unique(np.concatenate(grid))
+
+
+def robustness_grid(loop: StateSpace, f_lo_hz: float = 1.0, n_grid: int = 4000) -> np.ndarray:
+    """Frequency grid [Hz] for peak searches: log-spaced to Nyquist plus dense patches around every
+    lightly damped closed-loop pole (:func:`closed_loop_patches`)."""
+    nyq = 0.5 / loop.dt
+    log = np.logspace(np.log10(f_lo_hz), np.log10(0.999 * nyq), n_grid)
+    return np.unique(np.concatenate([log, closed_loop_patches(loop, f_lo_hz)]))
 
 
 def loop_robustness(plant: StateSpace, controller: StateSpace, f_lo_hz: float = 1.0) -> LoopRobustness:

@@ -71,7 +71,8 @@ from ambid.plant.true_rig import TruePlant, delayed_zoh, levitated_plant, true_l
 from ambid.statespace import StateSpace
 
 __all__ = ["ParameterInfo", "PARAMETERS", "DEFAULT_FREE", "PhysicalUpdate", "bending_coordinates", "bending_keys",
-           "covers", "nominal_parameters", "nominal_update_parameters", "parameter_prior", "true_parameters",
+           "covers", "nominal_parameters", "nominal_update_parameters", "rig_values_for", "parameter_prior",
+           "true_parameters",
            "excitation_slopes", "slopes_as_parameters", "closed_loop_noise_std", "physical_statespace", "physical_frf",
            "physical_discrete",
            "update_physical_model",
@@ -205,6 +206,54 @@ def nominal_update_parameters(rig: Rig) -> dict[str, float]:
     if rig.layout.axial:
         p["axial_sensor_bandwidth_hz"] = float(rig.values["axial_sensor_bandwidth_hz"])
     return p
+
+
+def rig_values_for(rig: Rig, targets: Mapping[str, float]) -> dict[str, float]:
+    """The rig-file values that move ``rig``'s nominal updating parameters (:func:`nominal_update_parameters`)
+    to ``targets``: ki and ks through the air gap and pole area, the amplifier bandwidth through the dc link
+    voltage, the sensor bandwidth, the bending modes through Young's modulus, the modal damping and the extra
+    delay; a parameter ``targets`` does not name keeps its value.
+
+    Parameters
+    ----------
+    rig
+        the rig.
+    targets
+        updating parameter name -> value (e.g. an update's estimates, or a nominal value drawn from the
+        tolerances).
+
+    Returns
+    -------
+    name -> value of the rig fields that change (``{**rig.values, **returned}`` is the moved rig).
+
+    Examples
+    --------
+    >>> from dataclasses import replace
+    >>> from ambid.plant.rig import make_rig
+    >>> rig = make_rig()
+    >>> ki = nominal_update_parameters(rig)["ki_n_per_a"]
+    >>> moved = replace(rig, values={**rig.values, **rig_values_for(rig, {"ki_n_per_a": 1.02 * ki})})
+    >>> round(nominal_update_parameters(moved)["ki_n_per_a"] / ki, 6)
+    1.02
+    """
+    v, nom = rig.values, nominal_update_parameters(rig)
+
+    def factor(name: str) -> float:
+        return float(targets[name]) / nom[name] if name in targets and name in nom else 1.0
+
+    f_ki, f_ks = factor("ki_n_per_a"), factor("ks_n_per_m")
+    gap = f_ki / f_ks                                   # ki ~ A / s0^2, ks ~ A / s0^3, L ~ A / s0
+    over = dict(air_gap_m=v["air_gap_m"] * gap, pole_area_m2=v["pole_area_m2"] * f_ki * gap**2,
+                dc_link_voltage_v=v["dc_link_voltage_v"] * factor("amplifier_bandwidth_hz") * f_ki * gap)
+    if "sensor_bandwidth_hz" in targets:
+        over["sensor_bandwidth_hz"] = max(float(targets["sensor_bandwidth_hz"]), 10.0)
+    if "bending_freq_hz" in nom:
+        over["youngs_modulus_pa"] = v["youngs_modulus_pa"] * factor("bending_freq_hz") ** 2
+        if "bending_damping_ratio" in targets:
+            over["modal_damping_ratio"] = min(float(targets["bending_damping_ratio"]), 0.2)
+    if "delay_s" in targets:
+        over["extra_delay_s"] = float(min(max(float(targets["delay_s"]), 0.0), rig.dt))
+    return {k: float(x) for k, x in over.items()}
 
 
 def parameter_prior(rig: Rig, names: Sequence[str], centre: Mapping[str, float]) -> tuple[Prior, tuple[str, ...]]:

@@ -383,7 +383,7 @@ def draw_nominal_rig(rig: Rig, rng: np.random.Generator) -> tuple[dict[str, Any]
     delay range), and each drawn parameter's nominal value, true value and
     its draw in prior standard deviations (name -> {nominal, true, z}).
     """
-    from ambid.fit.model_update import nominal_update_parameters, true_parameters
+    from ambid.fit.model_update import nominal_update_parameters, rig_values_for, true_parameters
 
     truth = true_parameters(rig)
     drawn: dict[str, Any] = {}
@@ -399,26 +399,18 @@ def draw_nominal_rig(rig: Rig, rng: np.random.Generator) -> tuple[dict[str, Any]
         drawn[name] = dict(nominal=float(value), true=t, z=z)
         return float(value)
 
-    v = rig.values
-    nom = nominal_update_parameters(rig)
-    f_ki = draw("ki_n_per_a") / rig.magnet.ki
-    f_ks = draw("ks_n_per_m") / rig.magnet.ks
-    f_amp = draw("amplifier_bandwidth_hz") / rig.current_loop_bandwidth_hz
-    gap = f_ki / f_ks                                   # ki ~ A / s0^2, ks ~ A / s0^3, L ~ A / s0
-    over: dict[str, Any] = dict(air_gap_m=v["air_gap_m"] * gap, pole_area_m2=v["pole_area_m2"] * f_ki * gap**2,
-                                dc_link_voltage_v=v["dc_link_voltage_v"] * f_amp * f_ki * gap,
-                                sensor_bandwidth_hz=max(draw("sensor_bandwidth_hz"), 10.0))
-    if "bending_freq_hz" in nom:
-        over["youngs_modulus_pa"] = v["youngs_modulus_pa"] * (draw("bending_freq_hz") / truth["bending_freq_hz"]) ** 2
-        over["modal_damping_ratio"] = min(draw("bending_damping_ratio"), 0.2)
+    names = ["ki_n_per_a", "ks_n_per_m", "amplifier_bandwidth_hz", "sensor_bandwidth_hz"]
+    if "bending_freq_hz" in nominal_update_parameters(rig):
+        names += ["bending_freq_hz", "bending_damping_ratio"]
+    targets = {name: draw(name) for name in names + ["delay_s"]}   # in this order: the seeds' draws
+    over: dict[str, Any] = dict(rig_values_for(rig, targets))
     tol = tolerance_for("delay_s", rig.tolerances)
-    delay = draw("delay_s")
+    delay = targets["delay_s"]
     tolerances = {k: t.to_text() for k, t in rig.tolerances.items()}
     if tol.kind == "range":
         scale = rig.dt if tol.in_samples else 1.0
         half = 0.5 * (tol.high - tol.low) * scale
         tolerances["delay_s"] = f"{delay - half:.9g}..{delay + half:.9g}"
-    over["extra_delay_s"] = float(min(max(delay, 0.0), rig.dt))
     base = {k: val for k, val in rig.to_dict().items() if k not in over}
     return {**base, **over, "tolerances": tolerances}, drawn
 

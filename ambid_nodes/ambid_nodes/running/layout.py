@@ -168,7 +168,8 @@ def announce_live(live) -> int:
 def preflight(executor, namespace: str, context, report: Callable[[dict], None] | None = None) -> dict[str, list[str]]:
     """{topic: [publishers named]} already on the rig's topics before its session starts (a rig next door, a
     replayed recording, a script left running), found in the session's own ``context`` before any of its nodes
-    exists: a listener waits for discovery to settle (:func:`wait_for_discovery`, 1-5 s), so the session's
+    exists: a listener waits for discovery to settle and for the graph to know each publisher's node
+    (:func:`wait_for_discovery`, 1-5 s, up to 10 s while a node's name lags its publisher), so the session's
     participant knows them from then on and its nodes hear them from their first message. The session runs
     unaffected by them (every node acts only on its session's messages); ``report(found)`` names them at
     once (the command's one line). Without ``report`` (a study's sessions: campaign, validate, bench) nobody
@@ -177,19 +178,21 @@ def preflight(executor, namespace: str, context, report: Callable[[dict], None] 
         return {}
     import rclpy
 
+    from ambid_nodes.identity import endpoint_node, unnamed_endpoint
     from ambid_nodes.watch import SESSION_TOPICS
 
     probe = rclpy.create_node("session_preflight", namespace=namespace, context=context)
     executor.add_node(probe)
+    topics = [probe.resolve_topic_name(t) for t in SESSION_TOPICS]
+
+    def publishers() -> dict[str, list]:  # nothing of the session publishes yet: every publisher there is foreign
+        return {t: infos for t in topics if (infos := probe.get_publishers_info_by_topic(t))}
+
     try:
-        wait_for_discovery(executor, probe)
-        found = {}
-        for t in SESSION_TOPICS:  # nothing of the session publishes yet: every publisher there is foreign
-            topic = probe.resolve_topic_name(t)
-            names = sorted({f"{i.node_namespace.rstrip('/')}/{i.node_name}"
-                            for i in probe.get_publishers_info_by_topic(topic)})
-            if names:
-                found[topic] = names
+        wait_for_discovery(executor, probe, named=lambda: all(endpoint_node(i) for infos in publishers().values()
+                                                              for i in infos))
+        found = {t: sorted({endpoint_node(i) or unnamed_endpoint(i) for i in infos})
+                 for t, infos in publishers().items()}
     finally:
         executor.remove_node(probe)
         probe.destroy_node()
@@ -197,18 +200,25 @@ def preflight(executor, namespace: str, context, report: Callable[[dict], None] 
     return found
 
 
-def wait_for_discovery(executor, node, least_s: float = 1.0, most_s: float = 5.0, still_s: float = 1.0) -> None:
+def wait_for_discovery(executor, node, least_s: float = 1.0, most_s: float = 5.0, still_s: float = 1.0,
+                       named: Callable[[], bool] | None = None, name_s: float = 5.0) -> None:
     """Spin at least ``least_s``, then until the graph ``node`` sees has not changed for ``still_s`` (at most
     ``most_s`` in all): participants already on the domain are discovered within a fraction of a second on
     one host, later on a loaded one (a node's name and its publishers come a while after its participant: the
-    graph compared is the nodes and the topics with their types, so late endpoints count as a change)."""
+    graph compared is the nodes and the topics with their types, so late endpoints count as a change).
+    ``named()``: the graph knows the node of every endpoint that matters; rmw's node names travel apart from
+    the endpoints and can lag them by more than ``still_s`` on a loaded machine (the preflight's line then named
+    "_NODE_NAMESPACE_UNKNOWN_/_NODE_NAME_UNKNOWN_"), so while it is False the wait goes on, up to ``name_s``
+    beyond ``most_s``; an endpoint still without its node is then named by its GID (identity.UNNAMED)."""
     start = time.monotonic()
     seen, since = None, start
-    while time.monotonic() - start < most_s:
+    while time.monotonic() - start < most_s + (name_s if named is not None else 0.0):
         executor.spin_once(timeout_sec=0.05)
         now = (frozenset(node.get_node_names_and_namespaces()),
                frozenset((t, tuple(types)) for t, types in node.get_topic_names_and_types()))
         if now != seen:
             seen, since = now, time.monotonic()
-        elif time.monotonic() - start >= least_s and time.monotonic() - since >= still_s:
+        elapsed = time.monotonic() - start
+        settled = elapsed >= most_s or (elapsed >= least_s and time.monotonic() - since >= still_s)
+        if settled and (named is None or named()):
             return
