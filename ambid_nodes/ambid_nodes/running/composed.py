@@ -118,6 +118,11 @@ class ComposedLayout(Layout):
         if not answer.accepted:
             raise ValueError(f"identify: the excitation generator refused the experiment: {answer.message}")
         self.answer = answer
+        if self.live is not None:
+            # it shows the experiment from its first sample: it has the design first (the design is delivered to
+            # a late reader on request, after the blocks streaming in ahead of it when the live view, nicer than
+            # the loop, is slow to answer: it would have had no live FRF)
+            self.live.wait_design(answer.experiment_id, 60.0)
         self.start_loop(answer)
         return answer
 
