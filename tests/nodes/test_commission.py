@@ -42,7 +42,11 @@ def test_commission_takes_the_badly_tuned_rig_to_zone_a_inside_its_prediction(ro
                                            "td_s: 0.8e-3}\n")
     out = tmp_path / "commission"
     proc = subprocess.run([sys.executable, "-m", "ambid_cli.cli", "commission", "--rig",
-                           str(tmp_path / "bad_pid.yaml"), "--out", str(out), "--no-progress"],
+                           str(tmp_path / "bad_pid.yaml"), "--out", str(out), "--no-progress",
+                           # the search sized down (drawn plants each candidate must hold, objective evaluations
+                           # per stage): what is checked is the prediction against the verifying run, and its 100
+                           # simulated verifying measurements are kept
+                           "--tune-checks", "30", "--tune-evaluations", "200"],
                           env=ros_env, cwd=REPO, capture_output=True, text=True, timeout=1500)
     assert proc.returncode == 0, proc.stderr[-3000:]
     doc = json.loads((out / "commission.json").read_text())
