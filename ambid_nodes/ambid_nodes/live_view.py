@@ -12,9 +12,10 @@ and the WebSocket server are the core's (:mod:`ambid.live`). Run it as
 
 Parameters: ``port`` (0: any free one), ``host`` (127.0.0.1: this machine
 only), ``estimator`` (the session's FRF estimator), ``signal_rate_hz``
-(decimated rate of the time plot, in session time), ``display_rate_hz`` (the
-most time-plot and orbit frames per wall second: what a viewer draws, not
-what a session many times faster than real time could send), ``session`` (the session to show: another
+(the most envelope pairs of the time plot per second of session time),
+``display_rate_hz`` (the most times per wall second the time plot's envelope
+and the orbits are sent: what a viewer draws, not what a session many times
+faster than real time could send), ``session`` (the session to show: another
 source's messages on the same topics are counted per topic, never shown; 0
 shows every source). On exit it prints one line ``AMBID_SUMMARY {json}`` of
 its figures (frames sent, frames dropped, blocks lost, foreign messages, ...).
@@ -91,11 +92,11 @@ class LiveView(Node):
         port = declare(self, "port", 8765, "TCP port of the Foxglove WebSocket server (0: any free one)", 0, 65535)
         host = declare(self, "host", "127.0.0.1", "address the server binds (0.0.0.0: every interface)")
         estimator = declare(self, "estimator", "indirect", "the session's FRF estimator: " + " | ".join(ESTIMATORS))
-        rate = declare(self, "signal_rate_hz", 200.0, "samples per second of session time in the time plot", 1.0,
-                       10_000.0, "Hz")
-        display = declare(self, "display_rate_hz", 30.0, "most frames per wall second of the time plot and of each "
-                          "orbit (a viewer draws ~30 a second; a simulated session runs faster than real time); "
-                          "0 sends every one", 0.0, 1000.0, "Hz")
+        rate = declare(self, "signal_rate_hz", 200.0, "most envelope pairs (each channel's min and max) of the time "
+                       "plot per second of session time", 1.0, 10_000.0, "Hz")
+        display = declare(self, "display_rate_hz", 30.0, "most times per wall second the time plot's envelope and "
+                          "the orbits are sent (a viewer draws ~30 a second; a simulated session runs faster than "
+                          "real time); 0: after every block", 0.0, 1000.0, "Hz")
         self.session = declare(self, *SESSION_PARAMETER)
         self.foreign: dict[str, int] = {}   # topic -> messages of another session, not shown
         refuse_unknown(self)
@@ -103,9 +104,9 @@ class LiveView(Node):
             raise ParameterError(f"live_view: estimator '{estimator}' is not one of {list(ESTIMATORS)}")
         prefix = self.get_namespace().rstrip("/") + "/live"
         try:
-            # at most two live estimates a wall second: a viewer reads them, a simulated session completes
-            # records several times faster
-            follower = SessionFollower(estimator, rate, estimate_every_s=0.5)
+            # at most one live estimate a wall second: a viewer reads them, a simulated session completes
+            # records several times faster (each costs the estimate, 16 entries' frames and the client's decoding)
+            follower = SessionFollower(estimator, rate, estimate_every_s=1.0)
             self.server = LiveServer(int(port), host, follower, prefix=prefix,
                                      queue_size=256, display_hz=float(display)).start()
         except LiveUnavailable as exc:

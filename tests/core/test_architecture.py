@@ -4,6 +4,7 @@ plant state touches (a state is added here, through that list only, and the simu
 from __future__ import annotations
 
 import ast
+import functools
 import re
 from pathlib import Path
 
@@ -32,10 +33,16 @@ def _modules(pkg_dir: Path) -> dict[str, Path]:
     return out
 
 
+@functools.cache
+def _tree(path: Path) -> ast.Module:
+    """``path`` parsed, once for the module's tests (each walks every file of the project; read-only)."""
+    return ast.parse(path.read_text())
+
+
 def _imports(mod: str, path: Path, known: dict[str, Path]) -> list[tuple[str, str]]:
     """(imported module, imported name or '') for every import of ``path``, relative ones resolved."""
     out = []
-    tree = ast.parse(path.read_text())
+    tree = _tree(path)
     base = mod.split(".") if path.name == "__init__.py" else mod.split(".")[:-1]
     for node in ast.walk(tree):
         if isinstance(node, ast.ImportFrom):
@@ -199,7 +206,7 @@ def test_no_function_over_100_lines_in_the_core_or_the_nodes():
     """A long function is split into named stages (docs/architecture.md); this keeps it so."""
     long = []
     for p in list(CORE_MODULES.values()) + list(NODE_MODULES.values()):
-        for node in ast.walk(ast.parse(p.read_text())):
+        for node in ast.walk(_tree(p)):
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
                 n = node.end_lineno - node.lineno + 1
                 if n > LONGEST_FUNCTION:
@@ -215,7 +222,7 @@ SESSION_NODES = ("excitation_generator", "frf_consumer", "hardware_bridge", "pla
 def test_a_node_writes_its_reporting_intake_and_main_once_in_session_node(name):
     """Events for rejected, foreign and failed messages, joining the session and main live in
     ambid_nodes/session_node.py; a node file keeps what makes it itself (where it stands, what it logs)."""
-    tree = ast.parse((NODES / f"{name}.py").read_text())
+    tree = _tree(NODES / f"{name}.py")
     classes = [n for n in tree.body if isinstance(n, ast.ClassDef)
                and any(isinstance(b, ast.Name) and b.id == "SessionNode" for b in n.bases)]
     assert len(classes) == 1, f"{name}.py: one node class, a SessionNode"

@@ -42,7 +42,11 @@ def test_commission_takes_the_badly_tuned_rig_to_zone_a_inside_its_prediction(ro
                                            "td_s: 0.8e-3}\n")
     out = tmp_path / "commission"
     proc = subprocess.run([sys.executable, "-m", "ambid_cli.cli", "commission", "--rig",
-                           str(tmp_path / "bad_pid.yaml"), "--out", str(out), "--no-progress"],
+                           str(tmp_path / "bad_pid.yaml"), "--out", str(out), "--no-progress",
+                           # the search sized down (drawn plants each candidate must hold, objective evaluations
+                           # per stage): what is checked is the prediction against the verifying run, and its 100
+                           # simulated verifying measurements are kept
+                           "--tune-checks", "30", "--tune-evaluations", "200"],
                           env=ros_env, cwd=REPO, capture_output=True, text=True, timeout=1500)
     assert proc.returncode == 0, proc.stderr[-3000:]
     doc = json.loads((out / "commission.json").read_text())
@@ -66,9 +70,11 @@ def test_commission_takes_the_badly_tuned_rig_to_zone_a_inside_its_prediction(ro
 
 def _runs_on_the_c_target(controller: Path, tmp_path: Path) -> None:
     """The tuned controller file, written into the C reference target's model file, holds the rotor over the
-    authenticated bridge, no sample lost; paced at a quarter of real time as test_target_c_bridge's graph test
-    (overruns and lateness are the machine's load's here: the real-time 10 kHz figure is measured outside the
-    suite, docs/commissioning.md)."""
+    authenticated bridge (``ambid graph --hardware``, the suite's one graph run against the C target), no sample
+    lost, and the bridge tells the target to STOP once the samples are in. Paced on absolute deadlines as on a
+    rig, at a quarter of real time: a loaded 2-core machine keeps up with it, so a lost sample is the bridge's
+    fault, not the test machine's (overruns and lateness are the machine's load's here: the real-time 10 kHz
+    figure is measured outside the suite, docs/commissioning.md)."""
     from ambid.hardware.link_key import write_key_file
     from ambid.hardware.target_model import rig_target_model, write_target_model
     from test_target_c_bridge import cli, start_target, target_summary
@@ -85,9 +91,11 @@ def _runs_on_the_c_target(controller: Path, tmp_path: Path) -> None:
         proc.kill()
     assert p.returncode == 0, p.stdout + p.stderr
     assert "rotor levitated" in p.stdout and "lost 0 samples in 0 gaps" in p.stdout, p.stdout
-    assert s["state"] == "done" and s["samples"] >= 5000 and proc.returncode is not None, s
+    assert "target state done" in p.stdout, p.stdout  # told to STOP once the samples were in
+    assert s["state"] == "done" and s["samples"] >= 5000 and proc.returncode == 0, s
     print(f"tuned controller on the C target: {s['samples_per_wall_s']:.0f} samples/s of "
-          f"{s['commanded_samples_per_s']:.0f} commanded, {s['overruns']} overruns")
+          f"{s['commanded_samples_per_s']:.0f} commanded, {s['late_samples']} late samples (max "
+          f"{s['max_late_us']:.0f} us), {s['overruns']} overruns")
 
 
 def _true_peak_of_running(rig_file: Path) -> float:

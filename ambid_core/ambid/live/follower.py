@@ -31,8 +31,8 @@ import numpy as np
 from ambid.channels import Layout, bearing_of
 from ambid.excitation.design import ExcitationDesign
 from ambid.frf.streaming import ESTIMATORS, FrfResult, FrfStream, match_inputs
-from ambid.live.frames import (Frame, event_frame, frf_frames, levels_frames, orbit_frame, progress_frame,
-                               signal_frames, status_frame, time_ns)
+from ambid.live.frames import (Frame, envelope_frames, event_frame, frf_frames, levels_frames, orbit_frame,
+                               progress_frame, status_frame, time_ns)
 
 __all__ = ["SessionFollower"]
 
@@ -45,9 +45,9 @@ class SessionFollower:
     estimator
         the session's FRF estimator (:data:`ambid.frf.streaming.ESTIMATORS`).
     signal_rate_hz
-        samples per second of session time shown in the time plot (decimated) [Hz].
+        the most envelope pairs of the time plot per second of session time [Hz] (:meth:`display_frames`).
     orbit_points
-        points of an orbit frame (one per block and bearing).
+        the most points of an orbit frame (the latest block's, per bearing).
     estimate_every_s
         the least wall time between two live estimates: a record completed sooner waits for the next one
         (a simulated session completes records many times a second; each estimate costs its noise and
@@ -80,8 +80,15 @@ class SessionFollower:
         self._next: int | None = None
         self._index = 0
         self._fs = 0.0
-        self.counts = {"blocks": 0, "lost_blocks": 0, "lost_samples": 0, "rejected_blocks": 0, "estimates": 0}
+        self.counts = {"blocks": 0, "lost_blocks": 0, "lost_samples": 0, "rejected_blocks": 0, "estimates": 0,
+                       "frames_thinned": 0}
         self.problems: list[str] = []   # one line each, for the status (rejected blocks, failed estimates)
+        #: whether the time signals and orbits are shown: without, block() does nothing for them (nobody looks)
+        self.display = True
+        self._envelope: np.ndarray | None = None   # (2, C) min and max of the shown channels since the last pair
+        self._span = (0, 0)                         # first and last sample the envelope covers
+        self._latest: tuple[int, np.ndarray] | None = None   # the latest block not yet displayed: first index, data
+        self._held = 0                              # blocks taken since the last display
 
     # ---- what arrives ---------------------------------------------------------------------------
     def design_message(self, experiment_id: str, design: ExcitationDesign, start_index: int,
@@ -116,15 +123,56 @@ class SessionFollower:
             self.counts["lost_samples"] += first_index - self._next
         self._next = max(self._next or 0, first_index + data.shape[0])
         self._index = max(self._index, first_index + data.shape[0])
-        frames: list[Frame] = []
-        if self._shown_names:
-            every = max(1, int(round(self._fs / self.signal_rate_hz)))
-            frames += signal_frames(first_index, self._fs, self._shown_names, data[:, self._shown], every)
-        for bearing, xi, yi, xn, yn in self._orbits:
-            frames.append(orbit_frame(bearing, xn, yn, first_index, self._fs, data[:, xi], data[:, yi],
-                                      self.orbit_points))
-        frames += self._feed(first_index, sample_period_s, data)
+        if self.display and data.shape[0]:
+            self._hold(first_index, data)
+        frames = self._feed(first_index, sample_period_s, data)
         return self._announced() + frames
+
+    def _hold(self, first_index: int, data: np.ndarray) -> None:
+        """Fold a block into the envelope of the time plot (two vectorised reductions) and keep it for the orbits."""
+        if self._shown_names:
+            shown = data[:, self._shown]
+            lo, hi = shown.min(axis=0), shown.max(axis=0)
+            if self._envelope is None:
+                self._envelope, self._span = np.stack([lo, hi]), (first_index, first_index)
+            else:
+                np.minimum(self._envelope[0], lo, out=self._envelope[0])
+                np.maximum(self._envelope[1], hi, out=self._envelope[1])
+            self._span = (self._span[0], first_index + data.shape[0] - 1)
+        self._latest = (first_index, data)
+        self._held += 1
+
+    @property
+    def display_pending(self) -> bool:
+        """Whether blocks came since the last :meth:`display_frames`."""
+        return self._latest is not None
+
+    @property
+    def display_topics(self) -> list[str]:
+        """The topics :meth:`display_frames` sends (the time signals' and each bearing's orbit)."""
+        return (["signals"] if self._shown_names else []) + [f"orbit/{o[0]}" for o in self._orbits]
+
+    def display_frames(self, final: bool = False) -> list[Frame]:
+        """What a viewer draws of the blocks since the last call: the time signals' envelope (each channel's
+        minimum and maximum over every sample since the pair before, as two frames; held on, still growing,
+        until it spans 1 / ``signal_rate_hz`` of session time unless ``final``) and each bearing's orbit over
+        the latest block. [] when no block came since. A server calls it at its display rate."""
+        if self._latest is None and (self._envelope is None or not final):
+            return []
+        frames: list[Frame] = []
+        env = self._envelope
+        if env is not None and (final or (self._span[1] + 1 - self._span[0]) * self.signal_rate_hz >= self._fs):
+            frames += envelope_frames(*self._span, self._fs, self._shown_names, env)
+            self._envelope = None
+        if self._latest is not None:
+            first, data = self._latest
+            for bearing, xi, yi, xn, yn in self._orbits:
+                frames.append(orbit_frame(bearing, xn, yn, first, self._fs, data[:, xi], data[:, yi],
+                                          self.orbit_points))
+            # each bearing's orbit of every block but the latest never went out
+            self.counts["frames_thinned"] += (self._held - 1) * len(self._orbits)
+            self._latest, self._held = None, 0
+        return frames
 
     def _announced(self) -> list[Frame]:
         out, self._announce = self._announce, []
@@ -165,6 +213,10 @@ class SessionFollower:
                 bearing = bearing_of(layout.axes[xi])
                 self._orbits.append((bearing, names.index(xn), names.index(yn), xn, yn))
         self._columns = None
+        self._envelope, self._latest, self._held = None, None, 0   # other columns: what was held is not theirs
+        # advertised now: a client subscribes before anything is shown (nothing is, until one does)
+        self._announce += [Frame(t, "ambid.live.Signals" if t == "signals" else "ambid.live.Orbit", None, 0)
+                           for t in self.display_topics]
         if self.design is not None:
             self._start_stream() if self.stream is None else self._pick_columns()
 
@@ -180,8 +232,8 @@ class SessionFollower:
             self.stream = FrfStream(design, outputs, u_names, r_names, start_index=start, total_samples=total)
             self._pick_columns()
             # the channels of the estimates, advertised now: a client subscribes before the first estimate
-            self._announce = ([Frame(f"frf/{o}/{i}", "ambid.live.FrfEntry", None, 0) for o in outputs for i in u_names]
-                              + [Frame(f"levels/{o}", "ambid.live.Levels", None, 0) for o in outputs])
+            self._announce += ([Frame(f"frf/{o}/{i}", "ambid.live.FrfEntry", None, 0) for o in outputs for i in u_names]
+                               + [Frame(f"levels/{o}", "ambid.live.Levels", None, 0) for o in outputs])
         except ValueError as exc:
             self.problems.append(f"experiment {self.experiment_id}: no live FRF: {exc}")
             self.stream = None

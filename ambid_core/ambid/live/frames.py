@@ -17,8 +17,9 @@ prefix, e.g. ``frf/y_a_x/u_a_x``), with the name of its JSON schema
 * ``ambid.live.Levels`` (``levels/<output>``): the output's amplitude at
   the detection lines (odd and even, sorted) against its noise floor there,
   and the output's noise std and distortion figures.
-* ``ambid.live.Signals`` (``signals``): one decimated sample of the
-  displacements y_* [m] and currents u_* [A], for a time plot.
+* ``ambid.live.Signals`` (``signals``): the displacements y_* [m] and
+  currents u_* [A] for a time plot, as an envelope: frames in pairs, each
+  channel's minimum then its maximum over the samples since the pair before.
 * ``ambid.live.Orbit`` (``orbit/<bearing>``): a bearing's x and y
   displacement over one block [m], for an x-y plot.
 * ``ambid.live.Progress`` (``progress``): the session's progress as the
@@ -40,8 +41,8 @@ import numpy as np
 
 from ambid.frf.streaming import FrfResult
 
-__all__ = ["Frame", "SCHEMAS", "frf_frames", "levels_frames", "signal_frames", "orbit_frame", "status_frame",
-           "event_frame", "progress_frame", "time_ns", "STATE_NAMES", "LOG_LEVELS"]
+__all__ = ["Frame", "SCHEMAS", "frf_frames", "levels_frames", "orbit_frame", "status_frame",
+           "event_frame", "progress_frame", "time_ns", "STATE_NAMES", "LOG_LEVELS", "envelope_frames"]
 
 #: decimals of the dB and degree arrays: 1e-4, far below what a plot shows (``real`` and ``imag`` are exact)
 DB = 4
@@ -100,6 +101,7 @@ SCHEMAS: dict[str, dict] = {
         "records": _INT, "realisations_done": _INT, "realisations": _INT, "time_left_s": _NUM,
         "relative_frf_noise_std": _OPT_NUM, "blocks": _INT, "lost_blocks": _INT, "lost_samples": _INT,
         "rejected_blocks": _INT, "estimates": _INT, "dropped_frames": _INT, "finished": _BOOL, "frf_gaps": _INT,
+        "frames_thinned": _INT,
         "frf_gap_samples": _INT}},
     "ambid.live.Status": {"type": "object", "properties": {
         "node": _STR, "state": _STR, "t_s": _NUM, "sample_index": _INT, "progress": _NUM, "received": _INT,
@@ -232,41 +234,59 @@ def levels_frames(result: FrfResult, odd_freq_hz: np.ndarray, even_freq_hz: np.n
     return frames
 
 
-def signal_frames(first_index: int, fs_hz: float, names: Sequence[str], data: np.ndarray,
-                  every: int) -> list[Frame]:
-    """``ambid.live.Signals`` frames of the samples of a block whose index is a multiple of ``every``.
+def envelope_frames(first_index: int, last_index: int, fs_hz: float, names: Sequence[str],
+                    envelope: np.ndarray) -> list[Frame]:
+    """Two ``ambid.live.Signals`` frames: each channel's minimum, then its maximum, over samples
+    ``first_index`` ... ``last_index`` (a time plot drawing them as they come draws the signals' envelope: no
+    peak between two frames is lost).
 
     Parameters
     ----------
-    first_index
-        sample index of the block's first row.
+    first_index, last_index
+        the first and the last sample the envelope covers; the minimum's frame is stamped with the first, the
+        maximum's with the last.
     fs_hz
         sample rate [Hz].
     names
-        (C,) the channels to show (columns of ``data``).
-    data
-        (n, C) samples [m, A].
-    every
-        keep samples k with k % every == 0 (the same samples whatever the block size).
+        (C,) the channels.
+    envelope
+        (2, C) their minimum and maximum [m, A].
     """
-    i0 = (-first_index) % every
-    rows = data[i0::every]
-    idx = range(first_index + i0, first_index + data.shape[0], every)
     out = []
-    for k, row in zip(idx, rows.tolist()):
+    for k, row in zip((first_index, last_index), _rows(envelope)):
         t = time_ns(k, fs_hz)
         out.append(Frame("signals", "ambid.live.Signals", {"t_s": t * 1e-9, **dict(zip(names, row))}, t))
     return out
 
 
+def _rows(a: np.ndarray) -> list[list]:
+    """The rows of a 2-D array as JSON-safe lists (non-finite values as None)."""
+    return [_floats(r) for r in a]
+
+
+#: significant digits of an orbit's coordinates, relative to its largest: far finer than a plot shows
+ORBIT_DIGITS = 5
+
+
+def _relative_round(x: np.ndarray, digits: int) -> np.ndarray:
+    """``x`` rounded to ``digits`` significant digits of its largest magnitude (one decimal count for all)."""
+    peak = np.max(np.abs(x), initial=0.0, where=np.isfinite(x))
+    if not peak > 0:
+        return x
+    return np.round(x, digits - 1 - int(np.floor(np.log10(peak))))
+
+
 def orbit_frame(bearing: str, x_name: str, y_name: str, first_index: int, fs_hz: float, x: np.ndarray,
                 y: np.ndarray, max_points: int) -> Frame:
-    """A bearing's orbit over one block: x and y displacement [m], at most ``max_points`` of them."""
+    """A bearing's orbit over one block: x and y displacement [m], at most ``max_points`` of them (every
+    k-th sample, the pairs kept), each rounded to :data:`ORBIT_DIGITS` significant digits of the block's
+    largest displacement (JSON text half as long; a plot shows three)."""
     step = max(1, -(-x.size // max_points))
     t = time_ns(first_index + x.size - 1, fs_hz)
+    xy = _relative_round(np.stack([x[::step], y[::step]]), ORBIT_DIGITS)
     return Frame(f"orbit/{bearing}", "ambid.live.Orbit",
                  dict(bearing=bearing, x_channel=x_name, y_channel=y_name, t_s=t * 1e-9,
-                      x_m=_floats(x[::step]), y_m=_floats(y[::step])), t)
+                      x_m=_floats(xy[0]), y_m=_floats(xy[1])), t)
 
 
 def status_frame(node: str, state: int, sample_index: int, progress: float, received: int, rejected: int,

@@ -18,12 +18,15 @@ caller:
   amount of memory);
 * a client that subscribes late gets the channel's latest message at once
   (an FRF estimate comes only every few seconds);
-* with ``display_hz``, the streams drawn as they come (the time signals, the
-  orbits) are sent at most that often per topic, in wall time: a simulated
-  session runs many times faster than real time, and a viewer draws some 30
-  frames a second; the frames in between are counted (``frames_thinned``),
-  never queued, and the latest one held back is sent once its turn comes (or
-  at the end). The FRF, levels, progress, statuses and events are all sent.
+* the streams drawn as they come (the time signals, the orbits) are made
+  only while a client subscribes to one of them, and sent at most
+  ``display_hz`` times a wall second (:meth:`SessionFollower.display_frames
+  <ambid.live.follower.SessionFollower.display_frames>`: the time signals'
+  envelope since the last frames, no peak lost, and the latest block's
+  orbits; the orbits of the blocks in between are counted,
+  ``frames_thinned``), and once more at the end: a simulated session runs
+  many times faster than real time, and a viewer draws some 30 frames a
+  second. The FRF, levels, progress, statuses and events are all sent.
 """
 
 from __future__ import annotations
@@ -41,8 +44,6 @@ __all__ = ["LiveServer", "LiveUnavailable", "DEFAULT_PREFIX"]
 
 #: Topic prefix of the live view's channels (below the session's namespace).
 DEFAULT_PREFIX = "/amb/live"
-#: the schemas of the streams a viewer draws as they come: sent at most ``display_hz`` times a second per topic
-THINNED = frozenset({"ambid.live.Signals", "ambid.live.Orbit"})
 
 
 class LiveUnavailable(RuntimeError):
@@ -78,8 +79,8 @@ class LiveServer:
     name
         the server's name, shown by Foxglove.
     display_hz
-        the most frames per wall second sent per topic of the streams drawn as they come (:data:`THINNED`);
-        0 sends every frame.
+        the most times per wall second the streams drawn as they come (the time signals, the orbits) are sent;
+        0: after every block.
     """
 
     def __init__(self, port: int, host: str = "127.0.0.1", follower: SessionFollower | None = None,
@@ -92,8 +93,7 @@ class LiveServer:
         if not display_hz >= 0:
             raise ValueError(f"display_hz must be >= 0, got {display_hz!r}")
         self._period = 1.0 / display_hz if display_hz > 0 else 0.0
-        self._held: dict[str, Frame] = {}       # thinned topic -> its latest frame not sent yet
-        self._sent_at: dict[str, float] = {}    # thinned topic -> monotonic time of its last frame sent
+        self._shown_at = -1e300                 # monotonic time the streams drawn as they come were last sent
         self.follower = follower if follower is not None else SessionFollower()
         self.prefix = "/" + prefix.strip("/")
         self.host, self._port, self.name = host, port, name
@@ -109,7 +109,7 @@ class LiveServer:
         self._latest: dict[str, Frame] = {}
         self._clients: set[int] = set()
         self.counts = {"submitted": 0, "dropped_frames": 0, "frames": 0, "frames_sent": 0, "bytes_sent": 0,
-                       "frames_thinned": 0, "worker_errors": 0, "stop_timed_out": 0}
+                       "worker_errors": 0, "stop_timed_out": 0}
         self.errors: list[str] = []
         self._server = None
         self._context = None
@@ -198,7 +198,7 @@ class LiveServer:
     # ---- worker ---------------------------------------------------------------------------------
     def _work(self) -> None:
         while True:
-            self._wake.wait(self._period if self._held else 0.5)
+            self._wake.wait(self._next_display())
             self._wake.clear()
             while True:
                 with self._lock:
@@ -210,7 +210,11 @@ class LiveServer:
                     args[0].set()
                     continue
                 try:
+                    if kind == "block":
+                        self.follower.display = self._display_wanted()
                     frames = getattr(self.follower, kind)(*args)
+                    if kind == "block" and not self._period:
+                        frames += self.follower.display_frames()
                     for frame in frames:
                         self._log(frame)
                 except Exception as exc:  # noqa: BLE001 - a bad message must not stop the live view
@@ -224,9 +228,31 @@ class LiveServer:
                     topic = self._by_id.get(cid)
                     if topic in self._latest:
                         self._log(self._latest[topic])
-            self._send_held(final=self._closing and not self._queue)
-            if self._closing and not self._queue:
+            final = self._closing and not self._queue
+            self._display(final)
+            if final:
                 return
+
+    def _display_wanted(self) -> bool:
+        """Whether a client subscribes to a stream drawn as it comes (or one is not known or advertised yet)."""
+        topics = self.follower.display_topics
+        return not topics or any(t not in self._channels or self._channels[t].has_sinks() for t in topics)
+
+    def _next_display(self) -> float:
+        """Seconds the worker may sleep: until the held streams' turn, else half a second."""
+        if self.follower.display_pending:
+            return max(self._shown_at + self._period - time.monotonic(), 0.0)
+        return 0.5
+
+    def _display(self, final: bool) -> None:
+        """The streams drawn as they come, when their turn has come (``final``: what is held, at once)."""
+        now = time.monotonic()
+        if final or now - self._shown_at >= self._period:
+            frames = self.follower.display_frames(final)
+            if frames:
+                self._shown_at = now
+            for frame in frames:
+                self._log(frame)
 
     def _log(self, frame: Frame) -> None:
         channel = self._channels.get(frame.topic)
@@ -236,28 +262,8 @@ class LiveServer:
             return
         self.counts["frames"] += 1
         self._latest[frame.topic] = frame
-        if not channel.has_sinks():   # nobody subscribes: not even encoded
-            return
-        if self._period and frame.schema_name in THINNED:
-            now = time.monotonic()
-            if now - self._sent_at.get(frame.topic, -1e300) < self._period:
-                if frame.topic in self._held:
-                    self.counts["frames_thinned"] += 1   # the one held before never goes out
-                self._held[frame.topic] = frame
-                return
-            self._sent_at[frame.topic] = now
-            if self._held.pop(frame.topic, None) is not None:
-                self.counts["frames_thinned"] += 1
-        self._send(channel, frame)
-
-    def _send_held(self, final: bool) -> None:
-        """The held frames whose turn has come (``final``: all of them, the stream's last frame shown)."""
-        now = time.monotonic()
-        for topic, frame in list(self._held.items()):
-            if final or now - self._sent_at[topic] >= self._period:
-                del self._held[topic]
-                self._sent_at[topic] = now
-                self._send(self._channels[topic], frame)
+        if channel.has_sinks():   # nobody subscribes: not even encoded
+            self._send(channel, frame)
 
     def _send(self, channel, frame: Frame) -> None:
         message = frame.message
