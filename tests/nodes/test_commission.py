@@ -9,8 +9,10 @@ controller file, S = (I - K G)^-1), not by ambid's sensitivity code.
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +43,7 @@ def test_commission_takes_the_badly_tuned_rig_to_zone_a_inside_its_prediction(ro
     (tmp_path / "bad_pid.yaml").write_text("name: badly-tuned\ncontroller: {kind: pid, kp_a_per_m: 20000, "
                                            "td_s: 0.8e-3}\n")
     out = tmp_path / "commission"
+    t0 = time.monotonic()
     proc = subprocess.run([sys.executable, "-m", "ambid_cli.cli", "commission", "--rig",
                            str(tmp_path / "bad_pid.yaml"), "--out", str(out), "--no-progress",
                            # the search sized down (drawn plants each candidate must hold, objective evaluations
@@ -49,7 +52,11 @@ def test_commission_takes_the_badly_tuned_rig_to_zone_a_inside_its_prediction(ro
                            "--tune-checks", "30", "--tune-evaluations", "200"],
                           env=ros_env, cwd=REPO, capture_output=True, text=True, timeout=1500)
     assert proc.returncode == 0, proc.stderr[-3000:]
+    total_s = time.monotonic() - t0
     doc = json.loads((out / "commission.json").read_text())
+    # each identification's wall time is its own: both, and the tuning between them, fit in the command's
+    walls = [float(w) for w in re.findall(r"ambid identify: ([0-9.]+) s wall in all", proc.stderr)]
+    assert len(walls) == 2 and sum(walls) + doc["design_time_s"] < total_s, (walls, doc["design_time_s"], total_s)
     before, after = doc["before"], doc["after"]
     assert before["zone"] == "C" and 4.5 < before["measured_peak"] < 5.3
     lo, hi = doc["predicted_peak"]["ci95"]

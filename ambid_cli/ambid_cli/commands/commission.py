@@ -41,9 +41,11 @@ def verify_noise_seed(seed: int) -> int:
 
 def _identify(args: argparse.Namespace, out: Path, controller: str, verify: bool = False) -> int:
     from ambid_cli.commands import identify
+    from ambid_cli.heartbeat import current
 
     step = copy.copy(args)
     step.out, step.controller, step.live = out, controller, None
+    step.wall_from_s = current().elapsed()   # its headline's wall times are its own, not the commission's so far
     if verify and not args.hardware:
         step.noise_seed = verify_noise_seed(args.seed if args.noise_seed is None else args.noise_seed)
     return identify.run(step)

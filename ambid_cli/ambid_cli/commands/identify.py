@@ -106,13 +106,15 @@ def run(args: argparse.Namespace) -> int:
     print(f"ambid identify: {session_words(session)}, {layout}, namespace {args.namespace}, ROS_DOMAIN_ID "
           f"{session_domain_id()}", file=sys.stderr, flush=True)
     phases.say("starting the graph and waiting for every reader; the rotor lifts off, then the experiment runs")
-    started = phases.elapsed()
+    # a step of a longer command (commission) counts its wall time from the step's start, not the command's
+    t0 = float(getattr(args, "wall_from_s", 0.0))
+    started = phases.elapsed() - t0
 
     def headline(summary: IdentifyResult) -> None:   # printed as soon as the results are there; the report follows
         kept_out = kept_out_line("identify", summary.session.foreign_messages)
         if kept_out:
             print(kept_out, file=sys.stderr, flush=True)
-        print(format_headlines(summary, args.out, (started, phases.elapsed()), not args.no_report), flush=True)
+        print(format_headlines(summary, args.out, (started, phases.elapsed() - t0), not args.no_report), flush=True)
 
     try:  # the foreign publishers named before anything starts
         summary = run_identify(cfg, plan, lambda found: print_foreign("identify", found), on_headline=headline,
@@ -133,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
     if summary.live:
         print("  " + live_line(summary.live))
     report = args.out / "report"
-    print(f"ambid identify: {phases.elapsed():.1f} s wall in all" + ("; no report (--no-report)" if args.no_report else
+    print(f"ambid identify: {phases.elapsed() - t0:.1f} s wall in all" + ("; no report (--no-report)" if args.no_report else
           f"; the report is being written by a process of its own, {report / 'index.html'} in a few seconds "
           f"({report / 'status.json'} says when)"), file=sys.stderr)
     return 0 if summary.state == "done" else 1
