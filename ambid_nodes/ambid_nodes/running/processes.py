@@ -240,11 +240,11 @@ def close_recording(sup: Supervisor, executor, watch, mcap_path) -> dict:
 
 def died_summary(death, summary: dict | None, watch, dt: float, wall_s: float, recorded: int | None = None) -> dict:
     """The run's figures where ``death`` ended it: the plant's own where it ended its run (its levitation is
-    judged up to where the loop stopped), else what the watch heard up to the last block, or what the recording
-    holds (``recorded``: its measurement's end index) where that is more: a source stopped while sending a block
-    may have reached the recorder with it and not the watch (a writer sends to each reader in turn)."""
+    judged up to where the loop stopped), else the end of what the recording holds (``recorded``: its
+    measurement's end index; a source stopped while sending a block may have reached the recorder with it and not
+    the watch, or the other way round: a writer sends to each reader in turn), else what the watch heard."""
     if summary is None:
-        k = max(watch.progress, recorded or 0)
+        k = watch.progress if recorded is None else recorded
         figures = watch.figures("plant_sim")
         summary = {**watch.monitor.figures(), "samples": k, "simulated_s": k * dt, "wall_s": wall_s,
                    "samples_per_wall_s": k / wall_s if wall_s > 0 else 0.0, "state": "failed", "failure": None,
