@@ -250,3 +250,19 @@ def test_hardware_bridge_stopped(ros, ros_env, procs, tmp_path):
                                                "--key-file", str(key))
     assert scan_session(path).complete
     assert_tiles(recorded_blocks(path), k)
+
+
+def test_a_source_stopped_mid_send_ends_the_session_where_the_recording_ends():
+    """A writer sends a block to each reader in turn: a bridge stopped between the two may have given the
+    recorder a block the watch never heard (CI: recorded to 8000, the line said 7000). Without the plant's own
+    summary, the line names the recording's end, whichever of the two heard more; the watch's without one."""
+    from types import SimpleNamespace
+
+    from ambid_nodes.running.processes import died_summary
+    from ambid_nodes.supervisor import Death
+
+    watch = SimpleNamespace(progress=7000, monitor=SimpleNamespace(figures=dict), figures=lambda node: {})
+    death = Death("hardware_bridge", "was stopped (SIGSTOP)", 0, 0.0)
+    assert died_summary(death, None, watch, 1e-4, 1.0, 8000)["death"]["sample_index"] == 8000
+    assert died_summary(death, None, watch, 1e-4, 1.0, None)["death"]["sample_index"] == 7000
+    assert died_summary(death, None, watch, 1e-4, 1.0, 6000)["death"]["sample_index"] == 6000

@@ -152,4 +152,5 @@ class Recording:
                 "bytes_received": self.bytes, "file_bytes": file_bytes, "chunks": self.writer.chunk_count,
                 "flushed_messages": self.writer.flushed_message_count, "messages_received": self.received,
                 "messages_rejected": self.rejected, "wall_s": wall,
-                "messages_per_wall_s": written / wall if wall > 0 else 0.0, "error": self.failed}
+                "messages_per_wall_s": written / wall if wall > 0 else 0.0, "error": self.failed,
+                "block_end": dict(self.block_end)}

@@ -197,7 +197,9 @@ class ProcessesLayout(Layout):
         sup = self.sup
         plant_summary = sup.nodes[self.plant_name].summary if self.plant_name in sup.nodes else None
         rec = {} if self.loop_only else close_recording(sup, self.executor, self.watch, self.mcap_path)
-        summary = died_summary(death, plant_summary, self.watch, self.plan.rig.dt, time.perf_counter() - self.wall0)
+        recorded = rec.get("block_end", {}).get(self.watch.measurement)
+        summary = died_summary(death, plant_summary, self.watch, self.plan.rig.dt, time.perf_counter() - self.wall0,
+                               recorded)
         complete = bool(rec.get("complete", rec.get("state") == "done"))
         return NodeDied(summary["death"], str(self.mcap_path), complete, rec.get("messages"), summary)
 
@@ -236,11 +238,13 @@ def close_recording(sup: Supervisor, executor, watch, mcap_path) -> dict:
         return {"messages": None, "complete": False, "error": str(exc)}
 
 
-def died_summary(death, summary: dict | None, watch, dt: float, wall_s: float) -> dict:
+def died_summary(death, summary: dict | None, watch, dt: float, wall_s: float, recorded: int | None = None) -> dict:
     """The run's figures where ``death`` ended it: the plant's own where it ended its run (its levitation is
-    judged up to where the loop stopped), else what the watch heard up to the last block."""
+    judged up to where the loop stopped), else the end of what the recording holds (``recorded``: its
+    measurement's end index; a source stopped while sending a block may have reached the recorder with it and not
+    the watch, or the other way round: a writer sends to each reader in turn), else what the watch heard."""
     if summary is None:
-        k = watch.progress
+        k = watch.progress if recorded is None else recorded
         figures = watch.figures("plant_sim")
         summary = {**watch.monitor.figures(), "samples": k, "simulated_s": k * dt, "wall_s": wall_s,
                    "samples_per_wall_s": k / wall_s if wall_s > 0 else 0.0, "state": "failed", "failure": None,
