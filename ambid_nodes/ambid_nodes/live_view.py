@@ -32,6 +32,24 @@ import threading
 import time
 
 
+def autogroup(pid: int | str = "self") -> tuple[str, int] | None:
+    """The autogroup scheduling ``pid`` and its nice, e.g. ``("/autogroup-2323", 0)``; None where none does.
+
+    The kernel prints ``/proc/PID/autogroup`` only for a task whose session has an autogroup of its own
+    (kernel/sched/autogroup.c, proc_sched_autogroup_show_task); it prints nothing when the session's group is
+    the root one (seen in a container on CI) and the file is absent without CONFIG_SCHED_AUTOGROUP: in both,
+    no autogroup weighs the task, its nice is all there is.
+    """
+    try:
+        with open(f"/proc/{pid}/autogroup") as f:
+            words = f.read().split()
+    except OSError:
+        return None
+    if len(words) != 3 or words[1] != "nice":
+        return None
+    return words[0], int(words[2])
+
+
 def lower_priority(niceness: int) -> dict:
     """Make this process yield the CPU: ``niceness`` more nice, and so its autogroup where it leads one.
 
@@ -39,23 +57,33 @@ def lower_priority(niceness: int) -> dict:
     distributions) every session is scheduled as one group against the others, a task's nice weighing only
     inside its group: the live view, a session of its own (LiveProcess), niced alone still took as much CPU
     as the loop's whole session. Its autogroup's nice is raised too; each step only where permitted (a
-    process may always lower its own priority; a kernel without autogroups has no file). Call it before any
-    thread starts: threads inherit it. What was applied, e.g. ``{"nice": 10, "autogroup_nice": 10}``.
+    process may always lower its own priority) and only where the kernel shows an autogroup (:func:`autogroup`).
+    Call it before any thread starts: threads inherit it. What was applied, as the kernel reports it
+    afterwards, e.g. ``{"nice": 10, "autogroup_nice": 10}`` (no ``autogroup_nice`` where none was raised).
     """
     done = {"nice": os.nice(niceness)}
-    if os.getsid(0) == os.getpid():   # the autogroup is this session's own: nothing else is made nicer
-        try:
-            with open("/proc/self/autogroup", "w") as f:
-                f.write(str(done["nice"]))
-            done["autogroup_nice"] = done["nice"]
-        except OSError:
-            pass
+    # the autogroup is this session's own (nothing else is made nicer) and one the kernel shows
+    if os.getsid(0) == os.getpid() and autogroup() is not None:
+        for _ in range(20):   # without CAP_SYS_ADMIN the kernel takes one such write a 0.1 s, machine-wide
+            try:
+                with open("/proc/self/autogroup", "w") as f:
+                    f.write(str(done["nice"]))
+                break
+            except BlockingIOError:   # EAGAIN: another process's write came within 0.1 s
+                time.sleep(0.05)
+            except OSError:
+                break
+        group = autogroup()
+        if group is not None and group[1] == done["nice"]:   # what the kernel says it has, not what was asked
+            done["autogroup_nice"] = group[1]
     return done
 
 
 if __name__ == "__main__" and os.environ.get("AMBID_LIVE_NICENESS", "").isdigit():
     # started by LiveProcess: lower the priority before any import starts a thread, so that all inherit it
-    lower_priority(int(os.environ.pop("AMBID_LIVE_NICENESS")))
+    PRIORITY = lower_priority(int(os.environ.pop("AMBID_LIVE_NICENESS")))
+else:
+    PRIORITY = {}   # what lower_priority applied to this process (reported in the live view's figures)
 
 import numpy as np
 from ambid.excitation import ExcitationDesign
@@ -170,10 +198,11 @@ class LiveView(Node):
                            _t_ns(msg.stamp))
 
     def close(self) -> dict:
-        """Stop the server (what is queued is shown first); its figures, with the foreign messages not shown and
-        the CPU seconds the process used since it listened (``cpu_s``: every thread, the SDK's included)."""
+        """Stop the server (what is queued is shown first); its figures, with the foreign messages not shown,
+        the CPU seconds the process used since it listened (``cpu_s``: every thread, the SDK's included) and the
+        priority it runs at (``priority``: :func:`lower_priority`'s answer, {} if it was started without one)."""
         return {**self.server.close(), "foreign_messages": dict(self.foreign),
-                "cpu_s": time.process_time() - self.cpu_at_start}
+                "cpu_s": time.process_time() - self.cpu_at_start, "priority": dict(PRIORITY)}
 
 
 class LiveProcess:

@@ -45,6 +45,10 @@ __all__ = ["LiveServer", "LiveUnavailable", "DEFAULT_PREFIX"]
 #: Topic prefix of the live view's channels (below the session's namespace).
 DEFAULT_PREFIX = "/amb/live"
 
+#: Seconds the server waits, on closing, after it last sent a frame, before it stops: what the SDK has queued
+#: for a client is sent by its own threads (which a busy machine may not run at once), and lost at its stop.
+FLUSH_S = 0.5
+
 
 class LiveUnavailable(RuntimeError):
     """The live view cannot start (foxglove-sdk missing, or the address cannot be bound)."""
@@ -94,6 +98,7 @@ class LiveServer:
             raise ValueError(f"display_hz must be >= 0, got {display_hz!r}")
         self._period = 1.0 / display_hz if display_hz > 0 else 0.0
         self._shown_at = -1e300                 # monotonic time the streams drawn as they come were last sent
+        self._sent_at = -1e300                  # monotonic time a frame was last handed to the SDK
         self.follower = follower if follower is not None else SessionFollower()
         self.prefix = "/" + prefix.strip("/")
         self.host, self._port, self.name = host, port, name
@@ -148,15 +153,20 @@ class LiveServer:
         return f"ws://{self.host}:{self.port}"
 
     def close(self, timeout_s: float = 5.0) -> dict:
-        """Process what is queued (for at most ``timeout_s``), stop the worker and the server; the figures."""
+        """Process what is queued (for at most ``timeout_s``), stop the worker and, once the frames sent last had
+        :data:`FLUSH_S` to reach the clients, the server; the figures."""
         self._closing = True
         self._wake.set()
         if self._thread is not None:
             self._thread.join(timeout_s)
         if self._server is not None:
-            # the SDK's stop() waits for every client's socket to take what is queued for it, without a
-            # time limit: a client that stopped reading would hold the session's end. Stopped on a thread of
-            # its own (the SDK lets go of the GIL there), waited for a while, then left to the exit.
+            # the SDK's stop() abandons what is still queued for a client (foxglove-sdk's poller sends Close
+            # without draining its queue): the frames sent last (the stream's end, the final FRF) get
+            # FLUSH_S to leave first. On a fast machine, or one core, they were all lost.
+            time.sleep(max(self._sent_at + FLUSH_S - time.monotonic(), 0.0))
+            # and then it waits for each client's socket to take the Close, without a time limit: a client
+            # that stopped reading would hold the session's end. Stopped on a thread of its own (the SDK lets
+            # go of the GIL there), waited for a while, then left to the exit.
             stopper = threading.Thread(target=self._server.stop, name="ambid-live-stop", daemon=True)
             stopper.start()
             stopper.join(min(timeout_s, 2.0))
@@ -271,6 +281,7 @@ class LiveServer:
             message = dict(message, dropped_frames=self.counts["dropped_frames"])
         data = json.dumps(message, allow_nan=False, separators=(",", ":")).encode()
         channel.log(data, log_time=frame.t_ns)
+        self._sent_at = time.monotonic()
         self.counts["frames_sent"] += 1
         self.counts["bytes_sent"] += len(data)
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import sys
 import time
 
 from rclpy.node import Node
@@ -119,14 +118,7 @@ class ComposedLayout(Layout):
         if not answer.accepted:
             raise ValueError(f"identify: the excitation generator refused the experiment: {answer.message}")
         self.answer = answer
-        if self.live is not None:
-            # it shows the experiment from its first sample: it has the design first (the design is delivered to
-            # a late reader on request, after the blocks streaming in ahead of it when the live view, nicer than
-            # the loop, is slow to answer: it would have had no live FRF)
-            try:
-                self.live.wait_design(answer.experiment_id, 60.0)
-            except RuntimeError as exc:   # a viewer never stops the session it shows
-                print(f"ambid: {exc}; it shows what it gets", file=sys.stderr, flush=True)
+        self.wait_live_design(answer)
         self.start_loop(answer)
         return answer
 

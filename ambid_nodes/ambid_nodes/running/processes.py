@@ -120,8 +120,7 @@ class ProcessesLayout(Layout):
             pause = time.monotonic() + 0.2
             while time.monotonic() < pause:
                 spin(self.executor, self.watch, 0.05)
-        if self.live is not None:   # it shows the experiment from its first sample: it has the design first
-            self.live.wait_design(answer.experiment_id, START_TIMEOUT_S)
+        self.wait_live_design(answer)
         self.start_controller()
         return answer
 
