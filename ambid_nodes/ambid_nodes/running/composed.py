@@ -90,6 +90,8 @@ class ComposedLayout(Layout):
         This process's own (the recorder's once it has found the topic), and a live view's, whose process
         discovers ours late on a loaded machine (a design it got after the experiment's blocks had passed
         would leave it no FRF to show). The loop alone starts at once: its nodes are this process's.
+        The writers are this process's, so their matched counts are read here, the hardware bridge's as
+        plant_sim's (the processes layout cannot: it hands the count to plant_sim, ``measurement_readers``).
         """
         if self.loop_only:
             return
