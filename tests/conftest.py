@@ -18,9 +18,9 @@ SLOW_FIRST = (
     "tests/docs/test_doc_blocks.py",            # 145 s
     "tests/nodes/test_target_c_bridge.py",      # 132 s
     "tests/nodes/test_validate_tune.py",        # 130 s
+    "tests/docs/test_dask_cluster.py",          # ~105 s (95 s + the campaign test, less its own campaign)
     "tests/nodes/test_bench.py",
     "tests/nodes/test_drills.py",
-    "tests/docs/test_dask_cluster.py",
     "tests/nodes/test_identify_session.py",
     "tests/nodes/test_live_identify.py",
     "tests/nodes/test_validate_command.py",

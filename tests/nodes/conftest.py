@@ -40,6 +40,7 @@ _OFFSET = int(os.environ.get("PYTEST_XDIST_TESTRUNUID", "") or "%x" % (os.getpid
 MATCH_TIMEOUT_S = 60.0  # discovery on a loaded 2-core machine: seconds at worst, never this long
 # the waits of the tests are bounds for liveness, never timing assertions: stretched on a loaded machine
 TIMEOUT_SCALE = float(os.environ.get("AMBID_TEST_TIMEOUT_SCALE", "3"))
+GRAPH_SETTLED_S = 1.0  # the ros fixture's teardown: a graph unchanged this long has no peer still leaving
 
 
 def next_domain_id() -> int:
@@ -182,8 +183,21 @@ def ros():
     if nodes:
         # let DDS finish with peers that just left (a subprocess node the test stopped) before our
         # entities go: their unmatch events racing the destruction can crash the EventsExecutor
-        # (ros2/rclpy#1644); bounded, not scaled: a killed peer lingers until its lease expires, whatever the load
-        spin_until(lambda: graph() <= names, 2.0, scale=False)
+        # (ros2/rclpy#1644); bounded, not scaled: a killed peer lingers until its lease expires, whatever the load.
+        # The processes are gone by now (the procs fixture stops them first), and one that ended announced it
+        # as it went: a graph standing still for GRAPH_SETTLED_S holds only killed peers, which no wait removes
+        # (the drills' SIGKILLed nodes cost the whole 2 s each)
+        seen = {"graph": None, "since": 0.0}
+
+        def settled() -> bool:
+            now, g = time.monotonic(), graph()
+            if g <= names:
+                return True
+            if g != seen["graph"]:
+                seen.update(graph=g, since=now)
+            return now - seen["since"] >= GRAPH_SETTLED_S
+
+        spin_until(settled, 2.0, scale=False)
         spin_until(lambda: False, 0.05)  # and the events already queued
     executor.shutdown()
     for n in nodes:
