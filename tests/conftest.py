@@ -26,7 +26,6 @@ SLOW_FIRST = (
     "tests/nodes/test_validate_command.py",
     "tests/nodes/test_loop.py",
     "tests/core/test_architecture.py",
-    "tests/nodes/test_campaign.py",
     "tests/core/test_warm_caches.py",
     "tests/core/test_live.py",
     "tests/nodes/test_sessions.py",

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 from ambid.plant.analytical import analytical_model
-from ambid.plant.rig import make_rig
+from ambid.plant.rig import make_rig, without_true_factors
 from ambid.plant.true_rig import levitated_plant, operating_point, true_linear_model
 
 RHO = 7810.0
@@ -29,6 +29,19 @@ def test_nonlinear_force_slopes_are_ki_ks():
     # eq. 2.14 at x = 0: ks grows with the control current as (1 + ic^2 / ib^2), ki does not change
     assert op.ks_n_per_m[0] == pytest.approx(mag.ks * (1 + (i0 / 3.0) ** 2), rel=5e-3)
     assert op.ki_n_per_a[0] == pytest.approx(mag.ki, rel=1e-3)
+
+
+def test_a_rig_without_its_true_factors_has_its_nominal_magnets_and_every_other_value():
+    rig = make_rig({"axial_bearing": 1, "true_ki_factor": 1.1, "true_ks_factor": 0.9, "axial_true_ki_factor": 0.95,
+                    "axial_true_ks_factor": 1.05})
+    exact = without_true_factors(rig)
+    for mag, nominal in ((exact.true_magnet, rig.magnet), (exact.axial_true_magnet, rig.axial_magnet)):
+        # the force law's slopes at the centre: the nominal ki, ks (eqs. 2.16-2.17), no tolerance on top
+        assert _central_difference(lambda i: mag.force(i, 0.0), 0.0, 1e-4) == pytest.approx(nominal.ki, rel=1e-7)
+        assert _central_difference(lambda x: mag.force(0.0, x), 0.0, 1e-8) == pytest.approx(nominal.ks, rel=1e-6)
+    changed = {k for k in rig.values if exact.values[k] != rig.values[k]}
+    assert changed == {"true_ki_factor", "true_ks_factor", "axial_true_ki_factor", "axial_true_ks_factor"}
+    assert rig.true_ki_factor == 1.1 and exact.name == rig.name   # the rig given is left as it was
 
 
 def test_operating_point_carries_the_rotor_weight_with_zero_readings():

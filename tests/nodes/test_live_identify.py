@@ -188,3 +188,32 @@ def test_identify_processes_live_view_sees_the_whole_experiment(tmp_path, ros_en
     assert live["lost_blocks"] == 0 and live["frf_gaps"] == 0 and live["rejected_blocks"] == 0, live
     assert live["estimates"] >= 2 and live["records"] == 4 and not live["problems"], live
     assert s["layout"] == "processes" and "live view:" in out
+
+
+@pytest.mark.parametrize("kind", ["composed", "processes", "hardware"])
+def test_a_live_view_without_the_design_costs_a_line_not_the_session(kind, capsys):
+    """Every layout waits for the live view's design the one way (docs/live.md): up to 60 s, then one line and the
+    session runs on (a viewer never stops the session it shows)."""
+    from types import SimpleNamespace
+
+    from ambid_nodes.running.composed import ComposedLayout
+    from ambid_nodes.running.hardware import HardwareLayout
+    from ambid_nodes.running.processes import ProcessesLayout
+
+    asked = []
+
+    class NeverGetsIt:   # a live view whose design never comes: LiveProcess.wait_design's timeout
+        def wait_design(self, experiment_id: str, timeout_s: float) -> None:
+            asked.append(timeout_s)
+            raise RuntimeError(f"the live view did not get the design of {experiment_id} within {timeout_s:g} s")
+
+    cls = {"composed": ComposedLayout, "processes": ProcessesLayout, "hardware": HardwareLayout}[kind]
+    layout = cls.__new__(cls)   # the step alone: no graph, no plan
+    layout.live = NeverGetsIt()
+    layout.wait_live_design(SimpleNamespace(experiment_id="exp-1"))   # returns: the session goes on
+    err = capsys.readouterr().err.strip().splitlines()
+    assert asked == [60.0]
+    assert err == ["ambid: the live view did not get the design of exp-1 within 60 s; it shows what it gets"]
+    layout.live = None
+    layout.wait_live_design(SimpleNamespace(experiment_id="exp-2"))   # no live view: nothing to wait for
+    assert asked == [60.0] and not capsys.readouterr().err

@@ -16,7 +16,8 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def _validate(out: Path, env: dict) -> subprocess.CompletedProcess:
-    # its sessions' domains 215..222: test_campaign's are 223..230 (the two may run at once under pytest-xdist)
+    # its sessions' domains 215..222: the local campaign of tests/docs/test_dask_cluster.py takes 223..230 (the
+    # two may run at once under pytest-xdist)
     return subprocess.run([sys.executable, "-m", "ambid_cli.cli", "validate", "--seeds", "2", "--controller", "lqg",
                            "--no-figure", "--domain-base", "215", "--out", str(out)], env=env, cwd=REPO, capture_output=True, text=True,
                           timeout=600)

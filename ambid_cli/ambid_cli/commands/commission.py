@@ -45,10 +45,10 @@ def _identify(args: argparse.Namespace, out: Path, controller: str, verify: bool
 
     step = copy.copy(args)
     step.out, step.controller, step.live = out, controller, None
-    step.wall_from_s = current().elapsed()   # its headline's wall times are its own, not the commission's so far
     if verify and not args.hardware:
         step.noise_seed = verify_noise_seed(args.seed if args.noise_seed is None else args.noise_seed)
-    return identify.run(step)
+    # its headline's wall times are its own, not the commission's so far
+    return identify.run(step, wall_from_s=current().elapsed())
 
 
 def _side(run: Path) -> dict:

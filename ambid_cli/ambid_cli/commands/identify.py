@@ -56,7 +56,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_live_options(p)
 
 
-def run(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace, wall_from_s: float = 0.0) -> int:
+    """``ambid identify``; ``wall_from_s``: where a step of a longer command (commission) starts on the command's
+    clock (heartbeat's elapsed seconds), so the step's wall times are its own, not the command's so far."""
     from ambid_cli.heartbeat import current
 
     phases = current()
@@ -106,15 +108,14 @@ def run(args: argparse.Namespace) -> int:
     print(f"ambid identify: {session_words(session)}, {layout}, namespace {args.namespace}, ROS_DOMAIN_ID "
           f"{session_domain_id()}", file=sys.stderr, flush=True)
     phases.say("starting the graph and waiting for every reader; the rotor lifts off, then the experiment runs")
-    # a step of a longer command (commission) counts its wall time from the step's start, not the command's
-    t0 = float(getattr(args, "wall_from_s", 0.0))
-    started = phases.elapsed() - t0
+    started = phases.elapsed() - wall_from_s
 
     def headline(summary: IdentifyResult) -> None:   # printed as soon as the results are there; the report follows
         kept_out = kept_out_line("identify", summary.session.foreign_messages)
         if kept_out:
             print(kept_out, file=sys.stderr, flush=True)
-        print(format_headlines(summary, args.out, (started, phases.elapsed() - t0), not args.no_report), flush=True)
+        print(format_headlines(summary, args.out, (started, phases.elapsed() - wall_from_s), not args.no_report),
+              flush=True)
 
     try:  # the foreign publishers named before anything starts
         summary = run_identify(cfg, plan, lambda found: print_foreign("identify", found), on_headline=headline,
@@ -135,7 +136,8 @@ def run(args: argparse.Namespace) -> int:
     if summary.live:
         print("  " + live_line(summary.live))
     report = args.out / "report"
-    print(f"ambid identify: {phases.elapsed() - t0:.1f} s wall in all" + ("; no report (--no-report)" if args.no_report else
+    print(f"ambid identify: {phases.elapsed() - wall_from_s:.1f} s wall in all"
+          + ("; no report (--no-report)" if args.no_report else
           f"; the report is being written by a process of its own, {report / 'index.html'} in a few seconds "
           f"({report / 'status.json'} says when)"), file=sys.stderr)
     return 0 if summary.state == "done" else 1

@@ -34,7 +34,7 @@ from ambid.fit import load_model_npz
 from ambid.frf.sensitivity import iso14839_zone
 from ambid.jsonable import to_jsonable
 from ambid.plant.analytical import analytical_model
-from ambid.plant.rig import Rig, load_rig, make_rig
+from ambid.plant.rig import Rig, load_rig, make_rig, without_true_factors
 from ambid.plant.sensors import noise_std
 from ambid.recording import iter_decoded, read_metadata
 from ambid.recording.blocks import read_samples
@@ -188,8 +188,8 @@ def operating_point(inputs: RunInputs, unc: PlantUncertainty) -> Callable[[State
     design = inputs.design
     try:
         # the magnets as the data found them: no simulated manufacturing factor on top of the estimates
-        exact = {k: 1.0 for k in ("true_ki_factor", "true_ks_factor", "axial_true_ki_factor", "axial_true_ks_factor")}
-        rig = replace(inputs.rig, values={**inputs.rig.values, **rig_values_for(inputs.rig, unc.values), **exact})
+        rig = without_true_factors(replace(inputs.rig, values={**inputs.rig.values,
+                                                               **rig_values_for(inputs.rig, unc.values)}))
         ran = slopes_as_parameters(*excitation_slopes(rig, inputs.controller[0], design), rig.layout)
     except (ValueError, np.linalg.LinAlgError):
         return None

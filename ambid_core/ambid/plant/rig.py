@@ -26,7 +26,7 @@ measured from the middle of the shaft, A on the negative side.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -465,6 +465,24 @@ class Rig:
         if self.tolerances:
             out["tolerances"] = {k: t.to_text() for k, t in self.tolerances.items()}
         return out
+
+
+#: the simulated rig's manufacturing factors on its magnets (true / nominal ki and ks): what the simulation adds
+#: to the nominal magnets (:attr:`Rig.true_magnet`), never part of a rig built from what data showed
+TRUE_MAGNET_FACTORS = ("true_ki_factor", "true_ks_factor", "axial_true_ki_factor", "axial_true_ks_factor")
+
+
+def without_true_factors(rig: Rig) -> Rig:
+    """``rig`` without its simulated manufacturing factors (each of :data:`TRUE_MAGNET_FACTORS` 1): its true
+    magnets are its nominal ones, so a rig whose magnets were set to estimates simulates exactly those.
+
+    Examples
+    --------
+    >>> rig = without_true_factors(make_rig())
+    >>> rig.true_magnet == rig.magnet and rig.axial_true_magnet == rig.axial_magnet
+    True
+    """
+    return replace(rig, values={**rig.values, **dict.fromkeys(TRUE_MAGNET_FACTORS, 1.0)})
 
 
 def _coil_inductance(turns: float, pole_area_m2: float, air_gap_m: float) -> float:

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import sys
 import time
 
 from rclpy.node import Node
@@ -91,6 +90,8 @@ class ComposedLayout(Layout):
         This process's own (the recorder's once it has found the topic), and a live view's, whose process
         discovers ours late on a loaded machine (a design it got after the experiment's blocks had passed
         would leave it no FRF to show). The loop alone starts at once: its nodes are this process's.
+        The writers are this process's, so their matched counts are read here, the hardware bridge's as
+        plant_sim's (the processes layout cannot: it hands the count to plant_sim, ``measurement_readers``).
         """
         if self.loop_only:
             return
@@ -119,14 +120,7 @@ class ComposedLayout(Layout):
         if not answer.accepted:
             raise ValueError(f"identify: the excitation generator refused the experiment: {answer.message}")
         self.answer = answer
-        if self.live is not None:
-            # it shows the experiment from its first sample: it has the design first (the design is delivered to
-            # a late reader on request, after the blocks streaming in ahead of it when the live view, nicer than
-            # the loop, is slow to answer: it would have had no live FRF)
-            try:
-                self.live.wait_design(answer.experiment_id, 60.0)
-            except RuntimeError as exc:   # a viewer never stops the session it shows
-                print(f"ambid: {exc}; it shows what it gets", file=sys.stderr, flush=True)
+        self.wait_live_design(answer)
         self.start_loop(answer)
         return answer
 

@@ -18,6 +18,7 @@ picks the layout of a :class:`~ambid_nodes.running.plan.SessionConfig`.
 from __future__ import annotations
 
 import contextlib
+import sys
 import time
 from abc import ABC, abstractmethod
 from typing import Callable
@@ -125,6 +126,19 @@ class Layout(ABC):
         rate = k / max(time.perf_counter() - self.wall0, 1e-9)
         bar.show(k / total, f"sim {k / fs:6.2f}/{total / fs:.2f} s  {rate / 1000:5.1f}k samples/s{extra}")
 
+    def wait_live_design(self, answer) -> None:
+        """With a live view: wait until it has the experiment's design, so it shows the experiment from its first
+        sample (the design reaches a late reader on request, after the blocks streaming in ahead of it when the
+        live view, nicer than the loop, is slow to answer: it would have had no live FRF). Tolerant: a live view
+        without the design after ``LIVE_DESIGN_S`` gets one line on stderr and the session runs (a viewer never
+        stops the session it shows; it shows what it gets)."""
+        if self.live is None:
+            return
+        try:
+            self.live.wait_design(answer.experiment_id, LIVE_DESIGN_S)
+        except RuntimeError as exc:
+            print(f"ambid: {exc}; it shows what it gets", file=sys.stderr, flush=True)
+
     def loop_summary(self, plant_summary: dict) -> dict:
         """The run's summary where the loop ran alone: the plant's, how it ran and the foreign publishers."""
         return {**plant_summary, "layout": self.words(), "foreign_publishers": self.foreign}
@@ -151,6 +165,8 @@ def start_live(cfg: SessionConfig):
                        cfg.session or 0)
 
 
+#: the most wall seconds a session waits, before its loop, for its live view to have the experiment's design
+LIVE_DESIGN_S = 60.0
 #: the most wall seconds a session waits, after its loop, for its live view to show the experiment's end
 LIVE_CATCH_UP_S = 10.0
 
@@ -159,8 +175,6 @@ def announce_live(live) -> int:
     """Wait for a live view to listen and say where it is; how many readers it adds (0 without one)."""
     if live is None:
         return 0
-    import sys
-
     print(f"ambid: live view on {live.wait_ready()} (docs/live.md)", file=sys.stderr, flush=True)
     return 1
 

@@ -120,8 +120,7 @@ class ProcessesLayout(Layout):
             pause = time.monotonic() + 0.2
             while time.monotonic() < pause:
                 spin(self.executor, self.watch, 0.05)
-        if self.live is not None:   # it shows the experiment from its first sample: it has the design first
-            self.live.wait_design(answer.experiment_id, START_TIMEOUT_S)
+        self.wait_live_design(answer)
         self.start_controller()
         return answer
 
@@ -174,7 +173,8 @@ class ProcessesLayout(Layout):
             return {**bridge_parameters(cfg), "start_with_experiment": not self.loop_only,
                     "autostart": self.loop_only, "stop_after_samples": self.total, **self.rig_param, **self.session}
         # the loop waits until the plant's own writer is matched with every reader the run waits for (the
-        # graph showing a subscription by name is not yet the plant's writer matched with it)
+        # graph showing a subscription by name is not yet the plant's writer matched with it); only plant_sim's
+        # process sees its writer's matches (the composed layout, holding the writer, counts them itself)
         readers = 0 if self.loop_only else len(self.measurement_listeners()) + 1   # + the watch
         return {"sim_seconds": self.sim_seconds, "seed": cfg.seed, "nonlinear_magnets": cfg.nonlinear_magnets,
                 "measurement_readers": readers, **self.rig_param, **self.session}
