@@ -85,11 +85,11 @@ if __name__ == "__main__" and os.environ.get("AMBID_LIVE_NICENESS", "").isdigit(
 else:
     PRIORITY = {}   # what lower_priority applied to this process (reported in the live view's figures)
 
-import numpy as np
 from ambid.excitation import ExcitationDesign
 from ambid.frf.streaming import ESTIMATORS
 from ambid.live.follower import SessionFollower
 from ambid.live.server import LiveServer, LiveUnavailable
+from ambid.recording.blocks import decode_sample_block, sample_block_session
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -139,7 +139,7 @@ class LiveView(Node):
                                      queue_size=256, display_hz=float(display)).start()
         except LiveUnavailable as exc:
             raise ParameterError(f"live_view: {exc}") from None
-        self.create_subscription(SampleBlock, "measurement", self.on_block, LIVE_BLOCKS)
+        self.create_subscription(SampleBlock, "measurement", self.on_block, LIVE_BLOCKS, raw=True)
         self.create_subscription(DesignMsg, "excitation/design", self.on_design, qos.subscription(qos.LATCHED))
         self.create_subscription(SessionStatus, "status", self.on_status, qos.subscription(qos.STATUS))
         self.create_subscription(SessionEvent, "events", self.on_event, qos.subscription(qos.EVENTS))
@@ -156,22 +156,27 @@ class LiveView(Node):
             self.finished.add(f.experiment_id)
             print(f"{FINISHED_LINE}{f.experiment_id}", flush=True)
 
-    def foreign_message(self, topic: str, msg) -> bool:
-        """True (and counted) if ``msg`` is of another session than the one shown."""
-        if not self.session or msg.session_id == self.session:
+    def foreign_message(self, topic: str, msg, session_id: int | None = None) -> bool:
+        """True (and counted) if ``msg`` (or a message of ``session_id``) is of another session than the one
+        shown."""
+        if not self.session or (msg.session_id if session_id is None else session_id) == self.session:
             return False
         self.foreign[topic] = self.foreign.get(topic, 0) + 1
         return True
 
-    def on_block(self, msg: SampleBlock) -> None:
-        if self.foreign_message("measurement", msg):
-            return
-        n, names = int(msg.n_samples), list(msg.channel_names)
-        data = np.frombuffer(msg.data, dtype=np.float64)
-        if n <= 0 or not names or data.size != n * len(names):
+    def on_block(self, cdr: bytes) -> None:
+        """A measurement block as its CDR bytes, its samples read in place: the blocks are most of what the live
+        view takes (some 100 kB each), and made into a message first each was copied twice more."""
+        try:
+            if self.foreign_message("measurement", None, sample_block_session(cdr)):
+                return
+            block = decode_sample_block(cdr)
+        except ValueError:
             return   # malformed: the session's own nodes say so; the live view shows what it can
-        self.server.submit("block", int(msg.first_index), float(msg.sample_period), names,
-                           data.reshape(n, len(names)))
+        if block.n_samples <= 0 or not block.channel_names:
+            return
+        self.server.submit("block", block.first_index, block.sample_period_s, list(block.channel_names),
+                           block.data)
 
     def on_design(self, msg: DesignMsg) -> None:
         if self.foreign_message("excitation/design", msg):
