@@ -32,11 +32,21 @@ def _true_peak(controller_file: Path) -> float:
     # the closed loop u = K y + r, y = G u: its poles inside the unit circle
     a = np.block([[g.a + g.b @ k.d @ g.c, g.b @ k.c], [k.b @ g.c, k.a]]) if np.allclose(g.d, 0) else None
     assert a is not None and np.max(np.abs(np.linalg.eigvals(a))) < 1.0
-    # log-spaced below, 0.1 Hz steps above 100 Hz: a peak by a lightly damped bending mode is a few Hz wide
-    f = np.concatenate([np.geomspace(1.0, 100.0, 2000), np.arange(100.0, 0.499 / rig.dt, 0.1)])
-    gf, kf = g.freqresp(f), k.freqresp(f)
-    s = np.linalg.inv(np.eye(kf.shape[1])[None] - kf @ gf)
-    return float(np.abs(np.diagonal(s, axis1=1, axis2=2)).max())
+
+    def peaks(f: np.ndarray) -> np.ndarray:
+        gf, kf = g.freqresp(f), k.freqresp(f)
+        s = np.linalg.inv(np.eye(kf.shape[1])[None] - kf @ gf)
+        return np.abs(np.diagonal(s, axis1=1, axis2=2)).max(axis=1)
+
+    # log-spaced below, 0.5 Hz steps above 100 Hz: a peak by a lightly damped bending mode is a few Hz wide (the
+    # rig's narrowest, zeta 0.005 at 310 Hz: 3 Hz at half power), so each is a local maximum of this grid; the
+    # ten highest of those are then searched at 0.01 Hz steps within a step either side
+    f = np.concatenate([np.geomspace(1.0, 100.0, 2000), np.arange(100.0, 0.499 / rig.dt, 0.5)])
+    p = peaks(f)
+    local = np.flatnonzero((p >= np.roll(p, 1)) & (p >= np.roll(p, -1)))
+    best = local[np.argsort(p[local])[-10:]]
+    fine = np.concatenate([np.linspace(f[max(i - 1, 0)], f[min(i + 1, f.size - 1)], 201) for i in best])
+    return float(max(p.max(), peaks(fine).max()))
 
 
 def test_commission_takes_the_badly_tuned_rig_to_zone_a_inside_its_prediction(ros_env, tmp_path):
