@@ -7,7 +7,6 @@ Blocks marked ``not run`` are listed (with their reasons) at the end of the run,
 
 from __future__ import annotations
 
-import itertools
 import os
 import re
 import signal
@@ -23,10 +22,10 @@ import yaml
 
 from doc_blocks import (REPO, SHARED_IDENTIFY, Block, checkout_paths, commands, doc_files, inline_commands,
                         mismatch, parse, transcript)
+from domain_ids import next_domain_id
 
 BLOCKS = [b for f in doc_files() for b in parse(f)]
 TIMEOUT_S = 900
-_domain = itertools.count()
 
 
 @dataclass
@@ -96,18 +95,8 @@ class Docs:
         return ran
 
 
-def _domain_id() -> int:
-    """A ROS domain of 1..200 in this pytest-xdist worker's residue class (as tests/nodes/conftest.py takes
-    them), so no test on another worker holds it while a block runs."""
-    worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0")[2:] or 0)
-    workers = max(1, int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")))
-    slots = max(1, 200 // workers)
-    offset = int(os.environ.get("PYTEST_XDIST_TESTRUNUID", "") or "%x" % (os.getpid() * 37), 16) % 200
-    return 1 + (offset + worker + workers * ((slots // 2 + next(_domain)) % slots)) % (workers * slots)
-
-
 def _env() -> dict[str, str]:
-    return dict(os.environ, PYTHONUNBUFFERED="1", ROS_DOMAIN_ID=str(_domain_id()))
+    return dict(os.environ, PYTHONUNBUFFERED="1", ROS_DOMAIN_ID=str(next_domain_id()))
 
 
 def _run(argv: list[str], cwd: Path) -> Ran:

@@ -13,7 +13,6 @@ started (its children live in sessions of their own) is stopped: SIGCONT, SIGTER
 
 from __future__ import annotations
 
-import itertools
 import os
 import subprocess
 import time
@@ -27,25 +26,13 @@ from rclpy.experimental import EventsExecutor  # noqa: E402
 from rclpy.publisher import Publisher  # noqa: E402
 from rclpy.subscription import Subscription  # noqa: E402
 
+from domain_ids import next_domain_id  # noqa: E402,F401 - tests import it from here too
 from proc_tree import kill_tree  # noqa: E402
 
-# domain ids 1..200: under pytest-xdist each worker its own residue class (worker w of n takes the ids
-# = offset + w mod n), so two workers' tests never share a domain; the offset, from the run (xdist's run id,
-# else this process), spreads concurrent test runs so they don't meet
-_counter = itertools.count()
-_WORKER = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0")[2:] or 0)
-_WORKERS = max(1, int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")))
-_SLOTS = max(1, 200 // _WORKERS)  # ids each worker takes in turn
-_OFFSET = int(os.environ.get("PYTEST_XDIST_TESTRUNUID", "") or "%x" % (os.getpid() * 37), 16) % 200
 MATCH_TIMEOUT_S = 60.0  # discovery on a loaded 2-core machine: seconds at worst, never this long
 # the waits of the tests are bounds for liveness, never timing assertions: stretched on a loaded machine
 TIMEOUT_SCALE = float(os.environ.get("AMBID_TEST_TIMEOUT_SCALE", "3"))
 GRAPH_SETTLED_S = 1.0  # the ros fixture's teardown: a graph unchanged this long has no peer still leaving
-
-
-def next_domain_id() -> int:
-    """A ROS domain id no other test of this run holds now: 1 .. 200."""
-    return 1 + (_OFFSET + _WORKER + _WORKERS * (next(_counter) % _SLOTS)) % (_WORKERS * _SLOTS)
 
 
 def peers(entity) -> int:

@@ -88,7 +88,7 @@ def twin_jobs(tmp_path_factory):
 def session(twin_jobs, tmp_path_factory):
     import os
 
-    from conftest import next_domain_id
+    from domain_ids import next_domain_id
 
     out = tmp_path_factory.mktemp("identify")
     env = dict(os.environ, ROS_DOMAIN_ID=str(next_domain_id()), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")

@@ -101,7 +101,7 @@ def target_summary(proc: subprocess.Popen) -> dict:
 
 def cli(*args: str) -> subprocess.CompletedProcess:
     """``ambid ARGS`` on a ROS domain of its own (localhost only): no other test's or user's session hears it."""
-    from conftest import next_domain_id
+    from domain_ids import next_domain_id
 
     env = dict(os.environ, ROS_DOMAIN_ID=str(next_domain_id()), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     return subprocess.run([sys.executable, "-m", "ambid_cli.cli", *args], capture_output=True, text=True,
