@@ -270,14 +270,18 @@ def test_silent_target_is_detected_and_sent_to_its_safe_state(ros, target_thread
     assert ros.spin_until(lambda: bridge.assembler.next_index and bridge.assembler.next_index >= 200, timeout_s=60)
     # datagrams from anyone but the configured peer are dropped, on both ends: a forged "done, clock
     # stopped" heartbeat to the bridge and a forged SAFE_STATE command to the target change nothing
+    # (counted from what each end had dropped before: on a shared machine a port the OS just handed out may still
+    # get datagrams another test's target sends to its gone bridge, foreign too; CI once saw a count stay off 1)
     forger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     forger.bind(("127.0.0.1", 0))
+    before = bridge.c["foreign"], tg.rx_foreign
     forger.sendto(bp.pack_datagram(bp.Heartbeat(10**6, bp.TargetState.DONE, sent_end=0), 2), bridge.local_address)
     forger.sendto(bp.pack_datagram(bp.Command(0, 99, bp.CommandCode.SAFE_STATE), 2), tg.address)
-    assert ros.spin_until(lambda: bridge.c["foreign"] == 1 and tg.rx_foreign == 1, timeout_s=10)
+    assert ros.spin_until(lambda: bridge.c["foreign"] > before[0] and tg.rx_foreign > before[1], timeout_s=10), (
+        before, bridge.c["foreign"], tg.rx_foreign, tg.state)
     forger.close()
     assert ros.spin_until(lambda: spy.codes("foreign_datagram"), timeout_s=5)
-    assert bridge.figures()["datagrams_foreign"] == 1
+    assert bridge.figures()["datagrams_foreign"] == bridge.c["foreign"] >= 1
     assert tg.state == bp.TargetState.RUNNING and not bridge.finished.done()
     # the target goes silent at sample 400
     assert ros.spin_until(lambda: spy.codes("target_silent"), timeout_s=60), bridge.figures()
