@@ -19,6 +19,7 @@ import os
 import time
 
 from ambid.recording import scan_session
+from ambid.recording.blocks import sample_index_report
 
 from ambid_nodes.running.domain import session_domain_id
 from ambid_nodes.running.hardware import bridge_parameters
@@ -233,9 +234,15 @@ def close_recording(sup: Supervisor, executor, watch, mcap_path) -> dict:
             pass
     try:
         scan = scan_session(mcap_path)
-        return {"messages": scan.message_count, "complete": scan.complete}
     except (OSError, ValueError) as exc:
         return {"messages": None, "complete": False, "error": str(exc)}
+    # the event is often never sent (a recorder closing on SIGTERM has no ROS context left): the measurement's
+    # end as recorded, from the file's block headers, as the event would have said it
+    try:
+        end = sample_index_report(mcap_path, [watch.measurement])[watch.measurement]["end_index"] or 0
+    except (OSError, ValueError, KeyError):
+        return {"messages": scan.message_count, "complete": scan.complete}
+    return {"messages": scan.message_count, "complete": scan.complete, "block_end": {watch.measurement: end}}
 
 
 def died_summary(death, summary: dict | None, watch, dt: float, wall_s: float, recorded: int | None = None) -> dict:
