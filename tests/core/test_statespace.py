@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from ambid.control.closed_loop import check_stability, close_loop
 from ambid.plant.levitation import LevitationMonitor
-from ambid.statespace import StateSpace, block_diag, delay, series, statespace_from_dict
+from ambid.statespace import StateSpace, block_diag, delay, discretise, series, statespace_from_dict
 from scipy import signal
 
 
@@ -24,6 +24,18 @@ def test_discrete_freqresp_matches_scipy_dfreqresp():
     w = np.linspace(0.01, 3.0, 7)
     _, h = signal.dfreqresp((d.a, d.b, d.c, d.d, d.dt), w=w)
     assert np.allclose(d.freqresp(w / (2 * np.pi * d.dt))[:, 0, 0], np.squeeze(h), rtol=1e-10)
+
+
+@pytest.mark.parametrize("method", ["zoh", "bilinear"])
+def test_discretise_is_scipys_cont2discrete_to_the_bit(method):
+    """ambid's own discretisation (no scipy.signal import in a controller node) gives scipy's matrices."""
+    rng = np.random.default_rng(7)
+    for n, m, p in ((1, 1, 1), (3, 1, 1), (9, 4, 4), (20, 4, 8)):
+        a, b = rng.normal(size=(n, n)) * 300.0, rng.normal(size=(n, m))
+        c, d = rng.normal(size=(p, n)), rng.normal(size=(p, m))
+        ours = discretise(a, b, c, d, 1e-4, method)
+        for x, y in zip(ours, signal.cont2discrete((a, b, c, d), 1e-4, method=method)[:4]):
+            assert x.shape == y.shape and np.array_equal(x, y)
 
 
 def test_delay_is_z_to_the_minus_n():

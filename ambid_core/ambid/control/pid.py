@@ -11,11 +11,10 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
-from scipy import signal
 
 from ambid.channels import RADIAL, Layout
 from ambid.quantity import check_ranges, quantity
-from ambid.statespace import StateSpace, block_diag, delay, series
+from ambid.statespace import StateSpace, block_diag, delay, discretise, series
 
 
 @dataclass(frozen=True)
@@ -86,7 +85,7 @@ def pid_axis(p: PidParameters, dt: float) -> StateSpace:
     c = np.array([[0.0, 0.0, -1.0]])
     if wd == 0.0:  # no derivative action: drop its state
         a, b, c = a[np.ix_([0, 2], [0, 2])], b[[0, 2]], c[:, [0, 2]]
-    ad, bd, cd, dd, _ = signal.cont2discrete((a, b, c, np.zeros((1, 1))), dt, method="bilinear")
+    ad, bd, cd, dd = discretise(a, b, c, np.zeros((1, 1)), dt, "bilinear")
     return StateSpace(ad, bd, cd, dd, dt)
 
 

@@ -25,7 +25,6 @@ from typing import Any
 
 import numpy as np
 from scipy import io as sio
-from scipy import signal
 
 from ambid.array_file import read_arrays
 from ambid.channels import RADIAL, Layout
@@ -84,6 +83,8 @@ def _from_transfer_functions(data: dict, path: Path, dt: float, na: int) -> Stat
             raise ValueError(f"controller file {path}: den of axis {i + 1} must start with a non-zero z^0 "
                              "coefficient (a causal filter in powers of z^-1)")
         # equal lengths in z^-1 are the same polynomials in z: b0 z^m + ... over a0 z^m + ...
+        from scipy import signal  # here, not at the top: it imports scipy.stats, ~0.5 s in every controller node
+
         with warnings.catch_warnings():  # b0 = 0 (a sample of delay) is normal here, not badly conditioned
             warnings.simplefilter("ignore", signal.BadCoefficients)
             a, b, c, dd = signal.tf2ss(n, d)
