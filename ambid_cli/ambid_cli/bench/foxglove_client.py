@@ -20,13 +20,16 @@ import time
 from collections.abc import Callable
 
 PROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
+CONNECTED = "connected"   # the process's first line, once its connection is open
 UNKNOWN = "Unknown channel ID: "   # the status foxglove-sdk sends for a subscription it dropped
 
 
 async def follow(url: str, on_message: Callable[[str, int, dict], None], connect_timeout_s: float = 60.0,
-                 on_channels: Callable[[list[dict]], None] | None = None) -> None:
+                 on_channels: Callable[[list[dict]], None] | None = None,
+                 on_connected: Callable[[], None] | None = None) -> None:
     """Connect to ``url`` (retrying until it listens), subscribe to every advertised channel, and call
-    ``on_message(topic, log_time_ns, message)`` for each message, until the server closes the connection."""
+    ``on_message(topic, log_time_ns, message)`` for each message, until the server closes the connection
+    (``on_connected()`` once the connection is open)."""
     import websockets
 
     end = time.monotonic() + connect_timeout_s
@@ -38,6 +41,8 @@ async def follow(url: str, on_message: Callable[[str, int, dict], None], connect
             if time.monotonic() > end:
                 raise
             await asyncio.sleep(0.2)
+    if on_connected is not None:
+        on_connected()
     subs: dict[int, dict] = {}
     try:
         async for raw in ws:
@@ -82,7 +87,9 @@ def main(argv: list[str] | None = None) -> int:
     def on_message(topic: str, t_ns: int, msg: dict) -> None:
         counts[topic] = counts.get(topic, 0) + 1
 
-    asyncio.run(follow(url, on_message, on_channels=channels.extend))
+    # "connected" first: the bench starts its session once the viewer is there, as a user opens Foxglove first
+    asyncio.run(follow(url, on_message, on_channels=channels.extend,
+                       on_connected=lambda: print(CONNECTED, flush=True)))
     print(json.dumps({"channels": sorted(c["topic"] for c in channels), "messages": counts,
                       "total": sum(counts.values()), "cpu_s": time.process_time() - cpu0}), flush=True)
     return 0

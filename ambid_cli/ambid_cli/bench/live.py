@@ -18,11 +18,24 @@ from __future__ import annotations
 
 import json
 import os
+import select
 import statistics
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+
+def _wait_connected(client: subprocess.Popen, timeout_s: float = 60.0) -> None:
+    """Until the client says its connection is open: a session started before it would end, at --quick sizes
+    on a loaded machine, before a client still starting had connected (0 messages)."""
+    from ambid_cli.bench.foxglove_client import CONNECTED
+
+    ready, _, _ = select.select([client.stdout], [], [], timeout_s)
+    line = client.stdout.readline().strip() if ready else ""
+    if line != CONNECTED:
+        raise RuntimeError(f"the Foxglove client did not connect to the live view within {timeout_s:g} s "
+                           f"(it said {line!r})")
 
 
 def _session(out_dir: Path, overrides: dict, live: bool) -> dict:
@@ -46,6 +59,7 @@ def _session(out_dir: Path, overrides: dict, live: bool) -> dict:
             client = subprocess.Popen([sys.executable, "-m", "ambid_cli.bench.foxglove_client", url],
                                       stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
                                       start_new_session=True)
+            _wait_connected(client)
         cpu["session0"] = time.process_time()
         run = run_session(cfg, live=proc)
         cpu["session"] = time.process_time() - cpu.pop("session0")
