@@ -15,6 +15,15 @@ import numpy as np
 from scipy import linalg
 
 
+def zoh_blocks(a: np.ndarray, b: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """(exp(A t), int_0^t exp(A s) ds B) via one augmented matrix exponential (A (n, n), B (n, m), t [s])."""
+    n, m = b.shape
+    aug = np.zeros((n + m, n + m))
+    aug[:n, :n], aug[:n, n:] = a, b
+    e = linalg.expm(aug * t)
+    return e[:n, :n], e[:n, n:]
+
+
 def discretise(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray, dt: float, method: str = "zoh"
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The discrete (A, B, C, D) of a continuous model with sample period ``dt`` [s]: zero-order hold or
@@ -38,9 +47,7 @@ def discretise(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray, dt: f
         cd = linalg.solve(ima.transpose(), c.transpose()).transpose()
         return ad, bd, cd, d + 0.5 * np.dot(c, bd)
     if method == "zoh":
-        m = b.shape[1]
-        ms = linalg.expm(dt * np.vstack((np.hstack((a, b)), np.zeros((m, n + m)))))[:n, :]
-        return ms[:, :n], ms[:, n:], c, d
+        return (*zoh_blocks(a, b, dt), c, d)
     raise ValueError(f"discretise: method {method!r} is not zoh or bilinear")
 
 

@@ -48,7 +48,7 @@ from ambid.plant.magnet import MagnetPair
 from ambid.plant.sensors import filter_blocks, runout_table
 from ambid.channels import RADIAL, Layout
 from ambid.plant.rig import Rig
-from ambid.statespace import StateSpace, series
+from ambid.statespace import StateSpace, series, zoh_blocks
 
 _NEWTON_TOL = 1e-13
 
@@ -304,15 +304,6 @@ def pade_delay(n_channels: int, delay_s: float, order: int = 2) -> StateSpace:
     b1, c1 = linalg.solve(t, b1), c1 @ t
     eye = np.eye(n_channels)
     return StateSpace(np.kron(eye, a1), np.kron(eye, b1), np.kron(eye, c1), np.kron(eye, d1))
-
-
-def zoh_blocks(a: np.ndarray, b: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
-    """(exp(A t), int_0^t exp(A s) ds B) via one augmented matrix exponential."""
-    n, m = b.shape
-    aug = np.zeros((n + m, n + m))
-    aug[:n, :n], aug[:n, n:] = a, b
-    e = linalg.expm(aug * t)
-    return e[:n, :n], e[:n, n:]
 
 
 def delayed_zoh(a: np.ndarray, b: np.ndarray, dt: float, delay_s: float) -> tuple[np.ndarray, np.ndarray,
