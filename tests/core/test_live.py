@@ -12,6 +12,7 @@ import socket
 import struct
 import threading
 import time
+import types
 
 import numpy as np
 import pytest
@@ -388,3 +389,97 @@ def test_the_client_asks_again_for_a_channel_the_server_did_not_know_yet():
     asyncio.run(asyncio.wait_for(run(), 30))
     assert [[s["channelId"] for s in a] for a in asked] == [[7], [7]]
     assert got == [("/amb/live/progress", 5, {"finished": True})]
+
+
+class _Channel:
+    """A channel of :class:`_RoutedLater`: it logs to the clients it is routed to."""
+
+    def __init__(self, sdk, topic: str, cid: int):
+        self.sdk, self.topic, self.cid, self.routed = sdk, topic, cid, set()
+
+    def id(self):
+        return self.cid
+
+    def has_sinks(self):
+        return bool(self.routed)
+
+    def log(self, data, log_time=None):
+        for client in list(self.routed):
+            self.sdk.got.setdefault((client, self.topic), []).append(json.loads(data))
+
+
+class _RoutedLater:
+    """foxglove-sdk's order on a subscription, slowed down: ConnectedClient::on_subscribe calls the server
+    listener's on_subscribe, and only then Context::subscribe_channels routes the channel to the client. A
+    message logged in between misses that client. Here the routing waits for the test's word."""
+
+    def __init__(self):
+        self.channels, self.listener, self.got = {}, None, {}
+
+    # the parts of the foxglove module LiveServer uses
+    def Context(self):
+        return None
+
+    def Schema(self, **kw):
+        return kw
+
+    def start_server(self, server_listener, **kw):
+        self.listener = server_listener
+        return types.SimpleNamespace(port=1, stop=lambda: None)
+
+    def Channel(self, topic, **kw):
+        channel = _Channel(self, topic, len(self.channels) + 1)
+        self.channels[topic] = channel
+        return channel
+
+    def subscribe(self, client: int, topic: str) -> threading.Event:
+        """The listener hears of it now; the channel is routed once the returned event is set."""
+        channel = self.channels[topic]
+        self.listener.on_subscribe(types.SimpleNamespace(id=client), types.SimpleNamespace(id=channel.cid, topic=topic))
+        route = threading.Event()
+        threading.Thread(target=lambda: route.wait(10) and channel.routed.add(client), daemon=True).start()
+        return route
+
+
+def test_a_late_subscriber_gets_the_latest_message_once_the_sdk_routes_the_channel(session, monkeypatch):
+    """The latest message goes to a client that subscribes after it was sent, also when the SDK routes the
+    channel to the client a while after it told the server of the subscription (a busy machine: a live session's
+    client once got no final FRF so), to a second client of a channel, and while the server closes."""
+    import ambid.live.server as live_server
+
+    d, x = session
+    sdk = _RoutedLater()
+    monkeypatch.setattr(live_server, "_foxglove", lambda: sdk)
+    server = LiveServer(0, prefix="/amb/live", follower=SessionFollower(signal_rate_hz=100.0)).start()
+    server.submit("design_message", "exp1", d, PRE, d.total_samples)
+    for k in range(0, len(x), 1000):
+        server.submit("block", k, 1 / FS, NAMES, x[k:k + 1000])
+    assert server.drain(30.0)
+    topic = "/amb/live/frf/y_a_y/u_a_x"
+    assert topic in sdk.channels and not sdk.got   # sent while nobody subscribed
+
+    def latest(client):
+        end = time.monotonic() + 10
+        while not sdk.got.get((client, topic)) and time.monotonic() < end:
+            time.sleep(0.01)
+        return sdk.got.get((client, topic), [])
+
+    route = sdk.subscribe(1, topic)
+    time.sleep(0.3)   # the worker has long woken to the subscription: the SDK has not routed the channel yet
+    route.set()
+    first = latest(1)
+    assert len(first) == 1 and first[0]["complete"]
+    first = first[0]   # the resends to the next clients go to it too (the SDK logs to each routed client)
+    route = sdk.subscribe(2, topic)   # a second client: the channel has a sink (the first client's) already
+    time.sleep(0.05)
+    route.set()
+    assert latest(2) == [first]
+    closing = threading.Thread(target=server.close)
+    closing.start()
+    assert server._drained.wait(10)
+    route = sdk.subscribe(3, topic)   # as the server closes: a short session's channels come just before its end
+    time.sleep(0.1)
+    route.set()
+    closing.join(10)
+    assert latest(3) == [first] and not closing.is_alive()
+    assert server.figures()["resent"] == 3

@@ -16,8 +16,9 @@ caller:
   server keeps at most ``backlog`` messages per client (the SDK drops a slow
   client's oldest data messages: a client that never reads costs a bounded
   amount of memory);
-* a client that subscribes late gets the channel's latest message at once
-  (an FRF estimate comes only every few seconds);
+* a client that subscribes late gets the channel's latest message once the SDK
+  routes the channel to it (an FRF estimate comes only every few seconds),
+  also while the server closes;
 * the streams drawn as they come (the time signals, the orbits) are made
   only while a client subscribes to one of them, and sent at most
   ``display_hz`` times a wall second (:meth:`SessionFollower.display_frames
@@ -48,6 +49,15 @@ DEFAULT_PREFIX = "/amb/live"
 #: Seconds the server waits, on closing, after it last sent a frame, before it stops: what the SDK has queued
 #: for a client is sent by its own threads (which a busy machine may not run at once), and lost at its stop.
 FLUSH_S = 0.5
+
+#: Seconds after a second client subscribes to a channel before the channel's latest message is resent. The SDK
+#: calls the listener's on_subscribe before it routes the channel to the client (foxglove-sdk's
+#: ConnectedClient::on_subscribe, then Context::subscribe_channels): a message logged in between misses the
+#: client. For a channel's first subscriber the routing shows (has_sinks()); for another one nothing does.
+SETTLE_S = 0.2
+
+#: Seconds a resend waits for its channel to be routed to a client before it is given up.
+RESEND_GIVE_UP_S = 10.0
 
 
 class LiveUnavailable(RuntimeError):
@@ -108,13 +118,16 @@ class LiveServer:
         self._wake = threading.Event()
         self._lock = threading.Lock()          # guards the counters shared with submit()
         self._closing = False
-        self._resend: set[int] = set()         # channel ids a client just subscribed to
+        self._resend: dict[int, tuple[float, bool]] = {}  # channel id -> (when subscribed, its first subscriber)
+        self._subscribers: dict[int, int] = {}             # channel id -> subscriptions the listener saw
+        self._drained = threading.Event()      # the worker processed what was queued before close()
+        self._stop = False                     # close(): the worker stops serving late subscribers
         self._channels: dict[str, Any] = {}    # topic -> foxglove Channel
         self._by_id: dict[int, str] = {}
         self._latest: dict[str, Frame] = {}
         self._clients: set[int] = set()
         self.counts = {"submitted": 0, "dropped_frames": 0, "frames": 0, "frames_sent": 0, "bytes_sent": 0,
-                       "worker_errors": 0, "stop_timed_out": 0}
+                       "resent": 0, "resends_given_up": 0, "worker_errors": 0, "stop_timed_out": 0}
         self.errors: list[str] = []
         self._server = None
         self._context = None
@@ -153,17 +166,33 @@ class LiveServer:
         return f"ws://{self.host}:{self.port}"
 
     def close(self, timeout_s: float = 5.0) -> dict:
-        """Process what is queued (for at most ``timeout_s``), stop the worker and, once the frames sent last had
-        :data:`FLUSH_S` to reach the clients, the server; the figures."""
+        """Process what is queued (for at most ``timeout_s``), give the frames sent last :data:`FLUSH_S` to
+        reach the clients while still serving late subscribers, then stop the worker and the server; the
+        figures."""
         self._closing = True
         self._wake.set()
+        end = time.monotonic() + timeout_s
         if self._thread is not None:
-            self._thread.join(timeout_s)
+            self._drained.wait(timeout_s)
         if self._server is not None:
             # the SDK's stop() abandons what is still queued for a client (foxglove-sdk's poller sends Close
             # without draining its queue): the frames sent last (the stream's end, the final FRF) get
-            # FLUSH_S to leave first. On a fast machine, or one core, they were all lost.
-            time.sleep(max(self._sent_at + FLUSH_S - time.monotonic(), 0.0))
+            # FLUSH_S to leave first. On a fast machine, or one core, they were all lost. A client that
+            # subscribes meanwhile (a short session's channels are advertised just before its end) still gets
+            # each channel's latest message: the worker serves it, and its resend is waited for.
+            flush_end = max(end, time.monotonic() + FLUSH_S)
+            while time.monotonic() < flush_end:
+                with self._lock:
+                    pending = bool(self._resend)
+                left = self._sent_at + FLUSH_S - time.monotonic()
+                if left <= 0 and not pending:
+                    break
+                time.sleep(min(max(left, 0.0), 0.05) if not pending else 0.02)
+        self._stop = True
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(max(end - time.monotonic(), 0.1))
+        if self._server is not None:
             # and then it waits for each client's socket to take the Close, without a time limit: a client
             # that stopped reading would hold the session's end. Stopped on a thread of its own (the SDK lets
             # go of the GIL there), waited for a while, then left to the exit.
@@ -192,8 +221,8 @@ class LiveServer:
         self._wake.set()
 
     def figures(self) -> dict:
-        """Counters of the server (submitted, dropped_frames, frames, frames_sent, bytes_sent, clients) and of
-        the follower (blocks, lost_blocks, lost_samples, records, ...)."""
+        """Counters of the server (submitted, dropped_frames, frames, frames_sent, bytes_sent, resent: latest
+        messages sent again to late subscribers, clients) and of the follower (blocks, lost_blocks, lost_samples, records, ...)."""
         with self._lock:
             c = dict(self.counts)
         return {**self.follower.figures(), **c, "clients": len(self._clients), "channels": len(self._channels),
@@ -207,8 +236,8 @@ class LiveServer:
 
     # ---- worker ---------------------------------------------------------------------------------
     def _work(self) -> None:
-        while True:
-            self._wake.wait(self._next_display())
+        while not self._stop:
+            self._wake.wait(self._next_wait())
             self._wake.clear()
             while True:
                 with self._lock:
@@ -231,25 +260,42 @@ class LiveServer:
                     self.counts["worker_errors"] += 1
                     self.errors.append(f"{kind}: {type(exc).__name__}: {exc}")
                     del self.errors[:-20]
-            if self._resend:
-                with self._lock:   # the SDK's thread adds to it (_subscribed)
-                    ids, self._resend = self._resend, set()
-                for cid in ids:
-                    topic = self._by_id.get(cid)
-                    if topic in self._latest:
-                        self._log(self._latest[topic])
-            final = self._closing and not self._queue
-            self._display(final)
-            if final:
-                return
+            self._serve_late_subscribers()
+            if not self._drained.is_set():
+                final = self._closing and not self._queue
+                self._display(final)
+                if final:
+                    self._drained.set()
+
+    def _serve_late_subscribers(self) -> None:
+        """Resend each newly subscribed channel's latest message, once the SDK routes the channel to the client."""
+        now = time.monotonic()
+        with self._lock:   # the SDK's threads add to it (_subscribed)
+            pending = list(self._resend.items())
+        for cid, (t, first) in pending:
+            topic = self._by_id.get(cid)
+            channel = self._channels.get(topic)
+            routed = channel is not None and (channel.has_sinks() if first else now - t >= SETTLE_S)
+            if routed or now - t > RESEND_GIVE_UP_S:
+                with self._lock:
+                    if self._resend.get(cid) == (t, first):
+                        del self._resend[cid]
+            if routed and topic in self._latest:
+                self._send(channel, self._latest[topic])
+                self.counts["resent"] += 1
+            elif not routed and now - t > RESEND_GIVE_UP_S:
+                self.counts["resends_given_up"] += 1
 
     def _display_wanted(self) -> bool:
         """Whether a client subscribes to a stream drawn as it comes (or one is not known or advertised yet)."""
         topics = self.follower.display_topics
         return not topics or any(t not in self._channels or self._channels[t].has_sinks() for t in topics)
 
-    def _next_display(self) -> float:
-        """Seconds the worker may sleep: until the held streams' turn, else half a second."""
+    def _next_wait(self) -> float:
+        """Seconds the worker may sleep: a little while a resend waits for its channel's routing, until the held
+        streams' turn, else half a second."""
+        if self._resend:
+            return 0.02
         if self.follower.display_pending:
             return max(self._shown_at + self._period - time.monotonic(), 0.0)
         return 0.5
@@ -298,8 +344,17 @@ class LiveServer:
     def _subscribed(self, client_id: int, channel_id: int) -> None:
         with self._lock:
             self._clients.add(client_id)
-            self._resend.add(channel_id)
+            n = self._subscribers.get(channel_id, 0)
+            self._subscribers[channel_id] = n + 1
+            self._resend[channel_id] = (time.monotonic(), n == 0)
         self._wake.set()
+
+    def _unsubscribed(self, channel_id: int) -> None:
+        with self._lock:
+            n = max(self._subscribers.get(channel_id, 0) - 1, 0)
+            self._subscribers[channel_id] = n
+            if n == 0:   # its client left (or unsubscribed) before the resend: nobody to wait for
+                self._resend.pop(channel_id, None)
 
 
 class _Listener:
@@ -312,4 +367,4 @@ class _Listener:
         self._server._subscribed(client.id, channel.id)
 
     def on_unsubscribe(self, client, channel) -> None:
-        return None
+        self._server._unsubscribed(channel.id)
