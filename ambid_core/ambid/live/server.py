@@ -52,8 +52,9 @@ FLUSH_S = 0.5
 
 #: Seconds after a second client subscribes to a channel before the channel's latest message is resent. The SDK
 #: calls the listener's on_subscribe before it routes the channel to the client (foxglove-sdk's
-#: ConnectedClient::on_subscribe, then Context::subscribe_channels): a message logged in between misses the
-#: client. For a channel's first subscriber the routing shows (has_sinks()); for another one nothing does.
+#: ConnectedClient::on_subscribe, then Context::subscribe_channels; foxglove-sdk pull request 533, open): a message
+#: logged in between misses the client. For a channel's first subscriber the routing shows (has_sinks()); for
+#: another one nothing does.
 SETTLE_S = 0.2
 
 #: Seconds a resend waits for its channel to be routed to a client before it is given up.
