@@ -57,6 +57,18 @@ def endpoint_node(info) -> str | None:
     return f"{info.node_namespace.rstrip('/')}/{info.node_name}"
 
 
+def not_subscribed(node: Node, topic: str, names) -> list[str]:
+    """Those of ``names`` (nodes in ``node``'s namespace) that ``node``'s graph does not show subscribed to
+    ``topic`` yet.
+
+    By name, not by count: any other listener (a ``ros2 topic echo``, a monitor, a test's) would otherwise stand
+    in for a node that has not subscribed yet, and a loop started then would lose that node the first blocks of
+    a volatile topic."""
+    ns = node.get_namespace().rstrip("/")
+    have = {i.node_name for i in node.get_subscriptions_info_by_topic(topic) if i.node_namespace.rstrip("/") == ns}
+    return [n for n in names if n not in have]
+
+
 def unnamed_endpoint(info) -> str:
     """An endpoint whose node the graph does not know yet, named by its GID."""
     return f"publisher {format_gid(bytes(info.endpoint_gid[:GID_BYTES]))} ({UNNAMED})"

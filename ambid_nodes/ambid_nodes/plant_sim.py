@@ -84,7 +84,7 @@ from ambid_msgs.msg import ExcitationDesign, PlantDescription, Sample, SampleBlo
 from ambid_nodes import qos
 from ambid_nodes.conversions import (BadMessage, block_msg, check_design, check_excitation_block, statespace_to_msg,
                                      status_msg, time_msg)
-from ambid_nodes.identity import LoopPartner
+from ambid_nodes.identity import LoopPartner, not_subscribed
 from ambid_nodes.session_node import SessionNode
 from ambid_nodes.loop_call import BoundKernel, ContextWord
 from ambid_nodes.loop_kernels import (LOOP_COUNT, LOOP_GATE, LOOP_K, LOOP_LIMIT, LOOP_NO_LIMIT, LOOP_OUT, N_PK,
@@ -101,6 +101,7 @@ LANDING_S = 0.05
 STATUS_PERIOD_S = 1.0  # wall time between status messages while the loop does not run
 STATUS_EVERY = 10_000  # while it runs: a status at the first block end past each multiple of this sample count
 
+NONE = "none"  # an empty name list's one entry (an empty list parameter would have no type)
 START_RETRY_S = 0.25  # wall time between re-sends of y[0] until the controller answers
 # message constants, read once: the per-sample path must not pay rosidl's class properties
 RUNNING, DONE, FAILED, IDLE = (SessionStatus.STATE_RUNNING, SessionStatus.STATE_DONE, SessionStatus.STATE_FAILED,
@@ -269,6 +270,11 @@ class PlantSim(SessionNode):
             self, "measurement_readers", 0,
             "readers of the measurement the loop waits to be matched with before y[0] (a volatile topic: a reader "
             "matched later misses the first blocks)", 0, 1000)
+        # by name too: the count alone is met by any other listener (a monitor, a test's) in place of one of them
+        self.measurement_reader_nodes = [n for n in declare(
+            self, "measurement_reader_nodes", [NONE],
+            "nodes (names in the plant's namespace) the loop waits to see subscribed to the measurement before "
+            "y[0], besides the count; [none]: none") if n != NONE]
         self.join_session()
         return rig_file, nonlinear
 
@@ -296,6 +302,7 @@ class PlantSim(SessionNode):
         # session, once the roster names the session's controller (whose currents alone are taken)
         if (self.pub_y.get_subscription_count() < 1 or self.sub_ic.get_publisher_count() < 1
                 or self.pub_block.get_subscription_count() < self.measurement_readers
+                or not_subscribed(self, self.pub_block.topic_name, self.measurement_reader_nodes)
                 or not self.controller.known):
             return
         self.start_timer.cancel()

@@ -23,7 +23,7 @@ from rclpy.node import Node
 from ambid_msgs.msg import SampleBlock, SessionEvent, SessionStatus
 from ambid_nodes import qos
 from ambid_nodes.conversions import BadMessage, decode_message
-from ambid_nodes.identity import SessionIdentity
+from ambid_nodes.identity import SessionIdentity, not_subscribed
 
 # the topics of a session (relative to its namespace) a foreign publisher can reach
 SESSION_TOPICS = ("displacement", "control_current", "measurement", "excitation", "excitation/design",
@@ -109,15 +109,9 @@ class SessionWatch(Node):
             self.events.append(msg)
 
     def subscribed(self, topic: str, nodes) -> list[str]:
-        """Those of ``nodes`` (names in the watch's namespace) the graph does not show subscribed to ``topic`` yet.
-
-        By name, not by count: any other listener (a ``ros2 topic echo``, a monitor, a test's) would otherwise
-        stand in for a node that has not subscribed yet, and the loop would start while that node still misses
-        the first blocks of a volatile topic."""
-        ns = self.get_namespace().rstrip("/")
-        have = {i.node_name for i in self.get_subscriptions_info_by_topic(topic)
-                if i.node_namespace.rstrip("/") == ns}
-        return [n for n in nodes if n not in have]
+        """Those of ``nodes`` (names in the watch's namespace) the graph does not show subscribed to ``topic`` yet
+        (:func:`ambid_nodes.identity.not_subscribed`)."""
+        return not_subscribed(self, topic, nodes)
 
     def hears_the_plant(self) -> bool:
         """Its measurement subscription is matched to a publisher (the plant's): it hears every block from the

@@ -454,3 +454,26 @@ def test_loop_starts_when_the_first_sample_is_missed(ros):
     ctrl = ros.add(LateController(ros.context))
     assert ros.spin_until(plant.finished.done, timeout_s=60)
     assert ctrl.missed and plant.finished.result()["state"] == "done"
+
+
+def test_the_loop_waits_for_its_named_readers_not_for_any_listener(ros):
+    """A listener the session does not wait for (a monitor, a test's) makes up plant_sim's count of measurement
+    readers as well as the recorder would: the plant waits to see the named reader subscribed too, and the reader
+    gets the measurement from sample 0 (a drill's recorder, matched after a test's listener, once lost the first
+    8000 samples of its session so)."""
+    monitor = ros.add(Node("monitor", namespace=NS, context=ros.context))
+    monitor.create_subscription(SampleBlock, "measurement", lambda m: None, qos.subscription(qos.BLOCKS))
+    plant = ros.add(PlantSim(namespace=NS, context=ros.context, parameter_overrides=[
+        Parameter("sim_seconds", value=0.2), Parameter("measurement_readers", value=1),
+        Parameter("measurement_reader_nodes", value=["recorder"])]))
+    ctrl = ros.add(PositionController(namespace=NS, context=ros.context))
+    ros.matched(monitor, ctrl, to=plant)
+    ros.spin_until(lambda: False, 1.0, scale=False)   # 20 of the plant's start checks: all but the name are met
+    assert plant.k == 0 and not plant.finished.done()
+    got: list = []
+    recorder = ros.add(Node("recorder", namespace=NS, context=ros.context))
+    recorder.create_subscription(SampleBlock, "measurement", got.append, qos.subscription(qos.BLOCKS))
+    assert ros.spin_until(plant.finished.done, timeout_s=120)
+    assert plant.finished.result()["state"] == "done"
+    assert ros.spin_until(lambda: sum(b.n_samples for b in got) == 2000, 30)
+    assert min(b.first_index for b in got) == 0

@@ -18,6 +18,7 @@ from rclpy.node import Node
 from ambid_msgs.msg import ControllerDescription, PlantDescription
 from ambid_msgs.msg import ExcitationDesign as DesignMessage
 from ambid_nodes import qos
+from ambid_nodes.identity import not_subscribed
 from ambid_nodes.node_main import gc_frozen
 from ambid_nodes.running.domain import session_domain_id
 from ambid_nodes.running.layout import Layout, announce_live
@@ -97,10 +98,13 @@ class ComposedLayout(Layout):
             return
         remote = announce_live(self.live)
         recorder = self.recorder
-        for pub, who in ((self.plant.pub_block, "the measurement"), (self.generator.pub_design, "the excitation design")):
+        # the live view by name too: another listener of this topic (a monitor) would make up its count
+        for node, pub, who in ((self.plant, self.plant.pub_block, "the measurement"),
+                               (self.generator, self.generator.pub_design, "the excitation design")):
             topic = pub.topic_name
-            self.spin_until(lambda pub=pub, topic=topic: topic in recorder.subs and
-                            pub.get_subscription_count() >= local_readers(self.nodes, topic) + remote, 30,
+            self.spin_until(lambda node=node, pub=pub, topic=topic: topic in recorder.subs and
+                            pub.get_subscription_count() >= local_readers(self.nodes, topic) + remote and
+                            not not_subscribed(node, topic, ["live_view"] * remote), 30,
                             f"every reader of {who}" + (" (the live view among them)" if remote else ""))
         self.spin_until(lambda: self.generator.plant_known, 30, "the plant description at the generator")
 

@@ -175,10 +175,13 @@ class ProcessesLayout(Layout):
                     "autostart": self.loop_only, "stop_after_samples": self.total, **self.rig_param, **self.session}
         # the loop waits until the plant's own writer is matched with every reader the run waits for (the
         # graph showing a subscription by name is not yet the plant's writer matched with it); only plant_sim's
-        # process sees its writer's matches (the composed layout, holding the writer, counts them itself)
-        readers = 0 if self.loop_only else len(self.measurement_listeners()) + 1   # + the watch
+        # process sees its writer's matches (the composed layout, holding the writer, counts them itself); by name
+        # too, since another listener (a monitor, a test's) matched first would make up the count
+        named = [] if self.loop_only else self.measurement_listeners()
+        readers = len(named) + (not self.loop_only)   # + the watch
         return {"sim_seconds": self.sim_seconds, "seed": cfg.seed, "nonlinear_magnets": cfg.nonlinear_magnets,
-                "measurement_readers": readers, **self.rig_param, **self.session}
+                "measurement_readers": readers, **({"measurement_reader_nodes": named} if named else {}),
+                **self.rig_param, **self.session}
 
     def measurement_listeners(self) -> list[str]:
         """The session's nodes that listen to the measurement from its first block, by name."""
