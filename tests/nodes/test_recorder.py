@@ -222,9 +222,11 @@ def test_sigkill_leaves_a_file_inspect_recovers(ros, ros_env, tmp_path, capsys):
         ros.matched(watcher, to=plant)
         spin_or_fail(ros, lambda: plant.pub_block.get_subscription_count() >= 2, "the recorder to subscribe", rec)
         ros.add(PositionController(namespace=NS, context=ros.context))
-        # kill mid-run, once a chunk was flushed after blocks were recorded: that chunk (or an
-        # earlier one) holds blocks; chunks flushed before the first block arrived hold none
-        spin_or_fail(ros, lambda: watcher.recorded(MEAS) >= 3, "recorded measurement blocks", rec)
+        # kill mid-run, once a chunk was flushed after blocks and the plant's description were recorded: that
+        # chunk (or an earlier one) holds them; chunks flushed before they arrived hold none (the description's
+        # reader may match after the measurement's, and its message come after the first blocks)
+        spin_or_fail(ros, lambda: watcher.recorded(MEAS) >= 3 and watcher.recorded(f"{NS}/plant/description") >= 1,
+                     "recorded measurement blocks and the plant's description", rec)
         chunks_then = watcher.status["chunks"]
         spin_or_fail(ros, lambda: watcher.status["chunks"] > max(chunks_then, 1), "flushed measurement blocks",
                      rec)
