@@ -282,7 +282,7 @@ class Target:
 
     Attributes read by tests and tools: ``address`` (bound host, port), ``state``, ``k`` (samples
     done), ``rx_foreign``, ``rx_malformed``, ``refused`` (by reason), ``link``, ``late_excitation``,
-    ``overruns``, ``muted_at``.
+    ``overruns``, ``muted_at``, ``quiet_from``.
     """
 
     def __init__(self, cfg: TargetConfig, stop: threading.Event | None = None) -> None:
@@ -336,6 +336,8 @@ class Target:
         self.k_start = 0
         self.behind = False
         self.muted_at: float | None = None  # when the mute began (monotonic) [s]
+        self.quiet_from: float | None = None  # when the last datagram before the mute left (monotonic) [s]
+        self.sent_at: float | None = None  # when the last datagram left (monotonic) [s]
         self.muted_until: float | None = None
         self.started_wall: float | None = None
         self.rows: list[tuple] = []  # (y, u, ic, r) of the samples not yet sent; plain floats: cheap per sample
@@ -361,6 +363,7 @@ class Target:
         for d in datagrams:
             try:
                 self.sock.sendto(d, self.bridge_addr)
+                self.sent_at = time.monotonic()
             except OSError:
                 pass  # nobody listening yet: UDP is fire and forget
 
@@ -513,6 +516,7 @@ class Target:
             if self.cfg.mute_at == k:
                 self.muted_at = time.monotonic()
                 self.muted_until = self.muted_at + self.cfg.mute_seconds
+                self.quiet_from = self.sent_at
             if len(self.rows) == block:
                 self.send_block()
             if self.cfg.samples and self.k >= self.cfg.samples:
