@@ -277,15 +277,16 @@ class LiveServer:
             topic = self._by_id.get(cid)
             channel = self._channels.get(topic)
             routed = channel is not None and (channel.has_sinks() if first else now - t >= SETTLE_S)
-            if routed or now - t > RESEND_GIVE_UP_S:
-                with self._lock:
-                    if self._resend.get(cid) == (t, first):
-                        del self._resend[cid]
-            if routed and topic in self._latest:
+            if not routed and now - t <= RESEND_GIVE_UP_S:
+                continue   # asked again at the worker's next wake
+            with self._lock:   # unless the channel was subscribed to again meanwhile
+                if self._resend.get(cid) == (t, first):
+                    del self._resend[cid]
+            if not routed:
+                self.counts["resends_given_up"] += 1
+            elif topic in self._latest:
                 self._send(channel, self._latest[topic])
                 self.counts["resent"] += 1
-            elif not routed and now - t > RESEND_GIVE_UP_S:
-                self.counts["resends_given_up"] += 1
 
     def _display_wanted(self) -> bool:
         """Whether a client subscribes to a stream drawn as it comes (or one is not known or advertised yet)."""
